@@ -1,0 +1,239 @@
+"""One typed configuration, built from ``params.yaml`` and validated before any work starts."""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import types
+import typing
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal, get_args, get_origin
+
+import yaml
+
+from .errors import ConfigError
+
+
+@dataclass(frozen=True)
+class SyntheticConfig:
+    """The generated KITTI-format stereo set."""
+
+    seed: int = 2017
+    drives: int = 12
+    train_pairs: int = 1200
+    eval_frames: int = 40
+    height: int = 125
+    width: int = 414
+
+
+@dataclass(frozen=True)
+class DataConfig:
+    source: Literal["synthetic", "kitti"] = "synthetic"
+    root: str = "data/kitti"
+    height: int = 64
+    width: int = 192
+    gt: Literal["disp_noc_0", "disp_occ_0"] = "disp_noc_0"
+    synthetic: SyntheticConfig = field(default_factory=SyntheticConfig)
+
+
+@dataclass(frozen=True)
+class ModelConfig:
+    width_multiplier: float = 0.25
+    init_disparity: float = 0.04
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    seed: int = 0
+    epochs: int = 8
+    batch_size: int = 8
+    learning_rate: float = 1e-3
+    num_workers: int = 0
+    augment: bool = True
+    device: Literal["cpu", "cuda", "auto"] = "cpu"
+    threads: int = 2
+
+
+@dataclass(frozen=True)
+class LossConfig:
+    alpha: float = 0.85
+    smoothness_weight: float = 0.1
+    lr_weight: float = 1.0
+    padding_mode: Literal["border", "zeros"] = "border"
+
+
+@dataclass(frozen=True)
+class SSIMConfig:
+    kernel_size: int = 3
+    padding: Literal["valid", "reflect"] = "valid"
+
+
+@dataclass(frozen=True)
+class MSSSIMConfig:
+    kernel_size: int = 3
+    levels: int = 4
+    weights: Literal["wang", "equal", "learned"] = "wang"
+
+
+@dataclass(frozen=True)
+class VariantConfig:
+    appearance: Literal["ssim", "msssim"] = "ssim"
+
+
+@dataclass(frozen=True)
+class EvalConfig:
+    caps: tuple[float, ...] = (80.0, 50.0)
+    min_depth: float = 1e-3
+    mask_gt_beyond_cap: bool = False
+    post_process: bool = True
+    dense_gt_fraction: float = 0.9
+
+
+@dataclass(frozen=True)
+class Params:
+    data: DataConfig = field(default_factory=DataConfig)
+    model: ModelConfig = field(default_factory=ModelConfig)
+    train: TrainConfig = field(default_factory=TrainConfig)
+    loss: LossConfig = field(default_factory=LossConfig)
+    ssim: SSIMConfig = field(default_factory=SSIMConfig)
+    msssim: MSSSIMConfig = field(default_factory=MSSSIMConfig)
+    variants: dict[str, VariantConfig] = field(
+        default_factory=lambda: {"ssim": VariantConfig("ssim"), "msssim": VariantConfig("msssim")}
+    )
+    eval: EvalConfig = field(default_factory=EvalConfig)
+
+    def variant(self, name: str) -> VariantConfig:
+        """The variant called ``name``, or a ConfigError listing the known ones."""
+        if name not in self.variants:
+            raise ConfigError(f"variants: unknown variant {name!r}; known: {sorted(self.variants)}")
+        return self.variants[name]
+
+
+def _convert(value: Any, tp: Any, key: str) -> Any:
+    """Convert a YAML value to type ``tp`` or raise a ConfigError naming ``key``."""
+    origin = get_origin(tp)
+    if dataclasses.is_dataclass(tp):
+        if not isinstance(value, dict):
+            raise ConfigError(f"{key}: expected a mapping, got {type(value).__name__}")
+        return _build(tp, value, key)
+    if origin is Literal:
+        if value not in get_args(tp):
+            raise ConfigError(f"{key}: {value!r} is not one of {list(get_args(tp))}")
+        return value
+    if origin is tuple:
+        (inner, _) = get_args(tp)
+        if not isinstance(value, (list, tuple)) or not value:
+            raise ConfigError(f"{key}: expected a non-empty list, got {value!r}")
+        return tuple(_convert(v, inner, f"{key}[{i}]") for i, v in enumerate(value))
+    if origin is dict:
+        _, inner = get_args(tp)
+        if not isinstance(value, dict) or not value:
+            raise ConfigError(f"{key}: expected a non-empty mapping, got {value!r}")
+        return {str(k): _convert(v, inner, f"{key}.{k}") for k, v in value.items()}
+    if origin in (typing.Union, types.UnionType):
+        if value is None and type(None) in get_args(tp):
+            return None
+        (inner,) = [a for a in get_args(tp) if a is not type(None)]
+        return _convert(value, inner, key)
+    if tp is bool:
+        if not isinstance(value, bool):
+            raise ConfigError(f"{key}: expected true/false, got {value!r}")
+        return value
+    if tp is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ConfigError(f"{key}: expected an integer, got {value!r}")
+        return value
+    if tp is float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ConfigError(f"{key}: expected a number, got {value!r}")
+        return float(value)
+    if tp is str:
+        if not isinstance(value, str):
+            raise ConfigError(f"{key}: expected a string, got {value!r}")
+        return value
+    raise TypeError(f"unsupported config type {tp} at {key}")  # programming error
+
+
+def _build(cls: type, raw: dict, prefix: str) -> Any:
+    hints = typing.get_type_hints(cls)
+    names = {f.name for f in dataclasses.fields(cls)}
+    unknown = set(raw) - names
+    if unknown:
+        where = f"{prefix}." if prefix else ""
+        raise ConfigError(f"unknown parameter(s) {sorted(where + u for u in unknown)}")
+    kwargs = {
+        name: _convert(raw[name], hints[name], f"{prefix}.{name}" if prefix else name)
+        for name in names
+        if name in raw
+    }
+    return cls(**kwargs)
+
+
+def _check(cond: bool, key: str, message: str) -> None:
+    if not cond:
+        raise ConfigError(f"{key}: {message}")
+
+
+def validate(p: Params) -> Params:
+    """Range checks that types alone cannot express; raises ConfigError naming the key."""
+    d, s = p.data, p.data.synthetic
+    # Multiples of 8 keep the 4 output scales (1, 1/2, 1/4, 1/8) exact halvings.
+    for key, size in (("data.height", d.height), ("data.width", d.width)):
+        _check(size >= 32 and size % 8 == 0, key, f"must be a multiple of 8 and >= 32, got {size}")
+    for name in ("drives", "train_pairs", "eval_frames"):
+        _check(getattr(s, name) >= 1, f"data.synthetic.{name}", "must be >= 1")
+    _check(s.drives <= s.train_pairs, "data.synthetic.drives", "must not exceed train_pairs")
+    _check(s.height >= 32 and s.width >= 64, "data.synthetic.height", "render size must be at least 32 x 64")
+    _check(p.model.width_multiplier > 0, "model.width_multiplier", "must be > 0")
+    _check(0 < p.model.init_disparity < 0.3, "model.init_disparity", "must be in (0, 0.3) (heads output 0.3*sigmoid)")
+    t = p.train
+    _check(t.epochs >= 1, "train.epochs", "must be >= 1")
+    _check(t.batch_size >= 1, "train.batch_size", "must be >= 1")
+    _check(t.learning_rate > 0, "train.learning_rate", f"must be > 0, got {t.learning_rate}")
+    _check(t.num_workers >= 0, "train.num_workers", "must be >= 0")
+    _check(t.threads >= 1, "train.threads", "must be >= 1")
+    _check(0 <= p.loss.alpha <= 1, "loss.alpha", "must be in [0, 1]")
+    _check(p.loss.smoothness_weight >= 0, "loss.smoothness_weight", "must be >= 0")
+    _check(p.loss.lr_weight >= 0, "loss.lr_weight", "must be >= 0")
+    for sec in ("ssim", "msssim"):
+        k = getattr(p, sec).kernel_size
+        _check(k >= 1 and k % 2 == 1, f"{sec}.kernel_size", f"must be a positive odd integer, got {k}")
+    m = p.msssim
+    _check(1 <= m.levels <= 5, "msssim.levels", f"must be in 1..5, got {m.levels}")
+    _check(m.kernel_size <= min(d.height, d.width), "msssim.kernel_size", "must not exceed the input image")
+    # Windows use "same" padding, so a level only needs to exist: the coarsest level of the
+    # coarsest training scale (input / 8) must keep at least one pixel.
+    coarsest = min(d.height, d.width) // 8 // 2 ** (m.levels - 1)
+    _check(
+        coarsest >= 1,
+        "msssim.levels",
+        f"{m.levels} levels do not fit the coarsest training scale ({d.height // 8}x{d.width // 8} px)",
+    )
+    e = p.eval
+    _check(all(c > e.min_depth for c in e.caps), "eval.caps", "every cap must exceed eval.min_depth")
+    _check(e.min_depth > 0, "eval.min_depth", "must be > 0")
+    _check(0 < e.dense_gt_fraction <= 1, "eval.dense_gt_fraction", "must be in (0, 1]")
+    return p
+
+
+def params_from_dict(raw: dict) -> Params:
+    """Build and validate :class:`Params` from a parsed params.yaml mapping."""
+    if not isinstance(raw, dict):
+        raise ConfigError("params: expected a mapping at the top level")
+    return validate(_build(Params, raw, ""))
+
+
+def load_params(path: str | os.PathLike = "params.yaml") -> Params:
+    """Read ``params.yaml`` into a validated :class:`Params` (one ConfigError naming the key)."""
+    path = Path(path)
+    try:
+        raw = yaml.safe_load(path.read_text())
+    except FileNotFoundError:
+        raise ConfigError(f"{path}: no such params file") from None
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"{path}: not valid YAML: {exc}") from None
+    try:
+        return params_from_dict(raw or {})
+    except ConfigError as exc:
+        raise ConfigError(f"{path}: {exc}") from None

@@ -1,0 +1,113 @@
+"""Where the data lives, and the indexes the training and evaluation stages read.
+
+Both data sources share one KITTI-format layout under ``data.root``:
+``raw/`` (KITTI raw: ``<date>/<drive>_sync/image_02|image_03/data``) and ``kitti2015/``
+(``training/image_2``, ``image_3``, ``disp_noc_0``, ``disp_occ_0``, ``obj_map``), plus the
+split lists. Everything after this module reads only the indexes, never the source.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import pandas as pd
+
+from ..config import Params
+from ..errors import ConfigError, DataError
+from ..io import atomic_path, write_json
+from . import kitti
+from .pairs import index_pairs
+
+EVAL_COLUMNS = ("frame", "left", "right", "disp", "obj_map", "focal", "baseline")
+
+
+@dataclass(frozen=True)
+class Layout:
+    """Paths of one data source's KITTI-format tree."""
+
+    raw_root: Path
+    train_split: Path
+    kitti2015_root: Path
+    eval_split: Path
+    rois: Path
+
+
+def layout(params: Params) -> Layout:
+    """The paths for ``params.data.source``."""
+    root = Path(params.data.root)
+    if params.data.source == "synthetic":
+        return Layout(root / "raw", root / "train_files.txt", root / "kitti2015", root / "kitti2015" / "test_files.txt", root / "rois.csv")
+    raise ConfigError(
+        "data.source: 'kitti' needs the KITTI download and indexing stages (issue #4), which are "
+        "not built yet; use data.source: synthetic"
+    )
+
+
+def training_gt_path(left_image: Path) -> Path:
+    """GT disparity of a synthetic training frame: ``image_02/data/X.png`` -> ``disp_02/data/X.png``.
+
+    Real KITTI raw drives have no dense GT; only the synthetic set writes ``disp_02``.
+    """
+    return left_image.parent.parent.parent / "disp_02" / "data" / (left_image.stem + ".png")
+
+
+def build_eval_index(kitti2015_root: Path, split_file: Path, gt: str) -> pd.DataFrame:
+    """One row per KITTI 2015 evaluation frame: image/GT paths, focal and baseline."""
+    rows, missing = [], []
+    for left_rel, _ in kitti.read_split(split_file):
+        frame = Path(left_rel).stem
+        paths = kitti.kitti2015_paths(kitti2015_root, frame, gt)
+        left = kitti.resolve_image(kitti2015_root, left_rel)
+        right = kitti.resolve_image(kitti2015_root, str(Path(left_rel).parent.parent / "image_3" / Path(left_rel).name))
+        if left is None or right is None or not Path(paths["disp"]).exists():
+            missing.append(frame)
+            continue
+        width = kitti.read_image(left).shape[1]
+        focal, baseline = kitti.focal_and_baseline(width, paths["calib"])
+        obj_map = paths["obj_map"] if Path(paths["obj_map"]).exists() else ""
+        rows.append((frame, str(left), str(right), str(paths["disp"]), str(obj_map), focal, baseline))
+    if not rows:
+        raise DataError(f"{split_file}: no evaluation frame with images and {gt} GT under {kitti2015_root}")
+    if missing:
+        raise DataError(f"{split_file}: {len(missing)} evaluation frame(s) missing under {kitti2015_root}: {missing[:10]}")
+    return pd.DataFrame(rows, columns=list(EVAL_COLUMNS))
+
+
+def build_indexes(params: Params, out_dir: str | os.PathLike) -> dict:
+    """Write ``train_pairs.txt``, ``eval_frames.csv`` and ``report.json`` to ``out_dir``."""
+    lay = layout(params)
+    out = Path(out_dir)
+    pairs = index_pairs(lay.train_split, lay.raw_root)
+    kitti.write_split(out / "train_pairs.txt", [(str(a), str(b)) for a, b in pairs.pairs])
+    frames = build_eval_index(lay.kitti2015_root, lay.eval_split, params.data.gt)
+    write_eval_index(out / "eval_frames.csv", frames)
+    report = {
+        "source": params.data.source,
+        "train_pairs_listed": len(pairs.pairs) + len(pairs.missing),
+        "train_pairs_found": len(pairs.pairs),
+        "train_pairs_missing": [f"{a} {b}" for a, b in pairs.missing],
+        "eval_frames": len(frames),
+        "gt": params.data.gt,
+    }
+    write_json(out / "report.json", report)
+    return report
+
+
+def write_eval_index(path: Path, frames: pd.DataFrame) -> None:
+    """Write the evaluation index CSV atomically."""
+    with atomic_path(path) as tmp:
+        frames.to_csv(tmp, index=False)
+
+
+def read_eval_index(path: str | os.PathLike) -> pd.DataFrame:
+    """Read the evaluation index written by :func:`build_indexes`."""
+    path = Path(path)
+    if not path.exists():
+        raise DataError(f"{path}: no evaluation index (run the index stage)")
+    frames = pd.read_csv(path, dtype={"frame": str, "obj_map": str}, keep_default_na=False)
+    missing = set(EVAL_COLUMNS) - set(frames.columns)
+    if missing:
+        raise DataError(f"{path}: missing columns {sorted(missing)}")
+    return frames

@@ -1,0 +1,269 @@
+"""Readers and writers for KITTI's on-disk formats (raw data, KITTI 2015 stereo, split lists).
+
+Every reader raises :class:`~msdepth.errors.DataError` with one message naming the file and the
+problem, so a broken download is reported once and clearly. The same functions read the real
+KITTI tree and the synthetic one (:mod:`msdepth.data.synthetic` writes these formats).
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pandas as pd
+
+from ..errors import DataError
+from ..io import atomic_path, write_png, write_text
+
+# Monodepth's width -> focal table (px) for the four KITTI raw image widths, and its baseline (m).
+WIDTH_TO_FOCAL: dict[int, float] = {1242: 721.5377, 1241: 718.856, 1224: 707.0493, 1238: 718.3351}
+KITTI_BASELINE = 0.54
+
+ROI_CLASSES = ("car", "windshield", "glass", "sign")
+ROI_COLUMNS = ("image", "class", "x0", "y0", "x1", "y1")
+
+# PNG files end with an IEND chunk; JPEG files with an EOI marker. OpenCV decodes some truncated
+# files without complaint (grey bottom rows), so truncation is checked on the bytes themselves.
+_PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
+_PNG_END = b"IEND\xaeB`\x82"
+_JPEG_MAGIC = b"\xff\xd8"
+_JPEG_END = b"\xff\xd9"
+
+PathLike = str | os.PathLike
+
+
+def _decode(path: PathLike, what: str) -> np.ndarray:
+    """Read and decode an image file unchanged (depth and channels kept), or raise DataError."""
+    path = Path(path)
+    if not path.is_file():
+        raise DataError(f"{path}: no such {what} file")
+    data = path.read_bytes()
+    if not data:
+        raise DataError(f"{path}: {what} file is empty (0 bytes)")
+    if data.startswith(_PNG_MAGIC) and not data.rstrip(b"\x00").endswith(_PNG_END):
+        raise DataError(f"{path}: truncated PNG (no IEND chunk at the end)")
+    if data.startswith(_JPEG_MAGIC) and _JPEG_END not in data[-64:]:
+        raise DataError(f"{path}: truncated JPEG (no end-of-image marker)")
+    img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+    if img is None:
+        raise DataError(f"{path}: cannot decode the {what} (corrupt or not an image)")
+    return img
+
+
+def read_image(path: PathLike) -> np.ndarray:
+    """Read an 8-bit colour image as uint8 RGB ``(H, W, 3)``."""
+    img = _decode(path, "image")
+    if img.dtype != np.uint8 or img.ndim != 3 or img.shape[2] != 3:
+        channels = 1 if img.ndim == 2 else img.shape[2]
+        raise DataError(f"{path}: expected an 8-bit 3-channel image, got {img.dtype} with {channels} channel(s)")
+    return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+
+
+def read_disparity(path: PathLike) -> np.ndarray:
+    """Read a KITTI disparity PNG (uint16, value / 256) as float32 pixels; 0 marks no measurement."""
+    img = _decode(path, "disparity")
+    if img.dtype != np.uint16 or img.ndim != 2:
+        channels = 1 if img.ndim == 2 else img.shape[2]
+        raise DataError(
+            f"{path}: a KITTI disparity map must be a 16-bit single-channel PNG, "
+            f"got {img.dtype} with {channels} channel(s)"
+        )
+    return img.astype(np.float32) / 256.0
+
+
+def write_disparity(path: PathLike, disp: np.ndarray) -> None:
+    """Write a disparity map (pixels, 0 = invalid) as a KITTI uint16 x256 PNG, atomically.
+
+    Positive disparities are stored as at least 1 so that a valid (if tiny) value never turns
+    into the "invalid" code 0; values beyond 255.996 px are clipped to 65535.
+    """
+    disp = np.asarray(disp, dtype=np.float64)
+    if disp.ndim != 2:
+        raise DataError(f"{path}: a disparity map must be 2-D, got shape {disp.shape}")
+    if np.isnan(disp).any() or (disp < 0).any():
+        raise DataError(f"{path}: disparity has NaN or negative values (use 0 for invalid pixels)")
+    code = np.clip(np.round(disp * 256.0), 0, 65535)
+    code[(disp > 0) & (code == 0)] = 1
+    write_png(path, code.astype(np.uint16))
+
+
+def read_obj_map(path: PathLike) -> np.ndarray:
+    """Read a KITTI 2015 ``obj_map`` PNG: uint8 instance ids ``(H, W)``, 0 = background."""
+    img = _decode(path, "object map")
+    if img.dtype != np.uint8 or img.ndim != 2:
+        channels = 1 if img.ndim == 2 else img.shape[2]
+        raise DataError(
+            f"{path}: an object map must be an 8-bit single-channel PNG, got {img.dtype} with {channels} channel(s)"
+        )
+    return img
+
+
+def read_calib(path: PathLike) -> dict[str, np.ndarray]:
+    """Parse a KITTI calibration text file into ``{key: float64 vector}``.
+
+    Reads both the raw-data ``calib_cam_to_cam.txt`` (``P_rect_02``, ``S_rect_02``, ...) and the
+    object-benchmark ``calib.txt`` (``P2``, ``P3``, ...). Non-numeric entries such as
+    ``calib_time`` are skipped. Matrices stay flat (row-major); reshape as needed.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise DataError(f"{path}: no such calibration file")
+    calib: dict[str, np.ndarray] = {}
+    for line in path.read_text(errors="replace").splitlines():
+        key, sep, values = line.partition(":")
+        if not sep or not key.strip():
+            continue
+        try:
+            vector = np.array([float(v) for v in values.split()], dtype=np.float64)
+        except ValueError:
+            continue  # e.g. "calib_time: 09-Jan-2012 13:57:47"
+        if vector.size:
+            calib[key.strip()] = vector
+    if not calib:
+        raise DataError(f"{path}: no numeric 'key: values' entries (not a KITTI calibration file)")
+    return calib
+
+
+def stereo_from_calib(calib: dict[str, np.ndarray]) -> tuple[float, float]:
+    """``(focal_px, baseline_m)`` of the rectified colour pair (camera 2 left, camera 3 right)."""
+    for left, right in (("P_rect_02", "P_rect_03"), ("P2", "P3")):
+        if left in calib and right in calib:
+            if calib[left].size != 12 or calib[right].size != 12:
+                raise DataError(
+                    f"calibration: {left}/{right} must have 12 values (3x4), "
+                    f"got {calib[left].size}/{calib[right].size}"
+                )
+            p2, p3 = calib[left].reshape(3, 4), calib[right].reshape(3, 4)
+            focal = float(p2[0, 0])
+            if focal <= 0:
+                raise DataError(f"calibration: {left} has a non-positive focal length {focal}")
+            return focal, float((p2[0, 3] - p3[0, 3]) / focal)
+    raise DataError(f"calibration: no P_rect_02/P_rect_03 or P2/P3 projections (keys: {sorted(calib)})")
+
+
+def focal_and_baseline(width: int, calib_path: PathLike | None = None) -> tuple[float, float]:
+    """Focal (px) and baseline (m) for a frame of ``width`` pixels, Monodepth's way first.
+
+    A KITTI width uses Monodepth's table and 0.54 m (as the published numbers do); any other width
+    (e.g. the synthetic set's) needs its calibration file.
+    """
+    if width in WIDTH_TO_FOCAL:
+        return WIDTH_TO_FOCAL[width], KITTI_BASELINE
+    if calib_path is not None and Path(calib_path).is_file():
+        try:
+            return stereo_from_calib(read_calib(calib_path))
+        except DataError as exc:
+            raise DataError(f"{calib_path}: {exc}") from None
+    raise DataError(
+        f"width {width} is not a KITTI image width ({sorted(WIDTH_TO_FOCAL)}) and no calibration file "
+        f"was found{f' at {calib_path}' if calib_path is not None else ''}"
+    )
+
+
+def read_split(path: PathLike) -> list[tuple[str, str]]:
+    """Read a split list: one ``left right`` pair of relative paths per line (blank lines skipped)."""
+    path = Path(path)
+    if not path.is_file():
+        raise DataError(f"{path}: no such split file")
+    pairs: list[tuple[str, str]] = []
+    for number, line in enumerate(path.read_text().splitlines(), start=1):
+        fields = line.split()
+        if not fields:
+            continue
+        if len(fields) != 2:
+            raise DataError(
+                f"{path}:{number}: expected 'left right' (two paths), "
+                f"got {len(fields)} field(s): {line.strip()!r}"
+            )
+        pairs.append((fields[0], fields[1]))
+    if not pairs:
+        raise DataError(f"{path}: split file lists no pairs")
+    return pairs
+
+
+def write_split(path: PathLike, pairs: list[tuple[str, str]]) -> None:
+    """Write a split list (``left right`` per line), atomically."""
+    for left, right in pairs:
+        if not left or not right or any(c.isspace() for c in left + right):
+            raise DataError(f"{path}: split paths must be non-empty and contain no whitespace: {left!r} {right!r}")
+    write_text(path, "".join(f"{left} {right}\n" for left, right in pairs))
+
+
+def resolve_image(root: Path, rel: str) -> Path | None:
+    """The file on disk for a listed image: ``rel`` as given, else as ``.png``, else as ``.jpg``.
+
+    The Monodepth lists name ``.jpg`` (their converted copy); a KITTI download holds ``.png``.
+    """
+    path = Path(root) / rel
+    for candidate in (path, path.with_suffix(".png"), path.with_suffix(".jpg")):
+        if candidate.is_file():
+            return candidate
+    return None
+
+
+def _check_rois(df: pd.DataFrame, path: PathLike) -> pd.DataFrame:
+    """Validate an ROI table and return it with normalised dtypes, or raise DataError naming the row."""
+    missing = [c for c in ROI_COLUMNS if c not in df.columns]
+    if missing:
+        raise DataError(f"{path}: missing ROI column(s) {missing}; expected {list(ROI_COLUMNS)}")
+    df = df.loc[:, list(ROI_COLUMNS)].copy()
+    coords = ["x0", "y0", "x1", "y1"]
+    # Row numbers in messages are CSV line numbers (header is line 1).
+    for i, row in enumerate(df.itertuples(index=False), start=2):
+        values = [getattr(row, c) for c in coords]
+        try:
+            numbers = [float(v) for v in values]
+        except (TypeError, ValueError):
+            raise DataError(f"{path}: row {i}: box coordinates must be integers, got {values}") from None
+        if not all(np.isfinite(n) and n == int(n) for n in numbers):
+            raise DataError(f"{path}: row {i}: box coordinates must be integers, got {values}")
+        x0, y0, x1, y1 = (int(n) for n in numbers)
+        if min(x0, y0, x1, y1) < 0:
+            raise DataError(f"{path}: row {i}: negative box coordinate in {values}")
+        if x1 <= x0 or y1 <= y0:
+            raise DataError(f"{path}: row {i}: empty box (need x1 > x0 and y1 > y0), got {values}")
+        if row[1] not in ROI_CLASSES:
+            raise DataError(f"{path}: row {i}: class {row[1]!r} is not one of {list(ROI_CLASSES)}")
+        if not isinstance(row[0], str) or not row[0]:
+            raise DataError(f"{path}: row {i}: missing image name")
+    df[coords] = df[coords].astype(float).astype(np.int64)
+    df["image"] = df["image"].astype(str)
+    df["class"] = df["class"].astype(str)
+    return df.reset_index(drop=True)
+
+
+def read_rois(path: PathLike) -> pd.DataFrame:
+    """Read ROI boxes: columns image, class, x0, y0, x1, y1 (pixels; x1/y1 exclusive)."""
+    path = Path(path)
+    if not path.is_file():
+        raise DataError(f"{path}: no such ROI file")
+    try:
+        # Image names like "000000_10" must stay strings, not become numbers.
+        df = pd.read_csv(path, dtype={"image": str, "class": str}, keep_default_na=False)
+    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
+        raise DataError(f"{path}: not a readable ROI CSV: {exc}") from None
+    return _check_rois(df, path)
+
+
+def write_rois(path: PathLike, df: pd.DataFrame) -> None:
+    """Validate and write ROI boxes as CSV, atomically."""
+    df = _check_rois(df, path)
+    with atomic_path(path, suffix=".csv") as tmp:
+        df.to_csv(tmp, index=False)
+
+
+def kitti2015_paths(root: Path, frame: str, gt: str = "disp_noc_0") -> dict[str, Path]:
+    """Paths of one KITTI 2015 stereo training frame (e.g. ``"000000_10"``) under ``root``.
+
+    Keys: left, right, disp (the ``gt`` folder), obj_map, calib.
+    """
+    training = Path(root) / "training"
+    return {
+        "left": training / "image_2" / f"{frame}.png",
+        "right": training / "image_3" / f"{frame}.png",
+        "disp": training / gt / f"{frame}.png",
+        "obj_map": training / "obj_map" / f"{frame}.png",
+        "calib": training / "calib_cam_to_cam" / f"{frame.split('_')[0]}.txt",
+    }

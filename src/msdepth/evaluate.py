@@ -1,0 +1,194 @@
+"""The three evaluation suites: full image, ROI crops, gradient consistency on ROIs.
+
+Every suite reads the same inputs: predicted depth per frame (from :func:`depth_maps`),
+the GT disparity of the evaluation index, and (for the ROI suites) the ROI boxes. Metrics
+are computed per image (or per ROI) with :func:`msdepth.metrics.compute_errors`, then
+averaged, for each depth cap. Frames or ROIs without valid GT are excluded and counted.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from functools import cached_property
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pandas as pd
+
+from .config import EvalConfig
+from .data import kitti
+from .depth import clamp_depth, disparity_to_depth, pixel_disparity
+from .errors import DataError
+from .metrics import METRICS, compute_errors
+
+GRADIENTS = ("sobel_x", "sobel_y", "laplacian")
+
+
+@dataclass(frozen=True)
+class Frame:
+    """One evaluation frame: GT disparity (pixels, 0 = invalid) and its camera."""
+
+    name: str
+    gt_disp: np.ndarray
+    focal: float
+    baseline: float
+
+    @cached_property
+    def gt_depth(self) -> np.ndarray:
+        """GT depth in metres, 0 where GT is invalid."""
+        return disparity_to_depth(self.gt_disp, self.focal, self.baseline)
+
+
+def load_frames(index: pd.DataFrame) -> list[Frame]:
+    """Read the GT disparity of every row of the evaluation index."""
+    return [
+        Frame(row.frame, kitti.read_disparity(row.disp), float(row.focal), float(row.baseline))
+        for row in index.itertuples()
+    ]
+
+
+def depth_maps(disparities: np.ndarray, frames: list[Frame]) -> dict[str, np.ndarray]:
+    """Network disparities (N, h, w; fraction of width) -> depth (m) at each frame's GT size."""
+    if len(disparities) != len(frames):
+        raise DataError(f"{len(disparities)} predicted disparities for {len(frames)} evaluation frames")
+    out = {}
+    for disp, frame in zip(disparities, frames):
+        h, w = frame.gt_disp.shape
+        out[frame.name] = disparity_to_depth(pixel_disparity(disp, h, w), frame.focal, frame.baseline)
+    return out
+
+
+def _metrics_in(gt_depth: np.ndarray, pred: np.ndarray, mask: np.ndarray, cap: float, cfg: EvalConfig) -> dict | None:
+    if cfg.mask_gt_beyond_cap:
+        mask = mask & (gt_depth <= cap)
+    if not mask.any():
+        return None
+    return compute_errors(gt_depth[mask], clamp_depth(pred, cfg.min_depth, cap)[mask])
+
+
+def _mean(rows: list[dict], keys: tuple[str, ...]) -> dict[str, float]:
+    return {k: float(np.mean([r[k] for r in rows])) for k in keys}
+
+
+def evaluate_full(pred: dict[str, np.ndarray], frames: list[Frame], cfg: EvalConfig) -> tuple[dict, pd.DataFrame]:
+    """Suite 1: the 7 metrics per image over valid GT, then averaged, per cap."""
+    rows = []
+    summary: dict = {}
+    for cap in cfg.caps:
+        per_cap = []
+        for f in frames:
+            m = _metrics_in(f.gt_depth, pred[f.name], f.gt_disp > 0, cap, cfg)
+            if m is not None:
+                per_cap.append({"frame": f.name, "cap": cap, **m})
+        if not per_cap:
+            raise DataError("full-image evaluation: no frame has valid ground truth")
+        summary[f"cap{cap:g}"] = _mean(per_cap, METRICS)
+        rows += per_cap
+    summary["images"] = len(frames)
+    summary["excluded_images"] = len(frames) - len(rows) // len(cfg.caps)
+    return summary, pd.DataFrame(rows)
+
+
+def _boxes_for(rois: pd.DataFrame, frames: list[Frame]):
+    """Yield (row number, ROI record, its frame, slice of the box), checking each box fits."""
+    by_name = {f.name: f for f in frames}
+    for i, roi in enumerate(rois.to_dict("records")):
+        frame = by_name.get(roi["image"])
+        if frame is None:
+            raise DataError(f"ROI {i}: image {roi['image']!r} is not an evaluation frame")
+        h, w = frame.gt_disp.shape
+        if roi["x1"] > w or roi["y1"] > h:
+            raise DataError(f"ROI {i} ({roi['image']}): box {roi['x0']},{roi['y0']},{roi['x1']},{roi['y1']} exceeds {w}x{h}")
+        yield i, roi, frame, (slice(roi["y0"], roi["y1"]), slice(roi["x0"], roi["x1"]))
+
+
+def _summarise_by_class(rows: list[dict], keys: tuple[str, ...]) -> dict:
+    out = {"overall": {**_mean(rows, keys), "count": len(rows)}, "by_class": {}}
+    for cls in sorted({r["class"] for r in rows}):
+        sel = [r for r in rows if r["class"] == cls]
+        out["by_class"][cls] = {**_mean(sel, keys), "count": len(sel)}
+    return out
+
+
+def evaluate_roi(pred: dict[str, np.ndarray], frames: list[Frame], rois: pd.DataFrame, cfg: EvalConfig) -> tuple[dict, pd.DataFrame]:
+    """Suite 2: the same metrics inside each ROI box; mean over ROIs, overall and per class."""
+    rows, summary = [], {}
+    for cap in cfg.caps:
+        per_cap = []
+        for i, roi, frame, box in _boxes_for(rois, frames):
+            m = _metrics_in(frame.gt_depth[box], pred[frame.name][box], frame.gt_disp[box] > 0, cap, cfg)
+            if m is not None:
+                per_cap.append({"roi": i, "image": roi["image"], "class": roi["class"], "cap": cap, **m})
+        if not per_cap:
+            raise DataError("ROI evaluation: no ROI has valid ground truth")
+        summary[f"cap{cap:g}"] = _summarise_by_class(per_cap, METRICS)
+        rows += per_cap
+    summary["rois"] = len(rois)
+    summary["excluded_rois"] = len(rois) - len(rows) // len(cfg.caps)
+    return summary, pd.DataFrame(rows)
+
+
+def gradient_maps(depth: np.ndarray) -> dict[str, np.ndarray]:
+    """|Sobel x|, |Sobel y| (3x3) and |Laplacian| (3x3 aperture) of a depth map (float64)."""
+    d = depth.astype(np.float64)
+    return {
+        "sobel_x": np.abs(cv2.Sobel(d, cv2.CV_64F, 1, 0, ksize=3)),
+        "sobel_y": np.abs(cv2.Sobel(d, cv2.CV_64F, 0, 1, ksize=3)),
+        "laplacian": np.abs(cv2.Laplacian(d, cv2.CV_64F, ksize=1)),
+    }
+
+
+def evaluate_gradients(pred: dict[str, np.ndarray], frames: list[Frame], rois: pd.DataFrame, cfg: EvalConfig) -> tuple[dict, pd.DataFrame]:
+    """Suite 3: mean absolute depth derivatives in each ROI (lower = smoother, more consistent).
+
+    Derivatives are taken on the whole capped depth map and then cropped, so the box edge
+    sees its real neighbours. Where the ROI's GT is dense (valid fraction >= dense_gt_fraction)
+    the GT's derivatives are reported too, over pixels whose 3x3 neighbourhood is valid,
+    together with the prediction's over the same pixels and the mean |pred - GT| derivative.
+    """
+    kernel = np.ones((3, 3), np.uint8)
+    rows, summary = [], {}
+    for cap in cfg.caps:
+        per_cap = []
+        pred_grads = {f.name: gradient_maps(clamp_depth(pred[f.name], cfg.min_depth, cap)) for f in frames}
+        gt_cache: dict[str, tuple[dict, np.ndarray]] = {}
+        for i, roi, frame, box in _boxes_for(rois, frames):
+            row = {"roi": i, "image": roi["image"], "class": roi["class"], "cap": cap}
+            pg = pred_grads[frame.name]
+            row.update({f"pred_{g}": float(pg[g][box].mean()) for g in GRADIENTS})
+            valid = frame.gt_disp[box] > 0
+            row["gt_valid_fraction"] = float(valid.mean())
+            if row["gt_valid_fraction"] >= cfg.dense_gt_fraction:
+                if frame.name not in gt_cache:
+                    mask = frame.gt_disp > 0
+                    gt_depth = np.where(mask, np.minimum(frame.gt_depth, cap), 0.0)
+                    inner = cv2.erode(mask.astype(np.uint8), kernel, borderType=cv2.BORDER_CONSTANT, borderValue=0) > 0
+                    gt_cache[frame.name] = (gradient_maps(gt_depth), inner)
+                gg, inner = gt_cache[frame.name]
+                sel = inner[box]
+                if sel.any():
+                    for g in GRADIENTS:
+                        row[f"gt_{g}"] = float(gg[g][box][sel].mean())
+                        row[f"pred_on_gt_{g}"] = float(pg[g][box][sel].mean())
+                        row[f"error_{g}"] = float(np.abs(pg[g][box][sel] - gg[g][box][sel]).mean())
+            per_cap.append(row)
+        keys = tuple(f"pred_{g}" for g in GRADIENTS)
+        block = _summarise_by_class(per_cap, keys)
+        dense = [r for r in per_cap if "gt_sobel_x" in r]
+        gt_keys = tuple(f"{p}_{g}" for p in ("gt", "pred_on_gt", "error") for g in GRADIENTS)
+        block["dense_gt"] = _summarise_by_class(dense, gt_keys) if dense else {"overall": {"count": 0}, "by_class": {}}
+        summary[f"cap{cap:g}"] = block
+        rows += per_cap
+    summary["rois"] = len(rois)
+    return summary, pd.DataFrame(rows)
+
+
+def read_depth_maps(path: str | os.PathLike) -> dict[str, np.ndarray]:
+    """Depth maps written by the depth stage (an ``.npz`` keyed by frame)."""
+    path = Path(path)
+    if not path.exists():
+        raise DataError(f"{path}: no depth maps (run the depth stage)")
+    with np.load(path) as data:
+        return {k: data[k] for k in data.files}

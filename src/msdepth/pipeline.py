@@ -1,0 +1,188 @@
+"""One function per DVC stage: where each stage reads and writes, and what it calls.
+
+``stages/<name>.py`` only parse their arguments and call the function of the same name here,
+through :func:`run_stage`, which loads ``params.yaml`` once and turns the project's errors
+into one clear line on stderr and a non-zero exit.
+"""
+
+from __future__ import annotations
+
+import inspect
+import logging
+import os
+import sys
+import time
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from . import baselines as baselines_mod
+from .compare import build_comparison, load_suite_metrics
+from .config import Params, load_params
+from .data import kitti
+from .data.index import build_indexes, layout, read_eval_index
+from .data.pairs import load_pair_list
+from .errors import ConfigError, DataError, MsdepthError
+from .evaluate import (
+    depth_maps,
+    evaluate_full,
+    evaluate_gradients,
+    evaluate_roi,
+    load_frames,
+    read_depth_maps,
+)
+from .io import atomic_path, save_npz, write_json, write_text
+
+log = logging.getLogger("msdepth")
+
+INDEX_DIR = Path("data/index")
+BASELINES = ("constant", "prior")
+SUITES = {"full": evaluate_full, "roi": evaluate_roi, "gradients": evaluate_gradients}
+
+
+def model_path(variant: str) -> Path:
+    return Path("models") / variant / "model.pt"
+
+
+def checkpoint_path(variant: str) -> Path:
+    return Path("checkpoints") / variant / "checkpoint.pt"
+
+
+def run_dir(run: str) -> Path:
+    return Path("outputs") / run
+
+
+def prepare_data(params: Params) -> None:
+    """Create the KITTI-format tree under ``data.root`` (the synthetic set; KITTI: issue #4)."""
+    if params.data.source != "synthetic":
+        layout(params)  # raises the clear 'not built yet' error for kitti
+    from .data import synthetic
+
+    summary = synthetic.generate(params.data.synthetic, Path(params.data.root))
+    log.info("synthetic set: %s", summary)
+
+
+def index(params: Params) -> None:
+    """Index the training pairs and evaluation frames found on disk."""
+    report = build_indexes(params, INDEX_DIR)
+    log.info(
+        "index: %d/%d training pairs found, %d evaluation frames",
+        report["train_pairs_found"], report["train_pairs_listed"], report["eval_frames"],
+    )
+
+
+def rois(params: Params) -> None:
+    """Validate the ROI boxes against the evaluation frames and write the ROI index."""
+    boxes = kitti.read_rois(layout(params).rois)
+    frames = read_eval_index(INDEX_DIR / "eval_frames.csv")
+    known = set(frames["frame"])
+    unknown = sorted(set(boxes["image"]) - known)
+    if unknown:
+        raise DataError(f"{layout(params).rois}: boxes name images that are not evaluation frames: {unknown[:10]}")
+    kitti.write_rois(INDEX_DIR / "rois.csv", boxes)
+    log.info("rois: %d boxes, %s", len(boxes), boxes["class"].value_counts().to_dict())
+
+
+def train(params: Params, variant: str) -> None:
+    """Train one loss variant; write its model, training summary and dvclive curves."""
+    from .train import train_variant, write_train_summary
+
+    params.variant(variant)
+    pairs = load_pair_list(INDEX_DIR / "train_pairs.txt")
+    result = train_variant(
+        params, variant, pairs, model_path(variant), checkpoint_path(variant),
+        live_dir=Path("plots") / "train" / variant,
+    )
+    write_train_summary(Path("metrics") / "train" / f"{variant}.json", result)
+    log.info("train %s: %d steps in %.0f s (%.1f examples/s)", variant, result.steps, result.seconds, result.examples_per_second)
+
+
+def infer(params: Params, variant: str) -> None:
+    """Left disparities of every evaluation frame, at the network's input size."""
+    from .infer import predict_disparities
+    from .train import load_model
+
+    torch_threads(params)
+    model, meta = load_model(model_path(variant))
+    frames = read_eval_index(INDEX_DIR / "eval_frames.csv")
+    disp = predict_disparities(model, [Path(p) for p in frames["left"]], meta["height"], meta["width"], params.eval.post_process)
+    out = run_dir(variant) / "disparities.npy"
+    with atomic_path(out) as tmp:
+        np.save(tmp, disp)
+
+
+def torch_threads(params: Params) -> None:
+    import torch
+
+    torch.set_num_threads(params.train.threads)
+
+
+def depth(params: Params, run: str) -> None:
+    """Disparities (fraction of width) -> metric depth at each frame's GT resolution."""
+    path = run_dir(run) / "disparities.npy"
+    if not path.exists():
+        raise DataError(f"{path}: no disparities for run {run!r}")
+    frames = load_frames(read_eval_index(INDEX_DIR / "eval_frames.csv"))
+    save_npz(run_dir(run) / "depth.npz", **depth_maps(np.load(path), frames))
+
+
+def _write_suite(suite: str, run: str, summary: dict, table) -> None:
+    write_json(Path("metrics") / suite / f"{run}.json", summary)
+    with atomic_path(Path("metrics") / suite / f"{run}.csv") as tmp:
+        table.to_csv(tmp, index=False, float_format="%.6g")
+
+
+def _run_suite(params: Params, suite: str, run: str, pred: dict, frames, boxes) -> None:
+    fn = SUITES[suite]
+    summary, table = fn(pred, frames, params.eval) if suite == "full" else fn(pred, frames, boxes, params.eval)
+    _write_suite(suite, run, summary, table)
+
+
+def evaluate(params: Params, suite: str, run: str) -> None:
+    """Run one evaluation suite on one run's depth maps."""
+    if suite not in SUITES:
+        raise ConfigError(f"unknown evaluation suite {suite!r}; known: {sorted(SUITES)}")
+    frames = load_frames(read_eval_index(INDEX_DIR / "eval_frames.csv"))
+    boxes = kitti.read_rois(INDEX_DIR / "rois.csv") if suite != "full" else None
+    _run_suite(params, suite, run, read_depth_maps(run_dir(run) / "depth.npz"), frames, boxes)
+
+
+def baselines(params: Params) -> None:
+    """The image-blind baselines, through the same depth conversion and suites as the variants."""
+    pairs = load_pair_list(INDEX_DIR / "train_pairs.txt")
+    gt = baselines_mod.training_gt_disparities([left for left, _ in pairs])
+    frames = load_frames(read_eval_index(INDEX_DIR / "eval_frames.csv"))
+    boxes = kitti.read_rois(INDEX_DIR / "rois.csv")
+    for run, disp in baselines_mod.baseline_disparities(gt, len(frames)).items():
+        pred = depth_maps(disp, frames)
+        for suite in SUITES:
+            _run_suite(params, suite, run, pred, frames, boxes)
+
+
+def compare(params: Params) -> None:
+    """One table of every variant and baseline, as Markdown and JSON."""
+    variants = list(params.variants)
+    suites = load_suite_metrics("metrics", [*variants, *BASELINES])
+    result, md = build_comparison(suites, variants, BASELINES)
+    write_json(Path("metrics") / "compare.json", result)
+    write_text(Path("metrics") / "compare.md", md)
+
+
+def run_stage(fn: Callable[..., None], *args: str, params_path: str | os.PathLike = "params.yaml") -> int:
+    """Load params, run one stage function, report errors as one line; returns the exit code."""
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)s", stream=sys.stderr)
+    started = time.perf_counter()
+    try:
+        inspect.signature(fn).bind(None, *args)
+    except TypeError:
+        names = list(inspect.signature(fn).parameters)[1:]
+        print(f"usage: {fn.__name__} {' '.join(n.upper() for n in names)}", file=sys.stderr)
+        return 2
+    try:
+        fn(load_params(params_path), *args)
+    except MsdepthError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
+    log.info("%s%s done in %.1f s", fn.__name__, f" {' '.join(args)}" if args else "", time.perf_counter() - started)
+    return 0

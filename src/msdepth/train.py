@@ -1,0 +1,266 @@
+"""Training of one loss variant: Adam with Monodepth's schedule, per-epoch atomic checkpoints.
+
+The loop resumes from the last complete checkpoint of the same configuration, so a killed
+run continues where it stopped and ends with the same weights as an uninterrupted one.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import math
+import os
+import random
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch.utils.data import DataLoader
+from tqdm import tqdm
+
+from .config import Params
+from .data.pairs import StereoPairs
+from .errors import MsdepthError
+from .io import atomic_path, write_json
+from .losses import MonodepthLoss
+from .model import MonodepthVGG
+
+log = logging.getLogger(__name__)
+
+LOSS_KEYS = ("total", "appearance", "smoothness", "lr_consistency")
+
+
+class TrainingError(MsdepthError):
+    """Training cannot go on (e.g. a non-finite loss); the message names the step and files."""
+
+
+@dataclass(frozen=True)
+class TrainResult:
+    steps: int
+    epochs: int
+    seconds: float
+    examples_per_second: float
+    final_losses: dict[str, float]
+
+
+def seed_everything(seed: int) -> None:
+    """Seed Python, numpy and torch (CPU runs are then repeatable)."""
+    random.seed(seed)
+    np.random.seed(seed)
+    torch.manual_seed(seed)
+
+
+def resolve_device(name: str) -> torch.device:
+    """``auto`` picks CUDA when present; asking for CUDA without one is an error."""
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    if name == "cuda" and not torch.cuda.is_available():
+        raise MsdepthError("train.device: cuda requested but torch sees no CUDA device")
+    return torch.device(name)
+
+
+def build_model(params: Params) -> MonodepthVGG:
+    """The depth network of ``params.model``, heads initialised for training."""
+    return MonodepthVGG(params.model.width_multiplier, init_disparity=params.model.init_disparity)
+
+
+def build_loss(params: Params, variant: str) -> MonodepthLoss:
+    """The training loss of ``variant`` (its appearance term names its params section)."""
+    appearance = params.variant(variant).appearance
+    return MonodepthLoss(params.loss, appearance, params.ssim, params.msssim)
+
+
+def learning_rate(base: float, step: int, total_steps: int) -> float:
+    """Monodepth's piecewise-constant schedule: lr, lr/2 after 3/5 of the steps, lr/4 after 4/5."""
+    boundaries = (int(3 / 5 * total_steps), int(4 / 5 * total_steps))
+    if step < boundaries[0]:
+        return base
+    if step < boundaries[1]:
+        return base / 2
+    return base / 4
+
+
+def fingerprint(params: Params, variant: str, num_pairs: int) -> str:
+    """Hash of everything that shapes the training run, so a checkpoint is only resumed by its own run."""
+    appearance = params.variant(variant).appearance
+    relevant = {
+        "data": [params.data.height, params.data.width, num_pairs],
+        "model": asdict(params.model),
+        "train": {k: v for k, v in asdict(params.train).items() if k not in ("num_workers", "threads", "device")},
+        "loss": asdict(params.loss),
+        "appearance": appearance,
+        appearance: asdict(getattr(params, appearance)),
+    }
+    return hashlib.sha256(json.dumps(relevant, sort_keys=True).encode()).hexdigest()[:16]
+
+
+def save_checkpoint(path: Path, state: dict) -> None:
+    """``torch.save`` through a temp file and rename: never a truncated checkpoint."""
+    with atomic_path(path) as tmp:
+        torch.save(state, tmp)
+
+
+def _loader(dataset: StereoPairs, params: Params, epoch: int) -> DataLoader:
+    # Shuffle order from (seed, epoch): a resumed epoch sees the same batches.
+    gen = torch.Generator().manual_seed(params.train.seed * 100_003 + epoch)
+    dataset.set_epoch(epoch)
+    return DataLoader(
+        dataset,
+        batch_size=params.train.batch_size,
+        shuffle=True,
+        drop_last=len(dataset) >= params.train.batch_size,
+        num_workers=params.train.num_workers,
+        generator=gen,
+        persistent_workers=False,
+    )
+
+
+def train_variant(
+    params: Params,
+    variant: str,
+    pairs: list[tuple[Path, Path]],
+    model_path: str | os.PathLike,
+    checkpoint_path: str | os.PathLike,
+    live_dir: str | os.PathLike | None = None,
+    progress: bool = True,
+) -> TrainResult:
+    """Train ``variant`` on ``pairs``; write the final weights to ``model_path``.
+
+    A checkpoint is written atomically at ``checkpoint_path`` after every epoch and resumed
+    from when its fingerprint matches. Per-epoch mean losses go to dvclive in ``live_dir``.
+    """
+    t = params.train
+    torch.set_num_threads(t.threads)
+    seed_everything(t.seed)
+    device = resolve_device(t.device)
+    dataset = StereoPairs(pairs, params.data.height, params.data.width, augment=t.augment, seed=t.seed)
+    model = build_model(params).to(device)
+    criterion = build_loss(params, variant).to(device)
+    trainable = list(model.parameters()) + list(criterion.parameters())
+    optimizer = torch.optim.Adam(trainable, lr=t.learning_rate)
+    steps_per_epoch = len(dataset) // t.batch_size if len(dataset) >= t.batch_size else 1
+    total_steps = steps_per_epoch * t.epochs
+    fp = fingerprint(params, variant, len(pairs))
+
+    checkpoint_path = Path(checkpoint_path)
+    start_epoch, step, history = 0, 0, []
+    if checkpoint_path.exists():
+        state = torch.load(checkpoint_path, map_location=device, weights_only=False)
+        if state.get("fingerprint") == fp:
+            model.load_state_dict(state["model"])
+            criterion.load_state_dict(state["criterion"])
+            optimizer.load_state_dict(state["optimizer"])
+            torch.set_rng_state(state["torch_rng"])
+            start_epoch, step, history = state["epoch"], state["step"], state["history"]
+            log.info("resuming %s from epoch %d (step %d)", variant, start_epoch, step)
+        else:
+            log.info("ignoring checkpoint %s: it belongs to other parameters", checkpoint_path)
+
+    live = None
+    if live_dir is not None:
+        from dvclive import Live
+
+        live = Live(str(live_dir), resume=start_epoch > 0, save_dvc_exp=False, dvcyaml=False)
+        if start_epoch == 0:
+            live.step = 0
+
+    started = time.perf_counter()
+    examples = 0
+    for epoch in range(start_epoch, t.epochs):
+        model.train()
+        sums = dict.fromkeys(LOSS_KEYS, 0.0)
+        batches = 0
+        bar = tqdm(
+            _loader(dataset, params, epoch),
+            desc=f"{variant} epoch {epoch + 1}/{t.epochs}",
+            disable=not progress,
+            leave=False,
+        )
+        for batch in bar:
+            for group in optimizer.param_groups:
+                group["lr"] = learning_rate(t.learning_rate, step, total_steps)
+            left = batch["left"].to(device, non_blocking=True)
+            right = batch["right"].to(device, non_blocking=True)
+            losses = criterion(model(left), left, right)
+            if not torch.isfinite(losses["total"]):
+                names = [str(dataset.pairs[int(i)][0]) for i in batch["index"]]
+                raise TrainingError(
+                    f"{variant}: non-finite loss {losses['total'].item()} at step {step} "
+                    f"(epoch {epoch + 1}); batch: {names}. No checkpoint was written for this epoch."
+                )
+            optimizer.zero_grad(set_to_none=True)
+            losses["total"].backward()
+            optimizer.step()
+            step += 1
+            batches += 1
+            examples += left.shape[0]
+            for k in LOSS_KEYS:
+                sums[k] += float(losses[k].detach())
+            bar.set_postfix(loss=f"{sums['total'] / batches:.4f}")
+        means = {k: v / max(batches, 1) for k, v in sums.items()}
+        history.append({"epoch": epoch + 1, "step": step, **means})
+        if live is not None:
+            for k, v in means.items():
+                live.log_metric(f"train/{k}", v)
+            live.log_metric("train/learning_rate", learning_rate(t.learning_rate, step - 1, total_steps))
+            live.next_step()
+        save_checkpoint(
+            checkpoint_path,
+            {
+                "fingerprint": fp,
+                "epoch": epoch + 1,
+                "step": step,
+                "history": history,
+                "model": model.state_dict(),
+                "criterion": criterion.state_dict(),
+                "optimizer": optimizer.state_dict(),
+                "torch_rng": torch.get_rng_state(),
+            },
+        )
+        log.info("%s epoch %d/%d: %s", variant, epoch + 1, t.epochs, json.dumps(means))
+    if live is not None:
+        live.end()
+    seconds = time.perf_counter() - started
+    save_model(model_path, model, criterion, params, variant)
+    final = history[-1] if history else {}
+    return TrainResult(
+        steps=step,
+        epochs=t.epochs,
+        seconds=seconds,
+        examples_per_second=examples / seconds if seconds > 0 and examples else math.nan,
+        final_losses={k: final.get(k, math.nan) for k in LOSS_KEYS},
+    )
+
+
+def save_model(path: str | os.PathLike, model: MonodepthVGG, criterion: MonodepthLoss, params: Params, variant: str) -> None:
+    """Final weights plus what is needed to rebuild and run the network."""
+    state = {
+        "model": model.state_dict(),
+        "criterion": criterion.state_dict(),
+        "width_multiplier": params.model.width_multiplier,
+        "height": params.data.height,
+        "width": params.data.width,
+        "variant": variant,
+    }
+    with atomic_path(path) as tmp:
+        torch.save(state, tmp)
+
+
+def load_model(path: str | os.PathLike, device: str | torch.device = "cpu") -> tuple[MonodepthVGG, dict]:
+    """Rebuild the network saved by :func:`save_model`; returns (model in eval mode, metadata)."""
+    path = Path(path)
+    if not path.exists():
+        raise MsdepthError(f"{path}: no trained model (run the train stage first)")
+    state = torch.load(path, map_location=device, weights_only=False)
+    model = MonodepthVGG(state["width_multiplier"])
+    model.load_state_dict(state["model"])
+    meta = {k: v for k, v in state.items() if k not in ("model", "criterion")}
+    return model.to(device).eval(), meta
+
+
+def write_train_summary(path: str | os.PathLike, result: TrainResult) -> None:
+    """Training summary (steps, speed, final losses) as JSON, atomically."""
+    write_json(path, asdict(result))

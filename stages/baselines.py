@@ -1,0 +1,8 @@
+"""Stage: Evaluate the image-blind baselines (constant, per-pixel prior) with all suites."""
+
+import sys
+
+from msdepth.pipeline import baselines, run_stage
+
+if __name__ == "__main__":
+    sys.exit(run_stage(baselines))

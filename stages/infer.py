@@ -1,0 +1,8 @@
+"""Stage: Predict the evaluation frames' disparities with one trained variant. Usage: infer.py VARIANT"""
+
+import sys
+
+from msdepth.pipeline import infer, run_stage
+
+if __name__ == "__main__":
+    sys.exit(run_stage(infer, *sys.argv[1:]))

@@ -1,0 +1,8 @@
+"""Stage: Train one loss variant. Usage: train.py VARIANT"""
+
+import sys
+
+from msdepth.pipeline import train, run_stage
+
+if __name__ == "__main__":
+    sys.exit(run_stage(train, *sys.argv[1:]))

@@ -1,0 +1,133 @@
+"""The evaluation suites against an independent reimplementation of Monodepth's evaluation."""
+
+import cv2
+import numpy as np
+import pandas as pd
+import pytest
+
+from msdepth.compare import build_comparison
+from msdepth.config import EvalConfig
+from msdepth.evaluate import Frame, depth_maps, evaluate_full, evaluate_gradients, evaluate_roi
+
+FOCAL, BASELINE = 721.5377, 0.54
+
+
+def monodepth_kitti2015(pred_disparities, gt_disparities, cap, min_depth=1e-3):
+    """Straight transcription of Monodepth's evaluate_kitti.py (split kitti, no GT masking)."""
+    results = []
+    for pred_disp, gt_disp in zip(pred_disparities, gt_disparities):
+        height, width = gt_disp.shape
+        pred_disp = width * cv2.resize(pred_disp, (width, height), interpolation=cv2.INTER_LINEAR)
+        mask = gt_disp > 0
+        gt_depth = FOCAL * BASELINE / (gt_disp + (1.0 - mask))
+        pred_depth = FOCAL * BASELINE / (pred_disp + (1.0 - mask))
+        pred_depth[pred_depth < min_depth] = min_depth
+        pred_depth[pred_depth > cap] = cap
+        gt, pred = gt_depth[mask], pred_depth[mask]
+        thresh = np.maximum((gt / pred), (pred / gt))
+        results.append([
+            np.mean(np.abs(gt - pred) / gt), np.mean(((gt - pred) ** 2) / gt),
+            np.sqrt(((gt - pred) ** 2).mean()), np.sqrt(((np.log(gt) - np.log(pred)) ** 2).mean()),
+            (thresh < 1.25).mean(), (thresh < 1.25**2).mean(), (thresh < 1.25**3).mean(),
+        ])
+    return np.mean(results, axis=0)
+
+
+@pytest.fixture
+def scene():
+    rng = np.random.default_rng(3)
+    frames, preds = [], []
+    for i in range(3):
+        gt = rng.uniform(2, 120, (375, 1242)).astype(np.float32)
+        gt[rng.random(gt.shape) < 0.6] = 0  # sparse, like KITTI
+        frames.append(Frame(f"{i:06d}_10", gt, FOCAL, BASELINE))
+        preds.append(rng.uniform(0.002, 0.25, (64, 192)).astype(np.float32))
+    return frames, np.stack(preds)
+
+
+def test_full_suite_matches_monodepth(scene):
+    frames, disps = scene
+    cfg = EvalConfig()
+    summary, table = evaluate_full(depth_maps(disps, frames), frames, cfg)
+    for cap in cfg.caps:
+        ref = monodepth_kitti2015(disps, [f.gt_disp for f in frames], cap)
+        ours = [summary[f"cap{cap:g}"][k] for k in ("abs_rel", "sq_rel", "rmse", "rmse_log", "a1", "a2", "a3")]
+        np.testing.assert_allclose(ours, ref, rtol=1e-6, atol=1e-6)
+    assert len(table) == len(frames) * len(cfg.caps)
+
+
+def test_all_invalid_frame_is_excluded_and_counted(scene):
+    frames, disps = scene
+    frames[1] = Frame(frames[1].name, np.zeros_like(frames[1].gt_disp), FOCAL, BASELINE)
+    summary, _ = evaluate_full(depth_maps(disps, frames), frames, EvalConfig())
+    assert summary["excluded_images"] == 1
+    ref = monodepth_kitti2015(disps[[0, 2]], [frames[0].gt_disp, frames[2].gt_disp], 80)
+    assert summary["cap80"]["abs_rel"] == pytest.approx(ref[0], rel=1e-6)
+
+
+def test_gt_masking_beyond_cap_is_a_param(scene):
+    frames, disps = scene
+    pred = depth_maps(disps, frames)
+    plain, _ = evaluate_full(pred, frames, EvalConfig())
+    masked, _ = evaluate_full(pred, frames, EvalConfig(mask_gt_beyond_cap=True))
+    assert plain["cap50"]["abs_rel"] != masked["cap50"]["abs_rel"]
+
+
+def _dense_frame(depth: np.ndarray, name="000000_10") -> Frame:
+    return Frame(name, (FOCAL * BASELINE / depth).astype(np.float32), FOCAL, BASELINE)
+
+
+def test_roi_suite_per_class_and_perfect_prediction():
+    depth = np.full((60, 80), 20.0, np.float32)
+    depth[10:30, 10:40] = 8.0
+    frame = _dense_frame(depth)
+    pred = {frame.name: depth.copy()}
+    pred[frame.name][40:60, 50:80] *= 1.5  # a wrong region
+    rois = pd.DataFrame(
+        [(frame.name, "car", 10, 10, 40, 30), (frame.name, "sign", 50, 40, 80, 60)],
+        columns=["image", "class", "x0", "y0", "x1", "y1"],
+    )
+    summary, table = evaluate_roi(pred, [frame], rois, EvalConfig())
+    by_class = summary["cap80"]["by_class"]
+    assert by_class["car"]["abs_rel"] == pytest.approx(0.0, abs=1e-5)
+    assert by_class["sign"]["abs_rel"] == pytest.approx(0.5, rel=1e-4)
+    assert summary["cap80"]["overall"]["abs_rel"] == pytest.approx(0.25, rel=1e-4)
+    assert summary["cap80"]["overall"]["count"] == 2
+
+
+def test_gradient_suite_on_a_ramp():
+    # Depth rising 0.1 m per column: Sobel x = 8 * 0.1 in the interior, Sobel y and Laplacian 0.
+    depth = np.tile(10 + 0.1 * np.arange(80, dtype=np.float32), (60, 1))
+    frame = _dense_frame(depth)
+    rois = pd.DataFrame([(frame.name, "glass", 20, 20, 60, 40)], columns=["image", "class", "x0", "y0", "x1", "y1"])
+    summary, _ = evaluate_gradients({frame.name: depth}, [frame], rois, EvalConfig())
+    block = summary["cap80"]
+    assert block["overall"]["pred_sobel_x"] == pytest.approx(0.8, rel=1e-3)
+    assert block["overall"]["pred_sobel_y"] == pytest.approx(0.0, abs=1e-4)
+    assert block["overall"]["pred_laplacian"] == pytest.approx(0.0, abs=1e-3)
+    dense = block["dense_gt"]["overall"]
+    assert dense["gt_sobel_x"] == pytest.approx(0.8, rel=1e-3)
+    assert dense["error_sobel_x"] == pytest.approx(0.0, abs=1e-3)
+
+
+def test_compare_table_marks_best_variant():
+    def suite(v):
+        return {"cap80": {"abs_rel": v, "sq_rel": v, "rmse": v, "rmse_log": v, "a1": 1 - v, "a2": 1 - v, "a3": 1 - v}}
+
+    def roi(v):
+        m = suite(v)["cap80"]
+        return {"cap80": {"overall": {**m, "count": 1}, "by_class": {"car": {**m, "count": 1}}}}
+
+    def grad(v):
+        g = {"pred_sobel_x": v, "pred_sobel_y": v, "pred_laplacian": v, "count": 1}
+        return {"cap80": {"overall": g, "by_class": {}, "dense_gt": {"overall": {"count": 0}, "by_class": {}}}}
+
+    runs = {"ssim": 0.3, "msssim": 0.2, "prior": 0.1}
+    suites = {
+        "full": {r: suite(v) for r, v in runs.items()},
+        "roi": {r: roi(v) for r, v in runs.items()},
+        "gradients": {r: grad(v) for r, v in runs.items()},
+    }
+    result, md = build_comparison(suites, ["ssim", "msssim"], ["prior"])
+    assert "| msssim | **0.2000** |" in md  # best variant in bold; baselines never are
+    assert result["full"]["cap80"]["prior"]["abs_rel"] == 0.1

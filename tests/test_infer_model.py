@@ -1,0 +1,84 @@
+"""Post-processing, the network's shapes and size, and config validation."""
+
+import numpy as np
+import pytest
+import torch
+
+from msdepth.config import ConfigError, Params, load_params, params_from_dict
+from msdepth.infer import post_process_disparity
+from msdepth.model import MonodepthVGG, count_parameters
+
+
+def monodepth_post_process(disp: np.ndarray) -> np.ndarray:
+    """Monodepth's own function (utils: post_process_disparity), input (2, h, w)."""
+    _, h, w = disp.shape
+    l_disp = disp[0, :, :]
+    r_disp = np.fliplr(disp[1, :, :])
+    m_disp = 0.5 * (l_disp + r_disp)
+    l, _ = np.meshgrid(np.linspace(0, 1, w), np.linspace(0, 1, h))
+    l_mask = 1.0 - np.clip(20 * (l - 0.05), 0, 1)
+    r_mask = np.fliplr(l_mask)
+    return r_mask * l_disp + l_mask * r_disp + (1.0 - l_mask - r_mask) * m_disp
+
+
+def test_post_process_matches_monodepth():
+    rng = np.random.default_rng(1)
+    d, d_f = rng.random((2, 16, 64), dtype=np.float32)
+    ours = post_process_disparity(d[None], d_f[None])[0]
+    np.testing.assert_allclose(ours, monodepth_post_process(np.stack([d, d_f])), atol=1e-6)
+
+
+def test_post_process_edges_and_symmetric_input():
+    w = 100
+    d = np.tile(np.linspace(0.0, 1.0, w, dtype=np.float32), (4, 1))
+    d_f = np.zeros_like(d)  # flips back to zeros
+    out = post_process_disparity(d, d_f)
+    assert out[0, 0] == 0.0  # leftmost column from the flipped prediction only
+    assert out[0, -1] == pytest.approx(1.0)  # rightmost from the plain prediction only
+    assert out[0, w // 2] == pytest.approx(0.5 * d[0, w // 2], rel=1e-5)  # middle: the mean
+    # A prediction that is mirror-consistent is left unchanged.
+    sym = np.random.default_rng(0).random((3, 20, 40)).astype(np.float32)
+    np.testing.assert_allclose(post_process_disparity(sym, np.flip(sym, -1)), sym, atol=1e-6)
+
+
+def test_full_width_parameter_count():
+    # The dissertation's / Monodepth's VGG model: ~31 M parameters.
+    assert count_parameters(MonodepthVGG(1.0)) == 31_600_072
+
+
+@pytest.mark.parametrize("size", [(64, 192), (32, 96), (256, 512)])
+def test_model_outputs_four_scales_of_two_disparities(size):
+    h, w = size
+    model = MonodepthVGG(0.125, init_disparity=0.04)
+    with torch.no_grad():
+        disps = model(torch.rand(2, 3, h, w))
+    assert [tuple(d.shape) for d in disps] == [(2, 2, h >> s, w >> s) for s in range(4)]
+    for d in disps:
+        assert float(d.min()) > 0 and float(d.max()) < 0.3
+        assert float(d.mean()) == pytest.approx(0.04, abs=0.01)  # heads start at init_disparity
+
+
+def test_params_yaml_loads():
+    p = load_params("params.yaml")
+    assert isinstance(p, Params)
+    assert set(p.variants) >= {"ssim", "msssim"}
+
+
+@pytest.mark.parametrize(
+    "patch, key",
+    [
+        ({"msssim": {"kernel_size": 4}}, "msssim.kernel_size"),
+        ({"msssim": {"kernel_size": 999}}, "msssim.kernel_size"),
+        ({"msssim": {"levels": 9}}, "msssim.levels"),
+        ({"train": {"learning_rate": -1.0}}, "train.learning_rate"),
+        ({"train": {"epochs": "ten"}}, "train.epochs"),
+        ({"variants": {"x": {"appearance": "l2"}}}, "variants.x.appearance"),
+        ({"msssim": {"weights": "random"}}, "msssim.weights"),
+        ({"data": {"height": 70}}, "data.height"),
+        ({"data": {"source": "nyu"}}, "data.source"),
+        ({"loss": {"alpah": 0.8}}, "loss.alpah"),
+    ],
+)
+def test_bad_params_name_the_key(patch, key):
+    with pytest.raises(ConfigError, match=key.replace(".", r"\.")):
+        params_from_dict(patch)

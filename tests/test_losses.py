@@ -1,0 +1,375 @@
+"""Tests of SSIM, MS-SSIM (against pytorch-msssim), the Monodepth loss terms and MonodepthLoss."""
+
+from __future__ import annotations
+
+import math
+from typing import Callable
+
+import pytest
+import torch
+
+from msdepth.config import LossConfig, MSSSIMConfig, SSIMConfig
+from msdepth.losses import (
+    C1,
+    C2,
+    WANG_WEIGHTS,
+    LearnedLevelWeights,
+    MonodepthLoss,
+    appearance_loss,
+    level_weights,
+    lr_consistency_loss,
+    make_similarity,
+    ms_ssim,
+    scale_pyramid,
+    smoothness_loss,
+    ssim,
+)
+
+
+def _rand(*shape: int, seed: int = 0) -> torch.Tensor:
+    return torch.rand(*shape, generator=torch.Generator().manual_seed(seed))
+
+
+def _noisy(x: torch.Tensor, std: float, seed: int = 1) -> torch.Tensor:
+    noise = torch.randn(x.shape, generator=torch.Generator().manual_seed(seed))
+    return (x + std * noise).clamp(0, 1)
+
+
+# Pairs on which SSIM-type losses are numerically delicate: negative cs, zero variance, zero means.
+ADVERSARIAL: dict[str, Callable[[], tuple[torch.Tensor, torch.Tensor]]] = {
+    "anticorrelated": lambda: (_rand(2, 3, 32, 64), 1 - _rand(2, 3, 32, 64)),
+    "zeros": lambda: (torch.zeros(2, 3, 32, 64), torch.zeros(2, 3, 32, 64)),
+    "ones": lambda: (torch.ones(2, 3, 32, 64), torch.ones(2, 3, 32, 64)),
+    "constant_vs_noise": lambda: (torch.full((2, 3, 32, 64), 0.5), _rand(2, 3, 32, 64)),
+    "random": lambda: (_rand(2, 3, 32, 64, seed=3), _rand(2, 3, 32, 64, seed=4)),
+}
+
+
+# ----------------------------------------------------------------------------- SSIM
+
+
+@pytest.mark.parametrize("padding", ["valid", "reflect"])
+def test_ssim_of_image_with_itself_is_one(padding: str) -> None:
+    x = _rand(2, 3, 10, 12)
+    assert torch.allclose(ssim(x, x, padding=padding), torch.ones(()), atol=1e-5)
+
+
+def test_ssim_is_symmetric() -> None:
+    x, y = _rand(2, 3, 10, 12), _rand(2, 3, 10, 12, seed=1)
+    assert torch.allclose(ssim(x, y), ssim(y, x))
+
+
+def test_ssim_of_constant_images_is_the_luminance_term() -> None:
+    a, b = 0.2, 0.7
+    # float64: in float32, E[x²] - μ² leaves ~1e-8 of cancellation noise in the variances.
+    f64 = torch.float64
+    s = ssim(torch.full((1, 1, 6, 6), a, dtype=f64), torch.full((1, 1, 6, 6), b, dtype=f64))
+    # Zero variances make the contrast-structure term exactly 1.
+    expected = (2 * a * b + C1) / (a * a + b * b + C1)
+    assert torch.allclose(s, torch.full_like(s, expected), atol=1e-10)
+
+
+@pytest.mark.parametrize("kernel_size", [3, 5])
+def test_ssim_shapes(kernel_size: int) -> None:
+    x = _rand(2, 3, 10, 12)
+    assert ssim(x, x, kernel_size, "valid").shape == (2, 3, 10 - kernel_size + 1, 12 - kernel_size + 1)
+    assert ssim(x, x, kernel_size, "reflect").shape == (2, 3, 10, 12)
+
+
+def test_ssim_hand_computed_on_3x3() -> None:
+    xs = [0.1, 0.4, 0.9, 0.3, 0.5, 0.2, 0.8, 0.6, 0.7]
+    ys = [0.2, 0.3, 0.8, 0.4, 0.4, 0.1, 0.9, 0.5, 0.9]
+    n = len(xs)
+    mx, my = sum(xs) / n, sum(ys) / n
+    vx = sum(v * v for v in xs) / n - mx * mx
+    vy = sum(v * v for v in ys) / n - my * my
+    cov = sum(a * b for a, b in zip(xs, ys)) / n - mx * my
+    expected = (2 * mx * my + C1) * (2 * cov + C2) / ((mx * mx + my * my + C1) * (vx + vy + C2))
+    x = torch.tensor(xs, dtype=torch.float64).view(1, 1, 3, 3)
+    y = torch.tensor(ys, dtype=torch.float64).view(1, 1, 3, 3)
+    out = ssim(x, y)
+    assert out.shape == (1, 1, 1, 1)
+    assert out.item() == pytest.approx(expected, abs=1e-12)
+
+
+def test_ssim_reflect_matches_explicit_reflection_pad() -> None:
+    x, y = _rand(1, 3, 6, 7), _rand(1, 3, 6, 7, seed=1)
+    pad = lambda t: torch.nn.functional.pad(t, (1, 1, 1, 1), mode="reflect")  # noqa: E731
+    assert torch.allclose(ssim(x, y, padding="reflect"), ssim(pad(x), pad(y), padding="valid"))
+
+
+def test_ssim_rejects_mismatched_inputs() -> None:
+    with pytest.raises(ValueError, match="same shape"):
+        ssim(torch.zeros(1, 3, 8, 8), torch.zeros(1, 3, 8, 9))
+    with pytest.raises(ValueError, match="odd"):
+        ssim(torch.zeros(1, 3, 8, 8), torch.zeros(1, 3, 8, 8), kernel_size=4)
+
+
+# ----------------------------------------------------------------------------- MS-SSIM
+
+
+@pytest.mark.parametrize("window", ["box", "gaussian"])
+@pytest.mark.parametrize("weights", ["wang", "equal"])
+def test_ms_ssim_of_image_with_itself_is_one(window: str, weights: str) -> None:
+    x = _rand(2, 3, 32, 48)
+    out = ms_ssim(x, x, kernel_size=5, levels=4, weights=weights, window=window)
+    assert out.shape == (2,)
+    assert torch.allclose(out, torch.ones(2), atol=1e-5)
+
+
+def test_ms_ssim_in_unit_range_and_decreases_with_noise() -> None:
+    x = _rand(2, 3, 32, 64)
+    values = [ms_ssim(x, _noisy(x, std)) for std in (0.0, 0.02, 0.05, 0.1, 0.2, 0.5)]
+    for v in values:
+        assert ((v >= 0) & (v <= 1 + 1e-5)).all()
+    for finer, coarser in zip(values, values[1:]):
+        assert (coarser < finer).all()
+
+
+@pytest.mark.parametrize("size", [(180, 180), (193, 257), (256, 200)])
+@pytest.mark.parametrize("seed", [0, 1])
+def test_ms_ssim_matches_pytorch_msssim(size: tuple[int, int], seed: int) -> None:
+    pytorch_msssim = pytest.importorskip("pytorch_msssim")
+    x = _rand(2, 3, *size, seed=seed)
+    y = _noisy(x, 0.15, seed=seed + 10)
+    ours = ms_ssim(
+        x, y, kernel_size=11, levels=5, weights="wang", window="gaussian", sigma=1.5, padding="valid"
+    )
+    reference = pytorch_msssim.ms_ssim(x, y, data_range=1, size_average=False)
+    assert torch.allclose(ours, reference, atol=1e-5)
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_single_level_matches_pytorch_msssim_ssim(seed: int) -> None:
+    pytorch_msssim = pytest.importorskip("pytorch_msssim")
+    x = _rand(2, 3, 40, 56, seed=seed)
+    y = _noisy(x, 0.1, seed=seed + 10)
+    reference = pytorch_msssim.ssim(x, y, data_range=1, size_average=False)
+    ssim_map = ssim(x, y, kernel_size=11, padding="valid", window="gaussian", sigma=1.5)
+    assert torch.allclose(ssim_map.mean((2, 3)).mean(1), reference, atol=1e-6)
+    one_level = ms_ssim(x, y, kernel_size=11, levels=1, window="gaussian", padding="valid")
+    assert torch.allclose(one_level, reference, atol=1e-6)
+
+
+@pytest.mark.parametrize("kernel_size", [3, 5, 7, 11])
+@pytest.mark.parametrize("window", ["box", "gaussian"])
+def test_ms_ssim_same_padding_handles_levels_smaller_than_the_window(kernel_size: int, window: str) -> None:
+    # 8x24 at 4 levels: the coarsest level is 1x3 px, the coarsest training scale's case.
+    x = _rand(2, 3, 8, 24)
+    y = _noisy(x, 0.1)
+    out = ms_ssim(x, y, kernel_size=kernel_size, levels=4, window=window)
+    assert out.shape == (2,) and torch.isfinite(out).all()
+    assert ((out > 0) & (out <= 1 + 1e-5)).all()
+    same = ms_ssim(x, x, kernel_size=kernel_size, levels=4, window=window)
+    assert torch.allclose(same, torch.ones(2), atol=1e-5)
+
+
+def test_ms_ssim_valid_padding_rejects_levels_smaller_than_the_window() -> None:
+    x = _rand(1, 3, 8, 24)
+    with pytest.raises(ValueError, match="smaller than"):
+        ms_ssim(x, x, kernel_size=3, levels=4, padding="valid")
+
+
+def test_level_weights() -> None:
+    like = torch.zeros(())
+    assert level_weights("wang", 5, like).tolist() == pytest.approx(list(WANG_WEIGHTS))
+    wang4 = level_weights("wang", 4, like)
+    assert wang4.sum().item() == pytest.approx(1.0)
+    assert wang4.tolist() == pytest.approx([w / sum(WANG_WEIGHTS[:4]) for w in WANG_WEIGHTS[:4]])
+    assert level_weights("equal", 4, like).tolist() == pytest.approx([0.25] * 4)
+    with pytest.raises(ValueError, match="3 level weights"):
+        level_weights(torch.ones(4), 3, like)
+    with pytest.raises(ValueError, match="weights must be"):
+        level_weights("uniform", 3, like)
+
+
+def test_learned_level_weights_positive_normalised_and_start_equal() -> None:
+    module = LearnedLevelWeights(4)
+    assert torch.allclose(module(), torch.full((4,), 0.25))
+    with torch.no_grad():
+        module.logits.copy_(torch.tensor([-50.0, 0.0, 3.0, 20.0]))
+    w = module()
+    assert (w > 0).all() and w.sum().item() == pytest.approx(1.0)
+
+
+# ----------------------------------------------------------------------------- gradients
+
+
+def _assert_finite_grads(*tensors: torch.Tensor) -> None:
+    for t in tensors:
+        assert t.grad is not None, "no gradient reached the input"
+        assert torch.isfinite(t.grad).all(), "non-finite gradient"
+
+
+@pytest.mark.parametrize("case", list(ADVERSARIAL))
+@pytest.mark.parametrize("padding", ["valid", "reflect"])
+def test_ssim_gradients_finite_on_adversarial_inputs(case: str, padding: str) -> None:
+    x, y = (t.requires_grad_(True) for t in ADVERSARIAL[case]())
+    ssim(x, y, padding=padding).mean().backward()
+    _assert_finite_grads(x, y)
+
+
+@pytest.mark.parametrize("case", list(ADVERSARIAL))
+@pytest.mark.parametrize("weights", ["wang", "equal", "learned"])
+@pytest.mark.parametrize("window", ["box", "gaussian"])
+def test_ms_ssim_gradients_finite_on_adversarial_inputs(case: str, weights: str, window: str) -> None:
+    x, y = (t.requires_grad_(True) for t in ADVERSARIAL[case]())
+    learned = LearnedLevelWeights(4)
+    w = learned() if weights == "learned" else weights
+    out = ms_ssim(x, y, kernel_size=3, levels=4, weights=w, window=window)
+    assert torch.isfinite(out).all()
+    out.sum().backward()
+    _assert_finite_grads(x, y)
+    if weights == "learned":
+        _assert_finite_grads(learned.logits)
+
+
+def test_anticorrelated_images_have_negative_cs_and_tiny_ms_ssim() -> None:
+    x, y = ADVERSARIAL["anticorrelated"]()
+    # Check the premise (negative structure) on a single full-SSIM level, then the clamp.
+    assert ssim(x, y).mean() < 0
+    assert (ms_ssim(x, y) < 1e-3).all()
+
+
+# ----------------------------------------------------------------------------- loss terms
+
+
+def test_appearance_loss_zero_for_identical_images_and_combines_terms() -> None:
+    x = _rand(2, 3, 12, 16)
+    assert appearance_loss(x, x).item() == pytest.approx(0.0, abs=1e-6)
+    y = _noisy(x, 0.2)
+    l1 = (x - y).abs().mean()
+    assert appearance_loss(x, y, alpha=0.0).item() == pytest.approx(l1.item(), rel=1e-6)
+    dssim = ((1 - ssim(x, y)) / 2).clamp(0, 1).mean()
+    assert appearance_loss(x, y, alpha=1.0).item() == pytest.approx(dssim.item(), rel=1e-6)
+    msssim = make_similarity("msssim", SSIMConfig(), MSSSIMConfig(kernel_size=3, levels=3, weights="equal"))
+    expected = 0.85 * ((1 - ms_ssim(x, y, 3, 3, "equal")) / 2).mean() + 0.15 * l1
+    assert appearance_loss(x, y, similarity=msssim).item() == pytest.approx(expected.item(), rel=1e-6)
+
+
+def test_make_similarity_learned_needs_weights() -> None:
+    with pytest.raises(ValueError, match="LearnedLevelWeights"):
+        make_similarity("msssim", SSIMConfig(), MSSSIMConfig(weights="learned"))
+
+
+def test_smoothness_zero_for_constant_disparity() -> None:
+    disp = torch.full((2, 1, 8, 10), 0.05)
+    assert smoothness_loss(disp, _rand(2, 3, 8, 10)).item() == 0.0
+
+
+@pytest.mark.parametrize("transpose", [False, True])
+def test_smoothness_is_down_weighted_at_image_edges(transpose: bool) -> None:
+    h, w = 6, 9
+    disp = torch.zeros(1, 1, h, w)
+    disp[..., 4:] = 1.0  # one step of 1 between columns 3 and 4
+    edge_image = torch.zeros(1, 3, h, w)
+    edge_image[..., 4:] = 1.0  # an image edge at the same place
+    flat_image = torch.zeros(1, 3, h, w)
+    if transpose:  # the same in y: Monodepth's code would miss this one
+        disp, edge_image, flat_image = (t.transpose(-1, -2) for t in (disp, edge_image, flat_image))
+    assert smoothness_loss(disp, flat_image).item() == pytest.approx(1 / (w - 1))
+    assert smoothness_loss(disp, edge_image).item() == pytest.approx(math.exp(-1.0) / (w - 1))
+
+
+@pytest.mark.parametrize("padding_mode", ["border", "zeros"])
+def test_lr_consistency(padding_mode: str) -> None:
+    d = torch.full((2, 1, 8, 16), 2 / 16)
+    if padding_mode == "border":
+        assert lr_consistency_loss(d, d.clone(), padding_mode).item() == pytest.approx(0.0, abs=1e-7)
+    else:
+        # Zeros mode reads 0 past the image: consistent except for the 2 border columns.
+        assert lr_consistency_loss(d, d.clone(), padding_mode).item() < 2 * d[0, 0, 0, 0].item() * 2.5 / 16
+    assert lr_consistency_loss(d, 2 * d, padding_mode).item() > 0.1
+
+
+def test_scale_pyramid_is_area_downsampling() -> None:
+    x = _rand(2, 3, 16, 40)
+    pyramid = scale_pyramid(x, 4)
+    assert [tuple(p.shape[-2:]) for p in pyramid] == [(16, 40), (8, 20), (4, 10), (2, 5)]
+    assert pyramid[0] is x
+    block_mean = x.unfold(-2, 2, 2).unfold(-2, 2, 2).mean((-1, -2))
+    assert torch.allclose(pyramid[1], block_mean, atol=1e-6)
+    assert torch.allclose(pyramid[3].mean((-1, -2)), x.mean((-1, -2)), atol=1e-5)
+
+
+# ----------------------------------------------------------------------------- MonodepthLoss
+
+
+def _stereo_pair(shift: int, h: int = 32, w: int = 64) -> tuple[torch.Tensor, torch.Tensor]:
+    """A synthetic rectified pair with disparity ``shift`` px everywhere: left(x) = right(x - shift)."""
+    base = _rand(2, 3, h, w + shift, seed=5)
+    base = torch.nn.functional.avg_pool2d(base, 3, stride=1, padding=1, count_include_pad=False)
+    return base[..., :w], base[..., shift : w + shift]
+
+
+def _constant_disps(pixels: float, h: int = 32, w: int = 64, scales: int = 4) -> list[torch.Tensor]:
+    return [torch.full((2, 2, h >> s, w >> s), pixels / w) for s in range(scales)]
+
+
+def _loss(appearance: str = "ssim", weights: str = "wang", **loss_kwargs: object) -> MonodepthLoss:
+    return MonodepthLoss(
+        LossConfig(**loss_kwargs),  # type: ignore[arg-type]
+        appearance,  # type: ignore[arg-type]
+        SSIMConfig(),
+        MSSSIMConfig(kernel_size=3, levels=4, weights=weights),  # type: ignore[arg-type]
+    )
+
+
+@pytest.mark.parametrize("appearance", ["ssim", "msssim"])
+def test_monodepth_loss_prefers_the_true_disparity(appearance: str) -> None:
+    # 8 px at full size is exactly 1 px at 1/8, so every scale sees an exact integer shift.
+    left, right = _stereo_pair(shift=8)
+    loss = _loss(appearance)
+    right_terms = loss(_constant_disps(8), left, right)
+    assert set(right_terms) == {"total", "appearance", "smoothness", "lr_consistency"}
+    assert right_terms["smoothness"].item() == pytest.approx(0.0, abs=1e-7)
+    assert right_terms["lr_consistency"].item() == pytest.approx(0.0, abs=1e-6)
+    for wrong in (0, 3, 16):
+        wrong_terms = loss(_constant_disps(wrong), left, right)
+        assert right_terms["appearance"] < 0.3 * wrong_terms["appearance"]
+
+
+def test_monodepth_loss_total_combines_the_terms() -> None:
+    left, right = _stereo_pair(shift=8)
+    disps = [d * (1 + _rand(*d.shape, seed=i)) for i, d in enumerate(_constant_disps(8))]
+    terms = _loss(smoothness_weight=0.1, lr_weight=2.0)(disps, left, right)
+    expected = terms["appearance"] + 0.1 * terms["smoothness"] + 2.0 * terms["lr_consistency"]
+    assert torch.allclose(terms["total"], expected)
+    manual = sum(
+        (smoothness_loss(d[:, :1], l_s) + smoothness_loss(d[:, 1:], r_s)) / 2**s
+        for s, (d, l_s, r_s) in enumerate(zip(disps, scale_pyramid(left), scale_pyramid(right)))
+    )
+    assert torch.allclose(terms["smoothness"], manual)
+
+
+def test_monodepth_loss_learned_weights_are_parameters() -> None:
+    assert list(_loss("msssim", "wang").parameters()) == []
+    assert list(_loss("ssim", "learned").parameters()) == []
+    loss = _loss("msssim", "learned")
+    (logits,) = list(loss.parameters())
+    left, right = _stereo_pair(shift=8)
+    loss(_constant_disps(5), left, right)["total"].backward()
+    assert logits.grad is not None and torch.isfinite(logits.grad).all() and logits.grad.abs().sum() > 0
+
+
+def test_monodepth_loss_rejects_mismatched_scales() -> None:
+    left, right = _stereo_pair(shift=8)
+    with pytest.raises(ValueError, match="scale 1"):
+        _loss()([torch.zeros(2, 2, 32, 64), torch.zeros(2, 2, 15, 32)], left, right)
+
+
+@pytest.mark.parametrize("case", list(ADVERSARIAL))
+@pytest.mark.parametrize(
+    ("appearance", "weights"),
+    [("ssim", "wang"), ("msssim", "wang"), ("msssim", "equal"), ("msssim", "learned")],
+)
+@pytest.mark.parametrize("padding_mode", ["border", "zeros"])
+def test_monodepth_loss_gradients_finite(case: str, appearance: str, weights: str, padding_mode: str) -> None:
+    left, right = ADVERSARIAL[case]()
+    left.requires_grad_(True)
+    disps = [(0.3 * _rand(2, 2, 32 >> s, 64 >> s, seed=s)).requires_grad_(True) for s in range(4)]
+    loss = _loss(appearance, weights, padding_mode=padding_mode)
+    terms = loss(disps, left, right)
+    assert all(torch.isfinite(v) for v in terms.values())
+    terms["total"].backward()
+    _assert_finite_grads(left, *disps, *loss.parameters())
