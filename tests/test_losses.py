@@ -48,6 +48,27 @@ ADVERSARIAL: dict[str, Callable[[], tuple[torch.Tensor, torch.Tensor]]] = {
 # ----------------------------------------------------------------------------- SSIM
 
 
+@pytest.mark.parametrize("kernel_size", [1, 3, 5, 7, 9, 11])
+@pytest.mark.parametrize("padding", ["valid", "same"])
+@pytest.mark.parametrize("size", [(13, 21), (4, 6)])
+def test_box_window_mean_equals_average_pooling(kernel_size: int, padding: str, size: tuple[int, int]) -> None:
+    """The fast box filter is PyTorch's avg_pool2d (count_include_pad=False), values and gradients."""
+    from msdepth.losses import _window_mean
+
+    if padding == "valid" and min(size) < kernel_size:
+        pytest.skip("no valid window")
+    pad = kernel_size // 2 if padding == "same" else 0
+    x = _rand(2, 5, *size).requires_grad_()
+    upstream = _rand(2, 5, *size, seed=9)[..., : size[0] - 2 * (kernel_size // 2 - pad), : size[1] - 2 * (kernel_size // 2 - pad)]
+    ours = _window_mean(x, kernel_size, "box", 1.5, padding)
+    (grad_ours,) = torch.autograd.grad((ours * upstream).sum(), x)
+    ref = torch.nn.functional.avg_pool2d(x, kernel_size, stride=1, padding=pad, count_include_pad=False)
+    (grad_ref,) = torch.autograd.grad((ref * upstream).sum(), x)
+    torch.testing.assert_close(ours, ref, rtol=0, atol=2e-6)
+    torch.testing.assert_close(grad_ours, grad_ref, rtol=0, atol=2e-6)
+
+
+
 @pytest.mark.parametrize("padding", ["valid", "reflect"])
 def test_ssim_of_image_with_itself_is_one(padding: str) -> None:
     x = _rand(2, 3, 10, 12)

@@ -55,14 +55,65 @@ def _window_mean(
     """
     pad = kernel_size // 2 if padding == "same" else 0
     if window == "box":
-        # count_include_pad=False: border windows average the in-image pixels only.
-        return F.avg_pool2d(x, kernel_size, stride=1, padding=pad, count_include_pad=False)
+        # Same as avg_pool2d(x, k, 1, pad, count_include_pad=False): border windows average
+        # the in-image pixels only. Zero-pad, box-sum, divide by the in-image pixel count.
+        if pad:
+            h, w = x.shape[-2:]
+            x = F.pad(x, (pad, pad, pad, pad))
+            count_h = _box_sum(F.pad(x.new_ones(1, 1, h, 1), (0, 0, pad, pad)), kernel_size, (-2,))
+            count_w = _box_sum(F.pad(x.new_ones(1, 1, 1, w), (pad, pad)), kernel_size, (-1,))
+            return _box_sum(x, kernel_size) / (count_h * count_w)
+        return _box_sum(x, kernel_size) / kernel_size**2
     g = _gaussian_1d(kernel_size, sigma, x)
     out = _separable_conv(x, g, pad)
     if pad:
         # Divide by the window mass that fell inside the image (1 away from the borders).
         out = out / _separable_conv(x.new_ones(1, 1, *x.shape[2:]), g, pad)
     return out
+
+
+def _shifted_sum(x: Tensor, k: int, dims: tuple[int, ...]) -> Tensor:
+    """Sum of the ``k`` shifted views of ``x`` along each of ``dims`` (a valid box sum)."""
+    for dim in dims:
+        n = x.shape[dim] - k + 1
+        acc = x.narrow(dim, 0, n)
+        for i in range(1, k):
+            acc = acc + x.narrow(dim, i, n)
+        x = acc
+    return x
+
+
+class _BoxSum(torch.autograd.Function):
+    """Valid box sum whose backward is the "full" box sum of the gradient.
+
+    Autograd through the shifted views would zero-fill and scatter one full-size buffer per
+    view; the adjoint of a valid box sum is the same sum over the gradient zero-padded by k-1.
+    """
+
+    @staticmethod
+    def forward(ctx, x: Tensor, k: int, dims: tuple[int, ...]) -> Tensor:  # type: ignore[override]
+        ctx.k, ctx.dims = k, dims
+        return _shifted_sum(x, k, dims)
+
+    @staticmethod
+    @torch.autograd.function.once_differentiable
+    def backward(ctx, grad: Tensor):  # type: ignore[override]
+        k, pad = ctx.k, [0, 0, 0, 0]
+        for dim in ctx.dims:
+            pad[2 * (-1 - dim)] = pad[2 * (-1 - dim) + 1] = k - 1  # F.pad lists the last dim first
+        return _shifted_sum(F.pad(grad, pad), k, ctx.dims), None, None
+
+
+def _box_sum(x: Tensor, kernel_size: int, dims: tuple[int, ...] = (-1, -2)) -> Tensor:
+    """Sum over every ``kernel_size`` window along each of ``dims`` (-1 and/or -2), stride 1, no padding.
+
+    Measured on CPU (benchmarks/loss.py), PyTorch's stride-1 ``avg_pool2d`` and its backward
+    cost ~k² per pixel and dominated the training step: summing k shifted views per axis is
+    faster for k <= 7, and a depthwise 1-D convolution per axis beyond.
+    """
+    if kernel_size > 7 and dims == (-1, -2):
+        return _separable_conv(x, x.new_ones(kernel_size), 0)
+    return _BoxSum.apply(x, kernel_size, dims)
 
 
 def _separable_conv(x: Tensor, g: Tensor, pad: int) -> Tensor:

@@ -1,0 +1,83 @@
+"""Forward+backward time of appearance losses, side by side in one process.
+
+    python benchmarks/loss.py                      # CPU: batch 2 x 3 x 256 x 512
+    python benchmarks/loss.py --device cuda --batch 8
+
+Candidates (each ``alpha*(1-S)/2 + (1-alpha)*L1`` with alpha = 0.85, so only S differs):
+ours SSIM (3x3 box, the baseline), ours MS-SSIM (4 levels, box k=3, the training setting),
+ours MS-SSIM in pytorch-msssim's configuration (gaussian 11, sigma 1.5, 5 levels, valid) and
+pytorch-msssim's ``ms_ssim`` itself, and torchmetrics' MS-SSIM when it is installed. The last
+two columns of the issue's target compare the like-for-like pair.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+import torch
+
+from _timing import compare, device_from, table
+from msdepth.losses import appearance_loss, ms_ssim, ssim
+
+ALPHA = 0.85
+
+
+def candidates(x: torch.Tensor, y: torch.Tensor) -> dict:
+    def run(similarity):
+        def step():
+            x.grad = None
+            appearance_loss(x, y, ALPHA, similarity).backward()
+        return step
+
+    out = {
+        "ours SSIM k3": run(lambda a, b: ssim(a, b, 3)),
+        "ours MS-SSIM box k3 L4": run(lambda a, b: ms_ssim(a, b, 3, 4)),
+        "ours MS-SSIM box k7 L4": run(lambda a, b: ms_ssim(a, b, 7, 4)),
+        "ours MS-SSIM gauss11 L5": run(
+            lambda a, b: ms_ssim(a, b, 11, 5, window="gaussian", sigma=1.5, padding="valid")
+        ),
+    }
+    try:
+        from pytorch_msssim import ms_ssim as reference
+
+        out["pytorch-msssim ms_ssim"] = run(lambda a, b: reference(a, b, data_range=1.0, size_average=False))
+    except ImportError:
+        print("pytorch-msssim not installed: skipped", file=sys.stderr)
+    try:
+        from torchmetrics.functional.image import multiscale_structural_similarity_index_measure as tm
+
+        out["torchmetrics MS-SSIM"] = run(lambda a, b: tm(a, b, data_range=1.0, reduction="none"))
+    except ImportError:
+        print("torchmetrics not installed: skipped", file=sys.stderr)
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--device", default="cpu", help="cpu | cuda | auto")
+    ap.add_argument("--batch", type=int, default=None, help="default: 2 on CPU, 8 on CUDA")
+    ap.add_argument("--height", type=int, default=256)
+    ap.add_argument("--width", type=int, default=512)
+    ap.add_argument("--repeats", type=int, default=15)
+    ap.add_argument("--threads", type=int, default=None, help="torch CPU threads")
+    args = ap.parse_args()
+    device = device_from(args.device)
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    batch = args.batch or (8 if device.type == "cuda" else 2)
+    gen = torch.Generator().manual_seed(0)
+    x = torch.rand(batch, 3, args.height, args.width, generator=gen).to(device).requires_grad_()
+    y = (x.detach() + 0.1 * torch.randn(x.shape, generator=gen).to(device)).clamp(0, 1)
+    medians = compare(candidates(x, y), device, repeats=args.repeats)
+    print(f"loss forward+backward, {batch}x3x{args.height}x{args.width}, {device}, "
+          f"{torch.get_num_threads()} threads, median of {args.repeats}\n")
+    print(table(medians, "ours SSIM k3"))
+    if "pytorch-msssim ms_ssim" in medians:
+        ref = medians["pytorch-msssim ms_ssim"]
+        print(f"\npytorch-msssim / ours (same config, gauss11 L5): {ref / medians['ours MS-SSIM gauss11 L5']:.2f}x")
+        print(f"pytorch-msssim / ours (training config, box k3 L4): {ref / medians['ours MS-SSIM box k3 L4']:.2f}x")
+
+
+if __name__ == "__main__":
+    main()
