@@ -139,9 +139,27 @@ def test_disparity_matches_ground_plane_geometry() -> None:
 def test_disparity_encoding_on_disk(root: Path) -> None:
     frame = synthetic.render_frame(CFG.seed, 1, 0, CFG.height, CFG.width)
     occ = kitti.read_disparity(kitti.kitti2015_paths(root / "kitti2015", "000000_10", "disp_occ_0")["disp"])
-    assert np.abs(occ - frame.disp).max() <= 1 / 512 + 1e-6
-    assert ((occ > 0) == (frame.disp > 0)).all()
+    in_range = synthetic.within_range(frame.disp, frame.focal, CFG.gt_max_depth)
+    assert np.abs(occ - in_range).max() <= 1 / 512 + 1e-6
+    assert ((occ > 0) == (in_range > 0)).all()
     assert (occ == 0).any()  # the sky has no ground truth
+
+
+def test_eval_gt_stops_at_lidar_range(root: Path) -> None:
+    """Like KITTI's LiDAR GT, evaluation GT has no depth beyond gt_max_depth; nearer GT is kept."""
+    dropped = 0
+    for index in range(CFG.eval_frames):
+        frame = synthetic.render_frame(CFG.seed, 1, index, CFG.height, CFG.width)
+        occ = kitti.read_disparity(kitti.kitti2015_paths(root / "kitti2015", f"{index:06d}_10", "disp_occ_0")["disp"])
+        depth = frame.focal * kitti.KITTI_BASELINE / occ[occ > 0]
+        assert depth.max() <= CFG.gt_max_depth * (1 + 1e-3)
+        true_depth = frame.focal * kitti.KITTI_BASELINE / np.where(frame.disp > 0, frame.disp, np.inf)
+        near = (frame.disp > 0) & (true_depth < CFG.gt_max_depth * 0.99)
+        assert (occ[near] > 0).all()
+        dropped += int(((frame.disp > 0) & (occ == 0)).sum())
+    assert dropped > 0  # the road towards the horizon is rendered but has no GT
+    unlimited = synthetic.within_range(frame.disp, frame.focal, 0.0)
+    assert np.array_equal(unlimited, frame.disp)
 
 
 def test_noc_is_subset_of_occ(root: Path) -> None:

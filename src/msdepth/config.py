@@ -25,6 +25,9 @@ class SyntheticConfig:
     eval_frames: int = 40
     height: int = 125
     width: int = 414
+    # Evaluation GT beyond this depth is left invalid (0), as KITTI's LiDAR-based GT has no
+    # points past its range (~80 m); 0 keeps every rendered surface.
+    gt_max_depth: float = 80.0
 
 
 @dataclass(frozen=True)
@@ -46,13 +49,17 @@ class ModelConfig:
 @dataclass(frozen=True)
 class TrainConfig:
     seed: int = 0
-    epochs: int = 8
+    epochs: int = 16
     batch_size: int = 8
     learning_rate: float = 1e-3
     num_workers: int = 0
     augment: bool = True
     device: Literal["cpu", "cuda", "auto"] = "cpu"
     threads: int = 2
+    # Speed switches for a GPU (all off on the CPU default). The loss is always computed in fp32.
+    amp: Literal["none", "bf16"] = "none"
+    channels_last: bool = False
+    compile: bool = False
 
 
 @dataclass(frozen=True)
@@ -185,6 +192,7 @@ def validate(p: Params) -> Params:
         _check(getattr(s, name) >= 1, f"data.synthetic.{name}", "must be >= 1")
     _check(s.drives <= s.train_pairs, "data.synthetic.drives", "must not exceed train_pairs")
     _check(s.height >= 32 and s.width >= 64, "data.synthetic.height", "render size must be at least 32 x 64")
+    _check(s.gt_max_depth >= 0, "data.synthetic.gt_max_depth", f"must be >= 0 (0 = no limit), got {s.gt_max_depth}")
     _check(p.model.width_multiplier > 0, "model.width_multiplier", "must be > 0")
     _check(0 < p.model.init_disparity < 0.3, "model.init_disparity", "must be in (0, 0.3) (heads output 0.3*sigmoid)")
     t = p.train

@@ -921,6 +921,17 @@ def _write_train(job: tuple[SyntheticConfig, str, int]) -> tuple[str, str]:
     return left, right
 
 
+def within_range(disp: np.ndarray, focal: float, max_depth: float) -> np.ndarray:
+    """``disp`` with pixels deeper than ``max_depth`` metres set invalid (0); 0 = no limit.
+
+    KITTI's GT comes from a LiDAR that returns nothing past ~80 m; a rendered road reaches the
+    horizon (kilometres), which would otherwise dominate RMSE against predictions capped at 80 m.
+    """
+    if max_depth <= 0:
+        return disp
+    return np.where(disp >= focal * KITTI_BASELINE / max_depth, disp, 0).astype(disp.dtype)
+
+
 def _write_eval(job: tuple[SyntheticConfig, str, int]) -> list[tuple[str, str, int, int, int, int]]:
     cfg, root, index = job
     frame = render_frame(cfg.seed, _EVAL, index, cfg.height, cfg.width)
@@ -928,8 +939,9 @@ def _write_eval(job: tuple[SyntheticConfig, str, int]) -> list[tuple[str, str, i
     training = Path(root) / "kitti2015" / "training"
     write_png(training / "image_2" / f"{name}.png", frame.left)
     write_png(training / "image_3" / f"{name}.png", frame.right)
-    write_disparity(training / EVAL_GT_OCC / f"{name}.png", frame.disp)
-    write_disparity(training / EVAL_GT_NOC / f"{name}.png", np.where(frame.noc, frame.disp, 0))
+    disp = within_range(frame.disp, frame.focal, cfg.gt_max_depth)
+    write_disparity(training / EVAL_GT_OCC / f"{name}.png", disp)
+    write_disparity(training / EVAL_GT_NOC / f"{name}.png", np.where(frame.noc, disp, 0))
     write_png(training / "obj_map" / f"{name}.png", frame.obj_map)
     write_text(training / "calib_cam_to_cam" / f"{index:06d}.txt", calib_text(cfg.height, cfg.width))
     return [(name, *box) for box in frame.rois]
