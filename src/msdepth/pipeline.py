@@ -22,7 +22,7 @@ from .compare import build_comparison, load_suite_metrics
 from .config import Params, load_params
 from .data import kitti
 from .data.index import build_indexes, layout, read_eval_index
-from .data.pairs import load_pair_list
+from .data.pairs import build_pair_cache, load_pair_cache, load_pair_list
 from .errors import ConfigError, DataError, MsdepthError
 from .evaluate import (
     depth_maps,
@@ -37,6 +37,7 @@ from .io import atomic_path, save_npz, write_json, write_text
 log = logging.getLogger("msdepth")
 
 INDEX_DIR = Path("data/index")
+PAIR_CACHE = Path("data/cache/train_pairs.npy")
 BASELINES = ("constant", "prior")
 SUITES = {"full": evaluate_full, "roi": evaluate_roi, "gradients": evaluate_gradients}
 
@@ -84,18 +85,28 @@ def rois(params: Params) -> None:
     log.info("rois: %d boxes, %s", len(boxes), boxes["class"].value_counts().to_dict())
 
 
+def cache(params: Params) -> None:
+    """Decode and resize the training pairs once into a memory-mappable array."""
+    pairs = load_pair_list(INDEX_DIR / "train_pairs.txt")
+    build_pair_cache(pairs, params.data.height, params.data.width, PAIR_CACHE)
+    log.info("cache: %d pairs at %dx%d in %s", len(pairs), params.data.height, params.data.width, PAIR_CACHE)
+
+
 def train(params: Params, variant: str) -> None:
     """Train one loss variant; write its model, training summary and dvclive curves."""
     from .train import train_variant, write_train_summary
 
     params.variant(variant)
     pairs = load_pair_list(INDEX_DIR / "train_pairs.txt")
+    images = load_pair_cache(PAIR_CACHE, len(pairs), params.data.height, params.data.width)
     result = train_variant(
         params, variant, pairs, model_path(variant), checkpoint_path(variant),
-        live_dir=Path("plots") / "train" / variant,
+        live_dir=Path("plots") / "train" / variant, cache=images,
     )
     write_train_summary(Path("metrics") / "train" / f"{variant}.json", result)
-    log.info("train %s: %d steps in %.0f s (%.1f examples/s)", variant, result.steps, result.seconds, result.examples_per_second)
+    resumed = f", resumed from epoch {result.resumed_from_epoch}" if result.resumed_from_epoch else ""
+    log.info("train %s: %d steps%s; %.0f s in this run (%.1f examples/s)",
+             variant, result.steps, resumed, result.seconds, result.examples_per_second)
 
 
 def infer(params: Params, variant: str) -> None:

@@ -39,10 +39,11 @@ class TrainingError(MsdepthError):
 
 @dataclass(frozen=True)
 class TrainResult:
-    steps: int
+    steps: int  # in total, including those before a resume
     epochs: int
-    seconds: float
-    examples_per_second: float
+    resumed_from_epoch: int  # 0 = trained from scratch in this run
+    seconds: float  # of this run
+    examples_per_second: float  # of this run
     final_losses: dict[str, float]
 
 
@@ -89,7 +90,9 @@ def fingerprint(params: Params, variant: str, num_pairs: int) -> str:
     relevant = {
         "data": [params.data.height, params.data.width, num_pairs],
         "model": asdict(params.model),
-        "train": {k: v for k, v in asdict(params.train).items() if k not in ("num_workers", "threads", "device")},
+        # Settings that change only speed do not invalidate a checkpoint.
+        "train": {k: v for k, v in asdict(params.train).items()
+                  if k not in ("num_workers", "threads", "device", "channels_last", "compile")},
         "loss": asdict(params.loss),
         "appearance": appearance,
         appearance: asdict(getattr(params, appearance)),
@@ -103,7 +106,7 @@ def save_checkpoint(path: Path, state: dict) -> None:
         torch.save(state, tmp)
 
 
-def _loader(dataset: StereoPairs, params: Params, epoch: int) -> DataLoader:
+def _loader(dataset: StereoPairs, params: Params, epoch: int, pin_memory: bool = False) -> DataLoader:
     # Shuffle order from (seed, epoch): a resumed epoch sees the same batches.
     gen = torch.Generator().manual_seed(params.train.seed * 100_003 + epoch)
     dataset.set_epoch(epoch)
@@ -115,6 +118,7 @@ def _loader(dataset: StereoPairs, params: Params, epoch: int) -> DataLoader:
         num_workers=params.train.num_workers,
         generator=gen,
         persistent_workers=False,
+        pin_memory=pin_memory,
     )
 
 
@@ -126,8 +130,12 @@ def train_variant(
     checkpoint_path: str | os.PathLike,
     live_dir: str | os.PathLike | None = None,
     progress: bool = True,
+    cache: np.ndarray | None = None,
 ) -> TrainResult:
     """Train ``variant`` on ``pairs``; write the final weights to ``model_path``.
+
+    ``cache`` holds the pairs already resized (:func:`msdepth.data.pairs.build_pair_cache`);
+    without it every sample is decoded and resized from ``pairs``.
 
     A checkpoint is written atomically at ``checkpoint_path`` after every epoch and resumed
     from when its fingerprint matches. Per-epoch mean losses go to dvclive in ``live_dir``.
@@ -136,8 +144,12 @@ def train_variant(
     torch.set_num_threads(t.threads)
     seed_everything(t.seed)
     device = resolve_device(t.device)
-    dataset = StereoPairs(pairs, params.data.height, params.data.width, augment=t.augment, seed=t.seed)
+    dataset = StereoPairs(pairs, params.data.height, params.data.width, augment=t.augment, seed=t.seed, cache=cache)
     model = build_model(params).to(device)
+    memory_format = torch.channels_last if t.channels_last else torch.contiguous_format
+    model = model.to(memory_format=memory_format)
+    # The compiled wrapper shares the parameters of `model`, which is what is saved.
+    forward = torch.compile(model) if t.compile else model
     criterion = build_loss(params, variant).to(device)
     trainable = list(model.parameters()) + list(criterion.parameters())
     optimizer = torch.optim.Adam(trainable, lr=t.learning_rate)
@@ -169,12 +181,14 @@ def train_variant(
 
     started = time.perf_counter()
     examples = 0
+    resumed_from = start_epoch
+    pin = device.type == "cuda"
     for epoch in range(start_epoch, t.epochs):
         model.train()
         sums = dict.fromkeys(LOSS_KEYS, 0.0)
         batches = 0
         bar = tqdm(
-            _loader(dataset, params, epoch),
+            _loader(dataset, params, epoch, pin_memory=pin),
             desc=f"{variant} epoch {epoch + 1}/{t.epochs}",
             disable=not progress,
             leave=False,
@@ -184,7 +198,10 @@ def train_variant(
                 group["lr"] = learning_rate(t.learning_rate, step, total_steps)
             left = batch["left"].to(device, non_blocking=True)
             right = batch["right"].to(device, non_blocking=True)
-            losses = criterion(model(left), left, right)
+            with torch.autocast(device.type, dtype=torch.bfloat16, enabled=t.amp == "bf16"):
+                disps = forward(left.contiguous(memory_format=memory_format))
+            # SSIM statistics (E[x²] - E[x]²) cancel badly in bf16: the loss runs in fp32.
+            losses = criterion([d.float() for d in disps], left, right)
             if not torch.isfinite(losses["total"]):
                 names = [str(dataset.pairs[int(i)][0]) for i in batch["index"]]
                 raise TrainingError(
@@ -229,6 +246,7 @@ def train_variant(
     return TrainResult(
         steps=step,
         epochs=t.epochs,
+        resumed_from_epoch=resumed_from,
         seconds=seconds,
         examples_per_second=examples / seconds if seconds > 0 and examples else math.nan,
         final_losses={k: final.get(k, math.nan) for k in LOSS_KEYS},

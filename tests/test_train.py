@@ -1,0 +1,146 @@
+"""Training: resume after an interruption, non-finite losses, the GPU speed switches (run on CPU)."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+import msdepth.train as train_mod
+from msdepth.config import Params, params_from_dict
+from msdepth.io import write_png
+from msdepth.train import TrainingError, load_model, train_variant
+
+H, W = 32, 64
+
+
+@pytest.fixture(scope="module")
+def pairs(tmp_path_factory) -> list[tuple[Path, Path]]:
+    """Eight stereo pairs: a random texture and the same texture shifted by 2 px."""
+    root = tmp_path_factory.mktemp("pairs")
+    rng = np.random.default_rng(0)
+    out = []
+    for i in range(8):
+        scene = rng.integers(0, 256, (H, W + 2, 3), dtype=np.uint8)
+        left, right = root / f"l{i}.png", root / f"r{i}.png"
+        write_png(left, scene[:, 2:])
+        write_png(right, scene[:, :-2])
+        out.append((left, right))
+    return out
+
+
+def _params(**train) -> Params:
+    return params_from_dict({
+        "data": {"height": H, "width": W},
+        "model": {"width_multiplier": 0.0625},
+        "train": {"epochs": 2, "batch_size": 4, "threads": 1, **train},
+        "msssim": {"levels": 3},
+    })
+
+
+def _weights(path: Path) -> dict[str, torch.Tensor]:
+    return load_model(path)[0].state_dict()
+
+
+def _train(params: Params, pairs, tmp: Path, variant: str = "ssim"):
+    return train_variant(params, variant, pairs, tmp / "model.pt", tmp / "ck.pt", progress=False)
+
+
+@pytest.mark.parametrize("variant", ["ssim", "msssim"])
+def test_interrupted_run_resumes_to_the_same_weights(pairs, tmp_path: Path, monkeypatch, variant: str) -> None:
+    params = _params()
+    (tmp_path / "a").mkdir()
+    (tmp_path / "b").mkdir()
+    full = _train(params, pairs, tmp_path / "a", variant)
+
+    real_save = train_mod.save_checkpoint
+
+    def save_then_die(path, state):
+        real_save(path, state)
+        raise KeyboardInterrupt  # killed right after the first epoch's checkpoint
+
+    monkeypatch.setattr(train_mod, "save_checkpoint", save_then_die)
+    with pytest.raises(KeyboardInterrupt):
+        _train(params, pairs, tmp_path / "b", variant)
+    assert not (tmp_path / "b" / "model.pt").exists()
+    monkeypatch.setattr(train_mod, "save_checkpoint", real_save)
+    resumed = _train(params, pairs, tmp_path / "b", variant)
+
+    assert resumed.resumed_from_epoch == 1 and full.resumed_from_epoch == 0
+    assert resumed.steps == full.steps == 4
+    a, b = _weights(tmp_path / "a" / "model.pt"), _weights(tmp_path / "b" / "model.pt")
+    for name in a:
+        assert torch.equal(a[name], b[name]), name
+
+
+def test_checkpoint_of_other_params_is_not_resumed(pairs, tmp_path: Path) -> None:
+    _train(_params(epochs=1), pairs, tmp_path)
+    other = _train(_params(epochs=1, learning_rate=5e-4), pairs, tmp_path)
+    assert other.resumed_from_epoch == 0
+
+
+def test_non_finite_loss_stops_with_step_and_files(pairs, tmp_path: Path, monkeypatch) -> None:
+    real_forward = train_mod.MonodepthLoss.forward
+    calls = {"n": 0}
+
+    def poisoned(self, disps, left, right):
+        calls["n"] += 1
+        out = real_forward(self, disps, left, right)
+        if calls["n"] == 3:  # step 2, in the second epoch
+            out = dict(out, total=out["total"] * float("nan"))
+        return out
+
+    monkeypatch.setattr(train_mod.MonodepthLoss, "forward", poisoned)
+    with pytest.raises(TrainingError, match=r"non-finite loss nan at step 2 \(epoch 2\); batch: \[.*\.png"):
+        _train(_params(), pairs, tmp_path)
+    state = torch.load(tmp_path / "ck.pt", weights_only=False)
+    assert state["epoch"] == 1  # the last checkpoint is the good first epoch
+    assert all(torch.isfinite(v).all() for v in state["model"].values())
+    assert not (tmp_path / "model.pt").exists()
+
+
+def test_bf16_autocast_and_channels_last_train_on_cpu(pairs, tmp_path: Path) -> None:
+    (tmp_path / "fp32").mkdir()
+    (tmp_path / "bf16").mkdir()
+    _train(_params(), pairs, tmp_path / "fp32")
+    result = _train(_params(amp="bf16", channels_last=True), pairs, tmp_path / "bf16")
+    assert all(np.isfinite(v) for v in result.final_losses.values())
+    a, b = _weights(tmp_path / "fp32" / "model.pt"), _weights(tmp_path / "bf16" / "model.pt")
+    assert any(not torch.equal(a[k], b[k]) for k in a)  # autocast really changed the arithmetic
+    # ... but only by bf16 rounding: the runs stay close.
+    diffs = [float((a[k] - b[k]).abs().max()) for k in a]
+    assert max(diffs) < 0.05
+
+
+def test_speed_switches_keep_the_checkpoint_fingerprint() -> None:
+    base = _params()
+    fast = dataclasses.replace(base, train=dataclasses.replace(base.train, channels_last=True, compile=True, num_workers=2))
+    assert train_mod.fingerprint(base, "ssim", 8) == train_mod.fingerprint(fast, "ssim", 8)
+    amp = dataclasses.replace(base, train=dataclasses.replace(base.train, amp="bf16"))
+    assert train_mod.fingerprint(base, "ssim", 8) != train_mod.fingerprint(amp, "ssim", 8)
+
+
+def test_unknown_amp_mode_is_a_config_error() -> None:
+    from msdepth.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="train.amp"):
+        _params(amp="fp16")
+
+
+def test_compile_switch_compiles_the_network_and_saves_its_weights(pairs, tmp_path: Path, monkeypatch) -> None:
+    # A real torch.compile takes ~1 min on CPU (measured), so the wiring is tested with a stand-in.
+    compiled = []
+
+    def fake_compile(model):
+        compiled.append(model)
+        return lambda x: model(x)
+
+    monkeypatch.setattr(torch, "compile", fake_compile)
+    _train(_params(epochs=1, compile=True), pairs, tmp_path)
+    assert len(compiled) == 1 and isinstance(compiled[0], train_mod.MonodepthVGG)
+    saved = _weights(tmp_path / "model.pt")
+    for name, value in compiled[0].state_dict().items():
+        assert torch.equal(saved[name], value)
