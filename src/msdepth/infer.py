@@ -54,11 +54,19 @@ def predict_disparities(
     for start in tqdm(range(0, len(images), batch_size), desc="inference", disable=not progress, leave=False):
         chunk = images[start : start + batch_size]
         batch = torch.stack([to_tensor(resize(kitti.read_image(p), height, width)) for p in chunk]).to(device)
-        if post_process:
-            disp = model(torch.cat([batch, torch.flip(batch, dims=[-1])]))[0][:, 0]
-            n = batch.shape[0]
-            result = post_process_disparity(disp[:n].cpu().numpy(), disp[n:].cpu().numpy())
-        else:
-            result = model(batch)[0][:, 0].cpu().numpy()
-        out[start : start + len(chunk)] = result
+        out[start : start + len(chunk)] = network_disparity(model, batch, post_process)
     return out
+
+
+@torch.no_grad()
+def network_disparity(model: MonodepthVGG, batch: torch.Tensor, post_process: bool = True) -> np.ndarray:
+    """Left disparity (fraction of width) of a (B, 3, h, w) batch at the network size, (B, h, w).
+
+    With ``post_process``, the batch and its mirror image go through the network together and
+    are blended by :func:`post_process_disparity`.
+    """
+    if post_process:
+        disp = model(torch.cat([batch, torch.flip(batch, dims=[-1])]))[0][:, 0]
+        n = batch.shape[0]
+        return post_process_disparity(disp[:n].cpu().numpy(), disp[n:].cpu().numpy())
+    return model(batch)[0][:, 0].cpu().numpy()

@@ -1,0 +1,114 @@
+"""Command line: ``msdepth predict`` and ``msdepth export-onnx`` (also ``python -m msdepth``)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from typing import Sequence
+
+from .errors import MsdepthError
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="msdepth", description="Use a trained msdepth model.")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    p = sub.add_parser(
+        "predict",
+        help="disparity, metric depth and point clouds for images, folders or videos",
+        description="Predict every image of INPUT (an image, a folder searched recursively, or a video "
+        "file, one output per frame) and write its outputs under --out, named after the input.",
+    )
+    p.add_argument("input", metavar="INPUT", help="image, folder of images or video file")
+    p.add_argument("--model", required=True, help="trained model file, e.g. models/msssim/model.pt")
+    p.add_argument("--out", required=True, help="output folder")
+    # Options left at None take PredictOptions' defaults (kept there, so --help need not import torch).
+    p.add_argument("--height", type=int, help="network input height (default: the model's training size)")
+    p.add_argument("--width", type=int, help="network input width (default: the model's training size)")
+    p.add_argument(
+        "--no-post-process", dest="post_process", action="store_false",
+        help="skip Monodepth's flip post-processing (twice as fast, slightly worse near edges)",
+    )
+    p.add_argument(
+        "--focal", type=float,
+        help="focal length in px at the input image's resolution (default: KITTI's for that width: "
+        "721.5377 px at 1242, scaled with the width)",
+    )
+    p.add_argument("--baseline", type=float, help="stereo baseline in m (default: 0.54, KITTI's)")
+    p.add_argument("--cx", type=float, help="principal point x in px for the point cloud (default: image centre)")
+    p.add_argument("--cy", type=float, help="principal point y in px for the point cloud (default: image centre)")
+    p.add_argument(
+        "--max-depth", type=float,
+        help="depths beyond this (m) are invalid (0) in the depth outputs and dropped from point clouds "
+        "(default: 80)",
+    )
+    p.add_argument(
+        "--disp-format", choices=("png", "npy", "both", "none"),
+        help="disparity outputs: colour PNG and/or .npy in px (default: both)",
+    )
+    p.add_argument(
+        "--depth-format", choices=("png", "npy", "both", "none"),
+        help="depth outputs: 16-bit PNG in mm and/or .npy in m (default: png)",
+    )
+    p.add_argument("--ply", choices=("none", "binary", "ascii"), help="write a coloured point cloud (default: none)")
+    p.add_argument("--colorbar", action="store_true", help="add a colour bar (disparity in px) to the disparity PNG")
+    p.add_argument("--device", choices=("auto", "cpu", "cuda"), help="default: auto (CUDA if available)")
+    p.add_argument("--batch-size", type=int, help="frames per network batch (default: 8)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(run=_predict)
+
+    e = sub.add_parser(
+        "export-onnx",
+        help="export the depth network to ONNX",
+        description="Export the network to ONNX. Input 'image': float32 (B, 3, H, W), RGB in [0, 1]; "
+        "output 'disparity': float32 (B, 2, H, W), the finest scale, channel 0 = left disparity as a "
+        "fraction of the width. Batch, height and width are dynamic unless --static.",
+    )
+    e.add_argument("--model", required=True, help="trained model file, e.g. models/msssim/model.pt")
+    e.add_argument("--out", required=True, help="ONNX file to write")
+    e.add_argument("--height", type=int, help="tracing input height (default: the model's training size)")
+    e.add_argument("--width", type=int, help="tracing input width (default: the model's training size)")
+    e.add_argument("--opset", type=int, help="ONNX opset, 11 to 20 (default: 17)")
+    e.add_argument("--static", action="store_true", help="fix the input to 1 x 3 x height x width")
+    e.set_defaults(run=_export_onnx)
+    return parser
+
+
+def _predict(args: argparse.Namespace) -> int:
+    from .predict import PredictOptions, predict
+
+    names = (
+        "height", "width", "post_process", "focal", "baseline", "cx", "cy", "max_depth",
+        "disp_format", "depth_format", "ply", "colorbar", "batch_size", "device",
+    )
+    given = {name: getattr(args, name) for name in names if getattr(args, name) is not None}
+    options = PredictOptions(**given, progress=not args.quiet)
+    report = predict(args.input, args.model, args.out, options)
+    if report.ignored:
+        print(f"ignored {len(report.ignored)} file(s) that are not images, e.g. {report.ignored[0]}", file=sys.stderr)
+    total = report.written + len(report.failed)
+    failed = f"; {len(report.failed)} failed (listed above)" if report.failed else ""
+    print(f"wrote the outputs of {report.written} of {total} frame(s) to {args.out}{failed}", file=sys.stderr)
+    return 1 if report.failed else 0
+
+
+def _export_onnx(args: argparse.Namespace) -> int:
+    from .onnx_export import export_onnx
+
+    export_onnx(args.model, args.out, args.height, args.width, args.opset, dynamic=not args.static)
+    print(f"wrote {args.out}", file=sys.stderr)
+    return 0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the command line; returns the exit code (0 ok, 1 error or failed frames, 2 usage)."""
+    args = _parser().parse_args(argv)
+    try:
+        return args.run(args)
+    except MsdepthError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
