@@ -34,6 +34,24 @@ _JPEG_END = b"\xff\xd9"
 PathLike = str | os.PathLike
 
 
+def _png_chunk_problem(data: bytes) -> str | None:
+    """Why a PNG's chunk lengths do not lead, in bounds, to its IEND chunk; None if they do.
+
+    OpenCV allocates the length a chunk declares before reading it, so a corrupt 20-byte file can
+    cost gigabytes and seconds; walking the chunk headers first costs microseconds.
+    """
+    pos = len(_PNG_MAGIC)
+    while pos + 12 <= len(data):  # 4 length + 4 type + data + 4 CRC
+        length = int.from_bytes(data[pos : pos + 4], "big")
+        kind = data[pos + 4 : pos + 8]
+        if pos + 12 + length > len(data):
+            return f"chunk {kind!r} at byte {pos} declares {length} bytes, past the end of the file"
+        if kind == b"IEND":
+            return None
+        pos += 12 + length
+    return f"chunk at byte {pos} is cut off before the IEND chunk"
+
+
 def _decode(path: PathLike, what: str) -> np.ndarray:
     """Read and decode an image file unchanged (depth and channels kept), or raise DataError."""
     path = Path(path)
@@ -44,6 +62,8 @@ def _decode(path: PathLike, what: str) -> np.ndarray:
         raise DataError(f"{path}: {what} file is empty (0 bytes)")
     if data.startswith(_PNG_MAGIC) and not data.rstrip(b"\x00").endswith(_PNG_END):
         raise DataError(f"{path}: truncated PNG (no IEND chunk at the end)")
+    if data.startswith(_PNG_MAGIC) and (problem := _png_chunk_problem(data)):
+        raise DataError(f"{path}: corrupt PNG: {problem}")
     if data.startswith(_JPEG_MAGIC) and _JPEG_END not in data[-64:]:
         raise DataError(f"{path}: truncated JPEG (no end-of-image marker)")
     img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
@@ -136,10 +156,19 @@ def stereo_from_calib(calib: dict[str, np.ndarray]) -> tuple[float, float]:
                     f"got {calib[left].size}/{calib[right].size}"
                 )
             p2, p3 = calib[left].reshape(3, 4), calib[right].reshape(3, 4)
+            if not (np.isfinite(p2).all() and np.isfinite(p3).all()):
+                raise DataError(f"calibration: {left}/{right} contain NaN or infinite values")
             focal = float(p2[0, 0])
             if focal <= 0:
                 raise DataError(f"calibration: {left} has a non-positive focal length {focal}")
-            return focal, float((p2[0, 3] - p3[0, 3]) / focal)
+            baseline = float((p2[0, 3] - p3[0, 3]) / focal)
+            # Depth = focal * baseline / disparity: a zero, negative or infinite baseline would
+            # turn every depth into garbage downstream (camera 3 must sit right of camera 2).
+            if not (np.isfinite(baseline) and baseline > 0):
+                raise DataError(
+                    f"calibration: {left}/{right} give a non-positive or non-finite baseline {baseline} m"
+                )
+            return focal, baseline
     raise DataError(f"calibration: no P_rect_02/P_rect_03 or P2/P3 projections (keys: {sorted(calib)})")
 
 
@@ -167,8 +196,12 @@ def read_split(path: PathLike) -> list[tuple[str, str]]:
     path = Path(path)
     if not path.is_file():
         raise DataError(f"{path}: no such split file")
+    try:
+        text = path.read_bytes().decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise DataError(f"{path}: not a UTF-8 text file ({exc.reason} at byte {exc.start})") from None
     pairs: list[tuple[str, str]] = []
-    for number, line in enumerate(path.read_text().splitlines(), start=1):
+    for number, line in enumerate(text.splitlines(), start=1):
         fields = line.split()
         if not fields:
             continue
@@ -203,6 +236,23 @@ def resolve_image(root: Path, rel: str) -> Path | None:
     return None
 
 
+# Far beyond any image, and small enough that float64 and int64 hold every coordinate exactly.
+_MAX_COORD = 2**31 - 1
+
+
+def _box_coordinate(value: object) -> int | None:
+    """``value`` as an exact integer pixel coordinate, or None if it is not one."""
+    if isinstance(value, (bool, np.bool_)):  # pandas reads a column of "true" as booleans
+        return None
+    if isinstance(value, (int, np.integer)):  # exact, however large (pandas may give uint64)
+        return int(value)
+    try:
+        number = float(value)  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        return None
+    return int(number) if np.isfinite(number) and number == int(number) else None
+
+
 def _check_rois(df: pd.DataFrame, path: PathLike) -> pd.DataFrame:
     """Validate an ROI table and return it with normalised dtypes, or raise DataError naming the row."""
     missing = [c for c in ROI_COLUMNS if c not in df.columns]
@@ -210,25 +260,27 @@ def _check_rois(df: pd.DataFrame, path: PathLike) -> pd.DataFrame:
         raise DataError(f"{path}: missing ROI column(s) {missing}; expected {list(ROI_COLUMNS)}")
     df = df.loc[:, list(ROI_COLUMNS)].copy()
     coords = ["x0", "y0", "x1", "y1"]
+    boxes: list[tuple[int, int, int, int]] = []
     # Row numbers in messages are CSV line numbers (header is line 1).
     for i, row in enumerate(df.itertuples(index=False), start=2):
         values = [getattr(row, c) for c in coords]
-        try:
-            numbers = [float(v) for v in values]
-        except (TypeError, ValueError):
-            raise DataError(f"{path}: row {i}: box coordinates must be integers, got {values}") from None
-        if not all(np.isfinite(n) and n == int(n) for n in numbers):
+        numbers = [_box_coordinate(v) for v in values]
+        if None in numbers:
             raise DataError(f"{path}: row {i}: box coordinates must be integers, got {values}")
-        x0, y0, x1, y1 = (int(n) for n in numbers)
+        x0, y0, x1, y1 = numbers
         if min(x0, y0, x1, y1) < 0:
             raise DataError(f"{path}: row {i}: negative box coordinate in {values}")
+        if max(x0, y0, x1, y1) > _MAX_COORD:
+            raise DataError(f"{path}: row {i}: box coordinate beyond {_MAX_COORD} in {values}")
         if x1 <= x0 or y1 <= y0:
             raise DataError(f"{path}: row {i}: empty box (need x1 > x0 and y1 > y0), got {values}")
         if row[1] not in ROI_CLASSES:
             raise DataError(f"{path}: row {i}: class {row[1]!r} is not one of {list(ROI_CLASSES)}")
         if not isinstance(row[0], str) or not row[0]:
             raise DataError(f"{path}: row {i}: missing image name")
-    df[coords] = df[coords].astype(float).astype(np.int64)
+        boxes.append((x0, y0, x1, y1))
+    # The checked integers themselves: a float round trip would round or overflow large values.
+    df[coords] = np.array(boxes, dtype=np.int64).reshape(-1, 4)
     df["image"] = df["image"].astype(str)
     df["class"] = df["class"].astype(str)
     return df.reset_index(drop=True)
