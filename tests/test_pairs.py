@@ -112,13 +112,35 @@ def test_cache_gives_exactly_the_decoded_samples(tree, tmp_path: Path) -> None:
     assert np.array_equal(cache[3, 0], left) and np.array_equal(cache[3, 1], right)
 
 
-def test_cache_never_leaves_a_partial_file(tree, tmp_path: Path) -> None:
+def test_cache_leaves_out_unreadable_pairs_and_reports_them(tree, tmp_path: Path) -> None:
     _, pairs = tree
-    pairs[2][1].write_bytes(b"")  # a zero-byte right image in the middle
+    pairs[1][1].write_bytes(b"")  # a zero-byte right image
+    data = pairs[2][0].read_bytes()
+    pairs[2][0].write_bytes(data[: len(data) // 2])  # a truncated left image
     path = tmp_path / "cache" / "pairs.npy"
-    with pytest.raises(DataError, match="0000000002.png"):
+    report = build_pair_cache(pairs, 16, 24, path, progress=False)
+    assert report.pairs == [pairs[0], pairs[3]]
+    assert [(l, r) for l, r, _ in report.unreadable] == [pairs[1], pairs[2]]
+    assert str(pairs[1][1]) in report.unreadable[0][2] and str(pairs[2][0]) in report.unreadable[1][2]
+    cache = load_pair_cache(path, 2, 16, 24)
+    assert np.array_equal(cache[1, 0], read_resized_pair(*pairs[3], 16, 24)[0])
+    assert [p.name for p in path.parent.iterdir()] == ["pairs.npy"]  # no temp file left behind
+
+
+@pytest.mark.parametrize("fault", ["all_unreadable", "size_mismatch"])
+def test_cache_errors_never_leave_a_partial_file(tree, tmp_path: Path, fault: str) -> None:
+    _, pairs = tree
+    if fault == "all_unreadable":
+        for left, _ in pairs:
+            left.write_bytes(b"")
+        match = "none of the 4 pairs is readable"
+    else:
+        write_png(pairs[2][1], _rgb(31, 50, 0))
+        match = r"0000000002.png is \(30, 50\) but its right image .*0000000002.png is \(31, 50\)"
+    path = tmp_path / "cache" / "pairs.npy"
+    with pytest.raises(DataError, match=match):
         build_pair_cache(pairs, 16, 24, path, progress=False)
-    assert not path.exists() and list(path.parent.iterdir()) == []
+    assert list(path.parent.iterdir()) == []
 
 
 def test_load_cache_rejects_a_stale_or_foreign_file(tree, tmp_path: Path) -> None:

@@ -38,6 +38,8 @@ log = logging.getLogger("msdepth")
 
 INDEX_DIR = Path("data/index")
 PAIR_CACHE = Path("data/cache/train_pairs.npy")
+CACHED_PAIRS = Path("data/cache/train_pairs.txt")
+CACHE_REPORT = Path("data/cache/report.json")
 BASELINES = ("constant", "prior")
 SUITES = {"full": evaluate_full, "roi": evaluate_roi, "gradients": evaluate_gradients}
 
@@ -86,10 +88,20 @@ def rois(params: Params) -> None:
 
 
 def cache(params: Params) -> None:
-    """Decode and resize the training pairs once into a memory-mappable array."""
+    """Decode and resize the training pairs once; pairs with unreadable images are left out and reported."""
     pairs = load_pair_list(INDEX_DIR / "train_pairs.txt")
-    build_pair_cache(pairs, params.data.height, params.data.width, PAIR_CACHE)
-    log.info("cache: %d pairs at %dx%d in %s", len(pairs), params.data.height, params.data.width, PAIR_CACHE)
+    report = build_pair_cache(pairs, params.data.height, params.data.width, PAIR_CACHE)
+    kitti.write_split(CACHED_PAIRS, [(str(a), str(b)) for a, b in report.pairs])
+    write_json(CACHE_REPORT, {
+        "pairs_indexed": len(pairs),
+        "pairs_cached": len(report.pairs),
+        "pairs_unreadable": len(report.unreadable),
+        "unreadable": [{"left": str(a), "right": str(b), "error": e} for a, b, e in report.unreadable],
+    })
+    for left, right, error in report.unreadable[:20]:
+        log.warning("cache: left out %s %s: %s", left, right, error)
+    log.info("cache: %d of %d pairs at %dx%d in %s (%d unreadable, listed in %s)", len(report.pairs), len(pairs),
+             params.data.height, params.data.width, PAIR_CACHE, len(report.unreadable), CACHE_REPORT)
 
 
 def train(params: Params, variant: str) -> None:
@@ -97,7 +109,7 @@ def train(params: Params, variant: str) -> None:
     from .train import train_variant, write_train_summary
 
     params.variant(variant)
-    pairs = load_pair_list(INDEX_DIR / "train_pairs.txt")
+    pairs = load_pair_list(CACHED_PAIRS)  # the pairs the cache holds, in its order
     images = load_pair_cache(PAIR_CACHE, len(pairs), params.data.height, params.data.width)
     result = train_variant(
         params, variant, pairs, model_path(variant), checkpoint_path(variant),

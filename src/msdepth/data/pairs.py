@@ -93,25 +93,57 @@ def read_resized_pair(left: Path, right: Path, height: int, width: int) -> tuple
     return resize(left_img, height, width), resize(right_img, height, width)
 
 
+@dataclass(frozen=True)
+class CacheReport:
+    """What :func:`build_pair_cache` stored, in cache order, and the pairs it left out."""
+
+    pairs: list[tuple[Path, Path]]
+    unreadable: list[tuple[Path, Path, str]]  # (left, right, the reader's error)
+
+
 def build_pair_cache(
     pairs: list[tuple[Path, Path]], height: int, width: int, path: str | os.PathLike, progress: bool = True
-) -> None:
+) -> CacheReport:
     """Decode and resize every pair once into a uint8 ``.npy`` array (N, 2, H, W, 3), atomically.
 
     Training then memory-maps it: no PNG/JPEG decoding or resizing per step, so the loader
     cannot starve the model (the resized images are exactly what :class:`StereoPairs` would
     compute, so results do not change). 29,000 KITTI pairs at 256 x 512 take 22.8 GB.
+
+    A pair with an unreadable image (zero bytes, truncated, not an image) is left out and
+    reported, so one bad file among thousands never stops or corrupts training; views of
+    different sizes are an error naming both files; no readable pair at all is an error.
     """
     from tqdm import tqdm
 
     if not pairs:
         raise DataError(f"{path}: no pairs to cache")
+    kept: list[tuple[Path, Path]] = []
+    unreadable: list[tuple[Path, Path, str]] = []
     with atomic_path(path, suffix=".npy") as tmp:
         cache = np.lib.format.open_memmap(tmp, mode="w+", dtype=np.uint8, shape=(len(pairs), 2, height, width, 3))
-        for i, (left, right) in enumerate(tqdm(pairs, desc="cache", unit="pair", disable=not progress)):
-            cache[i, 0], cache[i, 1] = read_resized_pair(left, right, height, width)
+        for left, right in tqdm(pairs, desc="cache", unit="pair", disable=not progress):
+            try:
+                left_img, right_img = kitti.read_image(left), kitti.read_image(right)
+            except DataError as exc:
+                unreadable.append((left, right, str(exc)))
+                continue
+            if left_img.shape != right_img.shape:
+                raise DataError(f"{left} is {left_img.shape[:2]} but its right image {right} is {right_img.shape[:2]}")
+            cache[len(kept), 0] = resize(left_img, height, width)
+            cache[len(kept), 1] = resize(right_img, height, width)
+            kept.append((left, right))
+        if not kept:
+            raise DataError(f"{path}: none of the {len(pairs)} pairs is readable; first error: {unreadable[0][2]}")
         cache.flush()
+        if len(kept) < len(pairs):  # rewrite with only the rows filled (the .npy header holds the shape)
+            with atomic_path(tmp, suffix=".npy") as compact_tmp:
+                compact = np.lib.format.open_memmap(compact_tmp, mode="w+", dtype=np.uint8, shape=(len(kept), *cache.shape[1:]))
+                compact[:] = cache[: len(kept)]
+                compact.flush()
+                del compact
         del cache
+    return CacheReport(kept, unreadable)
 
 
 def load_pair_cache(path: str | os.PathLike, num_pairs: int, height: int, width: int) -> np.ndarray:
