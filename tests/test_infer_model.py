@@ -77,6 +77,13 @@ def test_params_yaml_loads():
         ({"data": {"height": 70}}, "data.height"),
         ({"data": {"source": "nyu"}}, "data.source"),
         ({"loss": {"alpah": 0.8}}, "loss.alpah"),
+        ({"ssim": {"kernel_size": 9}}, "ssim.kernel_size"),  # > the 8 px coarsest scale of 64 x 192
+        ({"msssim": {"levels": 5}, "data": {"height": 64, "width": 64}}, "msssim.levels"),
+        ({"train": {"batch_size": 0}}, "train.batch_size"),
+        ({"train": {"amp": "fp16"}}, "train.amp"),
+        ({"data": {"synthetic": {"gt_max_depth": -1}}}, "data.synthetic.gt_max_depth"),
+        ({"eval": {"caps": [80, 0.0001]}}, "eval.caps"),
+        ({"variants": {"ssim": {"appearance": "ssim", "extra": 1}}}, "variants.ssim.extra"),
     ],
 )
 def test_bad_params_name_the_key(patch, key):

@@ -207,6 +207,11 @@ def validate(p: Params) -> Params:
     for sec in ("ssim", "msssim"):
         k = getattr(p, sec).kernel_size
         _check(k >= 1 and k % 2 == 1, f"{sec}.kernel_size", f"must be a positive odd integer, got {k}")
+    if p.ssim.padding == "valid":  # SSIM's valid windows must fit the coarsest scale (input / 8)
+        smallest = min(d.height, d.width) // 8
+        _check(p.ssim.kernel_size <= smallest, "ssim.kernel_size",
+               f"{p.ssim.kernel_size} px windows do not fit the coarsest training scale "
+               f"({d.height // 8}x{d.width // 8} px) with valid padding")
     m = p.msssim
     _check(1 <= m.levels <= 5, "msssim.levels", f"must be in 1..5, got {m.levels}")
     _check(m.kernel_size <= min(d.height, d.width), "msssim.kernel_size", "must not exceed the input image")

@@ -64,7 +64,13 @@ def build_eval_index(kitti2015_root: Path, split_file: Path, gt: str) -> pd.Data
         if left is None or right is None or not Path(paths["disp"]).exists():
             missing.append(frame)
             continue
-        width = kitti.read_image(left).shape[1]
+        shape = kitti.read_image(left).shape[:2]
+        # A GT or right view of another size would silently misplace every metric: refuse it.
+        for other, what in ((right, "right image"), (Path(paths["disp"]), f"{gt} GT")):
+            other_shape = (kitti.read_image(other) if what == "right image" else kitti.read_disparity(other)).shape[:2]
+            if other_shape != shape:
+                raise DataError(f"{left} is {shape} but its {what} {other} is {other_shape}")
+        width = shape[1]
         focal, baseline = kitti.focal_and_baseline(width, paths["calib"])
         obj_map = paths["obj_map"] if Path(paths["obj_map"]).exists() else ""
         rows.append((frame, str(left), str(right), str(paths["disp"]), str(obj_map), focal, baseline))
