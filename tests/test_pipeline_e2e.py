@@ -9,8 +9,10 @@ from __future__ import annotations
 import json
 import os
 import shutil
+import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -45,7 +47,13 @@ def _run(cmd: list[str], cwd: Path) -> str:
 def repo(tmp_path_factory) -> Path:
     if shutil.which("dvc") is None and not (Path(sys.executable).parent / "dvc").exists():
         pytest.skip("dvc is not installed")
-    work = tmp_path_factory.mktemp("pipeline")
+    work = _project(tmp_path_factory.mktemp("pipeline"))
+    _run([sys.executable, "-m", "dvc", "repro", "--quiet"], work)
+    return work
+
+
+def _project(work: Path) -> Path:
+    """A git repository holding the project's pipeline with the TINY params."""
     for name in ("dvc.yaml", "stages", "src", ".dvc", ".dvcignore", ".gitignore"):
         src = ROOT / name
         if src.is_dir():
@@ -57,7 +65,6 @@ def repo(tmp_path_factory) -> Path:
     _run(["git", "init", "-q"], work)
     _run(["git", "add", "-A"], work)
     _run(["git", "-c", "user.email=t@t", "-c", "user.name=t", "commit", "-qm", "init"], work)
-    _run([sys.executable, "-m", "dvc", "repro", "--quiet"], work)
     return work
 
 
@@ -74,6 +81,29 @@ def test_repro_writes_every_suite_and_the_comparison(repo: Path):
     assert set(compare["full"]["cap80"]) == {"ssim", "msssim", "constant", "prior"}
     assert (repo / "plots" / "train" / "ssim").is_dir()
     assert _run([sys.executable, "-m", "dvc", "status", "--quiet"], repo) == ""
+
+
+def test_killed_repro_reruns_to_identical_results(repo: Path, tmp_path: Path):
+    """SIGKILL `dvc repro` (and its stage) mid-training; the next `dvc repro` completes and
+    every metric equals the uninterrupted run's."""
+    work = _project(tmp_path)
+    env = dict(os.environ, PATH=f"{Path(sys.executable).parent}{os.pathsep}{os.environ.get('PATH', '')}",
+               PYTHONPATH=str(work / "src"))
+    proc = subprocess.Popen([sys.executable, "-m", "dvc", "repro", "--quiet"], cwd=work, env=env,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+    checkpoint = work / "checkpoints" / "ssim" / "checkpoint.pt"
+    deadline = time.monotonic() + 300
+    while not checkpoint.exists() and proc.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert proc.poll() is None, "the pipeline finished before it could be interrupted"
+    os.killpg(proc.pid, signal.SIGKILL)  # dvc and the running stage, as a power cut would
+    proc.wait()
+    assert not (work / "metrics" / "compare.json").exists()
+    _run([sys.executable, "-m", "dvc", "repro", "--quiet"], work)
+    for suite in ("full", "roi", "gradients"):
+        for run in ("ssim", "msssim", "constant", "prior"):
+            name = Path("metrics") / suite / f"{run}.json"
+            assert (work / name).read_text() == (repo / name).read_text(), name
 
 
 def test_kernel_size_change_reruns_only_msssim(repo: Path):

@@ -144,3 +144,24 @@ def test_compile_switch_compiles_the_network_and_saves_its_weights(pairs, tmp_pa
     saved = _weights(tmp_path / "model.pt")
     for name, value in compiled[0].state_dict().items():
         assert torch.equal(saved[name], value)
+
+
+def test_disk_full_while_checkpointing_keeps_the_previous_checkpoint(pairs, tmp_path: Path, monkeypatch) -> None:
+    real_save = torch.save
+    saves = {"n": 0}
+
+    def save_until_full(obj, f, *args, **kwargs):
+        saves["n"] += 1
+        if saves["n"] == 2:  # the second epoch's checkpoint: half written, then ENOSPC
+            Path(f).write_bytes(b"PK\x03\x04 partial")
+            raise OSError(28, "No space left on device")
+        return real_save(obj, f, *args, **kwargs)
+
+    monkeypatch.setattr(torch, "save", save_until_full)
+    with pytest.raises(TrainingError, match=r"ck.pt: cannot write the epoch 2 checkpoint .*No space left"):
+        _train(_params(), pairs, tmp_path)
+    state = torch.load(tmp_path / "ck.pt", weights_only=False)
+    assert state["epoch"] == 1
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["ck.pt"]  # no temp file, no model
+    monkeypatch.setattr(torch, "save", real_save)
+    assert _train(_params(), pairs, tmp_path).resumed_from_epoch == 1

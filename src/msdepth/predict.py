@@ -36,6 +36,7 @@ from .errors import DataError, MsdepthError
 from .infer import network_disparity
 from .io import atomic_path, write_png
 from .model import MonodepthVGG
+from .train import load_model, resolve_device
 
 IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp", ".ppm")
 VIDEO_EXTENSIONS = (".avi", ".mp4", ".mov", ".mkv", ".webm", ".m4v", ".mpg", ".mpeg", ".wmv")
@@ -109,19 +110,8 @@ class _Frame:
         return error if error.startswith(str(self.source)) else f"{self.label}: {error}"
 
 
-def resolve_device(name: str) -> torch.device:
-    """``auto`` -> CUDA when available, else CPU; ``cuda`` fails clearly without a GPU."""
-    if name == "auto":
-        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    if name == "cuda" and not torch.cuda.is_available():
-        raise MsdepthError("device 'cuda' requested but CUDA is not available (use --device cpu)")
-    return torch.device(name)
-
-
 def load_trained(path: str | os.PathLike, device: str | torch.device = "cpu") -> tuple[MonodepthVGG, dict]:
     """:func:`msdepth.train.load_model`, with any failure turned into one MsdepthError naming the file."""
-    from .train import load_model
-
     try:
         return load_model(path, device)
     except MsdepthError:
@@ -140,7 +130,6 @@ def default_focal(width: int) -> float:
     return kitti.WIDTH_TO_FOCAL.get(width) or focal_for_width(width)
 
 
-@torch.no_grad()
 def metric_depth(disp_px: np.ndarray, focal: float, baseline: float, max_depth: float) -> np.ndarray:
     """Depth in metres from disparity in pixels; 0 where disparity <= 0 or depth > ``max_depth``."""
     depth = disparity_to_depth(disp_px, focal, baseline)

@@ -59,7 +59,7 @@ def resolve_device(name: str) -> torch.device:
     if name == "auto":
         return torch.device("cuda" if torch.cuda.is_available() else "cpu")
     if name == "cuda" and not torch.cuda.is_available():
-        raise MsdepthError("train.device: cuda requested but torch sees no CUDA device")
+        raise MsdepthError("device cuda requested but torch sees no CUDA device (use cpu or auto)")
     return torch.device(name)
 
 
@@ -101,9 +101,18 @@ def fingerprint(params: Params, variant: str, num_pairs: int) -> str:
 
 
 def save_checkpoint(path: Path, state: dict) -> None:
-    """``torch.save`` through a temp file and rename: never a truncated checkpoint."""
-    with atomic_path(path) as tmp:
-        torch.save(state, tmp)
+    """``torch.save`` through a temp file and rename: never a truncated checkpoint.
+
+    A failed write (disk full, quota) is a TrainingError; the previous checkpoint is untouched.
+    """
+    try:
+        with atomic_path(path) as tmp:
+            torch.save(state, tmp)
+    except OSError as exc:
+        raise TrainingError(
+            f"{path}: cannot write the epoch {state.get('epoch')} checkpoint ({exc}); the previous "
+            "checkpoint, if any, is intact and the run resumes from it"
+        ) from exc
 
 
 def _loader(dataset: StereoPairs, params: Params, epoch: int, pin_memory: bool = False) -> DataLoader:
