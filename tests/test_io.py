@@ -42,3 +42,16 @@ def test_failed_write_keeps_the_previous_file_and_leaves_no_temp(tmp_path: Path,
 def test_write_json_round_trip(tmp_path: Path) -> None:
     io.write_json(tmp_path / "a" / "b.json", {"x": [1, 2.5]})
     assert json.loads((tmp_path / "a" / "b.json").read_text()) == {"x": [1, 2.5]}
+
+
+def test_outputs_get_ordinary_file_permissions(tmp_path: Path) -> None:
+    """Not mkstemp's 0600: other users and tools (a web server, a shared cache) can read results."""
+    import os
+    import stat
+
+    umask = os.umask(0o022)
+    try:
+        io.write_json(tmp_path / "m.json", {})
+    finally:
+        os.umask(umask)
+    assert stat.S_IMODE((tmp_path / "m.json").stat().st_mode) == 0o644
