@@ -84,6 +84,8 @@ def test_params_yaml_loads():
         ({"data": {"synthetic": {"gt_max_depth": -1}}}, "data.synthetic.gt_max_depth"),
         ({"eval": {"caps": [80, 0.0001]}}, "eval.caps"),
         ({"variants": {"ssim": {"appearance": "ssim", "extra": 1}}}, "variants.ssim.extra"),
+        ({"compare": {"reference": "l1"}}, "compare.reference"),
+        ({"compare": {"confidence": 95}}, "compare.confidence"),
     ],
 )
 def test_bad_params_name_the_key(patch, key):

@@ -7,9 +7,13 @@ import os
 from pathlib import Path
 from typing import Sequence
 
+import pandas as pd
+
+from .config import CompareConfig
 from .errors import DataError
 from .evaluate import GRADIENTS
 from .metrics import HIGHER_IS_BETTER, METRICS
+from .stats import paired_bootstrap, paired_table
 
 SUITES = ("full", "roi", "gradients")
 
@@ -25,6 +29,61 @@ def load_suite_metrics(metrics_dir: str | os.PathLike, runs: Sequence[str]) -> d
                 raise DataError(f"{path}: missing metrics of run {run!r} (suite {suite})")
             out[suite][run] = json.loads(path.read_text())
     return out
+
+
+# Per-unit tables of the suites that are compared statistically, and the column pairing units.
+UNIT_KEYS = {"full": ["frame"], "roi": ["roi"]}
+
+
+def load_unit_tables(metrics_dir: str | os.PathLike, runs: Sequence[str]) -> dict[str, dict[str, pd.DataFrame]]:
+    """``{suite: {run: per-image or per-ROI table}}`` from ``metrics_dir/<suite>/<run>.csv``."""
+    out: dict[str, dict[str, pd.DataFrame]] = {}
+    for suite in UNIT_KEYS:
+        out[suite] = {}
+        for run in runs:
+            path = Path(metrics_dir) / suite / f"{run}.csv"
+            if not path.exists():
+                raise DataError(f"{path}: missing per-unit metrics of run {run!r} (suite {suite})")
+            out[suite][run] = pd.read_csv(path, dtype={"frame": str, "image": str})
+    return out
+
+
+def paired_statistics(
+    tables: dict[str, dict[str, pd.DataFrame]], runs: Sequence[str], cfg: CompareConfig, caps: Sequence[float]
+) -> dict:
+    """``{suite: {capN: {run: {metric: PairedDifference dict}}}}`` of every run against ``cfg.reference``."""
+    stats: dict = {"reference": cfg.reference, "confidence": cfg.confidence, "bootstrap_samples": cfg.bootstrap_samples}
+    for suite, keys in UNIT_KEYS.items():
+        stats[suite] = {}
+        for cap in caps:
+            ref = tables[suite][cfg.reference]
+            ref = ref[ref["cap"] == cap]
+            block: dict = {}
+            for run in runs:
+                if run == cfg.reference:
+                    continue
+                table = tables[suite][run]
+                table = table[table["cap"] == cap]
+                block[run] = {}
+                for metric in METRICS:
+                    values, reference = paired_table(table, ref, keys, metric, f"{suite} {run} vs {cfg.reference}, cap {cap:g}")
+                    block[run][metric] = paired_bootstrap(
+                        values, reference, cfg.bootstrap_samples, cfg.confidence, cfg.seed
+                    ).as_dict()
+            stats[suite][f"cap{cap:g}"] = block
+    return stats
+
+
+def _ci_rows(block: dict) -> list[list[str]]:
+    """One row per run: ``mean [low, high]`` per metric, ``*`` where the interval excludes 0."""
+    rows = []
+    for run, metrics in block.items():
+        cells = []
+        for m in METRICS:
+            d = metrics[m]
+            cells.append(f"{d['mean']:+.4f} [{d['low']:+.4f}, {d['high']:+.4f}]{' *' if d['excludes_zero'] else ''}")
+        rows.append([run, *cells])
+    return rows
 
 
 def _fmt(v: float | None) -> str:
@@ -44,14 +103,38 @@ def _best(values: dict[str, float], metric: str) -> str | None:
     return pick(values, key=values.get)
 
 
-def build_comparison(suites: dict[str, dict[str, dict]], variants: Sequence[str], baselines: Sequence[str]) -> tuple[dict, str]:
-    """The comparison as JSON-ready dict and as Markdown (best variant per column in bold)."""
+def build_comparison(
+    suites: dict[str, dict[str, dict]],
+    variants: Sequence[str],
+    baselines: Sequence[str],
+    stats: dict | None = None,
+) -> tuple[dict, str]:
+    """The comparison as JSON-ready dict and as Markdown (best variant per column in bold).
+
+    With ``stats`` (from :func:`paired_statistics`), each full-image and ROI table is followed
+    by the paired differences to the reference run with their bootstrap intervals.
+    """
     runs = [*variants, *baselines]
     caps = [k for k in suites["full"][runs[0]] if k.startswith("cap")]
     result: dict = {"variants": list(variants), "baselines": list(baselines), "full": {}, "roi": {}, "gradients": {}}
     md = ["# Comparison of loss variants", "",
           f"Variants: {', '.join(variants)}. Baselines (image-blind, from training GT): {', '.join(baselines) or 'none'}.",
           "Errors: lower is better; a1–a3: higher is better. Best variant per column in **bold**.", ""]
+    if stats is not None:
+        result["statistics"] = stats
+        md += [f"Differences are `run − {stats['reference']}` (mean over images or ROIs) with a paired "
+               f"bootstrap {stats['confidence']:.0%} interval ({stats['bootstrap_samples']} resamples); "
+               "`*`: the interval excludes 0. One training run per variant: the intervals cover the "
+               "choice of images, not training noise.", ""]
+
+    def ci_table(suite: str, cap: str, unit: str) -> list[str]:
+        if stats is None:
+            return []
+        block = stats[suite][cap]
+        n = next(iter(next(iter(block.values())).values()))["n"] if block else 0
+        return [f"Difference to {stats['reference']} ({n} paired {unit}):", "",
+                _table(["run", *METRICS], _ci_rows(block)), ""]
+
     for cap in caps:
         result["full"][cap] = {r: suites["full"][r][cap] for r in runs}
         result["roi"][cap] = {r: suites["roi"][r][cap] for r in runs}
@@ -66,8 +149,10 @@ def build_comparison(suites: dict[str, dict[str, dict]], variants: Sequence[str]
             return rows
 
         md += [f"## Full image, cap {cap[3:]} m", "", _table(["run", *METRICS], metric_rows(result["full"][cap])), ""]
+        md += ci_table("full", cap, "images")
         roi = {r: result["roi"][cap][r]["overall"] for r in runs}
         md += [f"## ROI, cap {cap[3:]} m (mean over {roi[runs[0]]['count']} ROIs)", "", _table(["run", *METRICS], metric_rows(roi)), ""]
+        md += ci_table("roi", cap, "ROIs")
         classes = sorted({c for r in runs for c in result["roi"][cap][r]["by_class"]})
         rows = [[r, *[_fmt(result["roi"][cap][r]["by_class"].get(c, {}).get("abs_rel")) for c in classes]] for r in runs]
         md += [f"### ROI abs rel per class, cap {cap[3:]} m", "", _table(["run", *classes], rows), ""]

@@ -98,6 +98,14 @@ class EvalConfig:
 
 
 @dataclass(frozen=True)
+class CompareConfig:
+    reference: str = "ssim"  # every other run is compared with this variant
+    bootstrap_samples: int = 10_000
+    confidence: float = 0.95
+    seed: int = 0
+
+
+@dataclass(frozen=True)
 class Params:
     data: DataConfig = field(default_factory=DataConfig)
     model: ModelConfig = field(default_factory=ModelConfig)
@@ -109,6 +117,7 @@ class Params:
         default_factory=lambda: {"ssim": VariantConfig("ssim"), "msssim": VariantConfig("msssim")}
     )
     eval: EvalConfig = field(default_factory=EvalConfig)
+    compare: CompareConfig = field(default_factory=CompareConfig)
 
     def variant(self, name: str) -> VariantConfig:
         """The variant called ``name``, or a ConfigError listing the known ones."""
@@ -227,6 +236,10 @@ def validate(p: Params) -> Params:
     _check(all(c > e.min_depth for c in e.caps), "eval.caps", "every cap must exceed eval.min_depth")
     _check(e.min_depth > 0, "eval.min_depth", "must be > 0")
     _check(0 < e.dense_gt_fraction <= 1, "eval.dense_gt_fraction", "must be in (0, 1]")
+    c = p.compare
+    _check(c.reference in p.variants, "compare.reference", f"{c.reference!r} is not a variant; known: {sorted(p.variants)}")
+    _check(c.bootstrap_samples >= 100, "compare.bootstrap_samples", f"must be >= 100, got {c.bootstrap_samples}")
+    _check(0 < c.confidence < 1, "compare.confidence", f"must be in (0, 1), got {c.confidence}")
     return p
 
 

@@ -18,7 +18,7 @@ from typing import Callable
 import numpy as np
 
 from . import baselines as baselines_mod
-from .compare import build_comparison, load_suite_metrics
+from .compare import build_comparison, load_suite_metrics, load_unit_tables, paired_statistics
 from .config import Params, load_params
 from .data import kitti
 from .data.index import build_indexes, layout, read_eval_index
@@ -186,8 +186,10 @@ def baselines(params: Params) -> None:
 def compare(params: Params) -> None:
     """One table of every variant and baseline, as Markdown and JSON."""
     variants = list(params.variants)
-    suites = load_suite_metrics("metrics", [*variants, *BASELINES])
-    result, md = build_comparison(suites, variants, BASELINES)
+    runs = [*variants, *BASELINES]
+    suites = load_suite_metrics("metrics", runs)
+    stats = paired_statistics(load_unit_tables("metrics", runs), runs, params.compare, params.eval.caps)
+    result, md = build_comparison(suites, variants, BASELINES, stats)
     write_json(Path("metrics") / "compare.json", result)
     write_text(Path("metrics") / "compare.md", md)
 
