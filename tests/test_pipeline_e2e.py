@@ -80,6 +80,12 @@ def test_repro_writes_every_suite_and_the_comparison(repo: Path):
     compare = json.loads((repo / "metrics" / "compare.json").read_text())
     assert set(compare["full"]["cap80"]) == {"ssim", "msssim", "constant", "prior"}
     assert (repo / "plots" / "train" / "ssim").is_dir()
+    figures = sorted(p.name for p in (repo / "plots" / "figures").iterdir())
+    assert figures == ["disparity.png", "error_scatter.png", "roi_depth.png", "roi_gradients.png", "training_curves.png"]
+    # `dvc plots show` writes a page that needs nothing from the internet.
+    _run([sys.executable, "-m", "dvc", "plots", "show", "-o", "plots_html"], repo)
+    page = (repo / "plots_html" / "index.html").read_text()
+    assert "http://" not in page and "https://" not in page and page.count("<img") == len(figures)
     assert _run([sys.executable, "-m", "dvc", "status", "--quiet"], repo) == ""
 
 

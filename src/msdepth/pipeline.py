@@ -194,6 +194,14 @@ def compare(params: Params) -> None:
     write_text(Path("metrics") / "compare.md", md)
 
 
+def figures(params: Params) -> None:
+    """The dissertation's figures (disparities, ROI depth and gradients, curves, error scatter)."""
+    from .figures import make_figures
+
+    paths = make_figures(list(params.variants), Path("plots") / "figures", eval_cfg=params.eval)
+    log.info("figures: %s", ", ".join(p.name for p in paths))
+
+
 def run_stage(fn: Callable[..., None], *args: str, params_path: str | os.PathLike = "params.yaml") -> int:
     """Load params, run one stage function, report errors as one line; returns the exit code."""
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)s", stream=sys.stderr)

@@ -1,0 +1,128 @@
+"""The figures module on a tiny pipeline-shaped tree built by the real stage functions."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from msdepth import pipeline
+from msdepth.config import params_from_dict
+from msdepth.data.synthetic import generate
+from msdepth.errors import DataError
+from msdepth.figures import FIGURES, make_figures, roi_examples
+
+VARIANTS = ["ssim", "msssim"]
+PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
+
+
+@pytest.fixture(scope="module")
+def tree(tmp_path_factory) -> Path:
+    """data/index, outputs/<v>, metrics/<suite>/<v>.csv and dvclive TSVs, as the pipeline writes them."""
+    root = tmp_path_factory.mktemp("figures")
+    params = params_from_dict({
+        "data": {"height": 32, "width": 96,
+                 "synthetic": {"seed": 1, "drives": 1, "train_pairs": 1, "eval_frames": 3, "height": 48, "width": 160}},
+        "msssim": {"levels": 3},
+    })
+    with pytest.MonkeyPatch.context() as mp:
+        mp.chdir(root)  # the stage functions read and write relative to the project root
+        generate(params.data.synthetic, Path(params.data.root), progress=False, workers=1)
+        pipeline.index(params)
+        pipeline.rois(params)
+        rng = np.random.default_rng(0)
+        ramp = np.linspace(0.01, 0.12, 32, dtype=np.float32)[None, :, None]  # nearer towards the bottom
+        for k, v in enumerate(VARIANTS):
+            disp = ramp * (1 + 0.1 * k) * (1 + 0.2 * rng.random((3, 32, 96), dtype=np.float32))
+            pipeline.run_dir(v).mkdir(parents=True)
+            np.save(pipeline.run_dir(v) / "disparities.npy", disp.astype(np.float32))
+            pipeline.depth(params, v)
+            for suite in pipeline.SUITES:
+                pipeline.evaluate(params, suite, v)
+            live = Path("plots/train") / v / "plots/metrics/train"
+            live.mkdir(parents=True)
+            for term in ("total", "appearance"):
+                loss = 0.5 / (1 + k) * np.exp(-0.2 * np.arange(4)) + (0.01 if term == "total" else 0)
+                pd.DataFrame({"step": np.arange(4), term: loss}).to_csv(live / f"{term}.tsv", sep="\t", index=False)
+    return root
+
+
+@pytest.fixture(autouse=True)
+def _in_tree(tree: Path, monkeypatch):
+    # The evaluation index names files relative to the project root, as in the real pipeline.
+    monkeypatch.chdir(tree)
+
+
+def _paths(root: Path) -> dict:
+    return {
+        "eval_index": root / "data/index/eval_frames.csv",
+        "rois": root / "data/index/rois.csv",
+        "outputs": root / "outputs",
+    }
+
+
+def _eval_cfg():
+    return params_from_dict({}).eval
+
+
+def test_every_figure_is_a_png_and_no_temp_file_is_left(tree: Path, tmp_path: Path):
+    out = tmp_path / "figs"
+    written = make_figures(VARIANTS, out, **_paths(tree), metrics=tree / "metrics",
+                           train_plots=tree / "plots/train", eval_cfg=_eval_cfg())
+    assert written == [out / name for name in FIGURES]
+    for path in written:
+        data = path.read_bytes()
+        assert data.startswith(PNG_MAGIC), path
+        assert len(data) > 10_000, (path, len(data))
+    assert sorted(p.name for p in out.iterdir()) == sorted(FIGURES)  # no .<name>.*.png temp files
+
+
+def test_one_variant_gives_no_scatter(tree: Path, tmp_path: Path):
+    written = make_figures(["msssim"], tmp_path, **_paths(tree), metrics=tree / "metrics",
+                           train_plots=tree / "plots/train", eval_cfg=_eval_cfg(), frames=1)
+    assert [p.name for p in written] == [n for n in FIGURES if n != "error_scatter.png"]
+
+
+def test_printed_numbers_equal_the_suites_csvs(tree: Path):
+    cfg = _eval_cfg()
+    cap = cfg.caps[0]
+    examples = roi_examples(VARIANTS, **_paths(tree), eval_cfg=cfg)
+    assert examples, "the tiny set should have at least one ROI with >= 50% valid GT"
+    assert len({ex.cls for ex in examples}) == len(examples)  # one example per class
+    for v in VARIANTS:
+        roi = pd.read_csv(tree / "metrics/roi" / f"{v}.csv")
+        grad = pd.read_csv(tree / "metrics/gradients" / f"{v}.csv")
+        for ex in examples:
+            assert ex.gt_valid_fraction >= 0.5
+            row = roi[(roi["roi"] == ex.roi) & (roi["cap"] == cap)].iloc[0]
+            # The CSV holds 6 significant digits: the printed number rounds to exactly it.
+            assert float(f"{ex.abs_rel[v]:.6g}") == row["abs_rel"]
+            assert ex.abs_rel[v] == pytest.approx(row["abs_rel"], abs=1e-6)
+            g = grad[(grad["roi"] == ex.roi) & (grad["cap"] == cap)].iloc[0]
+            assert ex.pred_sobel_x[v] == pytest.approx(g["pred_sobel_x"], rel=1e-5, abs=1e-6)
+            if not np.isnan(g["gt_sobel_x"]):  # the suite reports GT gradients only for dense GT
+                assert ex.gt_sobel_x == pytest.approx(g["gt_sobel_x"], rel=1e-5, abs=1e-6)
+
+
+def test_missing_tsv_is_one_data_error_naming_it(tree: Path, tmp_path: Path):
+    plots = tmp_path / "plots"
+    shutil.copytree(tree / "plots/train", plots)
+    missing = plots / "msssim/plots/metrics/train/appearance.tsv"
+    missing.unlink()
+    out = tmp_path / "figs"
+    with pytest.raises(DataError, match=str(missing)):
+        make_figures(VARIANTS, out, **_paths(tree), metrics=tree / "metrics", train_plots=plots, eval_cfg=_eval_cfg())
+    assert not out.exists() or not any(out.iterdir())  # inputs are checked before any figure is drawn
+
+
+def test_missing_depth_maps_is_a_data_error_naming_them(tree: Path, tmp_path: Path):
+    outputs = tmp_path / "outputs"
+    shutil.copytree(tree / "outputs", outputs)
+    (outputs / "msssim/depth.npz").unlink()
+    paths = {**_paths(tree), "outputs": outputs}
+    with pytest.raises(DataError, match=str(outputs / "msssim/depth.npz")):
+        make_figures(VARIANTS, tmp_path / "figs", **paths, metrics=tree / "metrics",
+                     train_plots=tree / "plots/train", eval_cfg=_eval_cfg())
