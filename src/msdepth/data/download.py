@@ -1,0 +1,644 @@
+"""Download, verify and unpack the KITTI raw archives: resumable, retrying, parallel, atomic.
+
+The shipped list (``data_lists/kitti_archives_to_download.txt``) names 66 archives of a few GB
+each on a public S3 bucket. Over a slow or flaky link a download must survive resets and
+restarts without starting over, and a killed run must never leave something that a later run
+takes for complete:
+
+- :func:`download` streams to ``<archive>.part`` and resumes it with an HTTP ``Range`` request;
+  the final name appears only when the size is right.
+- :func:`verify_zip` reads every member (CRC check); ``manifest.json`` in the download folder
+  records the sha256 of each archive once verified, and later runs compare against it.
+- :func:`extract` unpacks into a temp folder beside the destination, moves it into place and
+  writes a completion marker last.
+- :func:`fetch_all` does all of that for many archives in parallel and reports per archive.
+
+Standard library only (``urllib``, ``zipfile``, ``hashlib``); tqdm for progress bars.
+"""
+
+from __future__ import annotations
+
+import glob
+import hashlib
+import http.client
+import json
+import os
+import re
+import shutil
+import socket
+import tempfile
+import threading
+import time
+import urllib.error
+import urllib.parse
+import urllib.request
+import zipfile
+import zlib
+from collections.abc import Callable, Iterable, Sequence
+from concurrent.futures import ThreadPoolExecutor, as_completed
+from pathlib import Path, PurePosixPath
+from typing import Any
+
+from tqdm import tqdm
+
+from ..errors import DataError
+from ..io import write_json
+
+# The host every entry of the shipped list starts with; entries are kept relative to it so that a
+# mirror (or a test server) can be used by passing another base URL to fetch_all.
+KITTI_BASE_URL = "https://s3.eu-central-1.amazonaws.com/avg-kitti/"
+
+MANIFEST_NAME = "manifest.json"
+CHUNK_SIZE = 1 << 20  # 1 MiB reads: few syscalls, and a progress bar that still moves
+MAX_BACKOFF_S = 60.0
+JPEG_QUALITY = 92  # Monodepth's conversion (ImageMagick -quality 92, 4:2:0 chroma like OpenCV's)
+USER_AGENT = "msdepth-kitti-download"
+
+# Errors worth another try: the network or the server, not the request. HTTPError (a subclass of
+# URLError) is sorted by status in _open before it can reach this tuple.
+_TRANSIENT_ERRORS = (ConnectionError, TimeoutError, socket.timeout, urllib.error.URLError, http.client.HTTPException)
+# 408 Request Timeout and 429 Too Many Requests say "try again later" by definition; other 4xx
+# (404, 403, ...) will not change on a retry.
+_RETRYABLE_4XX = (408, 429)
+
+
+class _Transient(Exception):
+    """A failed attempt worth retrying (5xx, short read, inconsistent range answer)."""
+
+
+class DownloadError(DataError):
+    """One or more archives of :func:`fetch_all` failed; ``report`` holds the per-archive result."""
+
+    def __init__(self, message: str, report: dict[str, Any]) -> None:
+        super().__init__(message)
+        self.report = report
+
+
+# --------------------------------------------------------------------------- archive lists
+
+
+def parse_archive_list(path: str | os.PathLike) -> list[str]:
+    """Read an archive list: one URL (or URL path) of a ``.zip`` per line.
+
+    Blank lines and ``#`` comment lines are skipped. Entries under :data:`KITTI_BASE_URL` are returned
+    relative to it (``raw_data/2011_09_26_calib.zip``); other absolute URLs are kept as they are.
+    """
+    path = Path(path)
+    try:
+        lines = path.read_text().splitlines()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise DataError(f"{path}: cannot read the archive list ({exc})") from None
+    names: list[str] = []
+    seen: dict[str, int] = {}
+    for number, line in enumerate(lines, 1):
+        entry = line.strip()
+        if not entry or entry.startswith("#"):
+            continue
+        if any(c.isspace() for c in entry) or not entry.endswith(".zip"):
+            raise DataError(f"{path}:{number}: expected one URL of a .zip archive per line, got {line.strip()!r}")
+        if entry.startswith(KITTI_BASE_URL):
+            entry = entry[len(KITTI_BASE_URL) :]
+        name = archive_filename(entry)
+        if name in seen:
+            # Two entries would download to the same file, concurrently.
+            raise DataError(f"{path}:{number}: archive {name} is listed twice (first on line {seen[name]})")
+        seen[name] = number
+        names.append(entry)
+    if not names:
+        raise DataError(f"{path}: no archives listed")
+    return names
+
+
+def archive_filename(name: str) -> str:
+    """The file name an archive entry downloads to (last component of its URL path)."""
+    return PurePosixPath(urllib.parse.urlsplit(name).path).name
+
+
+def _date_of(filename: str) -> str:
+    """``2011_09_26`` for both ``2011_09_26_calib.zip`` and ``2011_09_26_drive_0001_sync.zip``."""
+    return filename[:10]
+
+
+def select_archives(names: Sequence[str], subset: int | str | Iterable[str] | None = None) -> list[str]:
+    """Pick the archives to fetch from a parsed list, in list order.
+
+    ``subset`` is ``None`` or ``"all"`` (everything), an int ``N`` (the first N drive archives), or
+    drive names (``2011_09_26_drive_0001``, with or without ``_sync`` / ``.zip``). The calibration
+    archives of the selected drives' days are added, since a drive is unusable without them.
+    """
+    if subset is None or subset == "all":
+        return list(names)
+    drives = [n for n in names if "_drive_" in archive_filename(n)]
+    if isinstance(subset, bool) or not isinstance(subset, (int, str, Iterable)):
+        raise DataError(f"archive subset: expected 'all', a count or drive names, got {subset!r}")
+    if isinstance(subset, int):
+        if subset < 0:
+            raise DataError(f"archive subset: the number of drives must be >= 0, got {subset}")
+        chosen = set(drives[:subset])
+    else:
+        if isinstance(subset, str):
+            subset = [subset]
+        by_drive = {archive_filename(n).removesuffix(".zip").removesuffix("_sync"): n for n in names}
+        wanted = [str(s).strip().removesuffix(".zip").removesuffix("_sync") for s in subset]
+        unknown = [w for w in wanted if w not in by_drive]
+        if unknown:
+            raise DataError(f"archive subset: not in the archive list: {', '.join(unknown)}")
+        chosen = {by_drive[w] for w in wanted}
+    days = {_date_of(archive_filename(n)) for n in chosen}
+    calib = {n for n in names if archive_filename(n).endswith("_calib.zip") and _date_of(archive_filename(n)) in days}
+    return [n for n in names if n in chosen or n in calib]
+
+
+# --------------------------------------------------------------------------- HTTP
+
+
+def _open(url: str, timeout: float, *, method: str = "GET", offset: int = 0) -> http.client.HTTPResponse | urllib.error.HTTPError:
+    """Send one request; return the response, or raise DataError (permanent) / _Transient.
+
+    A 416 (range past the end) is returned like a response: the caller decides what it means.
+    """
+    headers = {"User-Agent": USER_AGENT}
+    if offset:
+        headers["Range"] = f"bytes={offset}-"
+    try:
+        return urllib.request.urlopen(urllib.request.Request(url, method=method, headers=headers), timeout=timeout)
+    except urllib.error.HTTPError as exc:
+        if exc.code == 416:
+            return exc
+        exc.close()
+        if exc.code >= 500 or exc.code in _RETRYABLE_4XX:
+            raise _Transient(f"HTTP {exc.code} {exc.reason}") from None
+        raise DataError(f"{url}: HTTP {exc.code} {exc.reason}") from None
+    except urllib.error.URLError as exc:
+        # A socket-level reason (refused, reset, DNS) may pass; a plain message such as "unknown
+        # url type" is a typo in the list or the base URL and will not.
+        if isinstance(exc.reason, OSError):
+            raise
+        raise DataError(f"{url}: {exc.reason}") from None
+    except ValueError as exc:  # no scheme at all
+        raise DataError(f"{url}: {exc}") from None
+
+
+def _content_range(value: str | None) -> tuple[int | None, int | None]:
+    """``bytes 100-199/200`` -> (100, 200); ``bytes */200`` -> (None, 200); unknown parts None."""
+    match = re.fullmatch(r"\s*bytes\s+(?:(\d+)-\d+|\*)/(\d+|\*)\s*", value or "")
+    if not match:
+        return None, None
+    start, total = match.groups()
+    return (int(start) if start else None), (int(total) if total and total != "*" else None)
+
+
+def _int_header(value: str | None) -> int | None:
+    return int(value) if value and value.strip().isdigit() else None
+
+
+def _size(path: Path) -> int:
+    try:
+        return path.stat().st_size
+    except FileNotFoundError:
+        return 0
+
+
+def _attempt(url: str, part: Path, timeout: float, bar: tqdm, on_bytes: Callable[[int], None] | None) -> int | None:
+    """One GET, resuming ``part`` where it ends. Returns the total size if the server said it.
+
+    Raises _Transient (or a network error) when the transfer should be retried from where it is.
+    """
+    offset = _size(part)
+    response = _open(url, timeout, offset=offset)
+    with response:
+        if response.status == 416:
+            # Nothing left past ``offset``: either the .part is already whole (a run killed between
+            # the last write and the rename) or it is longer than the file; start over then.
+            _, total = _content_range(response.headers.get("Content-Range"))
+            if total is not None and total == offset:
+                return total
+            part.write_bytes(b"")
+            raise _Transient(f"range {offset}- not satisfiable (size {total}); restarting from 0")
+        if response.status == 206:
+            start, total = _content_range(response.headers.get("Content-Range"))
+            if start != offset:
+                part.write_bytes(b"")
+                raise _Transient(f"asked for bytes {offset}-, got a range starting at {start}; restarting from 0")
+            mode = "ab"
+        else:
+            # 200: the server ignored the Range header and sends the whole file. Appending it to
+            # the partial file would corrupt it, so start again from byte 0.
+            offset, mode = 0, "wb"
+            total = _int_header(response.headers.get("Content-Length"))
+        bar.reset(total=total)
+        bar.update(offset)
+        with open(part, mode) as out:
+            while True:
+                # read1 hands over what has arrived, so bytes received before a reset are kept
+                # (read() would loop for the full chunk and lose them with the exception).
+                # Network errors propagate to download()'s retry loop.
+                chunk = response.read1(CHUNK_SIZE)
+                if not chunk:
+                    break
+                out.write(chunk)
+                bar.update(len(chunk))
+                if on_bytes is not None:
+                    on_bytes(len(chunk))
+            out.flush()
+            os.fsync(out.fileno())  # the rename that follows must not publish unwritten bytes
+    received = _size(part)
+    if total is not None and received != total:
+        if received > total:
+            part.write_bytes(b"")
+        # http.client returns b"" rather than raising when the peer closes before Content-Length.
+        raise _Transient(f"short read: have {received} of {total} bytes")
+    return total
+
+
+def download(
+    url: str,
+    dest: Path,
+    *,
+    retries: int = 5,
+    backoff: float = 1.0,
+    timeout: float = 30,
+    progress: bool = True,
+    expected_size: int | None = None,
+    on_bytes: Callable[[int], None] | None = None,
+) -> Path:
+    """Fetch ``url`` to ``dest``, resuming ``dest.part`` across failures; return ``dest``.
+
+    Connection errors, resets, timeouts, 5xx and short reads are retried with exponential
+    back-off, each time resuming with a ``Range`` request; ``retries`` bounds the consecutive
+    attempts that brought no new bytes (an attempt that made progress resets the count, so a long
+    download over a flaky link is not abandoned for having been interrupted often). 4xx answers
+    fail at once. The size is checked against Content-Length / Content-Range (and
+    ``expected_size`` if given) before ``.part`` is renamed to ``dest``. An existing ``dest`` is
+    taken as complete, since only a complete file is ever renamed to it. ``on_bytes`` is called
+    with each chunk's length (for an overall count).
+    """
+    dest = Path(dest)
+    if dest.exists():
+        return dest
+    dest.parent.mkdir(parents=True, exist_ok=True)
+    part = dest.with_suffix(dest.suffix + ".part")
+    failures = 0
+    with tqdm(desc=dest.name, unit="B", unit_scale=True, unit_divisor=1024, leave=False, disable=not progress) as bar:
+        while True:
+            before = _size(part)
+            try:
+                total = _attempt(url, part, timeout, bar, on_bytes)
+                break
+            except (_Transient, *_TRANSIENT_ERRORS) as exc:
+                failures = 0 if _size(part) > before else failures + 1
+                if failures > retries:
+                    raise DataError(f"{url}: download failed after {retries} retries: {_describe(exc)}") from None
+                time.sleep(min(backoff * 2 ** max(failures - 1, 0), MAX_BACKOFF_S))
+            except OSError as exc:  # the local side: disk full, permissions
+                raise DataError(f"{part}: cannot write the download of {url} ({exc})") from None
+    size = _size(part)
+    if expected_size is not None and size != expected_size:
+        part.unlink()
+        raise DataError(f"{url}: downloaded {size} bytes, expected {expected_size}{'' if total is None else f' (server said {total})'}")
+    os.replace(part, dest)
+    return dest
+
+
+def _describe(exc: BaseException) -> str:
+    if isinstance(exc, urllib.error.URLError) and not isinstance(exc, urllib.error.HTTPError):
+        return f"{type(exc.reason).__name__}: {exc.reason}"
+    return f"{type(exc).__name__}: {exc}" if not isinstance(exc, _Transient) else str(exc)
+
+
+def remote_size(url: str, *, retries: int = 5, backoff: float = 1.0, timeout: float = 30) -> int | None:
+    """Content-Length of ``url`` from a HEAD request (None if the server does not say)."""
+    for attempt in range(retries + 1):
+        try:
+            with _open(url, timeout, method="HEAD") as response:
+                return _int_header(response.headers.get("Content-Length"))
+        except (_Transient, *_TRANSIENT_ERRORS) as exc:
+            if attempt == retries:
+                raise DataError(f"{url}: HEAD failed after {retries} retries: {_describe(exc)}") from None
+            time.sleep(min(backoff * 2**attempt, MAX_BACKOFF_S))
+    raise AssertionError("unreachable")
+
+
+# --------------------------------------------------------------------------- verification
+
+
+def verify_zip(path: str | os.PathLike) -> None:
+    """Check that ``path`` is a readable zip whose every member decompresses with the right CRC.
+
+    This is ``ZipFile.testzip()``'s loop, but catching every way a damaged member fails (a bad
+    deflate stream raises zlib.error, which testzip lets through without the member's name).
+    """
+    path = Path(path)
+    try:
+        zf = zipfile.ZipFile(path)
+    except (zipfile.BadZipFile, OSError) as exc:
+        raise DataError(f"{path}: not a readable zip archive (central directory: {exc})") from None
+    with zf:
+        members = zf.infolist()
+        if not members:
+            raise DataError(f"{path}: zip archive has no members")
+        for info in members:
+            try:
+                with zf.open(info) as member:
+                    while member.read(CHUNK_SIZE):
+                        pass
+            except (zipfile.BadZipFile, zlib.error, EOFError, OSError, NotImplementedError) as exc:
+                raise DataError(f"{path}: member {info.filename} is corrupt ({exc})") from None
+
+
+def file_sha256(path: Path) -> str:
+    digest = hashlib.sha256()
+    with open(path, "rb") as f:
+        while chunk := f.read(CHUNK_SIZE):
+            digest.update(chunk)
+    return digest.hexdigest()
+
+
+class Manifest:
+    """``manifest.json``: sha256 and size of each archive, recorded when first verified.
+
+    Shared by the download threads; every change is written at once (atomically), so an
+    interrupted run keeps what it verified.
+    """
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        self._lock = threading.Lock()
+        self.archives: dict[str, dict[str, Any]] = {}
+        if path.exists():
+            try:
+                data = json.loads(path.read_text())
+                self.archives = dict(data["archives"])
+            except (OSError, ValueError, KeyError, TypeError) as exc:
+                raise DataError(f"{path}: not a download manifest ({exc}); delete it to re-verify every archive") from None
+
+    def get(self, name: str) -> dict[str, Any] | None:
+        with self._lock:
+            return self.archives.get(name)
+
+    def record(self, name: str, entry: dict[str, Any] | None) -> None:
+        """Set (or with None, drop) the entry of archive ``name`` and write the file."""
+        with self._lock:
+            if entry is None:
+                self.archives.pop(name, None)
+            else:
+                self.archives[name] = entry
+            write_json(self.path, {"archives": dict(sorted(self.archives.items()))})
+
+
+def _set_aside(path: Path) -> Path:
+    """Move a bad archive to ``<name>.corrupt`` (kept for inspection) so the next run refetches it."""
+    corrupt = path.with_name(path.name + ".corrupt")
+    os.replace(path, corrupt)
+    return corrupt
+
+
+def verify_archive(path: Path, manifest: Manifest, url: str = "") -> None:
+    """Compare ``path`` with its manifest record, or verify it and record it if it has none.
+
+    A mismatch or a damaged zip moves the archive aside (see :func:`_set_aside`), drops its
+    record and raises DataError naming it.
+    """
+    entry = manifest.get(path.name)
+    if entry is not None:
+        size, sha = _size(path), file_sha256(path)
+        if size != entry.get("size") or sha != entry.get("sha256"):
+            corrupt = _set_aside(path)
+            manifest.record(path.name, None)
+            raise DataError(
+                f"{path}: size {size} / sha256 {sha[:12]}... differ from {manifest.path.name}'s record "
+                f"({entry.get('size')} / {str(entry.get('sha256'))[:12]}...); moved to {corrupt.name}, "
+                "the next run fetches it again"
+            )
+        return
+    try:
+        verify_zip(path)
+    except DataError as exc:
+        corrupt = _set_aside(path)
+        raise DataError(f"{exc}; moved to {corrupt.name}, the next run fetches it again") from None
+    manifest.record(path.name, {"size": _size(path), "sha256": file_sha256(path), "url": url})
+
+
+# --------------------------------------------------------------------------- extraction
+
+
+def _marker(zip_path: Path, dest_dir: Path) -> Path:
+    return dest_dir / f".{zip_path.name}.complete"
+
+
+def _check_member_names(zf: zipfile.ZipFile, zip_path: Path) -> None:
+    """Refuse members that would land outside the destination (zip-slip)."""
+    for name in zf.namelist():
+        parts = re.split(r"[\\/]", name)
+        if name.startswith(("/", "\\")) or re.match(r"^[A-Za-z]:", name) or ".." in parts:
+            raise DataError(f"{zip_path}: member {name!r} points outside the extraction folder; refusing to extract")
+
+
+def _to_jpeg(root: Path, quality: int) -> None:
+    """Replace every 8-bit PNG under ``root`` with a JPEG of ``quality``, as Monodepth did.
+
+    16-bit PNGs (depth or disparity maps) are left alone: JPEG would destroy their values.
+    """
+    import cv2  # only needed for the optional conversion
+
+    for png in sorted(root.rglob("*.png")):
+        image = cv2.imread(str(png), cv2.IMREAD_UNCHANGED)
+        if image is None:
+            raise DataError(f"{png}: OpenCV cannot decode this PNG")
+        if image.dtype != "uint8":
+            continue
+        if not cv2.imwrite(str(png.with_suffix(".jpg")), image, [cv2.IMWRITE_JPEG_QUALITY, quality]):
+            raise DataError(f"{png}: OpenCV could not write its JPEG")
+        png.unlink()
+
+
+def _move_into(src: Path, dst: Path) -> None:
+    """Move the tree ``src`` into ``dst``: a folder new to ``dst`` appears by one atomic rename;
+    one that exists already (a day folder shared by several archives) is merged into."""
+    for entry in sorted(src.iterdir()):
+        target = dst / entry.name
+        if entry.is_dir() and target.is_dir():
+            _move_into(entry, target)
+            continue
+        if target.is_dir() and not target.is_symlink():
+            shutil.rmtree(target)
+        elif entry.is_dir() and (target.exists() or target.is_symlink()):
+            target.unlink()  # os.replace cannot put a folder over a file
+        os.replace(entry, target)
+
+
+def extract(
+    zip_path: str | os.PathLike,
+    dest_dir: str | os.PathLike,
+    *,
+    jpeg: bool = False,
+    jpeg_quality: int = JPEG_QUALITY,
+) -> bool:
+    """Unpack ``zip_path`` into ``dest_dir`` atomically; False if it was already unpacked.
+
+    The members go to a temp folder beside the destination first (same file system, so the final
+    move is a rename); the completion marker ``.<archive>.complete`` is written last, so a
+    half-extracted drive is never taken as complete and is simply redone. With ``jpeg`` the PNGs
+    are converted to JPEG (``jpeg_quality``) before anything is moved into place.
+    """
+    zip_path, dest_dir = Path(zip_path), Path(dest_dir)
+    marker = _marker(zip_path, dest_dir)
+    if marker.exists():
+        return False
+    dest_dir.mkdir(parents=True, exist_ok=True)
+    for stale in dest_dir.glob(f".{glob.escape(zip_path.name)}.*.tmp"):
+        shutil.rmtree(stale, ignore_errors=True)  # left by a killed run
+    tmp = Path(tempfile.mkdtemp(prefix=f".{zip_path.name}.", suffix=".tmp", dir=dest_dir))
+    try:
+        try:
+            zf = zipfile.ZipFile(zip_path)
+        except (zipfile.BadZipFile, OSError) as exc:
+            raise DataError(f"{zip_path}: not a readable zip archive ({exc})") from None
+        with zf:
+            _check_member_names(zf, zip_path)
+            members = zf.infolist()
+            for info in members:
+                try:
+                    zf.extract(info, tmp)
+                except (zipfile.BadZipFile, zlib.error, EOFError) as exc:
+                    raise DataError(f"{zip_path}: member {info.filename} is corrupt ({exc})") from None
+        if jpeg:
+            _to_jpeg(tmp, jpeg_quality)
+        _move_into(tmp, dest_dir)
+        write_json(marker, {"archive": zip_path.name, "members": len(members), "jpeg": jpeg})
+    except OSError as exc:  # disk full, permissions: name the archive, not just a member path
+        raise DataError(f"{zip_path}: extraction into {dest_dir} failed ({exc})") from None
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    return True
+
+
+# --------------------------------------------------------------------------- everything
+
+
+def fetch_all(
+    base_url: str,
+    names: Sequence[str],
+    download_dir: str | os.PathLike,
+    extract_dir: str | os.PathLike,
+    *,
+    jobs: int = 4,
+    dry_run: bool = False,
+    jpeg: bool = False,
+    progress: bool = True,
+    retries: int = 5,
+    backoff: float = 1.0,
+    timeout: float = 30,
+) -> dict[str, Any]:
+    """Download, verify and extract the archives ``names`` (URL paths relative to ``base_url``,
+    as :func:`parse_archive_list` returns them; absolute URLs are used as they are).
+
+    Runs ``jobs`` archives at a time. An archive already downloaded and matching the manifest is
+    not fetched again; one already extracted is not extracted again. One archive's failure does
+    not stop the others; at the end a :class:`DownloadError` (a DataError) lists the failures and
+    carries the report. The report: ``fetched``, ``skipped`` (already there and verified),
+    ``extracted``, ``failed`` (name -> reason), ``bytes_downloaded``.
+
+    ``dry_run`` asks each missing archive's size with a HEAD request, prints what would be
+    fetched and returns ``to_fetch`` (name -> size), ``skipped``, ``failed`` and ``total_bytes``.
+    """
+    download_dir, extract_dir = Path(download_dir), Path(extract_dir)
+    if not base_url.endswith("/"):
+        base_url += "/"  # urljoin would otherwise drop the last component of the base
+    urls = {archive_filename(n): urllib.parse.urljoin(base_url, n) for n in names}
+    if len(urls) != len(names):
+        raise DataError("fetch_all: two archives in the list share a file name")
+    if dry_run:
+        return _dry_run(urls, download_dir, extract_dir, jobs=jobs, retries=retries, backoff=backoff, timeout=timeout)
+
+    download_dir.mkdir(parents=True, exist_ok=True)
+    manifest = Manifest(download_dir / MANIFEST_NAME)
+    report: dict[str, Any] = {"fetched": [], "skipped": [], "extracted": [], "failed": {}, "bytes_downloaded": 0}
+    lock = threading.Lock()
+
+    def count(n: int) -> None:
+        with lock:
+            report["bytes_downloaded"] += n
+
+    def one(name: str) -> None:
+        url, archive = urls[name], download_dir / name
+        if not archive.exists() and _marker(archive, extract_dir).exists():
+            # Extracted by an earlier run and the archive deleted since (to save space): done.
+            with lock:
+                report["skipped"].append(name)
+            return
+        present = archive.exists()
+        download(url, archive, retries=retries, backoff=backoff, timeout=timeout, progress=progress, on_bytes=count)
+        try:
+            verify_archive(archive, manifest, url)
+        except DataError:
+            # The archive was set aside: forget its extraction too, so that the next run fetches
+            # and unpacks it again rather than taking the deleted archive for "extracted, removed".
+            _marker(archive, extract_dir).unlink(missing_ok=True)
+            raise
+        with lock:
+            report["skipped" if present else "fetched"].append(name)
+        if extract(archive, extract_dir, jpeg=jpeg):
+            with lock:
+                report["extracted"].append(name)
+
+    with tqdm(total=len(urls), desc="KITTI archives", unit="archive", disable=not progress) as bar:
+        with ThreadPoolExecutor(max_workers=max(1, jobs)) as pool:
+            futures = {pool.submit(one, name): name for name in urls}
+            for future in as_completed(futures):
+                name = futures[future]
+                try:
+                    future.result()
+                except DataError as exc:
+                    report["failed"][name] = str(exc)
+                except Exception as exc:  # noqa: BLE001 - one archive's surprise must not hide the others' results
+                    report["failed"][name] = f"{type(exc).__name__}: {exc}"
+                bar.update(1)
+    for key in ("fetched", "skipped", "extracted"):
+        report[key].sort()
+    if report["failed"]:
+        lines = "\n".join(f"  {name}: {reason}" for name, reason in sorted(report["failed"].items()))
+        raise DownloadError(f"{len(report['failed'])} of {len(urls)} archive(s) failed:\n{lines}", report)
+    return report
+
+
+def _dry_run(
+    urls: dict[str, str], download_dir: Path, extract_dir: Path, *, jobs: int, retries: int, backoff: float, timeout: float
+) -> dict[str, Any]:
+    """What fetch_all would download, with sizes from HEAD requests; downloads nothing."""
+    report: dict[str, Any] = {"dry_run": True, "to_fetch": {}, "skipped": [], "failed": {}, "total_bytes": 0}
+    missing = [
+        name for name in urls if not ((download_dir / name).exists() or _marker(download_dir / name, extract_dir).exists())
+    ]
+    report["skipped"] = sorted(set(urls) - set(missing))
+
+    def size(name: str) -> int | None:
+        return remote_size(urls[name], retries=retries, backoff=backoff, timeout=timeout)
+
+    with ThreadPoolExecutor(max_workers=max(1, jobs)) as pool:
+        for name, future in [(n, pool.submit(size, n)) for n in missing]:
+            try:
+                report["to_fetch"][name] = future.result()
+            except DataError as exc:
+                report["failed"][name] = str(exc)
+    report["total_bytes"] = sum(s or 0 for s in report["to_fetch"].values())
+    unknown = sum(s is None for s in report["to_fetch"].values())
+    for name, nbytes in report["to_fetch"].items():
+        print(f"{name}\t{'size unknown' if nbytes is None else _human(nbytes)}")
+    print(
+        f"would fetch {len(report['to_fetch'])} archive(s), {_human(report['total_bytes'])}"
+        f"{f' (+{unknown} of unknown size)' if unknown else ''}; {len(report['skipped'])} already present"
+    )
+    if report["failed"]:
+        lines = "\n".join(f"  {name}: {reason}" for name, reason in sorted(report["failed"].items()))
+        raise DownloadError(f"{len(report['failed'])} of {len(urls)} archive(s) cannot be fetched:\n{lines}", report)
+    return report
+
+
+def _human(nbytes: int) -> str:
+    size = float(nbytes)
+    for unit in ("B", "KiB", "MiB", "GiB"):
+        if size < 1024 or unit == "GiB":
+            return f"{size:.1f} {unit}" if unit != "B" else f"{nbytes} B"
+        size /= 1024
+    raise AssertionError("unreachable")

@@ -1,0 +1,452 @@
+"""KITTI download engine against a local HTTP server that misbehaves on purpose.
+
+The server (127.0.0.1, port 0, one thread per request) serves small zips built here in KITTI's
+raw layout and logs, per request, the Range asked for and the bytes it actually sent, so the
+tests can prove a resume fetched only the rest of the file. No test touches the internet.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import io as stdio
+import json
+import re
+import socket
+import struct
+import threading
+import time
+import zipfile
+from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from msdepth.data import download as dl
+from msdepth.errors import DataError
+
+SHIPPED_LIST = Path(__file__).resolve().parents[1] / "data_lists" / "kitti_archives_to_download.txt"
+FAST = {"retries": 3, "backoff": 0.01, "timeout": 5, "progress": False}
+
+
+def drive_zip(date: str, drive: int, frames: int = 3, seed: int = 0) -> bytes:
+    """A fake synced drive in KITTI's raw layout (stored, random PNGs: ~30 KB, incompressible)."""
+    rng = np.random.default_rng(seed)
+    sync = f"{date}_drive_{drive:04d}_sync"
+    buf = stdio.BytesIO()
+    with zipfile.ZipFile(buf, "w", zipfile.ZIP_STORED) as zf:
+        for camera in ("image_02", "image_03"):
+            for i in range(frames):
+                ok, png = cv2.imencode(".png", rng.integers(0, 256, (24, 40, 3), dtype=np.uint8))
+                assert ok
+                zf.writestr(f"{date}/{sync}/{camera}/data/{i:010d}.png", png.tobytes())
+            zf.writestr(f"{date}/{sync}/{camera}/timestamps.txt", "2011-09-26 13:02:25.964389445\n" * frames)
+    return buf.getvalue()
+
+
+def calib_zip(date: str) -> bytes:
+    buf = stdio.BytesIO()
+    with zipfile.ZipFile(buf, "w") as zf:
+        zf.writestr(f"{date}/calib_cam_to_cam.txt", "P_rect_02: 721.5 0 609.6 44.9 0 721.5 172.9 0.2 0 0 1 0.003\n")
+    return buf.getvalue()
+
+
+class _Handler(BaseHTTPRequestHandler):
+    server: "_Server"
+
+    def log_message(self, *args) -> None:  # keep pytest output clean
+        pass
+
+    def do_HEAD(self) -> None:
+        self._serve(head=True)
+
+    def do_GET(self) -> None:
+        self._serve(head=False)
+
+    def _serve(self, head: bool) -> None:
+        srv = self.server
+        name = self.path.rsplit("/", 1)[-1]
+        mode = srv.modes.get(name, "normal")
+        entry = {"name": name, "method": self.command, "range": self.headers.get("Range"), "sent": 0}
+        with srv.lock:
+            earlier_gets = sum(e["name"] == name and e["method"] == "GET" for e in srv.log)
+            srv.log.append(entry)
+        first = earlier_gets == 0
+        if name not in srv.files or mode == "404":
+            self.send_error(404)
+            return
+        if mode == "always_500" or (mode == "503_once" and first and not head):
+            self.send_error(500 if mode == "always_500" else 503)
+            return
+        data = srv.files[name]
+        start = 0
+        match = re.fullmatch(r"bytes=(\d+)-", entry["range"] or "")
+        if match and mode != "no_range":
+            start = int(match.group(1))
+            if start >= len(data):
+                self.send_response(416)
+                self.send_header("Content-Range", f"bytes */{len(data)}")
+                self.send_header("Content-Length", "0")
+                self.end_headers()
+                return
+        body = data[start:]
+        self.send_response(206 if start else 200)
+        self.send_header("Content-Length", str(len(body)))
+        if start:
+            self.send_header("Content-Range", f"bytes {start}-{len(data) - 1}/{len(data)}")
+        if mode != "no_range":
+            self.send_header("Accept-Ranges", "bytes")
+        self.end_headers()
+        if head:
+            return
+        cut = (mode in ("reset_once", "truncate_once", "stall_once") and first) or mode == "always_reset"
+        if cut:
+            half = 0 if mode == "always_reset" else len(body) // 2
+            self.wfile.write(body[:half])
+            entry["sent"] = half
+            # Let the client take in what was sent before the connection dies; "stall" outlasts
+            # the client's read timeout.
+            time.sleep(1.0 if mode == "stall_once" else 0.1)
+            if mode not in ("truncate_once", "stall_once"):
+                # Linger 0: close() sends a TCP RST ("connection reset by peer"), not a clean FIN.
+                self.connection.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, struct.pack("ii", 1, 0))
+                self.connection.close()
+            self.close_connection = True
+            return
+        self.wfile.write(body)
+        entry["sent"] = len(body)
+
+
+class _Server(ThreadingHTTPServer):
+    daemon_threads = True
+
+    def __init__(self) -> None:
+        super().__init__(("127.0.0.1", 0), _Handler)
+        self.files: dict[str, bytes] = {}
+        self.modes: dict[str, str] = {}
+        self.log: list[dict] = []
+        self.lock = threading.Lock()
+
+    def handle_error(self, request, client_address) -> None:  # the aborted sockets are on purpose
+        pass
+
+    @property
+    def base_url(self) -> str:
+        return f"http://127.0.0.1:{self.server_address[1]}/avg-kitti/"
+
+    def url(self, name: str) -> str:
+        return self.base_url + "raw_data/" + name
+
+    def gets(self, name: str) -> list[dict]:
+        return [e for e in self.log if e["name"] == name and e["method"] == "GET"]
+
+
+@pytest.fixture
+def server():
+    srv = _Server()
+    thread = threading.Thread(target=srv.serve_forever, kwargs={"poll_interval": 0.05}, daemon=True)
+    thread.start()
+    yield srv
+    srv.shutdown()
+    srv.server_close()
+
+
+DRIVE = "2011_09_26_drive_0001_sync.zip"
+
+
+def _serve_drive(server: _Server, mode: str = "normal", name: str = DRIVE, seed: int = 0) -> bytes:
+    data = drive_zip(name[:10], int(name[17:21]), seed=seed)
+    server.files[name], server.modes[name] = data, mode
+    return data
+
+
+# --------------------------------------------------------------------------- lists
+
+
+def test_shipped_list_parses_to_66_relative_archive_paths() -> None:
+    names = dl.parse_archive_list(SHIPPED_LIST)
+    assert len(names) == 66
+    assert all(n.startswith("raw_data/") and n.endswith(".zip") for n in names)
+    files = [dl.archive_filename(n) for n in names]
+    assert sum(f.endswith("_calib.zip") for f in files) == 5
+    assert sum(f.endswith("_sync.zip") for f in files) == 61
+    assert names[1] == "raw_data/2011_09_26_drive_0001/2011_09_26_drive_0001_sync.zip"
+
+
+def test_bad_list_content_names_the_file_and_line(tmp_path: Path) -> None:
+    good = tmp_path / "ok.txt"
+    good.write_text("# a comment\n\nraw_data/2011_09_26_calib.zip\n  https://example.org/x/y.zip  \n")
+    assert dl.parse_archive_list(good) == ["raw_data/2011_09_26_calib.zip", "https://example.org/x/y.zip"]
+    for text, pattern in [
+        ("raw_data/a.zip\nnot an archive.tar\n", r"bad\.txt:2: expected one URL"),
+        ("raw_data/a.zip\nother/a.zip\n", r"bad\.txt:2: archive a\.zip is listed twice"),
+        ("# only comments\n\n", r"bad\.txt: no archives listed"),
+    ]:
+        bad = tmp_path / "bad.txt"
+        bad.write_text(text)
+        with pytest.raises(DataError, match=pattern):
+            dl.parse_archive_list(bad)
+    with pytest.raises(DataError, match="missing.txt: cannot read"):
+        dl.parse_archive_list(tmp_path / "missing.txt")
+
+
+def test_unknown_url_scheme_is_a_data_error_naming_the_url(tmp_path: Path) -> None:
+    with pytest.raises(DataError, match="ftp-ish://x/a.zip: unknown url type"):
+        dl.download("ftp-ish://x/a.zip", tmp_path / "a.zip", **FAST)
+    with pytest.raises(DataError, match="raw_data/a.zip: unknown url type"):
+        dl.download("raw_data/a.zip", tmp_path / "a.zip", **FAST)
+
+
+def test_select_all_first_n_and_named_drives_add_their_calibration() -> None:
+    names = dl.parse_archive_list(SHIPPED_LIST)
+    assert dl.select_archives(names, None) == names == dl.select_archives(names, "all")
+    first2 = [dl.archive_filename(n) for n in dl.select_archives(names, 2)]
+    assert first2 == ["2011_09_26_calib.zip", "2011_09_26_drive_0001_sync.zip", "2011_09_26_drive_0002_sync.zip"]
+    picked = [dl.archive_filename(n) for n in dl.select_archives(names, ["2011_09_28_drive_0001", "2011_10_03_drive_0027_sync.zip"])]
+    assert picked == ["2011_09_28_calib.zip", "2011_09_28_drive_0001_sync.zip", "2011_10_03_calib.zip", "2011_10_03_drive_0027_sync.zip"]
+    assert dl.select_archives(names, 0) == []
+    with pytest.raises(DataError, match="not in the archive list: 2011_09_26_drive_9999"):
+        dl.select_archives(names, ["2011_09_26_drive_9999"])
+    with pytest.raises(DataError, match=">= 0"):
+        dl.select_archives(names, -1)
+
+
+# --------------------------------------------------------------------------- download
+
+
+def test_normal_download_is_byte_identical_and_leaves_no_part(server: _Server, tmp_path: Path) -> None:
+    data = _serve_drive(server)
+    dest = dl.download(server.url(DRIVE), tmp_path / DRIVE, **FAST)
+    assert dest.read_bytes() == data
+    assert not (tmp_path / (DRIVE + ".part")).exists()
+    assert [e["range"] for e in server.gets(DRIVE)] == [None]
+
+
+@pytest.mark.parametrize("mode", ["reset_once", "truncate_once", "stall_once"])
+def test_reset_truncated_or_stalled_transfer_resumes_with_a_range_request(server: _Server, tmp_path: Path, mode: str) -> None:
+    data = _serve_drive(server, mode)
+    dest = dl.download(server.url(DRIVE), tmp_path / DRIVE, **{**FAST, "timeout": 0.3})
+    assert dest.read_bytes() == data
+    first, second = server.gets(DRIVE)
+    assert first["range"] is None and 0 < first["sent"] < len(data)
+    # The retry asked for exactly the bytes it lacked, and the server sent only those.
+    assert second["range"] == f"bytes={first['sent']}-"
+    assert second["sent"] == len(data) - first["sent"] < len(data)
+    print(f"{mode}: size {len(data)}, 1st request sent {first['sent']}, resume sent {second['sent']}")
+
+
+def test_404_fails_at_once_naming_the_url(server: _Server, tmp_path: Path) -> None:
+    _serve_drive(server, "404")
+    url = server.url(DRIVE)
+    with pytest.raises(DataError, match=re.escape(url) + ": HTTP 404"):
+        dl.download(url, tmp_path / DRIVE, **FAST)
+    assert len(server.gets(DRIVE)) == 1  # no retries on a 4xx
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_5xx_is_retried_and_gives_up_after_the_retries(server: _Server, tmp_path: Path) -> None:
+    data = _serve_drive(server, "503_once")
+    assert dl.download(server.url(DRIVE), tmp_path / DRIVE, **FAST).read_bytes() == data
+    assert len(server.gets(DRIVE)) == 2
+    server.modes[DRIVE], server.log[:] = "always_500", []
+    with pytest.raises(DataError, match=r"download failed after 3 retries: HTTP 500"):
+        dl.download(server.url(DRIVE), tmp_path / "again.zip", **FAST)
+    assert len(server.gets(DRIVE)) == 1 + FAST["retries"]
+
+
+def test_resets_that_make_no_progress_give_up(server: _Server, tmp_path: Path) -> None:
+    _serve_drive(server, "always_reset")  # headers, then a reset before any byte of the body
+    with pytest.raises(DataError, match=re.escape(server.url(DRIVE)) + ": download failed after 3 retries: ConnectionResetError"):
+        dl.download(server.url(DRIVE), tmp_path / DRIVE, **FAST)
+    assert len(server.gets(DRIVE)) == 1 + FAST["retries"]
+    assert not (tmp_path / DRIVE).exists()
+
+
+def test_server_without_range_support_discards_the_partial_file(server: _Server, tmp_path: Path) -> None:
+    data = _serve_drive(server, "no_range")
+    part = tmp_path / (DRIVE + ".part")
+    part.write_bytes(b"\xff" * (len(data) // 2))  # a stale partial download of someone else's bytes
+    dest = dl.download(server.url(DRIVE), tmp_path / DRIVE, **FAST)
+    assert dest.read_bytes() == data  # not garbage + full body appended
+    (get,) = server.gets(DRIVE)
+    assert get["range"] == f"bytes={len(data) // 2}-" and get["sent"] == len(data)
+
+
+def test_a_whole_part_left_by_a_killed_run_is_finished_without_refetching(server: _Server, tmp_path: Path) -> None:
+    data = _serve_drive(server)
+    (tmp_path / (DRIVE + ".part")).write_bytes(data)  # killed between the last write and the rename
+    assert dl.download(server.url(DRIVE), tmp_path / DRIVE, **FAST).read_bytes() == data
+    assert [e["sent"] for e in server.gets(DRIVE)] == [0]  # answered 416, nothing sent
+
+
+# --------------------------------------------------------------------------- verification
+
+
+def test_verify_zip_names_the_bad_member_and_the_file(tmp_path: Path) -> None:
+    good = tmp_path / "good.zip"
+    good.write_bytes(drive_zip("2011_09_26", 1))
+    dl.verify_zip(good)
+    data = bytearray(good.read_bytes())
+    with zipfile.ZipFile(good) as zf:
+        info = zf.infolist()[1]
+    # Flip bytes inside the second member's data: same length, wrong CRC.
+    offset = info.header_offset + 30 + len(info.filename.encode()) + 10
+    data[offset : offset + 4] = bytes(b ^ 0xFF for b in data[offset : offset + 4])
+    bad = tmp_path / "bad.zip"
+    bad.write_bytes(bytes(data))
+    with pytest.raises(DataError, match=re.escape(f"{bad}: member {info.filename} is corrupt")):
+        dl.verify_zip(bad)
+    notzip = tmp_path / "notzip.zip"
+    notzip.write_bytes(b"<html>rate limited</html>")
+    with pytest.raises(DataError, match="notzip.zip: not a readable zip archive"):
+        dl.verify_zip(notzip)
+
+
+def _corrupt(data: bytes) -> bytes:
+    out = bytearray(data)
+    mid = len(out) // 2
+    out[mid : mid + 8] = bytes(b ^ 0xFF for b in out[mid : mid + 8])
+    return bytes(out)
+
+
+def test_manifest_recorded_on_first_success_and_later_tamper_detected(server: _Server, tmp_path: Path) -> None:
+    data = _serve_drive(server)
+    dl_dir, raw = tmp_path / "zips", tmp_path / "raw"
+    names = [f"raw_data/2011_09_26_drive_0001/{DRIVE}"]
+    report = dl.fetch_all(server.base_url, names, dl_dir, raw, jobs=1, **FAST)
+    assert report["fetched"] == [DRIVE] and report["extracted"] == [DRIVE] and report["bytes_downloaded"] == len(data)
+    manifest = json.loads((dl_dir / "manifest.json").read_text())["archives"]
+    assert manifest[DRIVE]["sha256"] == hashlib.sha256(data).hexdigest()
+    assert manifest[DRIVE]["size"] == len(data)
+
+    # Second run: verified against the manifest, nothing downloaded or extracted again.
+    report = dl.fetch_all(server.base_url, names, dl_dir, raw, jobs=1, **FAST)
+    assert report["skipped"] == [DRIVE] and report["fetched"] == report["extracted"] == []
+    assert report["bytes_downloaded"] == 0 and len(server.gets(DRIVE)) == 1
+
+    # Tamper with the archive (same length): detected, named, moved aside, record dropped.
+    (dl_dir / DRIVE).write_bytes(_corrupt(data))
+    with pytest.raises(dl.DownloadError, match=f"{DRIVE}: size .* sha256 .* differ from manifest.json") as err:
+        dl.fetch_all(server.base_url, names, dl_dir, raw, jobs=1, **FAST)
+    assert list(err.value.report["failed"]) == [DRIVE]
+    assert (dl_dir / (DRIVE + ".corrupt")).exists() and not (dl_dir / DRIVE).exists()
+    assert DRIVE not in json.loads((dl_dir / "manifest.json").read_text())["archives"]
+
+    # Third run fetches it again and records it again.
+    report = dl.fetch_all(server.base_url, names, dl_dir, raw, jobs=1, **FAST)
+    assert report["fetched"] == [DRIVE] and (dl_dir / DRIVE).read_bytes() == data
+    assert json.loads((dl_dir / "manifest.json").read_text())["archives"][DRIVE]["sha256"] == hashlib.sha256(data).hexdigest()
+
+
+def test_corrupted_download_is_reported_failed_and_moved_aside(server: _Server, tmp_path: Path) -> None:
+    data = _serve_drive(server)
+    server.files[DRIVE] = _corrupt(data)  # right length, wrong bytes: the size check cannot see it
+    with pytest.raises(dl.DownloadError, match=f"{DRIVE}: member .* is corrupt") as err:
+        dl.fetch_all(server.base_url, [f"raw_data/{DRIVE}"], tmp_path / "zips", tmp_path / "raw", **FAST)
+    assert list(err.value.report["failed"]) == [DRIVE]
+    assert (tmp_path / "zips" / (DRIVE + ".corrupt")).exists() and not (tmp_path / "zips" / DRIVE).exists()
+    assert not (tmp_path / "raw").exists() or not any((tmp_path / "raw").iterdir())
+
+
+# --------------------------------------------------------------------------- extraction
+
+
+def test_failed_extraction_leaves_no_marker_and_no_half_drive(tmp_path: Path, monkeypatch) -> None:
+    archive = tmp_path / DRIVE
+    archive.write_bytes(drive_zip("2011_09_26", 1))
+    raw = tmp_path / "raw"
+    drive_dir = raw / "2011_09_26" / "2011_09_26_drive_0001_sync"
+    real_extract, calls = zipfile.ZipFile.extract, []
+
+    def fail_on_third(self, member, path=None, pwd=None):
+        calls.append(member)
+        if len(calls) == 3:
+            raise OSError(28, "No space left on device")
+        return real_extract(self, member, path, pwd)
+
+    monkeypatch.setattr(zipfile.ZipFile, "extract", fail_on_third)
+    with pytest.raises(DataError, match=f"{DRIVE}: extraction into .* failed .*No space left"):
+        dl.extract(archive, raw)
+    assert not drive_dir.exists()
+    assert not (raw / f".{DRIVE}.complete").exists()
+    assert [p.name for p in raw.iterdir()] == []  # temp folder removed too
+
+    monkeypatch.setattr(zipfile.ZipFile, "extract", real_extract)
+    (raw / f".{DRIVE}.abcd.tmp").mkdir()  # as left by a run killed mid-extraction
+    assert dl.extract(archive, raw) is True
+    assert len(list((drive_dir / "image_02" / "data").glob("*.png"))) == 3
+    assert (raw / f".{DRIVE}.complete").exists()
+    assert sorted(p.name for p in raw.iterdir()) == [f".{DRIVE}.complete", "2011_09_26"]
+    assert dl.extract(archive, raw) is False  # marker present: skipped
+
+
+def test_drive_and_calibration_archives_share_the_day_folder(tmp_path: Path) -> None:
+    (tmp_path / "c.zip").write_bytes(calib_zip("2011_09_26"))
+    (tmp_path / "d.zip").write_bytes(drive_zip("2011_09_26", 1))
+    raw = tmp_path / "raw"
+    assert dl.extract(tmp_path / "d.zip", raw) and dl.extract(tmp_path / "c.zip", raw)
+    assert sorted(p.name for p in (raw / "2011_09_26").iterdir()) == ["2011_09_26_drive_0001_sync", "calib_cam_to_cam.txt"]
+
+
+@pytest.mark.parametrize("member", ["../evil.txt", "2011_09_26/../../evil.txt", "/tmp/evil.txt"])
+def test_zip_slip_member_is_rejected(tmp_path: Path, member: str) -> None:
+    archive = tmp_path / "slip.zip"
+    with zipfile.ZipFile(archive, "w") as zf:
+        zf.writestr("2011_09_26/ok.txt", "fine")
+        zf.writestr(member, "gotcha")
+    raw = tmp_path / "a" / "raw"
+    with pytest.raises(DataError, match=re.escape(f"member {member!r} points outside")):
+        dl.extract(archive, raw)
+    assert not (tmp_path / "a" / "evil.txt").exists() and not (tmp_path / "evil.txt").exists()
+    assert list(raw.iterdir()) == []
+
+
+def test_jpeg_conversion_replaces_pngs(tmp_path: Path) -> None:
+    archive = tmp_path / DRIVE
+    archive.write_bytes(drive_zip("2011_09_26", 1))
+    raw = tmp_path / "raw"
+    dl.extract(archive, raw, jpeg=True, jpeg_quality=92)
+    data = raw / "2011_09_26" / "2011_09_26_drive_0001_sync" / "image_02" / "data"
+    assert sorted(p.name for p in data.iterdir()) == [f"{i:010d}.jpg" for i in range(3)]
+    assert cv2.imread(str(data / "0000000000.jpg")).shape == (24, 40, 3)
+
+
+# --------------------------------------------------------------------------- fetch_all
+
+
+def test_dry_run_reports_total_size_and_downloads_nothing(server: _Server, tmp_path: Path, capsys) -> None:
+    a = _serve_drive(server, name="2011_09_26_drive_0001_sync.zip", seed=1)
+    b = _serve_drive(server, name="2011_09_26_drive_0002_sync.zip", seed=2)
+    names = [f"raw_data/{n}" for n in server.files]
+    report = dl.fetch_all(server.base_url, names, tmp_path / "zips", tmp_path / "raw", dry_run=True, **FAST)
+    assert report["total_bytes"] == len(a) + len(b)
+    assert report["to_fetch"] == {n: len(d) for n, d in server.files.items()}
+    assert {e["method"] for e in server.log} == {"HEAD"}
+    assert not (tmp_path / "zips").exists() and not (tmp_path / "raw").exists()
+    assert "would fetch 2 archive(s)" in capsys.readouterr().out
+
+
+def test_parallel_fetch_reports_exactly_the_failing_archive(server: _Server, tmp_path: Path) -> None:
+    server.files["2011_09_26_calib.zip"] = calib_zip("2011_09_26")
+    ok = _serve_drive(server, "reset_once", name="2011_09_26_drive_0001_sync.zip", seed=1)
+    _serve_drive(server, "404", name="2011_09_26_drive_0002_sync.zip", seed=2)
+    names = [f"raw_data/{n}" for n in server.files]
+    with pytest.raises(dl.DownloadError, match=r"1 of 3 archive\(s\) failed") as err:
+        dl.fetch_all(server.base_url, names, tmp_path / "zips", tmp_path / "raw", jobs=3, **FAST)
+    report = err.value.report
+    assert list(report["failed"]) == ["2011_09_26_drive_0002_sync.zip"]
+    assert "HTTP 404" in report["failed"]["2011_09_26_drive_0002_sync.zip"]
+    assert report["fetched"] == report["extracted"] == ["2011_09_26_calib.zip", "2011_09_26_drive_0001_sync.zip"]
+    assert (tmp_path / "zips" / "2011_09_26_drive_0001_sync.zip").read_bytes() == ok
+    assert (tmp_path / "raw" / "2011_09_26" / "calib_cam_to_cam.txt").exists()
+    assert (tmp_path / "raw" / "2011_09_26" / "2011_09_26_drive_0001_sync" / "image_03" / "timestamps.txt").exists()
+
+
+def test_extracted_archive_deleted_to_save_space_is_not_fetched_again(server: _Server, tmp_path: Path) -> None:
+    _serve_drive(server)
+    names = [f"raw_data/{DRIVE}"]
+    dl.fetch_all(server.base_url, names, tmp_path / "zips", tmp_path / "raw", **FAST)
+    (tmp_path / "zips" / DRIVE).unlink()
+    report = dl.fetch_all(server.base_url, names, tmp_path / "zips", tmp_path / "raw", **FAST)
+    assert report["skipped"] == [DRIVE] and len(server.gets(DRIVE)) == 1
