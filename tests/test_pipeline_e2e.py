@@ -52,15 +52,15 @@ def repo(tmp_path_factory) -> Path:
     return work
 
 
-def _project(work: Path) -> Path:
-    """A git repository holding the project's pipeline with the TINY params."""
-    for name in ("dvc.yaml", "stages", "src", ".dvc", ".dvcignore", ".gitignore"):
+def _project(work: Path, patch: dict | None = None) -> Path:
+    """A git repository holding the project's pipeline with the TINY params (and ``patch``)."""
+    for name in ("dvc.yaml", "stages", "src", "data_lists", ".dvc", ".dvcignore", ".gitignore"):
         src = ROOT / name
         if src.is_dir():
             shutil.copytree(src, work / name, ignore=shutil.ignore_patterns("__pycache__", "tmp", "cache"))
         else:
             shutil.copy(src, work / name)
-    params = _merge(yaml.safe_load((ROOT / "params.yaml").read_text()), TINY)
+    params = _merge(_merge(yaml.safe_load((ROOT / "params.yaml").read_text()), TINY), patch or {})
     (work / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
     _run(["git", "init", "-q"], work)
     _run(["git", "add", "-A"], work)

@@ -18,17 +18,22 @@ from .stats import paired_bootstrap, paired_table
 SUITES = ("full", "roi", "gradients")
 
 
-def load_suite_metrics(metrics_dir: str | os.PathLike, runs: Sequence[str]) -> dict[str, dict[str, dict]]:
-    """``{suite: {run: metrics}}`` from ``metrics_dir/<suite>/<run>.json``."""
-    out: dict[str, dict[str, dict]] = {}
-    for suite in SUITES:
+def _load_runs(metrics_dir: str | os.PathLike, suites: Sequence[str], runs: Sequence[str], suffix: str, read, what: str) -> dict:
+    """``{suite: {run: read(metrics_dir/<suite>/<run><suffix>)}}``, naming any missing file."""
+    out: dict[str, dict] = {}
+    for suite in suites:
         out[suite] = {}
         for run in runs:
-            path = Path(metrics_dir) / suite / f"{run}.json"
+            path = Path(metrics_dir) / suite / f"{run}{suffix}"
             if not path.exists():
-                raise DataError(f"{path}: missing metrics of run {run!r} (suite {suite})")
-            out[suite][run] = json.loads(path.read_text())
+                raise DataError(f"{path}: missing {what} of run {run!r} (suite {suite})")
+            out[suite][run] = read(path)
     return out
+
+
+def load_suite_metrics(metrics_dir: str | os.PathLike, runs: Sequence[str]) -> dict[str, dict[str, dict]]:
+    """``{suite: {run: metrics}}`` from ``metrics_dir/<suite>/<run>.json``."""
+    return _load_runs(metrics_dir, SUITES, runs, ".json", lambda p: json.loads(p.read_text()), "metrics")
 
 
 # Per-unit tables of the suites that are compared statistically, and the column pairing units.
@@ -37,15 +42,8 @@ UNIT_KEYS = {"full": ["frame"], "roi": ["roi"]}
 
 def load_unit_tables(metrics_dir: str | os.PathLike, runs: Sequence[str]) -> dict[str, dict[str, pd.DataFrame]]:
     """``{suite: {run: per-image or per-ROI table}}`` from ``metrics_dir/<suite>/<run>.csv``."""
-    out: dict[str, dict[str, pd.DataFrame]] = {}
-    for suite in UNIT_KEYS:
-        out[suite] = {}
-        for run in runs:
-            path = Path(metrics_dir) / suite / f"{run}.csv"
-            if not path.exists():
-                raise DataError(f"{path}: missing per-unit metrics of run {run!r} (suite {suite})")
-            out[suite][run] = pd.read_csv(path, dtype={"frame": str, "image": str})
-    return out
+    return _load_runs(metrics_dir, list(UNIT_KEYS), runs, ".csv",
+                      lambda p: pd.read_csv(p, dtype={"frame": str, "image": str}), "per-unit metrics")
 
 
 def paired_statistics(

@@ -31,6 +31,25 @@ class SyntheticConfig:
 
 
 @dataclass(frozen=True)
+class KittiConfig:
+    """Real KITTI: where to fetch it, what to fetch, which splits and ROIs to use."""
+
+    base_url: str = "https://s3.eu-central-1.amazonaws.com/avg-kitti/"
+    drives: tuple[str, ...] | None = None  # None = every drive of the archive list
+    drive_count: int = 0  # > 0: only the first N drives (to start small)
+    jobs: int = 4  # parallel connections
+    jpeg: bool = False  # convert extracted PNGs to JPEG (quality 92), as Monodepth did
+    download_dir: str = "data/downloads"
+    archive_list: str = "data_lists/kitti_archives_to_download.txt"
+    scene_flow_archive: str = "data_scene_flow.zip"  # KITTI 2015 (evaluation frames and GT)
+    train_split: str = "data_lists/kitti_train_files.txt"
+    eval_split: str = "data_lists/kitti_stereo_2015_test_files.txt"
+    rois_csv: str = ""  # hand-drawn boxes (image, class, x0, y0, x1, y1) added to the obj_map cars
+    roi_min_size: int = 16  # px, both sides of an automatic car box
+    roi_min_valid: float = 0.3  # fraction of an automatic car box with valid GT
+
+
+@dataclass(frozen=True)
 class DataConfig:
     source: Literal["synthetic", "kitti"] = "synthetic"
     root: str = "data/kitti"
@@ -38,6 +57,7 @@ class DataConfig:
     width: int = 192
     gt: Literal["disp_noc_0", "disp_occ_0"] = "disp_noc_0"
     synthetic: SyntheticConfig = field(default_factory=SyntheticConfig)
+    kitti: KittiConfig = field(default_factory=KittiConfig)
 
 
 @dataclass(frozen=True)
@@ -201,6 +221,12 @@ def validate(p: Params) -> Params:
         _check(getattr(s, name) >= 1, f"data.synthetic.{name}", "must be >= 1")
     _check(s.drives <= s.train_pairs, "data.synthetic.drives", "must not exceed train_pairs")
     _check(s.height >= 32 and s.width >= 64, "data.synthetic.height", "render size must be at least 32 x 64")
+    k = d.kitti
+    _check(k.drive_count >= 0, "data.kitti.drive_count", f"must be >= 0 (0 = all), got {k.drive_count}")
+    _check(k.jobs >= 1, "data.kitti.jobs", f"must be >= 1, got {k.jobs}")
+    _check(k.roi_min_size >= 1, "data.kitti.roi_min_size", f"must be >= 1, got {k.roi_min_size}")
+    _check(0 <= k.roi_min_valid <= 1, "data.kitti.roi_min_valid", f"must be in [0, 1], got {k.roi_min_valid}")
+    _check(k.drives is None or not k.drive_count, "data.kitti.drive_count", "give either drives or drive_count, not both")
     _check(s.gt_max_depth >= 0, "data.synthetic.gt_max_depth", f"must be >= 0 (0 = no limit), got {s.gt_max_depth}")
     _check(p.model.width_multiplier > 0, "model.width_multiplier", "must be > 0")
     _check(0 < p.model.init_disparity < 0.3, "model.init_disparity", "must be in (0, 0.3) (heads output 0.3*sigmoid)")

@@ -56,14 +56,29 @@ def run_dir(run: str) -> Path:
     return Path("outputs") / run
 
 
-def prepare_data(params: Params) -> None:
-    """Create the KITTI-format tree under ``data.root`` (the synthetic set; KITTI: issue #4)."""
-    if params.data.source != "synthetic":
-        layout(params)  # raises the clear 'not built yet' error for kitti
-    from .data import synthetic
+def prepare_data(params: Params, *options: str) -> None:
+    """Create the KITTI-format tree under ``data.root``: render the synthetic set, or fetch KITTI.
 
-    summary = synthetic.generate(params.data.synthetic, Path(params.data.root))
-    log.info("synthetic set: %s", summary)
+    For KITTI, ``--dry-run`` prints what would be downloaded and its total size.
+    """
+    if params.data.source == "synthetic":
+        from .data import synthetic
+
+        log.info("synthetic set: %s", synthetic.generate(params.data.synthetic, Path(params.data.root)))
+        return
+    from .data import download
+
+    k, lay = params.data.kitti, layout(params)
+    names = download.parse_archive_list(k.archive_list)
+    subset = list(k.drives) if k.drives is not None else (k.drive_count or None)
+    common = dict(jobs=k.jobs, dry_run="--dry-run" in options, jpeg=k.jpeg)
+    raw = download.fetch_all(k.base_url, download.select_archives(names, subset), k.download_dir, lay.raw_root, **common)
+    scene = download.fetch_all(k.base_url, [k.scene_flow_archive], k.download_dir, lay.kitti2015_root, **common)
+    log.info("kitti: raw archives %s; KITTI 2015 %s", _summary(raw), _summary(scene))
+
+
+def _summary(report: dict) -> str:
+    return ", ".join(f"{k} {len(v) if isinstance(v, (list, dict)) else v}" for k, v in report.items())
 
 
 def index(params: Params) -> None:
@@ -76,14 +91,28 @@ def index(params: Params) -> None:
 
 
 def rois(params: Params) -> None:
-    """Validate the ROI boxes against the evaluation frames and write the ROI index."""
-    boxes = kitti.read_rois(layout(params).rois)
+    """The ROI boxes: the synthetic set's exact ones, or KITTI's obj_map cars plus the user's CSV.
+
+    Writes the ROI index and a contact sheet of the crops (``data/index/rois.png``).
+    """
+    from .data.rois import contact_sheet, extract_rois
+
     frames = read_eval_index(INDEX_DIR / "eval_frames.csv")
+    source = layout(params).rois
+    if source is not None:
+        boxes = kitti.read_rois(source)
+    else:
+        k = params.data.kitti
+        boxes = extract_rois(frames, user_csv=Path(k.rois_csv) if k.rois_csv else None,
+                             min_size=k.roi_min_size, min_valid=k.roi_min_valid)
+        if boxes.empty:
+            raise DataError("rois: no car in any obj_map passed data.kitti.roi_min_size/roi_min_valid, and no data.kitti.rois_csv")
     known = set(frames["frame"])
     unknown = sorted(set(boxes["image"]) - known)
     if unknown:
         raise DataError(f"{layout(params).rois}: boxes name images that are not evaluation frames: {unknown[:10]}")
     kitti.write_rois(INDEX_DIR / "rois.csv", boxes)
+    contact_sheet(boxes, frames, INDEX_DIR / "rois.png")
     log.info("rois: %d boxes, %s", len(boxes), boxes["class"].value_counts().to_dict())
 
 

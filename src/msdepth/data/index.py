@@ -15,7 +15,7 @@ from pathlib import Path
 import pandas as pd
 
 from ..config import Params
-from ..errors import ConfigError, DataError
+from ..errors import DataError
 from ..io import atomic_path, write_json
 from . import kitti
 from .pairs import index_pairs
@@ -25,24 +25,26 @@ EVAL_COLUMNS = ("frame", "left", "right", "disp", "obj_map", "focal", "baseline"
 
 @dataclass(frozen=True)
 class Layout:
-    """Paths of one data source's KITTI-format tree."""
+    """Paths of one data source's KITTI-format tree.
+
+    ``rois`` is the exact box file of the synthetic set; real KITTI has none (``None``): its
+    boxes come from ``obj_map`` and the user's CSV (:mod:`msdepth.data.rois`).
+    """
 
     raw_root: Path
     train_split: Path
     kitti2015_root: Path
     eval_split: Path
-    rois: Path
+    rois: Path | None
 
 
 def layout(params: Params) -> Layout:
-    """The paths for ``params.data.source``."""
+    """The paths for ``params.data.source``: both sources share one tree shape under ``data.root``."""
     root = Path(params.data.root)
     if params.data.source == "synthetic":
         return Layout(root / "raw", root / "train_files.txt", root / "kitti2015", root / "kitti2015" / "test_files.txt", root / "rois.csv")
-    raise ConfigError(
-        "data.source: 'kitti' needs the KITTI download and indexing stages (issue #4), which are "
-        "not built yet; use data.source: synthetic"
-    )
+    k = params.data.kitti
+    return Layout(root / "raw", Path(k.train_split), root / "kitti2015", Path(k.eval_split), None)
 
 
 def training_gt_path(left_image: Path) -> Path:

@@ -1,0 +1,281 @@
+"""Regions of interest on the KITTI 2015 evaluation frames: car boxes from ``obj_map``, plus hand-drawn boxes.
+
+KITTI 2015 ships an ``obj_map`` per training frame (uint8 car instance ids, 0 = background), so
+the car boxes of the ROI suite can be derived instead of drawn: one tight box per instance. The
+dissertation's other boxes (windshields, glass, signs, and any cars drawn by hand) come in as a
+user CSV in the ROI format of :func:`msdepth.data.kitti.read_rois` and are checked against the
+evaluation frames before they are merged. :func:`contact_sheet` renders the crops on one image,
+to see at a glance that the boxes land on the objects.
+"""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pandas as pd
+
+from ..errors import DataError
+from ..io import write_png
+from . import kitti
+
+log = logging.getLogger(__name__)
+
+Box = tuple[int, int, int, int, int]  # (instance id, x0, y0, x1, y1), x1/y1 exclusive
+
+# Contact-sheet layout (pixels). Public so that callers and tests can size a sheet.
+PAD = 2  # border around each crop inside its cell
+LABEL_HEIGHT = 26  # two text lines under each crop
+HEADER_HEIGHT = 26  # one strip naming the class above its crops (with a gap above the text)
+
+_BACKGROUND = (24, 24, 24)
+_LETTERBOX = (64, 64, 64)  # lighter than the background: the crop's own extent stays visible
+_TEXT = (235, 235, 235)
+_CLASS_COLOURS = {  # RGB; distinct at a glance in the headers and the labels
+    "car": (255, 170, 60),
+    "windshield": (90, 200, 255),
+    "glass": (150, 255, 150),
+    "sign": (255, 110, 200),
+}
+_FONT = cv2.FONT_HERSHEY_SIMPLEX
+_LABEL_SCALE = 0.36  # Hershey below ~0.3 is no longer legible
+_MIN_SCALE = 0.3
+
+
+def boxes_from_obj_map(
+    obj_map: np.ndarray, gt_disp: np.ndarray, *, min_size: int = 16, min_valid: float = 0.3
+) -> list[Box]:
+    """One tight box per instance id > 0 of ``obj_map``, as ``(id, x0, y0, x1, y1)`` sorted by id.
+
+    A box is kept only if both its sides are at least ``min_size`` px and at least ``min_valid``
+    of its pixels have ground truth (``gt_disp > 0``): metrics inside a tiny or GT-less box would
+    be noise. Ids need not be contiguous.
+    """
+    if min_size < 1:
+        raise ValueError(f"min_size must be >= 1, got {min_size}")
+    if not 0.0 <= min_valid <= 1.0:
+        raise ValueError(f"min_valid must be in [0, 1], got {min_valid}")
+    obj_map, gt_disp = np.asarray(obj_map), np.asarray(gt_disp)
+    if obj_map.ndim != 2 or not np.issubdtype(obj_map.dtype, np.integer):
+        raise DataError(f"object map must be a 2-D integer array, got {obj_map.dtype} of shape {obj_map.shape}")
+    if gt_disp.shape != obj_map.shape:
+        raise DataError(f"object map is {obj_map.shape} but its GT disparity is {gt_disp.shape}")
+    valid = gt_disp > 0  # NaN compares False: no GT
+    boxes: list[Box] = []
+    for instance in np.unique(obj_map[obj_map > 0]):
+        mask = obj_map == instance
+        rows, cols = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))
+        y0, y1, x0, x1 = int(rows[0]), int(rows[-1]) + 1, int(cols[0]), int(cols[-1]) + 1
+        if x1 - x0 < min_size or y1 - y0 < min_size:
+            continue
+        # The fraction over the whole box, not the instance's pixels: the ROI metrics use the box.
+        if valid[y0:y1, x0:x1].mean() < min_valid:
+            continue
+        boxes.append((int(instance), x0, y0, x1, y1))
+    return boxes
+
+
+def _empty_rois() -> pd.DataFrame:
+    """An ROI table with no rows but the right columns and dtypes."""
+    return pd.DataFrame({
+        "image": pd.Series(dtype=str), "class": pd.Series(dtype=str),
+        **{c: pd.Series(dtype=np.int64) for c in ("x0", "y0", "x1", "y1")},
+    })
+
+
+def _image_size(path: str) -> tuple[int, int]:
+    """``(height, width)`` of an image file (decoded by the KITTI reader, so errors name it)."""
+    return kitti.read_image(path).shape[:2]
+
+
+def _check_user_rois(user_csv: Path, frames: pd.DataFrame) -> pd.DataFrame:
+    """The user CSV's rows, after checking each names an evaluation frame and fits in its image."""
+    user = kitti.read_rois(user_csv)  # format, classes and box sanity, with CSV line numbers
+    lefts = dict(zip(frames["frame"].astype(str), frames["left"].astype(str)))
+    sizes: dict[str, tuple[int, int]] = {}
+    for i, row in enumerate(user.itertuples(index=False), start=2):  # line numbers as read_rois
+        image = row.image
+        if image not in lefts:
+            hint = f" (did you mean {Path(image).stem!r}?)" if Path(image).stem in lefts else ""
+            raise DataError(
+                f"{user_csv}: row {i}: image {image!r} is not an evaluation frame{hint}; "
+                f"frames look like {sorted(lefts)[:3]}"
+            )
+        if image not in sizes:
+            sizes[image] = _image_size(lefts[image])
+        h, w = sizes[image]
+        if row.x1 > w or row.y1 > h:
+            raise DataError(
+                f"{user_csv}: row {i}: box ({row.x0}, {row.y0}, {row.x1}, {row.y1}) lies outside "
+                f"frame {image}'s {w}x{h} image (x1 <= {w} and y1 <= {h}, exclusive)"
+            )
+    return user
+
+
+def extract_rois(
+    frames: pd.DataFrame,
+    *,
+    user_csv: Path | None = None,
+    min_size: int = 16,
+    min_valid: float = 0.3,
+    progress: bool = True,
+) -> pd.DataFrame:
+    """The ROI table of the evaluation frames: automatic car boxes plus the user CSV's boxes.
+
+    ``frames`` is the evaluation index (:func:`msdepth.data.index.read_eval_index`): every frame
+    with an ``obj_map`` gives its car boxes (:func:`boxes_from_obj_map` against the frame's GT);
+    frames without one give none. Rows of ``user_csv`` are validated (evaluation frame, inside
+    the image) and merged; exact duplicates are dropped, so re-feeding an earlier output is
+    harmless. Returns ROI_COLUMNS sorted by image, class, x0, y0 (possibly empty). A summary
+    (frame counts, box counts) is logged and left in ``result.attrs["report"]``.
+    """
+    from tqdm import tqdm
+
+    missing = {"frame", "left", "disp", "obj_map"} - set(frames.columns)
+    if missing:
+        raise DataError(f"evaluation index: missing columns {sorted(missing)}")
+    rows: list[tuple[str, str, int, int, int, int]] = []
+    without: list[str] = []
+    for frame in tqdm(frames.itertuples(index=False), total=len(frames), desc="rois", unit="frame",
+                      disable=not progress):
+        name = str(frame.frame)
+        obj_path = frame.obj_map if isinstance(frame.obj_map, str) else ""  # NaN from a bare read_csv
+        if not obj_path:
+            without.append(name)
+            continue
+        obj_map = kitti.read_obj_map(obj_path)
+        gt = kitti.read_disparity(frame.disp)
+        try:
+            boxes = boxes_from_obj_map(obj_map, gt, min_size=min_size, min_valid=min_valid)
+        except DataError as exc:
+            raise DataError(f"{obj_path}: {exc} ({frame.disp})") from None
+        rows += [(name, "car", x0, y0, x1, y1) for _, x0, y0, x1, y1 in boxes]
+
+    auto = pd.DataFrame(rows, columns=list(kitti.ROI_COLUMNS)) if rows else _empty_rois()
+    user = _check_user_rois(Path(user_csv), frames) if user_csv is not None else _empty_rois()
+    parts = [p for p in (auto, user) if len(p)]  # concat with an empty frame would loosen the dtypes
+    rois = pd.concat(parts, ignore_index=True) if parts else _empty_rois()
+    rois = rois.drop_duplicates().astype({c: np.int64 for c in ("x0", "y0", "x1", "y1")})
+    rois = rois.sort_values(list(kitti.ROI_COLUMNS), kind="stable").reset_index(drop=True)
+
+    report = {
+        "frames": len(frames),
+        "frames_without_obj_map": len(without),
+        "car_boxes_from_obj_map": len(auto),
+        "user_boxes": len(user),
+        "rois": len(rois),
+        "per_class": {c: int((rois["class"] == c).sum()) for c in kitti.ROI_CLASSES},
+    }
+    if without:
+        log.info("%d of %d evaluation frame(s) have no obj_map (no car boxes): %s%s", len(without),
+                 len(frames), without[:5], " ..." if len(without) > 5 else "")
+    log.info("ROIs: %d (%s)", len(rois), ", ".join(f"{c} {n}" for c, n in report["per_class"].items()))
+    rois.attrs["report"] = report
+    return rois
+
+
+# --------------------------------------------------------------------------------------------
+# Contact sheet
+
+
+def _fit_scale(text: str, width: int, scale: float, thickness: int = 1) -> float:
+    """The largest font scale <= ``scale`` (down to the legible minimum) at which ``text`` fits ``width``."""
+    text_w = cv2.getTextSize(text, _FONT, scale, thickness)[0][0]
+    return max(_MIN_SCALE, scale * min(1.0, width / max(text_w, 1)))
+
+
+def _put(img: np.ndarray, text: str, x: int, baseline: int, width: int, colour: tuple[int, int, int],
+         scale: float = _LABEL_SCALE) -> None:
+    """Draw ``text`` at ``(x, baseline)``, shrunk to fit ``width``, anti-aliased."""
+    cv2.putText(img, text, (x, baseline), _FONT, _fit_scale(text, width, scale), colour, 1, cv2.LINE_AA)
+
+
+def _letterbox(crop: np.ndarray, tile: int) -> np.ndarray:
+    """``crop`` scaled to fit a ``tile`` x ``tile`` square (aspect kept), centred on a grey field."""
+    h, w = crop.shape[:2]
+    scale = tile / max(h, w)
+    nh, nw = max(1, round(h * scale)), max(1, round(w * scale))
+    # Area averaging when shrinking (no aliasing); nearest when enlarging, so the pixels the box
+    # really covers stay visible instead of being smoothed into a blur.
+    interp = cv2.INTER_AREA if scale < 1 else cv2.INTER_NEAREST
+    resized = cv2.resize(crop, (nw, nh), interpolation=interp)
+    cell = np.empty((tile, tile, 3), np.uint8)
+    cell[:] = _LETTERBOX
+    y, x = (tile - nh) // 2, (tile - nw) // 2
+    cell[y : y + nh, x : x + nw] = resized
+    return cell
+
+
+def _pick(group: pd.DataFrame, limit: int) -> pd.DataFrame:
+    """At most ``limit`` rows, spread evenly over the group (so many frames show, not the first few)."""
+    if len(group) <= limit:
+        return group
+    return group.iloc[np.linspace(0, len(group) - 1, limit).round().astype(int)]
+
+
+def contact_sheet(
+    rois: pd.DataFrame,
+    frames: pd.DataFrame,
+    out_path: Path,
+    *,
+    tile: int = 96,
+    columns: int = 8,
+    max_per_class: int = 16,
+) -> Path:
+    """Write a PNG grid of ROI crops from the left images, one block per class, and return its path.
+
+    Each block is a header strip (class, boxes shown of total) over rows of ``columns`` cells;
+    a cell is the crop letterboxed into ``tile`` x ``tile`` px with the class, box size and frame
+    written under it. Up to ``max_per_class`` crops per class, spread over the class's boxes.
+    Sheet size: width ``columns * (tile + 2 * PAD)``; height the sum over shown classes of
+    ``HEADER_HEIGHT + ceil(n / columns) * (tile + LABEL_HEIGHT + 2 * PAD)`` (just a header when
+    there are no ROIs).
+    """
+    if tile < 8 or columns < 1 or max_per_class < 1:
+        raise ValueError(f"need tile >= 8, columns >= 1, max_per_class >= 1; got {tile}, {columns}, {max_per_class}")
+    out_path = Path(out_path)
+    cell_w, cell_h = tile + 2 * PAD, tile + LABEL_HEIGHT + 2 * PAD
+    width = columns * cell_w
+    lefts = dict(zip(frames["frame"].astype(str), frames["left"].astype(str)))
+    # Known classes in their canonical order, then anything else a caller passes, alphabetically.
+    present = list(dict.fromkeys(rois["class"])) if len(rois) else []
+    classes = [c for c in kitti.ROI_CLASSES if c in present] + sorted(c for c in present if c not in kitti.ROI_CLASSES)
+
+    blocks: list[np.ndarray] = []
+    images: dict[str, np.ndarray] = {}  # each left image decoded once
+    for cls in classes:
+        group = rois[rois["class"] == cls].sort_values(["image", "x0", "y0"], kind="stable")
+        shown = _pick(group, max_per_class)
+        n_rows = -(-len(shown) // columns)
+        block = np.empty((HEADER_HEIGHT + n_rows * cell_h, width, 3), np.uint8)
+        block[:] = _BACKGROUND
+        colour = _CLASS_COLOURS.get(cls, _TEXT)
+        block[HEADER_HEIGHT - 2 : HEADER_HEIGHT] = colour  # underline: blocks stay apart at a glance
+        _put(block, f"{cls}: {len(shown)} shown of {len(group)}", 6, HEADER_HEIGHT - 8, width - 12, colour, 0.5)
+        for k, roi in enumerate(shown.itertuples(index=False)):
+            name = str(roi.image)
+            if name not in lefts:
+                raise DataError(f"{out_path}: ROI image {name!r} is not in the evaluation index")
+            if name not in images:
+                images[name] = kitti.read_image(lefts[name])
+            img = images[name]
+            h, w = img.shape[:2]
+            x0, y0, x1, y1 = int(roi.x0), int(roi.y0), int(roi.x1), int(roi.y1)
+            if not (0 <= x0 < x1 <= w and 0 <= y0 < y1 <= h):
+                raise DataError(f"{out_path}: ROI ({x0}, {y0}, {x1}, {y1}) lies outside {lefts[name]} ({w}x{h})")
+            top = HEADER_HEIGHT + (k // columns) * cell_h
+            left = (k % columns) * cell_w
+            block[top + PAD : top + PAD + tile, left + PAD : left + PAD + tile] = _letterbox(img[y0:y1, x0:x1], tile)
+            text_y = top + PAD + tile
+            _put(block, f"{cls} {x1 - x0}x{y1 - y0}", left + PAD + 1, text_y + 11, tile - 2, colour)
+            _put(block, name, left + PAD + 1, text_y + 23, tile - 2, _TEXT)
+        blocks.append(block)
+    if not blocks:  # still an image, so that a pipeline output exists and says why it is empty
+        block = np.empty((HEADER_HEIGHT, width, 3), np.uint8)
+        block[:] = _BACKGROUND
+        _put(block, "no ROIs", 6, HEADER_HEIGHT - 8, width - 12, _TEXT, 0.5)
+        blocks.append(block)
+    write_png(out_path, np.concatenate(blocks, axis=0))
+    return out_path
