@@ -212,13 +212,15 @@ def test_split_errors(tmp_path: Path) -> None:
         kitti.write_split(tmp_path / "w.txt", [("a b", "c")])
 
 
-def test_real_split_lists_parse() -> None:
-    lists = SHARED / "kitti"
-    if not lists.is_dir():
-        pytest.skip("../shared/kitti is not available")
+def test_shipped_split_lists_parse() -> None:
+    lists = Path(__file__).resolve().parents[1] / "data_lists"  # the copies the pipeline uses
     train = kitti.read_split(lists / "kitti_train_files.txt")
     assert len(train) == 29000 and train[0][0].endswith(".jpg")
+    assert len(kitti.read_split(lists / "kitti_val_files.txt")) == 1159
     assert len(kitti.read_split(lists / "kitti_stereo_2015_test_files.txt")) == 200
+    if (SHARED / "kitti").is_dir():  # unchanged copies of the reference lists
+        for name in ("kitti_train_files.txt", "kitti_val_files.txt", "kitti_stereo_2015_test_files.txt"):
+            assert (lists / name).read_bytes() == (SHARED / "kitti" / name).read_bytes()
 
 
 def test_resolve_image_prefers_existing_file(tmp_path: Path) -> None:

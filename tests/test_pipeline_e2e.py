@@ -89,6 +89,26 @@ def test_repro_writes_every_suite_and_the_comparison(repo: Path):
     assert _run([sys.executable, "-m", "dvc", "status", "--quiet"], repo) == ""
 
 
+def test_push_and_pull_through_a_local_dvc_remote(repo: Path, tmp_path: Path):
+    """Share the trained models and outputs: `dvc push` to a directory remote, clone, `dvc pull`,
+    and `dvc repro` in the clone redoes only the cheap uncached stages, not the training."""
+    dvc = [sys.executable, "-m", "dvc"]
+    _run([*dvc, "remote", "add", "-d", "shared", str(tmp_path / "remote")], repo)
+    _run([*dvc, "push", "--quiet"], repo)
+    _run(["git", "add", "-A"], repo)
+    _run(["git", "-c", "user.email=t@t", "-c", "user.name=t", "commit", "-qm", "results"], repo)
+    clone = tmp_path / "clone"
+    _run(["git", "clone", "-q", str(repo), str(clone)], tmp_path)
+    _run([*dvc, "pull", "--quiet"], clone)
+    for out in ("models/ssim/model.pt", "models/msssim/model.pt", "outputs/msssim/depth.npz"):
+        assert (clone / out).read_bytes() == (repo / out).read_bytes(), out
+    log = _run([*dvc, "repro"], clone)
+    assert "Running stage 'train@" not in log and "Running stage 'infer@" not in log
+    for suite in ("full", "roi", "gradients"):
+        name = Path("metrics") / suite / "msssim.json"
+        assert (clone / name).read_text() == (repo / name).read_text()
+
+
 def test_killed_repro_reruns_to_identical_results(repo: Path, tmp_path: Path):
     """SIGKILL `dvc repro` (and its stage) mid-training; the next `dvc repro` completes and
     every metric equals the uninterrupted run's."""
