@@ -144,3 +144,19 @@ def test_kernel_size_change_reruns_only_msssim(repo: Path):
     before = (repo / "metrics" / "full" / "ssim.json").read_text()
     _run([sys.executable, "-m", "dvc", "repro", "--quiet"], repo)
     assert (repo / "metrics" / "full" / "ssim.json").read_text() == before
+
+
+def test_torchrun_launcher_from_dvc_repro(repo: Path):
+    """`train.launcher: torchrun` makes the train stage start 2 gloo ranks itself."""
+    params = yaml.safe_load((repo / "params.yaml").read_text())
+    params["train"].update(launcher="torchrun", nproc=2, batch_size=2)  # the same global batch of 4
+    (repo / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
+    env = dict(os.environ, PATH=f"{Path(sys.executable).parent}{os.pathsep}{os.environ.get('PATH', '')}",
+               PYTHONPATH=str(repo / "src"))
+    proc = subprocess.run([sys.executable, "-m", "dvc", "repro", "train@ssim"], cwd=repo, env=env,
+                          capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert "2 ranks x batch 2 = global batch 4" in proc.stderr  # logged by rank 0 under torchrun
+    summary = json.loads((repo / "metrics" / "train" / "ssim.json").read_text())
+    assert summary["steps"] == 2 * 4  # 2 epochs of 16 pairs / global batch 4
+    assert _run([sys.executable, "-m", "dvc", "status", "train@ssim"], repo).strip().endswith("up to date.")

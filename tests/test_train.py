@@ -32,12 +32,12 @@ def pairs(tmp_path_factory) -> list[tuple[Path, Path]]:
     return out
 
 
-def _params(**train) -> Params:
+def _params(weights: str = "wang", **train) -> Params:
     return params_from_dict({
         "data": {"height": H, "width": W},
         "model": {"width_multiplier": 0.0625},
         "train": {"epochs": 2, "batch_size": 4, "threads": 1, **train},
-        "msssim": {"levels": 3},
+        "msssim": {"levels": 3, "weights": weights},
     })
 
 

@@ -80,6 +80,10 @@ class TrainConfig:
     amp: Literal["none", "bf16"] = "none"
     channels_last: bool = False
     compile: bool = False
+    # Data parallel: `torchrun` runs nproc processes (batch_size is per process).
+    launcher: Literal["local", "torchrun"] = "local"
+    nproc: int = 1
+    dist_timeout_s: float = 600.0  # a collective waiting longer (a dead rank) is an error
 
 
 @dataclass(frozen=True)
@@ -236,6 +240,8 @@ def validate(p: Params) -> Params:
     _check(t.learning_rate > 0, "train.learning_rate", f"must be > 0, got {t.learning_rate}")
     _check(t.num_workers >= 0, "train.num_workers", "must be >= 0")
     _check(t.threads >= 1, "train.threads", "must be >= 1")
+    _check(t.nproc >= 1, "train.nproc", f"must be >= 1, got {t.nproc}")
+    _check(t.dist_timeout_s > 0, "train.dist_timeout_s", "must be > 0")
     _check(0 <= p.loss.alpha <= 1, "loss.alpha", "must be in [0, 1]")
     _check(p.loss.smoothness_weight >= 0, "loss.smoothness_weight", "must be >= 0")
     _check(p.loss.lr_weight >= 0, "loss.lr_weight", "must be >= 0")

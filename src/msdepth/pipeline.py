@@ -138,12 +138,25 @@ def train(params: Params, variant: str) -> None:
     from .train import train_variant, write_train_summary
 
     params.variant(variant)
+    t = params.train
+    if t.launcher == "torchrun" and "LOCAL_RANK" not in os.environ:
+        # Re-run this stage under torchrun; its ranks come back here with LOCAL_RANK set.
+        import subprocess
+
+        cmd = [sys.executable, "-m", "torch.distributed.run", "--standalone", f"--nproc_per_node={t.nproc}",
+               "stages/train.py", variant]
+        log.info("train %s: %s", variant, " ".join(cmd))
+        if subprocess.run(cmd).returncode != 0:
+            raise MsdepthError(f"train {variant}: torchrun with {t.nproc} processes failed (see the ranks' errors above)")
+        return
     pairs = load_pair_list(CACHED_PAIRS)  # the pairs the cache holds, in its order
     images = load_pair_cache(PAIR_CACHE, len(pairs), params.data.height, params.data.width)
     result = train_variant(
         params, variant, pairs, model_path(variant), checkpoint_path(variant),
         live_dir=Path("plots") / "train" / variant, cache=images,
     )
+    if int(os.environ.get("RANK", "0")) != 0:
+        return  # only rank 0 writes the summary
     write_train_summary(Path("metrics") / "train" / f"{variant}.json", result)
     resumed = f", resumed from epoch {result.resumed_from_epoch}" if result.resumed_from_epoch else ""
     log.info("train %s: %d steps%s; %.0f s in this run (%.1f examples/s)",

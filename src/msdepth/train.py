@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from torch.nn.parallel import DistributedDataParallel
 from torch.utils.data import DataLoader
 from tqdm import tqdm
 
@@ -25,6 +26,8 @@ from .config import Params
 from .data.pairs import StereoPairs
 from .errors import MsdepthError
 from .io import atomic_path, write_json
+from . import distributed
+from .distributed import Context, GlobalBatchSampler
 from .losses import MonodepthLoss
 from .model import MonodepthVGG
 
@@ -92,7 +95,7 @@ def fingerprint(params: Params, variant: str, num_pairs: int) -> str:
         "model": asdict(params.model),
         # Settings that change only speed do not invalidate a checkpoint.
         "train": {k: v for k, v in asdict(params.train).items()
-                  if k not in ("num_workers", "threads", "device", "channels_last", "compile")},
+                  if k not in ("num_workers", "threads", "device", "channels_last", "compile", "launcher", "dist_timeout_s")},
         "loss": asdict(params.loss),
         "appearance": appearance,
         appearance: asdict(getattr(params, appearance)),
@@ -115,15 +118,14 @@ def save_checkpoint(path: Path, state: dict) -> None:
         ) from exc
 
 
-def _loader(dataset: StereoPairs, params: Params, epoch: int, pin_memory: bool = False) -> DataLoader:
-    # Shuffle order from (seed, epoch): a resumed epoch sees the same batches.
+def _loader(dataset: StereoPairs, params: Params, epoch: int, ctx: Context, pin_memory: bool = False) -> DataLoader:
+    # Shuffle order from (seed, epoch): a resumed epoch sees the same batches, on any world size.
     gen = torch.Generator().manual_seed(params.train.seed * 100_003 + epoch)
     dataset.set_epoch(epoch)
     return DataLoader(
         dataset,
         batch_size=params.train.batch_size,
-        shuffle=True,
-        drop_last=len(dataset) >= params.train.batch_size,
+        sampler=GlobalBatchSampler(len(dataset), params.train.batch_size, ctx, gen),
         num_workers=params.train.num_workers,
         generator=gen,
         persistent_workers=False,
@@ -151,18 +153,22 @@ def train_variant(
     """
     t = params.train
     torch.set_num_threads(t.threads)
-    seed_everything(t.seed)
-    device = resolve_device(t.device)
+    seed_everything(t.seed)  # the same seed on every rank: identical initial weights
+    ctx, device = distributed.setup(resolve_device(t.device), t.dist_timeout_s)
     dataset = StereoPairs(pairs, params.data.height, params.data.width, augment=t.augment, seed=t.seed, cache=cache)
     model = build_model(params).to(device)
     memory_format = torch.channels_last if t.channels_last else torch.contiguous_format
     model = model.to(memory_format=memory_format)
-    # The compiled wrapper shares the parameters of `model`, which is what is saved.
-    forward = torch.compile(model) if t.compile else model
+    # DDP and the compiled wrapper share the parameters of `model`, which is what is saved.
+    forward = DistributedDataParallel(model) if ctx.world > 1 else model
+    forward = torch.compile(forward) if t.compile else forward
     criterion = build_loss(params, variant).to(device)
     trainable = list(model.parameters()) + list(criterion.parameters())
     optimizer = torch.optim.Adam(trainable, lr=t.learning_rate)
-    steps_per_epoch = len(dataset) // t.batch_size if len(dataset) >= t.batch_size else 1
+    global_batch = t.batch_size * ctx.world
+    steps_per_epoch = len(dataset) // global_batch if len(dataset) >= global_batch else 1
+    if ctx.world > 1 and ctx.main:
+        log.info("%s: %d ranks x batch %d = global batch %d", variant, ctx.world, t.batch_size, global_batch)
     total_steps = steps_per_epoch * t.epochs
     fp = fingerprint(params, variant, len(pairs))
 
@@ -181,7 +187,7 @@ def train_variant(
             log.info("ignoring checkpoint %s: it belongs to other parameters", checkpoint_path)
 
     live = None
-    if live_dir is not None:
+    if live_dir is not None and ctx.main:
         from dvclive import Live
 
         live = Live(str(live_dir), resume=start_epoch > 0, save_dvc_exp=False, dvcyaml=False)
@@ -197,9 +203,9 @@ def train_variant(
         sums = dict.fromkeys(LOSS_KEYS, 0.0)
         batches = 0
         bar = tqdm(
-            _loader(dataset, params, epoch, pin_memory=pin),
+            _loader(dataset, params, epoch, ctx, pin_memory=pin),
             desc=f"{variant} epoch {epoch + 1}/{t.epochs}",
-            disable=not progress,
+            disable=not progress or not ctx.main,
             leave=False,
         )
         for batch in bar:
@@ -219,6 +225,7 @@ def train_variant(
                 )
             optimizer.zero_grad(set_to_none=True)
             losses["total"].backward()
+            distributed.average_gradients(criterion, ctx)  # learned level weights stay identical
             optimizer.step()
             step += 1
             batches += 1
@@ -226,16 +233,15 @@ def train_variant(
             for k in LOSS_KEYS:
                 sums[k] += float(losses[k].detach())
             bar.set_postfix(loss=f"{sums['total'] / batches:.4f}")
-        means = {k: v / max(batches, 1) for k, v in sums.items()}
+        means = distributed.mean_over_ranks({k: v / max(batches, 1) for k, v in sums.items()}, ctx)
         history.append({"epoch": epoch + 1, "step": step, **means})
         if live is not None:
             for k, v in means.items():
                 live.log_metric(f"train/{k}", v)
             live.log_metric("train/learning_rate", learning_rate(t.learning_rate, step - 1, total_steps))
             live.next_step()
-        save_checkpoint(
-            checkpoint_path,
-            {
+        if ctx.main:
+            save_checkpoint(checkpoint_path, {
                 "fingerprint": fp,
                 "epoch": epoch + 1,
                 "step": step,
@@ -244,13 +250,15 @@ def train_variant(
                 "criterion": criterion.state_dict(),
                 "optimizer": optimizer.state_dict(),
                 "torch_rng": torch.get_rng_state(),
-            },
-        )
-        log.info("%s epoch %d/%d: %s", variant, epoch + 1, t.epochs, json.dumps(means))
+            })
+            log.info("%s epoch %d/%d: %s", variant, epoch + 1, t.epochs, json.dumps(means))
     if live is not None:
         live.end()
     seconds = time.perf_counter() - started
-    save_model(model_path, model, criterion, params, variant)
+    distributed.check_replicas([model, criterion], ctx)
+    if ctx.main:
+        save_model(model_path, model, criterion, params, variant)
+    distributed.teardown()
     final = history[-1] if history else {}
     return TrainResult(
         steps=step,
