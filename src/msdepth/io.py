@@ -19,6 +19,17 @@ import numpy as np
 from .errors import DataError
 
 
+def _file_mode() -> int:
+    # os.umask can only be read by setting it: done once at import, not per write, because the
+    # umask is process-wide and the downloader writes from several threads.
+    umask = os.umask(0)
+    os.umask(umask)
+    return 0o666 & ~umask
+
+
+_FILE_MODE = _file_mode()
+
+
 @contextlib.contextmanager
 def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[Path]:
     """Yield a temp path beside ``path``; rename it to ``path`` if the block exits cleanly.
@@ -32,10 +43,8 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[
         prefix=f".{path.name}.", suffix=path.suffix if suffix is None else suffix, dir=path.parent
     )
     os.close(fd)
-    # mkstemp creates 0600; give the output the permissions a plain open() would (0666 & ~umask).
-    umask = os.umask(0)
-    os.umask(umask)
-    os.chmod(tmp, 0o666 & ~umask)
+    # mkstemp creates 0600; give the output the permissions a plain open() would.
+    os.chmod(tmp, _FILE_MODE)
     tmp_path = Path(tmp)
     try:
         yield tmp_path
@@ -67,6 +76,12 @@ def write_png(path: str | os.PathLike, image: np.ndarray) -> None:
     with atomic_path(path, suffix=".png") as tmp:
         if not cv2.imwrite(str(tmp), image):
             raise DataError(f"{path}: OpenCV could not write the image")
+
+
+def save_npy(path: str | os.PathLike, array: np.ndarray) -> None:
+    """Write one array as ``.npy``, atomically."""
+    with atomic_path(path, suffix=".npy") as tmp:
+        np.save(tmp, array)
 
 
 def save_npz(path: str | os.PathLike, **arrays: np.ndarray) -> None:

@@ -32,7 +32,7 @@ from .evaluate import (
     load_frames,
     read_depth_maps,
 )
-from .io import atomic_path, save_npz, write_json, write_text
+from .io import atomic_path, save_npy, save_npz, write_json, write_text
 
 log = logging.getLogger("msdepth")
 
@@ -101,16 +101,15 @@ def rois(params: Params) -> None:
     source = layout(params).rois
     if source is not None:
         boxes = kitti.read_rois(source)
-    else:
+        unknown = sorted(set(boxes["image"]) - set(frames["frame"]))
+        if unknown:
+            raise DataError(f"{source}: boxes name images that are not evaluation frames: {unknown[:10]}")
+    else:  # extract_rois checks the user's boxes against the frames itself
         k = params.data.kitti
         boxes = extract_rois(frames, user_csv=Path(k.rois_csv) if k.rois_csv else None,
                              min_size=k.roi_min_size, min_valid=k.roi_min_valid)
         if boxes.empty:
             raise DataError("rois: no car in any obj_map passed data.kitti.roi_min_size/roi_min_valid, and no data.kitti.rois_csv")
-    known = set(frames["frame"])
-    unknown = sorted(set(boxes["image"]) - known)
-    if unknown:
-        raise DataError(f"{layout(params).rois}: boxes name images that are not evaluation frames: {unknown[:10]}")
     kitti.write_rois(INDEX_DIR / "rois.csv", boxes)
     contact_sheet(boxes, frames, INDEX_DIR / "rois.png")
     log.info("rois: %d boxes, %s", len(boxes), boxes["class"].value_counts().to_dict())
@@ -172,9 +171,7 @@ def infer(params: Params, variant: str) -> None:
     model, meta = load_model(model_path(variant))
     frames = read_eval_index(INDEX_DIR / "eval_frames.csv")
     disp = predict_disparities(model, [Path(p) for p in frames["left"]], meta["height"], meta["width"], params.eval.post_process)
-    out = run_dir(variant) / "disparities.npy"
-    with atomic_path(out) as tmp:
-        np.save(tmp, disp)
+    save_npy(run_dir(variant) / "disparities.npy", disp)
 
 
 def torch_threads(params: Params) -> None:

@@ -34,7 +34,7 @@ from .data.synthetic import focal_for_width
 from .depth import disparity_to_depth, pixel_disparity
 from .errors import DataError, MsdepthError
 from .infer import network_disparity
-from .io import atomic_path, write_png
+from .io import atomic_path, save_npy, write_png
 from .model import MonodepthVGG
 from .train import load_model, resolve_device
 
@@ -219,12 +219,6 @@ def write_ply(path: str | os.PathLike, points: np.ndarray, colors: np.ndarray, b
             np.savetxt(f, np.column_stack([points, colors]), fmt="%.4f %.4f %.4f %d %d %d")
 
 
-def write_npy(path: str | os.PathLike, array: np.ndarray) -> None:
-    """Save one array as ``.npy``, atomically."""
-    with atomic_path(path, suffix=".npy") as tmp, open(tmp, "wb") as f:
-        np.save(f, array)
-
-
 def save_outputs(stem: Path, rgb: np.ndarray, disp_fraction: np.ndarray, options: PredictOptions) -> None:
     """Write the requested outputs of one frame (``stem`` + ``_disp.png`` etc.)."""
     h, w = rgb.shape[:2]
@@ -232,7 +226,7 @@ def save_outputs(stem: Path, rgb: np.ndarray, disp_fraction: np.ndarray, options
     if options.disp_format in ("png", "both"):
         write_png(f"{stem}_disp.png", colorize_disparity(disp, options.colorbar))
     if options.disp_format in ("npy", "both"):
-        write_npy(f"{stem}_disp.npy", disp)
+        save_npy(f"{stem}_disp.npy", disp)
     if options.depth_format == "none" and options.ply == "none":
         return
     focal = options.focal or default_focal(w)
@@ -240,7 +234,7 @@ def save_outputs(stem: Path, rgb: np.ndarray, disp_fraction: np.ndarray, options
     if options.depth_format in ("png", "both"):
         write_png(f"{stem}_depth.png", depth_to_png16(depth))
     if options.depth_format in ("npy", "both"):
-        write_npy(f"{stem}_depth.npy", depth)
+        save_npy(f"{stem}_depth.npy", depth)
     if options.ply != "none":
         points, colors = point_cloud(depth, rgb, focal, options.cx, options.cy)
         write_ply(f"{stem}.ply", points, colors, binary=options.ply == "binary")
