@@ -18,7 +18,7 @@ from ..config import Params
 from ..errors import DataError
 from ..io import atomic_path, write_json
 from . import kitti
-from .pairs import index_pairs
+from .pairs import check_same_size, index_pairs
 
 EVAL_COLUMNS = ("frame", "left", "right", "disp", "obj_map", "focal", "baseline")
 
@@ -67,11 +67,8 @@ def build_eval_index(kitti2015_root: Path, split_file: Path, gt: str) -> pd.Data
             missing.append(frame)
             continue
         shape = kitti.read_image(left).shape[:2]
-        # A GT or right view of another size would silently misplace every metric: refuse it.
-        for other, what in ((right, "right image"), (Path(paths["disp"]), f"{gt} GT")):
-            other_shape = (kitti.read_image(other) if what == "right image" else kitti.read_disparity(other)).shape[:2]
-            if other_shape != shape:
-                raise DataError(f"{left} is {shape} but its {what} {other} is {other_shape}")
+        check_same_size(left, shape, right, kitti.read_image(right).shape, "right image")
+        check_same_size(left, shape, Path(paths["disp"]), kitti.read_disparity(paths["disp"]).shape, f"{gt} GT")
         width = shape[1]
         focal, baseline = kitti.focal_and_baseline(width, paths["calib"])
         obj_map = paths["obj_map"] if Path(paths["obj_map"]).exists() else ""

@@ -85,11 +85,17 @@ def augment(left: torch.Tensor, right: torch.Tensor, gen: torch.Generator) -> tu
     return left, right
 
 
+def check_same_size(path: Path, shape: tuple[int, ...], other: Path, other_shape: tuple[int, ...], what: str) -> None:
+    """A right view or GT map of another size than its left image would silently misplace every
+    pixel: a DataError naming both files."""
+    if tuple(shape[:2]) != tuple(other_shape[:2]):
+        raise DataError(f"{path} is {tuple(shape[:2])} but its {what} {other} is {tuple(other_shape[:2])}")
+
+
 def read_resized_pair(left: Path, right: Path, height: int, width: int) -> tuple[np.ndarray, np.ndarray]:
     """Decode a stereo pair and resize both views to the network input (uint8 RGB)."""
     left_img, right_img = kitti.read_image(left), kitti.read_image(right)
-    if left_img.shape != right_img.shape:
-        raise DataError(f"{left} is {left_img.shape[:2]} but its right image {right} is {right_img.shape[:2]}")
+    check_same_size(left, left_img.shape, right, right_img.shape, "right image")
     return resize(left_img, height, width), resize(right_img, height, width)
 
 
@@ -128,8 +134,7 @@ def build_pair_cache(
             except DataError as exc:
                 unreadable.append((left, right, str(exc)))
                 continue
-            if left_img.shape != right_img.shape:
-                raise DataError(f"{left} is {left_img.shape[:2]} but its right image {right} is {right_img.shape[:2]}")
+            check_same_size(left, left_img.shape, right, right_img.shape, "right image")
             cache[len(kept), 0] = resize(left_img, height, width)
             cache[len(kept), 1] = resize(right_img, height, width)
             kept.append((left, right))
