@@ -1,4 +1,4 @@
-"""Stage: Convert one run's disparities to metric depth at GT resolution. Usage: depth.py RUN"""
+"""Stage: Convert one run's disparities to metric depth at GT resolution. Usage: depth.py VARIANT SEED"""
 
 import sys
 

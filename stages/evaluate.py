@@ -1,4 +1,4 @@
-"""Stage: one evaluation suite on one run. Usage: evaluate.py {full,roi,gradients} RUN"""
+"""Stage: one evaluation suite on one run. Usage: evaluate.py {full,roi,gradients} VARIANT SEED"""
 
 import sys
 

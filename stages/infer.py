@@ -1,4 +1,4 @@
-"""Stage: Predict the evaluation frames' disparities with one trained variant. Usage: infer.py VARIANT"""
+"""Stage: Predict the evaluation frames' disparities with one trained variant. Usage: infer.py VARIANT SEED"""
 
 import sys
 

@@ -1,4 +1,4 @@
-"""Stage: Train one loss variant. Usage: train.py VARIANT"""
+"""Stage: Train one loss variant. Usage: train.py VARIANT SEED"""
 
 import sys
 

@@ -16,6 +16,7 @@ from msdepth.errors import DataError
 from msdepth.figures import FIGURES, make_figures, roi_examples
 
 VARIANTS = ["ssim", "msssim"]
+RUNS = {v: f"{v}/seed0" for v in VARIANTS}  # label -> run, as the figures stage passes them
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 
 
@@ -37,12 +38,12 @@ def tree(tmp_path_factory) -> Path:
         ramp = np.linspace(0.01, 0.12, 32, dtype=np.float32)[None, :, None]  # nearer towards the bottom
         for k, v in enumerate(VARIANTS):
             disp = ramp * (1 + 0.1 * k) * (1 + 0.2 * rng.random((3, 32, 96), dtype=np.float32))
-            pipeline.run_dir(v).mkdir(parents=True)
-            np.save(pipeline.run_dir(v) / "disparities.npy", disp.astype(np.float32))
-            pipeline.depth(params, v)
+            pipeline.run_dir(RUNS[v]).mkdir(parents=True)
+            np.save(pipeline.run_dir(RUNS[v]) / "disparities.npy", disp.astype(np.float32))
+            pipeline.depth(params, v, "0")
             for suite in pipeline.SUITES:
-                pipeline.evaluate(params, suite, v)
-            live = Path("plots/train") / v / "plots/metrics/train"
+                pipeline.evaluate(params, suite, v, "0")
+            live = Path("plots/train") / RUNS[v] / "plots/metrics/train"
             live.mkdir(parents=True)
             for term in ("total", "appearance"):
                 loss = 0.5 / (1 + k) * np.exp(-0.2 * np.arange(4)) + (0.01 if term == "total" else 0)
@@ -70,7 +71,7 @@ def _eval_cfg():
 
 def test_every_figure_is_a_png_and_no_temp_file_is_left(tree: Path, tmp_path: Path):
     out = tmp_path / "figs"
-    written = make_figures(VARIANTS, out, **_paths(tree), metrics=tree / "metrics",
+    written = make_figures(RUNS, out, **_paths(tree), metrics=tree / "metrics",
                            train_plots=tree / "plots/train", eval_cfg=_eval_cfg())
     assert written == [out / name for name in FIGURES]
     for path in written:
@@ -81,7 +82,7 @@ def test_every_figure_is_a_png_and_no_temp_file_is_left(tree: Path, tmp_path: Pa
 
 
 def test_one_variant_gives_no_scatter(tree: Path, tmp_path: Path):
-    written = make_figures(["msssim"], tmp_path, **_paths(tree), metrics=tree / "metrics",
+    written = make_figures({"msssim": RUNS["msssim"]}, tmp_path, **_paths(tree), metrics=tree / "metrics",
                            train_plots=tree / "plots/train", eval_cfg=_eval_cfg(), frames=1)
     assert [p.name for p in written] == [n for n in FIGURES if n != "error_scatter.png"]
 
@@ -89,12 +90,12 @@ def test_one_variant_gives_no_scatter(tree: Path, tmp_path: Path):
 def test_printed_numbers_equal_the_suites_csvs(tree: Path):
     cfg = _eval_cfg()
     cap = cfg.caps[0]
-    examples = roi_examples(VARIANTS, **_paths(tree), eval_cfg=cfg)
+    examples = roi_examples(RUNS, **_paths(tree), eval_cfg=cfg)
     assert examples, "the tiny set should have at least one ROI with >= 50% valid GT"
     assert len({ex.cls for ex in examples}) == len(examples)  # one example per class
     for v in VARIANTS:
-        roi = pd.read_csv(tree / "metrics/roi" / f"{v}.csv")
-        grad = pd.read_csv(tree / "metrics/gradients" / f"{v}.csv")
+        roi = pd.read_csv(tree / "metrics/roi" / f"{RUNS[v]}.csv")
+        grad = pd.read_csv(tree / "metrics/gradients" / f"{RUNS[v]}.csv")
         for ex in examples:
             assert ex.gt_valid_fraction >= 0.5
             row = roi[(roi["roi"] == ex.roi) & (roi["cap"] == cap)].iloc[0]
@@ -110,19 +111,19 @@ def test_printed_numbers_equal_the_suites_csvs(tree: Path):
 def test_missing_tsv_is_one_data_error_naming_it(tree: Path, tmp_path: Path):
     plots = tmp_path / "plots"
     shutil.copytree(tree / "plots/train", plots)
-    missing = plots / "msssim/plots/metrics/train/appearance.tsv"
+    missing = plots / "msssim/seed0/plots/metrics/train/appearance.tsv"
     missing.unlink()
     out = tmp_path / "figs"
     with pytest.raises(DataError, match=str(missing)):
-        make_figures(VARIANTS, out, **_paths(tree), metrics=tree / "metrics", train_plots=plots, eval_cfg=_eval_cfg())
+        make_figures(RUNS, out, **_paths(tree), metrics=tree / "metrics", train_plots=plots, eval_cfg=_eval_cfg())
     assert not out.exists() or not any(out.iterdir())  # inputs are checked before any figure is drawn
 
 
 def test_missing_depth_maps_is_a_data_error_naming_them(tree: Path, tmp_path: Path):
     outputs = tmp_path / "outputs"
     shutil.copytree(tree / "outputs", outputs)
-    (outputs / "msssim/depth.npz").unlink()
+    (outputs / "msssim/seed0/depth.npz").unlink()
     paths = {**_paths(tree), "outputs": outputs}
-    with pytest.raises(DataError, match=str(outputs / "msssim/depth.npz")):
-        make_figures(VARIANTS, tmp_path / "figs", **paths, metrics=tree / "metrics",
+    with pytest.raises(DataError, match=str(outputs / "msssim/seed0/depth.npz")):
+        make_figures(RUNS, tmp_path / "figs", **paths, metrics=tree / "metrics",
                      train_plots=tree / "plots/train", eval_cfg=_eval_cfg())

@@ -68,18 +68,22 @@ def _project(work: Path, patch: dict | None = None) -> Path:
     return work
 
 
+RUNS = ("ssim/seed0", "msssim/seed0", "constant", "prior")
+
+
 def test_repro_writes_every_suite_and_the_comparison(repo: Path):
     for suite in ("full", "roi", "gradients"):
-        for run in ("ssim", "msssim", "constant", "prior"):
+        for run in RUNS:
             data = json.loads((repo / "metrics" / suite / f"{run}.json").read_text())
             assert "cap80" in data and "cap50" in data
             assert (repo / "metrics" / suite / f"{run}.csv").stat().st_size > 0
-    full = json.loads((repo / "metrics" / "full" / "ssim.json").read_text())
+    full = json.loads((repo / "metrics" / "full" / "ssim" / "seed0.json").read_text())
     assert 0 < full["cap80"]["abs_rel"] < 10
     assert "| ssim |" in (repo / "metrics" / "compare.md").read_text()
     compare = json.loads((repo / "metrics" / "compare.json").read_text())
     assert set(compare["full"]["cap80"]) == {"ssim", "msssim", "constant", "prior"}
-    assert (repo / "plots" / "train" / "ssim").is_dir()
+    assert compare["seeds"] == [0] and compare["statistics"]["full"]["cap80"]["msssim"]["abs_rel"]["seeds"] == 1
+    assert (repo / "plots" / "train" / "ssim" / "seed0").is_dir()
     figures = sorted(p.name for p in (repo / "plots" / "figures").iterdir())
     assert figures == ["disparity.png", "error_scatter.png", "roi_depth.png", "roi_gradients.png", "training_curves.png"]
     # `dvc plots show` writes a page that needs nothing from the internet.
@@ -100,12 +104,12 @@ def test_push_and_pull_through_a_local_dvc_remote(repo: Path, tmp_path: Path):
     clone = tmp_path / "clone"
     _run(["git", "clone", "-q", str(repo), str(clone)], tmp_path)
     _run([*dvc, "pull", "--quiet"], clone)
-    for out in ("models/ssim/model.pt", "models/msssim/model.pt", "outputs/msssim/depth.npz"):
+    for out in ("models/ssim/seed0/model.pt", "models/msssim/seed0/model.pt", "outputs/msssim/seed0/depth.npz"):
         assert (clone / out).read_bytes() == (repo / out).read_bytes(), out
     log = _run([*dvc, "repro"], clone)
     assert "Running stage 'train@" not in log and "Running stage 'infer@" not in log
     for suite in ("full", "roi", "gradients"):
-        name = Path("metrics") / suite / "msssim.json"
+        name = Path("metrics") / suite / "msssim" / "seed0.json"
         assert (clone / name).read_text() == (repo / name).read_text()
 
 
@@ -117,7 +121,7 @@ def test_killed_repro_reruns_to_identical_results(repo: Path, tmp_path: Path):
                PYTHONPATH=str(work / "src"))
     proc = subprocess.Popen([sys.executable, "-m", "dvc", "repro", "--quiet"], cwd=work, env=env,
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
-    checkpoint = work / "checkpoints" / "ssim" / "checkpoint.pt"
+    checkpoint = work / "checkpoints" / "ssim" / "seed0" / "checkpoint.pt"
     deadline = time.monotonic() + 300
     while not checkpoint.exists() and proc.poll() is None and time.monotonic() < deadline:
         time.sleep(0.05)
@@ -127,7 +131,7 @@ def test_killed_repro_reruns_to_identical_results(repo: Path, tmp_path: Path):
     assert not (work / "metrics" / "compare.json").exists()
     _run([sys.executable, "-m", "dvc", "repro", "--quiet"], work)
     for suite in ("full", "roi", "gradients"):
-        for run in ("ssim", "msssim", "constant", "prior"):
+        for run in RUNS:
             name = Path("metrics") / suite / f"{run}.json"
             assert (work / name).read_text() == (repo / name).read_text(), name
 
@@ -138,12 +142,48 @@ def test_kernel_size_change_reruns_only_msssim(repo: Path):
     (repo / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
     status = json.loads(_run([sys.executable, "-m", "dvc", "status", "--json"], repo))
     changed = set(status)
-    assert "train@msssim" in changed
-    assert not any(stage.endswith("@ssim") for stage in changed), changed
+    assert "train@msssim-0" in changed
+    assert not any("@ssim" in stage for stage in changed), changed
     assert not {"prepare_data", "index", "rois", "baselines"} & changed
-    before = (repo / "metrics" / "full" / "ssim.json").read_text()
+    before = (repo / "metrics" / "full" / "ssim" / "seed0.json").read_text()
     _run([sys.executable, "-m", "dvc", "repro", "--quiet"], repo)
-    assert (repo / "metrics" / "full" / "ssim.json").read_text() == before
+    assert (repo / "metrics" / "full" / "ssim" / "seed0.json").read_text() == before
+
+
+def test_more_seeds_train_only_the_new_runs_and_widen_the_comparison(repo: Path):
+    params = yaml.safe_load((repo / "params.yaml").read_text())
+    params["train"]["seeds"] = [0, 1]
+    (repo / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
+    changed = set(json.loads(_run([sys.executable, "-m", "dvc", "status", "--json"], repo)))
+    assert {"train@ssim-1", "train@msssim-1", "compare", "figures"} <= changed
+    assert not any(stage.endswith("-0") for stage in changed), changed  # seed 0's runs stand
+    before = (repo / "metrics" / "full" / "ssim" / "seed0.json").read_text()
+    _run([sys.executable, "-m", "dvc", "repro", "--quiet"], repo)
+    assert (repo / "metrics" / "full" / "ssim" / "seed0.json").read_text() == before
+    seed1 = json.loads((repo / "metrics" / "full" / "ssim" / "seed1.json").read_text())
+    assert seed1 != json.loads(before)  # another seed, another run
+    compare = json.loads((repo / "metrics" / "compare.json").read_text())
+    assert compare["seeds"] == [0, 1]
+    d = compare["statistics"]["full"]["cap80"]["msssim"]["abs_rel"]
+    assert (d["seeds"], d["reference_seeds"]) == (2, 2)
+    assert set(compare["seed_spread"]["full"]["cap80"]["ssim"]["abs_rel"]["runs"]) == {"ssim/seed0", "ssim/seed1"}
+    assert "Seed-to-seed spread" in (repo / "metrics" / "compare.md").read_text()
+    params["train"]["seeds"] = [0]  # back to one seed for the tests that follow
+    (repo / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
+    _run([sys.executable, "-m", "dvc", "repro", "--quiet"], repo)
+
+
+def test_train_stage_tracks_every_train_key_but_the_seeds():
+    """The train stage lists train.* keys one by one (so that adding a seed keeps the other
+    runs); a new TrainConfig field must be listed there too, or changing it would not retrain."""
+    import dataclasses
+
+    from msdepth.config import TrainConfig
+
+    listed = {p for p in yaml.safe_load((ROOT / "dvc.yaml").read_text())["stages"]["train"]["params"]
+              if isinstance(p, str) and p.startswith("train.")}
+    expected = {f"train.{f.name}" for f in dataclasses.fields(TrainConfig)} - {"train.seeds"}
+    assert listed == expected
 
 
 def test_torchrun_launcher_from_dvc_repro(repo: Path):
@@ -153,10 +193,10 @@ def test_torchrun_launcher_from_dvc_repro(repo: Path):
     (repo / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
     env = dict(os.environ, PATH=f"{Path(sys.executable).parent}{os.pathsep}{os.environ.get('PATH', '')}",
                PYTHONPATH=str(repo / "src"))
-    proc = subprocess.run([sys.executable, "-m", "dvc", "repro", "train@ssim"], cwd=repo, env=env,
+    proc = subprocess.run([sys.executable, "-m", "dvc", "repro", "train@ssim-0"], cwd=repo, env=env,
                           capture_output=True, text=True)
     assert proc.returncode == 0, proc.stderr[-3000:]
     assert "2 ranks x batch 2 = global batch 4" in proc.stderr  # logged by rank 0 under torchrun
-    summary = json.loads((repo / "metrics" / "train" / "ssim.json").read_text())
+    summary = json.loads((repo / "metrics" / "train" / "ssim" / "seed0.json").read_text())
     assert summary["steps"] == 2 * 4  # 2 epochs of 16 pairs / global batch 4
-    assert _run([sys.executable, "-m", "dvc", "status", "train@ssim"], repo).strip().endswith("up to date.")
+    assert _run([sys.executable, "-m", "dvc", "status", "train@ssim-0"], repo).strip().endswith("up to date.")

@@ -6,11 +6,11 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from msdepth.compare import build_comparison, paired_statistics
+from msdepth.compare import build_comparison, mean_over_runs, paired_statistics, seed_spread
 from msdepth.config import CompareConfig
 from msdepth.errors import DataError
 from msdepth.metrics import METRICS
-from msdepth.stats import paired_bootstrap, paired_table
+from msdepth.stats import paired_bootstrap, paired_table, seed_bootstrap
 
 
 def test_constant_difference_has_a_zero_width_interval() -> None:
@@ -83,7 +83,8 @@ def test_compare_reports_intervals_and_marks_clear_differences() -> None:
                 {"ssim": _table(frames, base), "msssim": _table(frames, base - 0.05),
                  "noise": _table(frames, base + rng.normal(0, 0.01, 30))}.items()},
     }
-    stats = paired_statistics(tables, ["ssim", "msssim", "noise"], CompareConfig(bootstrap_samples=1000), [80.0])
+    groups = {r: [r] for r in ("ssim", "msssim", "noise")}
+    stats = paired_statistics(tables, groups, CompareConfig(bootstrap_samples=1000), [80.0])
     assert stats["full"]["cap80"]["msssim"]["abs_rel"]["excludes_zero"]
     assert stats["full"]["cap80"]["msssim"]["abs_rel"]["mean"] == pytest.approx(-0.05)
     assert "ssim" not in stats["full"]["cap80"]
@@ -98,3 +99,107 @@ def test_compare_reports_intervals_and_marks_clear_differences() -> None:
     assert result["statistics"] is stats
     assert "Difference to ssim (30 paired images)" in md and "Difference to ssim (30 paired ROIs)" in md
     assert "| msssim | -0.0500 [-0.0500, -0.0500] * |" in md
+
+
+# --- several training seeds per variant -------------------------------------------------------
+
+
+def test_one_seed_each_is_the_paired_bootstrap_draw_for_draw() -> None:
+    rng = np.random.default_rng(5)
+    a, b = rng.normal(0.3, 0.1, 33), rng.normal(0.3, 0.1, 33)
+    assert seed_bootstrap(a[None], b[None], 3000, 0.9, 4) == paired_bootstrap(a, b, 3000, 0.9, 4)
+
+
+def test_two_level_bootstrap_matches_a_straightforward_loop() -> None:
+    rng = np.random.default_rng(8)
+    run = rng.normal(0.30, 0.1, (3, 20)) + rng.normal(0, 0.05, (3, 1))  # 3 seeds with their own offsets
+    ref = rng.normal(0.32, 0.1, (2, 20))
+    ours = seed_bootstrap(run, ref, samples=1500, confidence=0.9, seed=2)
+    draw = np.random.default_rng(2)
+    means = []
+    for _ in range(1500):  # the same draws, one resample at a time: units, then run seeds, then reference seeds
+        units = draw.integers(0, 20, 20)
+        seeds_run = draw.integers(0, 3, 3)
+        seeds_ref = draw.integers(0, 2, 2)
+        means.append(run[seeds_run][:, units].mean() - ref[seeds_ref][:, units].mean())
+    # Chunked draws consume the stream in another order, so compare distributions, not draws.
+    assert ours.low == pytest.approx(np.quantile(means, 0.05), abs=0.01)
+    assert ours.high == pytest.approx(np.quantile(means, 0.95), abs=0.01)
+    assert ours.mean == pytest.approx(run.mean() - ref.mean(), abs=1e-12)
+    assert (ours.n, ours.seeds, ours.reference_seeds) == (20, 3, 2)
+
+
+def test_seed_noise_widens_the_interval_and_one_lucky_seed_is_not_a_finding() -> None:
+    rng = np.random.default_rng(0)
+    ref = np.repeat(rng.uniform(0.2, 0.4, (1, 40)), 3, axis=0)  # the reference's seeds agree
+    # The run's images are each 0.03 better on average, but only because seed 0 is 0.09 better.
+    run = ref[[0]] + np.array([[-0.09], [0.0], [0.0]]) + rng.normal(0, 0.002, (3, 40))
+    images_only = paired_bootstrap(run.mean(axis=0), ref.mean(axis=0), samples=4000)
+    both = seed_bootstrap(run, ref, samples=4000)
+    assert images_only.excludes_zero  # over images alone the 0.03 looks certain ...
+    assert not both.excludes_zero  # ... over seeds too it is not
+    assert both.high - both.low > 5 * (images_only.high - images_only.low)
+    assert both.mean == pytest.approx(images_only.mean)
+
+
+def test_seed_bootstrap_rejects_runs_over_different_units() -> None:
+    with pytest.raises(ValueError, match="same units"):
+        seed_bootstrap(np.ones((2, 5)), np.ones((1, 6)))
+
+
+def test_statistics_over_seed_groups_and_their_spread() -> None:
+    frames = [f"{i:06d}_10" for i in range(25)]
+    rng = np.random.default_rng(3)
+    base = rng.uniform(0.2, 0.4, 25)
+    tables = {"full": {}, "roi": {}}
+    offsets = {"ssim/seed0": 0.0, "ssim/seed1": 0.01, "msssim/seed0": -0.04, "msssim/seed1": -0.06, "prior": 0.1}
+    for run, off in offsets.items():
+        tables["full"][run] = _table(frames, base + off)
+        tables["roi"][run] = _table(frames, base + off).rename(columns={"frame": "roi"})
+    groups = {"ssim": ["ssim/seed0", "ssim/seed1"], "msssim": ["msssim/seed0", "msssim/seed1"], "prior": ["prior"]}
+    stats = paired_statistics(tables, groups, CompareConfig(bootstrap_samples=500), [80.0])
+    d = stats["full"]["cap80"]["msssim"]["abs_rel"]
+    assert d["mean"] == pytest.approx(-0.055) and (d["seeds"], d["reference_seeds"], d["n"]) == (2, 2, 25)
+    # Two seeds per side, resampled: the extremes -0.06 - 0.01 and -0.04 - 0.0 each come up in
+    # 1/16 of the resamples (> 2.5 %), so they are the interval's ends.
+    assert d["low"] == pytest.approx(-0.07) and d["high"] == pytest.approx(-0.04)
+    assert stats["full"]["cap80"]["prior"]["abs_rel"]["seeds"] == 1
+
+    metrics = {"full": {r: {"cap80": {m: float(np.mean(base + off)) for m in METRICS}} for r, off in offsets.items()},
+               "roi": {r: {"cap80": {"overall": {m: float(np.mean(base + off)) for m in METRICS}}}
+                       for r, off in offsets.items()}}
+    spread = seed_spread(metrics, groups, ["cap80"])
+    s = spread["full"]["cap80"]["msssim"]["abs_rel"]
+    assert s["mean"] == pytest.approx(np.mean(base) - 0.05)
+    assert s["sd"] == pytest.approx(np.std([-0.04, -0.06], ddof=1))
+    assert list(s["runs"]) == ["msssim/seed0", "msssim/seed1"]
+    assert spread["full"]["cap80"]["prior"]["abs_rel"]["sd"] is None
+
+
+def test_runs_are_averaged_leaf_by_leaf() -> None:
+    a = {"cap80": {"overall": {"abs_rel": 0.2, "count": 10}, "by_class": {"car": {"abs_rel": 0.1}}}, "images": 40, "note": None}
+    b = {"cap80": {"overall": {"abs_rel": 0.4, "count": 10}, "by_class": {"car": {"abs_rel": 0.3}}}, "images": 40, "note": None}
+    mean = mean_over_runs([a, b])
+    assert mean["cap80"]["overall"] == {"abs_rel": pytest.approx(0.3), "count": 10}
+    assert mean["cap80"]["by_class"]["car"]["abs_rel"] == pytest.approx(0.2)
+    assert mean["images"] == 40 and isinstance(mean["images"], int) and mean["note"] is None
+    with pytest.raises(DataError, match="different entries"):
+        mean_over_runs([a, {**b, "extra": 1}])
+
+
+def test_comparison_of_several_seeds_says_so_and_shows_the_spread() -> None:
+    block = {m: 0.3 for m in METRICS}
+    suites = {
+        "full": {r: {"cap80": block} for r in ("ssim", "msssim")},
+        "roi": {r: {"cap80": {"overall": {**block, "count": 5}, "by_class": {}}} for r in ("ssim", "msssim")},
+        "gradients": {r: {"cap80": {"overall": {f"pred_{g}": 1.0 for g in ("sobel_x", "sobel_y", "laplacian")},
+                                    "dense_gt": {"overall": {}}}} for r in ("ssim", "msssim")},
+    }
+    entry = {m: {"mean": 0.3, "sd": 0.0125, "runs": {}} for m in METRICS}
+    spread = {s: {"cap80": {"ssim": entry, "msssim": entry}} for s in ("full", "roi")}
+    result, md = build_comparison(suites, ["ssim", "msssim"], [], None, spread, seeds=[0, 1, 2])
+    assert "mean of 3 training runs (seeds 0, 1, 2)" in md
+    assert md.count("Seed-to-seed spread") == 2 and "| msssim | 0.3000 ± 0.0125 |" in md
+    assert result["seeds"] == [0, 1, 2] and result["seed_spread"] is spread
+    _, one = build_comparison(suites, ["ssim", "msssim"], [], None, spread, seeds=[0])
+    assert "Seed-to-seed" not in one and "One training run per variant (seed 0)" in one

@@ -118,9 +118,13 @@ def test_bf16_autocast_and_channels_last_train_on_cpu(pairs, tmp_path: Path) -> 
 def test_speed_switches_keep_the_checkpoint_fingerprint() -> None:
     base = _params()
     fast = dataclasses.replace(base, train=dataclasses.replace(base.train, channels_last=True, compile=True, num_workers=2))
-    assert train_mod.fingerprint(base, "ssim", 8) == train_mod.fingerprint(fast, "ssim", 8)
+    assert train_mod.fingerprint(base, "ssim", 8, 0) == train_mod.fingerprint(fast, "ssim", 8, 0)
     amp = dataclasses.replace(base, train=dataclasses.replace(base.train, amp="bf16"))
-    assert train_mod.fingerprint(base, "ssim", 8) != train_mod.fingerprint(amp, "ssim", 8)
+    assert train_mod.fingerprint(base, "ssim", 8, 0) != train_mod.fingerprint(amp, "ssim", 8, 0)
+    # A run's checkpoint is its seed's alone, and adding seeds to train.seeds does not void it.
+    assert train_mod.fingerprint(base, "ssim", 8, 0) != train_mod.fingerprint(base, "ssim", 8, 1)
+    more = dataclasses.replace(base, train=dataclasses.replace(base.train, seeds=(0, 1, 2)))
+    assert train_mod.fingerprint(base, "ssim", 8, 0) == train_mod.fingerprint(more, "ssim", 8, 0)
 
 
 def test_unknown_amp_mode_is_a_config_error() -> None:
@@ -165,3 +169,15 @@ def test_disk_full_while_checkpointing_keeps_the_previous_checkpoint(pairs, tmp_
     assert sorted(p.name for p in tmp_path.iterdir()) == ["ck.pt"]  # no temp file, no model
     monkeypatch.setattr(torch, "save", real_save)
     assert _train(_params(), pairs, tmp_path).resumed_from_epoch == 1
+
+
+def test_each_seed_is_its_own_repeatable_run(pairs, tmp_path: Path) -> None:
+    params = _params(seeds=[0, 1])
+    for name, seed in (("a", 1), ("b", 1), ("c", 0)):
+        (tmp_path / name).mkdir()
+        train_variant(params, "ssim", pairs, tmp_path / name / "model.pt", tmp_path / name / "ck.pt",
+                      progress=False, seed=seed)
+    a, b, c = (_weights(tmp_path / n / "model.pt") for n in "abc")
+    assert all(torch.equal(a[k], b[k]) for k in a)  # the same seed: bit-identical on CPU
+    assert any(not torch.equal(a[k], c[k]) for k in a)  # another seed: another run
+    assert load_model(tmp_path / "a" / "model.pt")[1]["seed"] == 1

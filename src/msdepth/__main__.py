@@ -20,7 +20,7 @@ def _parser() -> argparse.ArgumentParser:
         "file, one output per frame) and write its outputs under --out, named after the input.",
     )
     p.add_argument("input", metavar="INPUT", help="image, folder of images or video file")
-    p.add_argument("--model", required=True, help="trained model file, e.g. models/msssim/model.pt")
+    p.add_argument("--model", required=True, help="trained model file, e.g. models/msssim/seed0/model.pt")
     p.add_argument("--out", required=True, help="output folder")
     # Options left at None take PredictOptions' defaults (kept there, so --help need not import torch).
     p.add_argument("--height", type=int, help="network input height (default: the model's training size)")
@@ -64,7 +64,7 @@ def _parser() -> argparse.ArgumentParser:
         "output 'disparity': float32 (B, 2, H, W), the finest scale, channel 0 = left disparity as a "
         "fraction of the width. Batch, height and width are dynamic unless --static.",
     )
-    e.add_argument("--model", required=True, help="trained model file, e.g. models/msssim/model.pt")
+    e.add_argument("--model", required=True, help="trained model file, e.g. models/msssim/seed0/model.pt")
     e.add_argument("--out", required=True, help="ONNX file to write")
     e.add_argument("--height", type=int, help="tracing input height (default: the model's training size)")
     e.add_argument("--width", type=int, help="tracing input width (default: the model's training size)")

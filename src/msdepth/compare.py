@@ -7,13 +7,14 @@ import os
 from pathlib import Path
 from typing import Sequence
 
+import numpy as np
 import pandas as pd
 
 from .config import CompareConfig
 from .errors import DataError
 from .evaluate import GRADIENTS
 from .metrics import HIGHER_IS_BETTER, METRICS
-from .stats import paired_bootstrap, paired_table
+from .stats import paired_table, seed_bootstrap
 
 SUITES = ("full", "roi", "gradients")
 
@@ -46,30 +47,81 @@ def load_unit_tables(metrics_dir: str | os.PathLike, runs: Sequence[str]) -> dic
                       lambda p: pd.read_csv(p, dtype={"frame": str, "image": str}), "per-unit metrics")
 
 
+def _unit_matrix(tables: dict[str, pd.DataFrame], runs: Sequence[str], anchor: pd.DataFrame, keys: list[str],
+                 metric: str, what: str) -> np.ndarray:
+    """(runs, units): ``metric`` of every run, its units aligned on ``keys`` to ``anchor``'s order."""
+    return np.stack([paired_table(anchor, tables[r], keys, metric, f"{what} ({r})")[1] for r in runs])
+
+
 def paired_statistics(
-    tables: dict[str, dict[str, pd.DataFrame]], runs: Sequence[str], cfg: CompareConfig, caps: Sequence[float]
+    tables: dict[str, dict[str, pd.DataFrame]], groups: dict[str, Sequence[str]], cfg: CompareConfig,
+    caps: Sequence[float],
 ) -> dict:
-    """``{suite: {capN: {run: {metric: PairedDifference dict}}}}`` of every run against ``cfg.reference``."""
+    """``{suite: {capN: {group: {metric: PairedDifference dict}}}}`` of every group against ``cfg.reference``.
+
+    ``groups`` maps a variant to its runs (one per seed) and a baseline to its one run; the
+    reference's runs and each group's runs enter :func:`msdepth.stats.seed_bootstrap` as rows.
+    """
     stats: dict = {"reference": cfg.reference, "confidence": cfg.confidence, "bootstrap_samples": cfg.bootstrap_samples}
     for suite, keys in UNIT_KEYS.items():
         stats[suite] = {}
-        for cap in caps:
-            ref = tables[suite][cfg.reference]
-            ref = ref[ref["cap"] == cap]
+        by_cap = {cap: {run: t[t["cap"] == cap] for run, t in tables[suite].items()} for cap in caps}
+        for cap, cap_tables in by_cap.items():
+            anchor = cap_tables[groups[cfg.reference][0]]
             block: dict = {}
-            for run in runs:
-                if run == cfg.reference:
+            for name, runs in groups.items():
+                if name == cfg.reference:
                     continue
-                table = tables[suite][run]
-                table = table[table["cap"] == cap]
-                block[run] = {}
-                for metric in METRICS:
-                    values, reference = paired_table(table, ref, keys, metric, f"{suite} {run} vs {cfg.reference}, cap {cap:g}")
-                    block[run][metric] = paired_bootstrap(
-                        values, reference, cfg.bootstrap_samples, cfg.confidence, cfg.seed
+                what = f"{suite} {name} vs {cfg.reference}, cap {cap:g}"
+                block[name] = {
+                    metric: seed_bootstrap(
+                        _unit_matrix(cap_tables, runs, anchor, keys, metric, what),
+                        _unit_matrix(cap_tables, groups[cfg.reference], anchor, keys, metric, what),
+                        cfg.bootstrap_samples, cfg.confidence, cfg.seed,
                     ).as_dict()
+                    for metric in METRICS
+                }
             stats[suite][f"cap{cap:g}"] = block
     return stats
+
+
+def mean_over_runs(trees: Sequence[dict]) -> dict:
+    """The runs' metric JSONs (same layout) averaged leaf by leaf; counts and labels must agree."""
+    first = trees[0]
+    if isinstance(first, dict):
+        keys = set(first)
+        if any(set(t) != keys for t in trees):
+            raise DataError(f"cannot average runs whose metrics have different entries: {sorted(keys)}")
+        return {k: mean_over_runs([t[k] for t in trees]) for k in first}
+    if first is None or isinstance(first, (str, bool)) or (isinstance(first, int) and len(set(trees)) == 1):
+        if len(set(map(repr, trees))) != 1:
+            raise DataError(f"runs disagree on a value that cannot be averaged: {sorted(set(map(repr, trees)))}")
+        return first
+    return float(np.mean(trees))
+
+
+def group_metrics(suites: dict[str, dict[str, dict]], groups: dict[str, Sequence[str]]) -> dict[str, dict[str, dict]]:
+    """``{suite: {group: metrics averaged over the group's runs}}``."""
+    return {suite: {g: mean_over_runs([runs_metrics[r] for r in runs]) for g, runs in groups.items()}
+            for suite, runs_metrics in suites.items()}
+
+
+def seed_spread(suites: dict[str, dict[str, dict]], groups: dict[str, Sequence[str]], caps: Sequence[str]) -> dict:
+    """``{suite: {capN: {variant: {metric: {mean, sd, runs}}}}}``: each run's mean metric over its
+    seeds (full image and all ROIs); ``sd`` is the sample standard deviation (None for one seed)."""
+    out: dict = {}
+    for suite, pick in (("full", lambda m, cap: m[cap]), ("roi", lambda m, cap: m[cap]["overall"])):
+        out[suite] = {}
+        for cap in caps:
+            out[suite][cap] = {}
+            for g, runs in groups.items():
+                values = {metric: [pick(suites[suite][r], cap)[metric] for r in runs] for metric in METRICS}
+                out[suite][cap][g] = {
+                    metric: {"mean": float(np.mean(v)), "sd": float(np.std(v, ddof=1)) if len(v) > 1 else None,
+                             "runs": dict(zip(runs, map(float, v)))}
+                    for metric, v in values.items()
+                }
+    return out
 
 
 def _ci_rows(block: dict) -> list[list[str]]:
@@ -106,24 +158,45 @@ def build_comparison(
     variants: Sequence[str],
     baselines: Sequence[str],
     stats: dict | None = None,
+    spread: dict | None = None,
+    seeds: Sequence[int] = (0,),
 ) -> tuple[dict, str]:
     """The comparison as JSON-ready dict and as Markdown (best variant per column in bold).
 
+    ``suites`` holds each variant's metrics averaged over its ``seeds`` (:func:`group_metrics`).
     With ``stats`` (from :func:`paired_statistics`), each full-image and ROI table is followed
-    by the paired differences to the reference run with their bootstrap intervals.
+    by the differences to the reference variant with their bootstrap intervals; with ``spread``
+    (:func:`seed_spread`) and more than one seed, by each variant's mean ± sd over seeds.
     """
     runs = [*variants, *baselines]
     caps = [k for k in suites["full"][runs[0]] if k.startswith("cap")]
-    result: dict = {"variants": list(variants), "baselines": list(baselines), "full": {}, "roi": {}, "gradients": {}}
+    result: dict = {"variants": list(variants), "baselines": list(baselines), "seeds": list(seeds),
+                    "full": {}, "roi": {}, "gradients": {}}
+    several = len(seeds) > 1
+    trained = (f"Each variant's numbers are the mean of {len(seeds)} training runs (seeds {', '.join(map(str, seeds))})."
+               if several else f"One training run per variant (seed {seeds[0]}).")
     md = ["# Comparison of loss variants", "",
           f"Variants: {', '.join(variants)}. Baselines (image-blind, from training GT): {', '.join(baselines) or 'none'}.",
-          "Errors: lower is better; a1–a3: higher is better. Best variant per column in **bold**.", ""]
+          trained, "Errors: lower is better; a1–a3: higher is better. Best variant per column in **bold**.", ""]
     if stats is not None:
         result["statistics"] = stats
-        md += [f"Differences are `run − {stats['reference']}` (mean over images or ROIs) with a paired "
-               f"bootstrap {stats['confidence']:.0%} interval ({stats['bootstrap_samples']} resamples); "
-               "`*`: the interval excludes 0. One training run per variant: the intervals cover the "
-               "choice of images, not training noise.", ""]
+        covers = ("resampling images (ROIs) and, per variant, seeds: the intervals cover the choice of "
+                  "images and training noise." if several else
+                  "resampling images (ROIs): the intervals cover the choice of images, not training noise "
+                  "(train more seeds for that, see the README).")
+        md += [f"Differences are `run − {stats['reference']}` (mean over images or ROIs) with a "
+               f"bootstrap {stats['confidence']:.0%} interval ({stats['bootstrap_samples']} resamples) {covers} "
+               "`*`: the interval excludes 0.", ""]
+    if spread is not None:
+        result["seed_spread"] = spread
+
+    def spread_table(suite: str, cap: str) -> list[str]:
+        if spread is None or not several:
+            return []
+        rows = [[v, *[f"{d[m]['mean']:.4f} ± {d[m]['sd']:.4f}" for m in METRICS]]
+                for v, d in spread[suite][cap].items() if v in variants]
+        return [f"Seed-to-seed spread (mean ± sd over {len(seeds)} seeds of the per-run mean):", "",
+                _table(["variant", *METRICS], rows), ""]
 
     def ci_table(suite: str, cap: str, unit: str) -> list[str]:
         if stats is None:
@@ -148,9 +221,11 @@ def build_comparison(
 
         md += [f"## Full image, cap {cap[3:]} m", "", _table(["run", *METRICS], metric_rows(result["full"][cap])), ""]
         md += ci_table("full", cap, "images")
+        md += spread_table("full", cap)
         roi = {r: result["roi"][cap][r]["overall"] for r in runs}
         md += [f"## ROI, cap {cap[3:]} m (mean over {roi[runs[0]]['count']} ROIs)", "", _table(["run", *METRICS], metric_rows(roi)), ""]
         md += ci_table("roi", cap, "ROIs")
+        md += spread_table("roi", cap)
         classes = sorted({c for r in runs for c in result["roi"][cap][r]["by_class"]})
         rows = [[r, *[_fmt(result["roi"][cap][r]["by_class"].get(c, {}).get("abs_rel")) for c in classes]] for r in runs]
         md += [f"### ROI abs rel per class, cap {cap[3:]} m", "", _table(["run", *classes], rows), ""]

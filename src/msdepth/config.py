@@ -68,7 +68,8 @@ class ModelConfig:
 
 @dataclass(frozen=True)
 class TrainConfig:
-    seed: int = 0
+    # One training run per variant and seed; each seed seeds init, shuffling and augmentation.
+    seeds: tuple[int, ...] = (0,)
     epochs: int = 16
     batch_size: int = 8
     learning_rate: float = 1e-3
@@ -107,9 +108,9 @@ class MSSSIMConfig:
     weights: Literal["wang", "equal", "learned"] = "wang"
 
 
-@dataclass(frozen=True)
-class VariantConfig:
-    appearance: Literal["ssim", "msssim"] = "ssim"
+# A loss variant is named after its params section (``ssim`` or ``msssim``), so that DVC can
+# track exactly that section per stage.
+Variant = Literal["ssim", "msssim"]
 
 
 @dataclass(frozen=True)
@@ -137,17 +138,25 @@ class Params:
     loss: LossConfig = field(default_factory=LossConfig)
     ssim: SSIMConfig = field(default_factory=SSIMConfig)
     msssim: MSSSIMConfig = field(default_factory=MSSSIMConfig)
-    variants: dict[str, VariantConfig] = field(
-        default_factory=lambda: {"ssim": VariantConfig("ssim"), "msssim": VariantConfig("msssim")}
-    )
+    variants: tuple[Variant, ...] = ("ssim", "msssim")
     eval: EvalConfig = field(default_factory=EvalConfig)
     compare: CompareConfig = field(default_factory=CompareConfig)
 
-    def variant(self, name: str) -> VariantConfig:
-        """The variant called ``name``, or a ConfigError listing the known ones."""
+    def variant(self, name: str) -> Variant:
+        """The variant called ``name``, or a ConfigError listing the configured ones."""
         if name not in self.variants:
-            raise ConfigError(f"variants: unknown variant {name!r}; known: {sorted(self.variants)}")
-        return self.variants[name]
+            raise ConfigError(f"variants: unknown variant {name!r}; configured: {list(self.variants)}")
+        return name  # type: ignore[return-value]
+
+    def seed(self, value: str | int) -> int:
+        """The training seed ``value`` (e.g. a stage's argument), or a ConfigError if not in train.seeds."""
+        try:
+            seed = int(value)
+        except ValueError:
+            raise ConfigError(f"train.seeds: {value!r} is not an integer seed") from None
+        if seed not in self.train.seeds:
+            raise ConfigError(f"train.seeds: seed {seed} is not listed; configured: {list(self.train.seeds)}")
+        return seed
 
 
 def _convert(value: Any, tp: Any, key: str) -> Any:
@@ -242,6 +251,9 @@ def validate(p: Params) -> Params:
     _check(t.threads >= 1, "train.threads", "must be >= 1")
     _check(t.nproc >= 1, "train.nproc", f"must be >= 1, got {t.nproc}")
     _check(t.dist_timeout_s > 0, "train.dist_timeout_s", "must be > 0")
+    _check(all(s >= 0 for s in t.seeds), "train.seeds", f"must be >= 0, got {list(t.seeds)}")
+    _check(len(set(t.seeds)) == len(t.seeds), "train.seeds", f"must not repeat a seed, got {list(t.seeds)}")
+    _check(len(set(p.variants)) == len(p.variants), "variants", f"must not repeat a variant, got {list(p.variants)}")
     _check(0 <= p.loss.alpha <= 1, "loss.alpha", "must be in [0, 1]")
     _check(p.loss.smoothness_weight >= 0, "loss.smoothness_weight", "must be >= 0")
     _check(p.loss.lr_weight >= 0, "loss.lr_weight", "must be >= 0")
@@ -269,7 +281,7 @@ def validate(p: Params) -> Params:
     _check(e.min_depth > 0, "eval.min_depth", "must be > 0")
     _check(0 < e.dense_gt_fraction <= 1, "eval.dense_gt_fraction", "must be in (0, 1]")
     c = p.compare
-    _check(c.reference in p.variants, "compare.reference", f"{c.reference!r} is not a variant; known: {sorted(p.variants)}")
+    _check(c.reference in p.variants, "compare.reference", f"{c.reference!r} is not a variant; configured: {list(p.variants)}")
     _check(c.bootstrap_samples >= 100, "compare.bootstrap_samples", f"must be >= 100, got {c.bootstrap_samples}")
     _check(0 < c.confidence < 1, "compare.confidence", f"must be in (0, 1), got {c.confidence}")
     return p

@@ -31,6 +31,7 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Mapping, Sequence
 
 import cv2
 import matplotlib
@@ -79,7 +80,8 @@ class RoiExample:
 class _Inputs:
     """Everything the figures read, loaded (and checked) before anything is drawn."""
 
-    variants: list[str]
+    variants: list[str]  # labels
+    runs: dict[str, str]  # label -> run path below outputs/, metrics/<suite>/, plots/train/
     index: pd.DataFrame
     rois: pd.DataFrame
     disparities: dict[str, np.ndarray]
@@ -109,26 +111,32 @@ class _Inputs:
         return kitti.read_image(self.index.loc[self.index["frame"] == name, "left"].iloc[0])
 
 
-def _load(variants: list[str], eval_index: Path, rois: Path, outputs: Path, cfg: EvalConfig) -> _Inputs:
-    if not variants:
+def _runs(variants: Sequence[str] | Mapping[str, str]) -> dict[str, str]:
+    return dict(variants) if isinstance(variants, Mapping) else {v: v for v in variants}
+
+
+def _load(variants: Sequence[str] | Mapping[str, str], eval_index: Path, rois: Path, outputs: Path,
+          cfg: EvalConfig) -> _Inputs:
+    runs = _runs(variants)
+    if not runs:
         raise ValueError("make_figures needs at least one variant")
     index = read_eval_index(eval_index)
     boxes = kitti.read_rois(rois)
     disparities, depth = {}, {}
-    for v in variants:
-        path = Path(outputs) / v / "disparities.npy"
+    for v, run in runs.items():
+        path = Path(outputs) / run / "disparities.npy"
         if not path.exists():
-            raise DataError(f"{path}: no disparities for variant {v!r} (run the infer stage)")
+            raise DataError(f"{path}: no disparities for run {run!r} (run the infer stage)")
         disp = np.load(path)
         if disp.ndim != 3 or len(disp) != len(index):
             raise DataError(f"{path}: expected ({len(index)}, h, w) disparities for {eval_index}, got {disp.shape}")
         disparities[v] = disp
-        npz = Path(outputs) / v / "depth.npz"
+        npz = Path(outputs) / run / "depth.npz"
         depth[v] = read_depth_maps(npz)
         missing = sorted(set(index["frame"]) - set(depth[v]))
         if missing:
             raise DataError(f"{npz}: no depth for evaluation frame(s) {missing[:5]}")
-    return _Inputs(list(variants), index, boxes, disparities, depth, cfg)
+    return _Inputs(list(runs), runs, index, boxes, disparities, depth, cfg)
 
 
 def _cmap(name: str) -> Colormap:
@@ -362,11 +370,13 @@ def _read_curve(path: Path, name: str) -> pd.DataFrame:
     return df
 
 
-def _training_figure(variants: list[str], train_plots: Path, path: Path) -> Path:
-    curves = {
-        (v, term): _read_curve(Path(train_plots) / v / "plots" / "metrics" / "train" / f"{term}.tsv", term)
-        for v in variants for term in LOSS_TERMS
-    }
+def _curve_path(train_plots: Path, run: str, term: str) -> Path:
+    return Path(train_plots) / run / "plots" / "metrics" / "train" / f"{term}.tsv"
+
+
+def _training_figure(runs: dict[str, str], train_plots: Path, path: Path) -> Path:
+    variants = list(runs)
+    curves = {(v, term): _read_curve(_curve_path(train_plots, runs[v], term), term) for v in variants for term in LOSS_TERMS}
     fig = _new_figure(4.2 * len(LOSS_TERMS), 3.4)
     axes = fig.subplots(1, len(LOSS_TERMS), squeeze=False)[0]
     for ax, term in zip(axes, LOSS_TERMS):
@@ -387,7 +397,7 @@ def _training_figure(variants: list[str], train_plots: Path, path: Path) -> Path
 def _read_full(metrics: Path, variant: str, cap: float) -> pd.DataFrame:
     path = Path(metrics) / "full" / f"{variant}.csv"
     if not path.exists():
-        raise DataError(f"{path}: no per-image metrics of variant {variant!r} (run the eval_full stage)")
+        raise DataError(f"{path}: no per-image metrics of run {variant!r} (run the eval_full stage)")
     df = pd.read_csv(path, dtype={"frame": str})
     if not {"frame", "cap", "abs_rel"} <= set(df.columns):
         raise DataError(f"{path}: expected columns frame, cap, abs_rel; got {list(df.columns)}")
@@ -397,10 +407,11 @@ def _read_full(metrics: Path, variant: str, cap: float) -> pd.DataFrame:
     return df.set_index("frame")["abs_rel"]
 
 
-def _scatter_figure(variants: list[str], metrics: Path, cap: float, path: Path) -> Path:
+def _scatter_figure(runs: dict[str, str], metrics: Path, cap: float, path: Path) -> Path:
+    variants = list(runs)
     ref = REFERENCE if REFERENCE in variants else variants[0]
     others = [v for v in variants if v != ref]
-    errors = {v: _read_full(metrics, v, cap) for v in [ref, *others]}
+    errors = {v: _read_full(metrics, runs[v], cap) for v in [ref, *others]}
     fig = _new_figure(5.0, 5.0 + 0.2 * len(others))
     ax = fig.subplots()
     lines, all_values = [], [errors[ref].to_numpy()]
@@ -427,7 +438,7 @@ def _scatter_figure(variants: list[str], metrics: Path, cap: float, path: Path) 
 
 
 def make_figures(
-    variants: list[str],
+    variants: Sequence[str] | Mapping[str, str],
     out_dir: Path,
     *,
     eval_index: Path = Path("data/index/eval_frames.csv"),
@@ -440,6 +451,9 @@ def make_figures(
 ) -> list[Path]:
     """Write the figures listed in the module docstring to ``out_dir``; returns their paths.
 
+    ``variants``: the runs to draw, as names or as ``{label: run}`` (e.g. ``{"ssim": "ssim/seed0"}``)
+    where the run is the path below ``outputs``, ``metrics/<suite>`` and ``train_plots``.
+
     Run from the project root: the evaluation index names images and GT relative to it, as
     every pipeline stage does. Each PNG is written atomically. A missing or malformed input raises one
     :class:`~msdepth.errors.DataError` naming the file; every input is read before the first
@@ -450,16 +464,16 @@ def make_figures(
     inp = _load(variants, eval_index, rois, outputs, eval_cfg)
     examples = _roi_examples(inp)
     # Read the remaining inputs up front too (cheap): a missing TSV or CSV fails before drawing.
-    for v in inp.variants:
+    for run in inp.runs.values():
         for term in LOSS_TERMS:
-            _read_curve(Path(train_plots) / v / "plots" / "metrics" / "train" / f"{term}.tsv", term)
-        _read_full(metrics, v, cap)
+            _read_curve(_curve_path(train_plots, run, term), term)
+        _read_full(metrics, run, cap)
     written = [
         _disparity_figure(inp, frames, out_dir / "disparity.png"),
         _roi_depth_figure(inp, examples, out_dir / "roi_depth.png"),
         _roi_gradient_figure(inp, examples, out_dir / "roi_gradients.png"),
-        _training_figure(inp.variants, train_plots, out_dir / "training_curves.png"),
+        _training_figure(inp.runs, train_plots, out_dir / "training_curves.png"),
     ]
     if len(inp.variants) > 1:
-        written.append(_scatter_figure(inp.variants, metrics, cap, out_dir / "error_scatter.png"))
+        written.append(_scatter_figure(inp.runs, metrics, cap, out_dir / "error_scatter.png"))
     return written

@@ -18,7 +18,14 @@ from typing import Callable
 import numpy as np
 
 from . import baselines as baselines_mod
-from .compare import build_comparison, load_suite_metrics, load_unit_tables, paired_statistics
+from .compare import (
+    build_comparison,
+    group_metrics,
+    load_suite_metrics,
+    load_unit_tables,
+    paired_statistics,
+    seed_spread,
+)
 from .config import Params, load_params
 from .data import kitti
 from .data.index import build_indexes, layout, read_eval_index
@@ -44,12 +51,22 @@ BASELINES = ("constant", "prior")
 SUITES = {"full": evaluate_full, "roi": evaluate_roi, "gradients": evaluate_gradients}
 
 
-def model_path(variant: str) -> Path:
-    return Path("models") / variant / "model.pt"
+def run_name(variant: str, seed: int) -> str:
+    """One training run: ``<variant>/seed<seed>``, also its path below models/, outputs/, metrics/<suite>/."""
+    return f"{variant}/seed{seed}"
 
 
-def checkpoint_path(variant: str) -> Path:
-    return Path("checkpoints") / variant / "checkpoint.pt"
+def variant_runs(params: Params) -> dict[str, list[str]]:
+    """``{variant: [its run of every seed in train.seeds]}``."""
+    return {v: [run_name(v, s) for s in params.train.seeds] for v in params.variants}
+
+
+def model_path(run: str) -> Path:
+    return Path("models") / run / "model.pt"
+
+
+def checkpoint_path(run: str) -> Path:
+    return Path("checkpoints") / run / "checkpoint.pt"
 
 
 def run_dir(run: str) -> Path:
@@ -132,46 +149,47 @@ def cache(params: Params) -> None:
              params.data.height, params.data.width, PAIR_CACHE, len(report.unreadable), CACHE_REPORT)
 
 
-def train(params: Params, variant: str) -> None:
-    """Train one loss variant; write its model, training summary and dvclive curves."""
+def train(params: Params, variant: str, seed: str) -> None:
+    """Train one loss variant with one seed; write its model, training summary and dvclive curves."""
     from .train import train_variant, write_train_summary
 
-    params.variant(variant)
+    run = run_name(params.variant(variant), params.seed(seed))
     t = params.train
     if t.launcher == "torchrun" and "LOCAL_RANK" not in os.environ:
         # Re-run this stage under torchrun; its ranks come back here with LOCAL_RANK set.
         import subprocess
 
         cmd = [sys.executable, "-m", "torch.distributed.run", "--standalone", f"--nproc_per_node={t.nproc}",
-               "stages/train.py", variant]
-        log.info("train %s: %s", variant, " ".join(cmd))
+               "stages/train.py", variant, seed]
+        log.info("train %s: %s", run, " ".join(cmd))
         if subprocess.run(cmd).returncode != 0:
-            raise MsdepthError(f"train {variant}: torchrun with {t.nproc} processes failed (see the ranks' errors above)")
+            raise MsdepthError(f"train {run}: torchrun with {t.nproc} processes failed (see the ranks' errors above)")
         return
     pairs = load_pair_list(CACHED_PAIRS)  # the pairs the cache holds, in its order
     images = load_pair_cache(PAIR_CACHE, len(pairs), params.data.height, params.data.width)
     result = train_variant(
-        params, variant, pairs, model_path(variant), checkpoint_path(variant),
-        live_dir=Path("plots") / "train" / variant, cache=images,
+        params, variant, pairs, model_path(run), checkpoint_path(run),
+        live_dir=Path("plots") / "train" / run, cache=images, seed=int(seed),
     )
     if int(os.environ.get("RANK", "0")) != 0:
         return  # only rank 0 writes the summary
-    write_train_summary(Path("metrics") / "train" / f"{variant}.json", result)
+    write_train_summary(Path("metrics") / "train" / f"{run}.json", result)
     resumed = f", resumed from epoch {result.resumed_from_epoch}" if result.resumed_from_epoch else ""
     log.info("train %s: %d steps%s; %.0f s in this run (%.1f examples/s)",
-             variant, result.steps, resumed, result.seconds, result.examples_per_second)
+             run, result.steps, resumed, result.seconds, result.examples_per_second)
 
 
-def infer(params: Params, variant: str) -> None:
+def infer(params: Params, variant: str, seed: str) -> None:
     """Left disparities of every evaluation frame, at the network's input size."""
     from .infer import predict_disparities
     from .train import load_model
 
+    run = run_name(params.variant(variant), params.seed(seed))
     torch_threads(params)
-    model, meta = load_model(model_path(variant))
+    model, meta = load_model(model_path(run))
     frames = read_eval_index(INDEX_DIR / "eval_frames.csv")
     disp = predict_disparities(model, [Path(p) for p in frames["left"]], meta["height"], meta["width"], params.eval.post_process)
-    save_npy(run_dir(variant) / "disparities.npy", disp)
+    save_npy(run_dir(run) / "disparities.npy", disp)
 
 
 def torch_threads(params: Params) -> None:
@@ -180,8 +198,9 @@ def torch_threads(params: Params) -> None:
     torch.set_num_threads(params.train.threads)
 
 
-def depth(params: Params, run: str) -> None:
+def depth(params: Params, variant: str, seed: str) -> None:
     """Disparities (fraction of width) -> metric depth at each frame's GT resolution."""
+    run = run_name(params.variant(variant), params.seed(seed))
     path = run_dir(run) / "disparities.npy"
     if not path.exists():
         raise DataError(f"{path}: no disparities for run {run!r}")
@@ -201,10 +220,11 @@ def _run_suite(params: Params, suite: str, run: str, pred: dict, frames, boxes) 
     _write_suite(suite, run, summary, table)
 
 
-def evaluate(params: Params, suite: str, run: str) -> None:
+def evaluate(params: Params, suite: str, variant: str, seed: str) -> None:
     """Run one evaluation suite on one run's depth maps."""
     if suite not in SUITES:
         raise ConfigError(f"unknown evaluation suite {suite!r}; known: {sorted(SUITES)}")
+    run = run_name(params.variant(variant), params.seed(seed))
     frames = load_frames(read_eval_index(INDEX_DIR / "eval_frames.csv"))
     boxes = kitti.read_rois(INDEX_DIR / "rois.csv") if suite != "full" else None
     _run_suite(params, suite, run, read_depth_maps(run_dir(run) / "depth.npz"), frames, boxes)
@@ -223,12 +243,14 @@ def baselines(params: Params) -> None:
 
 
 def compare(params: Params) -> None:
-    """One table of every variant and baseline, as Markdown and JSON."""
-    variants = list(params.variants)
-    runs = [*variants, *BASELINES]
+    """One table of every variant (mean over its seeds) and baseline, as Markdown and JSON."""
+    groups = {**variant_runs(params), **{b: [b] for b in BASELINES}}
+    runs = [r for group in groups.values() for r in group]
     suites = load_suite_metrics("metrics", runs)
-    stats = paired_statistics(load_unit_tables("metrics", runs), runs, params.compare, params.eval.caps)
-    result, md = build_comparison(suites, variants, BASELINES, stats)
+    stats = paired_statistics(load_unit_tables("metrics", runs), groups, params.compare, params.eval.caps)
+    caps = [f"cap{c:g}" for c in params.eval.caps]
+    result, md = build_comparison(group_metrics(suites, groups), list(params.variants), BASELINES, stats,
+                                  seed_spread(suites, groups, caps), params.train.seeds)
     write_json(Path("metrics") / "compare.json", result)
     write_text(Path("metrics") / "compare.md", md)
 
@@ -237,7 +259,9 @@ def figures(params: Params) -> None:
     """The dissertation's figures (disparities, ROI depth and gradients, curves, error scatter)."""
     from .figures import make_figures
 
-    paths = make_figures(list(params.variants), Path("plots") / "figures", eval_cfg=params.eval)
+    # The first seed's run of each variant: the figures show predictions, not an average of them.
+    runs = {v: runs[0] for v, runs in variant_runs(params).items()}
+    paths = make_figures(runs, Path("plots") / "figures", eval_cfg=params.eval)
     log.info("figures: %s", ", ".join(p.name for p in paths))
 
 

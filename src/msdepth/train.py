@@ -73,8 +73,7 @@ def build_model(params: Params) -> MonodepthVGG:
 
 def build_loss(params: Params, variant: str) -> MonodepthLoss:
     """The training loss of ``variant`` (its appearance term names its params section)."""
-    appearance = params.variant(variant).appearance
-    return MonodepthLoss(params.loss, appearance, params.ssim, params.msssim)
+    return MonodepthLoss(params.loss, params.variant(variant), params.ssim, params.msssim)
 
 
 def learning_rate(base: float, step: int, total_steps: int) -> float:
@@ -87,15 +86,17 @@ def learning_rate(base: float, step: int, total_steps: int) -> float:
     return base / 4
 
 
-def fingerprint(params: Params, variant: str, num_pairs: int) -> str:
+def fingerprint(params: Params, variant: str, num_pairs: int, seed: int) -> str:
     """Hash of everything that shapes the training run, so a checkpoint is only resumed by its own run."""
-    appearance = params.variant(variant).appearance
+    appearance = params.variant(variant)
     relevant = {
+        "seed": seed,
         "data": [params.data.height, params.data.width, num_pairs],
         "model": asdict(params.model),
-        # Settings that change only speed do not invalidate a checkpoint.
+        # Settings that change only speed do not invalidate a checkpoint, nor do the other seeds.
         "train": {k: v for k, v in asdict(params.train).items()
-                  if k not in ("num_workers", "threads", "device", "channels_last", "compile", "launcher", "dist_timeout_s")},
+                  if k not in ("seeds", "num_workers", "threads", "device", "channels_last", "compile", "launcher",
+                               "dist_timeout_s")},
         "loss": asdict(params.loss),
         "appearance": appearance,
         appearance: asdict(getattr(params, appearance)),
@@ -118,9 +119,9 @@ def save_checkpoint(path: Path, state: dict) -> None:
         ) from exc
 
 
-def _loader(dataset: StereoPairs, params: Params, epoch: int, ctx: Context, pin_memory: bool = False) -> DataLoader:
+def _loader(dataset: StereoPairs, params: Params, seed: int, epoch: int, ctx: Context, pin_memory: bool = False) -> DataLoader:
     # Shuffle order from (seed, epoch): a resumed epoch sees the same batches, on any world size.
-    gen = torch.Generator().manual_seed(params.train.seed * 100_003 + epoch)
+    gen = torch.Generator().manual_seed(seed * 100_003 + epoch)
     dataset.set_epoch(epoch)
     return DataLoader(
         dataset,
@@ -142,8 +143,10 @@ def train_variant(
     live_dir: str | os.PathLike | None = None,
     progress: bool = True,
     cache: np.ndarray | None = None,
+    seed: int | None = None,
 ) -> TrainResult:
-    """Train ``variant`` on ``pairs``; write the final weights to ``model_path``.
+    """Train ``variant`` with training seed ``seed`` (default: the first of ``train.seeds``) on
+    ``pairs``; write the final weights to ``model_path``.
 
     ``cache`` holds the pairs already resized (:func:`msdepth.data.pairs.build_pair_cache`);
     without it every sample is decoded and resized from ``pairs``.
@@ -152,10 +155,11 @@ def train_variant(
     from when its fingerprint matches. Per-epoch mean losses go to dvclive in ``live_dir``.
     """
     t = params.train
+    seed = t.seeds[0] if seed is None else seed
     torch.set_num_threads(t.threads)
-    seed_everything(t.seed)  # the same seed on every rank: identical initial weights
+    seed_everything(seed)  # the same seed on every rank: identical initial weights
     ctx, device = distributed.setup(resolve_device(t.device), t.dist_timeout_s)
-    dataset = StereoPairs(pairs, params.data.height, params.data.width, augment=t.augment, seed=t.seed, cache=cache)
+    dataset = StereoPairs(pairs, params.data.height, params.data.width, augment=t.augment, seed=seed, cache=cache)
     model = build_model(params).to(device)
     memory_format = torch.channels_last if t.channels_last else torch.contiguous_format
     model = model.to(memory_format=memory_format)
@@ -170,7 +174,7 @@ def train_variant(
     if ctx.world > 1 and ctx.main:
         log.info("%s: %d ranks x batch %d = global batch %d", variant, ctx.world, t.batch_size, global_batch)
     total_steps = steps_per_epoch * t.epochs
-    fp = fingerprint(params, variant, len(pairs))
+    fp = fingerprint(params, variant, len(pairs), seed)
 
     checkpoint_path = Path(checkpoint_path)
     start_epoch, step, history = 0, 0, []
@@ -203,7 +207,7 @@ def train_variant(
         sums = dict.fromkeys(LOSS_KEYS, 0.0)
         batches = 0
         bar = tqdm(
-            _loader(dataset, params, epoch, ctx, pin_memory=pin),
+            _loader(dataset, params, seed, epoch, ctx, pin_memory=pin),
             desc=f"{variant} epoch {epoch + 1}/{t.epochs}",
             disable=not progress or not ctx.main,
             leave=False,
@@ -257,7 +261,7 @@ def train_variant(
     seconds = time.perf_counter() - started
     distributed.check_replicas([model, criterion], ctx)
     if ctx.main:
-        save_model(model_path, model, criterion, params, variant)
+        save_model(model_path, model, criterion, params, variant, seed)
     distributed.teardown()
     final = history[-1] if history else {}
     return TrainResult(
@@ -270,7 +274,9 @@ def train_variant(
     )
 
 
-def save_model(path: str | os.PathLike, model: MonodepthVGG, criterion: MonodepthLoss, params: Params, variant: str) -> None:
+def save_model(
+    path: str | os.PathLike, model: MonodepthVGG, criterion: MonodepthLoss, params: Params, variant: str, seed: int
+) -> None:
     """Final weights plus what is needed to rebuild and run the network."""
     state = {
         "model": model.state_dict(),
@@ -279,6 +285,7 @@ def save_model(path: str | os.PathLike, model: MonodepthVGG, criterion: Monodept
         "height": params.data.height,
         "width": params.data.width,
         "variant": variant,
+        "seed": seed,
     }
     with atomic_path(path) as tmp:
         torch.save(state, tmp)
