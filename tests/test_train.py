@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import json
 from pathlib import Path
 
 import numpy as np
@@ -176,8 +177,10 @@ def test_each_seed_is_its_own_repeatable_run(pairs, tmp_path: Path) -> None:
     for name, seed in (("a", 1), ("b", 1), ("c", 0)):
         (tmp_path / name).mkdir()
         train_variant(params, "ssim", pairs, tmp_path / name / "model.pt", tmp_path / name / "ck.pt",
-                      progress=False, seed=seed)
+                      progress=False, seed=seed, summary_path=tmp_path / name / "summary.json")
     a, b, c = (_weights(tmp_path / n / "model.pt") for n in "abc")
     assert all(torch.equal(a[k], b[k]) for k in a)  # the same seed: bit-identical on CPU
     assert any(not torch.equal(a[k], c[k]) for k in a)  # another seed: another run
     assert load_model(tmp_path / "a" / "model.pt")[1]["seed"] == 1
+    summary = json.loads((tmp_path / "a" / "summary.json").read_text())
+    assert summary["steps"] == 2 * (len(pairs) // 4) and summary["resumed_from_epoch"] == 0

@@ -151,7 +151,7 @@ def cache(params: Params) -> None:
 
 def train(params: Params, variant: str, seed: str) -> None:
     """Train one loss variant with one seed; write its model, training summary and dvclive curves."""
-    from .train import train_variant, write_train_summary
+    from .train import train_variant
 
     run = run_name(params.variant(variant), params.seed(seed))
     t = params.train
@@ -170,10 +170,8 @@ def train(params: Params, variant: str, seed: str) -> None:
     result = train_variant(
         params, variant, pairs, model_path(run), checkpoint_path(run),
         live_dir=Path("plots") / "train" / run, cache=images, seed=int(seed),
+        summary_path=Path("metrics") / "train" / f"{run}.json",
     )
-    if int(os.environ.get("RANK", "0")) != 0:
-        return  # only rank 0 writes the summary
-    write_train_summary(Path("metrics") / "train" / f"{run}.json", result)
     resumed = f", resumed from epoch {result.resumed_from_epoch}" if result.resumed_from_epoch else ""
     log.info("train %s: %d steps%s; %.0f s in this run (%.1f examples/s)",
              run, result.steps, resumed, result.seconds, result.examples_per_second)

@@ -144,6 +144,7 @@ def train_variant(
     progress: bool = True,
     cache: np.ndarray | None = None,
     seed: int | None = None,
+    summary_path: str | os.PathLike | None = None,
 ) -> TrainResult:
     """Train ``variant`` with training seed ``seed`` (default: the first of ``train.seeds``) on
     ``pairs``; write the final weights to ``model_path``.
@@ -152,7 +153,9 @@ def train_variant(
     without it every sample is decoded and resized from ``pairs``.
 
     A checkpoint is written atomically at ``checkpoint_path`` after every epoch and resumed
-    from when its fingerprint matches. Per-epoch mean losses go to dvclive in ``live_dir``.
+    from when its fingerprint matches. Per-epoch mean losses go to dvclive in ``live_dir``, the
+    training summary (steps, speed, final losses) to ``summary_path``; under torchrun only rank 0
+    writes files.
     """
     t = params.train
     seed = t.seeds[0] if seed is None else seed
@@ -264,7 +267,7 @@ def train_variant(
         save_model(model_path, model, criterion, params, variant, seed)
     distributed.teardown()
     final = history[-1] if history else {}
-    return TrainResult(
+    result = TrainResult(
         steps=step,
         epochs=t.epochs,
         resumed_from_epoch=resumed_from,
@@ -272,6 +275,9 @@ def train_variant(
         examples_per_second=examples / seconds if seconds > 0 and examples else math.nan,
         final_losses={k: final.get(k, math.nan) for k in LOSS_KEYS},
     )
+    if summary_path is not None and ctx.main:
+        write_json(summary_path, asdict(result))
+    return result
 
 
 def save_model(
@@ -301,8 +307,3 @@ def load_model(path: str | os.PathLike, device: str | torch.device = "cpu") -> t
     model.load_state_dict(state["model"])
     meta = {k: v for k, v in state.items() if k not in ("model", "criterion")}
     return model.to(device).eval(), meta
-
-
-def write_train_summary(path: str | os.PathLike, result: TrainResult) -> None:
-    """Training summary (steps, speed, final losses) as JSON, atomically."""
-    write_json(path, asdict(result))
