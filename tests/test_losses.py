@@ -7,6 +7,9 @@ from typing import Callable
 
 import pytest
 import torch
+import torch.nn.functional as F
+
+from msdepth import losses
 
 from msdepth.config import LossConfig, MSSSIMConfig, SSIMConfig
 from msdepth.losses import (
@@ -18,8 +21,10 @@ from msdepth.losses import (
     appearance_loss,
     level_weights,
     lr_consistency_loss,
+    _ssim_terms,
     make_similarity,
     ms_ssim,
+    ms_ssim_pyramid,
     scale_pyramid,
     smoothness_loss,
     ssim,
@@ -48,25 +53,110 @@ ADVERSARIAL: dict[str, Callable[[], tuple[torch.Tensor, torch.Tensor]]] = {
 # ----------------------------------------------------------------------------- SSIM
 
 
+def _plain_window_mean(t: torch.Tensor, kernel_size: int, window: str, padding: str) -> torch.Tensor:
+    """Reference window mean: avg_pool2d (box) or a Gaussian conv, divided by the in-image mass."""
+    pad = kernel_size // 2 if padding == "same" else 0
+    if window == "box":
+        return F.avg_pool2d(t, kernel_size, stride=1, padding=pad, count_include_pad=False)
+    coords = torch.arange(kernel_size, dtype=t.dtype) - kernel_size // 2
+    g = torch.exp(-(coords**2) / (2 * 1.5**2))
+    g2d = (g / g.sum()).outer(g / g.sum()).expand(t.shape[1], 1, kernel_size, kernel_size)
+    out = F.conv2d(t, g2d, padding=pad, groups=t.shape[1])
+    return out / F.conv2d(torch.ones_like(t), g2d, padding=pad, groups=t.shape[1])
+
+
+def _plain_ssim_terms(
+    x: torch.Tensor, y: torch.Tensor, kernel_size: int, window: str, padding: str
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """The SSIM formula written out with autograd: (cs map, SSIM map)."""
+    mean = lambda t: _plain_window_mean(t, kernel_size, window, padding)  # noqa: E731
+    mu_x, mu_y = mean(x), mean(y)
+    var_x, var_y, cov = mean(x * x) - mu_x**2, mean(y * y) - mu_y**2, mean(x * y) - mu_x * mu_y
+    cs = (2 * cov + C2) / (var_x + var_y + C2)
+    return cs, (2 * mu_x * mu_y + C1) / (mu_x**2 + mu_y**2 + C1) * cs
+
+
 @pytest.mark.parametrize("kernel_size", [1, 3, 5, 7, 9, 11])
 @pytest.mark.parametrize("padding", ["valid", "same"])
 @pytest.mark.parametrize("size", [(13, 21), (4, 6)])
-def test_box_window_mean_equals_average_pooling(kernel_size: int, padding: str, size: tuple[int, int]) -> None:
-    """The fast box filter is PyTorch's avg_pool2d (count_include_pad=False), values and gradients."""
-    from msdepth.losses import _window_mean
+@pytest.mark.parametrize("window", ["box", "gaussian"])
+def test_ssim_terms_match_the_plain_formula(kernel_size: int, padding: str, size: tuple[int, int], window: str) -> None:
+    """The fused SSIM terms (hand-written backward) equal autograd through the written-out formula.
 
+    In float64: in float32 both sides carry E[x²] - μ² cancellation noise (for k = 1 the
+    variances are pure noise), which the comparison would measure instead of the formula.
+    """
     if padding == "valid" and min(size) < kernel_size:
         pytest.skip("no valid window")
-    pad = kernel_size // 2 if padding == "same" else 0
-    x = _rand(2, 5, *size).requires_grad_()
-    upstream = _rand(2, 5, *size, seed=9)[..., : size[0] - 2 * (kernel_size // 2 - pad), : size[1] - 2 * (kernel_size // 2 - pad)]
-    ours = _window_mean(x, kernel_size, "box", 1.5, padding)
-    (grad_ours,) = torch.autograd.grad((ours * upstream).sum(), x)
-    ref = torch.nn.functional.avg_pool2d(x, kernel_size, stride=1, padding=pad, count_include_pad=False)
-    (grad_ref,) = torch.autograd.grad((ref * upstream).sum(), x)
-    torch.testing.assert_close(ours, ref, rtol=0, atol=2e-6)
-    torch.testing.assert_close(grad_ours, grad_ref, rtol=0, atol=2e-6)
+    x = _rand(2, 5, *size).double().requires_grad_()
+    y = _noisy(x.detach(), 0.2).requires_grad_()
+    cs, full = _ssim_terms(x, y, kernel_size, window, 1.5, padding, luminance=True)  # type: ignore[arg-type]
+    ref_cs, ref_full = _plain_ssim_terms(x, y, kernel_size, window, padding)
+    torch.testing.assert_close(cs, ref_cs, rtol=0, atol=1e-10)
+    torch.testing.assert_close(full, ref_full, rtol=0, atol=1e-10)
+    up_cs, up_full = _rand(*cs.shape, seed=8).double(), _rand(*cs.shape, seed=9).double()
+    ours = torch.autograd.grad((cs * up_cs + full * up_full).sum(), (x, y))
+    ref = torch.autograd.grad((ref_cs * up_cs + ref_full * up_full).sum(), (x, y))
+    for a, b in zip(ours, ref):
+        torch.testing.assert_close(a, b, rtol=1e-7, atol=1e-8)
+    cs_only = _ssim_terms(x, y, kernel_size, window, 1.5, padding, luminance=False)  # type: ignore[arg-type]
+    assert torch.equal(cs_only, cs)
 
+
+@pytest.mark.parametrize(
+    ("kernel_size", "padding", "size"),
+    [(3, "valid", (5, 7)), (3, "same", (5, 7)), (5, "same", (6, 5)), (7, "same", (4, 6)), (1, "valid", (3, 4))],
+)
+@pytest.mark.parametrize("window", ["box", "gaussian"])
+@pytest.mark.parametrize("luminance", [False, True])
+def test_ssim_terms_gradcheck(kernel_size: int, padding: str, size: tuple[int, int], window: str, luminance: bool) -> None:
+    """float64 gradcheck of the hand-written backward, including images smaller than the window."""
+    x = _rand(2, 2, *size, seed=3).double().requires_grad_()
+    y = _rand(2, 2, *size, seed=4).double().requires_grad_()
+    fn = lambda a, b: _ssim_terms(a, b, kernel_size, window, 1.5, padding, luminance)  # noqa: E731
+    assert torch.autograd.gradcheck(fn, (x, y))
+
+
+def test_ssim_terms_unused_output_and_target_without_gradient() -> None:
+    """Only the SSIM output used, the target constant: same gradient as the plain formula."""
+    x, y = _rand(2, 3, 9, 11).requires_grad_(), _noisy(_rand(2, 3, 9, 11), 0.1)
+    (grad,) = torch.autograd.grad(_ssim_terms(x, y, 3, "box", 1.5, "same", True)[1].sum(), x)
+    (ref,) = torch.autograd.grad(_plain_ssim_terms(x, y, 3, "box", "same")[1].sum(), x)
+    torch.testing.assert_close(grad, ref, rtol=1e-4, atol=1e-5)
+
+
+def test_ssim_terms_chunking_does_not_change_results(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Planes processed a few at a time (a partial last chunk too) give the same values and gradients."""
+    x, y = _rand(3, 3, 20, 30).requires_grad_(), _noisy(_rand(3, 3, 20, 30), 0.1)
+
+    def run() -> tuple[torch.Tensor, ...]:
+        cs, full = _ssim_terms(x, y, 5, "box", 1.5, "same", True)
+        return (cs, full, *torch.autograd.grad((cs + 2 * full).sum(), x))
+
+    whole = run()
+    monkeypatch.setattr(losses, "_CHUNK_ELEMENTS", 4 * 5 * 24 * 34)  # 4 planes per chunk, 9 planes
+    for a, b in zip(whole, run()):
+        assert torch.equal(a, b)
+
+
+@pytest.mark.parametrize("kernel_size", [1, 3, 5, 7, 9, 11, 13, 15])
+def test_box_sum_1d(kernel_size: int) -> None:
+    x = _rand(2, 3, 17, 19).double()
+    before = x.clone()
+    for dim in (-1, -2):
+        expected = x.unfold(dim % 4, kernel_size, 1).sum(-1)
+        torch.testing.assert_close(losses._box_sum_1d(x, kernel_size, dim), expected)
+    assert torch.equal(x, before)
+
+
+@pytest.mark.parametrize("size", [(8, 12), (7, 12), (8, 13), (1, 3)])
+def test_downsample_is_pytorch_msssim_average_pooling(size: tuple[int, int]) -> None:
+    x = _rand(2, 3, *size).requires_grad_()
+    out = losses._downsample(x)
+    ref = F.avg_pool2d(x, 2, padding=[s % 2 for s in size])
+    torch.testing.assert_close(out, ref, rtol=0, atol=1e-7)
+    up = _rand(*out.shape, seed=2)
+    torch.testing.assert_close(torch.autograd.grad((out * up).sum(), x)[0], torch.autograd.grad((ref * up).sum(), x)[0])
 
 
 @pytest.mark.parametrize("padding", ["valid", "reflect"])
@@ -183,6 +273,68 @@ def test_ms_ssim_same_padding_handles_levels_smaller_than_the_window(kernel_size
     assert ((out > 0) & (out <= 1 + 1e-5)).all()
     same = ms_ssim(x, x, kernel_size=kernel_size, levels=4, window=window)
     assert torch.allclose(same, torch.ones(2), atol=1e-5)
+
+
+# ms_ssim(x, y, k, 4) of the implementation before the fused SSIM terms (autograd through
+# box-sum window means and the written-out formula), x = _rand(2, 3, 32, 64), y = _noisy(x, 0.1).
+PREVIOUS_MS_SSIM = {
+    3: [0.9379457831382751, 0.9478519558906555],
+    5: [0.9429200291633606, 0.954171359539032],
+    7: [0.9453763961791992, 0.9553074240684509],
+    11: [0.946058452129364, 0.9563157558441162],
+}
+
+
+@pytest.mark.parametrize("kernel_size", list(PREVIOUS_MS_SSIM))
+def test_ms_ssim_matches_the_previous_implementation(kernel_size: int) -> None:
+    x = _rand(2, 3, 32, 64)
+    out = ms_ssim(x, _noisy(x, 0.1), kernel_size, 4)
+    torch.testing.assert_close(out, torch.tensor(PREVIOUS_MS_SSIM[kernel_size]), rtol=0, atol=5e-6)
+
+
+@pytest.mark.parametrize(
+    "sizes", [[(32, 64), (16, 32), (8, 16), (4, 8)], [(13, 21), (6, 10), (7, 11)], [(9, 9)]]
+)
+@pytest.mark.parametrize("weights", ["wang", "learned"])
+def test_ms_ssim_pyramid_equals_ms_ssim_per_pair(sizes: list[tuple[int, int]], weights: str) -> None:
+    """Batching same-sized levels across pairs changes nothing per image (values and gradients)."""
+    xs = [_rand(2, 3, *size, seed=i).requires_grad_() for i, size in enumerate(sizes)]
+    ys = [_noisy(x.detach(), 0.1, seed=10 + i) for i, x in enumerate(xs)]
+    learned = LearnedLevelWeights(4)
+    with torch.no_grad():
+        learned.logits.copy_(torch.tensor([0.1, -0.3, 0.5, 0.0]))
+
+    def w() -> str | torch.Tensor:
+        return learned() if weights == "learned" else weights
+
+    together = ms_ssim_pyramid(xs, ys, 5, 4, w())
+    separate = torch.stack([ms_ssim(x, y, 5, 4, w()) for x, y in zip(xs, ys)])
+    torch.testing.assert_close(together, separate, rtol=0, atol=1e-7)
+    up = _rand(*together.shape, seed=7)
+    params = [*xs, learned.logits] if weights == "learned" else xs
+    grads = torch.autograd.grad((together * up).sum(), params)
+    ref = torch.autograd.grad((separate * up).sum(), params)
+    for a, b in zip(grads, ref):
+        torch.testing.assert_close(a, b, rtol=1e-6, atol=1e-8)
+
+
+def test_ms_ssim_pyramid_rejects_mismatched_pairs() -> None:
+    with pytest.raises(ValueError, match="same \\(B, C\\)"):
+        ms_ssim_pyramid([torch.zeros(2, 3, 8, 8), torch.zeros(1, 3, 4, 4)], [torch.zeros(2, 3, 8, 8), torch.zeros(1, 3, 4, 4)])
+    with pytest.raises(ValueError, match="as many"):
+        ms_ssim_pyramid([torch.zeros(2, 3, 8, 8)], [])
+
+
+@pytest.mark.parametrize("window", ["box", "gaussian"])
+def test_ms_ssim_stays_float32_under_autocast(window: str) -> None:
+    """Under bf16 autocast the window statistics still run in fp32 (E[x²] - μ² cancels in bf16)."""
+    x = _rand(2, 3, 32, 64)
+    y = _noisy(x, 0.1)
+    expected = ms_ssim(x, y, 11, 4, window=window)  # type: ignore[arg-type]
+    with torch.autocast("cpu", dtype=torch.bfloat16):
+        out = ms_ssim(x, y, 11, 4, window=window)  # type: ignore[arg-type]
+    assert out.dtype == torch.float32
+    torch.testing.assert_close(out, expected, rtol=0, atol=1e-7)
 
 
 def test_ms_ssim_valid_padding_rejects_levels_smaller_than_the_window() -> None:
@@ -361,6 +513,21 @@ def test_monodepth_loss_total_combines_the_terms() -> None:
         for s, (d, l_s, r_s) in enumerate(zip(disps, scale_pyramid(left), scale_pyramid(right)))
     )
     assert torch.allclose(terms["smoothness"], manual)
+
+
+# MonodepthLoss(LossConfig(), appearance, SSIMConfig(), MSSSIMConfig(kernel_size=k))(...)["appearance"]
+# on the disparities of test_monodepth_loss_total_combines_the_terms, before views were batched and
+# the SSIM terms fused.
+PREVIOUS_APPEARANCE = {("ssim", 3): 1.9941600561141968, ("msssim", 3): 1.1224614381790161, ("msssim", 7): 1.1037808656692505}
+
+
+@pytest.mark.parametrize(("appearance", "kernel_size"), list(PREVIOUS_APPEARANCE))
+def test_monodepth_loss_matches_the_previous_implementation(appearance: str, kernel_size: int) -> None:
+    left, right = _stereo_pair(shift=8)
+    disps = [d * (1 + _rand(*d.shape, seed=i)) for i, d in enumerate(_constant_disps(8))]
+    loss = MonodepthLoss(LossConfig(), appearance, SSIMConfig(), MSSSIMConfig(kernel_size=kernel_size))  # type: ignore[arg-type]
+    value = loss(disps, left, right)["appearance"].item()
+    assert value == pytest.approx(PREVIOUS_APPEARANCE[(appearance, kernel_size)], abs=1e-5)
 
 
 def test_monodepth_loss_learned_weights_are_parameters() -> None:
