@@ -57,19 +57,14 @@ class _Window:
         Box: separable sums of shifted views, H then W (see :func:`_box_sum_1d`). Measured on CPU
         (2 threads) at 8x15x64x192 and 2x15x256x512, this beat a separable depthwise
         ``conv2d``, a k x k depthwise ``conv2d`` and ``avg_pool2d`` for every k in 3..11.
+        Gaussian: weighted shifted views likewise (:func:`_symmetric_sum_1d`), 2.5-3x faster
+        than the depthwise ``conv2d`` pair on the chunks :class:`_SSIMTerms` filters (k = 11), and
+        plain elementwise arithmetic, so autocast never lowers its precision.
         """
         k = self.kernel_size
         if self.window == "gaussian":
-            g = _gaussian_1d(k, self.sigma, x.dtype, x.device)
-            n, c = x.shape[:2]
-            # All planes as channels of one image: CPU depthwise conv2d was 4-6x faster on
-            # (1, 30, 256, 512) and (1, 80, 64, 192) than on (6, 5, ...) and (16, 5, ...).
-            planes = x.reshape(1, n * c, *x.shape[2:])
-            # Statistics in the input's precision even under AMP (E[x²] - μ² cancels in bf16).
-            with torch.autocast(x.device.type, enabled=False):
-                planes = F.conv2d(planes, g.view(1, 1, k, 1).expand(n * c, 1, k, 1), groups=n * c)
-                planes = F.conv2d(planes, g.view(1, 1, 1, k).expand(n * c, 1, 1, k), groups=n * c)
-            return planes.view(n, c, *planes.shape[2:])
+            g = _gaussian_1d(k, self.sigma, torch.float64, torch.device("cpu")).tolist()
+            return _symmetric_sum_1d(_symmetric_sum_1d(x, g, -2), g, -1)
         return _box_sum_1d(_box_sum_1d(x, k, -2), k, -1)
 
 
@@ -96,6 +91,17 @@ def _box_sum_1d(x: Tensor, k: int, dim: int) -> Tensor:
     acc = terms.pop()  # the widest partial sum: a fresh tensor (k > 1), safe to add into
     for term in terms:
         acc += term
+    return acc
+
+
+def _symmetric_sum_1d(x: Tensor, weights: list[float], dim: int) -> Tensor:
+    """Valid weighted sum of ``len(weights)`` consecutive entries along ``dim`` for a symmetric
+    window (``weights[i] == weights[-1 - i]``): one scaled copy and k - 1 in-place axpys."""
+    k = len(weights)
+    n, half = x.shape[dim] - k + 1, k // 2
+    acc = x.narrow(dim, half, n) * weights[half]
+    for i in range(half):
+        acc.add_(x.narrow(dim, i, n), alpha=weights[i]).add_(x.narrow(dim, k - 1 - i, n), alpha=weights[i])
     return acc
 
 
