@@ -127,3 +127,29 @@ def test_missing_depth_maps_is_a_data_error_naming_them(tree: Path, tmp_path: Pa
     with pytest.raises(DataError, match=str(outputs / "msssim/seed0/depth.npz")):
         make_figures(RUNS, tmp_path / "figs", **paths, metrics=tree / "metrics",
                      train_plots=tree / "plots/train", eval_cfg=_eval_cfg())
+
+
+def test_training_curves_draw_every_seed_and_name_a_missing_one(tree: Path, tmp_path: Path, monkeypatch):
+    import msdepth.figures as figures_mod
+
+    plots = tmp_path / "plots"
+    shutil.copytree(tree / "plots/train", plots)
+    shutil.copytree(plots / "ssim/seed0", plots / "ssim/seed1")
+    drawn = {}
+    real_save = figures_mod._save
+
+    def keep(fig, path):
+        drawn[path.name] = [[line.get_label() for line in ax.get_lines()] for ax in fig.axes]
+        return real_save(fig, path)
+
+    monkeypatch.setattr(figures_mod, "_save", keep)
+    curves = {"ssim": ["ssim/seed0", "ssim/seed1"], "msssim": ["msssim/seed0"]}
+    make_figures(RUNS, tmp_path / "figs", **_paths(tree), metrics=tree / "metrics", train_plots=plots,
+                 eval_cfg=_eval_cfg(), curves=curves)
+    for labels in drawn["training_curves.png"]:  # per panel: 2 ssim seeds, 1 msssim; one legend entry each
+        assert len(labels) == 3 and labels.count("ssim (2 seeds)") == 1 and labels.count("msssim") == 1
+    missing = plots / "ssim/seed1/plots/metrics/train/total.tsv"
+    missing.unlink()
+    with pytest.raises(DataError, match=str(missing)):
+        make_figures(RUNS, tmp_path / "figs2", **_paths(tree), metrics=tree / "metrics", train_plots=plots,
+                     eval_cfg=_eval_cfg(), curves=curves)

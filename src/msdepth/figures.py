@@ -15,7 +15,8 @@ Files written to ``out_dir`` by :func:`make_figures`:
     GT, others grey) and of each variant's depth, with the mean in each title, as the gradient
     suite computes them (``gt_sobel_x`` / ``pred_sobel_x``).
 ``training_curves.png``
-    Total and appearance loss per epoch of every variant, from the dvclive TSVs.
+    Total and appearance loss per epoch of every variant (of each of its seeds, given
+    ``curves``), from the dvclive TSVs.
 ``error_scatter.png``
     Per-image abs rel (cap ``caps[0]``) of each other variant against the reference variant
     (``ssim`` if present, else the first); only written when there are two or more variants.
@@ -374,16 +375,20 @@ def _curve_path(train_plots: Path, run: str, term: str) -> Path:
     return Path(train_plots) / run / "plots" / "metrics" / "train" / f"{term}.tsv"
 
 
-def _training_figure(runs: dict[str, str], train_plots: Path, path: Path) -> Path:
-    variants = list(runs)
-    curves = {(v, term): _read_curve(_curve_path(train_plots, runs[v], term), term) for v in variants for term in LOSS_TERMS}
+def _training_figure(runs: dict[str, list[str]], train_plots: Path, path: Path) -> Path:
+    """Per variant, one line per run (seed): the first solid and labelled, the others thinner."""
+    curves = {(run, term): _read_curve(_curve_path(train_plots, run, term), term)
+              for group in runs.values() for run in group for term in LOSS_TERMS}
     fig = _new_figure(4.2 * len(LOSS_TERMS), 3.4)
     axes = fig.subplots(1, len(LOSS_TERMS), squeeze=False)[0]
     for ax, term in zip(axes, LOSS_TERMS):
-        for v in variants:
-            df = curves[v, term]
-            # dvclive steps once per epoch, from 0: step k holds the mean loss of epoch k + 1.
-            ax.plot(df["step"] + 1, df[term], marker="o", markersize=3, label=v)
+        for colour, (v, group) in enumerate(runs.items()):
+            for i, run in enumerate(group):
+                df = curves[run, term]
+                # dvclive steps once per epoch, from 0: step k holds the mean loss of epoch k + 1.
+                label = (v if len(group) == 1 else f"{v} ({len(group)} seeds)") if i == 0 else None
+                ax.plot(df["step"] + 1, df[term], color=f"C{colour}", marker="o" if i == 0 else None,
+                        markersize=3, linewidth=1.5 if i == 0 else 0.9, alpha=1.0 if i == 0 else 0.6, label=label)
         ax.set_title(f"{term} loss", fontsize=10)
         ax.set_xlabel("epoch")
         ax.xaxis.set_major_locator(MaxNLocator(integer=True))
@@ -448,11 +453,14 @@ def make_figures(
     train_plots: Path = Path("plots/train"),
     eval_cfg: EvalConfig,
     frames: int = 3,
+    curves: Mapping[str, Sequence[str]] | None = None,
 ) -> list[Path]:
     """Write the figures listed in the module docstring to ``out_dir``; returns their paths.
 
     ``variants``: the runs to draw, as names or as ``{label: run}`` (e.g. ``{"ssim": "ssim/seed0"}``)
     where the run is the path below ``outputs``, ``metrics/<suite>`` and ``train_plots``.
+    ``curves``: the runs whose training curves to draw per label (e.g. every seed's); default
+    each label's own run.
 
     Run from the project root: the evaluation index names images and GT relative to it, as
     every pipeline stage does. Each PNG is written atomically. A missing or malformed input raises one
@@ -464,15 +472,17 @@ def make_figures(
     inp = _load(variants, eval_index, rois, outputs, eval_cfg)
     examples = _roi_examples(inp)
     # Read the remaining inputs up front too (cheap): a missing TSV or CSV fails before drawing.
-    for run in inp.runs.values():
-        for term in LOSS_TERMS:
-            _read_curve(_curve_path(train_plots, run, term), term)
+    curve_runs = {v: list(curves[v]) if curves and v in curves else [run] for v, run in inp.runs.items()}
+    for v, run in inp.runs.items():
+        for curve_run in curve_runs[v]:
+            for term in LOSS_TERMS:
+                _read_curve(_curve_path(train_plots, curve_run, term), term)
         _read_full(metrics, run, cap)
     written = [
         _disparity_figure(inp, frames, out_dir / "disparity.png"),
         _roi_depth_figure(inp, examples, out_dir / "roi_depth.png"),
         _roi_gradient_figure(inp, examples, out_dir / "roi_gradients.png"),
-        _training_figure(inp.runs, train_plots, out_dir / "training_curves.png"),
+        _training_figure(curve_runs, train_plots, out_dir / "training_curves.png"),
     ]
     if len(inp.variants) > 1:
         written.append(_scatter_figure(inp.runs, metrics, cap, out_dir / "error_scatter.png"))

@@ -257,9 +257,11 @@ def figures(params: Params) -> None:
     """The dissertation's figures (disparities, ROI depth and gradients, curves, error scatter)."""
     from .figures import make_figures
 
-    # The first seed's run of each variant: the figures show predictions, not an average of them.
-    runs = {v: runs[0] for v, runs in variant_runs(params).items()}
-    paths = make_figures(runs, Path("plots") / "figures", eval_cfg=params.eval)
+    # The first seed's run of each variant: the figures show predictions, not an average of
+    # them; the training curves show every seed's.
+    groups = variant_runs(params)
+    paths = make_figures({v: runs[0] for v, runs in groups.items()}, Path("plots") / "figures",
+                         eval_cfg=params.eval, curves=groups)
     log.info("figures: %s", ", ".join(p.name for p in paths))
 
 
