@@ -32,7 +32,7 @@ CHILD = textwrap.dedent("""
     def save(obj, f, *a, **k):
         calls[0] += 1
         if mode == "mid_write" and calls[0] == pause_at:
-            Path(f).write_bytes(b"PK half a checkpoint")
+            f.write(b"PK half a checkpoint"); f.flush()
             print("PAUSED", flush=True); time.sleep(600)
         if mode == "after_write" and calls[0] == pause_at + 1:  # checkpoint pause_at is renamed by now
             print("PAUSED", flush=True); time.sleep(600)

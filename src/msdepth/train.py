@@ -110,8 +110,7 @@ def save_checkpoint(path: Path, state: dict) -> None:
     A failed write (disk full, quota) is a TrainingError; the previous checkpoint is untouched.
     """
     try:
-        with atomic_path(path) as tmp:
-            torch.save(state, tmp)
+        _save_atomically(path, state)
     except OSError as exc:
         raise TrainingError(
             f"{path}: cannot write the epoch {state.get('epoch')} checkpoint ({exc}); the previous "
@@ -293,8 +292,14 @@ def save_model(
         "variant": variant,
         "seed": seed,
     }
-    with atomic_path(path) as tmp:
-        torch.save(state, tmp)
+    _save_atomically(path, state)
+
+
+def _save_atomically(path: str | os.PathLike, state: dict) -> None:
+    # Through an open file: torch.save names the zip's root folder after a path it is given (here
+    # the random temp name), so equal weights would give different bytes (and DVC hashes) per run.
+    with atomic_path(path) as tmp, open(tmp, "wb") as f:
+        torch.save(state, f)
 
 
 def load_model(path: str | os.PathLike, device: str | torch.device = "cpu") -> tuple[MonodepthVGG, dict]:
