@@ -134,6 +134,11 @@ def test_killed_repro_reruns_to_identical_results(repo: Path, tmp_path: Path):
         for run in RUNS:
             name = Path("metrics") / suite / f"{run}.json"
             assert (work / name).read_text() == (repo / name).read_text(), name
+    # The training curves too: DVC deleted them before rerunning the stage, which resumed.
+    for run in RUNS[:2]:
+        curves = Path("plots") / "train" / run / "plots" / "metrics" / "train"
+        for tsv in ("total.tsv", "appearance.tsv", "learning_rate.tsv"):
+            assert (work / curves / tsv).read_text() == (repo / curves / tsv).read_text(), curves / tsv
 
 
 def test_kernel_size_change_reruns_only_msssim(repo: Path):

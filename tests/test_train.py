@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -47,7 +48,15 @@ def _weights(path: Path) -> dict[str, torch.Tensor]:
 
 
 def _train(params: Params, pairs, tmp: Path, variant: str = "ssim"):
-    return train_variant(params, variant, pairs, tmp / "model.pt", tmp / "ck.pt", progress=False)
+    return train_variant(params, variant, pairs, tmp / "model.pt", tmp / "ck.pt", progress=False, live_dir=tmp / "live")
+
+
+def _curves(live: Path) -> dict[str, list]:
+    """dvclive's per-epoch TSVs without their wall-clock column."""
+    import pandas as pd
+
+    tsvs = sorted((live / "plots" / "metrics" / "train").glob("*.tsv"))
+    return {p.name: pd.read_csv(p, sep="\t").drop(columns="timestamp", errors="ignore").values.tolist() for p in tsvs}
 
 
 @pytest.mark.parametrize("variant", ["ssim", "msssim"])
@@ -67,6 +76,7 @@ def test_interrupted_run_resumes_to_the_same_weights(pairs, tmp_path: Path, monk
     with pytest.raises(KeyboardInterrupt):
         _train(params, pairs, tmp_path / "b", variant)
     assert not (tmp_path / "b" / "model.pt").exists()
+    shutil.rmtree(tmp_path / "b" / "live")  # DVC deletes a stage's outputs before it reruns it
     monkeypatch.setattr(train_mod, "save_checkpoint", real_save)
     resumed = _train(params, pairs, tmp_path / "b", variant)
 
@@ -75,6 +85,16 @@ def test_interrupted_run_resumes_to_the_same_weights(pairs, tmp_path: Path, monk
     a, b = _weights(tmp_path / "a" / "model.pt"), _weights(tmp_path / "b" / "model.pt")
     for name in a:
         assert torch.equal(a[name], b[name]), name
+    # The curves hold every epoch, the ones before the interruption replayed from the checkpoint.
+    curves = _curves(tmp_path / "a" / "live")
+    assert len(curves["total.tsv"]) == 2 and _curves(tmp_path / "b" / "live") == curves
+    # A rerun that finds the finished checkpoint trains nothing and still writes the whole run.
+    shutil.rmtree(tmp_path / "a" / "live")
+    again = _train(params, pairs, tmp_path / "a", variant)
+    assert again.resumed_from_epoch == 2 and again.seconds_this_run < again.seconds
+    assert 0 < again.seconds - again.seconds_this_run <= full.seconds  # the first run's time, as checkpointed
+    assert again.final_losses == full.final_losses
+    assert _curves(tmp_path / "a" / "live") == curves
 
 
 def test_checkpoint_of_other_params_is_not_resumed(pairs, tmp_path: Path) -> None:
@@ -167,7 +187,7 @@ def test_disk_full_while_checkpointing_keeps_the_previous_checkpoint(pairs, tmp_
         _train(_params(), pairs, tmp_path)
     state = torch.load(tmp_path / "ck.pt", weights_only=False)
     assert state["epoch"] == 1
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["ck.pt"]  # no temp file, no model
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["ck.pt", "live"]  # no temp file, no model
     monkeypatch.setattr(torch, "save", real_save)
     assert _train(_params(), pairs, tmp_path).resumed_from_epoch == 1
 

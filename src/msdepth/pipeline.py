@@ -173,8 +173,8 @@ def train(params: Params, variant: str, seed: str) -> None:
         summary_path=Path("metrics") / "train" / f"{run}.json",
     )
     resumed = f", resumed from epoch {result.resumed_from_epoch}" if result.resumed_from_epoch else ""
-    log.info("train %s: %d steps%s; %.0f s in this run (%.1f examples/s)",
-             run, result.steps, resumed, result.seconds, result.examples_per_second)
+    log.info("train %s: %d steps%s; %.0f s of training, %.0f s in this run (%.1f examples/s)",
+             run, result.steps, resumed, result.seconds, result.seconds_this_run, result.examples_per_second)
 
 
 def infer(params: Params, variant: str, seed: str) -> None:

@@ -45,8 +45,9 @@ class TrainResult:
     steps: int  # in total, including those before a resume
     epochs: int
     resumed_from_epoch: int  # 0 = trained from scratch in this run
-    seconds: float  # of this run
-    examples_per_second: float  # of this run
+    seconds: float  # training time of all epochs, over every run that resumed the checkpoint
+    seconds_this_run: float
+    examples_per_second: float  # over all epochs
     final_losses: dict[str, float]
 
 
@@ -179,7 +180,7 @@ def train_variant(
     fp = fingerprint(params, variant, len(pairs), seed)
 
     checkpoint_path = Path(checkpoint_path)
-    start_epoch, step, history = 0, 0, []
+    start_epoch, step, history, seconds_before = 0, 0, [], 0.0
     if checkpoint_path.exists():
         state = torch.load(checkpoint_path, map_location=device, weights_only=False)
         if state.get("fingerprint") == fp:
@@ -188,6 +189,7 @@ def train_variant(
             optimizer.load_state_dict(state["optimizer"])
             torch.set_rng_state(state["torch_rng"])
             start_epoch, step, history = state["epoch"], state["step"], state["history"]
+            seconds_before = state.get("seconds", 0.0)
             log.info("resuming %s from epoch %d (step %d)", variant, start_epoch, step)
         else:
             log.info("ignoring checkpoint %s: it belongs to other parameters", checkpoint_path)
@@ -196,12 +198,15 @@ def train_variant(
     if live_dir is not None and ctx.main:
         from dvclive import Live
 
-        live = Live(str(live_dir), resume=start_epoch > 0, save_dvc_exp=False, dvcyaml=False)
-        if start_epoch == 0:
-            live.step = 0
+        # Always a fresh log, the epochs of a resumed checkpoint replayed from its history: DVC
+        # deletes a stage's outputs (these curves) before it reruns it, and the curves must not
+        # depend on whether, or where, the run was interrupted.
+        live = Live(str(live_dir), resume=False, save_dvc_exp=False, dvcyaml=False)
+        live.step = 0
+        for entry in history:
+            _log_epoch(live, entry, learning_rate(t.learning_rate, entry["step"] - 1, total_steps))
 
     started = time.perf_counter()
-    examples = 0
     resumed_from = start_epoch
     pin = device.type == "cuda"
     for epoch in range(start_epoch, t.epochs):
@@ -235,17 +240,13 @@ def train_variant(
             optimizer.step()
             step += 1
             batches += 1
-            examples += left.shape[0]
             for k in LOSS_KEYS:
                 sums[k] += float(losses[k].detach())
             bar.set_postfix(loss=f"{sums['total'] / batches:.4f}")
         means = distributed.mean_over_ranks({k: v / max(batches, 1) for k, v in sums.items()}, ctx)
         history.append({"epoch": epoch + 1, "step": step, **means})
         if live is not None:
-            for k, v in means.items():
-                live.log_metric(f"train/{k}", v)
-            live.log_metric("train/learning_rate", learning_rate(t.learning_rate, step - 1, total_steps))
-            live.next_step()
+            _log_epoch(live, history[-1], learning_rate(t.learning_rate, step - 1, total_steps))
         if ctx.main:
             save_checkpoint(checkpoint_path, {
                 "fingerprint": fp,
@@ -256,11 +257,13 @@ def train_variant(
                 "criterion": criterion.state_dict(),
                 "optimizer": optimizer.state_dict(),
                 "torch_rng": torch.get_rng_state(),
+                "seconds": seconds_before + time.perf_counter() - started,
             })
             log.info("%s epoch %d/%d: %s", variant, epoch + 1, t.epochs, json.dumps(means))
     if live is not None:
         live.end()
-    seconds = time.perf_counter() - started
+    this_run = time.perf_counter() - started
+    seconds = seconds_before + this_run
     distributed.check_replicas([model, criterion], ctx)
     if ctx.main:
         save_model(model_path, model, criterion, params, variant, seed)
@@ -271,12 +274,21 @@ def train_variant(
         epochs=t.epochs,
         resumed_from_epoch=resumed_from,
         seconds=seconds,
-        examples_per_second=examples / seconds if seconds > 0 and examples else math.nan,
+        seconds_this_run=this_run,
+        examples_per_second=step * global_batch / seconds if seconds > 0 and step else math.nan,
         final_losses={k: final.get(k, math.nan) for k in LOSS_KEYS},
     )
     if summary_path is not None and ctx.main:
         write_json(summary_path, asdict(result))
     return result
+
+
+def _log_epoch(live, entry: dict, lr: float) -> None:
+    """One epoch's mean losses (a ``history`` entry) and its last learning rate to dvclive."""
+    for k in LOSS_KEYS:
+        live.log_metric(f"train/{k}", entry[k])
+    live.log_metric("train/learning_rate", lr)
+    live.next_step()
 
 
 def save_model(
