@@ -2,16 +2,18 @@
 
     python benchmarks/train_step.py                               # params.yaml's model and size
     python benchmarks/train_step.py --device cuda --width-multiplier 1 --height 256 --width 512
+    python benchmarks/train_step.py --device cuda ... --amp bf16 --channels-last [--compile]
 
 Same model weights, same batch, candidates interleaved; prints time per step and the ratio to
-the SSIM step (the issue's target: MS-SSIM / SSIM <= 1.10 for every kernel size).
+the SSIM step (the issue's target: MS-SSIM / SSIM <= 1.10 for every kernel size), images/s,
+and on CUDA each candidate's peak GPU memory. The step is the training loop's own
+(:func:`msdepth.train.forward_and_loss`: network in autocast when asked, loss in fp32).
 """
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
-import sys
 from pathlib import Path
 
 import torch
@@ -20,6 +22,7 @@ from _timing import compare, device_from, table
 from msdepth.config import load_params
 from msdepth.losses import MonodepthLoss
 from msdepth.model import MonodepthVGG
+from msdepth.train import forward_and_loss
 
 
 def main() -> None:
@@ -32,14 +35,19 @@ def main() -> None:
     ap.add_argument("--width-multiplier", type=float, default=None, help="default: model.width_multiplier")
     ap.add_argument("--kernels", default="3,5,7,11")
     ap.add_argument("--repeats", type=int, default=15)
+    ap.add_argument("--amp", choices=["none", "bf16"], default="none", help="network in bf16 autocast")
+    ap.add_argument("--channels-last", action="store_true")
+    ap.add_argument("--compile", action="store_true", help="torch.compile the network")
     args = ap.parse_args()
     params = load_params(args.params)
     device = device_from(args.device)
     torch.set_num_threads(params.train.threads)
     batch = args.batch or params.train.batch_size
     h, w = args.height or params.data.height, args.width or params.data.width
+    memory_format = torch.channels_last if args.channels_last else torch.contiguous_format
     model = MonodepthVGG(args.width_multiplier or params.model.width_multiplier,
-                         init_disparity=params.model.init_disparity).to(device)
+                         init_disparity=params.model.init_disparity).to(device, memory_format=memory_format)
+    forward = torch.compile(model) if args.compile else model
     optimizer = torch.optim.Adam(model.parameters(), lr=1e-6)  # tiny: weights barely move between repeats
     gen = torch.Generator().manual_seed(0)
     left = torch.rand(batch, 3, h, w, generator=gen).to(device)
@@ -47,7 +55,7 @@ def main() -> None:
 
     def step_with(criterion: MonodepthLoss):
         def step():
-            losses = criterion(model(left), left, right)
+            losses = forward_and_loss(forward, criterion, left, right, args.amp, memory_format)
             optimizer.zero_grad(set_to_none=True)
             losses["total"].backward()
             optimizer.step()
@@ -57,11 +65,23 @@ def main() -> None:
     for k in (int(s) for s in args.kernels.split(",")):
         cfg = dataclasses.replace(params.msssim, kernel_size=k)
         candidates[f"MS-SSIM k{k}"] = step_with(MonodepthLoss(params.loss, "msssim", params.ssim, cfg))
+    peaks = {}
+    if device.type == "cuda":  # one step each from a clean peak, before the timed ones
+        for name, step in candidates.items():
+            step()
+            torch.cuda.synchronize(device)
+            torch.cuda.reset_peak_memory_stats(device)
+            step()
+            torch.cuda.synchronize(device)
+            peaks[name] = torch.cuda.max_memory_allocated(device) / 2**30
     medians = compare(candidates, device, repeats=args.repeats)
+    switches = f"amp {args.amp}, channels_last {args.channels_last}, compile {args.compile}"
     print(f"training step, batch {batch}x3x{h}x{w}, model x{model_width(args, params)}, {device}, "
-          f"{torch.get_num_threads()} threads, median of {args.repeats}\n")
+          f"{torch.get_num_threads()} threads, {switches}, median of {args.repeats}\n")
     print(table(medians, "SSIM k3"))
-    print(f"\nimages/s: " + ", ".join(f"{n} {batch / t:.1f}" for n, t in medians.items()), file=sys.stdout)
+    print("\nimages/s: " + ", ".join(f"{n} {batch / t:.1f}" for n, t in medians.items()))
+    if peaks:
+        print("peak GPU memory (GiB): " + ", ".join(f"{n} {g:.2f}" for n, g in peaks.items()))
 
 
 def model_width(args, params) -> float:

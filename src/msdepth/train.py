@@ -15,6 +15,7 @@ import random
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 import torch
@@ -224,10 +225,7 @@ def train_variant(
                 group["lr"] = learning_rate(t.learning_rate, step, total_steps)
             left = batch["left"].to(device, non_blocking=True)
             right = batch["right"].to(device, non_blocking=True)
-            with torch.autocast(device.type, dtype=torch.bfloat16, enabled=t.amp == "bf16"):
-                disps = forward(left.contiguous(memory_format=memory_format))
-            # SSIM statistics (E[x²] - E[x]²) cancel badly in bf16: the loss runs in fp32.
-            losses = criterion([d.float() for d in disps], left, right)
+            losses = forward_and_loss(forward, criterion, left, right, t.amp, memory_format)
             if not torch.isfinite(losses["total"]):
                 names = [str(dataset.pairs[int(i)][0]) for i in batch["index"]]
                 raise TrainingError(
@@ -281,6 +279,21 @@ def train_variant(
     if summary_path is not None and ctx.main:
         write_json(summary_path, asdict(result))
     return result
+
+
+def forward_and_loss(
+    forward: Callable[[torch.Tensor], list[torch.Tensor]],
+    criterion: MonodepthLoss,
+    left: torch.Tensor,
+    right: torch.Tensor,
+    amp: str = "none",
+    memory_format: torch.memory_format = torch.contiguous_format,
+) -> dict[str, torch.Tensor]:
+    """The network on ``left`` (bf16 autocast with ``amp == "bf16"``, in ``memory_format``) and the
+    loss of its disparities, always in fp32: SSIM's E[x²] - E[x]² cancels badly in bf16."""
+    with torch.autocast(left.device.type, dtype=torch.bfloat16, enabled=amp == "bf16"):
+        disps = forward(left.contiguous(memory_format=memory_format))
+    return criterion([d.float() for d in disps], left, right)
 
 
 def _log_epoch(live, entry: dict, lr: float) -> None:

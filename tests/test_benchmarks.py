@@ -1,0 +1,36 @@
+"""The benchmark scripts still run (tiny sizes, one repeat): CI does not time them, but a broken
+benchmark would only be found when a GPU session needs it."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _run(script: str, *args: str) -> str:
+    proc = subprocess.run([sys.executable, str(ROOT / "benchmarks" / script), *args], cwd=ROOT,
+                          capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    return proc.stdout
+
+
+def test_loss_benchmark_prints_the_ratios_to_pytorch_msssim() -> None:
+    pytest.importorskip("pytorch_msssim")
+    # 176 px: pytorch-msssim's 5-level Gaussian-11 MS-SSIM needs more than 160.
+    out = _run("loss.py", "--batch", "1", "--height", "176", "--width", "176", "--repeats", "1", "--threads", "1")
+    assert "| ours MS-SSIM box k3 L4 |" in out and "| pytorch-msssim ms_ssim |" in out
+    assert "pytorch-msssim / ours (training config, box k3 L4):" in out
+
+
+def test_train_step_benchmark_with_the_speed_switches() -> None:
+    out = _run("train_step.py", "--batch", "1", "--height", "32", "--width", "96", "--width-multiplier", "0.0625",
+               "--kernels", "3,11", "--repeats", "1", "--amp", "bf16", "--channels-last")
+    assert "amp bf16, channels_last True" in out
+    for name in ("SSIM k3", "MS-SSIM k3", "MS-SSIM k11"):
+        assert f"| {name} |" in out
+    assert "images/s:" in out
