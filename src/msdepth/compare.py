@@ -68,6 +68,8 @@ def paired_statistics(
         by_cap = {cap: {run: t[t["cap"] == cap] for run, t in tables[suite].items()} for cap in caps}
         for cap, cap_tables in by_cap.items():
             anchor = cap_tables[groups[cfg.reference][0]]
+            reference = {metric: _unit_matrix(cap_tables, groups[cfg.reference], anchor, keys, metric,
+                                              f"{suite} {cfg.reference}, cap {cap:g}") for metric in METRICS}
             block: dict = {}
             for name, runs in groups.items():
                 if name == cfg.reference:
@@ -75,8 +77,7 @@ def paired_statistics(
                 what = f"{suite} {name} vs {cfg.reference}, cap {cap:g}"
                 block[name] = {
                     metric: seed_bootstrap(
-                        _unit_matrix(cap_tables, runs, anchor, keys, metric, what),
-                        _unit_matrix(cap_tables, groups[cfg.reference], anchor, keys, metric, what),
+                        _unit_matrix(cap_tables, runs, anchor, keys, metric, what), reference[metric],
                         cfg.bootstrap_samples, cfg.confidence, cfg.seed,
                     ).as_dict()
                     for metric in METRICS

@@ -63,7 +63,7 @@ class _Window:
         """
         k = self.kernel_size
         if self.window == "gaussian":
-            g = _gaussian_1d(k, self.sigma, torch.float64, torch.device("cpu")).tolist()
+            g = _gaussian_weights(k, self.sigma)
             return _symmetric_sum_1d(_symmetric_sum_1d(x, g, -2), g, -1)
         return _box_sum_1d(_box_sum_1d(x, k, -2), k, -1)
 
@@ -94,7 +94,7 @@ def _box_sum_1d(x: Tensor, k: int, dim: int) -> Tensor:
     return acc
 
 
-def _symmetric_sum_1d(x: Tensor, weights: list[float], dim: int) -> Tensor:
+def _symmetric_sum_1d(x: Tensor, weights: Sequence[float], dim: int) -> Tensor:
     """Valid weighted sum of ``len(weights)`` consecutive entries along ``dim`` for a symmetric
     window (``weights[i] == weights[-1 - i]``): one scaled copy and k - 1 in-place axpys."""
     k = len(weights)
@@ -106,11 +106,12 @@ def _symmetric_sum_1d(x: Tensor, weights: list[float], dim: int) -> Tensor:
 
 
 @functools.lru_cache(maxsize=128)
-def _gaussian_1d(kernel_size: int, sigma: float, dtype: torch.dtype, device: torch.device) -> Tensor:
-    """Normalised 1-D Gaussian of ``kernel_size`` taps (same as pytorch-msssim's window)."""
-    coords = torch.arange(kernel_size, dtype=dtype, device=device) - kernel_size // 2
+def _gaussian_weights(kernel_size: int, sigma: float) -> tuple[float, ...]:
+    """Normalised 1-D Gaussian of ``kernel_size`` taps (same as pytorch-msssim's window), as the
+    Python floats :func:`_symmetric_sum_1d` scales by; computed in float64, once per window."""
+    coords = torch.arange(kernel_size, dtype=torch.float64) - kernel_size // 2
     g = torch.exp(-(coords**2) / (2 * sigma**2))
-    return g / g.sum()
+    return tuple((g / g.sum()).tolist())
 
 
 @functools.lru_cache(maxsize=128)

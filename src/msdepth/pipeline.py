@@ -56,6 +56,11 @@ def run_name(variant: str, seed: int) -> str:
     return f"{variant}/seed{seed}"
 
 
+def checked_run(params: Params, variant: str, seed: str) -> str:
+    """The run of a stage's ``VARIANT SEED`` arguments, a ConfigError if either is not configured."""
+    return run_name(params.variant(variant), params.seed(seed))
+
+
 def variant_runs(params: Params) -> dict[str, list[str]]:
     """``{variant: [its run of every seed in train.seeds]}``."""
     return {v: [run_name(v, s) for s in params.train.seeds] for v in params.variants}
@@ -153,7 +158,7 @@ def train(params: Params, variant: str, seed: str) -> None:
     """Train one loss variant with one seed; write its model, training summary and dvclive curves."""
     from .train import train_variant
 
-    run = run_name(params.variant(variant), params.seed(seed))
+    run = checked_run(params, variant, seed)
     t = params.train
     if t.launcher == "torchrun" and "LOCAL_RANK" not in os.environ:
         # Re-run this stage under torchrun; its ranks come back here with LOCAL_RANK set.
@@ -169,7 +174,7 @@ def train(params: Params, variant: str, seed: str) -> None:
     images = load_pair_cache(PAIR_CACHE, len(pairs), params.data.height, params.data.width)
     result = train_variant(
         params, variant, pairs, model_path(run), checkpoint_path(run),
-        live_dir=Path("plots") / "train" / run, cache=images, seed=int(seed),
+        live_dir=Path("plots") / "train" / run, cache=images, seed=params.seed(seed),
         summary_path=Path("metrics") / "train" / f"{run}.json",
     )
     resumed = f", resumed from epoch {result.resumed_from_epoch}" if result.resumed_from_epoch else ""
@@ -182,7 +187,7 @@ def infer(params: Params, variant: str, seed: str) -> None:
     from .infer import predict_disparities
     from .train import load_model
 
-    run = run_name(params.variant(variant), params.seed(seed))
+    run = checked_run(params, variant, seed)
     torch_threads(params)
     model, meta = load_model(model_path(run))
     frames = read_eval_index(INDEX_DIR / "eval_frames.csv")
@@ -198,7 +203,7 @@ def torch_threads(params: Params) -> None:
 
 def depth(params: Params, variant: str, seed: str) -> None:
     """Disparities (fraction of width) -> metric depth at each frame's GT resolution."""
-    run = run_name(params.variant(variant), params.seed(seed))
+    run = checked_run(params, variant, seed)
     path = run_dir(run) / "disparities.npy"
     if not path.exists():
         raise DataError(f"{path}: no disparities for run {run!r}")
@@ -222,7 +227,7 @@ def evaluate(params: Params, suite: str, variant: str, seed: str) -> None:
     """Run one evaluation suite on one run's depth maps."""
     if suite not in SUITES:
         raise ConfigError(f"unknown evaluation suite {suite!r}; known: {sorted(SUITES)}")
-    run = run_name(params.variant(variant), params.seed(seed))
+    run = checked_run(params, variant, seed)
     frames = load_frames(read_eval_index(INDEX_DIR / "eval_frames.csv"))
     boxes = kitti.read_rois(INDEX_DIR / "rois.csv") if suite != "full" else None
     _run_suite(params, suite, run, read_depth_maps(run_dir(run) / "depth.npz"), frames, boxes)

@@ -205,7 +205,7 @@ def train_variant(
         live = Live(str(live_dir), resume=False, save_dvc_exp=False, dvcyaml=False)
         live.step = 0
         for entry in history:
-            _log_epoch(live, entry, learning_rate(t.learning_rate, entry["step"] - 1, total_steps))
+            _log_epoch(live, entry, t.learning_rate, total_steps)
 
     started = time.perf_counter()
     resumed_from = start_epoch
@@ -244,7 +244,7 @@ def train_variant(
         means = distributed.mean_over_ranks({k: v / max(batches, 1) for k, v in sums.items()}, ctx)
         history.append({"epoch": epoch + 1, "step": step, **means})
         if live is not None:
-            _log_epoch(live, history[-1], learning_rate(t.learning_rate, step - 1, total_steps))
+            _log_epoch(live, history[-1], t.learning_rate, total_steps)
         if ctx.main:
             save_checkpoint(checkpoint_path, {
                 "fingerprint": fp,
@@ -296,11 +296,11 @@ def forward_and_loss(
     return criterion([d.float() for d in disps], left, right)
 
 
-def _log_epoch(live, entry: dict, lr: float) -> None:
-    """One epoch's mean losses (a ``history`` entry) and its last learning rate to dvclive."""
+def _log_epoch(live, entry: dict, base_lr: float, total_steps: int) -> None:
+    """One epoch's mean losses (a ``history`` entry) and the learning rate of its last step to dvclive."""
     for k in LOSS_KEYS:
         live.log_metric(f"train/{k}", entry[k])
-    live.log_metric("train/learning_rate", lr)
+    live.log_metric("train/learning_rate", learning_rate(base_lr, entry["step"] - 1, total_steps))
     live.next_step()
 
 
