@@ -151,11 +151,13 @@ class _SSIMTerms(torch.autograd.Function):
     ``luminance · cs`` too (returned as ``(cs, ssim)``).
 
     Same values as autograd through window means of (x, y, x², y², xy) and the SSIM formula,
-    with a hand-written backward: the maps' gradients are turned into gradients of the five
-    window means (E[x²] and E[y²] share one), which go through the adjoint window filter
-    together, then ``dx = G_μx + 2x·G_xx + y·G_xy`` (and symmetrically for y). That replaces
-    autograd's ~40 full-size temporaries by a few in-place ops. Image planes (the B·C channels
-    are independent) are processed in cache-sized chunks, forward and backward.
+    with less work: ``cs`` needs only σx² + σy², so x² + y² is filtered as one map (4 window
+    sums, not 5); the hand-written backward turns the maps' gradients into gradients of the
+    window means (E[x² + y²] shared), which go through the adjoint window filter together, then
+    ``dx = G_μx + 2x·G_sq + y·G_xy`` (and symmetrically for y, whose μ map is skipped when y
+    needs no gradient: the target, in training). That replaces autograd's ~40 full-size
+    temporaries by a few in-place ops. Image planes (the B·C channels are independent) are
+    processed in cache-sized chunks, forward and backward.
     """
 
     @staticmethod
@@ -164,12 +166,12 @@ class _SSIMTerms(torch.autograd.Function):
         k, p = win.kernel_size, win.pad
         ho, wo = h + 2 * p - k + 1, w + 2 * p - k + 1
         planes_x, planes_y = x.reshape(b * c, 1, h, w), y.reshape(b * c, 1, h, w)
-        chunk = max(1, _CHUNK_ELEMENTS // (5 * (h + 2 * p) * (w + 2 * p)))
-        buf, inner = _padded(x, min(chunk, b * c), 5, h, w, p)
+        chunk = max(1, _CHUNK_ELEMENTS // (4 * (h + 2 * p) * (w + 2 * p)))
+        buf, inner = _padded(x, min(chunk, b * c), 4, h, w, p)
         mass = _window_mass(win, h, w, x.dtype, x.device)
         # Kept for backward, per plane: μx, μy, 2/(σx² + σy² + C2) and, with the luminance, the
-        # luminance and 1/(μx² + μy² + C1) in slots 3 and 5; slots 2..4 first hold E[x²], E[y²], E[xy].
-        stats = x.new_empty(b * c, 6 if luminance else 5, ho, wo)
+        # luminance and 1/(μx² + μy² + C1) in slots 3 and 4; slots 2, 3 first hold E[x² + y²], E[xy].
+        stats = x.new_empty(b * c, 5 if luminance else 4, ho, wo)
         cs_out = x.new_empty(b * c, 1, ho, wo)
         ssim_out = x.new_empty(b * c, 1, ho, wo) if luminance else None
         for start in range(0, b * c, chunk):
@@ -178,25 +180,20 @@ class _SSIMTerms(torch.autograd.Function):
             into = inner[:n]
             into[:, 0:1].copy_(xc)
             into[:, 1:2].copy_(yc)
-            torch.mul(xc, xc, out=into[:, 2:3])
-            torch.mul(yc, yc, out=into[:, 3:4])
-            torch.mul(xc, yc, out=into[:, 4:5])
+            torch.mul(xc, xc, out=into[:, 2:3]).addcmul_(yc, yc)
+            torch.mul(xc, yc, out=into[:, 3:4])
             st = stats[start : start + n]
-            torch.div(win.sum(buf[:n]), mass, out=st[:, :5])
-            mu_x, mu_y, var_x, var_y, cov = st[:, :5].split(1, dim=1)
-            mu_xy = mu_x * mu_y
-            mu_xx = mu_x * mu_x
-            mu_yy = mu_y * mu_y
-            var_x.sub_(mu_xx)
-            var_y.sub_(mu_yy)
-            denominator = var_x.add_(var_y).add_(C2)
-            cov.sub_(mu_xy).mul_(2).add_(C2)
-            cs = torch.div(cov, denominator, out=cs_out[start : start + n])  # (2·cov + C2) / denominator
+            torch.div(win.sum(buf[:n]), mass, out=st[:, :4])
+            mu_x, mu_y, squares, cov = st[:, :4].split(1, dim=1)
+            # σx² + σy² + C2 and 2·σxy + C2, in place of the means they come from.
+            denominator = squares.addcmul_(mu_x, mu_x, value=-1).addcmul_(mu_y, mu_y, value=-1).add_(C2)
+            numerator = cov.addcmul_(mu_x, mu_y, value=-1).mul_(2).add_(C2)
+            cs = torch.div(numerator, denominator, out=cs_out[start : start + n])
             denominator.reciprocal_().mul_(2)  # slot 2: d cs / d cov
             if ssim_out is not None:
-                luminance_den = mu_xx.add_(mu_yy).add_(C1)
-                lum = torch.div(mu_xy.mul_(2).add_(C1), luminance_den, out=st[:, 3:4])
-                torch.reciprocal(luminance_den, out=st[:, 5:6])
+                luminance_den = torch.mul(mu_x, mu_x).addcmul_(mu_y, mu_y).add_(C1)
+                lum = torch.mul(mu_x, mu_y, out=st[:, 3:4]).mul_(2).add_(C1).div_(luminance_den)
+                torch.reciprocal(luminance_den, out=st[:, 4:5])
                 torch.mul(lum, cs, out=ssim_out[start : start + n])
         ctx.win, ctx.mass, ctx.chunk = win, mass, chunk
         ctx.set_materialize_grads(False)  # an unused output's gradient stays None (skipped)
@@ -215,14 +212,17 @@ class _SSIMTerms(torch.autograd.Function):
         # Views even for mean()'s expanded gradients.
         grad_cs = None if grad_cs is None else grad_cs.reshape(b * c, 1, ho, wo)
         grad_ssim = None if grad_ssim is None else grad_ssim.reshape(b * c, 1, ho, wo)
-        if grad_cs is None and grad_ssim is None:
-            return None, None, None, None
         need_x, need_y = ctx.needs_input_grad[:2]
+        if (grad_cs is None and grad_ssim is None) or not (need_x or need_y):
+            return None, None, None, None
         grad_x = x.new_empty(b * c, 1, h, w) if need_x else None
         grad_y = y.new_empty(b * c, 1, h, w) if need_y else None
+        # Maps through the adjoint filter: dL/dE[xy], dL/dE[x² + y²], then dL/dμ of each input
+        # that needs a gradient.
+        maps = 2 + need_x + need_y
         # The window mean is sum / mass, so its adjoint is the sum over (grad / mass), zero-padded
         # so that the valid sum returns the input's size (the window is symmetric: no flip).
-        buf, inner = _padded(x, min(chunk, b * c), 4, ho, wo, win.kernel_size - 1 - win.pad)
+        buf, inner = _padded(x, min(chunk, b * c), maps, ho, wo, win.kernel_size - 1 - win.pad)
         for start in range(0, b * c, chunk):
             st = stats[start : start + chunk]
             n = st.shape[0]
@@ -230,7 +230,7 @@ class _SSIMTerms(torch.autograd.Function):
             mu_x, mu_y, a, cs = st[:, 0:1], st[:, 1:2], st[:, 2:3], cs_all[start:stop]
             g_lum = None
             if grad_ssim is not None:
-                lum, inv_luminance_den = st[:, 3:4], st[:, 5:6]
+                lum, inv_luminance_den = st[:, 3:4], st[:, 4:5]
                 g_ssim = grad_ssim[start:stop] / mass
                 g_lum = g_ssim * cs
                 g = g_ssim.mul_(lum)  # d ssim / d cs = luminance
@@ -238,23 +238,24 @@ class _SSIMTerms(torch.autograd.Function):
                     g += grad_cs[start:stop] / mass
             else:
                 g = grad_cs[start:stop] / mass  # type: ignore[index]
-            d_xy, d_sq, d_mx, d_my = inner[:n].split(1, dim=1)
+            d_xy, d_sq, *d_mu_maps = inner[:n].split(1, dim=1)
             torch.mul(g, a, out=d_xy)  # dL/dE[xy]
-            torch.mul(d_xy, cs, out=d_sq).mul_(-0.5)  # dL/dE[x²] = dL/dE[y²] = -g·cs/denominator
-            # dL/dμx = -(dL/dE[xy]·μy + 2·dL/dE[x²]·μx), and symmetrically for μy.
-            torch.mul(d_xy, mu_y, out=d_mx).addcmul_(d_sq, mu_x, value=2).neg_()
-            torch.mul(d_xy, mu_x, out=d_my).addcmul_(d_sq, mu_y, value=2).neg_()
+            torch.mul(d_xy, cs, out=d_sq).mul_(-0.5)  # dL/dE[x² + y²] = -g·cs/denominator
             if g_lum is not None:
-                # d luminance / dμx = 2·(μy - luminance·μx) / (μx² + μy² + C1), and symmetrically.
                 g_lum.mul_(inv_luminance_den).mul_(2)
-                d_mx.addcmul_(g_lum, torch.addcmul(mu_y, lum, mu_x, value=-1))
-                d_my.addcmul_(g_lum, torch.addcmul(mu_x, lum, mu_y, value=-1))
-            g_xy, g_sq, g_mx, g_my = win.sum(buf[:n]).split(1, dim=1)
             xc, yc = planes_x[start:stop], planes_y[start:stop]
-            if grad_x is not None:
-                torch.addcmul(g_mx, xc, g_sq, value=2, out=grad_x[start:stop]).addcmul_(yc, g_xy)
-            if grad_y is not None:
-                torch.addcmul(g_my, yc, g_sq, value=2, out=grad_y[start:stop]).addcmul_(xc, g_xy)
+            # (input, the other input, own μ, other μ, gradient rows) of each input that needs one.
+            wanted = [(xc, yc, mu_x, mu_y, grad_x), (yc, xc, mu_y, mu_x, grad_y)]
+            wanted = [item for item in wanted if item[-1] is not None]
+            for d_mu, (_, _, mu_own, mu_other, _) in zip(d_mu_maps, wanted):
+                # dL/dμx = -(dL/dE[xy]·μy + 2·dL/dE[x² + y²]·μx), and symmetrically for μy; the
+                # luminance adds 2·g·(μy - luminance·μx) / (μx² + μy² + C1).
+                torch.mul(d_xy, mu_other, out=d_mu).addcmul_(d_sq, mu_own, value=2).neg_()
+                if g_lum is not None:
+                    d_mu.addcmul_(g_lum, torch.addcmul(mu_other, lum, mu_own, value=-1))
+            g_xy, g_sq, *g_mu = win.sum(buf[:n]).split(1, dim=1)
+            for g_mu_i, (own, other, _, _, grad) in zip(g_mu, wanted):
+                torch.addcmul(g_mu_i, own, g_sq, value=2, out=grad[start:stop]).addcmul_(other, g_xy)
         return _unplane(grad_x, x), _unplane(grad_y, y), None, None
 
 
