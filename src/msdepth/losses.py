@@ -442,16 +442,18 @@ def ms_ssim_pyramid(
             # At most one pair ends per round, the oldest active one: first in its group. Only
             # its coarsest level needs the luminance term.
             ends = round_ - pairs[0] == levels - 1
+            # Means are taken over every row and sliced afterwards: slicing a map first would give
+            # its backward a zero-filled full-size gradient per slice.
             if ends:
                 cs, full = _ssim_terms(x, y, kernel_size, window, sigma, padding, luminance=True)
-                values[pairs[0]].append(full[:batch].flatten(2).mean(-1))
+                values[pairs[0]].append(full.flatten(2).mean(-1)[:batch])
             else:
                 cs = _ssim_terms(x, y, kernel_size, window, sigma, padding, luminance=False)
             going_on = pairs[1:] if ends else pairs
             if not going_on:
                 continue
-            cs_means = cs[len(pairs) * batch - len(going_on) * batch :].flatten(2).mean(-1).split(batch)
             skip = (len(pairs) - len(going_on)) * batch
+            cs_means = cs.flatten(2).mean(-1)[skip:].split(batch)
             x, y = _downsample(x[skip:]).split(batch), _downsample(y[skip:]).split(batch)
             for j, i in enumerate(going_on):
                 values[i].append(cs_means[j])
@@ -486,10 +488,10 @@ class _Halve(torch.autograd.Function):
     @staticmethod
     @torch.autograd.function.once_differentiable
     def backward(ctx, grad: Tensor) -> Tensor:  # type: ignore[override]
-        # Each input pixel gets a quarter of its block's gradient.
+        # Each input pixel gets a quarter of its block's gradient (one pass, into a fresh tensor).
         b, c, h, w = grad.shape
-        quarter = (grad * 0.25).view(b, c, h, 1, w, 1)
-        return quarter.expand(b, c, h, 2, w, 2).reshape(b, c, 2 * h, 2 * w)
+        blocks = grad.reshape(b, c, h, 1, w, 1).expand(b, c, h, 2, w, 2)
+        return torch.mul(blocks, 0.25).view(b, c, 2 * h, 2 * w)
 
 
 class LearnedLevelWeights(nn.Module):
