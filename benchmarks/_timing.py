@@ -1,14 +1,16 @@
 """Side-by-side timing for the benchmarks: warm-up excluded, candidates interleaved, medians.
 
 Interleaving (A, B, C, A, B, C, ...) rather than timing each candidate in a block means that
-a noisy neighbour or a CPU frequency change affects every candidate alike, so the printed
-*ratios* are meaningful even when absolute times drift.
+a noisy neighbour or a CPU frequency change affects every candidate alike. Ratios are taken
+per round (candidate / baseline, both timed in the same round) and summarised by their median
+and interquartile range, so drift between rounds cancels and the spread that remains is shown.
 """
 
 from __future__ import annotations
 
 import statistics
 import time
+from dataclasses import dataclass
 from typing import Callable
 
 import torch
@@ -19,10 +21,31 @@ def sync(device: torch.device) -> None:
         torch.cuda.synchronize(device)
 
 
+@dataclass(frozen=True)
+class Timings:
+    """Seconds per call of each candidate, one entry per interleaved round."""
+
+    rounds: dict[str, list[float]]
+
+    def median(self, name: str) -> float:
+        return statistics.median(self.rounds[name])
+
+    def medians(self) -> dict[str, float]:
+        return {name: self.median(name) for name in self.rounds}
+
+    def ratio(self, name: str, baseline: str) -> tuple[float, float, float]:
+        """Median, 25th and 75th percentile of the per-round ratio ``name / baseline``."""
+        ratios = sorted(a / b for a, b in zip(self.rounds[name], self.rounds[baseline]))
+        if len(ratios) < 2:
+            return ratios[0], ratios[0], ratios[0]
+        p25, _, p75 = statistics.quantiles(ratios, n=4, method="inclusive")
+        return statistics.median(ratios), p25, p75
+
+
 def compare(
     candidates: dict[str, Callable[[], object]], device: torch.device, repeats: int = 20, warmup: int = 3
-) -> dict[str, float]:
-    """Median seconds per call of each candidate, measured interleaved."""
+) -> Timings:
+    """Time every candidate ``repeats`` times, interleaved, after ``warmup`` untimed calls each."""
     for fn in candidates.values():
         for _ in range(warmup):
             fn()
@@ -35,14 +58,15 @@ def compare(
             fn()
             sync(device)
             times[name].append(time.perf_counter() - start)
-    return {name: statistics.median(t) for name, t in times.items()}
+    return Timings(times)
 
 
-def table(medians: dict[str, float], baseline: str, unit_scale: float = 1e3, unit: str = "ms") -> str:
-    """Markdown table: median time and speed relative to ``baseline`` (>1 = faster than it)."""
-    rows = [f"| candidate | median {unit} | time / {baseline} |", "|---|---|---|"]
-    for name, t in medians.items():
-        rows.append(f"| {name} | {t * unit_scale:.2f} | {t / medians[baseline]:.3f} |")
+def table(timings: Timings, baseline: str, unit_scale: float = 1e3, unit: str = "ms") -> str:
+    """Markdown table: median time, and the per-round time ratio to ``baseline`` (median [IQR])."""
+    rows = [f"| candidate | median {unit} | time / {baseline} | IQR of the ratio |", "|---|---|---|---|"]
+    for name in timings.rounds:
+        mid, low, high = timings.ratio(name, baseline)
+        rows.append(f"| {name} | {timings.median(name) * unit_scale:.2f} | {mid:.3f} | {low:.3f}-{high:.3f} |")
     return "\n".join(rows)
 
 

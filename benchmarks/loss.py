@@ -69,14 +69,16 @@ def main() -> None:
     gen = torch.Generator().manual_seed(0)
     x = torch.rand(batch, 3, args.height, args.width, generator=gen).to(device).requires_grad_()
     y = (x.detach() + 0.1 * torch.randn(x.shape, generator=gen).to(device)).clamp(0, 1)
-    medians = compare(candidates(x, y), device, repeats=args.repeats)
+    timings = compare(candidates(x, y), device, repeats=args.repeats)
     print(f"loss forward+backward, {batch}x3x{args.height}x{args.width}, {device}, "
           f"{torch.get_num_threads()} threads, median of {args.repeats}\n")
-    print(table(medians, "ours SSIM k3"))
-    if "pytorch-msssim ms_ssim" in medians:
-        ref = medians["pytorch-msssim ms_ssim"]
-        print(f"\npytorch-msssim / ours (same config, gauss11 L5): {ref / medians['ours MS-SSIM gauss11 L5']:.2f}x")
-        print(f"pytorch-msssim / ours (training config, box k3 L4): {ref / medians['ours MS-SSIM box k3 L4']:.2f}x")
+    print(table(timings, "ours SSIM k3"))
+    if "pytorch-msssim ms_ssim" in timings.rounds:
+        print()
+        for config, ours in (("same config", "ours MS-SSIM gauss11 L5"), ("training config", "ours MS-SSIM box k3 L4")):
+            mid, low, high = timings.ratio("pytorch-msssim ms_ssim", ours)
+            print(f"pytorch-msssim / ours ({config}, {ours.removeprefix('ours MS-SSIM ')}): "
+                  f"{mid:.2f}x (IQR {low:.2f}-{high:.2f})")
 
 
 if __name__ == "__main__":

@@ -74,12 +74,12 @@ def main() -> None:
             step()
             torch.cuda.synchronize(device)
             peaks[name] = torch.cuda.max_memory_allocated(device) / 2**30
-    medians = compare(candidates, device, repeats=args.repeats)
+    timings = compare(candidates, device, repeats=args.repeats)
     switches = f"amp {args.amp}, channels_last {args.channels_last}, compile {args.compile}"
     print(f"training step, batch {batch}x3x{h}x{w}, model x{model_width(args, params)}, {device}, "
           f"{torch.get_num_threads()} threads, {switches}, median of {args.repeats}\n")
-    print(table(medians, "SSIM k3"))
-    print("\nimages/s: " + ", ".join(f"{n} {batch / t:.1f}" for n, t in medians.items()))
+    print(table(timings, "SSIM k3"))
+    print("\nimages/s: " + ", ".join(f"{n} {batch / t:.1f}" for n, t in timings.medians().items()))
     if peaks:
         print("peak GPU memory (GiB): " + ", ".join(f"{n} {g:.2f}" for n, g in peaks.items()))
 

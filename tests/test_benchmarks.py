@@ -34,3 +34,18 @@ def test_train_step_benchmark_with_the_speed_switches() -> None:
     for name in ("SSIM k3", "MS-SSIM k3", "MS-SSIM k11"):
         assert f"| {name} |" in out
     assert "images/s:" in out
+
+
+def test_ratios_are_paired_within_rounds() -> None:
+    """Each round's candidate is divided by the same round's baseline, so drift between rounds
+    (here the baseline slows down 8x) does not enter the ratio; the IQR shows the rest."""
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    try:
+        from _timing import Timings, table
+    finally:
+        sys.path.remove(str(ROOT / "benchmarks"))
+    timings = Timings({"base": [1.0, 2.0, 4.0, 8.0], "cand": [1.1, 2.4, 4.4, 8.8]})
+    mid, low, high = timings.ratio("cand", "base")
+    assert mid == pytest.approx(1.1) and low == pytest.approx(1.1) and high == pytest.approx(1.125)
+    assert timings.ratio("base", "base") == (1.0, 1.0, 1.0)
+    assert "| cand | 3400.00 | 1.100 | 1.100-1.125 |" in table(timings, "base")

@@ -103,6 +103,37 @@ def test_checkpoint_of_other_params_is_not_resumed(pairs, tmp_path: Path) -> Non
     assert other.resumed_from_epoch == 0
 
 
+def test_checkpoint_of_other_training_code_is_not_resumed(pairs, tmp_path: Path, monkeypatch) -> None:
+    """A code change that makes DVC rerun the stage trains anew (the model then matches the code)."""
+    _train(_params(epochs=1), pairs, tmp_path)
+    assert _train(_params(epochs=1), pairs, tmp_path).resumed_from_epoch == 1  # same code: resumed
+    monkeypatch.setattr(train_mod, "code_digest", lambda: "edited losses.py")
+    assert _train(_params(epochs=1), pairs, tmp_path).resumed_from_epoch == 0
+
+
+def test_code_digest_covers_the_train_stage_source_deps(tmp_path: Path, monkeypatch) -> None:
+    import yaml
+
+    stage = yaml.safe_load((Path(__file__).resolve().parents[1] / "dvc.yaml").read_text())["stages"]["train"]
+    src = sorted(d.removeprefix("src/msdepth/") for d in stage["deps"] if d.startswith("src/msdepth/"))
+    assert src == sorted(train_mod.TRAINING_MODULES)
+    # Every listed file's bytes count.
+    package, real = Path(train_mod.__file__).resolve().parent, train_mod.code_digest()
+    fake = tmp_path / "msdepth"
+    for name in train_mod.TRAINING_MODULES:
+        (fake / name).parent.mkdir(parents=True, exist_ok=True)
+        (fake / name).write_bytes((package / name).read_bytes())
+    monkeypatch.setattr(train_mod, "__file__", str(fake / "train.py"))
+    before = train_mod.code_digest()
+    assert before == real  # the same bytes elsewhere: the same digest
+    for name in train_mod.TRAINING_MODULES:
+        original = (fake / name).read_bytes()
+        (fake / name).write_bytes(original + b"# edited\n")
+        assert train_mod.code_digest() != before, name
+        (fake / name).write_bytes(original)
+    assert train_mod.code_digest() == before
+
+
 def test_non_finite_loss_stops_with_step_and_files(pairs, tmp_path: Path, monkeypatch) -> None:
     real_forward = train_mod.MonodepthLoss.forward
     calls = {"n": 0}

@@ -88,10 +88,27 @@ def learning_rate(base: float, step: int, total_steps: int) -> float:
     return base / 4
 
 
+# The modules whose code shapes a training run (the train stage's src/ deps in dvc.yaml; a test
+# keeps the two lists equal). Their bytes are part of the checkpoint fingerprint: when DVC reruns
+# the stage because one of them changed, the run trains anew instead of resuming a checkpoint
+# that the old code wrote, so a model always comes from the code that is committed with it.
+TRAINING_MODULES = ("train.py", "model.py", "losses.py", "warp.py", "data/pairs.py")
+
+
+def code_digest() -> str:
+    """Hash of the source of :data:`TRAINING_MODULES`."""
+    root, digest = Path(__file__).resolve().parent, hashlib.sha256()
+    for name in TRAINING_MODULES:
+        digest.update(name.encode() + b"\0" + (root / name).read_bytes() + b"\0")
+    return digest.hexdigest()[:16]
+
+
 def fingerprint(params: Params, variant: str, num_pairs: int, seed: int) -> str:
-    """Hash of everything that shapes the training run, so a checkpoint is only resumed by its own run."""
+    """Hash of everything that shapes the training run, so a checkpoint is only resumed by its own
+    run: parameters, seed, data size and the training code (:func:`code_digest`)."""
     appearance = params.variant(variant)
     relevant = {
+        "code": code_digest(),
         "seed": seed,
         "data": [params.data.height, params.data.width, num_pairs],
         "model": asdict(params.model),
@@ -193,7 +210,7 @@ def train_variant(
             seconds_before = state.get("seconds", 0.0)
             log.info("resuming %s from epoch %d (step %d)", variant, start_epoch, step)
         else:
-            log.info("ignoring checkpoint %s: it belongs to other parameters", checkpoint_path)
+            log.info("ignoring checkpoint %s: it belongs to other parameters or training code", checkpoint_path)
 
     live = None
     if live_dir is not None and ctx.main:
