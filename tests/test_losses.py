@@ -117,6 +117,16 @@ def test_ssim_terms_gradcheck(kernel_size: int, padding: str, size: tuple[int, i
     assert torch.autograd.gradcheck(fn, (x, y))
 
 
+@pytest.mark.parametrize("needs", ["x", "y"])
+@pytest.mark.parametrize("luminance", [False, True])
+def test_ssim_terms_gradcheck_one_input(needs: str, luminance: bool) -> None:
+    """Only one input needs a gradient: the backward then filters its μ map alone."""
+    x = _rand(2, 2, 7, 9, seed=3).double().requires_grad_(needs == "x")
+    y = _rand(2, 2, 7, 9, seed=4).double().requires_grad_(needs == "y")
+    fn = lambda a, b: _ssim_terms(a, b, 5, "box", 1.5, "same", luminance)  # noqa: E731
+    assert torch.autograd.gradcheck(fn, (x, y))
+
+
 def test_ssim_terms_unused_output_and_target_without_gradient() -> None:
     """Only the SSIM output used, the target constant: same gradient as the plain formula."""
     x, y = _rand(2, 3, 9, 11).requires_grad_(), _noisy(_rand(2, 3, 9, 11), 0.1)
