@@ -9,6 +9,7 @@ equals the single-process gradient (no batch norm in the model).
 from __future__ import annotations
 
 import datetime
+import gc
 import os
 from dataclasses import dataclass
 from typing import Iterator
@@ -55,9 +56,19 @@ def setup(device: torch.device, timeout_s: float) -> tuple[Context, torch.device
 
 
 def teardown() -> None:
-    """Leave the process group (if this process joined one)."""
+    """Leave the process group (if this process joined one), once every rank is done with it.
+
+    The barrier keeps a rank from tearing its connections down while another still works (rank
+    0 saves the model last). ``gc.collect()`` then frees what still holds the group (a dropped
+    DDP wrapper's reducer sits in reference cycles), so gloo's threads stop while the interpreter
+    is alive: left to interpreter exit, their teardown can abort a process whose work is done
+    (seen once in CI: SIGABRT, "terminate called without an active exception", after training).
+    """
     if dist.is_initialized():
+        dist.barrier()
+        gc.collect()
         dist.destroy_process_group()
+        gc.collect()
 
 
 class GlobalBatchSampler(Sampler[int]):

@@ -282,6 +282,7 @@ def train_variant(
     distributed.check_replicas([model, criterion], ctx)
     if ctx.main:
         save_model(model_path, model, criterion, params, variant, seed)
+    del forward  # the DDP wrapper holds the process group: let teardown() free it
     distributed.teardown()
     final = history[-1] if history else {}
     result = TrainResult(
