@@ -3,6 +3,7 @@
     python benchmarks/train_step.py                               # params.yaml's model and size
     python benchmarks/train_step.py --device cuda --width-multiplier 1 --height 256 --width 512
     python benchmarks/train_step.py --device cuda ... --amp bf16 --channels-last [--compile]
+    python benchmarks/train_step.py --loss-only                   # the loss alone, on the network's output
 
 Same model weights, same batch, candidates interleaved; prints time per step and the ratio to
 the SSIM step (the issue's target: MS-SSIM / SSIM <= 1.10 for every kernel size), images/s,
@@ -38,6 +39,8 @@ def main() -> None:
     ap.add_argument("--amp", choices=["none", "bf16"], default="none", help="network in bf16 autocast")
     ap.add_argument("--channels-last", action="store_true")
     ap.add_argument("--compile", action="store_true", help="torch.compile the network")
+    ap.add_argument("--loss-only", action="store_true",
+                    help="time the loss alone (forward+backward) on the network's disparities, computed once")
     args = ap.parse_args()
     params = load_params(args.params)
     device = device_from(args.device)
@@ -53,13 +56,20 @@ def main() -> None:
     left = torch.rand(batch, 3, h, w, generator=gen).to(device)
     right = torch.roll(left, shifts=-3, dims=-1)
 
+    with torch.no_grad():
+        disps = [d.float() for d in forward(left.contiguous(memory_format=memory_format))]
+
     def step_with(criterion: MonodepthLoss):
         def step():
             losses = forward_and_loss(forward, criterion, left, right, args.amp, memory_format)
             optimizer.zero_grad(set_to_none=True)
             losses["total"].backward()
             optimizer.step()
-        return step
+
+        def loss_step():
+            # Fresh leaves each call: the loss and its gradient down to the disparities, no network.
+            criterion([d.detach().requires_grad_() for d in disps], left, right)["total"].backward()
+        return loss_step if args.loss_only else step
 
     candidates = {"SSIM k3": step_with(MonodepthLoss(params.loss, "ssim", params.ssim, params.msssim))}
     for k in (int(s) for s in args.kernels.split(",")):
@@ -76,7 +86,8 @@ def main() -> None:
             peaks[name] = torch.cuda.max_memory_allocated(device) / 2**30
     timings = compare(candidates, device, repeats=args.repeats)
     switches = f"amp {args.amp}, channels_last {args.channels_last}, compile {args.compile}"
-    print(f"training step, batch {batch}x3x{h}x{w}, model x{model_width(args, params)}, {device}, "
+    what = "loss forward+backward only" if args.loss_only else "training step"
+    print(f"{what}, batch {batch}x3x{h}x{w}, model x{model_width(args, params)}, {device}, "
           f"{torch.get_num_threads()} threads, {switches}, median of {args.repeats}\n")
     print(table(timings, "SSIM k3"))
     print("\nimages/s: " + ", ".join(f"{n} {batch / t:.1f}" for n, t in timings.medians().items()))

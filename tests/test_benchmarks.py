@@ -36,6 +36,13 @@ def test_train_step_benchmark_with_the_speed_switches() -> None:
     assert "images/s:" in out
 
 
+def test_train_step_benchmark_loss_only() -> None:
+    out = _run("train_step.py", "--batch", "1", "--height", "32", "--width", "96", "--width-multiplier", "0.0625",
+               "--kernels", "11", "--repeats", "1", "--loss-only")
+    assert out.startswith("loss forward+backward only, batch 1x3x32x96")
+    assert "| MS-SSIM k11 |" in out
+
+
 def test_ratios_are_paired_within_rounds() -> None:
     """Each round's candidate is divided by the same round's baseline, so drift between rounds
     (here the baseline slows down 8x) does not enter the ratio; the IQR shows the rest."""
