@@ -56,8 +56,9 @@ def main() -> None:
     left = torch.rand(batch, 3, h, w, generator=gen).to(device)
     right = torch.roll(left, shifts=-3, dims=-1)
 
-    with torch.no_grad():
-        disps = [d.float() for d in forward(left.contiguous(memory_format=memory_format))]
+    if args.loss_only:  # once, with the plain network: a compiled one would compile a no-grad graph too
+        with torch.no_grad():
+            disps = [d.float() for d in model(left.contiguous(memory_format=memory_format))]
 
     def step_with(criterion: MonodepthLoss):
         def step():
