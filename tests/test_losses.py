@@ -152,6 +152,18 @@ def test_ssim_terms_chunking_does_not_change_results(monkeypatch: pytest.MonkeyP
         assert torch.equal(a, b)
 
 
+def test_ssim_terms_chunk_only_on_the_cpu() -> None:
+    """Cache-sized chunks on the CPU; on a GPU every plane at once (each chunk is ~70 kernel
+    launches, and at the seed's 256x512 the CPU budget would be one plane per chunk)."""
+    per_plane = 4 * 258 * 514  # four padded maps of a 256x512 image, 3x3 window
+    assert losses._planes_per_chunk(torch.device("cpu"), 48, per_plane) == 1
+    assert losses._planes_per_chunk(torch.device("cpu"), 48, 4 * 66 * 194) == 10
+    assert losses._planes_per_chunk(torch.device("cpu"), 3, 4 * 66 * 194) == 3
+    assert losses._planes_per_chunk(torch.device("cuda"), 48, per_plane) == 48
+    # Bounded on the GPU too: about 1 GiB of fp32 maps per chunk.
+    assert losses._planes_per_chunk(torch.device("cuda"), 10_000, per_plane) == (1 << 28) // per_plane
+
+
 @pytest.mark.parametrize("kernel_size", [1, 3, 5, 7, 9, 11, 13, 15])
 def test_box_sum_1d(kernel_size: int) -> None:
     x = _rand(2, 3, 17, 19).double()

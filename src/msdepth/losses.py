@@ -139,11 +139,20 @@ def _padded(like: Tensor, batch: int, channels: int, h: int, w: int, pad: int) -
     return buf, buf[..., pad : pad + h, pad : pad + w]
 
 
-# Image planes per chunk of :class:`_SSIMTerms` are chosen so that the five padded moment maps
-# hold about this many elements (2 MiB in fp32). Measured on the 2-core CPU (8x2 images of
-# 3x64x192, fwd+bwd at level 0): working on 2-4 images at a time instead of all 16 made the
-# map 3x faster, because the ~10 passes over the moment maps then stay in cache.
+# Image planes per chunk of :class:`_SSIMTerms` are chosen so that the padded moment maps hold
+# about this many elements. CPU: 2^19 (2 MiB in fp32). Measured on the 2-core CPU (8x2 images of
+# 3x64x192, fwd+bwd at level 0): working on 2-4 images at a time instead of all 16 made the map
+# 3x faster, because the ~10 passes over the moment maps then stay in cache. Other devices
+# (CUDA): 2^28, in effect every plane at once up to a 1 GiB bound; each chunk costs ~70 kernel
+# launches, and at 256x512 the CPU budget would mean one plane per chunk, 48 chunks per call.
 _CHUNK_ELEMENTS = 1 << 19
+_CHUNK_ELEMENTS_OTHER_DEVICES = 1 << 28
+
+
+def _planes_per_chunk(device: torch.device, planes: int, elements_per_plane: int) -> int:
+    """How many of ``planes`` image planes :class:`_SSIMTerms` processes at a time."""
+    budget = _CHUNK_ELEMENTS if device.type == "cpu" else _CHUNK_ELEMENTS_OTHER_DEVICES
+    return max(1, min(planes, budget // elements_per_plane))
 
 
 class _SSIMTerms(torch.autograd.Function):
@@ -166,8 +175,8 @@ class _SSIMTerms(torch.autograd.Function):
         k, p = win.kernel_size, win.pad
         ho, wo = h + 2 * p - k + 1, w + 2 * p - k + 1
         planes_x, planes_y = x.reshape(b * c, 1, h, w), y.reshape(b * c, 1, h, w)
-        chunk = max(1, _CHUNK_ELEMENTS // (4 * (h + 2 * p) * (w + 2 * p)))
-        buf, inner = _padded(x, min(chunk, b * c), 4, h, w, p)
+        chunk = _planes_per_chunk(x.device, b * c, 4 * (h + 2 * p) * (w + 2 * p))
+        buf, inner = _padded(x, chunk, 4, h, w, p)
         mass = _window_mass(win, h, w, x.dtype, x.device)
         # Kept for backward, per plane: μx, μy, 2/(σx² + σy² + C2) and, with the luminance, the
         # luminance and 1/(μx² + μy² + C1) in slots 3 and 4; slots 2, 3 first hold E[x² + y²], E[xy].
@@ -222,7 +231,7 @@ class _SSIMTerms(torch.autograd.Function):
         maps = 2 + need_x + need_y
         # The window mean is sum / mass, so its adjoint is the sum over (grad / mass), zero-padded
         # so that the valid sum returns the input's size (the window is symmetric: no flip).
-        buf, inner = _padded(x, min(chunk, b * c), maps, ho, wo, win.kernel_size - 1 - win.pad)
+        buf, inner = _padded(x, chunk, maps, ho, wo, win.kernel_size - 1 - win.pad)
         for start in range(0, b * c, chunk):
             st = stats[start : start + chunk]
             n = st.shape[0]
