@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -88,6 +90,46 @@ def test_gradcheck_disparity() -> None:
     # Keep sample points off integer pixels, where bilinear interpolation has a kink.
     disp = ((torch.rand(1, 1, 3, 9, dtype=torch.float64) * 0.6 + 0.2 + 1.0) / 9).requires_grad_(True)
     assert torch.autograd.gradcheck(lambda d: warp(image, d), (disp,))
+
+
+@pytest.mark.parametrize("mode", ["border", "zeros"])
+@pytest.mark.parametrize("width", [2, 3, 20])
+def test_far_outside_samples_are_unchanged_by_the_coordinate_clamp(mode: str, width: int) -> None:
+    """Shifts of up to 3 widths: the same values and gradients as grid_sample on the unclamped grid."""
+    image = torch.rand(1, 2, 3, width, dtype=torch.float64, generator=torch.Generator().manual_seed(1))
+    disp = ((torch.rand(1, 1, 3, width, dtype=torch.float64) - 0.5) * 6).requires_grad_(True)
+    ours = warp(image, disp, mode)
+    (grad,) = torch.autograd.grad(ours.sum(), disp)
+    d = disp.detach().requires_grad_(True)
+    xs = torch.linspace(-1.0, 1.0, width, dtype=torch.float64)
+    grid_x = xs.view(1, 1, width) + 2.0 * width / (width - 1) * d[:, 0]
+    grid = torch.stack((grid_x, torch.linspace(-1.0, 1.0, 3, dtype=torch.float64).view(1, 3, 1).expand(1, 3, width)), -1)
+    ref = torch.nn.functional.grid_sample(image, grid, mode="bilinear", padding_mode=mode, align_corners=True)
+    (ref_grad,) = torch.autograd.grad(ref.sum(), d)
+    torch.testing.assert_close(ours, ref, rtol=0, atol=1e-12)
+    torch.testing.assert_close(grad, ref_grad, rtol=0, atol=1e-12)
+
+
+def test_non_finite_disparity_neither_crashes_nor_spreads() -> None:
+    """NaN, ±inf and 1e30 disparities (a diverged network): finite samples and gradients. In a
+    subprocess, because grid_sample's CPU backward segfaults on such coordinates unguarded."""
+    script = '''
+import torch
+from msdepth.warp import warp
+image = torch.rand(2, 3, 8, 16, requires_grad=True)
+disp = torch.full((2, 1, 8, 16), float("nan"))
+disp[0, 0, :3], disp[0, 0, 3:6], disp[1, 0, :3], disp[1, 0, 3:6] = float("inf"), -float("inf"), 1e30, 0.05
+disp.requires_grad_(True)
+for mode in ("border", "zeros"):
+    out = warp(image, disp, mode)
+    out.sum().backward()
+    assert out.isfinite().all() and image.grad.isfinite().all() and disp.grad.isfinite().all(), mode
+    assert disp.grad[1, 0, 3:6].abs().sum() > 0  # the finite disparities still learn
+    image.grad = disp.grad = None
+print("ok")
+'''
+    proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0 and proc.stdout.strip() == "ok", (proc.returncode, proc.stderr[-2000:])
 
 
 # ----------------------------------------------------------------------------- real data
