@@ -88,6 +88,7 @@ def test_params_yaml_loads():
         ({"msssim": {"levels": 5}, "data": {"height": 64, "width": 64}}, "msssim.levels"),
         ({"train": {"batch_size": 0}}, "train.batch_size"),
         ({"train": {"amp": "fp16"}}, "train.amp"),
+        ({"train": {"sync_every": -1}}, "train.sync_every"),
         ({"data": {"synthetic": {"gt_max_depth": -1}}}, "data.synthetic.gt_max_depth"),
         ({"eval": {"caps": [80, 0.0001]}}, "eval.caps"),
         ({"train": {"seed": 1}}, "train.seed"),  # renamed to train.seeds: an old params.yaml fails loudly

@@ -134,7 +134,10 @@ def test_code_digest_covers_the_train_stage_source_deps(tmp_path: Path, monkeypa
     assert train_mod.code_digest() == before
 
 
-def test_non_finite_loss_stops_with_step_and_files(pairs, tmp_path: Path, monkeypatch) -> None:
+@pytest.mark.parametrize("sync_every", [0, 3])
+def test_non_finite_loss_stops_with_step_and_files(pairs, tmp_path: Path, monkeypatch, sync_every: int) -> None:
+    """Read every step (0 = automatic, every step on the CPU) or, as on a GPU, a few steps late
+    (3: here at the end of the 2-step epoch, after a NaN update): the error names the first bad step."""
     real_forward = train_mod.MonodepthLoss.forward
     calls = {"n": 0}
 
@@ -147,11 +150,30 @@ def test_non_finite_loss_stops_with_step_and_files(pairs, tmp_path: Path, monkey
 
     monkeypatch.setattr(train_mod.MonodepthLoss, "forward", poisoned)
     with pytest.raises(TrainingError, match=r"non-finite loss nan at step 2 \(epoch 2\); batch: \[.*\.png"):
-        _train(_params(), pairs, tmp_path)
+        _train(_params(sync_every=sync_every), pairs, tmp_path)
     state = torch.load(tmp_path / "ck.pt", weights_only=False)
     assert state["epoch"] == 1  # the last checkpoint is the good first epoch
     assert all(torch.isfinite(v).all() for v in state["model"].values())
     assert not (tmp_path / "model.pt").exists()
+
+
+def test_reading_the_loss_every_few_steps_changes_nothing(pairs, tmp_path: Path) -> None:
+    """The loss read from the host every step or every 3 (a partial group at each epoch's end):
+    the same weights and the same logged epoch means, bit for bit."""
+    for name, sync_every in (("every", 1), ("grouped", 3)):
+        (tmp_path / name).mkdir()
+        _train(_params(sync_every=sync_every, epochs=3, batch_size=2), pairs, tmp_path / name)
+    a, b = _weights(tmp_path / "every" / "model.pt"), _weights(tmp_path / "grouped" / "model.pt")
+    assert all(torch.equal(a[k], b[k]) for k in a)
+    history = [torch.load(tmp_path / n / "ck.pt", weights_only=False)["history"] for n in ("every", "grouped")]
+    assert history[0] == history[1] and len(history[0]) == 3
+    assert _curves(tmp_path / "every" / "live") == _curves(tmp_path / "grouped" / "live")
+
+
+def test_host_sync_interval() -> None:
+    assert train_mod.host_sync_interval(0, torch.device("cpu")) == 1
+    assert train_mod.host_sync_interval(0, torch.device("cuda")) == 50
+    assert train_mod.host_sync_interval(7, torch.device("cpu")) == 7
 
 
 def test_bf16_autocast_and_channels_last_train_on_cpu(pairs, tmp_path: Path) -> None:
@@ -169,7 +191,8 @@ def test_bf16_autocast_and_channels_last_train_on_cpu(pairs, tmp_path: Path) -> 
 
 def test_speed_switches_keep_the_checkpoint_fingerprint() -> None:
     base = _params()
-    fast = dataclasses.replace(base, train=dataclasses.replace(base.train, channels_last=True, compile=True, num_workers=2))
+    fast = dataclasses.replace(base, train=dataclasses.replace(base.train, channels_last=True, compile=True, num_workers=2,
+                                                               sync_every=50))
     assert train_mod.fingerprint(base, "ssim", 8, 0) == train_mod.fingerprint(fast, "ssim", 8, 0)
     amp = dataclasses.replace(base, train=dataclasses.replace(base.train, amp="bf16"))
     assert train_mod.fingerprint(base, "ssim", 8, 0) != train_mod.fingerprint(amp, "ssim", 8, 0)

@@ -81,6 +81,9 @@ class TrainConfig:
     amp: Literal["none", "bf16"] = "none"
     channels_last: bool = False
     compile: bool = False
+    # Steps between reads of the loss on the host (non-finite check, progress bar, epoch means);
+    # 0 = automatic: every step on the CPU, every 50 on a GPU, whose queue each read drains.
+    sync_every: int = 0
     # Data parallel: `torchrun` runs nproc processes (batch_size is per process).
     launcher: Literal["local", "torchrun"] = "local"
     nproc: int = 1
@@ -250,6 +253,7 @@ def validate(p: Params) -> Params:
     _check(t.num_workers >= 0, "train.num_workers", "must be >= 0")
     _check(t.threads >= 1, "train.threads", "must be >= 1")
     _check(t.nproc >= 1, "train.nproc", f"must be >= 1, got {t.nproc}")
+    _check(t.sync_every >= 0, "train.sync_every", f"must be >= 0 (0 = automatic), got {t.sync_every}")
     _check(t.dist_timeout_s > 0, "train.dist_timeout_s", "must be > 0")
     _check(all(s >= 0 for s in t.seeds), "train.seeds", f"must be >= 0, got {list(t.seeds)}")
     _check(len(set(t.seeds)) == len(t.seeds), "train.seeds", f"must not repeat a seed, got {list(t.seeds)}")

@@ -114,8 +114,8 @@ def fingerprint(params: Params, variant: str, num_pairs: int, seed: int) -> str:
         "model": asdict(params.model),
         # Settings that change only speed do not invalidate a checkpoint, nor do the other seeds.
         "train": {k: v for k, v in asdict(params.train).items()
-                  if k not in ("seeds", "num_workers", "threads", "device", "channels_last", "compile", "launcher",
-                               "dist_timeout_s")},
+                  if k not in ("seeds", "num_workers", "threads", "device", "channels_last", "compile", "sync_every",
+                               "launcher", "dist_timeout_s")},
         "loss": asdict(params.loss),
         "appearance": appearance,
         appearance: asdict(getattr(params, appearance)),
@@ -227,10 +227,12 @@ def train_variant(
     started = time.perf_counter()
     resumed_from = start_epoch
     pin = device.type == "cuda"
+    sync_every = host_sync_interval(t.sync_every, device)
     for epoch in range(start_epoch, t.epochs):
         model.train()
         sums = dict.fromkeys(LOSS_KEYS, 0.0)
         batches = 0
+        unread: list[tuple[int, torch.Tensor, torch.Tensor]] = []  # (step, batch indices, loss values)
         bar = tqdm(
             _loader(dataset, params, seed, epoch, ctx, pin_memory=pin),
             desc=f"{variant} epoch {epoch + 1}/{t.epochs}",
@@ -243,21 +245,16 @@ def train_variant(
             left = batch["left"].to(device, non_blocking=True)
             right = batch["right"].to(device, non_blocking=True)
             losses = forward_and_loss(forward, criterion, left, right, t.amp, memory_format)
-            if not torch.isfinite(losses["total"]):
-                names = [str(dataset.pairs[int(i)][0]) for i in batch["index"]]
-                raise TrainingError(
-                    f"{variant}: non-finite loss {losses['total'].item()} at step {step} "
-                    f"(epoch {epoch + 1}); batch: {names}. No checkpoint was written for this epoch."
-                )
+            unread.append((step, batch["index"], torch.stack([losses[k].detach() for k in LOSS_KEYS])))
+            if len(unread) >= sync_every:  # before this step's update: with 1, a NaN never reaches the weights
+                batches += _read_losses(unread, sums, dataset, variant, epoch)
+                bar.set_postfix(loss=f"{sums['total'] / batches:.4f}")
             optimizer.zero_grad(set_to_none=True)
             losses["total"].backward()
             distributed.average_gradients(criterion, ctx)  # learned level weights stay identical
             optimizer.step()
             step += 1
-            batches += 1
-            for k in LOSS_KEYS:
-                sums[k] += float(losses[k].detach())
-            bar.set_postfix(loss=f"{sums['total'] / batches:.4f}")
+        batches += _read_losses(unread, sums, dataset, variant, epoch)
         means = distributed.mean_over_ranks({k: v / max(batches, 1) for k, v in sums.items()}, ctx)
         history.append({"epoch": epoch + 1, "step": step, **means})
         if live is not None:
@@ -297,6 +294,39 @@ def train_variant(
     if summary_path is not None and ctx.main:
         write_json(summary_path, asdict(result))
     return result
+
+
+def host_sync_interval(sync_every: int, device: torch.device) -> int:
+    """Steps between host reads of the loss: ``sync_every``, or with 0 every step on the CPU
+    (where a read costs nothing) and every 50 on a GPU. Each read waits for the GPU's queue to
+    drain, after which the GPU idles while Python queues the next step's ~1,500 kernels."""
+    if sync_every > 0:
+        return sync_every
+    return 1 if device.type == "cpu" else 50
+
+
+def _read_losses(
+    unread: list[tuple[int, torch.Tensor, torch.Tensor]], sums: dict[str, float], dataset: StereoPairs,
+    variant: str, epoch: int,
+) -> int:
+    """Add the losses of the ``unread`` steps to ``sums`` in step order (one host read) and empty
+    the list; returns how many steps that was. A non-finite total is a TrainingError naming the
+    first such step and its batch's files."""
+    if not unread:
+        return 0
+    rows = torch.stack([values for _, _, values in unread]).cpu().tolist()
+    for (step, index, _), row in zip(unread, rows):
+        if not math.isfinite(row[0]):
+            names = [str(dataset.pairs[int(i)][0]) for i in index]
+            raise TrainingError(
+                f"{variant}: non-finite loss {row[0]} at step {step} (epoch {epoch + 1}); batch: {names}. "
+                "No checkpoint was written for this epoch."
+            )
+        for k, value in zip(LOSS_KEYS, row):
+            sums[k] += value
+    count = len(unread)
+    unread.clear()
+    return count
 
 
 def forward_and_loss(
