@@ -43,6 +43,15 @@ def test_train_step_benchmark_loss_only() -> None:
     assert "| MS-SSIM k11 |" in out
 
 
+def test_train_loop_benchmark() -> None:
+    out = _run("train_loop.py", "--batch", "2", "--height", "32", "--width", "96", "--width-multiplier", "0.0625",
+               "--pairs", "4", "--epochs", "1", "--repeats", "1", "--warmup", "0", "--sync", "2")
+    assert out.startswith("training loop, 4 pairs x 1 epochs, batch 2x3x32x96")
+    for name in ("ssim sync 1", "ssim sync 2", "msssim sync 1", "msssim sync 2"):
+        assert f"| {name} |" in out
+    assert "images/s: ssim sync 1 " in out
+
+
 def test_ratios_are_paired_within_rounds() -> None:
     """Each round's candidate is divided by the same round's baseline, so drift between rounds
     (here the baseline slows down 8x) does not enter the ratio; the IQR shows the rest."""
