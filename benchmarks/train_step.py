@@ -23,7 +23,7 @@ from _timing import compare, device_from, table
 from msdepth.config import load_params
 from msdepth.losses import MonodepthLoss
 from msdepth.model import MonodepthVGG
-from msdepth.train import forward_and_loss
+from msdepth.train import configure_cudnn, forward_and_loss
 
 
 def main() -> None:
@@ -45,6 +45,7 @@ def main() -> None:
     params = load_params(args.params)
     device = device_from(args.device)
     torch.set_num_threads(params.train.threads)
+    configure_cudnn(params.train.cudnn_benchmark, device)  # as training does (CUDA only)
     batch = args.batch or params.train.batch_size
     h, w = args.height or params.data.height, args.width or params.data.width
     memory_format = torch.channels_last if args.channels_last else torch.contiguous_format
@@ -87,6 +88,8 @@ def main() -> None:
             peaks[name] = torch.cuda.max_memory_allocated(device) / 2**30
     timings = compare(candidates, device, repeats=args.repeats)
     switches = f"amp {args.amp}, channels_last {args.channels_last}, compile {args.compile}"
+    if device.type == "cuda":
+        switches += f", cudnn.benchmark {torch.backends.cudnn.benchmark}"
     what = "loss forward+backward only" if args.loss_only else "training step"
     print(f"{what}, batch {batch}x3x{h}x{w}, model x{model_width(args, params)}, {device}, "
           f"{torch.get_num_threads()} threads, {switches}, median of {args.repeats}\n")

@@ -170,6 +170,16 @@ def test_reading_the_loss_every_few_steps_changes_nothing(pairs, tmp_path: Path)
     assert _curves(tmp_path / "every" / "live") == _curves(tmp_path / "grouped" / "live")
 
 
+def test_cudnn_benchmark_is_set_for_cuda_only(monkeypatch) -> None:
+    monkeypatch.setattr(torch.backends.cudnn, "benchmark", False)
+    train_mod.configure_cudnn(True, torch.device("cpu"))
+    assert torch.backends.cudnn.benchmark is False
+    train_mod.configure_cudnn(True, torch.device("cuda"))
+    assert torch.backends.cudnn.benchmark is True
+    train_mod.configure_cudnn(False, torch.device("cuda"))
+    assert torch.backends.cudnn.benchmark is False
+
+
 def test_host_sync_interval() -> None:
     assert train_mod.host_sync_interval(0, torch.device("cpu")) == 1
     assert train_mod.host_sync_interval(0, torch.device("cuda")) == 50
@@ -192,7 +202,7 @@ def test_bf16_autocast_and_channels_last_train_on_cpu(pairs, tmp_path: Path) -> 
 def test_speed_switches_keep_the_checkpoint_fingerprint() -> None:
     base = _params()
     fast = dataclasses.replace(base, train=dataclasses.replace(base.train, channels_last=True, compile=True, num_workers=2,
-                                                               sync_every=50))
+                                                               sync_every=50, cudnn_benchmark=False))
     assert train_mod.fingerprint(base, "ssim", 8, 0) == train_mod.fingerprint(fast, "ssim", 8, 0)
     amp = dataclasses.replace(base, train=dataclasses.replace(base.train, amp="bf16"))
     assert train_mod.fingerprint(base, "ssim", 8, 0) != train_mod.fingerprint(amp, "ssim", 8, 0)

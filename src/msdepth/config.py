@@ -81,6 +81,9 @@ class TrainConfig:
     amp: Literal["none", "bf16"] = "none"
     channels_last: bool = False
     compile: bool = False
+    # cuDNN picks its convolution algorithms by timing them (fixed input size: once per shape).
+    # CUDA only; GPU runs are not bit-repeatable anyway (grid_sample's backward adds atomically).
+    cudnn_benchmark: bool = True
     # Steps between reads of the loss on the host (non-finite check, progress bar, epoch means);
     # 0 = automatic: every step on the CPU, every 50 on a GPU, whose queue each read drains.
     sync_every: int = 0

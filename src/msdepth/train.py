@@ -115,7 +115,7 @@ def fingerprint(params: Params, variant: str, num_pairs: int, seed: int) -> str:
         # Settings that change only speed do not invalidate a checkpoint, nor do the other seeds.
         "train": {k: v for k, v in asdict(params.train).items()
                   if k not in ("seeds", "num_workers", "threads", "device", "channels_last", "compile", "sync_every",
-                               "launcher", "dist_timeout_s")},
+                               "cudnn_benchmark", "launcher", "dist_timeout_s")},
         "loss": asdict(params.loss),
         "appearance": appearance,
         appearance: asdict(getattr(params, appearance)),
@@ -180,6 +180,7 @@ def train_variant(
     torch.set_num_threads(t.threads)
     seed_everything(seed)  # the same seed on every rank: identical initial weights
     ctx, device = distributed.setup(resolve_device(t.device), t.dist_timeout_s)
+    configure_cudnn(t.cudnn_benchmark, device)
     dataset = StereoPairs(pairs, params.data.height, params.data.width, augment=t.augment, seed=seed, cache=cache)
     model = build_model(params).to(device)
     memory_format = torch.channels_last if t.channels_last else torch.contiguous_format
@@ -294,6 +295,13 @@ def train_variant(
     if summary_path is not None and ctx.main:
         write_json(summary_path, asdict(result))
     return result
+
+
+def configure_cudnn(benchmark: bool, device: torch.device) -> None:
+    """On CUDA, let cuDNN time its convolution algorithms (``train.cudnn_benchmark``); elsewhere
+    leave the process-wide flag alone."""
+    if device.type == "cuda":
+        torch.backends.cudnn.benchmark = benchmark
 
 
 def host_sync_interval(sync_every: int, device: torch.device) -> int:

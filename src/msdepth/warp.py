@@ -46,12 +46,14 @@ def warp(image: Tensor, disparity: Tensor, padding_mode: PaddingMode = "border")
     xs = torch.linspace(-1.0, 1.0, w, dtype=image.dtype, device=image.device)
     ys = torch.linspace(-1.0, 1.0, h, dtype=image.dtype, device=image.device)
     grid_x = xs.view(1, 1, w) + scale * disparity[:, 0].to(image.dtype)
-    # Non-finite or huge coordinates would crash grid_sample's CPU backward (the float -> int
-    # conversion of NaN is undefined: a segfault in torch 2.13), e.g. in the steps a GPU run
-    # trains on after a NaN loss, before it reads the loss (train.sync_every). Any coordinate
-    # beyond ±3 is outside the image (by at least one pixel, W >= 2) in both padding modes, so
-    # the clamp changes neither values nor gradients of finite inputs; NaN goes to 3.
-    grid_x = grid_x.clamp(-3.0, 3.0).nan_to_num(nan=3.0)
+    # A NaN coordinate crashes grid_sample's CPU backward in border mode (torch 2.13: NaN
+    # survives its clipping and becomes an out-of-range index, a segfault), e.g. in the steps a
+    # GPU run trains on after a NaN loss, before it reads the loss (train.sync_every); ±inf gives
+    # NaN samples in zeros mode. Non-finite coordinates go to ±3, outside the image in both
+    # modes. In place and untracked: finite values are untouched and their gradient is the
+    # identity either way, and the backward gets no extra kernels.
+    with torch.no_grad():
+        grid_x.nan_to_num_(nan=3.0, posinf=3.0, neginf=-3.0)
     # Rows are sampled exactly at their own centres: bilinear in y degenerates to a copy.
     grid_y = ys.view(1, h, 1).expand(b, h, w)
     grid = torch.stack((grid_x, grid_y), dim=-1)
