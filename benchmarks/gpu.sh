@@ -16,7 +16,7 @@ train_step() {
 }
 train_step
 train_step --amp bf16
-train_step --amp bf16 --channels-last
+train_step --amp bf16 --channels-last --profile 10
 echo "== training loop (loader with 8 workers, host reads of the loss every step vs every 50)"
 python benchmarks/train_loop.py --device cuda --width-multiplier 1 --height 256 --width 512 --batch 8 \
     --pairs 400 --epochs 2 --workers 8 --repeats 2 --amp bf16 --channels-last

@@ -4,11 +4,16 @@
     python benchmarks/train_step.py --device cuda --width-multiplier 1 --height 256 --width 512
     python benchmarks/train_step.py --device cuda ... --amp bf16 --channels-last [--compile]
     python benchmarks/train_step.py --loss-only                   # the loss alone, on the network's output
+    python benchmarks/train_step.py --device cuda ... --profile 10  # + GPU busy time and kernels per step
 
 Same model weights, same batch, candidates interleaved; prints time per step and the ratio to
 the SSIM step (the issue's target: MS-SSIM / SSIM <= 1.10 for every kernel size), images/s,
 and on CUDA each candidate's peak GPU memory. The step is the training loop's own
 (:func:`msdepth.train.forward_and_loss`: network in autocast when asked, loss in fp32).
+``--profile N`` then runs N more steps of each under the profiler and adds, on CUDA, the GPU's
+busy time per step (the sum of its kernels' and copies' durations), that time as a share of
+the timed step, and the kernels per step: far below 100 % means the GPU waits for the host,
+which queues every kernel from Python.
 """
 
 from __future__ import annotations
@@ -19,7 +24,7 @@ from pathlib import Path
 
 import torch
 
-from _timing import compare, device_from, table
+from _timing import compare, device_from, sync, table
 from msdepth.config import load_params
 from msdepth.losses import MonodepthLoss
 from msdepth.model import MonodepthVGG
@@ -39,6 +44,8 @@ def main() -> None:
     ap.add_argument("--amp", choices=["none", "bf16"], default="none", help="network in bf16 autocast")
     ap.add_argument("--channels-last", action="store_true")
     ap.add_argument("--compile", action="store_true", help="torch.compile the network")
+    ap.add_argument("--profile", type=int, default=0, metavar="N",
+                    help="then profile N steps of each candidate: GPU busy time and kernels per step")
     ap.add_argument("--loss-only", action="store_true",
                     help="time the loss alone (forward+backward) on the network's disparities, computed once")
     args = ap.parse_args()
@@ -97,6 +104,37 @@ def main() -> None:
     print("\nimages/s: " + ", ".join(f"{n} {batch / t:.1f}" for n, t in timings.medians().items()))
     if peaks:
         print("peak GPU memory (GiB): " + ", ".join(f"{n} {g:.2f}" for n, g in peaks.items()))
+    if args.profile:
+        print("\n" + profile_table(candidates, timings.medians(), device, args.profile))
+
+
+def profile_table(candidates: dict, step_seconds: dict[str, float], device: torch.device, steps: int) -> str:
+    """Per candidate: the GPU's busy time per step (kernels and copies, from the profiler), as a
+    share of the timed step, and the device operations per step; on a CPU only the latter is
+    unknown, so the table says so."""
+    from torch.autograd import DeviceType
+    from torch.profiler import ProfilerActivity, profile
+
+    on_gpu = device.type == "cuda"
+    activities = [ProfilerActivity.CPU] + ([ProfilerActivity.CUDA] if on_gpu else [])
+    rows = ["| candidate | step ms | GPU busy ms/step | GPU busy share | GPU ops/step |", "|---|---|---|---|---|"]
+    for name, step in candidates.items():
+        sync(device)
+        with profile(activities=activities) as prof:
+            for _ in range(steps):
+                step()
+            sync(device)
+        step_ms = step_seconds[name] * 1e3
+        if not on_gpu:
+            rows.append(f"| {name} | {step_ms:.2f} | - | - | - |")
+            continue
+        ops = [e for e in prof.events() if e.device_type == DeviceType.CUDA]
+        if not ops:  # not a 0 % that would read as an idle GPU
+            rows.append(f"| {name} | {step_ms:.2f} | no GPU operations recorded by the profiler | - | - |")
+            continue
+        busy_ms = sum(e.device_time_total for e in ops) / 1e3 / steps
+        rows.append(f"| {name} | {step_ms:.2f} | {busy_ms:.2f} | {busy_ms / step_ms:.0%} | {len(ops) / steps:.0f} |")
+    return "\n".join(rows)
 
 
 def model_width(args, params) -> float:

@@ -29,8 +29,9 @@ def test_loss_benchmark_prints_the_ratios_to_pytorch_msssim() -> None:
 
 def test_train_step_benchmark_with_the_speed_switches() -> None:
     out = _run("train_step.py", "--batch", "1", "--height", "32", "--width", "96", "--width-multiplier", "0.0625",
-               "--kernels", "3,11", "--repeats", "1", "--amp", "bf16", "--channels-last")
+               "--kernels", "3,11", "--repeats", "1", "--amp", "bf16", "--channels-last", "--profile", "1")
     assert "amp bf16, channels_last True" in out
+    assert "| MS-SSIM k11 |" in out.split("GPU busy share")[1]  # the profile table, GPU columns empty on a CPU
     for name in ("SSIM k3", "MS-SSIM k3", "MS-SSIM k11"):
         assert f"| {name} |" in out
     assert "images/s:" in out
