@@ -26,7 +26,7 @@ import torch
 
 from _timing import compare, device_from, table
 from msdepth.config import load_params
-from msdepth.train import train_variant
+from msdepth.train import host_sync_interval, train_variant
 
 
 def main() -> None:
@@ -41,7 +41,8 @@ def main() -> None:
     ap.add_argument("--epochs", type=int, default=2)
     ap.add_argument("--workers", type=int, default=None, help="default: train.num_workers")
     ap.add_argument("--variants", default="ssim,msssim")
-    ap.add_argument("--sync", type=int, default=50, help="the other host-read interval, besides every step")
+    ap.add_argument("--sync", type=int, default=host_sync_interval(0, torch.device("cuda")),
+                    help="the other host-read interval, besides every step (default: what a GPU run uses)")
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--warmup", type=int, default=1, help="untimed runs of each candidate first")
     ap.add_argument("--amp", choices=["none", "bf16"], default="none")
