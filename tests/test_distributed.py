@@ -69,7 +69,7 @@ def test_two_ranks_match_one_process_with_the_same_global_batch(pairs, tmp_path:
     single, ddp = _weights(tmp_path / "single" / "model.pt"), _weights(tmp_path / "ddp" / "model.pt")
     for name in single:
         torch.testing.assert_close(ddp[name], single[name], rtol=1e-4, atol=1e-5)
-    level = [torch.load(tmp_path / run / "model.pt", weights_only=False)["criterion"]["level_weights.logits"]
+    level = [torch.load(tmp_path / run / "model.pt", weights_only=True)["criterion"]["level_weights.logits"]
              for run in ("single", "ddp")]
     assert level[0].abs().sum() > 0  # the weights did train
     torch.testing.assert_close(level[1], level[0], rtol=1e-4, atol=1e-6)

@@ -63,7 +63,7 @@ def test_sigkill_after_a_checkpoint_resumes_to_the_uninterrupted_weights(pairs, 
     (tmp_path / "killed").mkdir()
     _train(_params(epochs=3), pairs, tmp_path / "clean")
     assert _run_child(tmp_path, pairs, tmp_path / "killed", "after_write", pause_at=2) == "PAUSED"
-    assert torch.load(tmp_path / "killed" / "ck.pt", weights_only=False)["epoch"] == 2
+    assert torch.load(tmp_path / "killed" / "ck.pt", weights_only=True)["epoch"] == 2
     assert not (tmp_path / "killed" / "model.pt").exists()
     assert _run_child(tmp_path, pairs, tmp_path / "killed", "none", pause_at=0) == "FINISHED"
     a, b = _weights(tmp_path / "clean" / "model.pt"), _weights(tmp_path / "killed" / "model.pt")
@@ -74,7 +74,7 @@ def test_sigkill_while_writing_a_checkpoint_leaves_the_previous_one(pairs, tmp_p
     out = tmp_path / "run"
     out.mkdir()
     assert _run_child(tmp_path, pairs, out, "mid_write", pause_at=2) == "PAUSED"
-    state = torch.load(out / "ck.pt", weights_only=False)  # still epoch 1's, complete
+    state = torch.load(out / "ck.pt", weights_only=True)  # still epoch 1's, complete
     assert state["epoch"] == 1
     leftovers = [p for p in out.iterdir() if p.name != "ck.pt"]
     assert all(p.name.startswith(".ck.pt.") for p in leftovers)  # only the temp file, never the final name

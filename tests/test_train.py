@@ -151,7 +151,7 @@ def test_non_finite_loss_stops_with_step_and_files(pairs, tmp_path: Path, monkey
     monkeypatch.setattr(train_mod.MonodepthLoss, "forward", poisoned)
     with pytest.raises(TrainingError, match=r"non-finite loss nan at step 2 \(epoch 2\); batch: \[.*\.png"):
         _train(_params(sync_every=sync_every), pairs, tmp_path)
-    state = torch.load(tmp_path / "ck.pt", weights_only=False)
+    state = torch.load(tmp_path / "ck.pt", weights_only=True)
     assert state["epoch"] == 1  # the last checkpoint is the good first epoch
     assert all(torch.isfinite(v).all() for v in state["model"].values())
     assert not (tmp_path / "model.pt").exists()
@@ -165,7 +165,7 @@ def test_reading_the_loss_every_few_steps_changes_nothing(pairs, tmp_path: Path)
         _train(_params(sync_every=sync_every, epochs=3, batch_size=2), pairs, tmp_path / name)
     a, b = _weights(tmp_path / "every" / "model.pt"), _weights(tmp_path / "grouped" / "model.pt")
     assert all(torch.equal(a[k], b[k]) for k in a)
-    history = [torch.load(tmp_path / n / "ck.pt", weights_only=False)["history"] for n in ("every", "grouped")]
+    history = [torch.load(tmp_path / n / "ck.pt", weights_only=True)["history"] for n in ("every", "grouped")]
     assert history[0] == history[1] and len(history[0]) == 3
     assert _curves(tmp_path / "every" / "live") == _curves(tmp_path / "grouped" / "live")
 
@@ -249,7 +249,7 @@ def test_disk_full_while_checkpointing_keeps_the_previous_checkpoint(pairs, tmp_
     monkeypatch.setattr(torch, "save", save_until_full)
     with pytest.raises(TrainingError, match=r"ck.pt: cannot write the epoch 2 checkpoint .*No space left"):
         _train(_params(), pairs, tmp_path)
-    state = torch.load(tmp_path / "ck.pt", weights_only=False)
+    state = torch.load(tmp_path / "ck.pt", weights_only=True)
     assert state["epoch"] == 1
     assert sorted(p.name for p in tmp_path.iterdir()) == ["ck.pt", "live"]  # no temp file, no model
     monkeypatch.setattr(torch, "save", real_save)

@@ -31,6 +31,7 @@ from . import distributed
 from .distributed import Context, GlobalBatchSampler
 from .losses import MonodepthLoss
 from .model import MonodepthVGG
+from .serialization import load_weights_file
 
 log = logging.getLogger(__name__)
 
@@ -137,6 +138,15 @@ def save_checkpoint(path: Path, state: dict) -> None:
         ) from exc
 
 
+def load_checkpoint(path: Path, device: torch.device) -> dict:
+    """A checkpoint read weights-only (:func:`msdepth.serialization.load_weights_file`); one that
+    is corrupt or needs code is a TrainingError: refused, never silently trained over."""
+    try:
+        return load_weights_file(path, device, what="checkpoint", remedy="delete it to train this run anew")
+    except MsdepthError as exc:
+        raise TrainingError(str(exc)) from None
+
+
 def _loader(dataset: StereoPairs, params: Params, seed: int, epoch: int, ctx: Context, pin_memory: bool = False) -> DataLoader:
     # Shuffle order from (seed, epoch): a resumed epoch sees the same batches, on any world size.
     gen = torch.Generator().manual_seed(seed * 100_003 + epoch)
@@ -201,7 +211,7 @@ def train_variant(
     checkpoint_path = Path(checkpoint_path)
     start_epoch, step, history, seconds_before = 0, 0, [], 0.0
     if checkpoint_path.exists():
-        state = torch.load(checkpoint_path, map_location=device, weights_only=False)
+        state = load_checkpoint(checkpoint_path, device)
         if state.get("fingerprint") == fp:
             model.load_state_dict(state["model"])
             criterion.load_state_dict(state["criterion"])
@@ -384,11 +394,17 @@ def _save_atomically(path: str | os.PathLike, state: dict) -> None:
 
 
 def load_model(path: str | os.PathLike, device: str | torch.device = "cpu") -> tuple[MonodepthVGG, dict]:
-    """Rebuild the network saved by :func:`save_model`; returns (model in eval mode, metadata)."""
+    """Rebuild the network saved by :func:`save_model`; returns (model in eval mode, metadata).
+
+    The file is read weights-only (:func:`msdepth.serialization.load_weights_file`): one that
+    needs code to load is refused, so a shared model cannot run anything."""
     path = Path(path)
     if not path.exists():
         raise MsdepthError(f"{path}: no trained model (run the train stage first)")
-    state = torch.load(path, map_location=device, weights_only=False)
+    state = load_weights_file(path, device, what="model")
+    missing = [k for k in ("model", "width_multiplier", "height", "width") if k not in state]
+    if missing:
+        raise MsdepthError(f"{path}: not a model file written by msdepth (no {', '.join(missing)})")
     model = MonodepthVGG(state["width_multiplier"])
     model.load_state_dict(state["model"])
     meta = {k: v for k, v in state.items() if k not in ("model", "criterion")}
