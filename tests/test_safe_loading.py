@@ -94,8 +94,8 @@ def test_predict_cli_refuses_a_poisoned_model(tmp_path: Path) -> None:
     image = tmp_path / "a.png"
     write_png(image, np.full((H, W, 3), 128, np.uint8))
     result = subprocess.run(
-        [sys.executable, "-m", "msdepth", "predict", str(image), "--model", str(model), "--out", str(tmp_path / "out"),
-         "--device", "cpu", "--quiet"],
+        [sys.executable, "-m", "msdepth", "predict", str(image), "--model", str(model),
+         "--out", str(tmp_path / "out"), "--device", "cpu", "--quiet"],
         capture_output=True, text=True, timeout=120,
     )
     assert result.returncode == 1
@@ -191,5 +191,6 @@ def test_damaged_or_foreign_files_are_one_line_naming_them(tmp_path: Path) -> No
 def test_a_model_file_without_the_network_is_named(tmp_path: Path) -> None:
     path = tmp_path / "model.pt"
     torch.save({"model": {}, "height": H}, path)
-    with pytest.raises(MsdepthError, match=f"{path}: not a model file written by msdepth .no width_multiplier, width"):
+    missing = f"{path}: not a model file written by msdepth .no width_multiplier, width.$"
+    with pytest.raises(MsdepthError, match=missing):
         load_model(path)
