@@ -7,14 +7,18 @@ tests can prove a resume fetched only the rest of the file. No test touches the 
 
 from __future__ import annotations
 
+import email.message
 import hashlib
 import io as stdio
 import json
 import re
+import shutil
 import socket
+import stat
 import struct
 import threading
 import time
+import urllib.request
 import zipfile
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
@@ -27,7 +31,8 @@ from msdepth.data import download as dl
 from msdepth.errors import DataError
 
 SHIPPED_LIST = Path(__file__).resolve().parents[1] / "data_lists" / "kitti_archives_to_download.txt"
-FAST = {"retries": 3, "backoff": 0.01, "timeout": 5, "progress": False}
+# The local server speaks plain http, which the downloader refuses unless told otherwise.
+FAST = {"retries": 3, "backoff": 0.01, "timeout": 5, "progress": False, "allow_http": True}
 
 
 def drive_zip(date: str, drive: int, frames: int = 3, seed: int = 0) -> bytes:
@@ -73,6 +78,12 @@ class _Handler(BaseHTTPRequestHandler):
             earlier_gets = sum(e["name"] == name and e["method"] == "GET" for e in srv.log)
             srv.log.append(entry)
         first = earlier_gets == 0
+        if name in srv.redirects:
+            self.send_response(302)
+            self.send_header("Location", srv.redirects[name])
+            self.send_header("Content-Length", "0")
+            self.end_headers()
+            return
         if name not in srv.files or mode == "404":
             self.send_error(404)
             return
@@ -125,6 +136,7 @@ class _Server(ThreadingHTTPServer):
         super().__init__(("127.0.0.1", 0), _Handler)
         self.files: dict[str, bytes] = {}
         self.modes: dict[str, str] = {}
+        self.redirects: dict[str, str] = {}  # name -> Location of a 302
         self.log: list[dict] = []
         self.lock = threading.Lock()
 
@@ -192,10 +204,87 @@ def test_bad_list_content_names_the_file_and_line(tmp_path: Path) -> None:
 
 
 def test_unknown_url_scheme_is_a_data_error_naming_the_url(tmp_path: Path) -> None:
-    with pytest.raises(DataError, match="ftp-ish://x/a.zip: unknown url type"):
-        dl.download("ftp-ish://x/a.zip", tmp_path / "a.zip", **FAST)
-    with pytest.raises(DataError, match="raw_data/a.zip: unknown url type"):
-        dl.download("raw_data/a.zip", tmp_path / "a.zip", **FAST)
+    for url in ("ftp-ish://x/a.zip", "raw_data/a.zip", "file:///etc/passwd", "ftp://x/a.zip"):
+        refused = re.escape(url) + r": not an https URL \(or http\); refusing to fetch it"
+        with pytest.raises(DataError, match=refused):
+            dl.download(url, tmp_path / "a.zip", **FAST)
+    assert list(tmp_path.iterdir()) == []
+
+
+# --------------------------------------------------------------------------- https only
+
+
+def test_plain_http_is_refused_without_allow_http(server: _Server, tmp_path: Path, capsys) -> None:
+    """Nothing is requested and nothing written: not by download, fetch_all, its dry run or HEAD."""
+    _serve_drive(server)
+    strict = {**FAST, "allow_http": False}
+    refused = re.escape(server.url(DRIVE)) + r": plain http is refused .*data\.kitti\.allow_http: true"
+    with pytest.raises(DataError, match=refused):
+        dl.download(server.url(DRIVE), tmp_path / "zips" / DRIVE, **strict)
+    with pytest.raises(DataError, match=refused):
+        dl.remote_size(server.url(DRIVE), **{k: v for k, v in strict.items() if k != "progress"})
+    zips, raw = tmp_path / "zips", tmp_path / "raw"
+    for dry_run in (False, True):
+        with pytest.raises(DataError, match=refused):
+            dl.fetch_all(server.base_url, [f"raw_data/{DRIVE}"], zips, raw, dry_run=dry_run, **strict)
+    # An https base does not let an absolute http entry of the list through either.
+    with pytest.raises(DataError, match=refused):
+        dl.fetch_all("https://example.org/", [server.url(DRIVE)], zips, raw, **strict)
+    assert server.log == [] and list(tmp_path.iterdir()) == []
+    assert dl.download(server.url(DRIVE), tmp_path / DRIVE, **FAST).exists()  # allowed: fetched
+
+
+def test_base_url_scheme_is_checked_with_the_config(tmp_path: Path) -> None:
+    from msdepth.config import params_from_dict
+    from msdepth.errors import ConfigError
+
+    def kitti(**keys):
+        return params_from_dict({"data": {"kitti": keys}}).data.kitti
+
+    assert kitti().base_url.startswith("https://") and kitti().allow_http is False
+    plain = r"data\.kitti\.base_url: plain http is refused unless data\.kitti\.allow_http"
+    with pytest.raises(ConfigError, match=plain):
+        kitti(base_url="http://mirror.local/kitti/")
+    assert kitti(base_url="http://mirror.local/kitti/", allow_http=True).allow_http is True
+    with pytest.raises(ConfigError, match=r"data\.kitti\.base_url: must be an https URL, got 'ftp://x/'"):
+        kitti(base_url="ftp://x/", allow_http=True)
+    with pytest.raises(ConfigError, match=r"data\.kitti\.allow_http: expected true/false"):
+        kitti(allow_http="yes")
+
+
+def _redirect(handler: dl.NoDowngradeRedirect, old: str, new: str):
+    fp = stdio.BytesIO(b"")
+    headers = email.message.Message()
+    headers["Location"] = new
+    return handler.redirect_request(urllib.request.Request(old), fp, 302, "Found", headers, new), fp
+
+
+def test_redirect_from_https_to_http_is_refused() -> None:
+    handler = dl.NoDowngradeRedirect()
+    refused = ("https://a.org/x.zip: redirected to http://b.org/x.zip, which is not https; "
+               "refusing the downgrade")
+    with pytest.raises(DataError, match=re.escape(refused)):
+        _redirect(handler, "https://a.org/x.zip", "http://b.org/x.zip")
+    allowed = [("https://a.org/x.zip", "https://cdn.b.org/x.zip"),
+               ("http://a.org/x.zip", "http://b.org/x.zip"), ("http://a.org/x.zip", "https://b.org/x.zip")]
+    for old, new in allowed:
+        request, _ = _redirect(handler, old, new)
+        assert request.full_url == new
+
+
+def test_redirects_go_through_the_no_downgrade_handler(server: _Server, tmp_path: Path, monkeypatch) -> None:
+    """End to end over the local (http, allowed) server: the redirect is followed, by that handler."""
+    data = _serve_drive(server)
+    server.redirects["moved.zip"] = server.url(DRIVE)
+    seen, real = [], dl.NoDowngradeRedirect.redirect_request
+
+    def spy(self, req, fp, code, msg, headers, newurl):
+        seen.append((req.full_url, newurl))
+        return real(self, req, fp, code, msg, headers, newurl)
+
+    monkeypatch.setattr(dl.NoDowngradeRedirect, "redirect_request", spy)
+    assert dl.download(server.url("moved.zip"), tmp_path / DRIVE, **FAST).read_bytes() == data
+    assert seen == [(server.url("moved.zip"), server.url(DRIVE))]
 
 
 def test_select_all_first_n_and_named_drives_add_their_calibration() -> None:
@@ -389,7 +478,10 @@ def test_drive_and_calibration_archives_share_the_day_folder(tmp_path: Path) -> 
     assert sorted(p.name for p in (raw / "2011_09_26").iterdir()) == ["2011_09_26_drive_0001_sync", "calib_cam_to_cam.txt"]
 
 
-@pytest.mark.parametrize("member", ["../evil.txt", "2011_09_26/../../evil.txt", "/tmp/evil.txt"])
+@pytest.mark.parametrize("member", [
+    "../evil.txt", "2011_09_26/../../evil.txt", "/tmp/evil.txt", "\\evil.txt", "..\\evil.txt", "C:/evil.txt",
+    "c:\\evil.txt", "//server/share/evil.txt",
+])
 def test_zip_slip_member_is_rejected(tmp_path: Path, member: str) -> None:
     archive = tmp_path / "slip.zip"
     with zipfile.ZipFile(archive, "w") as zf:
@@ -399,7 +491,111 @@ def test_zip_slip_member_is_rejected(tmp_path: Path, member: str) -> None:
     with pytest.raises(DataError, match=re.escape(f"member {member!r} points outside")):
         dl.extract(archive, raw)
     assert not (tmp_path / "a" / "evil.txt").exists() and not (tmp_path / "evil.txt").exists()
-    assert list(raw.iterdir()) == []
+    assert not raw.exists()  # refused before anything was written
+    with pytest.raises(DataError, match=re.escape(f"member {member!r} points outside")):
+        dl.verify_zip(archive)
+
+
+def _special_zip(path: Path, kind: int, target: str = "/etc/passwd") -> Path:
+    """A zip with a regular file and a member whose Unix mode (external_attr) is ``kind``."""
+    with zipfile.ZipFile(path, "w") as zf:
+        zf.writestr("2011_09_26/ok.txt", "fine")
+        info = zipfile.ZipInfo("2011_09_26/special")
+        info.create_system = 3  # Unix
+        info.external_attr = (kind | 0o777) << 16
+        zf.writestr(info, target)
+    return path
+
+
+@pytest.mark.parametrize(("kind", "what"), [
+    (stat.S_IFLNK, "a symbolic link"), (stat.S_IFIFO, "a device, fifo or socket"),
+    (stat.S_IFCHR, "a device, fifo or socket"), (stat.S_IFBLK, "a device, fifo or socket"),
+    (stat.S_IFSOCK, "a device, fifo or socket"),
+])
+def test_symlink_and_device_members_are_refused(tmp_path: Path, kind: int, what: str) -> None:
+    archive = _special_zip(tmp_path / "special.zip", kind)
+    raw = tmp_path / "raw"
+    message = re.escape(f"{archive}: member '2011_09_26/special' is {what}; refusing to extract")
+    with pytest.raises(DataError, match=message):
+        dl.extract(archive, raw)
+    assert not raw.exists()
+    with pytest.raises(DataError, match=message):
+        dl.verify_zip(archive)
+
+
+def test_members_without_a_unix_mode_or_with_a_plain_one_are_extracted(tmp_path: Path) -> None:
+    """Zips written on Windows carry no mode (0), Unix ones a regular-file or folder mode."""
+    archive = tmp_path / "ok.zip"
+    with zipfile.ZipFile(archive, "w") as zf:
+        for name, mode in (("d/", stat.S_IFDIR | 0o755), ("d/a.txt", stat.S_IFREG | 0o644), ("d/b.txt", 0)):
+            info = zipfile.ZipInfo(name)
+            info.external_attr = mode << 16
+            zf.writestr(info, "" if name.endswith("/") else "x")
+    assert dl.extract(archive, tmp_path / "raw")
+    assert sorted(p.name for p in (tmp_path / "raw" / "d").iterdir()) == ["a.txt", "b.txt"]
+
+
+def bomb_zip(path: Path, megabytes: int = 10) -> Path:
+    """A member of ``megabytes`` MB of zeros: deflate packs it about 1000:1."""
+    with zipfile.ZipFile(path, "w", zipfile.ZIP_DEFLATED) as zf:
+        zf.writestr("2011_09_26/calib.txt", "P_rect_02: 721.5\n")
+        zf.writestr("2011_09_26/zeros.bin", bytes(megabytes << 20))
+    return path
+
+
+def test_zip_bomb_is_refused_before_anything_is_written(tmp_path: Path) -> None:
+    archive = bomb_zip(tmp_path / "bomb.zip")
+    ratio = (10 << 20) / archive.stat().st_size
+    assert ratio > 10 * dl.MAX_EXPANSION  # ~1000x
+    raw = tmp_path / "raw"
+    pattern = re.escape(f"{archive}: members declare 10.0 MiB uncompressed, ")
+    pattern += r"\d+x the archive's .* \(more than 100x"
+    with pytest.raises(DataError, match=pattern + ": a zip bomb\\?\\); refusing to extract"):
+        dl.extract(archive, raw)
+    assert not raw.exists()
+    with pytest.raises(DataError, match=pattern):
+        dl.verify_zip(archive)  # refused without decompressing it
+
+
+def test_expansion_up_to_the_bound_is_extracted(tmp_path: Path) -> None:
+    """Text that deflates ~5x (more than any KITTI archive) is far below the bound."""
+    archive = tmp_path / "text.zip"
+    rng = np.random.default_rng(0)
+    lines = "".join(f"{x:.6e} " for x in rng.normal(size=20_000))
+    with zipfile.ZipFile(archive, "w", zipfile.ZIP_DEFLATED) as zf:
+        zf.writestr("2011_09_26/numbers.txt", lines)
+    assert 1 < len(lines) / archive.stat().st_size < dl.MAX_EXPANSION
+    assert dl.extract(archive, tmp_path / "raw")
+
+
+def test_archive_larger_than_the_free_space_is_refused_before_writing(tmp_path: Path, monkeypatch) -> None:
+    archive = tmp_path / DRIVE
+    archive.write_bytes(drive_zip("2011_09_26", 1))
+    with zipfile.ZipFile(archive) as zf:
+        declared = sum(i.file_size for i in zf.infolist())
+    real = shutil.disk_usage
+    asked = []
+
+    def little_space(path):
+        asked.append(Path(path))
+        return real(path)._replace(free=declared - 1)
+
+    monkeypatch.setattr(dl.shutil, "disk_usage", little_space)
+    raw = tmp_path / "not" / "yet" / "raw"
+    with pytest.raises(DataError, match=re.escape(f"{archive}: needs ") + r".* to extract but "
+                       + re.escape(f"{tmp_path} has ") + r".* free; refusing to start"):
+        dl.extract(archive, raw)
+    assert asked == [tmp_path] and not (tmp_path / "not").exists()  # the nearest existing folder
+    monkeypatch.setattr(dl.shutil, "disk_usage", lambda path: real(path)._replace(free=declared))
+    assert dl.extract(archive, raw)
+
+
+def test_served_zip_bomb_is_reported_and_never_extracted(server: _Server, tmp_path: Path) -> None:
+    server.files[DRIVE] = bomb_zip(tmp_path / "bomb.zip").read_bytes()
+    with pytest.raises(dl.DownloadError, match=f"{DRIVE}: members declare .* a zip bomb") as err:
+        dl.fetch_all(server.base_url, [f"raw_data/{DRIVE}"], tmp_path / "zips", tmp_path / "raw", **FAST)
+    assert list(err.value.report["failed"]) == [DRIVE] and "moved to" in err.value.report["failed"][DRIVE]
+    assert not (tmp_path / "raw").exists()
 
 
 def test_jpeg_conversion_replaces_pngs(tmp_path: Path) -> None:

@@ -62,7 +62,8 @@ def mirror(tmp_path_factory):
 def test_kitti_source_runs_every_stage(mirror, tmp_path: Path) -> None:
     base_url, lists, archives = mirror
     work = _project(tmp_path, {"data": {"source": "kitti", "kitti": {
-        "base_url": base_url, "archive_list": str(lists / "archives.txt"), "jobs": 2,
+        "base_url": base_url, "allow_http": True,  # the local mirror speaks plain http
+        "archive_list": str(lists / "archives.txt"), "jobs": 2,
         "train_split": str(lists / "train.txt"), "eval_split": str(lists / "eval.txt"),
         "roi_min_size": 4, "roi_min_valid": 0.2,
     }}})

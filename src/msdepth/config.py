@@ -6,6 +6,7 @@ import dataclasses
 import os
 import types
 import typing
+import urllib.parse
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal, get_args, get_origin
@@ -35,6 +36,7 @@ class KittiConfig:
     """Real KITTI: where to fetch it, what to fetch, which splits and ROIs to use."""
 
     base_url: str = "https://s3.eu-central-1.amazonaws.com/avg-kitti/"
+    allow_http: bool = False  # plain http only for a mirror you trust: anyone on the path can swap archives
     drives: tuple[str, ...] | None = None  # None = every drive of the archive list
     drive_count: int = 0  # > 0: only the first N drives (to start small)
     jobs: int = 4  # parallel connections
@@ -246,6 +248,10 @@ def validate(p: Params) -> Params:
     _check(k.roi_min_size >= 1, "data.kitti.roi_min_size", f"must be >= 1, got {k.roi_min_size}")
     _check(0 <= k.roi_min_valid <= 1, "data.kitti.roi_min_valid", f"must be in [0, 1], got {k.roi_min_valid}")
     _check(k.drives is None or not k.drive_count, "data.kitti.drive_count", "give either drives or drive_count, not both")
+    scheme = urllib.parse.urlsplit(k.base_url).scheme.lower()
+    refused = (f"plain http is refused unless data.kitti.allow_http is true (a mirror you trust), "
+               f"got {k.base_url!r}" if scheme == "http" else f"must be an https URL, got {k.base_url!r}")
+    _check(scheme == "https" or (scheme == "http" and k.allow_http), "data.kitti.base_url", refused)
     _check(s.gt_max_depth >= 0, "data.synthetic.gt_max_depth", f"must be >= 0 (0 = no limit), got {s.gt_max_depth}")
     _check(p.model.width_multiplier > 0, "model.width_multiplier", "must be > 0")
     _check(0 < p.model.init_disparity < 0.3, "model.init_disparity", "must be in (0, 0.3) (heads output 0.3*sigmoid)")

@@ -93,7 +93,7 @@ def prepare_data(params: Params, *options: str) -> None:
     k, lay = params.data.kitti, layout(params)
     names = download.parse_archive_list(k.archive_list)
     subset = list(k.drives) if k.drives is not None else (k.drive_count or None)
-    common = dict(jobs=k.jobs, dry_run="--dry-run" in options, jpeg=k.jpeg)
+    common = dict(jobs=k.jobs, dry_run="--dry-run" in options, jpeg=k.jpeg, allow_http=k.allow_http)
     raw = download.fetch_all(k.base_url, download.select_archives(names, subset), k.download_dir, lay.raw_root, **common)
     scene = download.fetch_all(k.base_url, [k.scene_flow_archive], k.download_dir, lay.kitti2015_root, **common)
     log.info("kitti: raw archives %s; KITTI 2015 %s", _summary(raw), _summary(scene))

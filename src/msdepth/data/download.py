@@ -11,6 +11,10 @@ takes for complete:
   records the sha256 of each archive once verified, and later runs compare against it.
 - :func:`extract` unpacks into a temp folder beside the destination, moves it into place and
   writes a completion marker last.
+- Only https is fetched unless plain http is allowed (``allow_http``, for a trusted mirror), and a
+  redirect never leaves https. Before anything is unpacked, every member is checked: no path
+  outside the destination, no symlink or device, and the declared sizes must fit the disk and
+  stay within :data:`MAX_EXPANSION` times the archive (a zip bomb is refused undecompressed).
 - :func:`fetch_all` does all of that for many archives in parallel and reports per archive.
 
 Standard library only (``urllib``, ``zipfile``, ``hashlib``); tqdm for progress bars.
@@ -26,6 +30,7 @@ import os
 import re
 import shutil
 import socket
+import stat
 import tempfile
 import threading
 import time
@@ -53,6 +58,13 @@ CHUNK_SIZE = 1 << 20  # 1 MiB reads: few syscalls, and a progress bar that still
 MAX_BACKOFF_S = 60.0
 JPEG_QUALITY = 92  # Monodepth's conversion (ImageMagick -quality 92, 4:2:0 chroma like OpenCV's)
 USER_AGENT = "msdepth-kitti-download"
+# Declared uncompressed bytes per archive byte above which an archive is refused as a zip bomb.
+# KITTI's archives are PNG images (already deflated: ~1x), velodyne float32 scans and a few text
+# files: ~1-3x. Deflate itself tops out near 1030x, reached by highly repetitive data (zeros), so
+# 100x leaves honest archives a 30x margin and stops the cheap bombs; the disk-space check bounds
+# anything below it. zipfile never writes more than a member's declared size (it cuts the output
+# there and checks the CRC), so the declared sizes are what extraction can write.
+MAX_EXPANSION = 100
 
 # Errors worth another try: the network or the server, not the request. HTTPError (a subclass of
 # URLError) is sorted by status in _open before it can reach this tuple.
@@ -152,16 +164,51 @@ def select_archives(names: Sequence[str], subset: int | str | Iterable[str] | No
 # --------------------------------------------------------------------------- HTTP
 
 
-def _open(url: str, timeout: float, *, method: str = "GET", offset: int = 0) -> http.client.HTTPResponse | urllib.error.HTTPError:
+def check_url(url: str, allow_http: bool = False) -> None:
+    """Refuse a URL that is not https (or, with ``allow_http``, http): over plain http anyone on
+    the path can swap an archive, and the manifest would then record the swapped bytes as good."""
+    scheme = urllib.parse.urlsplit(url).scheme.lower()
+    if scheme == "https" or (scheme == "http" and allow_http):
+        return
+    if scheme == "http":
+        raise DataError(
+            f"{url}: plain http is refused (the archive would travel unauthenticated); use https, or "
+            "allow http for a mirror you trust (data.kitti.allow_http: true)"
+        )
+    raise DataError(f"{url}: not an https URL{' (or http)' if allow_http else ''}; refusing to fetch it")
+
+
+class NoDowngradeRedirect(urllib.request.HTTPRedirectHandler):
+    """Follow redirects, except from https to anything else: a redirect must not undo the https
+    check, which applies to the URL that is actually requested."""
+
+    def redirect_request(self, req, fp, code, msg, headers, newurl):  # noqa: ANN001 - urllib's signature
+        if urllib.parse.urlsplit(req.full_url).scheme.lower() == "https" and \
+                urllib.parse.urlsplit(newurl).scheme.lower() != "https":
+            fp.close()
+            raise DataError(
+                f"{req.full_url}: redirected to {newurl}, which is not https; refusing the downgrade"
+            )
+        return super().redirect_request(req, fp, code, msg, headers, newurl)
+
+
+def _open(
+    url: str, timeout: float, *, method: str = "GET", offset: int = 0, allow_http: bool = False
+) -> http.client.HTTPResponse | urllib.error.HTTPError:
     """Send one request; return the response, or raise DataError (permanent) / _Transient.
 
     A 416 (range past the end) is returned like a response: the caller decides what it means.
+    A URL that :func:`check_url` refuses, or a redirect from https to http, is a DataError.
     """
+    check_url(url, allow_http)
     headers = {"User-Agent": USER_AGENT}
     if offset:
         headers["Range"] = f"bytes={offset}-"
     try:
-        return urllib.request.urlopen(urllib.request.Request(url, method=method, headers=headers), timeout=timeout)
+        # build_opener puts the handler in place of urllib's default redirect handler; the rest
+        # (proxies from the environment, TLS verification) is what urlopen uses.
+        opener = urllib.request.build_opener(NoDowngradeRedirect)
+        return opener.open(urllib.request.Request(url, method=method, headers=headers), timeout=timeout)
     except urllib.error.HTTPError as exc:
         if exc.code == 416:
             return exc
@@ -199,13 +246,15 @@ def _size(path: Path) -> int:
         return 0
 
 
-def _attempt(url: str, part: Path, timeout: float, bar: tqdm, on_bytes: Callable[[int], None] | None) -> int | None:
+def _attempt(
+    url: str, part: Path, timeout: float, bar: tqdm, on_bytes: Callable[[int], None] | None, allow_http: bool
+) -> int | None:
     """One GET, resuming ``part`` where it ends. Returns the total size if the server said it.
 
     Raises _Transient (or a network error) when the transfer should be retried from where it is.
     """
     offset = _size(part)
-    response = _open(url, timeout, offset=offset)
+    response = _open(url, timeout, offset=offset, allow_http=allow_http)
     with response:
         if response.status == 416:
             # Nothing left past ``offset``: either the .part is already whole (a run killed between
@@ -261,6 +310,7 @@ def download(
     progress: bool = True,
     expected_size: int | None = None,
     on_bytes: Callable[[int], None] | None = None,
+    allow_http: bool = False,
 ) -> Path:
     """Fetch ``url`` to ``dest``, resuming ``dest.part`` across failures; return ``dest``.
 
@@ -271,11 +321,13 @@ def download(
     fail at once. The size is checked against Content-Length / Content-Range (and
     ``expected_size`` if given) before ``.part`` is renamed to ``dest``. An existing ``dest`` is
     taken as complete, since only a complete file is ever renamed to it. ``on_bytes`` is called
-    with each chunk's length (for an overall count).
+    with each chunk's length (for an overall count). Only https is fetched, http too with
+    ``allow_http`` (:func:`check_url`); nothing is written for a refused URL.
     """
     dest = Path(dest)
     if dest.exists():
         return dest
+    check_url(url, allow_http)
     dest.parent.mkdir(parents=True, exist_ok=True)
     part = dest.with_suffix(dest.suffix + ".part")
     failures = 0
@@ -283,7 +335,7 @@ def download(
         while True:
             before = _size(part)
             try:
-                total = _attempt(url, part, timeout, bar, on_bytes)
+                total = _attempt(url, part, timeout, bar, on_bytes, allow_http)
                 break
             except (_Transient, *_TRANSIENT_ERRORS) as exc:
                 failures = 0 if _size(part) > before else failures + 1
@@ -306,11 +358,13 @@ def _describe(exc: BaseException) -> str:
     return f"{type(exc).__name__}: {exc}" if not isinstance(exc, _Transient) else str(exc)
 
 
-def remote_size(url: str, *, retries: int = 5, backoff: float = 1.0, timeout: float = 30) -> int | None:
+def remote_size(
+    url: str, *, retries: int = 5, backoff: float = 1.0, timeout: float = 30, allow_http: bool = False
+) -> int | None:
     """Content-Length of ``url`` from a HEAD request (None if the server does not say)."""
     for attempt in range(retries + 1):
         try:
-            with _open(url, timeout, method="HEAD") as response:
+            with _open(url, timeout, method="HEAD", allow_http=allow_http) as response:
                 return _int_header(response.headers.get("Content-Length"))
         except (_Transient, *_TRANSIENT_ERRORS) as exc:
             if attempt == retries:
@@ -327,6 +381,7 @@ def verify_zip(path: str | os.PathLike) -> None:
 
     This is ``ZipFile.testzip()``'s loop, but catching every way a damaged member fails (a bad
     deflate stream raises zlib.error, which testzip lets through without the member's name).
+    Members that :func:`check_members` refuses fail first, before anything is decompressed.
     """
     path = Path(path)
     try:
@@ -337,6 +392,7 @@ def verify_zip(path: str | os.PathLike) -> None:
         members = zf.infolist()
         if not members:
             raise DataError(f"{path}: zip archive has no members")
+        check_members(zf, path)  # a zip bomb is not even decompressed
         for info in members:
             try:
                 with zf.open(info) as member:
@@ -426,12 +482,44 @@ def _marker(zip_path: Path, dest_dir: Path) -> Path:
     return dest_dir / f".{zip_path.name}.complete"
 
 
-def _check_member_names(zf: zipfile.ZipFile, zip_path: Path) -> None:
-    """Refuse members that would land outside the destination (zip-slip)."""
-    for name in zf.namelist():
+def check_members(zf: zipfile.ZipFile, zip_path: Path) -> int:
+    """Refuse an archive with a member that must not be unpacked; return the declared total size.
+
+    Refused: a path outside the destination (``..``, absolute, a drive letter or a leading
+    backslash: zip-slip), a symbolic link, device, fifo or socket (the Unix mode in the high bits
+    of ``external_attr``), and declared sizes above :data:`MAX_EXPANSION` times the archive's.
+    """
+    total = 0
+    for info in zf.infolist():
+        name = info.filename
         parts = re.split(r"[\\/]", name)
         if name.startswith(("/", "\\")) or re.match(r"^[A-Za-z]:", name) or ".." in parts:
             raise DataError(f"{zip_path}: member {name!r} points outside the extraction folder; refusing to extract")
+        kind = stat.S_IFMT(info.external_attr >> 16)
+        if kind not in (0, stat.S_IFREG, stat.S_IFDIR):  # 0: no Unix mode (e.g. written on Windows)
+            what = "a symbolic link" if kind == stat.S_IFLNK else "a device, fifo or socket"
+            raise DataError(f"{zip_path}: member {name!r} is {what}; refusing to extract")
+        total += info.file_size
+    size = _size(zip_path)
+    if total > MAX_EXPANSION * max(size, 1):
+        raise DataError(
+            f"{zip_path}: members declare {_human(total)} uncompressed, {total / max(size, 1):.0f}x the "
+            f"archive's {_human(size)} (more than {MAX_EXPANSION}x: a zip bomb?); refusing to extract"
+        )
+    return total
+
+
+def _check_free_space(zip_path: Path, dest_dir: Path, needed: int) -> None:
+    """Refuse to start an extraction that cannot fit: the declared sizes against the free space."""
+    probe = dest_dir
+    while not probe.exists() and probe != probe.parent:
+        probe = probe.parent
+    free = shutil.disk_usage(probe).free
+    if needed > free:
+        raise DataError(
+            f"{zip_path}: needs {_human(needed)} to extract but {probe} has {_human(free)} free; "
+            "refusing to start"
+        )
 
 
 def _to_jpeg(root: Path, quality: int) -> None:
@@ -480,36 +568,41 @@ def extract(
     move is a rename); the completion marker ``.<archive>.complete`` is written last, so a
     half-extracted drive is never taken as complete and is simply redone. With ``jpeg`` the PNGs
     are converted to JPEG (``jpeg_quality``) before anything is moved into place.
+
+    Nothing at all is written (not even ``dest_dir``) for an archive that :func:`check_members`
+    refuses or whose declared size exceeds the free space at ``dest_dir``.
     """
     zip_path, dest_dir = Path(zip_path), Path(dest_dir)
     marker = _marker(zip_path, dest_dir)
     if marker.exists():
         return False
-    dest_dir.mkdir(parents=True, exist_ok=True)
-    for stale in dest_dir.glob(f".{glob.escape(zip_path.name)}.*.tmp"):
-        shutil.rmtree(stale, ignore_errors=True)  # left by a killed run
-    tmp = Path(tempfile.mkdtemp(prefix=f".{zip_path.name}.", suffix=".tmp", dir=dest_dir))
     try:
+        zf = zipfile.ZipFile(zip_path)
+    except (zipfile.BadZipFile, OSError) as exc:
+        raise DataError(f"{zip_path}: not a readable zip archive ({exc})") from None
+    with zf:
+        _check_free_space(zip_path, dest_dir, check_members(zf, zip_path))
+        tmp = None
         try:
-            zf = zipfile.ZipFile(zip_path)
-        except (zipfile.BadZipFile, OSError) as exc:
-            raise DataError(f"{zip_path}: not a readable zip archive ({exc})") from None
-        with zf:
-            _check_member_names(zf, zip_path)
+            dest_dir.mkdir(parents=True, exist_ok=True)
+            for stale in dest_dir.glob(f".{glob.escape(zip_path.name)}.*.tmp"):
+                shutil.rmtree(stale, ignore_errors=True)  # left by a killed run
+            tmp = Path(tempfile.mkdtemp(prefix=f".{zip_path.name}.", suffix=".tmp", dir=dest_dir))
             members = zf.infolist()
             for info in members:
                 try:
                     zf.extract(info, tmp)
                 except (zipfile.BadZipFile, zlib.error, EOFError) as exc:
                     raise DataError(f"{zip_path}: member {info.filename} is corrupt ({exc})") from None
-        if jpeg:
-            _to_jpeg(tmp, jpeg_quality)
-        _move_into(tmp, dest_dir)
-        write_json(marker, {"archive": zip_path.name, "members": len(members), "jpeg": jpeg})
-    except OSError as exc:  # disk full, permissions: name the archive, not just a member path
-        raise DataError(f"{zip_path}: extraction into {dest_dir} failed ({exc})") from None
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
+            if jpeg:
+                _to_jpeg(tmp, jpeg_quality)
+            _move_into(tmp, dest_dir)
+            write_json(marker, {"archive": zip_path.name, "members": len(members), "jpeg": jpeg})
+        except OSError as exc:  # disk full, permissions: name the archive, not just a member path
+            raise DataError(f"{zip_path}: extraction into {dest_dir} failed ({exc})") from None
+        finally:
+            if tmp is not None:
+                shutil.rmtree(tmp, ignore_errors=True)
     return True
 
 
@@ -529,6 +622,7 @@ def fetch_all(
     retries: int = 5,
     backoff: float = 1.0,
     timeout: float = 30,
+    allow_http: bool = False,
 ) -> dict[str, Any]:
     """Download, verify and extract the archives ``names`` (URL paths relative to ``base_url``,
     as :func:`parse_archive_list` returns them; absolute URLs are used as they are).
@@ -541,6 +635,9 @@ def fetch_all(
 
     ``dry_run`` asks each missing archive's size with a HEAD request, prints what would be
     fetched and returns ``to_fetch`` (name -> size), ``skipped``, ``failed`` and ``total_bytes``.
+
+    Every URL must be https, or http with ``allow_http`` (:func:`check_url`): the first that is
+    not is a DataError before anything is fetched or written.
     """
     download_dir, extract_dir = Path(download_dir), Path(extract_dir)
     if not base_url.endswith("/"):
@@ -548,8 +645,13 @@ def fetch_all(
     urls = {archive_filename(n): urllib.parse.urljoin(base_url, n) for n in names}
     if len(urls) != len(names):
         raise DataError("fetch_all: two archives in the list share a file name")
+    for url in urls.values():
+        check_url(url, allow_http)
     if dry_run:
-        return _dry_run(urls, download_dir, extract_dir, jobs=jobs, retries=retries, backoff=backoff, timeout=timeout)
+        return _dry_run(
+            urls, download_dir, extract_dir, jobs=jobs, retries=retries, backoff=backoff, timeout=timeout,
+            allow_http=allow_http,
+        )
 
     download_dir.mkdir(parents=True, exist_ok=True)
     manifest = Manifest(download_dir / MANIFEST_NAME)
@@ -568,7 +670,10 @@ def fetch_all(
                 report["skipped"].append(name)
             return
         present = archive.exists()
-        download(url, archive, retries=retries, backoff=backoff, timeout=timeout, progress=progress, on_bytes=count)
+        download(
+            url, archive, retries=retries, backoff=backoff, timeout=timeout, progress=progress,
+            on_bytes=count, allow_http=allow_http,
+        )
         try:
             verify_archive(archive, manifest, url)
         except DataError:
@@ -603,7 +708,8 @@ def fetch_all(
 
 
 def _dry_run(
-    urls: dict[str, str], download_dir: Path, extract_dir: Path, *, jobs: int, retries: int, backoff: float, timeout: float
+    urls: dict[str, str], download_dir: Path, extract_dir: Path, *, jobs: int, retries: int, backoff: float,
+    timeout: float, allow_http: bool = False,
 ) -> dict[str, Any]:
     """What fetch_all would download, with sizes from HEAD requests; downloads nothing."""
     report: dict[str, Any] = {"dry_run": True, "to_fetch": {}, "skipped": [], "failed": {}, "total_bytes": 0}
@@ -613,7 +719,9 @@ def _dry_run(
     report["skipped"] = sorted(set(urls) - set(missing))
 
     def size(name: str) -> int | None:
-        return remote_size(urls[name], retries=retries, backoff=backoff, timeout=timeout)
+        return remote_size(
+            urls[name], retries=retries, backoff=backoff, timeout=timeout, allow_http=allow_http
+        )
 
     with ThreadPoolExecutor(max_workers=max(1, jobs)) as pool:
         for name, future in [(n, pool.submit(size, n)) for n in missing]:
