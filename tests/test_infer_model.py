@@ -99,3 +99,76 @@ def test_params_yaml_loads():
 def test_bad_params_name_the_key(patch, key):
     with pytest.raises(ConfigError, match=re.escape(key)):
         params_from_dict(patch)
+
+
+@pytest.mark.parametrize("norm, heads", [("group", "independent"), ("none", "residual"), ("group", "residual")])
+def test_network_options_keep_shapes_and_start_at_the_initial_disparity(norm, heads):
+    model = MonodepthVGG(0.125, init_disparity=0.04, norm=norm, heads=heads)
+    with torch.no_grad():
+        disps = model(torch.rand(2, 3, 64, 192))
+    assert [tuple(d.shape) for d in disps] == [(2, 2, 64 >> s, 192 >> s) for s in range(4)]
+    for d in disps:  # residual heads add ~0 to the coarsest level, which starts at init_disparity
+        assert float(d.mean()) == pytest.approx(0.04, abs=0.01)
+    norms = [m for m in model.modules() if isinstance(m, torch.nn.GroupNorm)]
+    assert len(norms) == (0 if norm == "none" else 7 * 2 + 7 * 2)  # every conv but the heads
+
+
+def test_the_dissertation_network_is_still_the_default():
+    plain = MonodepthVGG(1.0)
+    assert plain.norm == "none" and not plain.residual
+    assert not any(isinstance(m, torch.nn.GroupNorm) for m in plain.modules())
+    with pytest.raises(ValueError, match="heads"):
+        MonodepthVGG(0.125, heads="cascade")
+    with pytest.raises(ValueError, match="norm"):
+        MonodepthVGG(0.125, norm="batch")
+
+
+def test_residual_heads_refine_the_upsampled_coarser_disparity():
+    torch.manual_seed(0)
+    model = MonodepthVGG(0.125, init_disparity=0.04, heads="residual")
+    for head in model.heads[1:]:  # finer heads predict no correction: each scale is the coarser one, upsampled
+        torch.nn.init.zeros_(head.weight)
+        torch.nn.init.zeros_(head.bias)
+    torch.nn.init.normal_(model.heads[0].weight, std=0.5)  # a coarsest map that varies
+    with torch.no_grad():
+        disps = model(torch.rand(1, 3, 64, 192))
+    logit = lambda d: torch.logit(d / 0.3)  # noqa: E731
+    for fine, coarse in zip(disps[:-1], disps[1:]):
+        up = torch.nn.functional.interpolate(logit(coarse), size=fine.shape[-2:], mode="bilinear", align_corners=False)
+        torch.testing.assert_close(logit(fine), up, atol=1e-4, rtol=1e-4)
+    assert float(disps[-1].std()) > 1e-3
+
+
+def test_group_norm_network_treats_each_image_on_its_own():
+    # GroupNorm normalises per image: a batch gives each image what it would get alone, so
+    # batch size and data-parallel splits do not change the model.
+    torch.manual_seed(0)
+    model = MonodepthVGG(0.125, init_disparity=0.04, norm="group", heads="residual").eval()
+    x = torch.rand(3, 3, 64, 192)
+    with torch.no_grad():
+        together = model(x)[0]
+        alone = torch.cat([model(x[i:i + 1])[0] for i in range(3)])
+    torch.testing.assert_close(together, alone, atol=1e-6, rtol=1e-5)
+
+
+def test_saved_model_rebuilds_its_architecture(tmp_path):
+    from msdepth.train import build_loss, build_model, load_model, save_model
+
+    raw = {"model": {"width_multiplier": 0.125, "norm": "group", "heads": "residual"}}
+    params = params_from_dict(raw)
+    torch.manual_seed(0)
+    model = build_model(params).eval()
+    save_model(tmp_path / "m.pt", model, build_loss(params, "ssim"), params, "ssim", 0)
+    loaded, meta = load_model(tmp_path / "m.pt")
+    assert (loaded.norm, loaded.residual, meta["norm"], meta["heads"]) == ("group", True, "group", "residual")
+    x = torch.rand(1, 3, 64, 192)
+    with torch.no_grad():
+        torch.testing.assert_close(loaded(x)[0], model(x)[0])
+    # A file written before these options holds the dissertation's network.
+    state = torch.load(tmp_path / "m.pt", weights_only=True)
+    plain = MonodepthVGG(0.125)
+    state.update(model=plain.state_dict())
+    del state["norm"], state["heads"]
+    torch.save(state, tmp_path / "old.pt")
+    old, _ = load_model(tmp_path / "old.pt")
+    assert old.norm == "none" and not old.residual

@@ -66,15 +66,19 @@ class DataConfig:
 class ModelConfig:
     width_multiplier: float = 0.25
     init_disparity: float = 0.04
+    # none = the dissertation's conv + ELU network; group = a GroupNorm after every convolution
+    norm: Literal["none", "group"] = "group"
+    # independent = the dissertation's heads; residual = each finer scale corrects the coarser one
+    heads: Literal["independent", "residual"] = "residual"
 
 
 @dataclass(frozen=True)
 class TrainConfig:
     # One training run per variant and seed; each seed seeds init, shuffling and augmentation.
-    seeds: tuple[int, ...] = (0,)
-    epochs: int = 16
+    seeds: tuple[int, ...] = (0, 1, 2)
+    epochs: int = 8
     batch_size: int = 8
-    learning_rate: float = 1e-3
+    learning_rate: float = 1e-4
     num_workers: int = 0
     augment: bool = True
     device: Literal["cpu", "cuda", "auto"] = "cpu"

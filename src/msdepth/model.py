@@ -8,6 +8,7 @@ so 1.0 is the paper's model (~31 M parameters) and 0.25 runs on a laptop CPU.
 from __future__ import annotations
 
 import math
+from typing import Literal
 
 import torch
 import torch.nn.functional as F
@@ -20,10 +21,29 @@ ENCODER = ((7, 32), (5, 64), (3, 128), (3, 256), (3, 512), (3, 512), (3, 512))
 DECODER = (512, 512, 256, 128, 64, 32, 16)
 MAX_DISPARITY = 0.3  # heads output 0.3 * sigmoid, a fraction of the width
 
+Norm = Literal["none", "group"]
+NORMS = ("none", "group")
+Heads = Literal["independent", "residual"]
+HEADS = ("independent", "residual")
 
-def _conv(in_ch: int, out_ch: int, kernel: int, stride: int = 1) -> nn.Sequential:
-    # Zero padding of (k-1)//2 then a conv, ELU, as in Monodepth's `conv`.
-    return nn.Sequential(nn.Conv2d(in_ch, out_ch, kernel, stride, (kernel - 1) // 2), nn.ELU(inplace=True))
+
+def group_count(channels: int) -> int:
+    """GroupNorm groups for a layer: about 4 channels per group, at most 32 (Wu & He 2018's
+    default), and a divisor of ``channels``."""
+    return math.gcd(channels, min(32, max(1, channels // 4)))
+
+
+def _conv(in_ch: int, out_ch: int, kernel: int, stride: int = 1, norm: Norm = "none") -> nn.Sequential:
+    # Zero padding of (k-1)//2 then a conv, ELU, as in Monodepth's `conv`; with norm="group" a
+    # GroupNorm between them (per image, so batch size and data parallelism do not change it).
+    pad = (kernel - 1) // 2
+    if norm == "none":
+        return nn.Sequential(nn.Conv2d(in_ch, out_ch, kernel, stride, pad), nn.ELU(inplace=True))
+    return nn.Sequential(
+        nn.Conv2d(in_ch, out_ch, kernel, stride, pad, bias=False),
+        nn.GroupNorm(group_count(out_ch), out_ch),
+        nn.ELU(inplace=True),
+    )
 
 
 def _ch(channels: int, multiplier: float) -> int:
@@ -36,27 +56,41 @@ class MonodepthVGG(nn.Module):
     Each map has 2 channels (0 = left disparity, 1 = right disparity) in fractions of the
     width at that scale. Any input size works (upsampling follows the skip's size); sizes
     divisible by 8 make the 4 outputs exact halvings.
+
+    ``norm="none"`` and ``heads="independent"`` are the dissertation's network. ``norm="group"``
+    puts a GroupNorm after every convolution but the disparity heads. ``heads="residual"`` makes
+    each finer head predict a correction to the coarser scale's disparity (added in logit space
+    to its bilinear upsampling), coarse to fine: the finest map starts from what the coarse
+    scales learned instead of from its own initial value.
     """
 
-    def __init__(self, width_multiplier: float = 1.0, init_disparity: float | None = None) -> None:
+    def __init__(
+        self, width_multiplier: float = 1.0, init_disparity: float | None = None, norm: Norm = "none",
+        heads: Heads = "independent",
+    ) -> None:
         super().__init__()
+        if norm not in NORMS:
+            raise ValueError(f"MonodepthVGG: norm must be one of {NORMS}, got {norm!r}")
+        if heads not in HEADS:
+            raise ValueError(f"MonodepthVGG: heads must be one of {HEADS}, got {heads!r}")
+        self.norm, self.residual = norm, heads == "residual"
         enc = [(k, _ch(c, width_multiplier)) for k, c in ENCODER]
         dec = [_ch(c, width_multiplier) for c in DECODER]
         self.encoder = nn.ModuleList()
         in_ch = 3
         for kernel, ch in enc:
-            self.encoder.append(nn.Sequential(_conv(in_ch, ch, kernel, 2), _conv(ch, ch, kernel, 1)))
+            self.encoder.append(nn.Sequential(_conv(in_ch, ch, kernel, 2, norm), _conv(ch, ch, kernel, 1, norm)))
             in_ch = ch
         skips = [ch for _, ch in enc[:-1]][::-1]  # conv6b .. conv1b
         self.upconvs = nn.ModuleList()
         self.iconvs = nn.ModuleList()
         self.heads = nn.ModuleList()
         for i, ch in enumerate(dec):
-            self.upconvs.append(_conv(in_ch, ch, 3, 1))
+            self.upconvs.append(_conv(in_ch, ch, 3, 1, norm))
             skip = skips[i] if i < len(skips) else 0
             # The three finest iconvs also take the upsampled coarser disparity ("+disp*").
             extra = 2 if i >= 4 else 0
-            self.iconvs.append(_conv(ch + skip + extra, ch, 3, 1))
+            self.iconvs.append(_conv(ch + skip + extra, ch, 3, 1, norm))
             if i >= 3:  # iconv4 .. iconv1 feed disp4 .. disp1
                 self.heads.append(nn.Conv2d(ch, 2, 3, 1, 1))
             in_ch = ch
@@ -71,9 +105,10 @@ class MonodepthVGG(nn.Module):
         small, short runs learn (see README).
         """
         bias = math.log(disparity / (MAX_DISPARITY - disparity))  # logit(disparity / 0.3)
-        for head in self.heads:
+        for i, head in enumerate(self.heads):
             nn.init.normal_(head.weight, std=1e-3)
-            nn.init.constant_(head.bias, bias)
+            # Residual heads: only the coarsest (the first) sets the level, the others add to it.
+            nn.init.constant_(head.bias, 0.0 if self.residual and i > 0 else bias)
 
     def forward(self, image: Tensor) -> list[Tensor]:
         feats = []
@@ -83,6 +118,7 @@ class MonodepthVGG(nn.Module):
             feats.append(x)
         skips = feats[:-1][::-1]  # conv6b .. conv1b
         disps: list[Tensor] = []
+        logits: Tensor | None = None
         for i, (up, iconv) in enumerate(zip(self.upconvs, self.iconvs)):
             size = skips[i].shape[-2:] if i < len(skips) else image.shape[-2:]
             x = up(F.interpolate(x, size=size, mode="nearest"))
@@ -93,7 +129,11 @@ class MonodepthVGG(nn.Module):
                 parts.append(F.interpolate(disps[-1], size=size, mode="nearest"))
             x = iconv(torch.cat(parts, dim=1))
             if i >= 3:
-                disps.append(MAX_DISPARITY * torch.sigmoid(self.heads[i - 3](x)))
+                head = self.heads[i - 3](x)
+                if self.residual and logits is not None:
+                    head = head + F.interpolate(logits, size=size, mode="bilinear", align_corners=False)
+                logits = head
+                disps.append(MAX_DISPARITY * torch.sigmoid(head))
         return disps[::-1]
 
 

@@ -71,7 +71,8 @@ def resolve_device(name: str) -> torch.device:
 
 def build_model(params: Params) -> MonodepthVGG:
     """The depth network of ``params.model``, heads initialised for training."""
-    return MonodepthVGG(params.model.width_multiplier, init_disparity=params.model.init_disparity)
+    m = params.model
+    return MonodepthVGG(m.width_multiplier, init_disparity=m.init_disparity, norm=m.norm, heads=m.heads)
 
 
 def build_loss(params: Params, variant: str) -> MonodepthLoss:
@@ -173,6 +174,7 @@ def train_variant(
     cache: np.ndarray | None = None,
     seed: int | None = None,
     summary_path: str | os.PathLike | None = None,
+    on_epoch: Callable[[int, MonodepthVGG, dict[str, float]], None] | None = None,
 ) -> TrainResult:
     """Train ``variant`` with training seed ``seed`` (default: the first of ``train.seeds``) on
     ``pairs``; write the final weights to ``model_path``.
@@ -183,7 +185,8 @@ def train_variant(
     A checkpoint is written atomically at ``checkpoint_path`` after every epoch and resumed
     from when its fingerprint matches. Per-epoch mean losses go to dvclive in ``live_dir``, the
     training summary (steps, speed, final losses) to ``summary_path``; under torchrun only rank 0
-    writes files.
+    writes files. ``on_epoch(epoch, model, mean_losses)`` is called after each epoch trained in
+    this call (epochs count from 1), e.g. to evaluate the network as it learns.
     """
     t = params.train
     seed = t.seeds[0] if seed is None else seed
@@ -283,6 +286,8 @@ def train_variant(
                 "seconds": seconds_before + time.perf_counter() - started,
             })
             log.info("%s epoch %d/%d: %s", variant, epoch + 1, t.epochs, json.dumps(means))
+        if on_epoch is not None:
+            on_epoch(epoch + 1, model, means)
     if live is not None:
         live.end()
     this_run = time.perf_counter() - started
@@ -378,6 +383,8 @@ def save_model(
         "model": model.state_dict(),
         "criterion": criterion.state_dict(),
         "width_multiplier": params.model.width_multiplier,
+        "norm": params.model.norm,
+        "heads": params.model.heads,
         "height": params.data.height,
         "width": params.data.width,
         "variant": variant,
@@ -405,7 +412,9 @@ def load_model(path: str | os.PathLike, device: str | torch.device = "cpu") -> t
     missing = [k for k in ("model", "width_multiplier", "height", "width") if k not in state]
     if missing:
         raise MsdepthError(f"{path}: not a model file written by msdepth (no {', '.join(missing)})")
-    model = MonodepthVGG(state["width_multiplier"])
+    # Files written before the norm and heads options hold the dissertation's network.
+    model = MonodepthVGG(state["width_multiplier"], norm=state.get("norm", "none"),
+                         heads=state.get("heads", "independent"))
     model.load_state_dict(state["model"])
     meta = {k: v for k, v in state.items() if k not in ("model", "criterion")}
     return model.to(device).eval(), meta
