@@ -131,3 +131,37 @@ def test_compare_table_marks_best_variant():
     result, md = build_comparison(suites, ["ssim", "msssim"], ["prior"])
     assert "| msssim | **0.2000** |" in md  # best variant in bold; baselines never are
     assert result["full"]["cap80"]["prior"]["abs_rel"] == 0.1
+
+
+def _frames_with_depth(depths):
+    return [Frame(f"{i:06d}_10", np.where(d > 0, FOCAL * BASELINE / np.maximum(d, 1e-9), 0).astype(np.float32),
+                  FOCAL, BASELINE) for i, d in enumerate(depths)]
+
+
+def test_image_dependence_tells_a_prior_from_a_network_that_follows_the_scene():
+    from msdepth.evaluate import image_dependence
+
+    rng = np.random.default_rng(0)
+    depths = [rng.uniform(5, 60, (30, 90)).astype(np.float32) for _ in range(6)]
+    depths[0][:5] = 0  # invalid GT somewhere
+    frames = _frames_with_depth(depths)
+    gt = {f.name: f.gt_depth for f in frames}
+    exact = image_dependence(gt, frames, 80.0)
+    assert exact["variation_ratio"] == pytest.approx(1.0, rel=1e-4)
+    # A scale error does not change how much the prediction follows the scene.
+    assert image_dependence({k: 1.3 * v for k, v in gt.items()}, frames, 80.0)["variation_ratio"] == pytest.approx(1.0, rel=1e-4)
+    # The same map for every image (a prior, or a constant) does not depend on the image at all.
+    prior = np.median(np.stack(depths), axis=0)
+    assert image_dependence({k: prior for k in gt}, frames, 80.0)["variation_ratio"] == pytest.approx(0.0, abs=1e-9)
+    half = {k: 0.5 * v + 0.5 * prior for k, v in gt.items()}
+    assert 0.3 < image_dependence(half, frames, 80.0)["variation_ratio"] < 0.7
+    # Frames of different sizes (KITTI's widths vary by day) share the smallest grid.
+    mixed = _frames_with_depth([depths[0], cv2.resize(depths[1], (92, 30), interpolation=cv2.INTER_NEAREST), *depths[2:]])
+    assert image_dependence({f.name: f.gt_depth for f in mixed}, mixed, 80.0)["variation_ratio"] == pytest.approx(1.0, rel=1e-4)
+
+
+def test_full_suite_reports_image_dependence(scene):
+    frames, preds = scene
+    summary, _ = evaluate_full(depth_maps(preds, frames), frames, EvalConfig())
+    assert set(summary["image_dependence"]) == {"pixels", "pred_variation", "gt_variation", "variation_ratio"}
+    assert summary["image_dependence"]["variation_ratio"] > 0

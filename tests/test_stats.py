@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pandas as pd
 import pytest
 
-from msdepth.compare import build_comparison, mean_over_runs, paired_statistics, seed_spread
+from msdepth.compare import build_comparison, image_dependence, mean_over_runs, paired_statistics, seed_spread
 from msdepth.config import CompareConfig
 from msdepth.errors import DataError
 from msdepth.metrics import METRICS
@@ -98,7 +100,58 @@ def test_compare_reports_intervals_and_marks_clear_differences() -> None:
     result, md = build_comparison(suites, ["ssim", "msssim"], ["noise"], stats)
     assert result["statistics"] is stats
     assert "Difference to ssim (30 paired images)" in md and "Difference to ssim (30 paired ROIs)" in md
-    assert "| msssim | -0.0500 [-0.0500, -0.0500] * |" in md
+    # One seed: the interval covers the images only, so even a clear difference is not marked.
+    assert "| msssim | -0.0500 [-0.0500, -0.0500] |" in md and " * |" not in md
+    assert "so no difference is marked" in md
+
+
+def test_differences_are_marked_only_over_at_least_three_seeds() -> None:
+    frames = [f"{i:06d}_10" for i in range(30)]
+    base = np.random.default_rng(2).uniform(0.2, 0.4, 30)
+    runs = {f"{v}/seed{s}": _table(frames, base - (0.05 if v == "msssim" else 0.0) + 0.001 * s)
+            for v in ("ssim", "msssim") for s in range(3)}
+    runs["prior"] = _table(frames, base + 0.2)
+    tables = {"full": runs, "roi": {r: t.rename(columns={"frame": "roi"}) for r, t in runs.items()}}
+    block = {m: 0.3 for m in METRICS}
+    grad = {"cap80": {"overall": {f"pred_{g}": 1.0 for g in ("sobel_x", "sobel_y", "laplacian")},
+                      "dense_gt": {"overall": {}}}}
+    groups3 = {"ssim": [f"ssim/seed{s}" for s in range(3)], "msssim": [f"msssim/seed{s}" for s in range(3)],
+               "prior": ["prior"]}
+    for groups, seeds, marked in ((groups3, [0, 1, 2], True),
+                                  ({k: v[:2] for k, v in groups3.items()}, [0, 1], False)):
+        stats = paired_statistics(tables, groups, CompareConfig(bootstrap_samples=500), [80.0])
+        suites = {"full": {g: {"cap80": block} for g in groups},
+                  "roi": {g: {"cap80": {"overall": {**block, "count": 30}, "by_class": {}}} for g in groups},
+                  "gradients": {g: grad for g in groups}}
+        _, md = build_comparison(suites, ["ssim", "msssim"], ["prior"], stats, seeds=seeds)
+        assert ("| msssim | -0.0500 [" in md) and ("] * |" in md) == marked, md
+        # The baseline is deterministic: its mark needs only the reference's seeds.
+        assert bool(re.search(r"\| prior \| \+0\.19\d\d \[[^]]+\] \*", md)) == marked
+
+
+def test_an_image_blind_run_is_flagged_in_words() -> None:
+    frames = [f"{i:06d}_10" for i in range(10)]
+    rng = np.random.default_rng(3)
+    prior_errors = rng.uniform(0.2, 0.5, 10)
+    runs = {"ssim/seed0": _table(frames, rng.uniform(0.1, 0.3, 10)),
+            "msssim/seed0": _table(frames, prior_errors + 0.001), "prior": _table(frames, prior_errors)}
+    tables = {"full": runs, "roi": {r: t.rename(columns={"frame": "roi"}) for r, t in runs.items()}}
+    groups = {"ssim": ["ssim/seed0"], "msssim": ["msssim/seed0"], "prior": ["prior"]}
+    ratios = {"ssim/seed0": 0.9, "msssim/seed0": 0.02, "prior": 0.0}
+    block = {m: 0.3 for m in METRICS}
+    per_run = {r: {"cap80": block, "image_dependence": {"variation_ratio": v}} for r, v in ratios.items()}
+    dependence = image_dependence({"full": per_run}, tables, groups, "prior", 80.0)
+    assert dependence["msssim/seed0"]["image_blind"] and not dependence["ssim/seed0"]["image_blind"]
+    assert dependence["msssim/seed0"]["prior_correlation"] == pytest.approx(1.0, abs=1e-3)
+    assert dependence["prior"]["prior_correlation"] is None
+    suites = {"full": {g: {"cap80": block} for g in groups},
+              "roi": {g: {"cap80": {"overall": {**block, "count": 10}, "by_class": {}}} for g in groups},
+              "gradients": {g: {"cap80": {"overall": {f"pred_{x}": 1.0 for x in ("sobel_x", "sobel_y", "laplacian")},
+                                          "dense_gt": {"overall": {}}}} for g in groups}}
+    result, md = build_comparison(suites, ["ssim", "msssim"], ["prior"], dependence=dependence, groups=groups)
+    assert "| msssim (image-blind) |" in md and "| ssim |" in md
+    assert "| msssim/seed0 | 0.0200 | 1.0000 | image-blind: its predictions barely change between images |" in md
+    assert result["image_dependence"] is dependence
 
 
 # --- several training seeds per variant -------------------------------------------------------

@@ -17,6 +17,13 @@ from .metrics import HIGHER_IS_BETTER, METRICS
 from .stats import paired_table, seed_bootstrap
 
 SUITES = ("full", "roi", "gradients")
+# A difference is marked only when its interval covers training noise: at least this many seeds
+# of every trained run it involves (with fewer, the seed draws cannot show seed-to-seed spread).
+MIN_SEEDS_FOR_MARKS = 3
+# A run whose predictions vary across images less than this fraction of the GT's variation is
+# called image-blind (a constant or the per-pixel prior score exactly 0; networks that follow
+# the scene ~1).
+IMAGE_BLIND_BELOW = 0.25
 
 
 def _load_runs(metrics_dir: str | os.PathLike, suites: Sequence[str], runs: Sequence[str], suffix: str, read, what: str) -> dict:
@@ -125,16 +132,49 @@ def seed_spread(suites: dict[str, dict[str, dict]], groups: dict[str, Sequence[s
     return out
 
 
-def _ci_rows(block: dict) -> list[list[str]]:
-    """One row per run: ``mean [low, high]`` per metric, ``*`` where the interval excludes 0."""
+def marks_allowed(difference: dict, baseline: bool) -> bool:
+    """Whether ``difference`` (a PairedDifference dict) may be marked: its interval covers the
+    training noise of every trained run in it (a baseline is deterministic: only the reference's
+    seeds count)."""
+    seeds = [difference["reference_seeds"]] + ([] if baseline else [difference["seeds"]])
+    return min(seeds) >= MIN_SEEDS_FOR_MARKS
+
+
+def _ci_rows(block: dict, baselines: Sequence[str]) -> list[list[str]]:
+    """One row per run: ``mean [low, high]`` per metric, ``*`` where the interval excludes 0 and
+    covers seed-to-seed variation (:func:`marks_allowed`)."""
     rows = []
     for run, metrics in block.items():
         cells = []
         for m in METRICS:
             d = metrics[m]
-            cells.append(f"{d['mean']:+.4f} [{d['low']:+.4f}, {d['high']:+.4f}]{' *' if d['excludes_zero'] else ''}")
+            mark = d["excludes_zero"] and marks_allowed(d, run in baselines)
+            cells.append(f"{d['mean']:+.4f} [{d['low']:+.4f}, {d['high']:+.4f}]{' *' if mark else ''}")
         rows.append([run, *cells])
     return rows
+
+
+def image_dependence(
+    suites: dict[str, dict[str, dict]], tables: dict[str, dict[str, pd.DataFrame]], groups: dict[str, Sequence[str]],
+    prior: str, cap: float,
+) -> dict[str, dict]:
+    """Per run: its ``variation_ratio`` (from the full-image suite), the correlation of its
+    per-image abs_rel with the image-blind ``prior``'s, and ``image_blind`` (ratio below
+    :data:`IMAGE_BLIND_BELOW`). A network whose per-image errors track the prior's and whose
+    predictions barely change between images has learned the average scene, not depth."""
+    full = {r: t[t["cap"] == cap] for r, t in tables["full"].items()}
+    out: dict = {}
+    for runs in groups.values():
+        for run in runs:
+            ratio = suites["full"][run].get("image_dependence", {}).get("variation_ratio")
+            corr = None
+            if prior in full and run != prior:
+                errors, prior_errors = paired_table(full[run], full[prior], ["frame"], "abs_rel", f"full {run} vs {prior}")
+                if len(errors) > 2 and np.std(errors) > 0 and np.std(prior_errors) > 0:
+                    corr = float(np.corrcoef(errors, prior_errors)[0, 1])
+            out[run] = {"variation_ratio": ratio, "prior_correlation": corr,
+                        "image_blind": ratio is not None and bool(ratio < IMAGE_BLIND_BELOW)}
+    return out
 
 
 def _fmt(v: float | None) -> str:
@@ -161,13 +201,18 @@ def build_comparison(
     stats: dict | None = None,
     spread: dict | None = None,
     seeds: Sequence[int] = (0,),
+    dependence: dict[str, dict] | None = None,
+    groups: dict[str, Sequence[str]] | None = None,
 ) -> tuple[dict, str]:
     """The comparison as JSON-ready dict and as Markdown (best variant per column in bold).
 
     ``suites`` holds each variant's metrics averaged over its ``seeds`` (:func:`group_metrics`).
     With ``stats`` (from :func:`paired_statistics`), each full-image and ROI table is followed
     by the differences to the reference variant with their bootstrap intervals; with ``spread``
-    (:func:`seed_spread`) and more than one seed, by each variant's mean ± sd over seeds.
+    (:func:`seed_spread`) and more than one seed, by each variant's mean ± sd over seeds. With
+    ``dependence`` (:func:`image_dependence`, per run) and ``groups`` (variant -> its runs), a
+    section says for every run whether it uses the image, and image-blind runs are flagged in
+    the tables.
     """
     runs = [*variants, *baselines]
     caps = [k for k in suites["full"][runs[0]] if k.startswith("cap")]
@@ -179,15 +224,45 @@ def build_comparison(
     md = ["# Comparison of loss variants", "",
           f"Variants: {', '.join(variants)}. Baselines (image-blind, from training GT): {', '.join(baselines) or 'none'}.",
           trained, "Errors: lower is better; a1–a3: higher is better. Best variant per column in **bold**.", ""]
+    groups = groups or {r: [r] for r in runs}
+    blind = {g: [r for r in groups.get(g, [g]) if dependence and dependence.get(r, {}).get("image_blind")]
+             for g in runs}
+
+    def label(run: str) -> str:
+        n, total = len(blind[run]), len(groups.get(run, [run]))
+        if not n or run in baselines:
+            return run
+        return f"{run} (image-blind)" if n == total else f"{run} ({n} of {total} runs image-blind)"
+
     if stats is not None:
         result["statistics"] = stats
-        covers = ("resampling images (ROIs) and, per variant, seeds: the intervals cover the choice of "
-                  "images and training noise." if several else
-                  "resampling images (ROIs): the intervals cover the choice of images, not training noise "
-                  "(train more seeds for that, see the README).")
+        if len(seeds) >= MIN_SEEDS_FOR_MARKS:
+            covers = ("resampling images (ROIs) and, per variant, seeds: the intervals cover the choice of "
+                      "images and training noise. `*`: the interval excludes 0.")
+        else:
+            covers = (f"resampling images (ROIs){' and seeds' if several else ''}. With {len(seeds)} "
+                      f"seed{'s' if several else ''} per variant the intervals cover the choice of images "
+                      f"{'and barely any' if several else 'only, not'} training noise, so no difference is "
+                      f"marked (that takes at least {MIN_SEEDS_FOR_MARKS} seeds, see the README).")
         md += [f"Differences are `run − {stats['reference']}` (mean over images or ROIs) with a "
-               f"bootstrap {stats['confidence']:.0%} interval ({stats['bootstrap_samples']} resamples) {covers} "
-               "`*`: the interval excludes 0.", ""]
+               f"bootstrap {stats['confidence']:.0%} interval ({stats['bootstrap_samples']} resamples) {covers}", ""]
+    if dependence is not None:
+        result["image_dependence"] = dependence
+        rows = []
+        for g in runs:
+            for r in groups.get(g, [g]):
+                d = dependence[r]
+                verdict = ("image-blind: its predictions barely change between images" if d["image_blind"]
+                           else "follows the image")
+                rows.append([r, _fmt(d["variation_ratio"]), _fmt(d["prior_correlation"]),
+                             "image-blind by construction" if g in baselines else verdict])
+        md += ["## Does each run use the image?", "",
+               "Variation: how much the predicted depth changes from image to image, as a fraction of how "
+               "much the GT does (per pixel, std/mean across frames; 0 for a constant or the prior). "
+               "Correlation: of the run's per-image abs_rel with the per-pixel prior's. A network with "
+               f"variation below {IMAGE_BLIND_BELOW} has learned the average scene, not depth from the image: "
+               "its numbers say nothing about its loss.", "",
+               _table(["run", "variation", "corr. with prior", "verdict"], rows), ""]
     if spread is not None:
         result["seed_spread"] = spread
 
@@ -205,7 +280,7 @@ def build_comparison(
         block = stats[suite][cap]
         n = next(iter(next(iter(block.values())).values()))["n"] if block else 0
         return [f"Difference to {stats['reference']} ({n} paired {unit}):", "",
-                _table(["run", *METRICS], _ci_rows(block)), ""]
+                _table(["run", *METRICS], _ci_rows(block, baselines)), ""]
 
     for cap in caps:
         result["full"][cap] = {r: suites["full"][r][cap] for r in runs}
@@ -217,7 +292,7 @@ def build_comparison(
             rows = []
             for r in runs:
                 cells = [f"**{_fmt(block[r][m])}**" if best[m] == r else _fmt(block[r][m]) for m in METRICS]
-                rows.append([r, *cells])
+                rows.append([label(r), *cells])
             return rows
 
         md += [f"## Full image, cap {cap[3:]} m", "", _table(["run", *METRICS], metric_rows(result["full"][cap])), ""]
@@ -228,7 +303,8 @@ def build_comparison(
         md += ci_table("roi", cap, "ROIs")
         md += spread_table("roi", cap)
         classes = sorted({c for r in runs for c in result["roi"][cap][r]["by_class"]})
-        rows = [[r, *[_fmt(result["roi"][cap][r]["by_class"].get(c, {}).get("abs_rel")) for c in classes]] for r in runs]
+        rows = [[label(r), *[_fmt(result["roi"][cap][r]["by_class"].get(c, {}).get("abs_rel")) for c in classes]]
+                for r in runs]
         md += [f"### ROI abs rel per class, cap {cap[3:]} m", "", _table(["run", *classes], rows), ""]
         grad = result["gradients"][cap]
         header = ["run", *[f"pred {g}" for g in GRADIENTS], *[f"|pred−GT| {g}" for g in GRADIENTS]]

@@ -88,7 +88,50 @@ def evaluate_full(pred: dict[str, np.ndarray], frames: list[Frame], cfg: EvalCon
         rows += per_cap
     summary["images"] = len(frames)
     summary["excluded_images"] = len(frames) - len(rows) // len(cfg.caps)
+    summary["image_dependence"] = image_dependence(pred, frames, cfg.caps[0])
     return summary, pd.DataFrame(rows)
+
+
+def image_dependence(pred: dict[str, np.ndarray], frames: list[Frame], cap: float, min_frames: int = 3) -> dict:
+    """How much the predictions change from image to image, against how much the GT does.
+
+    Every frame's predicted and GT depth (capped at ``cap``; GT 0 = invalid) are resampled to
+    the smallest frame's grid (nearest, so invalid GT stays invalid). At each pixel with valid
+    GT in at least ``min_frames`` frames, the coefficient of variation across those frames
+    (std / mean) is taken for the prediction and for the GT, over the same frames. Returns
+    their means and ``variation_ratio`` = prediction's / GT's: ~1 for a network that follows
+    the scene, ~0 for one that predicts the same depth whatever the image (a prior or a
+    constant gives exactly 0).
+    """
+    h = min(f.gt_disp.shape[0] for f in frames)
+    w = min(f.gt_disp.shape[1] for f in frames)
+    pred_grid, gt_grid = [], []
+    for f in frames:
+        gt = f.gt_depth
+        pd_ = np.minimum(pred[f.name], cap)
+        gt = np.where(gt > cap, 0.0, gt)
+        if gt.shape != (h, w):
+            gt = cv2.resize(gt, (w, h), interpolation=cv2.INTER_NEAREST)
+            pd_ = cv2.resize(pd_, (w, h), interpolation=cv2.INTER_NEAREST)
+        pred_grid.append(pd_)
+        gt_grid.append(gt)
+    gt_s, pred_s = np.stack(gt_grid).astype(np.float64), np.stack(pred_grid).astype(np.float64)
+    valid = gt_s > 0
+    count = valid.sum(0)
+    use = count >= min_frames
+    if not use.any():
+        return {"pixels": 0, "pred_variation": float("nan"), "gt_variation": float("nan"),
+                "variation_ratio": float("nan")}
+
+    def cv(x: np.ndarray) -> np.ndarray:
+        n = np.maximum(count, 1)
+        mean = np.where(valid, x, 0.0).sum(0) / n
+        var = np.where(valid, (x - mean) ** 2, 0.0).sum(0) / n
+        return (np.sqrt(var) / np.maximum(mean, 1e-9))[use]
+
+    pred_cv, gt_cv = float(cv(pred_s).mean()), float(cv(gt_s).mean())
+    return {"pixels": int(use.sum()), "pred_variation": pred_cv, "gt_variation": gt_cv,
+            "variation_ratio": pred_cv / gt_cv if gt_cv > 0 else float("nan")}
 
 
 def _boxes_for(rois: pd.DataFrame, frames: list[Frame]):

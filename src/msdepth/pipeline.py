@@ -23,6 +23,7 @@ from .compare import (
     group_metrics,
     load_suite_metrics,
     load_unit_tables,
+    image_dependence,
     paired_statistics,
     seed_spread,
 )
@@ -250,10 +251,12 @@ def compare(params: Params) -> None:
     groups = {**variant_runs(params), **{b: [b] for b in BASELINES}}
     runs = [r for group in groups.values() for r in group]
     suites = load_suite_metrics("metrics", runs)
-    stats = paired_statistics(load_unit_tables("metrics", runs), groups, params.compare, params.eval.caps)
+    tables = load_unit_tables("metrics", runs)
+    stats = paired_statistics(tables, groups, params.compare, params.eval.caps)
     caps = [f"cap{c:g}" for c in params.eval.caps]
+    dependence = image_dependence(suites, tables, groups, "prior", params.eval.caps[0])
     result, md = build_comparison(group_metrics(suites, groups), list(params.variants), BASELINES, stats,
-                                  seed_spread(suites, groups, caps), params.train.seeds)
+                                  seed_spread(suites, groups, caps), params.train.seeds, dependence, groups)
     write_json(Path("metrics") / "compare.json", result)
     write_text(Path("metrics") / "compare.md", md)
 
