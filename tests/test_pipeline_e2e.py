@@ -23,7 +23,7 @@ ROOT = Path(__file__).resolve().parents[1]
 TINY = {
     "data": {"height": 32, "width": 96, "synthetic": {"drives": 2, "train_pairs": 16, "eval_frames": 3, "height": 48, "width": 160}},
     "model": {"width_multiplier": 0.0625},
-    "train": {"epochs": 2, "batch_size": 4},
+    "train": {"epochs": 2, "batch_size": 4, "seeds": [0]},
     "msssim": {"levels": 3},
 }
 

@@ -1,0 +1,227 @@
+"""Does every run learn from the image? Train variants x seeds, evaluate each, print the spread.
+
+Issue 17's instrument: for each loss variant (SSIM, MS-SSIM at several kernel sizes) and seed,
+train with the pipeline's own code (``msdepth.train.train_variant`` on the cached pairs), predict
+the evaluation frames and report full-image and ROI abs_rel (cap 80), the run's image
+dependence (``msdepth.evaluate.image_dependence``), whether its loss fell within the first
+epoch, and the per-pixel prior's abs_rel beside it. Runs are independent processes
+(``--jobs``); finished runs are kept in ``--out`` and not trained again (resumable).
+
+Run from the repository root after ``dvc repro cache rois baselines``::
+
+    python studies/learning.py --variants ssim msssim:3 msssim:5 msssim:7 msssim:11 \\
+        --seeds 0 1 2 3 4 --out studies/results/default --jobs 2
+    python studies/learning.py ... --set model.norm=none --set train.warmup_steps=0
+
+``--set key=value`` overrides one param (YAML value) for every run.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import os
+import sys
+import time
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "src"))
+
+from msdepth import baselines  # noqa: E402
+from msdepth.config import Params, load_params, params_from_dict  # noqa: E402
+from msdepth.data import kitti  # noqa: E402
+from msdepth.data.index import read_eval_index  # noqa: E402
+from msdepth.data.pairs import build_pair_cache, load_pair_cache, load_pair_list  # noqa: E402
+from msdepth.evaluate import depth_maps, evaluate_full, evaluate_roi, image_dependence, load_frames  # noqa: E402
+
+INDEX = Path("data/index")
+
+
+def _apply(raw: dict, assignments: list[str]) -> dict:
+    for item in assignments:
+        key, _, value = item.partition("=")
+        node = raw
+        *parents, last = key.split(".")
+        for part in parents:
+            node = node.setdefault(part, {})
+        node[last] = yaml.safe_load(value)
+    return raw
+
+
+def _params_for(base: dict, spec: str, threads: int) -> tuple[Params, str]:
+    """Params for a variant spec ``ssim`` / ``msssim`` / ``msssim:K`` (MS-SSIM with kernel K)."""
+    raw = json.loads(json.dumps(base))
+    variant, _, kernel = spec.partition(":")
+    if kernel:
+        raw.setdefault(variant, {})["kernel_size"] = int(kernel)
+    raw.setdefault("train", {})["threads"] = threads
+    return params_from_dict(raw), variant
+
+
+def _pairs_and_cache(params: Params, out: Path) -> tuple[list, np.ndarray]:
+    pairs = load_pair_list("data/cache/train_pairs.txt")
+    h, w = params.data.height, params.data.width
+    try:
+        return pairs, load_pair_cache("data/cache/train_pairs.npy", len(pairs), h, w)
+    except Exception:  # another input size than the pipeline's cache: build one for the study
+        path = out / f"cache_{h}x{w}.npy"
+        if not path.exists():
+            build_pair_cache(pairs, h, w, path, progress=False)
+        return pairs, load_pair_cache(path, len(pairs), h, w)
+
+
+def run_one(base: dict, spec: str, seed: int, out: str, threads: int) -> dict:
+    """Train and evaluate one (variant spec, seed); the result is also written to ``out``."""
+    import torch
+
+    from msdepth.infer import predict_disparities
+    from msdepth.train import train_variant
+
+    out_dir = Path(out)
+    result_path = out_dir / f"{spec.replace(':', '_k')}_seed{seed}.json"
+    if result_path.exists():
+        return json.loads(result_path.read_text())
+    params, variant = _params_for(base, spec, threads)
+    params = dataclasses.replace(params, train=dataclasses.replace(params.train, seeds=(seed,)))
+    pairs, cache = _pairs_and_cache(params, out_dir)
+    work = out_dir / "work" / f"{spec.replace(':', '_k')}_seed{seed}"
+    index = read_eval_index(INDEX / "eval_frames.csv")
+    frames = load_frames(index)
+    images = [Path(p) for p in index["left"]]
+    history: list[dict] = []
+
+    def on_epoch(epoch: int, model, means: dict) -> None:
+        # Plain predictions (no flip post-processing) after every epoch: the learning curve in abs_rel.
+        disp = predict_disparities(model, images, params.data.height, params.data.width, False, progress=False)
+        pred = depth_maps(disp, frames)
+        full, _ = evaluate_full(pred, frames, params.eval)
+        model.train()
+        history.append({"epoch": epoch, **means, "abs_rel": full["cap80"]["abs_rel"],
+                        "variation_ratio": image_dependence(pred, frames, 80.0)["variation_ratio"]})
+
+    # The curve comes from this run's epochs only: never resume a half-finished run.
+    (work / "ck.pt").unlink(missing_ok=True)
+    started = time.perf_counter()
+    result = train_variant(params, variant, pairs, work / "model.pt", work / "ck.pt", progress=False,
+                           cache=cache, seed=seed, on_epoch=on_epoch)
+    seconds = time.perf_counter() - started
+    from msdepth.train import load_model
+
+    torch.set_num_threads(threads)
+    model, meta = load_model(work / "model.pt")
+    disp = predict_disparities(model, images, meta["height"], meta["width"],
+                               params.eval.post_process, progress=False)
+    pred = depth_maps(disp, frames)
+    full, table = evaluate_full(pred, frames, params.eval)
+    roi, _ = evaluate_roi(pred, frames, kitti.read_rois(INDEX / "rois.csv"), params.eval)
+    row = {
+        "per_image_abs_rel": table[table["cap"] == 80]["abs_rel"].tolist(),
+        "spec": spec, "seed": seed, "seconds": seconds, "steps": result.steps,
+        "abs_rel": full["cap80"]["abs_rel"], "a1": full["cap80"]["a1"], "rmse": full["cap80"]["rmse"],
+        "roi_abs_rel": roi["cap80"]["overall"]["abs_rel"],
+        "roi_by_class": {c: v["abs_rel"] for c, v in roi["cap80"]["by_class"].items()},
+        "image_dependence": image_dependence(pred, frames, params.eval.caps[0]),
+        "history": history,
+    }
+    result_path.write_text(json.dumps(row, indent=1))
+    return row
+
+
+def prior_metrics(params: Params) -> dict:
+    """The image-blind per-pixel prior's abs_rel (full and ROI, cap 80) on the evaluation frames."""
+    pairs = load_pair_list(INDEX / "train_pairs.txt")
+    gt = baselines.training_gt_disparities([left for left, _ in pairs], progress=False)
+    frames = load_frames(read_eval_index(INDEX / "eval_frames.csv"))
+    boxes = kitti.read_rois(INDEX / "rois.csv")
+    out = {}
+    for name, disp in baselines.baseline_disparities(gt, len(frames)).items():
+        pred = depth_maps(disp, frames)
+        full, table = evaluate_full(pred, frames, params.eval)
+        roi, _ = evaluate_roi(pred, frames, boxes, params.eval)
+        out[name] = {"per_image_abs_rel": table[table["cap"] == 80]["abs_rel"].tolist(),
+                     "abs_rel": full["cap80"]["abs_rel"], "roi_abs_rel": roi["cap80"]["overall"]["abs_rel"],
+                     "roi_by_class": {c: v["abs_rel"] for c, v in roi["cap80"]["by_class"].items()}}
+    return out
+
+
+def _learned_early(history: list[dict]) -> bool:
+    """After the first epoch the predictions already follow the image (a third of the GT's variation)."""
+    return history[0]["variation_ratio"] >= 1 / 3
+
+
+def summarise(rows: list[dict], prior: dict) -> str:
+    lines = [
+        f"prior abs_rel {prior['prior']['abs_rel']:.4f}, ROI {prior['prior']['roi_abs_rel']:.4f}; "
+        f"constant {prior['constant']['abs_rel']:.4f}, ROI {prior['constant']['roi_abs_rel']:.4f}",
+        "",
+        "| variant | seed | abs_rel | ROI abs_rel | image dependence | corr. with prior | epoch 1: abs_rel, dependence | s |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for r in sorted(rows, key=lambda r: (r["spec"], r["seed"])):
+        dep = r["image_dependence"]
+        lines.append(f"| {r['spec']} | {r['seed']} | {r['abs_rel']:.4f} | {r['roi_abs_rel']:.4f} | "
+                     f"{dep['variation_ratio']:.3f} | {r.get('prior_correlation', float('nan')):.3f} | "
+                     f"{r['history'][0]['abs_rel']:.3f}, {r['history'][0]['variation_ratio']:.2f}"
+                     f"{'' if _learned_early(r['history']) else ' (late)'} | {r['seconds']:.0f} |")
+    lines += ["", "| variant | runs | abs_rel mean ± sd | ROI abs_rel mean ± sd | worst abs_rel |",
+              "|---|---|---|---|---|"]
+    for spec in sorted({r["spec"] for r in rows}):
+        a = np.array([r["abs_rel"] for r in rows if r["spec"] == spec])
+        b = np.array([r["roi_abs_rel"] for r in rows if r["spec"] == spec])
+        sd = lambda x: x.std(ddof=1) if len(x) > 1 else float("nan")  # noqa: E731
+        lines.append(f"| {spec} | {len(a)} | {a.mean():.4f} ± {sd(a):.4f} | {b.mean():.4f} ± {sd(b):.4f} | {a.max():.4f} |")
+    return "\n".join(lines)
+
+
+def curves_figure(rows: list[dict], path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    specs = sorted({r["spec"] for r in rows})
+    fig, axes = plt.subplots(1, len(specs), figsize=(3.2 * len(specs), 2.8), sharey=True, squeeze=False)
+    for ax, spec in zip(axes[0], specs):
+        for r in sorted((r for r in rows if r["spec"] == spec), key=lambda r: r["seed"]):
+            ax.plot([h["epoch"] for h in r["history"]], [h["appearance"] for h in r["history"]],
+                    label=f"seed {r['seed']}", lw=1)
+        ax.set_title(spec)
+        ax.set_xlabel("epoch")
+    axes[0][0].set_ylabel("appearance loss")
+    axes[0][-1].legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--variants", nargs="+", default=["ssim", "msssim:3"])
+    ap.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE")
+    ap.add_argument("--out", type=Path, required=True)
+    ap.add_argument("--jobs", type=int, default=1)
+    args = ap.parse_args(argv)
+    base = _apply(yaml.safe_load(Path("params.yaml").read_text()), args.set)
+    args.out.mkdir(parents=True, exist_ok=True)
+    (args.out / "overrides.json").write_text(json.dumps(args.set))
+    threads = max(1, (os.cpu_count() or 1) // args.jobs)
+    jobs = [(spec, seed) for seed in args.seeds for spec in args.variants]
+    with ProcessPoolExecutor(args.jobs) as pool:
+        rows = list(pool.map(run_one, *zip(*[(base, s, seed, str(args.out), threads) for s, seed in jobs])))
+    prior = prior_metrics(params_from_dict(base))
+    for r in rows:
+        r["prior_correlation"] = float(np.corrcoef(r["per_image_abs_rel"], prior["prior"]["per_image_abs_rel"])[0, 1])
+    text = summarise(rows, prior)
+    (args.out / "summary.md").write_text(text + "\n")
+    curves_figure(rows, args.out / "curves.png")
+    print(text)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
