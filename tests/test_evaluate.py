@@ -165,3 +165,40 @@ def test_full_suite_reports_image_dependence(scene):
     summary, _ = evaluate_full(depth_maps(preds, frames), frames, EvalConfig())
     assert set(summary["image_dependence"]) == {"pixels", "pred_variation", "gt_variation", "variation_ratio"}
     assert summary["image_dependence"]["variation_ratio"] > 0
+
+
+def test_roi_suite_over_exact_masks_ignores_the_background_in_the_box():
+    from msdepth.data.kitti import CLASS_BITS
+
+    depth = np.full((20, 40), 30.0, np.float32)
+    depth[5:15, 10:20] = 8.0  # a car in front of a wall at 30 m
+    classes = np.zeros((20, 40), np.uint8)
+    classes[5:15, 10:20] = CLASS_BITS["car"]
+    frame = Frame("000000_10", (FOCAL * BASELINE / depth).astype(np.float32), FOCAL, BASELINE, classes)
+    pred = np.where(classes > 0, 8.0, 12.0).astype(np.float32)  # right on the car, wrong on the wall
+    rois = pd.DataFrame([("000000_10", "car", 5, 2, 25, 18)], columns=["image", "class", "x0", "y0", "x1", "y1"])
+    summary, table = evaluate_roi({"000000_10": pred}, [frame], rois, EvalConfig(caps=(80.0,)))
+    assert summary["cap80"]["overall"]["abs_rel"] > 0.2  # the box mixes in the wall
+    assert summary["masks"]["cap80"]["overall"]["abs_rel"] == pytest.approx(0.0, abs=1e-6)
+    assert summary["masks"]["cap80"]["by_class"]["car"]["count"] == 1 and summary["masks"]["rois"] == 1
+    assert len(table) == 1  # the per-ROI table (and its bootstrap) stays the boxes'
+    no_maps = Frame(frame.name, frame.gt_disp, FOCAL, BASELINE)
+    assert "masks" not in evaluate_roi({"000000_10": pred}, [no_maps], rois, EvalConfig(caps=(80.0,)))[0]
+
+
+def test_compare_shows_the_exact_mask_tables():
+    metrics = {"abs_rel": 0.2, "sq_rel": 0.2, "rmse": 0.2, "rmse_log": 0.2, "a1": 0.8, "a2": 0.8, "a3": 0.8}
+
+    def roi(v):
+        m = {**metrics, "abs_rel": v, "count": 1}
+        masks = {"cap80": {"overall": m, "by_class": {"car": m}}, "rois": 1, "excluded_rois": 0}
+        return {"cap80": {"overall": m, "by_class": {"car": m}}, "masks": masks}
+
+    grad = {"cap80": {"overall": {"pred_sobel_x": 1, "pred_sobel_y": 1, "pred_laplacian": 1},
+                      "dense_gt": {"overall": {}}}}
+    runs = {"ssim": 0.3, "msssim": 0.1}
+    suites = {"full": {r: {"cap80": metrics} for r in runs}, "roi": {r: roi(v) for r, v in runs.items()},
+              "gradients": {r: grad for r in runs}}
+    result, md = build_comparison(suites, ["ssim", "msssim"], [])
+    assert "### ROI, exact masks, cap 80 m" in md and "| msssim | 0.1000 | 0.2000 | 0.8000 | 0.1000 |" in md
+    assert result["roi_masks"]["cap80"]["ssim"]["overall"]["abs_rel"] == 0.3

@@ -104,6 +104,9 @@ def _read_all_images(path: Path) -> tuple[Any, Any, Any]:
     img = _read(kitti.read_image, path)
     disp = _read(kitti.read_disparity, path)
     ids = _read(kitti.read_obj_map, path)
+    classes = _read(kitti.read_class_map, path)
+    if classes is not None:  # exactly the object maps whose values are class bits
+        assert ids is not None and not (classes & ~np.uint8(sum(kitti.CLASS_BITS.values()))).any()
     # A file of a few KiB must not cost gigabytes (OpenCV trusts a PNG chunk's declared length).
     grown = _peak_rss_mb() - before
     assert grown < 512, f"reading {path.stat().st_size} bytes raised peak memory by {grown:.0f} MiB"

@@ -303,6 +303,7 @@ def test_kitti2015_paths() -> None:
         "disp": Path("/k/training/disp_occ_0/000042_10.png"),
         "obj_map": Path("/k/training/obj_map/000042_10.png"),
         "calib": Path("/k/training/calib_cam_to_cam/000042.txt"),
+        "class_map": Path("/k/training/class_map/000042_10.png"),  # the synthetic set's only
     }
     assert kitti.kitti2015_paths(Path("/k"), "000042_10")["disp"].parent.name == "disp_noc_0"
 

@@ -237,3 +237,29 @@ def test_layout_varies_across_frames(root: Path) -> None:
     rel = np.abs(d - prior)[valid] / d[valid]
     assert rel.mean() > 0.25
     assert (d.std(axis=0) / np.maximum(d.mean(axis=0), 1e-3)).mean() > 0.3
+
+
+def test_class_map_holds_the_exact_pixels_of_every_roi_class(root: Path) -> None:
+    seen = dict.fromkeys(kitti.CLASS_BITS, 0)
+    for fr in _eval_frames(root):
+        classes = kitti.read_class_map(kitti.kitti2015_paths(root / "kitti2015", fr["name"])["class_map"])
+        car = (classes & kitti.CLASS_BITS["car"]) > 0
+        np.testing.assert_array_equal(car, fr["obj"] > 0)  # every car face, wheels and windows included
+        windshield = (classes & kitti.CLASS_BITS["windshield"]) > 0
+        assert not (windshield & ~car).any()  # a windshield is part of its car
+        for r in fr["rois"].itertuples(index=False):
+            bit = kitti.CLASS_BITS[r[1]]
+            inside = (classes[r.y0:r.y1, r.x0:r.x1] & bit) > 0
+            assert inside.mean() >= 0.5, f"{fr['name']}: {r[1]} box mostly without {r[1]} pixels"
+            seen[r[1]] += 1
+    assert all(count > 0 for count in seen.values()), seen
+
+
+def test_class_map_is_indexed_and_read_with_the_frames(root: Path) -> None:
+    from msdepth.data.index import build_eval_index
+    from msdepth.evaluate import load_frames
+
+    index = build_eval_index(root / "kitti2015", root / "kitti2015" / "test_files.txt", "disp_noc_0")
+    assert all(Path(p).name.endswith(".png") and "class_map" in p for p in index["class_map"])
+    frames = load_frames(index)
+    assert all(f.class_map is not None and f.class_map.shape == f.gt_disp.shape for f in frames)

@@ -306,6 +306,18 @@ def build_comparison(
         rows = [[label(r), *[_fmt(result["roi"][cap][r]["by_class"].get(c, {}).get("abs_rel")) for c in classes]]
                 for r in runs]
         md += [f"### ROI abs rel per class, cap {cap[3:]} m", "", _table(["run", *classes], rows), ""]
+        if all(cap in suites["roi"][r].get("masks", {}) for r in runs):
+            masks = {r: suites["roi"][r]["masks"] for r in runs}
+            result.setdefault("roi_masks", {})[cap] = {r: m[cap] for r, m in masks.items()}
+            classes = sorted({c for r in runs for c in masks[r][cap]["by_class"]})
+            rows = [[label(r), *[_fmt(masks[r][cap]["overall"][m]) for m in ("abs_rel", "rmse", "a1")],
+                     *[_fmt(masks[r][cap]["by_class"].get(c, {}).get("abs_rel")) for c in classes]] for r in runs]
+            first = masks[runs[0]]
+            md += [f"### ROI, exact masks, cap {cap[3:]} m", "",
+                   f"Each box's own pixels of its class (the renderer's class map: a car without the road "
+                   f"behind it, a windshield without the bonnet); {first['rois']} ROIs, "
+                   f"{first['excluded_rois']} without valid GT on their pixels excluded.", "",
+                   _table(["run", "abs_rel", "rmse", "a1", *[f"{c} abs_rel" for c in classes]], rows), ""]
         grad = result["gradients"][cap]
         header = ["run", *[f"pred {g}" for g in GRADIENTS], *[f"|pred−GT| {g}" for g in GRADIENTS]]
         rows = []

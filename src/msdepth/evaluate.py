@@ -34,6 +34,7 @@ class Frame:
     gt_disp: np.ndarray
     focal: float
     baseline: float
+    class_map: np.ndarray | None = None  # bits of kitti.CLASS_BITS (synthetic set only)
 
     @cached_property
     def gt_depth(self) -> np.ndarray:
@@ -44,7 +45,8 @@ class Frame:
 def load_frames(index: pd.DataFrame) -> list[Frame]:
     """Read the GT disparity of every row of the evaluation index."""
     return [
-        Frame(row.frame, kitti.read_disparity(row.disp), float(row.focal), float(row.baseline))
+        Frame(row.frame, kitti.read_disparity(row.disp), float(row.focal), float(row.baseline),
+              kitti.read_class_map(row.class_map) if getattr(row, "class_map", "") else None)
         for row in index.itertuples()
     ]
 
@@ -156,20 +158,40 @@ def _summarise_by_class(rows: list[dict], keys: tuple[str, ...]) -> dict:
 
 
 def evaluate_roi(pred: dict[str, np.ndarray], frames: list[Frame], rois: pd.DataFrame, cfg: EvalConfig) -> tuple[dict, pd.DataFrame]:
-    """Suite 2: the same metrics inside each ROI box; mean over ROIs, overall and per class."""
+    """Suite 2: the same metrics inside each ROI box; mean over ROIs, overall and per class.
+
+    Where every frame has a class map (the synthetic set), ``summary["masks"]`` holds the same
+    over each box's exact pixels of its class: a car box without the road and facade behind
+    the car, a windshield box without the bonnet. ROIs whose exact pixels have no valid GT are
+    excluded there and counted.
+    """
     rows, summary = [], {}
+    masked = all(f.class_map is not None for f in frames)
+    masks: dict = {}
+    mask_rois = 0
     for cap in cfg.caps:
-        per_cap = []
+        per_cap, per_mask = [], []
         for i, roi, frame, box in _boxes_for(rois, frames):
-            m = _metrics_in(frame.gt_depth[box], pred[frame.name][box], frame.gt_disp[box] > 0, cap, cfg)
+            valid = frame.gt_disp[box] > 0
+            m = _metrics_in(frame.gt_depth[box], pred[frame.name][box], valid, cap, cfg)
             if m is not None:
                 per_cap.append({"roi": i, "image": roi["image"], "class": roi["class"], "cap": cap, **m})
+            if masked:
+                exact = (frame.class_map[box] & kitti.CLASS_BITS.get(roi["class"], 0)) > 0
+                m = _metrics_in(frame.gt_depth[box], pred[frame.name][box], valid & exact, cap, cfg)
+                if m is not None:
+                    per_mask.append({"class": roi["class"], **m})
         if not per_cap:
             raise DataError("ROI evaluation: no ROI has valid ground truth")
         summary[f"cap{cap:g}"] = _summarise_by_class(per_cap, METRICS)
         rows += per_cap
+        if per_mask:
+            masks[f"cap{cap:g}"] = _summarise_by_class(per_mask, METRICS)
+            mask_rois = len(per_mask)
     summary["rois"] = len(rois)
     summary["excluded_rois"] = len(rois) - len(rows) // len(cfg.caps)
+    if masks:
+        summary["masks"] = {**masks, "rois": mask_rois, "excluded_rois": len(rois) - mask_rois}
     return summary, pd.DataFrame(rows)
 
 

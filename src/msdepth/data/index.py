@@ -20,7 +20,7 @@ from ..io import atomic_path, write_json
 from . import kitti
 from .pairs import check_same_size, index_pairs
 
-EVAL_COLUMNS = ("frame", "left", "right", "disp", "obj_map", "focal", "baseline")
+EVAL_COLUMNS = ("frame", "left", "right", "disp", "obj_map", "class_map", "focal", "baseline")
 
 
 @dataclass(frozen=True)
@@ -72,7 +72,10 @@ def build_eval_index(kitti2015_root: Path, split_file: Path, gt: str) -> pd.Data
         width = shape[1]
         focal, baseline = kitti.focal_and_baseline(width, paths["calib"])
         obj_map = paths["obj_map"] if Path(paths["obj_map"]).exists() else ""
-        rows.append((frame, str(left), str(right), str(paths["disp"]), str(obj_map), focal, baseline))
+        class_map = paths["class_map"] if Path(paths["class_map"]).exists() else ""  # synthetic only
+        if class_map:
+            check_same_size(left, shape, Path(class_map), kitti.read_class_map(class_map).shape, "class map")
+        rows.append((frame, str(left), str(right), str(paths["disp"]), str(obj_map), str(class_map), focal, baseline))
     if not rows:
         raise DataError(f"{split_file}: no evaluation frame with images and {gt} GT under {kitti2015_root}")
     if missing:
@@ -111,7 +114,7 @@ def read_eval_index(path: str | os.PathLike) -> pd.DataFrame:
     path = Path(path)
     if not path.exists():
         raise DataError(f"{path}: no evaluation index (run the index stage)")
-    frames = pd.read_csv(path, dtype={"frame": str, "obj_map": str}, keep_default_na=False)
+    frames = pd.read_csv(path, dtype={"frame": str, "obj_map": str, "class_map": str}, keep_default_na=False)
     missing = set(EVAL_COLUMNS) - set(frames.columns)
     if missing:
         raise DataError(f"{path}: missing columns {sorted(missing)}")

@@ -120,6 +120,24 @@ def read_obj_map(path: PathLike) -> np.ndarray:
     return img
 
 
+# Bits of a class map (synthetic set only: KITTI has no per-pixel class labels). A pixel may
+# carry several: a windshield pixel is also a car pixel.
+CLASS_BITS = {"car": 1, "windshield": 2, "glass": 4, "sign": 8}
+
+
+def read_class_map(path: PathLike) -> np.ndarray:
+    """Read a class map PNG: uint8 ``(H, W)``, bit :data:`CLASS_BITS` [c] set on class c's pixels."""
+    img = _decode(path, "class map")
+    if img.dtype != np.uint8 or img.ndim != 2:
+        channels = 1 if img.ndim == 2 else img.shape[2]
+        raise DataError(
+            f"{path}: a class map must be an 8-bit single-channel PNG, got {img.dtype} with {channels} channel(s)"
+        )
+    if (img & ~np.uint8(sum(CLASS_BITS.values()))).any():
+        raise DataError(f"{path}: class map has bits outside {CLASS_BITS}")
+    return img
+
+
 def read_calib(path: PathLike) -> dict[str, np.ndarray]:
     """Parse a KITTI calibration text file into ``{key: float64 vector}``.
 
@@ -309,7 +327,8 @@ def write_rois(path: PathLike, df: pd.DataFrame) -> None:
 def kitti2015_paths(root: Path, frame: str, gt: str = "disp_noc_0") -> dict[str, Path]:
     """Paths of one KITTI 2015 stereo training frame (e.g. ``"000000_10"``) under ``root``.
 
-    Keys: left, right, disp (the ``gt`` folder), obj_map, calib.
+    Keys: left, right, disp (the ``gt`` folder), obj_map, calib, and class_map (written by the
+    synthetic set only).
     """
     training = Path(root) / "training"
     return {
@@ -318,4 +337,5 @@ def kitti2015_paths(root: Path, frame: str, gt: str = "disp_noc_0") -> dict[str,
         "disp": training / gt / f"{frame}.png",
         "obj_map": training / "obj_map" / f"{frame}.png",
         "calib": training / "calib_cam_to_cam" / f"{frame.split('_')[0]}.txt",
+        "class_map": training / "class_map" / f"{frame}.png",
     }

@@ -14,7 +14,8 @@ strong view-dependent gloss.
 
 Output layout under ``root`` (see :func:`generate`): ``raw/`` as KITTI raw data (training pairs,
 ``train_files.txt``), ``kitti2015/training/`` as the KITTI 2015 stereo benchmark (evaluation
-frames with ``disp_occ_0``, ``disp_noc_0``, ``obj_map``), ``rois.csv`` and ``synthetic.json``.
+frames with ``disp_occ_0``, ``disp_noc_0``, ``obj_map``, and ``class_map``: the exact pixels of
+every ROI class, which KITTI does not have), ``rois.csv`` and ``synthetic.json``.
 """
 
 from __future__ import annotations
@@ -33,7 +34,7 @@ import pandas as pd
 
 from ..config import SyntheticConfig
 from ..io import write_json, write_png, write_text
-from .kitti import KITTI_BASELINE, WIDTH_TO_FOCAL, write_disparity, write_rois, write_split
+from .kitti import CLASS_BITS, KITTI_BASELINE, WIDTH_TO_FOCAL, write_disparity, write_rois, write_split
 
 DATES = ("2011_09_26", "2011_09_28", "2011_09_29", "2011_09_30", "2011_10_03")
 EVAL_GT_OCC = "disp_occ_0"
@@ -799,6 +800,7 @@ class Frame:
     disp_right: np.ndarray  # right-view disparity, used for the occlusion mask
     noc: np.ndarray  # bool: valid and visible in the right view
     obj_map: np.ndarray  # uint8 car instance ids, 0 = background
+    class_map: np.ndarray  # uint8 bits of kitti.CLASS_BITS: the exact pixels of every ROI class
     rois: list[tuple[str, int, int, int, int]]  # (class, x0, y0, x1, y1), x1/y1 exclusive
     rotation: np.ndarray  # world-from-camera rotation (world: x right, y down, z forward)
     cam_height: float  # m above the ground plane y = cam_height
@@ -846,6 +848,16 @@ def _rois(scene: _Scene, cam: _Camera, face: np.ndarray) -> list[tuple[str, int,
     return boxes
 
 
+def _class_map(scene: _Scene, face: np.ndarray) -> np.ndarray:
+    """Per pixel of the left view, the bits of the ROI classes whose faces it shows."""
+    out = np.zeros(face.shape, np.uint8)
+    for cls, bit in CLASS_BITS.items():
+        faces = [roi.faces for roi in scene.rois if roi.cls == cls]
+        if faces:
+            out[np.isin(face, np.concatenate(faces))] |= np.uint8(bit)
+    return out
+
+
 def render_frame(seed: int, split: int, index: int, height: int, width: int) -> Frame:
     """Render frame ``index`` of ``split`` (0 = training, 1 = evaluation) deterministically."""
     rng = frame_rng(seed, split, index)
@@ -871,7 +883,7 @@ def render_frame(seed: int, split: int, index: int, height: int, width: int) -> 
     lookup = np.zeros(int(inst.max()) + 1, np.uint8)
     lookup[present] = np.arange(1, present.size + 1)  # renumber visible cars 1..n
     return Frame(left=images[0], right=images[1], disp=disp, disp_right=disp_right,
-                 noc=non_occluded(disp, disp_right), obj_map=lookup[inst],
+                 noc=non_occluded(disp, disp_right), obj_map=lookup[inst], class_map=_class_map(scene, faces[0]),
                  rois=_rois(scene, cam, faces[0]), rotation=scene.rot, cam_height=scene.cam_height, focal=f)
 
 
@@ -943,6 +955,7 @@ def _write_eval(job: tuple[SyntheticConfig, str, int]) -> list[tuple[str, str, i
     write_disparity(training / EVAL_GT_OCC / f"{name}.png", disp)
     write_disparity(training / EVAL_GT_NOC / f"{name}.png", np.where(frame.noc, disp, 0))
     write_png(training / "obj_map" / f"{name}.png", frame.obj_map)
+    write_png(training / "class_map" / f"{name}.png", frame.class_map)
     write_text(training / "calib_cam_to_cam" / f"{index:06d}.txt", calib_text(cfg.height, cfg.width))
     return [(name, *box) for box in frame.rois]
 
