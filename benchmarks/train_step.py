@@ -5,6 +5,8 @@
     python benchmarks/train_step.py --device cuda ... --amp bf16 --channels-last [--compile]
     python benchmarks/train_step.py --loss-only                   # the loss alone, on the network's output
     python benchmarks/train_step.py --device cuda ... --profile 10  # + GPU busy time and kernels per step
+    python benchmarks/train_step.py --networks                    # SSIM step: the dissertation's network vs
+                                                                  # GroupNorm / residual heads / both
 
 Same model weights, same batch, candidates interleaved; prints time per step and the ratio to
 the SSIM step (the issue's target: MS-SSIM / SSIM <= 1.10 for every kernel size), images/s,
@@ -48,6 +50,8 @@ def main() -> None:
                     help="then profile N steps of each candidate: GPU busy time and kernels per step")
     ap.add_argument("--loss-only", action="store_true",
                     help="time the loss alone (forward+backward) on the network's disparities, computed once")
+    ap.add_argument("--networks", action="store_true",
+                    help="instead: the SSIM step with each network option (model.norm x model.heads)")
     args = ap.parse_args()
     params = load_params(args.params)
     device = device_from(args.device)
@@ -56,8 +60,10 @@ def main() -> None:
     batch = args.batch or params.train.batch_size
     h, w = args.height or params.data.height, args.width or params.data.width
     memory_format = torch.channels_last if args.channels_last else torch.contiguous_format
-    model = MonodepthVGG(args.width_multiplier or params.model.width_multiplier,
-                         init_disparity=params.model.init_disparity).to(device, memory_format=memory_format)
+    m = params.model
+    width = args.width_multiplier or m.width_multiplier
+    model = MonodepthVGG(width, init_disparity=m.init_disparity, norm=m.norm, heads=m.heads)
+    model = model.to(device, memory_format=memory_format)
     forward = torch.compile(model) if args.compile else model
     optimizer = torch.optim.Adam(model.parameters(), lr=1e-6)  # tiny: weights barely move between repeats
     gen = torch.Generator().manual_seed(0)
@@ -80,7 +86,11 @@ def main() -> None:
             criterion([d.detach().requires_grad_() for d in disps], left, right)["total"].backward()
         return loss_step if args.loss_only else step
 
-    candidates = {"SSIM k3": step_with(MonodepthLoss(params.loss, "ssim", params.ssim, params.msssim))}
+    ssim_loss = MonodepthLoss(params.loss, "ssim", params.ssim, params.msssim)
+    if args.networks:
+        run_networks(args, width, m.init_disparity, ssim_loss, device, memory_format, batch, h, w)
+        return
+    candidates = {"SSIM k3": step_with(ssim_loss)}
     for k in (int(s) for s in args.kernels.split(",")):
         cfg = dataclasses.replace(params.msssim, kernel_size=k)
         candidates[f"MS-SSIM k{k}"] = step_with(MonodepthLoss(params.loss, "msssim", params.ssim, cfg))
@@ -106,6 +116,29 @@ def main() -> None:
         print("peak GPU memory (GiB): " + ", ".join(f"{n} {g:.2f}" for n, g in peaks.items()))
     if args.profile:
         print("\n" + profile_table(candidates, timings.medians(), device, args.profile))
+
+
+def run_networks(args, width: float, init: float, criterion, device, memory_format, batch, h, w) -> None:
+    """The SSIM training step with each (norm, heads) network, interleaved; ratios to the dissertation's."""
+    candidates = {}
+    for norm in ("none", "group"):
+        for heads in ("independent", "residual"):
+            net = MonodepthVGG(width, init_disparity=init, norm=norm, heads=heads).to(device, memory_format=memory_format)
+            opt = torch.optim.Adam(net.parameters(), lr=1e-6)  # tiny: weights barely move between repeats
+            gen = torch.Generator().manual_seed(0)
+            left = torch.rand(batch, 3, h, w, generator=gen).to(device)
+            right = torch.roll(left, shifts=-3, dims=-1)
+
+            def step(net=net, opt=opt, left=left, right=right):
+                losses = forward_and_loss(net, criterion, left, right, args.amp, memory_format)
+                opt.zero_grad(set_to_none=True)
+                losses["total"].backward()
+                opt.step()
+            candidates[f"norm {norm}, heads {heads}"] = step
+    timings = compare(candidates, device, repeats=args.repeats)
+    print(f"SSIM training step by network, batch {batch}x3x{h}x{w}, model x{width}, {device}, "
+          f"{torch.get_num_threads()} threads, median of {args.repeats}\n")
+    print(table(timings, "norm none, heads independent"))
 
 
 def profile_table(candidates: dict, step_seconds: dict[str, float], device: torch.device, steps: int) -> str:

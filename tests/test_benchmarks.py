@@ -66,3 +66,43 @@ def test_ratios_are_paired_within_rounds() -> None:
     assert mid == pytest.approx(1.1) and low == pytest.approx(1.1) and high == pytest.approx(1.125)
     assert timings.ratio("base", "base") == (1.0, 1.0, 1.0)
     assert "| cand | 3400.00 | 1.100 | 1.100-1.125 |" in table(timings, "base")
+
+
+def test_train_step_benchmark_by_network() -> None:
+    out = _run("train_step.py", "--batch", "1", "--height", "32", "--width", "96", "--width-multiplier", "0.0625",
+               "--repeats", "1", "--networks")
+    assert out.startswith("SSIM training step by network, batch 1x3x32x96")
+    for name in ("norm none, heads independent", "norm group, heads residual"):
+        assert f"| {name} |" in out
+
+
+def test_learning_study_smoke(tmp_path: Path) -> None:
+    """studies/learning.py end to end on a tiny generated set: trains, evaluates per epoch, summarises."""
+    import yaml
+
+    from msdepth import pipeline
+    from msdepth.config import params_from_dict
+    from msdepth.data.synthetic import generate
+
+    raw = {"data": {"height": 32, "width": 96, "synthetic": {"seed": 3, "drives": 1, "train_pairs": 8,
+                                                             "eval_frames": 4, "height": 48, "width": 160}},
+           "model": {"width_multiplier": 0.0625}, "train": {"epochs": 2, "batch_size": 4, "seeds": [0]},
+           "msssim": {"levels": 3}}
+    (tmp_path / "params.yaml").write_text(yaml.safe_dump(raw))
+    params = params_from_dict(raw)
+    with pytest.MonkeyPatch.context() as mp:
+        mp.chdir(tmp_path)
+        generate(params.data.synthetic, Path(params.data.root), progress=False, workers=1)
+        pipeline.index(params)
+        pipeline.rois(params)
+        pipeline.cache(params)
+    proc = subprocess.run([sys.executable, str(ROOT / "studies" / "learning.py"), "--variants", "ssim", "msssim:5",
+                           "--seeds", "0", "--out", "out", "--jobs", "1"], cwd=tmp_path, capture_output=True,
+                          text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert "| msssim:5 | 0 |" in proc.stdout and "| ssim | 1 |" in proc.stdout
+    import json
+
+    run = json.loads((tmp_path / "out" / "msssim_k5_seed0.json").read_text())
+    assert [h["epoch"] for h in run["history"]] == [1, 2] and 0 <= run["history"][0]["variation_ratio"]
+    assert (tmp_path / "out" / "curves.png").stat().st_size > 0
