@@ -66,7 +66,9 @@ def table(timings: Timings, baseline: str, unit_scale: float = 1e3, unit: str = 
     rows = [f"| candidate | median {unit} | time / {baseline} | IQR of the ratio |", "|---|---|---|---|"]
     for name in timings.rounds:
         mid, low, high = timings.ratio(name, baseline)
-        rows.append(f"| {name} | {timings.median(name) * unit_scale:.2f} | {mid:.3f} | {low:.3f}-{high:.3f} |")
+        rows.append(
+            f"| {name} | {timings.median(name) * unit_scale:.2f} | {mid:.3f} | {low:.3f}-{high:.3f} |"
+        )
     return "\n".join(rows)
 
 

@@ -32,16 +32,26 @@ def main() -> None:
     args = ap.parse_args()
     params = load_params(args.params)
     pairs = load_pair_list(args.index)
-    pairs = [(ROOT / a if not a.is_absolute() else a, ROOT / b if not b.is_absolute() else b) for a, b in pairs]
+    pairs = [
+        (ROOT / a if not a.is_absolute() else a, ROOT / b if not b.is_absolute() else b) for a, b in pairs
+    ]
     dataset = StereoPairs(pairs, params.data.height, params.data.width, augment=params.train.augment, seed=0)
     batch = params.train.batch_size
-    print(f"loader: {len(pairs)} pairs -> {params.data.height}x{params.data.width}, batch {batch}, "
-          f"augment {params.train.augment}\n")
+    print(
+        f"loader: {len(pairs)} pairs -> {params.data.height}x{params.data.width}, batch {batch}, "
+        f"augment {params.train.augment}\n"
+    )
     print("| workers | start-up s | pairs/s | relative to 0 workers |\n|---|---|---|---|")
     base = None
     for workers in (int(w) for w in args.workers.split(",")):
-        loader = DataLoader(dataset, batch_size=batch, shuffle=True, num_workers=workers,
-                            generator=torch.Generator().manual_seed(0), drop_last=True)
+        loader = DataLoader(
+            dataset,
+            batch_size=batch,
+            shuffle=True,
+            num_workers=workers,
+            generator=torch.Generator().manual_seed(0),
+            drop_last=True,
+        )
         started = time.perf_counter()
         it = iter(loader)
         next(it)

@@ -16,8 +16,8 @@ import argparse
 import sys
 
 import torch
-
 from _timing import compare, device_from, table
+
 from msdepth.losses import appearance_loss, ms_ssim, ssim
 
 ALPHA = 0.85
@@ -28,6 +28,7 @@ def candidates(x: torch.Tensor, y: torch.Tensor) -> dict:
         def step():
             x.grad = None
             appearance_loss(x, y, ALPHA, similarity).backward()
+
         return step
 
     out = {
@@ -70,15 +71,22 @@ def main() -> None:
     x = torch.rand(batch, 3, args.height, args.width, generator=gen).to(device).requires_grad_()
     y = (x.detach() + 0.1 * torch.randn(x.shape, generator=gen).to(device)).clamp(0, 1)
     timings = compare(candidates(x, y), device, repeats=args.repeats)
-    print(f"loss forward+backward, {batch}x3x{args.height}x{args.width}, {device}, "
-          f"{torch.get_num_threads()} threads, median of {args.repeats}\n")
+    print(
+        f"loss forward+backward, {batch}x3x{args.height}x{args.width}, {device}, "
+        f"{torch.get_num_threads()} threads, median of {args.repeats}\n"
+    )
     print(table(timings, "ours SSIM k3"))
     if "pytorch-msssim ms_ssim" in timings.rounds:
         print()
-        for config, ours in (("same config", "ours MS-SSIM gauss11 L5"), ("training config", "ours MS-SSIM box k3 L4")):
+        for config, ours in (
+            ("same config", "ours MS-SSIM gauss11 L5"),
+            ("training config", "ours MS-SSIM box k3 L4"),
+        ):
             mid, low, high = timings.ratio("pytorch-msssim ms_ssim", ours)
-            print(f"pytorch-msssim / ours ({config}, {ours.removeprefix('ours MS-SSIM ')}): "
-                  f"{mid:.2f}x (IQR {low:.2f}-{high:.2f})")
+            print(
+                f"pytorch-msssim / ours ({config}, {ours.removeprefix('ours MS-SSIM ')}): "
+                f"{mid:.2f}x (IQR {low:.2f}-{high:.2f})"
+            )
 
 
 if __name__ == "__main__":

@@ -23,8 +23,8 @@ from pathlib import Path
 
 import numpy as np
 import torch
-
 from _timing import compare, device_from, table
+
 from msdepth.config import load_params
 from msdepth.train import host_sync_interval, train_variant
 
@@ -41,8 +41,12 @@ def main() -> None:
     ap.add_argument("--epochs", type=int, default=2)
     ap.add_argument("--workers", type=int, default=None, help="default: train.num_workers")
     ap.add_argument("--variants", default="ssim,msssim")
-    ap.add_argument("--sync", type=int, default=host_sync_interval(0, torch.device("cuda")),
-                    help="the other host-read interval, besides every step (default: what a GPU run uses)")
+    ap.add_argument(
+        "--sync",
+        type=int,
+        default=host_sync_interval(0, torch.device("cuda")),
+        help="the other host-read interval, besides every step (default: what a GPU run uses)",
+    )
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--warmup", type=int, default=1, help="untimed runs of each candidate first")
     ap.add_argument("--amp", choices=["none", "bf16"], default="none")
@@ -54,11 +58,20 @@ def main() -> None:
     params = dataclasses.replace(
         base,
         data=dataclasses.replace(base.data, height=h, width=w),
-        model=dataclasses.replace(base.model, width_multiplier=args.width_multiplier or base.model.width_multiplier),
+        model=dataclasses.replace(
+            base.model, width_multiplier=args.width_multiplier or base.model.width_multiplier
+        ),
         train=dataclasses.replace(
-            base.train, seeds=(0,), epochs=args.epochs, batch_size=args.batch or base.train.batch_size,
-            num_workers=base.train.num_workers if args.workers is None else args.workers, device=device.type,
-            amp=args.amp, channels_last=args.channels_last, compile=False, launcher="local",
+            base.train,
+            seeds=(0,),
+            epochs=args.epochs,
+            batch_size=args.batch or base.train.batch_size,
+            num_workers=base.train.num_workers if args.workers is None else args.workers,
+            device=device.type,
+            amp=args.amp,
+            channels_last=args.channels_last,
+            compile=False,
+            launcher="local",
         ),
     )
     rng = np.random.default_rng(0)
@@ -67,21 +80,34 @@ def main() -> None:
     pairs = [(Path(f"pair{i}_left.png"), Path(f"pair{i}_right.png")) for i in range(args.pairs)]
 
     def run(variant: str, sync_every: int):
-        run_params = dataclasses.replace(params, train=dataclasses.replace(params.train, sync_every=sync_every))
+        run_params = dataclasses.replace(
+            params, train=dataclasses.replace(params.train, sync_every=sync_every)
+        )
 
         def train() -> None:
             with tempfile.TemporaryDirectory() as tmp:
-                train_variant(run_params, variant, pairs, Path(tmp) / "model.pt", Path(tmp) / "ck.pt",
-                              progress=False, cache=cache)
+                train_variant(
+                    run_params,
+                    variant,
+                    pairs,
+                    Path(tmp) / "model.pt",
+                    Path(tmp) / "ck.pt",
+                    progress=False,
+                    cache=cache,
+                )
+
         return train
 
     candidates = {f"{v} sync {s}": run(v, s) for v in args.variants.split(",") for s in (1, args.sync)}
     timings = compare(candidates, device, repeats=args.repeats, warmup=args.warmup)
     images = args.pairs // params.train.batch_size * params.train.batch_size * args.epochs
     t = params.train
-    print(f"training loop, {args.pairs} pairs x {args.epochs} epochs, batch {t.batch_size}x3x{h}x{w}, "
-          f"model x{params.model.width_multiplier}, {device}, {t.num_workers} workers, {torch.get_num_threads()} "
-          f"threads, amp {t.amp}, channels_last {t.channels_last}, median of {args.repeats}\n")
+    print(
+        f"training loop, {args.pairs} pairs x {args.epochs} epochs, batch {t.batch_size}x3x{h}x{w}, "
+        f"model x{params.model.width_multiplier}, {device}, {t.num_workers} workers, "
+        f"{torch.get_num_threads()} threads, amp {t.amp}, channels_last {t.channels_last}, "
+        f"median of {args.repeats}\n"
+    )
     print(table(timings, next(iter(candidates)), unit_scale=1.0, unit="s"))
     print("\nimages/s: " + ", ".join(f"{n} {images / s:.1f}" for n, s in timings.medians().items()))
 

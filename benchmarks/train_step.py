@@ -25,8 +25,8 @@ import dataclasses
 from pathlib import Path
 
 import torch
-
 from _timing import compare, device_from, sync, table
+
 from msdepth.config import load_params
 from msdepth.losses import MonodepthLoss
 from msdepth.model import MonodepthVGG
@@ -46,12 +46,23 @@ def main() -> None:
     ap.add_argument("--amp", choices=["none", "bf16"], default="none", help="network in bf16 autocast")
     ap.add_argument("--channels-last", action="store_true")
     ap.add_argument("--compile", action="store_true", help="torch.compile the network")
-    ap.add_argument("--profile", type=int, default=0, metavar="N",
-                    help="then profile N steps of each candidate: GPU busy time and kernels per step")
-    ap.add_argument("--loss-only", action="store_true",
-                    help="time the loss alone (forward+backward) on the network's disparities, computed once")
-    ap.add_argument("--networks", action="store_true",
-                    help="instead: the SSIM step with each network option (model.norm x model.heads)")
+    ap.add_argument(
+        "--profile",
+        type=int,
+        default=0,
+        metavar="N",
+        help="then profile N steps of each candidate: GPU busy time and kernels per step",
+    )
+    ap.add_argument(
+        "--loss-only",
+        action="store_true",
+        help="time the loss alone (forward+backward) on the network's disparities, computed once",
+    )
+    ap.add_argument(
+        "--networks",
+        action="store_true",
+        help="instead: the SSIM step with each network option (model.norm x model.heads)",
+    )
     args = ap.parse_args()
     params = load_params(args.params)
     device = device_from(args.device)
@@ -84,6 +95,7 @@ def main() -> None:
         def loss_step():
             # Fresh leaves each call: the loss and its gradient down to the disparities, no network.
             criterion([d.detach().requires_grad_() for d in disps], left, right)["total"].backward()
+
         return loss_step if args.loss_only else step
 
     ssim_loss = MonodepthLoss(params.loss, "ssim", params.ssim, params.msssim)
@@ -108,8 +120,10 @@ def main() -> None:
     if device.type == "cuda":
         switches += f", cudnn.benchmark {torch.backends.cudnn.benchmark}"
     what = "loss forward+backward only" if args.loss_only else "training step"
-    print(f"{what}, batch {batch}x3x{h}x{w}, model x{model_width(args, params)}, {device}, "
-          f"{torch.get_num_threads()} threads, {switches}, median of {args.repeats}\n")
+    print(
+        f"{what}, batch {batch}x3x{h}x{w}, model x{model_width(args, params)}, {device}, "
+        f"{torch.get_num_threads()} threads, {switches}, median of {args.repeats}\n"
+    )
     print(table(timings, "SSIM k3"))
     print("\nimages/s: " + ", ".join(f"{n} {batch / t:.1f}" for n, t in timings.medians().items()))
     if peaks:
@@ -123,7 +137,9 @@ def run_networks(args, width: float, init: float, criterion, device, memory_form
     candidates = {}
     for norm in ("none", "group"):
         for heads in ("independent", "residual"):
-            net = MonodepthVGG(width, init_disparity=init, norm=norm, heads=heads).to(device, memory_format=memory_format)
+            net = MonodepthVGG(width, init_disparity=init, norm=norm, heads=heads).to(
+                device, memory_format=memory_format
+            )
             opt = torch.optim.Adam(net.parameters(), lr=1e-6)  # tiny: weights barely move between repeats
             gen = torch.Generator().manual_seed(0)
             left = torch.rand(batch, 3, h, w, generator=gen).to(device)
@@ -134,10 +150,13 @@ def run_networks(args, width: float, init: float, criterion, device, memory_form
                 opt.zero_grad(set_to_none=True)
                 losses["total"].backward()
                 opt.step()
+
             candidates[f"norm {norm}, heads {heads}"] = step
     timings = compare(candidates, device, repeats=args.repeats)
-    print(f"SSIM training step by network, batch {batch}x3x{h}x{w}, model x{width}, {device}, "
-          f"{torch.get_num_threads()} threads, median of {args.repeats}\n")
+    print(
+        f"SSIM training step by network, batch {batch}x3x{h}x{w}, model x{width}, {device}, "
+        f"{torch.get_num_threads()} threads, median of {args.repeats}\n"
+    )
     print(table(timings, "norm none, heads independent"))
 
 
@@ -148,7 +167,10 @@ def profile_table(candidates: dict, step_seconds: dict[str, float], device: torc
     from torch.autograd import DeviceType
     from torch.profiler import ProfilerActivity, profile
 
-    rows = ["| candidate | step ms | GPU busy ms/step | GPU busy share | GPU ops/step |", "|---|---|---|---|---|"]
+    rows = [
+        "| candidate | step ms | GPU busy ms/step | GPU busy share | GPU ops/step |",
+        "|---|---|---|---|---|",
+    ]
     for name, step in candidates.items():
         step_ms = step_seconds[name] * 1e3
         if device.type != "cuda":
@@ -164,7 +186,9 @@ def profile_table(candidates: dict, step_seconds: dict[str, float], device: torc
             rows.append(f"| {name} | {step_ms:.2f} | no GPU operations recorded by the profiler | - | - |")
             continue
         busy_ms = sum(e.device_time_total for e in ops) / 1e3 / steps
-        rows.append(f"| {name} | {step_ms:.2f} | {busy_ms:.2f} | {busy_ms / step_ms:.0%} | {len(ops) / steps:.0f} |")
+        rows.append(
+            f"| {name} | {step_ms:.2f} | {busy_ms:.2f} | {busy_ms / step_ms:.0%} | {len(ops) / steps:.0f} |"
+        )
     return "\n".join(rows)
 
 

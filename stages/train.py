@@ -2,7 +2,7 @@
 
 import sys
 
-from msdepth.pipeline import train, run_stage
+from msdepth.pipeline import run_stage, train
 
 if __name__ == "__main__":
     sys.exit(run_stage(train, *sys.argv[1:]))

@@ -33,7 +33,7 @@ import yaml
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "src"))
 
 from msdepth import baselines  # noqa: E402
-from msdepth.config import Params, load_params, params_from_dict  # noqa: E402
+from msdepth.config import Params, params_from_dict  # noqa: E402
 from msdepth.data import kitti  # noqa: E402
 from msdepth.data.index import read_eval_index  # noqa: E402
 from msdepth.data.pairs import build_pair_cache, load_pair_cache, load_pair_list  # noqa: E402
@@ -97,32 +97,55 @@ def run_one(base: dict, spec: str, seed: int, out: str, threads: int) -> dict:
 
     def on_epoch(epoch: int, model, means: dict) -> None:
         # Plain predictions (no flip post-processing) after every epoch: the learning curve in abs_rel.
-        disp = predict_disparities(model, images, params.data.height, params.data.width, False, progress=False)
+        disp = predict_disparities(
+            model, images, params.data.height, params.data.width, False, progress=False
+        )
         pred = depth_maps(disp, frames)
         full, _ = evaluate_full(pred, frames, params.eval)
         model.train()
-        history.append({"epoch": epoch, **means, "abs_rel": full["cap80"]["abs_rel"],
-                        "variation_ratio": image_dependence(pred, frames, 80.0)["variation_ratio"]})
+        history.append(
+            {
+                "epoch": epoch,
+                **means,
+                "abs_rel": full["cap80"]["abs_rel"],
+                "variation_ratio": image_dependence(pred, frames, 80.0)["variation_ratio"],
+            }
+        )
 
     # The curve comes from this run's epochs only: never resume a half-finished run.
     (work / "ck.pt").unlink(missing_ok=True)
     started = time.perf_counter()
-    result = train_variant(params, variant, pairs, work / "model.pt", work / "ck.pt", progress=False,
-                           cache=cache, seed=seed, on_epoch=on_epoch)
+    result = train_variant(
+        params,
+        variant,
+        pairs,
+        work / "model.pt",
+        work / "ck.pt",
+        progress=False,
+        cache=cache,
+        seed=seed,
+        on_epoch=on_epoch,
+    )
     seconds = time.perf_counter() - started
     from msdepth.train import load_model
 
     torch.set_num_threads(threads)
     model, meta = load_model(work / "model.pt")
-    disp = predict_disparities(model, images, meta["height"], meta["width"],
-                               params.eval.post_process, progress=False)
+    disp = predict_disparities(
+        model, images, meta["height"], meta["width"], params.eval.post_process, progress=False
+    )
     pred = depth_maps(disp, frames)
     full, table = evaluate_full(pred, frames, params.eval)
     roi, _ = evaluate_roi(pred, frames, kitti.read_rois(INDEX / "rois.csv"), params.eval)
     row = {
         "per_image_abs_rel": table[table["cap"] == 80]["abs_rel"].tolist(),
-        "spec": spec, "seed": seed, "seconds": seconds, "steps": result.steps,
-        "abs_rel": full["cap80"]["abs_rel"], "a1": full["cap80"]["a1"], "rmse": full["cap80"]["rmse"],
+        "spec": spec,
+        "seed": seed,
+        "seconds": seconds,
+        "steps": result.steps,
+        "abs_rel": full["cap80"]["abs_rel"],
+        "a1": full["cap80"]["a1"],
+        "rmse": full["cap80"]["rmse"],
         "roi_abs_rel": roi["cap80"]["overall"]["abs_rel"],
         "roi_by_class": {c: v["abs_rel"] for c, v in roi["cap80"]["by_class"].items()},
         "image_dependence": image_dependence(pred, frames, params.eval.caps[0]),
@@ -143,9 +166,12 @@ def prior_metrics(params: Params) -> dict:
         pred = depth_maps(disp, frames)
         full, table = evaluate_full(pred, frames, params.eval)
         roi, _ = evaluate_roi(pred, frames, boxes, params.eval)
-        out[name] = {"per_image_abs_rel": table[table["cap"] == 80]["abs_rel"].tolist(),
-                     "abs_rel": full["cap80"]["abs_rel"], "roi_abs_rel": roi["cap80"]["overall"]["abs_rel"],
-                     "roi_by_class": {c: v["abs_rel"] for c, v in roi["cap80"]["by_class"].items()}}
+        out[name] = {
+            "per_image_abs_rel": table[table["cap"] == 80]["abs_rel"].tolist(),
+            "abs_rel": full["cap80"]["abs_rel"],
+            "roi_abs_rel": roi["cap80"]["overall"]["abs_rel"],
+            "roi_by_class": {c: v["abs_rel"] for c, v in roi["cap80"]["by_class"].items()},
+        }
     return out
 
 
@@ -159,22 +185,31 @@ def summarise(rows: list[dict], prior: dict) -> str:
         f"prior abs_rel {prior['prior']['abs_rel']:.4f}, ROI {prior['prior']['roi_abs_rel']:.4f}; "
         f"constant {prior['constant']['abs_rel']:.4f}, ROI {prior['constant']['roi_abs_rel']:.4f}",
         "",
-        "| variant | seed | abs_rel | ROI abs_rel | image dependence | corr. with prior | epoch 1: abs_rel, dependence | s |",
+        "| variant | seed | abs_rel | ROI abs_rel | image dependence | corr. with prior "
+        "| epoch 1: abs_rel, dependence | s |",
         "|---|---|---|---|---|---|---|---|",
     ]
     for r in sorted(rows, key=lambda r: (r["spec"], r["seed"])):
         dep = r["image_dependence"]
-        lines.append(f"| {r['spec']} | {r['seed']} | {r['abs_rel']:.4f} | {r['roi_abs_rel']:.4f} | "
-                     f"{dep['variation_ratio']:.3f} | {r.get('prior_correlation', float('nan')):.3f} | "
-                     f"{r['history'][0]['abs_rel']:.3f}, {r['history'][0]['variation_ratio']:.2f}"
-                     f"{'' if _learned_early(r['history']) else ' (late)'} | {r['seconds']:.0f} |")
-    lines += ["", "| variant | runs | abs_rel mean ± sd | ROI abs_rel mean ± sd | worst abs_rel |",
-              "|---|---|---|---|---|"]
+        lines.append(
+            f"| {r['spec']} | {r['seed']} | {r['abs_rel']:.4f} | {r['roi_abs_rel']:.4f} | "
+            f"{dep['variation_ratio']:.3f} | {r.get('prior_correlation', float('nan')):.3f} | "
+            f"{r['history'][0]['abs_rel']:.3f}, {r['history'][0]['variation_ratio']:.2f}"
+            f"{'' if _learned_early(r['history']) else ' (late)'} | {r['seconds']:.0f} |"
+        )
+    lines += [
+        "",
+        "| variant | runs | abs_rel mean ± sd | ROI abs_rel mean ± sd | worst abs_rel |",
+        "|---|---|---|---|---|",
+    ]
     for spec in sorted({r["spec"] for r in rows}):
         a = np.array([r["abs_rel"] for r in rows if r["spec"] == spec])
         b = np.array([r["roi_abs_rel"] for r in rows if r["spec"] == spec])
         sd = lambda x: x.std(ddof=1) if len(x) > 1 else float("nan")  # noqa: E731
-        lines.append(f"| {spec} | {len(a)} | {a.mean():.4f} ± {sd(a):.4f} | {b.mean():.4f} ± {sd(b):.4f} | {a.max():.4f} |")
+        lines.append(
+            f"| {spec} | {len(a)} | {a.mean():.4f} ± {sd(a):.4f} | {b.mean():.4f} ± {sd(b):.4f} "
+            f"| {a.max():.4f} |"
+        )
     return "\n".join(lines)
 
 
@@ -188,8 +223,12 @@ def curves_figure(rows: list[dict], path: Path) -> None:
     fig, axes = plt.subplots(1, len(specs), figsize=(3.2 * len(specs), 2.8), sharey=True, squeeze=False)
     for ax, spec in zip(axes[0], specs):
         for r in sorted((r for r in rows if r["spec"] == spec), key=lambda r: r["seed"]):
-            ax.plot([h["epoch"] for h in r["history"]], [h["appearance"] for h in r["history"]],
-                    label=f"seed {r['seed']}", lw=1)
+            ax.plot(
+                [h["epoch"] for h in r["history"]],
+                [h["appearance"] for h in r["history"]],
+                label=f"seed {r['seed']}",
+                lw=1,
+            )
         ax.set_title(spec)
         ax.set_xlabel("epoch")
     axes[0][0].set_ylabel("appearance loss")
@@ -215,7 +254,9 @@ def main(argv: list[str] | None = None) -> int:
         rows = list(pool.map(run_one, *zip(*[(base, s, seed, str(args.out), threads) for s, seed in jobs])))
     prior = prior_metrics(params_from_dict(base))
     for r in rows:
-        r["prior_correlation"] = float(np.corrcoef(r["per_image_abs_rel"], prior["prior"]["per_image_abs_rel"])[0, 1])
+        r["prior_correlation"] = float(
+            np.corrcoef(r["per_image_abs_rel"], prior["prior"]["per_image_abs_rel"])[0, 1]
+        )
     text = summarise(rows, prior)
     (args.out / "summary.md").write_text(text + "\n")
     curves_figure(rows, args.out / "curves.png")

@@ -13,8 +13,13 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def _run(script: str, *args: str) -> str:
-    proc = subprocess.run([sys.executable, str(ROOT / "benchmarks" / script), *args], cwd=ROOT,
-                          capture_output=True, text=True, timeout=300)
+    proc = subprocess.run(
+        [sys.executable, str(ROOT / "benchmarks" / script), *args],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert proc.returncode == 0, proc.stderr[-3000:]
     return proc.stdout
 
@@ -22,31 +27,86 @@ def _run(script: str, *args: str) -> str:
 def test_loss_benchmark_prints_the_ratios_to_pytorch_msssim() -> None:
     pytest.importorskip("pytorch_msssim")
     # 176 px: pytorch-msssim's 5-level Gaussian-11 MS-SSIM needs more than 160.
-    out = _run("loss.py", "--batch", "1", "--height", "176", "--width", "176", "--repeats", "1", "--threads", "1")
+    out = _run(
+        "loss.py", "--batch", "1", "--height", "176", "--width", "176", "--repeats", "1", "--threads", "1"
+    )
     assert "| ours MS-SSIM box k3 L4 |" in out and "| pytorch-msssim ms_ssim |" in out
     assert "pytorch-msssim / ours (training config, box k3 L4):" in out
 
 
 def test_train_step_benchmark_with_the_speed_switches() -> None:
-    out = _run("train_step.py", "--batch", "1", "--height", "32", "--width", "96", "--width-multiplier", "0.0625",
-               "--kernels", "3,11", "--repeats", "1", "--amp", "bf16", "--channels-last", "--profile", "1")
+    out = _run(
+        "train_step.py",
+        "--batch",
+        "1",
+        "--height",
+        "32",
+        "--width",
+        "96",
+        "--width-multiplier",
+        "0.0625",
+        "--kernels",
+        "3,11",
+        "--repeats",
+        "1",
+        "--amp",
+        "bf16",
+        "--channels-last",
+        "--profile",
+        "1",
+    )
     assert "amp bf16, channels_last True" in out
-    assert "| MS-SSIM k11 |" in out.split("GPU busy share")[1]  # the profile table, GPU columns empty on a CPU
+    assert (
+        "| MS-SSIM k11 |" in out.split("GPU busy share")[1]
+    )  # the profile table, GPU columns empty on a CPU
     for name in ("SSIM k3", "MS-SSIM k3", "MS-SSIM k11"):
         assert f"| {name} |" in out
     assert "images/s:" in out
 
 
 def test_train_step_benchmark_loss_only() -> None:
-    out = _run("train_step.py", "--batch", "1", "--height", "32", "--width", "96", "--width-multiplier", "0.0625",
-               "--kernels", "11", "--repeats", "1", "--loss-only")
+    out = _run(
+        "train_step.py",
+        "--batch",
+        "1",
+        "--height",
+        "32",
+        "--width",
+        "96",
+        "--width-multiplier",
+        "0.0625",
+        "--kernels",
+        "11",
+        "--repeats",
+        "1",
+        "--loss-only",
+    )
     assert out.startswith("loss forward+backward only, batch 1x3x32x96")
     assert "| MS-SSIM k11 |" in out
 
 
 def test_train_loop_benchmark() -> None:
-    out = _run("train_loop.py", "--batch", "2", "--height", "32", "--width", "96", "--width-multiplier", "0.0625",
-               "--pairs", "4", "--epochs", "1", "--repeats", "1", "--warmup", "0", "--sync", "2")
+    out = _run(
+        "train_loop.py",
+        "--batch",
+        "2",
+        "--height",
+        "32",
+        "--width",
+        "96",
+        "--width-multiplier",
+        "0.0625",
+        "--pairs",
+        "4",
+        "--epochs",
+        "1",
+        "--repeats",
+        "1",
+        "--warmup",
+        "0",
+        "--sync",
+        "2",
+    )
     assert out.startswith("training loop, 4 pairs x 1 epochs, batch 2x3x32x96")
     for name in ("ssim sync 1", "ssim sync 2", "msssim sync 1", "msssim sync 2"):
         assert f"| {name} |" in out
@@ -69,8 +129,20 @@ def test_ratios_are_paired_within_rounds() -> None:
 
 
 def test_train_step_benchmark_by_network() -> None:
-    out = _run("train_step.py", "--batch", "1", "--height", "32", "--width", "96", "--width-multiplier", "0.0625",
-               "--repeats", "1", "--networks")
+    out = _run(
+        "train_step.py",
+        "--batch",
+        "1",
+        "--height",
+        "32",
+        "--width",
+        "96",
+        "--width-multiplier",
+        "0.0625",
+        "--repeats",
+        "1",
+        "--networks",
+    )
     assert out.startswith("SSIM training step by network, batch 1x3x32x96")
     for name in ("norm none, heads independent", "norm group, heads residual"):
         assert f"| {name} |" in out
@@ -84,10 +156,23 @@ def test_learning_study_smoke(tmp_path: Path) -> None:
     from msdepth.config import params_from_dict
     from msdepth.data.synthetic import generate
 
-    raw = {"data": {"height": 32, "width": 96, "synthetic": {"seed": 3, "drives": 1, "train_pairs": 8,
-                                                             "eval_frames": 4, "height": 48, "width": 160}},
-           "model": {"width_multiplier": 0.0625}, "train": {"epochs": 2, "batch_size": 4, "seeds": [0]},
-           "msssim": {"levels": 3}}
+    raw = {
+        "data": {
+            "height": 32,
+            "width": 96,
+            "synthetic": {
+                "seed": 3,
+                "drives": 1,
+                "train_pairs": 8,
+                "eval_frames": 4,
+                "height": 48,
+                "width": 160,
+            },
+        },
+        "model": {"width_multiplier": 0.0625},
+        "train": {"epochs": 2, "batch_size": 4, "seeds": [0]},
+        "msssim": {"levels": 3},
+    }
     (tmp_path / "params.yaml").write_text(yaml.safe_dump(raw))
     params = params_from_dict(raw)
     with pytest.MonkeyPatch.context() as mp:
@@ -96,9 +181,25 @@ def test_learning_study_smoke(tmp_path: Path) -> None:
         pipeline.index(params)
         pipeline.rois(params)
         pipeline.cache(params)
-    proc = subprocess.run([sys.executable, str(ROOT / "studies" / "learning.py"), "--variants", "ssim", "msssim:5",
-                           "--seeds", "0", "--out", "out", "--jobs", "1"], cwd=tmp_path, capture_output=True,
-                          text=True, timeout=600)
+    proc = subprocess.run(
+        [
+            sys.executable,
+            str(ROOT / "studies" / "learning.py"),
+            "--variants",
+            "ssim",
+            "msssim:5",
+            "--seeds",
+            "0",
+            "--out",
+            "out",
+            "--jobs",
+            "1",
+        ],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
     assert proc.returncode == 0, proc.stderr[-3000:]
     assert "| msssim:5 | 0 |" in proc.stdout and "| ssim | 1 |" in proc.stdout
     import json

@@ -10,17 +10,19 @@ import textwrap
 from pathlib import Path
 
 import torch
+from test_train import _params, _train, _weights, pairs  # noqa: F401  (pairs is a fixture)
 from torch.utils.data import DataLoader
 
 from msdepth.distributed import Context, GlobalBatchSampler
-from test_train import _params, _train, _weights, pairs  # noqa: F401  (pairs is a fixture)
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
 def test_one_process_sees_the_batches_a_shuffling_dataloader_draws() -> None:
     data = list(range(23))
-    old = DataLoader(data, batch_size=4, shuffle=True, drop_last=True, generator=torch.Generator().manual_seed(5))
+    old = DataLoader(
+        data, batch_size=4, shuffle=True, drop_last=True, generator=torch.Generator().manual_seed(5)
+    )
     gen = torch.Generator().manual_seed(5)
     new = DataLoader(data, batch_size=4, sampler=GlobalBatchSampler(23, 4, Context(), gen), generator=gen)
     assert [b.tolist() for b in old] == [b.tolist() for b in new]
@@ -32,7 +34,12 @@ def test_ranks_split_each_global_batch() -> None:
         sampler = GlobalBatchSampler(10, 2, Context(rank, 2, rank), gen)
         return [list(b) for b in DataLoader(list(range(10)), batch_size=2, sampler=sampler, generator=gen)]
 
-    one = DataLoader(list(range(10)), batch_size=4, sampler=GlobalBatchSampler(10, 4, Context(), g := torch.Generator().manual_seed(1)), generator=g)
+    one = DataLoader(
+        list(range(10)),
+        batch_size=4,
+        sampler=GlobalBatchSampler(10, 4, Context(), g := torch.Generator().manual_seed(1)),
+        generator=g,
+    )
     for global_batch, r0, r1 in zip(one, batches(0), batches(1)):
         assert global_batch.tolist() == [int(i) for i in r0] + [int(i) for i in r1]
 
@@ -45,8 +52,8 @@ CHILD = textwrap.dedent("""
     from test_train import _params
     pairs = [tuple(Path(p) for p in line.split()) for line in Path({pair_file!r}).read_text().splitlines()]
     out = Path({out!r})
-    train_variant(_params("learned", batch_size=2, nproc=2, launcher="torchrun", dist_timeout_s=60), "msssim", pairs,
-                  out / "model.pt", out / "ck.pt", progress=False)
+    params = _params("learned", batch_size=2, nproc=2, launcher="torchrun", dist_timeout_s=60)
+    train_variant(params, "msssim", pairs, out / "model.pt", out / "ck.pt", progress=False)
 """)
 
 
@@ -57,11 +64,16 @@ def test_two_ranks_match_one_process_with_the_same_global_batch(pairs, tmp_path:
     pair_file = tmp_path / "pairs.txt"
     pair_file.write_text("".join(f"{a} {b}\n" for a, b in pairs))
     script = tmp_path / "child.py"
-    script.write_text(CHILD.format(tests=str(ROOT / "tests"), pair_file=str(pair_file), out=str(tmp_path / "ddp")))
+    script.write_text(
+        CHILD.format(tests=str(ROOT / "tests"), pair_file=str(pair_file), out=str(tmp_path / "ddp"))
+    )
     env = dict(os.environ, PYTHONPATH=str(ROOT / "src"), OMP_NUM_THREADS="1")
     proc = subprocess.run(
         [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node=2", str(script)],
-        capture_output=True, text=True, env=env, timeout=300,
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=300,
     )
     assert proc.returncode == 0, proc.stderr[-3000:]
     # Rank 0 wrote the model after checking that both ranks' replicas (network and learned
@@ -69,8 +81,10 @@ def test_two_ranks_match_one_process_with_the_same_global_batch(pairs, tmp_path:
     single, ddp = _weights(tmp_path / "single" / "model.pt"), _weights(tmp_path / "ddp" / "model.pt")
     for name in single:
         torch.testing.assert_close(ddp[name], single[name], rtol=1e-4, atol=1e-5)
-    level = [torch.load(tmp_path / run / "model.pt", weights_only=True)["criterion"]["level_weights.logits"]
-             for run in ("single", "ddp")]
+    level = [
+        torch.load(tmp_path / run / "model.pt", weights_only=True)["criterion"]["level_weights.logits"]
+        for run in ("single", "ddp")
+    ]
     assert level[0].abs().sum() > 0  # the weights did train
     torch.testing.assert_close(level[1], level[0], rtol=1e-4, atol=1e-6)
 
@@ -105,7 +119,10 @@ def test_a_crashed_rank_stops_the_job_instead_of_hanging(pairs, tmp_path: Path) 
     env = dict(os.environ, PYTHONPATH=str(ROOT / "src"), OMP_NUM_THREADS="1")
     proc = subprocess.run(
         [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node=2", str(script)],
-        capture_output=True, text=True, env=env, timeout=240,  # far below a hang; the job must end itself
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=240,  # far below a hang; the job must end itself
     )
     assert proc.returncode != 0
     assert "rank 1 lost its GPU" in proc.stderr

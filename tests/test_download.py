@@ -53,7 +53,9 @@ def drive_zip(date: str, drive: int, frames: int = 3, seed: int = 0) -> bytes:
 def calib_zip(date: str) -> bytes:
     buf = stdio.BytesIO()
     with zipfile.ZipFile(buf, "w") as zf:
-        zf.writestr(f"{date}/calib_cam_to_cam.txt", "P_rect_02: 721.5 0 609.6 44.9 0 721.5 172.9 0.2 0 0 1 0.003\n")
+        zf.writestr(
+            f"{date}/calib_cam_to_cam.txt", "P_rect_02: 721.5 0 609.6 44.9 0 721.5 172.9 0.2 0 0 1 0.003\n"
+        )
     return buf.getvalue()
 
 
@@ -261,12 +263,16 @@ def _redirect(handler: dl.NoDowngradeRedirect, old: str, new: str):
 
 def test_redirect_from_https_to_http_is_refused() -> None:
     handler = dl.NoDowngradeRedirect()
-    refused = ("https://a.org/x.zip: redirected to http://b.org/x.zip, which is not https; "
-               "refusing the downgrade")
+    refused = (
+        "https://a.org/x.zip: redirected to http://b.org/x.zip, which is not https; refusing the downgrade"
+    )
     with pytest.raises(DataError, match=re.escape(refused)):
         _redirect(handler, "https://a.org/x.zip", "http://b.org/x.zip")
-    allowed = [("https://a.org/x.zip", "https://cdn.b.org/x.zip"),
-               ("http://a.org/x.zip", "http://b.org/x.zip"), ("http://a.org/x.zip", "https://b.org/x.zip")]
+    allowed = [
+        ("https://a.org/x.zip", "https://cdn.b.org/x.zip"),
+        ("http://a.org/x.zip", "http://b.org/x.zip"),
+        ("http://a.org/x.zip", "https://b.org/x.zip"),
+    ]
     for old, new in allowed:
         request, _ = _redirect(handler, old, new)
         assert request.full_url == new
@@ -291,9 +297,21 @@ def test_select_all_first_n_and_named_drives_add_their_calibration() -> None:
     names = dl.parse_archive_list(SHIPPED_LIST)
     assert dl.select_archives(names, None) == names == dl.select_archives(names, "all")
     first2 = [dl.archive_filename(n) for n in dl.select_archives(names, 2)]
-    assert first2 == ["2011_09_26_calib.zip", "2011_09_26_drive_0001_sync.zip", "2011_09_26_drive_0002_sync.zip"]
-    picked = [dl.archive_filename(n) for n in dl.select_archives(names, ["2011_09_28_drive_0001", "2011_10_03_drive_0027_sync.zip"])]
-    assert picked == ["2011_09_28_calib.zip", "2011_09_28_drive_0001_sync.zip", "2011_10_03_calib.zip", "2011_10_03_drive_0027_sync.zip"]
+    assert first2 == [
+        "2011_09_26_calib.zip",
+        "2011_09_26_drive_0001_sync.zip",
+        "2011_09_26_drive_0002_sync.zip",
+    ]
+    picked = [
+        dl.archive_filename(n)
+        for n in dl.select_archives(names, ["2011_09_28_drive_0001", "2011_10_03_drive_0027_sync.zip"])
+    ]
+    assert picked == [
+        "2011_09_28_calib.zip",
+        "2011_09_28_drive_0001_sync.zip",
+        "2011_10_03_calib.zip",
+        "2011_10_03_drive_0027_sync.zip",
+    ]
     assert dl.select_archives(names, 0) == []
     with pytest.raises(DataError, match="not in the archive list: 2011_09_26_drive_9999"):
         dl.select_archives(names, ["2011_09_26_drive_9999"])
@@ -313,7 +331,9 @@ def test_normal_download_is_byte_identical_and_leaves_no_part(server: _Server, t
 
 
 @pytest.mark.parametrize("mode", ["reset_once", "truncate_once", "stall_once"])
-def test_reset_truncated_or_stalled_transfer_resumes_with_a_range_request(server: _Server, tmp_path: Path, mode: str) -> None:
+def test_reset_truncated_or_stalled_transfer_resumes_with_a_range_request(
+    server: _Server, tmp_path: Path, mode: str
+) -> None:
     data = _serve_drive(server, mode)
     dest = dl.download(server.url(DRIVE), tmp_path / DRIVE, **{**FAST, "timeout": 0.3})
     assert dest.read_bytes() == data
@@ -346,7 +366,10 @@ def test_5xx_is_retried_and_gives_up_after_the_retries(server: _Server, tmp_path
 
 def test_resets_that_make_no_progress_give_up(server: _Server, tmp_path: Path) -> None:
     _serve_drive(server, "always_reset")  # headers, then a reset before any byte of the body
-    with pytest.raises(DataError, match=re.escape(server.url(DRIVE)) + ": download failed after 3 retries: ConnectionResetError"):
+    with pytest.raises(
+        DataError,
+        match=re.escape(server.url(DRIVE)) + ": download failed after 3 retries: ConnectionResetError",
+    ):
         dl.download(server.url(DRIVE), tmp_path / DRIVE, **FAST)
     assert len(server.gets(DRIVE)) == 1 + FAST["retries"]
     assert not (tmp_path / DRIVE).exists()
@@ -362,7 +385,9 @@ def test_server_without_range_support_discards_the_partial_file(server: _Server,
     assert get["range"] == f"bytes={len(data) // 2}-" and get["sent"] == len(data)
 
 
-def test_a_whole_part_left_by_a_killed_run_is_finished_without_refetching(server: _Server, tmp_path: Path) -> None:
+def test_a_whole_part_left_by_a_killed_run_is_finished_without_refetching(
+    server: _Server, tmp_path: Path
+) -> None:
     data = _serve_drive(server)
     (tmp_path / (DRIVE + ".part")).write_bytes(data)  # killed between the last write and the rename
     assert dl.download(server.url(DRIVE), tmp_path / DRIVE, **FAST).read_bytes() == data
@@ -399,12 +424,18 @@ def _corrupt(data: bytes) -> bytes:
     return bytes(out)
 
 
-def test_manifest_recorded_on_first_success_and_later_tamper_detected(server: _Server, tmp_path: Path) -> None:
+def test_manifest_recorded_on_first_success_and_later_tamper_detected(
+    server: _Server, tmp_path: Path
+) -> None:
     data = _serve_drive(server)
     dl_dir, raw = tmp_path / "zips", tmp_path / "raw"
     names = [f"raw_data/2011_09_26_drive_0001/{DRIVE}"]
     report = dl.fetch_all(server.base_url, names, dl_dir, raw, jobs=1, **FAST)
-    assert report["fetched"] == [DRIVE] and report["extracted"] == [DRIVE] and report["bytes_downloaded"] == len(data)
+    assert (
+        report["fetched"] == [DRIVE]
+        and report["extracted"] == [DRIVE]
+        and report["bytes_downloaded"] == len(data)
+    )
     manifest = json.loads((dl_dir / "manifest.json").read_text())["archives"]
     assert manifest[DRIVE]["sha256"] == hashlib.sha256(data).hexdigest()
     assert manifest[DRIVE]["size"] == len(data)
@@ -416,7 +447,9 @@ def test_manifest_recorded_on_first_success_and_later_tamper_detected(server: _S
 
     # Tamper with the archive (same length): detected, named, moved aside, record dropped.
     (dl_dir / DRIVE).write_bytes(_corrupt(data))
-    with pytest.raises(dl.DownloadError, match=f"{DRIVE}: size .* sha256 .* differ from manifest.json") as err:
+    with pytest.raises(
+        dl.DownloadError, match=f"{DRIVE}: size .* sha256 .* differ from manifest.json"
+    ) as err:
         dl.fetch_all(server.base_url, names, dl_dir, raw, jobs=1, **FAST)
     assert list(err.value.report["failed"]) == [DRIVE]
     assert (dl_dir / (DRIVE + ".corrupt")).exists() and not (dl_dir / DRIVE).exists()
@@ -425,7 +458,10 @@ def test_manifest_recorded_on_first_success_and_later_tamper_detected(server: _S
     # Third run fetches it again and records it again.
     report = dl.fetch_all(server.base_url, names, dl_dir, raw, jobs=1, **FAST)
     assert report["fetched"] == [DRIVE] and (dl_dir / DRIVE).read_bytes() == data
-    assert json.loads((dl_dir / "manifest.json").read_text())["archives"][DRIVE]["sha256"] == hashlib.sha256(data).hexdigest()
+    assert (
+        json.loads((dl_dir / "manifest.json").read_text())["archives"][DRIVE]["sha256"]
+        == hashlib.sha256(data).hexdigest()
+    )
 
 
 def test_corrupted_download_is_reported_failed_and_moved_aside(server: _Server, tmp_path: Path) -> None:
@@ -475,13 +511,25 @@ def test_drive_and_calibration_archives_share_the_day_folder(tmp_path: Path) -> 
     (tmp_path / "d.zip").write_bytes(drive_zip("2011_09_26", 1))
     raw = tmp_path / "raw"
     assert dl.extract(tmp_path / "d.zip", raw) and dl.extract(tmp_path / "c.zip", raw)
-    assert sorted(p.name for p in (raw / "2011_09_26").iterdir()) == ["2011_09_26_drive_0001_sync", "calib_cam_to_cam.txt"]
+    assert sorted(p.name for p in (raw / "2011_09_26").iterdir()) == [
+        "2011_09_26_drive_0001_sync",
+        "calib_cam_to_cam.txt",
+    ]
 
 
-@pytest.mark.parametrize("member", [
-    "../evil.txt", "2011_09_26/../../evil.txt", "/tmp/evil.txt", "\\evil.txt", "..\\evil.txt", "C:/evil.txt",
-    "c:\\evil.txt", "//server/share/evil.txt",
-])
+@pytest.mark.parametrize(
+    "member",
+    [
+        "../evil.txt",
+        "2011_09_26/../../evil.txt",
+        "/tmp/evil.txt",
+        "\\evil.txt",
+        "..\\evil.txt",
+        "C:/evil.txt",
+        "c:\\evil.txt",
+        "//server/share/evil.txt",
+    ],
+)
 def test_zip_slip_member_is_rejected(tmp_path: Path, member: str) -> None:
     archive = tmp_path / "slip.zip"
     with zipfile.ZipFile(archive, "w") as zf:
@@ -507,11 +555,16 @@ def _special_zip(path: Path, kind: int, target: str = "/etc/passwd") -> Path:
     return path
 
 
-@pytest.mark.parametrize(("kind", "what"), [
-    (stat.S_IFLNK, "a symbolic link"), (stat.S_IFIFO, "a device, fifo or socket"),
-    (stat.S_IFCHR, "a device, fifo or socket"), (stat.S_IFBLK, "a device, fifo or socket"),
-    (stat.S_IFSOCK, "a device, fifo or socket"),
-])
+@pytest.mark.parametrize(
+    ("kind", "what"),
+    [
+        (stat.S_IFLNK, "a symbolic link"),
+        (stat.S_IFIFO, "a device, fifo or socket"),
+        (stat.S_IFCHR, "a device, fifo or socket"),
+        (stat.S_IFBLK, "a device, fifo or socket"),
+        (stat.S_IFSOCK, "a device, fifo or socket"),
+    ],
+)
 def test_symlink_and_device_members_are_refused(tmp_path: Path, kind: int, what: str) -> None:
     archive = _special_zip(tmp_path / "special.zip", kind)
     raw = tmp_path / "raw"
@@ -582,8 +635,13 @@ def test_archive_larger_than_the_free_space_is_refused_before_writing(tmp_path: 
 
     monkeypatch.setattr(dl.shutil, "disk_usage", little_space)
     raw = tmp_path / "not" / "yet" / "raw"
-    with pytest.raises(DataError, match=re.escape(f"{archive}: needs ") + r".* to extract but "
-                       + re.escape(f"{tmp_path} has ") + r".* free; refusing to start"):
+    with pytest.raises(
+        DataError,
+        match=re.escape(f"{archive}: needs ")
+        + r".* to extract but "
+        + re.escape(f"{tmp_path} has ")
+        + r".* free; refusing to start",
+    ):
         dl.extract(archive, raw)
     assert asked == [tmp_path] and not (tmp_path / "not").exists()  # the nearest existing folder
     monkeypatch.setattr(dl.shutil, "disk_usage", lambda path: real(path)._replace(free=declared))
@@ -633,13 +691,19 @@ def test_parallel_fetch_reports_exactly_the_failing_archive(server: _Server, tmp
     report = err.value.report
     assert list(report["failed"]) == ["2011_09_26_drive_0002_sync.zip"]
     assert "HTTP 404" in report["failed"]["2011_09_26_drive_0002_sync.zip"]
-    assert report["fetched"] == report["extracted"] == ["2011_09_26_calib.zip", "2011_09_26_drive_0001_sync.zip"]
+    assert (
+        report["fetched"] == report["extracted"] == ["2011_09_26_calib.zip", "2011_09_26_drive_0001_sync.zip"]
+    )
     assert (tmp_path / "zips" / "2011_09_26_drive_0001_sync.zip").read_bytes() == ok
     assert (tmp_path / "raw" / "2011_09_26" / "calib_cam_to_cam.txt").exists()
-    assert (tmp_path / "raw" / "2011_09_26" / "2011_09_26_drive_0001_sync" / "image_03" / "timestamps.txt").exists()
+    assert (
+        tmp_path / "raw" / "2011_09_26" / "2011_09_26_drive_0001_sync" / "image_03" / "timestamps.txt"
+    ).exists()
 
 
-def test_extracted_archive_deleted_to_save_space_is_not_fetched_again(server: _Server, tmp_path: Path) -> None:
+def test_extracted_archive_deleted_to_save_space_is_not_fetched_again(
+    server: _Server, tmp_path: Path
+) -> None:
     _serve_drive(server)
     names = [f"raw_data/{DRIVE}"]
     dl.fetch_all(server.base_url, names, tmp_path / "zips", tmp_path / "raw", **FAST)

@@ -25,11 +25,17 @@ def monodepth_kitti2015(pred_disparities, gt_disparities, cap, min_depth=1e-3):
         pred_depth[pred_depth > cap] = cap
         gt, pred = gt_depth[mask], pred_depth[mask]
         thresh = np.maximum((gt / pred), (pred / gt))
-        results.append([
-            np.mean(np.abs(gt - pred) / gt), np.mean(((gt - pred) ** 2) / gt),
-            np.sqrt(((gt - pred) ** 2).mean()), np.sqrt(((np.log(gt) - np.log(pred)) ** 2).mean()),
-            (thresh < 1.25).mean(), (thresh < 1.25**2).mean(), (thresh < 1.25**3).mean(),
-        ])
+        results.append(
+            [
+                np.mean(np.abs(gt - pred) / gt),
+                np.mean(((gt - pred) ** 2) / gt),
+                np.sqrt(((gt - pred) ** 2).mean()),
+                np.sqrt(((np.log(gt) - np.log(pred)) ** 2).mean()),
+                (thresh < 1.25).mean(),
+                (thresh < 1.25**2).mean(),
+                (thresh < 1.25**3).mean(),
+            ]
+        )
     return np.mean(results, axis=0)
 
 
@@ -51,7 +57,9 @@ def test_full_suite_matches_monodepth(scene):
     summary, table = evaluate_full(depth_maps(disps, frames), frames, cfg)
     for cap in cfg.caps:
         ref = monodepth_kitti2015(disps, [f.gt_disp for f in frames], cap)
-        ours = [summary[f"cap{cap:g}"][k] for k in ("abs_rel", "sq_rel", "rmse", "rmse_log", "a1", "a2", "a3")]
+        ours = [
+            summary[f"cap{cap:g}"][k] for k in ("abs_rel", "sq_rel", "rmse", "rmse_log", "a1", "a2", "a3")
+        ]
         np.testing.assert_allclose(ours, ref, rtol=1e-6, atol=1e-6)
     assert len(table) == len(frames) * len(cfg.caps)
 
@@ -99,7 +107,9 @@ def test_gradient_suite_on_a_ramp():
     # Depth rising 0.1 m per column: Sobel x = 8 * 0.1 in the interior, Sobel y and Laplacian 0.
     depth = np.tile(10 + 0.1 * np.arange(80, dtype=np.float32), (60, 1))
     frame = _dense_frame(depth)
-    rois = pd.DataFrame([(frame.name, "glass", 20, 20, 60, 40)], columns=["image", "class", "x0", "y0", "x1", "y1"])
+    rois = pd.DataFrame(
+        [(frame.name, "glass", 20, 20, 60, 40)], columns=["image", "class", "x0", "y0", "x1", "y1"]
+    )
     summary, _ = evaluate_gradients({frame.name: depth}, [frame], rois, EvalConfig())
     block = summary["cap80"]
     assert block["overall"]["pred_sobel_x"] == pytest.approx(0.8, rel=1e-3)
@@ -112,7 +122,17 @@ def test_gradient_suite_on_a_ramp():
 
 def test_compare_table_marks_best_variant():
     def suite(v):
-        return {"cap80": {"abs_rel": v, "sq_rel": v, "rmse": v, "rmse_log": v, "a1": 1 - v, "a2": 1 - v, "a3": 1 - v}}
+        return {
+            "cap80": {
+                "abs_rel": v,
+                "sq_rel": v,
+                "rmse": v,
+                "rmse_log": v,
+                "a1": 1 - v,
+                "a2": 1 - v,
+                "a3": 1 - v,
+            }
+        }
 
     def roi(v):
         m = suite(v)["cap80"]
@@ -120,7 +140,9 @@ def test_compare_table_marks_best_variant():
 
     def grad(v):
         g = {"pred_sobel_x": v, "pred_sobel_y": v, "pred_laplacian": v, "count": 1}
-        return {"cap80": {"overall": g, "by_class": {}, "dense_gt": {"overall": {"count": 0}, "by_class": {}}}}
+        return {
+            "cap80": {"overall": g, "by_class": {}, "dense_gt": {"overall": {"count": 0}, "by_class": {}}}
+        }
 
     runs = {"ssim": 0.3, "msssim": 0.2, "prior": 0.1}
     suites = {
@@ -134,8 +156,15 @@ def test_compare_table_marks_best_variant():
 
 
 def _frames_with_depth(depths):
-    return [Frame(f"{i:06d}_10", np.where(d > 0, FOCAL * BASELINE / np.maximum(d, 1e-9), 0).astype(np.float32),
-                  FOCAL, BASELINE) for i, d in enumerate(depths)]
+    return [
+        Frame(
+            f"{i:06d}_10",
+            np.where(d > 0, FOCAL * BASELINE / np.maximum(d, 1e-9), 0).astype(np.float32),
+            FOCAL,
+            BASELINE,
+        )
+        for i, d in enumerate(depths)
+    ]
 
 
 def test_image_dependence_tells_a_prior_from_a_network_that_follows_the_scene():
@@ -149,15 +178,23 @@ def test_image_dependence_tells_a_prior_from_a_network_that_follows_the_scene():
     exact = image_dependence(gt, frames, 80.0)
     assert exact["variation_ratio"] == pytest.approx(1.0, rel=1e-4)
     # A scale error does not change how much the prediction follows the scene.
-    assert image_dependence({k: 1.3 * v for k, v in gt.items()}, frames, 80.0)["variation_ratio"] == pytest.approx(1.0, rel=1e-4)
+    assert image_dependence({k: 1.3 * v for k, v in gt.items()}, frames, 80.0)[
+        "variation_ratio"
+    ] == pytest.approx(1.0, rel=1e-4)
     # The same map for every image (a prior, or a constant) does not depend on the image at all.
     prior = np.median(np.stack(depths), axis=0)
-    assert image_dependence({k: prior for k in gt}, frames, 80.0)["variation_ratio"] == pytest.approx(0.0, abs=1e-9)
+    assert image_dependence({k: prior for k in gt}, frames, 80.0)["variation_ratio"] == pytest.approx(
+        0.0, abs=1e-9
+    )
     half = {k: 0.5 * v + 0.5 * prior for k, v in gt.items()}
     assert 0.3 < image_dependence(half, frames, 80.0)["variation_ratio"] < 0.7
     # Frames of different sizes (KITTI's widths vary by day) share the smallest grid.
-    mixed = _frames_with_depth([depths[0], cv2.resize(depths[1], (92, 30), interpolation=cv2.INTER_NEAREST), *depths[2:]])
-    assert image_dependence({f.name: f.gt_depth for f in mixed}, mixed, 80.0)["variation_ratio"] == pytest.approx(1.0, rel=1e-4)
+    mixed = _frames_with_depth(
+        [depths[0], cv2.resize(depths[1], (92, 30), interpolation=cv2.INTER_NEAREST), *depths[2:]]
+    )
+    assert image_dependence({f.name: f.gt_depth for f in mixed}, mixed, 80.0)[
+        "variation_ratio"
+    ] == pytest.approx(1.0, rel=1e-4)
 
 
 def test_full_suite_reports_image_dependence(scene):
@@ -176,7 +213,9 @@ def test_roi_suite_over_exact_masks_ignores_the_background_in_the_box():
     classes[5:15, 10:20] = CLASS_BITS["car"]
     frame = Frame("000000_10", (FOCAL * BASELINE / depth).astype(np.float32), FOCAL, BASELINE, classes)
     pred = np.where(classes > 0, 8.0, 12.0).astype(np.float32)  # right on the car, wrong on the wall
-    rois = pd.DataFrame([("000000_10", "car", 5, 2, 25, 18)], columns=["image", "class", "x0", "y0", "x1", "y1"])
+    rois = pd.DataFrame(
+        [("000000_10", "car", 5, 2, 25, 18)], columns=["image", "class", "x0", "y0", "x1", "y1"]
+    )
     summary, table = evaluate_roi({"000000_10": pred}, [frame], rois, EvalConfig(caps=(80.0,)))
     assert summary["cap80"]["overall"]["abs_rel"] > 0.2  # the box mixes in the wall
     assert summary["masks"]["cap80"]["overall"]["abs_rel"] == pytest.approx(0.0, abs=1e-6)
@@ -194,11 +233,18 @@ def test_compare_shows_the_exact_mask_tables():
         masks = {"cap80": {"overall": m, "by_class": {"car": m}}, "rois": 1, "excluded_rois": 0}
         return {"cap80": {"overall": m, "by_class": {"car": m}}, "masks": masks}
 
-    grad = {"cap80": {"overall": {"pred_sobel_x": 1, "pred_sobel_y": 1, "pred_laplacian": 1},
-                      "dense_gt": {"overall": {}}}}
+    grad = {
+        "cap80": {
+            "overall": {"pred_sobel_x": 1, "pred_sobel_y": 1, "pred_laplacian": 1},
+            "dense_gt": {"overall": {}},
+        }
+    }
     runs = {"ssim": 0.3, "msssim": 0.1}
-    suites = {"full": {r: {"cap80": metrics} for r in runs}, "roi": {r: roi(v) for r, v in runs.items()},
-              "gradients": {r: grad for r in runs}}
+    suites = {
+        "full": {r: {"cap80": metrics} for r in runs},
+        "roi": {r: roi(v) for r, v in runs.items()},
+        "gradients": {r: grad for r in runs},
+    }
     result, md = build_comparison(suites, ["ssim", "msssim"], [])
     assert "### ROI, exact masks, cap 80 m" in md and "| msssim | 0.1000 | 0.2000 | 0.8000 | 0.1000 |" in md
     assert result["roi_masks"]["cap80"]["ssim"]["overall"]["abs_rel"] == 0.3

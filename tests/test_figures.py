@@ -24,11 +24,23 @@ PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 def tree(tmp_path_factory) -> Path:
     """data/index, outputs/<v>, metrics/<suite>/<v>.csv and dvclive TSVs, as the pipeline writes them."""
     root = tmp_path_factory.mktemp("figures")
-    params = params_from_dict({
-        "data": {"height": 32, "width": 96,
-                 "synthetic": {"seed": 1, "drives": 1, "train_pairs": 1, "eval_frames": 3, "height": 48, "width": 160}},
-        "msssim": {"levels": 3},
-    })
+    params = params_from_dict(
+        {
+            "data": {
+                "height": 32,
+                "width": 96,
+                "synthetic": {
+                    "seed": 1,
+                    "drives": 1,
+                    "train_pairs": 1,
+                    "eval_frames": 3,
+                    "height": 48,
+                    "width": 160,
+                },
+            },
+            "msssim": {"levels": 3},
+        }
+    )
     with pytest.MonkeyPatch.context() as mp:
         mp.chdir(root)  # the stage functions read and write relative to the project root
         generate(params.data.synthetic, Path(params.data.root), progress=False, workers=1)
@@ -47,7 +59,9 @@ def tree(tmp_path_factory) -> Path:
             live.mkdir(parents=True)
             for term in ("total", "appearance"):
                 loss = 0.5 / (1 + k) * np.exp(-0.2 * np.arange(4)) + (0.01 if term == "total" else 0)
-                pd.DataFrame({"step": np.arange(4), term: loss}).to_csv(live / f"{term}.tsv", sep="\t", index=False)
+                pd.DataFrame({"step": np.arange(4), term: loss}).to_csv(
+                    live / f"{term}.tsv", sep="\t", index=False
+                )
     return root
 
 
@@ -71,8 +85,14 @@ def _eval_cfg():
 
 def test_every_figure_is_a_png_and_no_temp_file_is_left(tree: Path, tmp_path: Path):
     out = tmp_path / "figs"
-    written = make_figures(RUNS, out, **_paths(tree), metrics=tree / "metrics",
-                           train_plots=tree / "plots/train", eval_cfg=_eval_cfg())
+    written = make_figures(
+        RUNS,
+        out,
+        **_paths(tree),
+        metrics=tree / "metrics",
+        train_plots=tree / "plots/train",
+        eval_cfg=_eval_cfg(),
+    )
     assert written == [out / name for name in FIGURES]
     for path in written:
         data = path.read_bytes()
@@ -82,8 +102,15 @@ def test_every_figure_is_a_png_and_no_temp_file_is_left(tree: Path, tmp_path: Pa
 
 
 def test_one_variant_gives_no_scatter(tree: Path, tmp_path: Path):
-    written = make_figures({"msssim": RUNS["msssim"]}, tmp_path, **_paths(tree), metrics=tree / "metrics",
-                           train_plots=tree / "plots/train", eval_cfg=_eval_cfg(), frames=1)
+    written = make_figures(
+        {"msssim": RUNS["msssim"]},
+        tmp_path,
+        **_paths(tree),
+        metrics=tree / "metrics",
+        train_plots=tree / "plots/train",
+        eval_cfg=_eval_cfg(),
+        frames=1,
+    )
     assert [p.name for p in written] == [n for n in FIGURES if n != "error_scatter.png"]
 
 
@@ -115,7 +142,9 @@ def test_missing_tsv_is_one_data_error_naming_it(tree: Path, tmp_path: Path):
     missing.unlink()
     out = tmp_path / "figs"
     with pytest.raises(DataError, match=str(missing)):
-        make_figures(RUNS, out, **_paths(tree), metrics=tree / "metrics", train_plots=plots, eval_cfg=_eval_cfg())
+        make_figures(
+            RUNS, out, **_paths(tree), metrics=tree / "metrics", train_plots=plots, eval_cfg=_eval_cfg()
+        )
     assert not out.exists() or not any(out.iterdir())  # inputs are checked before any figure is drawn
 
 
@@ -125,8 +154,14 @@ def test_missing_depth_maps_is_a_data_error_naming_them(tree: Path, tmp_path: Pa
     (outputs / "msssim/seed0/depth.npz").unlink()
     paths = {**_paths(tree), "outputs": outputs}
     with pytest.raises(DataError, match=str(outputs / "msssim/seed0/depth.npz")):
-        make_figures(RUNS, tmp_path / "figs", **paths, metrics=tree / "metrics",
-                     train_plots=tree / "plots/train", eval_cfg=_eval_cfg())
+        make_figures(
+            RUNS,
+            tmp_path / "figs",
+            **paths,
+            metrics=tree / "metrics",
+            train_plots=tree / "plots/train",
+            eval_cfg=_eval_cfg(),
+        )
 
 
 def test_training_curves_draw_every_seed_and_name_a_missing_one(tree: Path, tmp_path: Path, monkeypatch):
@@ -144,12 +179,26 @@ def test_training_curves_draw_every_seed_and_name_a_missing_one(tree: Path, tmp_
 
     monkeypatch.setattr(figures_mod, "_save", keep)
     curves = {"ssim": ["ssim/seed0", "ssim/seed1"], "msssim": ["msssim/seed0"]}
-    make_figures(RUNS, tmp_path / "figs", **_paths(tree), metrics=tree / "metrics", train_plots=plots,
-                 eval_cfg=_eval_cfg(), curves=curves)
+    make_figures(
+        RUNS,
+        tmp_path / "figs",
+        **_paths(tree),
+        metrics=tree / "metrics",
+        train_plots=plots,
+        eval_cfg=_eval_cfg(),
+        curves=curves,
+    )
     for labels in drawn["training_curves.png"]:  # per panel: 2 ssim seeds, 1 msssim; one legend entry each
         assert len(labels) == 3 and labels.count("ssim (2 seeds)") == 1 and labels.count("msssim") == 1
     missing = plots / "ssim/seed1/plots/metrics/train/total.tsv"
     missing.unlink()
     with pytest.raises(DataError, match=str(missing)):
-        make_figures(RUNS, tmp_path / "figs2", **_paths(tree), metrics=tree / "metrics", train_plots=plots,
-                     eval_cfg=_eval_cfg(), curves=curves)
+        make_figures(
+            RUNS,
+            tmp_path / "figs2",
+            **_paths(tree),
+            metrics=tree / "metrics",
+            train_plots=plots,
+            eval_cfg=_eval_cfg(),
+            curves=curves,
+        )

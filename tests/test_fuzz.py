@@ -257,10 +257,33 @@ def test_read_rois_on_random_bytes(base: Path, data: bytes) -> None:
 
 
 _ODD_CELLS = [
-    "", " ", "1.0", "1.5", "1e3", " 7 ", "+3", "-0", "-1", "true", "True", "NaN", "nan", "inf",
-    "-inf", "1_000", "0x10", "NULL", "None", "N/A", "1e400", "1e30", "2147483648",
+    "",
+    " ",
+    "1.0",
+    "1.5",
+    "1e3",
+    " 7 ",
+    "+3",
+    "-0",
+    "-1",
+    "true",
+    "True",
+    "NaN",
+    "nan",
+    "inf",
+    "-inf",
+    "1_000",
+    "0x10",
+    "NULL",
+    "None",
+    "N/A",
+    "1e400",
+    "1e30",
+    "2147483648",
     "9007199254740993",  # 2**53 + 1: not a float64
-    "9223372036854775807", "9223372036854775808", "18446744073709551616",  # int64 / uint64 limits
+    "9223372036854775807",
+    "9223372036854775808",
+    "18446744073709551616",  # int64 / uint64 limits
 ]
 _odd_coord = st.one_of(
     st.sampled_from(_ODD_CELLS),
@@ -271,17 +294,28 @@ _odd_coord = st.one_of(
 _coord = st.one_of(st.integers(0, 60).map(str), _odd_coord)
 _valid_row = st.builds(
     lambda image, cls, x0, y0, w, h: {
-        "image": image, "class": cls, "x0": str(x0), "y0": str(y0), "x1": str(x0 + w), "y1": str(y0 + h)
+        "image": image,
+        "class": cls,
+        "x0": str(x0),
+        "y0": str(y0),
+        "x1": str(x0 + w),
+        "y1": str(y0 + h),
     },
     st.from_regex(r"\A[0-9]{6}_1[01]\Z"),
     st.sampled_from(kitti.ROI_CLASSES),
-    st.integers(0, 2000), st.integers(0, 2000), st.integers(1, 500), st.integers(1, 500),
+    st.integers(0, 2000),
+    st.integers(0, 2000),
+    st.integers(1, 500),
+    st.integers(1, 500),
 )
 _random_row = st.fixed_dictionaries(
     {
         "image": st.one_of(st.from_regex(r"\A[0-9]{6}_10\Z"), st.text(max_size=8)),
         "class": st.one_of(st.sampled_from(kitti.ROI_CLASSES), st.text(max_size=8)),
-        "x0": _coord, "y0": _coord, "x1": _coord, "y1": _coord,
+        "x0": _coord,
+        "y0": _coord,
+        "x1": _coord,
+        "y1": _coord,
     }
 )
 
@@ -317,7 +351,9 @@ def _as_int(cell: str) -> int:
     return int(number)
 
 
-def _check_accepted_table(df: pd.DataFrame | None, header: list[str] | None, rows: list[dict[str, str]]) -> None:
+def _check_accepted_table(
+    df: pd.DataFrame | None, header: list[str] | None, rows: list[dict[str, str]]
+) -> None:
     """Invariants, and if the table was accepted: every row there with exactly the values written
     (no overflow, no rounding, no 'true' read as 1)."""
     _check_rois(df)
@@ -378,7 +414,9 @@ def test_read_rois_with_one_odd_cell(
     cut=st.floats(0.0, 1.0),
     flips=st.lists(st.tuples(st.floats(0.0, 1.0), st.integers(1, 255)), max_size=4),
 )
-def test_read_rois_on_mutated_files(base: Path, table: tuple, cut: float, flips: list[tuple[float, int]]) -> None:
+def test_read_rois_on_mutated_files(
+    base: Path, table: tuple, cut: float, flips: list[tuple[float, int]]
+) -> None:
     buf = bytearray(table[0].encode("utf-8"))
     for where, mask in flips:
         if buf:
@@ -399,8 +437,9 @@ def _check_split(pairs: list | None) -> None:
 _text_bytes = st.one_of(
     st.binary(max_size=300),
     st.text(max_size=200).map(lambda t: t.encode("utf-8")),
-    st.lists(st.lists(st.text("abc/._0 \t\x00é", max_size=10), max_size=4).map(" ".join), max_size=6)
-    .map(lambda lines: "\n".join(lines).encode("utf-8")),
+    st.lists(st.lists(st.text("abc/._0 \t\x00é", max_size=10), max_size=4).map(" ".join), max_size=6).map(
+        lambda lines: "\n".join(lines).encode("utf-8")
+    ),
 )
 
 
@@ -447,7 +486,9 @@ def test_calibration_readers_on_random_files(base: Path, data: bytes) -> None:
         calib = _read(kitti.read_calib, path)
         stereo = _read(lambda p: kitti.focal_and_baseline(414, p), path)  # not a KITTI width: reads p
     if calib is not None:
-        assert calib and all(isinstance(v, np.ndarray) and v.dtype == np.float64 and v.size for v in calib.values())
+        assert calib and all(
+            isinstance(v, np.ndarray) and v.dtype == np.float64 and v.size for v in calib.values()
+        )
     if stereo is not None:
         focal, baseline = stereo
         # A depth of focal * baseline / disparity must be a positive, finite number of metres.

@@ -21,7 +21,9 @@ SYN = {"seed": 5, "drives": 2, "train_pairs": 6, "eval_frames": 3, "height": 48,
 @pytest.fixture(scope="module")
 def pristine(tmp_path_factory) -> Path:
     root = tmp_path_factory.mktemp("kitti")
-    synthetic.generate(params_from_dict({"data": {"synthetic": SYN}}).data.synthetic, root, progress=False, workers=1)
+    synthetic.generate(
+        params_from_dict({"data": {"synthetic": SYN}}).data.synthetic, root, progress=False, workers=1
+    )
     return root
 
 
@@ -36,7 +38,10 @@ def tree(pristine: Path, tmp_path: Path):
 def test_index_of_a_complete_tree(tree) -> None:
     root, params, out = tree
     report = build_indexes(params, out)
-    assert report["train_pairs_found"] == report["train_pairs_listed"] == 6 and report["train_pairs_missing"] == []
+    assert (
+        report["train_pairs_found"] == report["train_pairs_listed"] == 6
+        and report["train_pairs_missing"] == []
+    )
     frames = read_eval_index(out / "eval_frames.csv")
     assert list(frames["frame"]) == ["000000_10", "000001_10", "000002_10"]
     assert np.allclose(frames["focal"], 721.5377 * 160 / 1242) and np.allclose(frames["baseline"], 0.54)
@@ -76,5 +81,7 @@ def test_views_or_gt_of_another_size_name_both_files(tree, what: str) -> None:
     else:
         bad = training / "disp_noc_0" / "000002_10.png"
         kitti.write_disparity(bad, np.ones((48, 150), np.float32))
-    with pytest.raises(DataError, match=rf"image_2/000002_10.png is \(48, 160\) but its {what} .*000002_10.png is"):
+    with pytest.raises(
+        DataError, match=rf"image_2/000002_10.png is \(48, 160\) but its {what} .*000002_10.png is"
+    ):
         build_indexes(params, out)

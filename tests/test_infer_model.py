@@ -17,7 +17,7 @@ def monodepth_post_process(disp: np.ndarray) -> np.ndarray:
     l_disp = disp[0, :, :]
     r_disp = np.fliplr(disp[1, :, :])
     m_disp = 0.5 * (l_disp + r_disp)
-    l, _ = np.meshgrid(np.linspace(0, 1, w), np.linspace(0, 1, h))
+    l, _ = np.meshgrid(np.linspace(0, 1, w), np.linspace(0, 1, h))  # noqa: E741 - Monodepth's name
     l_mask = 1.0 - np.clip(20 * (l - 0.05), 0, 1)
     r_mask = np.fliplr(l_mask)
     return r_mask * l_disp + l_mask * r_disp + (1.0 - l_mask - r_mask) * m_disp
@@ -101,7 +101,9 @@ def test_bad_params_name_the_key(patch, key):
         params_from_dict(patch)
 
 
-@pytest.mark.parametrize("norm, heads", [("group", "independent"), ("none", "residual"), ("group", "residual")])
+@pytest.mark.parametrize(
+    "norm, heads", [("group", "independent"), ("none", "residual"), ("group", "residual")]
+)
 def test_network_options_keep_shapes_and_start_at_the_initial_disparity(norm, heads):
     model = MonodepthVGG(0.125, init_disparity=0.04, norm=norm, heads=heads)
     with torch.no_grad():
@@ -126,7 +128,9 @@ def test_the_dissertation_network_is_still_the_default():
 def test_residual_heads_refine_the_upsampled_coarser_disparity():
     torch.manual_seed(0)
     model = MonodepthVGG(0.125, init_disparity=0.04, heads="residual")
-    for head in model.heads[1:]:  # finer heads predict no correction: each scale is the coarser one, upsampled
+    for head in model.heads[
+        1:
+    ]:  # finer heads predict no correction: each scale is the coarser one, upsampled
         torch.nn.init.zeros_(head.weight)
         torch.nn.init.zeros_(head.bias)
     torch.nn.init.normal_(model.heads[0].weight, std=0.5)  # a coarsest map that varies
@@ -134,7 +138,9 @@ def test_residual_heads_refine_the_upsampled_coarser_disparity():
         disps = model(torch.rand(1, 3, 64, 192))
     logit = lambda d: torch.logit(d / 0.3)  # noqa: E731
     for fine, coarse in zip(disps[:-1], disps[1:]):
-        up = torch.nn.functional.interpolate(logit(coarse), size=fine.shape[-2:], mode="bilinear", align_corners=False)
+        up = torch.nn.functional.interpolate(
+            logit(coarse), size=fine.shape[-2:], mode="bilinear", align_corners=False
+        )
         torch.testing.assert_close(logit(fine), up, atol=1e-4, rtol=1e-4)
     assert float(disps[-1].std()) > 1e-3
 
@@ -147,7 +153,7 @@ def test_group_norm_network_treats_each_image_on_its_own():
     x = torch.rand(3, 3, 64, 192)
     with torch.no_grad():
         together = model(x)[0]
-        alone = torch.cat([model(x[i:i + 1])[0] for i in range(3)])
+        alone = torch.cat([model(x[i : i + 1])[0] for i in range(3)])
     torch.testing.assert_close(together, alone, atol=1e-6, rtol=1e-5)
 
 

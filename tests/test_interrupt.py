@@ -8,11 +8,9 @@ import signal
 import subprocess
 import sys
 import textwrap
-import time
 from pathlib import Path
 
 import torch
-
 from test_train import _params, _train, _weights, pairs  # noqa: F401  (pairs is a fixture)
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -16,7 +16,9 @@ def _fail_midway(*args, **kwargs):
 
 
 @pytest.mark.parametrize("writer", ["json", "text", "png", "npz"])
-def test_failed_write_keeps_the_previous_file_and_leaves_no_temp(tmp_path: Path, monkeypatch, writer: str) -> None:
+def test_failed_write_keeps_the_previous_file_and_leaves_no_temp(
+    tmp_path: Path, monkeypatch, writer: str
+) -> None:
     path = tmp_path / {"json": "m.json", "text": "t.md", "png": "d.png", "npz": "d.npz"}[writer]
     write = {
         "json": lambda: io.write_json(path, {"abs_rel": 0.1}),
@@ -28,11 +30,17 @@ def test_failed_write_keeps_the_previous_file_and_leaves_no_temp(tmp_path: Path,
     before = path.read_bytes()
     # Break the layer below the writer after it has started a temp file.
     if writer in ("json", "text"):
-        monkeypatch.setattr(Path, "write_text", lambda self, data: (self.write_bytes(b"{\"abs"), _fail_midway()))
+        monkeypatch.setattr(
+            Path, "write_text", lambda self, data: (self.write_bytes(b'{"abs'), _fail_midway())
+        )
     elif writer == "png":
-        monkeypatch.setattr(io.cv2, "imwrite", lambda name, img: (Path(name).write_bytes(b"\x89PNG"), _fail_midway()))
+        monkeypatch.setattr(
+            io.cv2, "imwrite", lambda name, img: (Path(name).write_bytes(b"\x89PNG"), _fail_midway())
+        )
     else:
-        monkeypatch.setattr(io.np, "savez_compressed", lambda f, **a: (Path(f).write_bytes(b"PK"), _fail_midway()))
+        monkeypatch.setattr(
+            io.np, "savez_compressed", lambda f, **a: (Path(f).write_bytes(b"PK"), _fail_midway())
+        )
     with pytest.raises(OSError, match="No space left"):
         write()
     assert path.read_bytes() == before

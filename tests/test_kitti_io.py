@@ -242,8 +242,14 @@ def test_resolve_image_prefers_existing_file(tmp_path: Path) -> None:
 
 def _rois() -> pd.DataFrame:
     return pd.DataFrame(
-        {"image": ["000000_10", "000007_10"], "class": ["car", "sign"],
-         "x0": [0, 10], "y0": [5, 2], "x1": [40, 16], "y1": [30, 9]}
+        {
+            "image": ["000000_10", "000007_10"],
+            "class": ["car", "sign"],
+            "x0": [0, 10],
+            "y0": [5, 2],
+            "x1": [40, 16],
+            "y1": [30, 9],
+        }
     )
 
 

@@ -13,11 +13,11 @@ import zipfile
 from pathlib import Path
 
 import pytest
+from test_pipeline_e2e import _project, _run
 
 from msdepth.config import SyntheticConfig
 from msdepth.data import synthetic
 from msdepth.data.download import KITTI_BASE_URL
-from test_pipeline_e2e import _project, _run
 
 SYN = SyntheticConfig(seed=4, drives=2, train_pairs=12, eval_frames=3, height=48, width=160)
 
@@ -50,7 +50,9 @@ def mirror(tmp_path_factory):
     lists = tmp_path_factory.mktemp("lists")
     (lists / "archives.txt").write_text("".join(KITTI_BASE_URL + u + "\n" for u in urls))
     (lists / "train.txt").write_text((tree / "train_files.txt").read_text())
-    (lists / "eval.txt").write_text((tree / "kitti2015" / "test_files.txt").read_text().replace(".png", ".jpg"))
+    (lists / "eval.txt").write_text(
+        (tree / "kitti2015" / "test_files.txt").read_text().replace(".png", ".jpg")
+    )
     handler = functools.partial(http.server.SimpleHTTPRequestHandler, directory=str(served))
     handler.log_message = lambda *a, **k: None
     server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), handler)
@@ -61,12 +63,24 @@ def mirror(tmp_path_factory):
 
 def test_kitti_source_runs_every_stage(mirror, tmp_path: Path) -> None:
     base_url, lists, archives = mirror
-    work = _project(tmp_path, {"data": {"source": "kitti", "kitti": {
-        "base_url": base_url, "allow_http": True,  # the local mirror speaks plain http
-        "archive_list": str(lists / "archives.txt"), "jobs": 2,
-        "train_split": str(lists / "train.txt"), "eval_split": str(lists / "eval.txt"),
-        "roi_min_size": 4, "roi_min_valid": 0.2,
-    }}})
+    work = _project(
+        tmp_path,
+        {
+            "data": {
+                "source": "kitti",
+                "kitti": {
+                    "base_url": base_url,
+                    "allow_http": True,  # the local mirror speaks plain http
+                    "archive_list": str(lists / "archives.txt"),
+                    "jobs": 2,
+                    "train_split": str(lists / "train.txt"),
+                    "eval_split": str(lists / "eval.txt"),
+                    "roi_min_size": 4,
+                    "roi_min_valid": 0.2,
+                },
+            }
+        },
+    )
     _run([sys.executable, "-m", "dvc", "repro", "--quiet"], work)
     manifest = json.loads((work / "data" / "downloads" / "manifest.json").read_text())
     assert len(manifest["archives"]) == archives + 1  # raw archives and data_scene_flow.zip

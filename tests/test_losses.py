@@ -10,7 +10,6 @@ import torch
 import torch.nn.functional as F
 
 from msdepth import losses
-
 from msdepth.config import LossConfig, MSSSIMConfig, SSIMConfig
 from msdepth.losses import (
     C1,
@@ -18,10 +17,10 @@ from msdepth.losses import (
     WANG_WEIGHTS,
     LearnedLevelWeights,
     MonodepthLoss,
+    _ssim_terms,
     appearance_loss,
     level_weights,
     lr_consistency_loss,
-    _ssim_terms,
     make_similarity,
     ms_ssim,
     ms_ssim_pyramid,
@@ -80,7 +79,9 @@ def _plain_ssim_terms(
 @pytest.mark.parametrize("padding", ["valid", "same"])
 @pytest.mark.parametrize("size", [(13, 21), (4, 6)])
 @pytest.mark.parametrize("window", ["box", "gaussian"])
-def test_ssim_terms_match_the_plain_formula(kernel_size: int, padding: str, size: tuple[int, int], window: str) -> None:
+def test_ssim_terms_match_the_plain_formula(
+    kernel_size: int, padding: str, size: tuple[int, int], window: str
+) -> None:
     """The fused SSIM terms (hand-written backward) equal autograd through the written-out formula.
 
     In float64: in float32 both sides carry E[x²] - μ² cancellation noise (for k = 1 the
@@ -105,11 +106,19 @@ def test_ssim_terms_match_the_plain_formula(kernel_size: int, padding: str, size
 
 @pytest.mark.parametrize(
     ("kernel_size", "padding", "size"),
-    [(3, "valid", (5, 7)), (3, "same", (5, 7)), (5, "same", (6, 5)), (7, "same", (4, 6)), (1, "valid", (3, 4))],
+    [
+        (3, "valid", (5, 7)),
+        (3, "same", (5, 7)),
+        (5, "same", (6, 5)),
+        (7, "same", (4, 6)),
+        (1, "valid", (3, 4)),
+    ],
 )
 @pytest.mark.parametrize("window", ["box", "gaussian"])
 @pytest.mark.parametrize("luminance", [False, True])
-def test_ssim_terms_gradcheck(kernel_size: int, padding: str, size: tuple[int, int], window: str, luminance: bool) -> None:
+def test_ssim_terms_gradcheck(
+    kernel_size: int, padding: str, size: tuple[int, int], window: str, luminance: bool
+) -> None:
     """float64 gradcheck of the hand-written backward, including images smaller than the window."""
     x = _rand(2, 2, *size, seed=3).double().requires_grad_()
     y = _rand(2, 2, *size, seed=4).double().requires_grad_()
@@ -181,7 +190,9 @@ def test_downsample_is_pytorch_msssim_average_pooling(size: tuple[int, int]) -> 
     ref = F.avg_pool2d(x, 2, padding=[s % 2 for s in size])
     torch.testing.assert_close(out, ref, rtol=0, atol=1e-7)
     up = _rand(*out.shape, seed=2)
-    torch.testing.assert_close(torch.autograd.grad((out * up).sum(), x)[0], torch.autograd.grad((ref * up).sum(), x)[0])
+    torch.testing.assert_close(
+        torch.autograd.grad((out * up).sum(), x)[0], torch.autograd.grad((ref * up).sum(), x)[0]
+    )
 
 
 @pytest.mark.parametrize("padding", ["valid", "reflect"])
@@ -345,7 +356,10 @@ def test_ms_ssim_pyramid_equals_ms_ssim_per_pair(sizes: list[tuple[int, int]], w
 
 def test_ms_ssim_pyramid_rejects_mismatched_pairs() -> None:
     with pytest.raises(ValueError, match="same \\(B, C\\)"):
-        ms_ssim_pyramid([torch.zeros(2, 3, 8, 8), torch.zeros(1, 3, 4, 4)], [torch.zeros(2, 3, 8, 8), torch.zeros(1, 3, 4, 4)])
+        ms_ssim_pyramid(
+            [torch.zeros(2, 3, 8, 8), torch.zeros(1, 3, 4, 4)],
+            [torch.zeros(2, 3, 8, 8), torch.zeros(1, 3, 4, 4)],
+        )
     with pytest.raises(ValueError, match="as many"):
         ms_ssim_pyramid([torch.zeros(2, 3, 8, 8)], [])
 
@@ -543,7 +557,11 @@ def test_monodepth_loss_total_combines_the_terms() -> None:
 # MonodepthLoss(LossConfig(), appearance, SSIMConfig(), MSSSIMConfig(kernel_size=k))(...)["appearance"]
 # on the disparities of test_monodepth_loss_total_combines_the_terms, before views were batched and
 # the SSIM terms fused.
-PREVIOUS_APPEARANCE = {("ssim", 3): 1.9941600561141968, ("msssim", 3): 1.1224614381790161, ("msssim", 7): 1.1037808656692505}
+PREVIOUS_APPEARANCE = {
+    ("ssim", 3): 1.9941600561141968,
+    ("msssim", 3): 1.1224614381790161,
+    ("msssim", 7): 1.1037808656692505,
+}
 
 
 @pytest.mark.parametrize(("appearance", "kernel_size"), list(PREVIOUS_APPEARANCE))

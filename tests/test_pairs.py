@@ -40,7 +40,9 @@ def tree(tmp_path: Path) -> tuple[Path, list[tuple[Path, Path]]]:
 
 def test_index_pairs_resolves_jpg_names_and_reports_missing(tree, tmp_path: Path) -> None:
     root, pairs = tree
-    rel = [(str(l.relative_to(root)).replace(".png", ".jpg"), str(r.relative_to(root))) for l, r in pairs]
+    rel = [
+        (str(left.relative_to(root)).replace(".png", ".jpg"), str(r.relative_to(root))) for left, r in pairs
+    ]
     rel.append(("drive/image_02/data/9999999999.jpg", "drive/image_03/data/9999999999.jpg"))
     split = tmp_path / "split.txt"
     kitti.write_split(split, rel)
@@ -120,7 +122,7 @@ def test_cache_leaves_out_unreadable_pairs_and_reports_them(tree, tmp_path: Path
     path = tmp_path / "cache" / "pairs.npy"
     report = build_pair_cache(pairs, 16, 24, path, progress=False)
     assert report.pairs == [pairs[0], pairs[3]]
-    assert [(l, r) for l, r, _ in report.unreadable] == [pairs[1], pairs[2]]
+    assert [(left, right) for left, right, _ in report.unreadable] == [pairs[1], pairs[2]]
     assert str(pairs[1][1]) in report.unreadable[0][2] and str(pairs[2][0]) in report.unreadable[1][2]
     cache = load_pair_cache(path, 2, 16, 24)
     assert np.array_equal(cache[1, 0], read_resized_pair(*pairs[3], 16, 24)[0])
@@ -147,7 +149,9 @@ def test_load_cache_rejects_a_stale_or_foreign_file(tree, tmp_path: Path) -> Non
     _, pairs = tree
     path = tmp_path / "pairs.npy"
     build_pair_cache(pairs, 16, 24, path, progress=False)
-    with pytest.raises(DataError, match="pairs.npy: pair cache is uint8 .* expected uint8 \\(4, 2, 32, 24, 3\\)"):
+    with pytest.raises(
+        DataError, match="pairs.npy: pair cache is uint8 .* expected uint8 \\(4, 2, 32, 24, 3\\)"
+    ):
         load_pair_cache(path, 4, 32, 24)
     with pytest.raises(DataError, match="pairs.npy: pair cache"):
         load_pair_cache(path, 5, 16, 24)
@@ -160,5 +164,7 @@ def test_load_cache_rejects_a_stale_or_foreign_file(tree, tmp_path: Path) -> Non
 def test_views_of_different_sizes_name_both_files(tree) -> None:
     _, pairs = tree
     write_png(pairs[1][1], _rgb(31, 50, 0))
-    with pytest.raises(DataError, match=r"0000000001.png is \(30, 50\) but its right image .*0000000001.png is \(31, 50\)"):
+    with pytest.raises(
+        DataError, match=r"0000000001.png is \(30, 50\) but its right image .*0000000001.png is \(31, 50\)"
+    ):
         StereoPairs(pairs, 16, 24)[1]

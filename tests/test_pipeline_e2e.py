@@ -21,7 +21,11 @@ import yaml
 ROOT = Path(__file__).resolve().parents[1]
 
 TINY = {
-    "data": {"height": 32, "width": 96, "synthetic": {"drives": 2, "train_pairs": 16, "eval_frames": 3, "height": 48, "width": 160}},
+    "data": {
+        "height": 32,
+        "width": 96,
+        "synthetic": {"drives": 2, "train_pairs": 16, "eval_frames": 3, "height": 48, "width": 160},
+    },
     "model": {"width_multiplier": 0.0625},
     "train": {"epochs": 2, "batch_size": 4, "seeds": [0]},
     "msssim": {"levels": 3},
@@ -36,8 +40,11 @@ def _merge(base: dict, patch: dict) -> dict:
 
 def _run(cmd: list[str], cwd: Path) -> str:
     # Stages call `python`: make it this interpreter, importing the copied sources.
-    env = dict(os.environ, PATH=f"{Path(sys.executable).parent}{os.pathsep}{os.environ.get('PATH', '')}",
-               PYTHONPATH=str(cwd / "src"))
+    env = dict(
+        os.environ,
+        PATH=f"{Path(sys.executable).parent}{os.pathsep}{os.environ.get('PATH', '')}",
+        PYTHONPATH=str(cwd / "src"),
+    )
     proc = subprocess.run(cmd, cwd=cwd, capture_output=True, text=True, env=env)
     assert proc.returncode == 0, f"{' '.join(cmd)} failed:\n{proc.stdout[-3000:]}\n{proc.stderr[-3000:]}"
     return proc.stdout
@@ -82,10 +89,18 @@ def test_repro_writes_every_suite_and_the_comparison(repo: Path):
     assert "| ssim |" in (repo / "metrics" / "compare.md").read_text()
     compare = json.loads((repo / "metrics" / "compare.json").read_text())
     assert set(compare["full"]["cap80"]) == {"ssim", "msssim", "constant", "prior"}
-    assert compare["seeds"] == [0] and compare["statistics"]["full"]["cap80"]["msssim"]["abs_rel"]["seeds"] == 1
+    assert (
+        compare["seeds"] == [0] and compare["statistics"]["full"]["cap80"]["msssim"]["abs_rel"]["seeds"] == 1
+    )
     assert (repo / "plots" / "train" / "ssim" / "seed0").is_dir()
     figures = sorted(p.name for p in (repo / "plots" / "figures").iterdir())
-    assert figures == ["disparity.png", "error_scatter.png", "roi_depth.png", "roi_gradients.png", "training_curves.png"]
+    assert figures == [
+        "disparity.png",
+        "error_scatter.png",
+        "roi_depth.png",
+        "roi_gradients.png",
+        "training_curves.png",
+    ]
     # `dvc plots show` writes a page that needs nothing from the internet.
     _run([sys.executable, "-m", "dvc", "plots", "show", "-o", "plots_html"], repo)
     page = (repo / "plots_html" / "index.html").read_text()
@@ -104,7 +119,11 @@ def test_push_and_pull_through_a_local_dvc_remote(repo: Path, tmp_path: Path):
     clone = tmp_path / "clone"
     _run(["git", "clone", "-q", str(repo), str(clone)], tmp_path)
     _run([*dvc, "pull", "--quiet"], clone)
-    for out in ("models/ssim/seed0/model.pt", "models/msssim/seed0/model.pt", "outputs/msssim/seed0/depth.npz"):
+    for out in (
+        "models/ssim/seed0/model.pt",
+        "models/msssim/seed0/model.pt",
+        "outputs/msssim/seed0/depth.npz",
+    ):
         assert (clone / out).read_bytes() == (repo / out).read_bytes(), out
     log = _run([*dvc, "repro"], clone)
     assert "Running stage 'train@" not in log and "Running stage 'infer@" not in log
@@ -117,10 +136,19 @@ def test_killed_repro_reruns_to_identical_results(repo: Path, tmp_path: Path):
     """SIGKILL `dvc repro` (and its stage) mid-training; the next `dvc repro` completes and
     every metric equals the uninterrupted run's."""
     work = _project(tmp_path)
-    env = dict(os.environ, PATH=f"{Path(sys.executable).parent}{os.pathsep}{os.environ.get('PATH', '')}",
-               PYTHONPATH=str(work / "src"))
-    proc = subprocess.Popen([sys.executable, "-m", "dvc", "repro", "--quiet"], cwd=work, env=env,
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+    env = dict(
+        os.environ,
+        PATH=f"{Path(sys.executable).parent}{os.pathsep}{os.environ.get('PATH', '')}",
+        PYTHONPATH=str(work / "src"),
+    )
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "dvc", "repro", "--quiet"],
+        cwd=work,
+        env=env,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        start_new_session=True,
+    )
     checkpoint = work / "checkpoints" / "ssim" / "seed0" / "checkpoint.pt"
     deadline = time.monotonic() + 300
     while not checkpoint.exists() and proc.poll() is None and time.monotonic() < deadline:
@@ -171,7 +199,10 @@ def test_more_seeds_train_only_the_new_runs_and_widen_the_comparison(repo: Path)
     assert compare["seeds"] == [0, 1]
     d = compare["statistics"]["full"]["cap80"]["msssim"]["abs_rel"]
     assert (d["seeds"], d["reference_seeds"]) == (2, 2)
-    assert set(compare["seed_spread"]["full"]["cap80"]["ssim"]["abs_rel"]["runs"]) == {"ssim/seed0", "ssim/seed1"}
+    assert set(compare["seed_spread"]["full"]["cap80"]["ssim"]["abs_rel"]["runs"]) == {
+        "ssim/seed0",
+        "ssim/seed1",
+    }
     assert "Seed-to-seed spread" in (repo / "metrics" / "compare.md").read_text()
     params["train"]["seeds"] = [0]  # back to one seed for the tests that follow
     (repo / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
@@ -185,8 +216,11 @@ def test_train_stage_tracks_every_train_key_but_the_seeds():
 
     from msdepth.config import TrainConfig
 
-    listed = {p for p in yaml.safe_load((ROOT / "dvc.yaml").read_text())["stages"]["train"]["params"]
-              if isinstance(p, str) and p.startswith("train.")}
+    listed = {
+        p
+        for p in yaml.safe_load((ROOT / "dvc.yaml").read_text())["stages"]["train"]["params"]
+        if isinstance(p, str) and p.startswith("train.")
+    }
     expected = {f"train.{f.name}" for f in dataclasses.fields(TrainConfig)} - {"train.seeds"}
     assert listed == expected
 
@@ -196,10 +230,18 @@ def test_torchrun_launcher_from_dvc_repro(repo: Path):
     params = yaml.safe_load((repo / "params.yaml").read_text())
     params["train"].update(launcher="torchrun", nproc=2, batch_size=2)  # the same global batch of 4
     (repo / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
-    env = dict(os.environ, PATH=f"{Path(sys.executable).parent}{os.pathsep}{os.environ.get('PATH', '')}",
-               PYTHONPATH=str(repo / "src"))
-    proc = subprocess.run([sys.executable, "-m", "dvc", "repro", "train@ssim-0"], cwd=repo, env=env,
-                          capture_output=True, text=True)
+    env = dict(
+        os.environ,
+        PATH=f"{Path(sys.executable).parent}{os.pathsep}{os.environ.get('PATH', '')}",
+        PYTHONPATH=str(repo / "src"),
+    )
+    proc = subprocess.run(
+        [sys.executable, "-m", "dvc", "repro", "train@ssim-0"],
+        cwd=repo,
+        env=env,
+        capture_output=True,
+        text=True,
+    )
     assert proc.returncode == 0, proc.stderr[-3000:]
     assert "2 ranks x batch 2 = global batch 4" in proc.stderr  # logged by rank 0 under torchrun
     summary = json.loads((repo / "metrics" / "train" / "ssim" / "seed0.json").read_text())

@@ -26,8 +26,14 @@ def tiny(tmp_path_factory) -> tuple[Path, MonodepthVGG]:
     torch.manual_seed(0)
     model = MonodepthVGG(0.0625).eval()
     path = tmp_path_factory.mktemp("model") / "model.pt"
-    state = {"model": model.state_dict(), "criterion": {}, "width_multiplier": 0.0625,
-             "height": NET_H, "width": NET_W, "variant": "tiny"}
+    state = {
+        "model": model.state_dict(),
+        "criterion": {},
+        "width_multiplier": 0.0625,
+        "height": NET_H,
+        "width": NET_W,
+        "variant": "tiny",
+    }
     torch.save(state, path)
     return path, model
 
@@ -70,8 +76,14 @@ def read_ply(path: Path) -> np.ndarray:
     fmt = next(line.split()[1] for line in header if line.startswith("format"))
     count = int(next(line.split()[2] for line in header if line.startswith("element vertex")))
     props = [line.split()[1:] for line in header if line.startswith("property")]
-    assert props == [["float", "x"], ["float", "y"], ["float", "z"],
-                     ["uchar", "red"], ["uchar", "green"], ["uchar", "blue"]]
+    assert props == [
+        ["float", "x"],
+        ["float", "y"],
+        ["float", "z"],
+        ["uchar", "red"],
+        ["uchar", "green"],
+        ["uchar", "blue"],
+    ]
     dtype = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("r", "u1"), ("g", "u1"), ("b", "u1")])
     if fmt == "binary_little_endian":
         assert len(data) - end == count * dtype.itemsize
@@ -89,11 +101,25 @@ def test_all_outputs_of_one_image(tiny, tmp_path):
     model_path, model = tiny
     rgb = write_image(tmp_path / "in" / "frame.png", seed=1)
     out = tmp_path / "out"
-    rc = run(tmp_path / "in" / "frame.png", "--model", model_path, "--out", out,
-             "--depth-format", "both", "--ply", "binary")
+    rc = run(
+        tmp_path / "in" / "frame.png",
+        "--model",
+        model_path,
+        "--out",
+        out,
+        "--depth-format",
+        "both",
+        "--ply",
+        "binary",
+    )
     assert rc == 0
     assert sorted(p.name for p in out.iterdir()) == [
-        "frame.ply", "frame_depth.npy", "frame_depth.png", "frame_disp.npy", "frame_disp.png"]
+        "frame.ply",
+        "frame_depth.npy",
+        "frame_depth.png",
+        "frame_disp.npy",
+        "frame_disp.png",
+    ]
 
     color = cv2.imread(str(out / "frame_disp.png"), cv2.IMREAD_UNCHANGED)
     assert color.dtype == np.uint8 and color.shape == (IMG_H, IMG_W, 3)
@@ -127,15 +153,48 @@ def test_max_depth_invalidates_depth_and_drops_points(tiny, tmp_path):
     model_path, _ = tiny
     image = tmp_path / "a.jpg"
     write_image(image, seed=2)
-    rc = run(image, "--model", model_path, "--out", tmp_path / "o1", "--disp-format", "npy",
-             "--depth-format", "none", "--focal", "700", "--baseline", "0.5")
+    rc = run(
+        image,
+        "--model",
+        model_path,
+        "--out",
+        tmp_path / "o1",
+        "--disp-format",
+        "npy",
+        "--depth-format",
+        "none",
+        "--focal",
+        "700",
+        "--baseline",
+        "0.5",
+    )
     assert rc == 0
     assert sorted(p.name for p in (tmp_path / "o1").iterdir()) == ["a_disp.npy"]
     depth_all = 700 * 0.5 / np.load(tmp_path / "o1" / "a_disp.npy")
     max_depth = float(np.median(depth_all))
-    rc = run(image, "--model", model_path, "--out", tmp_path / "o2", "--disp-format", "none",
-             "--depth-format", "both", "--ply", "ascii", "--focal", "700", "--baseline", "0.5",
-             "--max-depth", str(max_depth), "--cx", "0", "--cy", "0")
+    rc = run(
+        image,
+        "--model",
+        model_path,
+        "--out",
+        tmp_path / "o2",
+        "--disp-format",
+        "none",
+        "--depth-format",
+        "both",
+        "--ply",
+        "ascii",
+        "--focal",
+        "700",
+        "--baseline",
+        "0.5",
+        "--max-depth",
+        str(max_depth),
+        "--cx",
+        "0",
+        "--cy",
+        "0",
+    )
     assert rc == 0
     kept = depth_all <= max_depth
     assert 0 < kept.sum() < kept.size
@@ -155,8 +214,19 @@ def test_depth_png_saturates_far_depths(tiny, tmp_path):
     image = tmp_path / "far.png"
     write_image(image, seed=3)
     # A huge baseline puts every pixel beyond 65.535 m but within --max-depth.
-    rc = run(image, "--model", model_path, "--out", tmp_path, "--disp-format", "none",
-             "--baseline", "100", "--max-depth", "1e9")
+    rc = run(
+        image,
+        "--model",
+        model_path,
+        "--out",
+        tmp_path,
+        "--disp-format",
+        "none",
+        "--baseline",
+        "100",
+        "--max-depth",
+        "1e9",
+    )
     assert rc == 0
     mm = cv2.imread(str(tmp_path / "far_depth.png"), cv2.IMREAD_UNCHANGED)
     assert (mm == 65535).all()
@@ -166,8 +236,17 @@ def test_colorbar_and_no_post_process(tiny, tmp_path):
     model_path, model = tiny
     image = tmp_path / "img.png"
     rgb = write_image(image, seed=4)
-    rc = run(image, "--model", model_path, "--out", tmp_path / "o", "--colorbar", "--no-post-process",
-             "--depth-format", "none")
+    rc = run(
+        image,
+        "--model",
+        model_path,
+        "--out",
+        tmp_path / "o",
+        "--colorbar",
+        "--no-post-process",
+        "--depth-format",
+        "none",
+    )
     assert rc == 0
     color = cv2.imread(str(tmp_path / "o" / "img_disp.png"), cv2.IMREAD_UNCHANGED)
     assert color.shape[0] == IMG_H and color.shape[1] > IMG_W
@@ -214,7 +293,10 @@ def test_same_stem_twice_is_reported(tiny, tmp_path, capsys):
         (lambda d: (d / "notes.txt").write_text("x") and d / "notes.txt", "unsupported file type '.txt'"),
         (lambda d: d / "missing.png", "no such file or folder"),
         (lambda d: (d / "cut.png").write_bytes(b"\x89PNG\r\n\x1a\nxx") and d / "cut.png", "truncated PNG"),
-        (lambda d: (d / "junk.avi").write_bytes(bytes(range(256)) * 8) and d / "junk.avi", "cannot open this video"),
+        (
+            lambda d: (d / "junk.avi").write_bytes(bytes(range(256)) * 8) and d / "junk.avi",
+            "cannot open this video",
+        ),
     ],
     ids=["empty-folder", "unsupported-extension", "missing", "unreadable-image", "unreadable-video"],
 )
@@ -257,9 +339,23 @@ def test_python_dash_m(tiny, tmp_path):
     model_path, _ = tiny
     write_image(tmp_path / "a.png", seed=8)
     result = subprocess.run(
-        [sys.executable, "-m", "msdepth", "predict", str(tmp_path / "a.png"), "--model", str(model_path),
-         "--out", str(tmp_path / "out"), "--device", "cpu", "--quiet"],
-        capture_output=True, text=True, timeout=120,
+        [
+            sys.executable,
+            "-m",
+            "msdepth",
+            "predict",
+            str(tmp_path / "a.png"),
+            "--model",
+            str(model_path),
+            "--out",
+            str(tmp_path / "out"),
+            "--device",
+            "cpu",
+            "--quiet",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=120,
     )
     assert result.returncode == 0, result.stderr
     assert (tmp_path / "out" / "a_disp.png").exists() and (tmp_path / "out" / "a_depth.png").exists()

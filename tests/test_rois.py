@@ -14,7 +14,13 @@ from msdepth.config import SyntheticConfig
 from msdepth.data import kitti, synthetic
 from msdepth.data.index import build_eval_index
 from msdepth.data.rois import (
-    HEADER_HEIGHT, LABEL_HEIGHT, PAD, _letterbox, boxes_from_obj_map, contact_sheet, extract_rois,
+    HEADER_HEIGHT,
+    LABEL_HEIGHT,
+    PAD,
+    _letterbox,
+    boxes_from_obj_map,
+    contact_sheet,
+    extract_rois,
 )
 from msdepth.errors import DataError
 from msdepth.io import write_png
@@ -63,7 +69,10 @@ def test_boxes_exact_and_filtered() -> None:
     assert boxes_from_obj_map(obj, gt) == [(7, 5, 2, 21, 20), (12, 70, 0, 86, 20), (200, 60, 10, 96, 45)]
     # Looser thresholds bring the others back; ids stay sorted and non-contiguous.
     assert [b[0] for b in boxes_from_obj_map(obj, gt, min_size=1, min_valid=0.0)] == [3, 7, 9, 12, 200]
-    assert boxes_from_obj_map(obj, gt, min_size=15, min_valid=0.2)[:2] == [(3, 40, 30, 55, 50), (7, 5, 2, 21, 20)]
+    assert boxes_from_obj_map(obj, gt, min_size=15, min_valid=0.2)[:2] == [
+        (3, 40, 30, 55, 50),
+        (7, 5, 2, 21, 20),
+    ]
 
 
 def test_boxes_edge_cases() -> None:
@@ -104,7 +113,10 @@ def test_car_boxes_match_the_generator(tiny, min_size: int) -> None:
         cands = [tuple(g) for g in gen.loc[gen["image"] == roi.image, ["x0", "y0", "x1", "y1"]].to_numpy()]
         best = max(cands, key=lambda g: _iou(box, g))
         assert _iou(box, best) > 0.5, (roi, cands)
-        assert best[0] <= box[0] and best[1] <= box[1] and box[2] <= best[2] and box[3] <= best[3], (box, best)
+        assert best[0] <= box[0] and best[1] <= box[1] and box[2] <= best[2] and box[3] <= best[3], (
+            box,
+            best,
+        )
     # Recall: every generator car box comfortably above min_size is found.
     for g in gen.itertuples(index=False):
         if min(g.x1 - g.x0, g.y1 - g.y0) >= min_size + 2:
@@ -116,12 +128,15 @@ def test_user_rows_are_merged_sorted_and_round_trip(tiny, tmp_path: Path) -> Non
     root, frames = tiny
     frames = frames.copy()
     frames.loc[1, "obj_map"] = ""  # a frame without obj_map: no car boxes, counted
-    user = _write_csv(tmp_path / "hand.csv", [
-        ("000003_10", "windshield", 27, 54, 59, 62),
-        ("000000_10", "sign", 0, 0, CFG.width, CFG.height),  # the whole image is inside it
-        ("000000_10", "car", 127, 47, 162, 75),  # the same as an automatic box: kept once
-        ("000001_10", "car", 180, 45, 199, 60),  # a hand-drawn car where obj_map is missing
-    ])
+    user = _write_csv(
+        tmp_path / "hand.csv",
+        [
+            ("000003_10", "windshield", 27, 54, 59, 62),
+            ("000000_10", "sign", 0, 0, CFG.width, CFG.height),  # the whole image is inside it
+            ("000000_10", "car", 127, 47, 162, 75),  # the same as an automatic box: kept once
+            ("000001_10", "car", 180, 45, 199, 60),  # a hand-drawn car where obj_map is missing
+        ],
+    )
     rois = extract_rois(frames, user_csv=user, progress=False)
     report = rois.attrs["report"]
     assert report["frames"] == 4 and report["frames_without_obj_map"] == 1
@@ -140,7 +155,10 @@ def test_user_rows_are_merged_sorted_and_round_trip(tiny, tmp_path: Path) -> Non
     [
         (("000009_10", "glass", 0, 0, 10, 10), r"'000009_10' is not an evaluation frame"),
         (("000002_10.png", "glass", 0, 0, 10, 10), r"did you mean '000002_10'"),
-        (("000002_10", "glass", 300, 0, CFG.width + 1, 10), rf"outside frame 000002_10's {CFG.width}x{CFG.height}"),
+        (
+            ("000002_10", "glass", 300, 0, CFG.width + 1, 10),
+            rf"outside frame 000002_10's {CFG.width}x{CFG.height}",
+        ),
         (("000002_10", "sign", 0, 90, 10, CFG.height + 1), "outside"),
         (("000002_10", "mirror", 0, 0, 10, 10), "not one of"),  # read_rois' own checks apply
     ],

@@ -55,8 +55,15 @@ class System:
 def poisoned_model(path: Path, marker: Path, payload: type = Touch) -> Path:
     """A model file that works (a real network's weights) and runs the payload when unpickled."""
     torch.manual_seed(0)
-    state = {"model": MonodepthVGG(0.0625).state_dict(), "criterion": {}, "width_multiplier": 0.0625,
-             "height": H, "width": W, "variant": payload(marker), "seed": 0}
+    state = {
+        "model": MonodepthVGG(0.0625).state_dict(),
+        "criterion": {},
+        "width_multiplier": 0.0625,
+        "height": H,
+        "width": W,
+        "variant": payload(marker),
+        "seed": 0,
+    }
     path.parent.mkdir(parents=True, exist_ok=True)
     torch.save(state, path)
     return path
@@ -94,9 +101,23 @@ def test_predict_cli_refuses_a_poisoned_model(tmp_path: Path) -> None:
     image = tmp_path / "a.png"
     write_png(image, np.full((H, W, 3), 128, np.uint8))
     result = subprocess.run(
-        [sys.executable, "-m", "msdepth", "predict", str(image), "--model", str(model),
-         "--out", str(tmp_path / "out"), "--device", "cpu", "--quiet"],
-        capture_output=True, text=True, timeout=120,
+        [
+            sys.executable,
+            "-m",
+            "msdepth",
+            "predict",
+            str(image),
+            "--model",
+            str(model),
+            "--out",
+            str(tmp_path / "out"),
+            "--device",
+            "cpu",
+            "--quiet",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=120,
     )
     assert result.returncode == 1
     line = _one_line(result.stderr)
@@ -132,10 +153,14 @@ def pairs(tmp_path_factory) -> list[tuple[Path, Path]]:
 def test_training_refuses_to_resume_a_poisoned_checkpoint(pairs, tmp_path: Path) -> None:
     """A planted checkpoint is refused (not trained over) with a TrainingError naming it; deleting it,
     as the message says, trains anew, and the files that run writes load weights-only."""
-    params = params_from_dict({
-        "data": {"height": H, "width": W}, "model": {"width_multiplier": 0.0625},
-        "train": {"epochs": 1, "batch_size": 4, "threads": 1}, "msssim": {"levels": 3},
-    })
+    params = params_from_dict(
+        {
+            "data": {"height": H, "width": W},
+            "model": {"width_multiplier": 0.0625},
+            "train": {"epochs": 1, "batch_size": 4, "threads": 1},
+            "msssim": {"levels": 3},
+        }
+    )
     marker, checkpoint, model = tmp_path / "ran", tmp_path / "ck.pt", tmp_path / "model.pt"
     torch.save({"fingerprint": Touch(marker), "epoch": 1}, checkpoint)
     with pytest.raises(TrainingError) as err:

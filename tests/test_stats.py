@@ -79,11 +79,19 @@ def test_compare_reports_intervals_and_marks_clear_differences() -> None:
     rng = np.random.default_rng(1)
     base = rng.uniform(0.2, 0.4, 30)
     tables = {
-        "full": {"ssim": _table(frames, base), "msssim": _table(frames, base - 0.05),
-                 "noise": _table(frames, base + rng.normal(0, 0.01, 30))},
-        "roi": {r: t.rename(columns={"frame": "roi"}) for r, t in
-                {"ssim": _table(frames, base), "msssim": _table(frames, base - 0.05),
-                 "noise": _table(frames, base + rng.normal(0, 0.01, 30))}.items()},
+        "full": {
+            "ssim": _table(frames, base),
+            "msssim": _table(frames, base - 0.05),
+            "noise": _table(frames, base + rng.normal(0, 0.01, 30)),
+        },
+        "roi": {
+            r: t.rename(columns={"frame": "roi"})
+            for r, t in {
+                "ssim": _table(frames, base),
+                "msssim": _table(frames, base - 0.05),
+                "noise": _table(frames, base + rng.normal(0, 0.01, 30)),
+            }.items()
+        },
     }
     groups = {r: [r] for r in ("ssim", "msssim", "noise")}
     stats = paired_statistics(tables, groups, CompareConfig(bootstrap_samples=1000), [80.0])
@@ -93,9 +101,19 @@ def test_compare_reports_intervals_and_marks_clear_differences() -> None:
     block = {m: 0.3 for m in METRICS}
     suites = {
         "full": {r: {"cap80": block} for r in ("ssim", "msssim", "noise")},
-        "roi": {r: {"cap80": {"overall": {**block, "count": 30}, "by_class": {}}} for r in ("ssim", "msssim", "noise")},
-        "gradients": {r: {"cap80": {"overall": {f"pred_{g}": 1.0 for g in ("sobel_x", "sobel_y", "laplacian")},
-                                    "dense_gt": {"overall": {}}}} for r in ("ssim", "msssim", "noise")},
+        "roi": {
+            r: {"cap80": {"overall": {**block, "count": 30}, "by_class": {}}}
+            for r in ("ssim", "msssim", "noise")
+        },
+        "gradients": {
+            r: {
+                "cap80": {
+                    "overall": {f"pred_{g}": 1.0 for g in ("sobel_x", "sobel_y", "laplacian")},
+                    "dense_gt": {"overall": {}},
+                }
+            }
+            for r in ("ssim", "msssim", "noise")
+        },
     }
     result, md = build_comparison(suites, ["ssim", "msssim"], ["noise"], stats)
     assert result["statistics"] is stats
@@ -108,21 +126,35 @@ def test_compare_reports_intervals_and_marks_clear_differences() -> None:
 def test_differences_are_marked_only_over_at_least_three_seeds() -> None:
     frames = [f"{i:06d}_10" for i in range(30)]
     base = np.random.default_rng(2).uniform(0.2, 0.4, 30)
-    runs = {f"{v}/seed{s}": _table(frames, base - (0.05 if v == "msssim" else 0.0) + 0.001 * s)
-            for v in ("ssim", "msssim") for s in range(3)}
+    runs = {
+        f"{v}/seed{s}": _table(frames, base - (0.05 if v == "msssim" else 0.0) + 0.001 * s)
+        for v in ("ssim", "msssim")
+        for s in range(3)
+    }
     runs["prior"] = _table(frames, base + 0.2)
     tables = {"full": runs, "roi": {r: t.rename(columns={"frame": "roi"}) for r, t in runs.items()}}
     block = {m: 0.3 for m in METRICS}
-    grad = {"cap80": {"overall": {f"pred_{g}": 1.0 for g in ("sobel_x", "sobel_y", "laplacian")},
-                      "dense_gt": {"overall": {}}}}
-    groups3 = {"ssim": [f"ssim/seed{s}" for s in range(3)], "msssim": [f"msssim/seed{s}" for s in range(3)],
-               "prior": ["prior"]}
-    for groups, seeds, marked in ((groups3, [0, 1, 2], True),
-                                  ({k: v[:2] for k, v in groups3.items()}, [0, 1], False)):
+    grad = {
+        "cap80": {
+            "overall": {f"pred_{g}": 1.0 for g in ("sobel_x", "sobel_y", "laplacian")},
+            "dense_gt": {"overall": {}},
+        }
+    }
+    groups3 = {
+        "ssim": [f"ssim/seed{s}" for s in range(3)],
+        "msssim": [f"msssim/seed{s}" for s in range(3)],
+        "prior": ["prior"],
+    }
+    for groups, seeds, marked in (
+        (groups3, [0, 1, 2], True),
+        ({k: v[:2] for k, v in groups3.items()}, [0, 1], False),
+    ):
         stats = paired_statistics(tables, groups, CompareConfig(bootstrap_samples=500), [80.0])
-        suites = {"full": {g: {"cap80": block} for g in groups},
-                  "roi": {g: {"cap80": {"overall": {**block, "count": 30}, "by_class": {}}} for g in groups},
-                  "gradients": {g: grad for g in groups}}
+        suites = {
+            "full": {g: {"cap80": block} for g in groups},
+            "roi": {g: {"cap80": {"overall": {**block, "count": 30}, "by_class": {}}} for g in groups},
+            "gradients": {g: grad for g in groups},
+        }
         _, md = build_comparison(suites, ["ssim", "msssim"], ["prior"], stats, seeds=seeds)
         assert ("| msssim | -0.0500 [" in md) and ("] * |" in md) == marked, md
         # The baseline is deterministic: its mark needs only the reference's seeds.
@@ -133,8 +165,11 @@ def test_an_image_blind_run_is_flagged_in_words() -> None:
     frames = [f"{i:06d}_10" for i in range(10)]
     rng = np.random.default_rng(3)
     prior_errors = rng.uniform(0.2, 0.5, 10)
-    runs = {"ssim/seed0": _table(frames, rng.uniform(0.1, 0.3, 10)),
-            "msssim/seed0": _table(frames, prior_errors + 0.001), "prior": _table(frames, prior_errors)}
+    runs = {
+        "ssim/seed0": _table(frames, rng.uniform(0.1, 0.3, 10)),
+        "msssim/seed0": _table(frames, prior_errors + 0.001),
+        "prior": _table(frames, prior_errors),
+    }
     tables = {"full": runs, "roi": {r: t.rename(columns={"frame": "roi"}) for r, t in runs.items()}}
     groups = {"ssim": ["ssim/seed0"], "msssim": ["msssim/seed0"], "prior": ["prior"]}
     ratios = {"ssim/seed0": 0.9, "msssim/seed0": 0.02, "prior": 0.0}
@@ -144,13 +179,24 @@ def test_an_image_blind_run_is_flagged_in_words() -> None:
     assert dependence["msssim/seed0"]["image_blind"] and not dependence["ssim/seed0"]["image_blind"]
     assert dependence["msssim/seed0"]["prior_correlation"] == pytest.approx(1.0, abs=1e-3)
     assert dependence["prior"]["prior_correlation"] is None
-    suites = {"full": {g: {"cap80": block} for g in groups},
-              "roi": {g: {"cap80": {"overall": {**block, "count": 10}, "by_class": {}}} for g in groups},
-              "gradients": {g: {"cap80": {"overall": {f"pred_{x}": 1.0 for x in ("sobel_x", "sobel_y", "laplacian")},
-                                          "dense_gt": {"overall": {}}}} for g in groups}}
+    suites = {
+        "full": {g: {"cap80": block} for g in groups},
+        "roi": {g: {"cap80": {"overall": {**block, "count": 10}, "by_class": {}}} for g in groups},
+        "gradients": {
+            g: {
+                "cap80": {
+                    "overall": {f"pred_{x}": 1.0 for x in ("sobel_x", "sobel_y", "laplacian")},
+                    "dense_gt": {"overall": {}},
+                }
+            }
+            for g in groups
+        },
+    }
     result, md = build_comparison(suites, ["ssim", "msssim"], ["prior"], dependence=dependence, groups=groups)
     assert "| msssim (image-blind) |" in md and "| ssim |" in md
-    assert "| msssim/seed0 | 0.0200 | 1.0000 | image-blind: its predictions barely change between images |" in md
+    assert (
+        "| msssim/seed0 | 0.0200 | 1.0000 | image-blind: its predictions barely change between images |" in md
+    )
     assert result["image_dependence"] is dependence
 
 
@@ -170,7 +216,9 @@ def test_two_level_bootstrap_matches_a_straightforward_loop() -> None:
     ours = seed_bootstrap(run, ref, samples=1500, confidence=0.9, seed=2)
     draw = np.random.default_rng(2)
     means = []
-    for _ in range(1500):  # the same draws, one resample at a time: units, then run seeds, then reference seeds
+    for _ in range(
+        1500
+    ):  # the same draws, one resample at a time: units, then run seeds, then reference seeds
         units = draw.integers(0, 20, 20)
         seeds_run = draw.integers(0, 3, 3)
         seeds_ref = draw.integers(0, 2, 2)
@@ -205,11 +253,21 @@ def test_statistics_over_seed_groups_and_their_spread() -> None:
     rng = np.random.default_rng(3)
     base = rng.uniform(0.2, 0.4, 25)
     tables = {"full": {}, "roi": {}}
-    offsets = {"ssim/seed0": 0.0, "ssim/seed1": 0.01, "msssim/seed0": -0.04, "msssim/seed1": -0.06, "prior": 0.1}
+    offsets = {
+        "ssim/seed0": 0.0,
+        "ssim/seed1": 0.01,
+        "msssim/seed0": -0.04,
+        "msssim/seed1": -0.06,
+        "prior": 0.1,
+    }
     for run, off in offsets.items():
         tables["full"][run] = _table(frames, base + off)
         tables["roi"][run] = _table(frames, base + off).rename(columns={"frame": "roi"})
-    groups = {"ssim": ["ssim/seed0", "ssim/seed1"], "msssim": ["msssim/seed0", "msssim/seed1"], "prior": ["prior"]}
+    groups = {
+        "ssim": ["ssim/seed0", "ssim/seed1"],
+        "msssim": ["msssim/seed0", "msssim/seed1"],
+        "prior": ["prior"],
+    }
     stats = paired_statistics(tables, groups, CompareConfig(bootstrap_samples=500), [80.0])
     d = stats["full"]["cap80"]["msssim"]["abs_rel"]
     assert d["mean"] == pytest.approx(-0.055) and (d["seeds"], d["reference_seeds"], d["n"]) == (2, 2, 25)
@@ -218,9 +276,15 @@ def test_statistics_over_seed_groups_and_their_spread() -> None:
     assert d["low"] == pytest.approx(-0.07) and d["high"] == pytest.approx(-0.04)
     assert stats["full"]["cap80"]["prior"]["abs_rel"]["seeds"] == 1
 
-    metrics = {"full": {r: {"cap80": {m: float(np.mean(base + off)) for m in METRICS}} for r, off in offsets.items()},
-               "roi": {r: {"cap80": {"overall": {m: float(np.mean(base + off)) for m in METRICS}}}
-                       for r, off in offsets.items()}}
+    metrics = {
+        "full": {
+            r: {"cap80": {m: float(np.mean(base + off)) for m in METRICS}} for r, off in offsets.items()
+        },
+        "roi": {
+            r: {"cap80": {"overall": {m: float(np.mean(base + off)) for m in METRICS}}}
+            for r, off in offsets.items()
+        },
+    }
     spread = seed_spread(metrics, groups, ["cap80"])
     s = spread["full"]["cap80"]["msssim"]["abs_rel"]
     assert s["mean"] == pytest.approx(np.mean(base) - 0.05)
@@ -230,8 +294,16 @@ def test_statistics_over_seed_groups_and_their_spread() -> None:
 
 
 def test_runs_are_averaged_leaf_by_leaf() -> None:
-    a = {"cap80": {"overall": {"abs_rel": 0.2, "count": 10}, "by_class": {"car": {"abs_rel": 0.1}}}, "images": 40, "note": None}
-    b = {"cap80": {"overall": {"abs_rel": 0.4, "count": 10}, "by_class": {"car": {"abs_rel": 0.3}}}, "images": 40, "note": None}
+    a = {
+        "cap80": {"overall": {"abs_rel": 0.2, "count": 10}, "by_class": {"car": {"abs_rel": 0.1}}},
+        "images": 40,
+        "note": None,
+    }
+    b = {
+        "cap80": {"overall": {"abs_rel": 0.4, "count": 10}, "by_class": {"car": {"abs_rel": 0.3}}},
+        "images": 40,
+        "note": None,
+    }
     mean = mean_over_runs([a, b])
     assert mean["cap80"]["overall"] == {"abs_rel": pytest.approx(0.3), "count": 10}
     assert mean["cap80"]["by_class"]["car"]["abs_rel"] == pytest.approx(0.2)
@@ -245,8 +317,15 @@ def test_comparison_of_several_seeds_says_so_and_shows_the_spread() -> None:
     suites = {
         "full": {r: {"cap80": block} for r in ("ssim", "msssim")},
         "roi": {r: {"cap80": {"overall": {**block, "count": 5}, "by_class": {}}} for r in ("ssim", "msssim")},
-        "gradients": {r: {"cap80": {"overall": {f"pred_{g}": 1.0 for g in ("sobel_x", "sobel_y", "laplacian")},
-                                    "dense_gt": {"overall": {}}}} for r in ("ssim", "msssim")},
+        "gradients": {
+            r: {
+                "cap80": {
+                    "overall": {f"pred_{g}": 1.0 for g in ("sobel_x", "sobel_y", "laplacian")},
+                    "dense_gt": {"overall": {}},
+                }
+            }
+            for r in ("ssim", "msssim")
+        },
     }
     entry = {m: {"mean": 0.3, "sd": 0.0125, "runs": {}} for m in METRICS}
     spread = {s: {"cap80": {"ssim": entry, "msssim": entry}} for s in ("full", "roi")}

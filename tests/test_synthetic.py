@@ -34,15 +34,17 @@ def _eval_frames(root: Path) -> list[dict[str, np.ndarray]]:
     for left, _ in kitti.read_split(k2015 / "test_files.txt"):
         name = Path(left).stem
         paths = kitti.kitti2015_paths(k2015, name)
-        frames.append(dict(
-            name=name,
-            left=kitti.read_image(paths["left"]).astype(np.float32) / 255,
-            right=kitti.read_image(paths["right"]).astype(np.float32) / 255,
-            noc=kitti.read_disparity(paths["disp"]),
-            occ=kitti.read_disparity(kitti.kitti2015_paths(k2015, name, "disp_occ_0")["disp"]),
-            obj=kitti.read_obj_map(paths["obj_map"]),
-            rois=boxes[boxes["image"] == name],
-        ))
+        frames.append(
+            dict(
+                name=name,
+                left=kitti.read_image(paths["left"]).astype(np.float32) / 255,
+                right=kitti.read_image(paths["right"]).astype(np.float32) / 255,
+                noc=kitti.read_disparity(paths["disp"]),
+                occ=kitti.read_disparity(kitti.kitti2015_paths(k2015, name, "disp_occ_0")["disp"]),
+                obj=kitti.read_obj_map(paths["obj_map"]),
+                rois=boxes[boxes["image"] == name],
+            )
+        )
     return frames
 
 
@@ -70,7 +72,9 @@ def test_generation_is_deterministic(root: Path, tmp_path: Path) -> None:
 
 
 def test_other_seed_other_scenes(root: Path, tmp_path: Path) -> None:
-    other = SyntheticConfig(seed=12, drives=1, train_pairs=1, eval_frames=1, height=CFG.height, width=CFG.width)
+    other = SyntheticConfig(
+        seed=12, drives=1, train_pairs=1, eval_frames=1, height=CFG.height, width=CFG.width
+    )
     synthetic.generate(other, tmp_path, progress=False, workers=1)
     name = "2011_09_26/2011_09_26_drive_0001_sync/image_02/data/0000000000.png"
     assert (root / "raw" / name).read_bytes() != (tmp_path / "raw" / name).read_bytes()
@@ -90,7 +94,10 @@ def test_raw_layout_readable(root: Path) -> None:
     for left, right in pairs:
         assert left.split("/")[2:] == ["image_02", "data", Path(left).name] and len(Path(left).stem) == 10
         assert right == left.replace("image_02", "image_03")
-        left_path, right_path = kitti.resolve_image(root / "raw", left), kitti.resolve_image(root / "raw", right)
+        left_path, right_path = (
+            kitti.resolve_image(root / "raw", left),
+            kitti.resolve_image(root / "raw", right),
+        )
         assert left_path is not None and right_path is not None
         assert kitti.read_image(left_path).shape == (CFG.height, CFG.width, 3)
         assert kitti.read_image(right_path).shape == (CFG.height, CFG.width, 3)
@@ -106,12 +113,14 @@ def test_raw_layout_readable(root: Path) -> None:
 def test_kitti2015_layout_readable(root: Path) -> None:
     k2015 = root / "kitti2015"
     pairs = kitti.read_split(k2015 / "test_files.txt")
-    assert [Path(l).stem for l, _ in pairs] == [f"{i:06d}_10" for i in range(CFG.eval_frames)]
+    assert [Path(left).stem for left, _ in pairs] == [f"{i:06d}_10" for i in range(CFG.eval_frames)]
     for left, right in pairs:
         assert kitti.resolve_image(k2015, left) and kitti.resolve_image(k2015, right)
         calib = kitti.kitti2015_paths(k2015, Path(left).stem)["calib"]
         focal, baseline = kitti.focal_and_baseline(CFG.width, calib)
-        assert focal == pytest.approx(synthetic.focal_for_width(CFG.width)) and baseline == pytest.approx(0.54)
+        assert focal == pytest.approx(synthetic.focal_for_width(CFG.width)) and baseline == pytest.approx(
+            0.54
+        )
     summary = json.loads((root / "synthetic.json").read_text())
     rois = kitti.read_rois(root / "rois.csv")
     assert summary["train_pairs"] == CFG.train_pairs and summary["eval_frames"] == CFG.eval_frames
@@ -128,7 +137,10 @@ def test_disparity_matches_ground_plane_geometry() -> None:
     for index in range(4):
         frame = synthetic.render_frame(3, 1, index, h, w)
         f, cx, cy = frame.focal, (w - 1) / 2, (h - 1) / 2
-        ray = np.stack([(np.arange(w) - cx) / f, np.full(w, (h - 1 - cy) / f), np.ones(w)], axis=1) @ frame.rotation.T
+        ray = (
+            np.stack([(np.arange(w) - cx) / f, np.full(w, (h - 1 - cy) / f), np.ones(w)], axis=1)
+            @ frame.rotation.T
+        )
         depth = frame.cam_height / ray[:, 1]  # camera z of the hit, since the ray has camera z = 1
         expected = f * kitti.KITTI_BASELINE / depth
         assert frame.focal == pytest.approx(721.5377 * w / 1242)
@@ -150,7 +162,9 @@ def test_eval_gt_stops_at_lidar_range(root: Path) -> None:
     dropped = 0
     for index in range(CFG.eval_frames):
         frame = synthetic.render_frame(CFG.seed, 1, index, CFG.height, CFG.width)
-        occ = kitti.read_disparity(kitti.kitti2015_paths(root / "kitti2015", f"{index:06d}_10", "disp_occ_0")["disp"])
+        occ = kitti.read_disparity(
+            kitti.kitti2015_paths(root / "kitti2015", f"{index:06d}_10", "disp_occ_0")["disp"]
+        )
         depth = frame.focal * kitti.KITTI_BASELINE / occ[occ > 0]
         assert depth.max() <= CFG.gt_max_depth * (1 + 1e-3)
         true_depth = frame.focal * kitti.KITTI_BASELINE / np.where(frame.disp > 0, frame.disp, np.inf)
@@ -189,7 +203,9 @@ def test_obj_map_matches_car_boxes(root: Path) -> None:
             car = values[np.argmax(counts)]
             assert counts.max() >= 0.3 * inside.size
             ys, xs = np.nonzero(fr["obj"] == car)  # the instance lies within its box
-            assert xs.min() >= r.x0 - 1 and xs.max() < r.x1 + 1 and ys.min() >= r.y0 - 1 and ys.max() < r.y1 + 1
+            assert (
+                xs.min() >= r.x0 - 1 and xs.max() < r.x1 + 1 and ys.min() >= r.y0 - 1 and ys.max() < r.y1 + 1
+            )
             checked += 1
     assert checked >= 3
 
@@ -249,7 +265,7 @@ def test_class_map_holds_the_exact_pixels_of_every_roi_class(root: Path) -> None
         assert not (windshield & ~car).any()  # a windshield is part of its car
         for r in fr["rois"].itertuples(index=False):
             bit = kitti.CLASS_BITS[r[1]]
-            inside = (classes[r.y0:r.y1, r.x0:r.x1] & bit) > 0
+            inside = (classes[r.y0 : r.y1, r.x0 : r.x1] & bit) > 0
             assert inside.mean() >= 0.5, f"{fr['name']}: {r[1]} box mostly without {r[1]} pixels"
             seen[r[1]] += 1
     assert all(count > 0 for count in seen.values()), seen

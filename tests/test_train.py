@@ -35,12 +35,14 @@ def pairs(tmp_path_factory) -> list[tuple[Path, Path]]:
 
 
 def _params(weights: str = "wang", **train) -> Params:
-    return params_from_dict({
-        "data": {"height": H, "width": W},
-        "model": {"width_multiplier": 0.0625},
-        "train": {"epochs": 2, "batch_size": 4, "threads": 1, **train},
-        "msssim": {"levels": 3, "weights": weights},
-    })
+    return params_from_dict(
+        {
+            "data": {"height": H, "width": W},
+            "model": {"width_multiplier": 0.0625},
+            "train": {"epochs": 2, "batch_size": 4, "threads": 1, **train},
+            "msssim": {"levels": 3, "weights": weights},
+        }
+    )
 
 
 def _weights(path: Path) -> dict[str, torch.Tensor]:
@@ -48,7 +50,9 @@ def _weights(path: Path) -> dict[str, torch.Tensor]:
 
 
 def _train(params: Params, pairs, tmp: Path, variant: str = "ssim"):
-    return train_variant(params, variant, pairs, tmp / "model.pt", tmp / "ck.pt", progress=False, live_dir=tmp / "live")
+    return train_variant(
+        params, variant, pairs, tmp / "model.pt", tmp / "ck.pt", progress=False, live_dir=tmp / "live"
+    )
 
 
 def _curves(live: Path) -> dict[str, list]:
@@ -56,11 +60,16 @@ def _curves(live: Path) -> dict[str, list]:
     import pandas as pd
 
     tsvs = sorted((live / "plots" / "metrics" / "train").glob("*.tsv"))
-    return {p.name: pd.read_csv(p, sep="\t").drop(columns="timestamp", errors="ignore").values.tolist() for p in tsvs}
+    return {
+        p.name: pd.read_csv(p, sep="\t").drop(columns="timestamp", errors="ignore").values.tolist()
+        for p in tsvs
+    }
 
 
 @pytest.mark.parametrize("variant", ["ssim", "msssim"])
-def test_interrupted_run_resumes_to_the_same_weights(pairs, tmp_path: Path, monkeypatch, variant: str) -> None:
+def test_interrupted_run_resumes_to_the_same_weights(
+    pairs, tmp_path: Path, monkeypatch, variant: str
+) -> None:
     params = _params()
     (tmp_path / "a").mkdir()
     (tmp_path / "b").mkdir()
@@ -135,7 +144,9 @@ def test_code_digest_covers_the_train_stage_source_deps(tmp_path: Path, monkeypa
 
 
 @pytest.mark.parametrize("sync_every", [0, 3])
-def test_non_finite_loss_stops_with_step_and_files(pairs, tmp_path: Path, monkeypatch, sync_every: int) -> None:
+def test_non_finite_loss_stops_with_step_and_files(
+    pairs, tmp_path: Path, monkeypatch, sync_every: int
+) -> None:
     """Read every step (0 = automatic, every step on the CPU) or, as on a GPU, a few steps late
     (3: here at the end of the 2-step epoch, after a NaN update): the error names the first bad step."""
     real_forward = train_mod.MonodepthLoss.forward
@@ -201,8 +212,12 @@ def test_bf16_autocast_and_channels_last_train_on_cpu(pairs, tmp_path: Path) -> 
 
 def test_speed_switches_keep_the_checkpoint_fingerprint() -> None:
     base = _params()
-    fast = dataclasses.replace(base, train=dataclasses.replace(base.train, channels_last=True, compile=True, num_workers=2,
-                                                               sync_every=50, cudnn_benchmark=False))
+    fast = dataclasses.replace(
+        base,
+        train=dataclasses.replace(
+            base.train, channels_last=True, compile=True, num_workers=2, sync_every=50, cudnn_benchmark=False
+        ),
+    )
     assert train_mod.fingerprint(base, "ssim", 8, 0) == train_mod.fingerprint(fast, "ssim", 8, 0)
     amp = dataclasses.replace(base, train=dataclasses.replace(base.train, amp="bf16"))
     assert train_mod.fingerprint(base, "ssim", 8, 0) != train_mod.fingerprint(amp, "ssim", 8, 0)
@@ -219,7 +234,9 @@ def test_unknown_amp_mode_is_a_config_error() -> None:
         _params(amp="fp16")
 
 
-def test_compile_switch_compiles_the_network_and_saves_its_weights(pairs, tmp_path: Path, monkeypatch) -> None:
+def test_compile_switch_compiles_the_network_and_saves_its_weights(
+    pairs, tmp_path: Path, monkeypatch
+) -> None:
     # A real torch.compile takes ~1 min on CPU (measured), so the wiring is tested with a stand-in.
     compiled = []
 
@@ -235,7 +252,9 @@ def test_compile_switch_compiles_the_network_and_saves_its_weights(pairs, tmp_pa
         assert torch.equal(saved[name], value)
 
 
-def test_disk_full_while_checkpointing_keeps_the_previous_checkpoint(pairs, tmp_path: Path, monkeypatch) -> None:
+def test_disk_full_while_checkpointing_keeps_the_previous_checkpoint(
+    pairs, tmp_path: Path, monkeypatch
+) -> None:
     real_save = torch.save
     saves = {"n": 0}
 
@@ -260,8 +279,16 @@ def test_each_seed_is_its_own_repeatable_run(pairs, tmp_path: Path) -> None:
     params = _params(seeds=[0, 1])
     for name, seed in (("a", 1), ("b", 1), ("c", 0)):
         (tmp_path / name).mkdir()
-        train_variant(params, "ssim", pairs, tmp_path / name / "model.pt", tmp_path / name / "ck.pt",
-                      progress=False, seed=seed, summary_path=tmp_path / name / "summary.json")
+        train_variant(
+            params,
+            "ssim",
+            pairs,
+            tmp_path / name / "model.pt",
+            tmp_path / name / "ck.pt",
+            progress=False,
+            seed=seed,
+            summary_path=tmp_path / name / "summary.json",
+        )
     a, b, c = (_weights(tmp_path / n / "model.pt") for n in "abc")
     assert all(torch.equal(a[k], b[k]) for k in a)  # the same seed: bit-identical on CPU ...
     # ... and so are the files, whatever temp names they were written through (DVC hashes them).

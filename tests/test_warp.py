@@ -104,7 +104,9 @@ def test_same_as_grid_sample_far_outside_the_image(mode: str, width: int) -> Non
     d = disp.detach().requires_grad_(True)
     xs = torch.linspace(-1.0, 1.0, width, dtype=torch.float64)
     grid_x = xs.view(1, 1, width) + 2.0 * width / (width - 1) * d[:, 0]
-    grid = torch.stack((grid_x, torch.linspace(-1.0, 1.0, 3, dtype=torch.float64).view(1, 3, 1).expand(1, 3, width)), -1)
+    grid = torch.stack(
+        (grid_x, torch.linspace(-1.0, 1.0, 3, dtype=torch.float64).view(1, 3, 1).expand(1, 3, width)), -1
+    )
     ref = torch.nn.functional.grid_sample(image, grid, mode="bilinear", padding_mode=mode, align_corners=True)
     (ref_grad,) = torch.autograd.grad(ref.sum(), d)
     torch.testing.assert_close(ours, ref, rtol=0, atol=1e-12)
@@ -114,7 +116,7 @@ def test_same_as_grid_sample_far_outside_the_image(mode: str, width: int) -> Non
 def test_non_finite_disparity_neither_crashes_nor_spreads() -> None:
     """NaN, ±inf and 1e30 disparities (a diverged network): finite samples and gradients. In a
     subprocess, because grid_sample's CPU backward segfaults on such coordinates unguarded."""
-    script = '''
+    script = """
 import torch
 from msdepth.warp import warp
 image = torch.rand(2, 3, 8, 16, requires_grad=True)
@@ -128,7 +130,7 @@ for mode in ("border", "zeros"):
     assert disp.grad[1, 0, 3:6].abs().sum() > 0  # the finite disparities still learn
     image.grad = disp.grad = None
 print("ok")
-'''
+"""
     proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0 and proc.stdout.strip() == "ok", (proc.returncode, proc.stderr[-2000:])
 

@@ -26,32 +26,46 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--height", type=int, help="network input height (default: the model's training size)")
     p.add_argument("--width", type=int, help="network input width (default: the model's training size)")
     p.add_argument(
-        "--no-post-process", dest="post_process", action="store_false",
+        "--no-post-process",
+        dest="post_process",
+        action="store_false",
         help="skip Monodepth's flip post-processing (twice as fast, slightly worse near edges)",
     )
     p.add_argument(
-        "--focal", type=float,
+        "--focal",
+        type=float,
         help="focal length in px at the input image's resolution (default: KITTI's for that width: "
         "721.5377 px at 1242, scaled with the width)",
     )
     p.add_argument("--baseline", type=float, help="stereo baseline in m (default: 0.54, KITTI's)")
-    p.add_argument("--cx", type=float, help="principal point x in px for the point cloud (default: image centre)")
-    p.add_argument("--cy", type=float, help="principal point y in px for the point cloud (default: image centre)")
     p.add_argument(
-        "--max-depth", type=float,
+        "--cx", type=float, help="principal point x in px for the point cloud (default: image centre)"
+    )
+    p.add_argument(
+        "--cy", type=float, help="principal point y in px for the point cloud (default: image centre)"
+    )
+    p.add_argument(
+        "--max-depth",
+        type=float,
         help="depths beyond this (m) are invalid (0) in the depth outputs and dropped from point clouds "
         "(default: 80)",
     )
     p.add_argument(
-        "--disp-format", choices=("png", "npy", "both", "none"),
+        "--disp-format",
+        choices=("png", "npy", "both", "none"),
         help="disparity outputs: colour PNG and/or .npy in px (default: both)",
     )
     p.add_argument(
-        "--depth-format", choices=("png", "npy", "both", "none"),
+        "--depth-format",
+        choices=("png", "npy", "both", "none"),
         help="depth outputs: 16-bit PNG in mm and/or .npy in m (default: png)",
     )
-    p.add_argument("--ply", choices=("none", "binary", "ascii"), help="write a coloured point cloud (default: none)")
-    p.add_argument("--colorbar", action="store_true", help="add a colour bar (disparity in px) to the disparity PNG")
+    p.add_argument(
+        "--ply", choices=("none", "binary", "ascii"), help="write a coloured point cloud (default: none)"
+    )
+    p.add_argument(
+        "--colorbar", action="store_true", help="add a colour bar (disparity in px) to the disparity PNG"
+    )
     p.add_argument("--device", choices=("auto", "cpu", "cuda"), help="default: auto (CUDA if available)")
     p.add_argument("--batch-size", type=int, help="frames per network batch (default: 8)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -78,14 +92,29 @@ def _predict(args: argparse.Namespace) -> int:
     from .predict import PredictOptions, predict
 
     names = (
-        "height", "width", "post_process", "focal", "baseline", "cx", "cy", "max_depth",
-        "disp_format", "depth_format", "ply", "colorbar", "batch_size", "device",
+        "height",
+        "width",
+        "post_process",
+        "focal",
+        "baseline",
+        "cx",
+        "cy",
+        "max_depth",
+        "disp_format",
+        "depth_format",
+        "ply",
+        "colorbar",
+        "batch_size",
+        "device",
     )
     given = {name: getattr(args, name) for name in names if getattr(args, name) is not None}
     options = PredictOptions(**given, progress=not args.quiet)
     report = predict(args.input, args.model, args.out, options)
     if report.ignored:
-        print(f"ignored {len(report.ignored)} file(s) that are not images, e.g. {report.ignored[0]}", file=sys.stderr)
+        print(
+            f"ignored {len(report.ignored)} file(s) that are not images, e.g. {report.ignored[0]}",
+            file=sys.stderr,
+        )
     total = report.written + len(report.failed)
     failed = f"; {len(report.failed)} failed (listed above)" if report.failed else ""
     print(f"wrote the outputs of {report.written} of {total} frame(s) to {args.out}{failed}", file=sys.stderr)

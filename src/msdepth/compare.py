@@ -26,7 +26,9 @@ MIN_SEEDS_FOR_MARKS = 3
 IMAGE_BLIND_BELOW = 0.25
 
 
-def _load_runs(metrics_dir: str | os.PathLike, suites: Sequence[str], runs: Sequence[str], suffix: str, read, what: str) -> dict:
+def _load_runs(
+    metrics_dir: str | os.PathLike, suites: Sequence[str], runs: Sequence[str], suffix: str, read, what: str
+) -> dict:
     """``{suite: {run: read(metrics_dir/<suite>/<run><suffix>)}}``, naming any missing file."""
     out: dict[str, dict] = {}
     for suite in suites:
@@ -48,20 +50,36 @@ def load_suite_metrics(metrics_dir: str | os.PathLike, runs: Sequence[str]) -> d
 UNIT_KEYS = {"full": ["frame"], "roi": ["roi"]}
 
 
-def load_unit_tables(metrics_dir: str | os.PathLike, runs: Sequence[str]) -> dict[str, dict[str, pd.DataFrame]]:
+def load_unit_tables(
+    metrics_dir: str | os.PathLike, runs: Sequence[str]
+) -> dict[str, dict[str, pd.DataFrame]]:
     """``{suite: {run: per-image or per-ROI table}}`` from ``metrics_dir/<suite>/<run>.csv``."""
-    return _load_runs(metrics_dir, list(UNIT_KEYS), runs, ".csv",
-                      lambda p: pd.read_csv(p, dtype={"frame": str, "image": str}), "per-unit metrics")
+    return _load_runs(
+        metrics_dir,
+        list(UNIT_KEYS),
+        runs,
+        ".csv",
+        lambda p: pd.read_csv(p, dtype={"frame": str, "image": str}),
+        "per-unit metrics",
+    )
 
 
-def _unit_matrix(tables: dict[str, pd.DataFrame], runs: Sequence[str], anchor: pd.DataFrame, keys: list[str],
-                 metric: str, what: str) -> np.ndarray:
+def _unit_matrix(
+    tables: dict[str, pd.DataFrame],
+    runs: Sequence[str],
+    anchor: pd.DataFrame,
+    keys: list[str],
+    metric: str,
+    what: str,
+) -> np.ndarray:
     """(runs, units): ``metric`` of every run, its units aligned on ``keys`` to ``anchor``'s order."""
     return np.stack([paired_table(anchor, tables[r], keys, metric, f"{what} ({r})")[1] for r in runs])
 
 
 def paired_statistics(
-    tables: dict[str, dict[str, pd.DataFrame]], groups: dict[str, Sequence[str]], cfg: CompareConfig,
+    tables: dict[str, dict[str, pd.DataFrame]],
+    groups: dict[str, Sequence[str]],
+    cfg: CompareConfig,
     caps: Sequence[float],
 ) -> dict:
     """``{suite: {capN: {group: {metric: PairedDifference dict}}}}`` of every group against ``cfg.reference``.
@@ -69,14 +87,27 @@ def paired_statistics(
     ``groups`` maps a variant to its runs (one per seed) and a baseline to its one run; the
     reference's runs and each group's runs enter :func:`msdepth.stats.seed_bootstrap` as rows.
     """
-    stats: dict = {"reference": cfg.reference, "confidence": cfg.confidence, "bootstrap_samples": cfg.bootstrap_samples}
+    stats: dict = {
+        "reference": cfg.reference,
+        "confidence": cfg.confidence,
+        "bootstrap_samples": cfg.bootstrap_samples,
+    }
     for suite, keys in UNIT_KEYS.items():
         stats[suite] = {}
         by_cap = {cap: {run: t[t["cap"] == cap] for run, t in tables[suite].items()} for cap in caps}
         for cap, cap_tables in by_cap.items():
             anchor = cap_tables[groups[cfg.reference][0]]
-            reference = {metric: _unit_matrix(cap_tables, groups[cfg.reference], anchor, keys, metric,
-                                              f"{suite} {cfg.reference}, cap {cap:g}") for metric in METRICS}
+            reference = {
+                metric: _unit_matrix(
+                    cap_tables,
+                    groups[cfg.reference],
+                    anchor,
+                    keys,
+                    metric,
+                    f"{suite} {cfg.reference}, cap {cap:g}",
+                )
+                for metric in METRICS
+            }
             block: dict = {}
             for name, runs in groups.items():
                 if name == cfg.reference:
@@ -84,8 +115,11 @@ def paired_statistics(
                 what = f"{suite} {name} vs {cfg.reference}, cap {cap:g}"
                 block[name] = {
                     metric: seed_bootstrap(
-                        _unit_matrix(cap_tables, runs, anchor, keys, metric, what), reference[metric],
-                        cfg.bootstrap_samples, cfg.confidence, cfg.seed,
+                        _unit_matrix(cap_tables, runs, anchor, keys, metric, what),
+                        reference[metric],
+                        cfg.bootstrap_samples,
+                        cfg.confidence,
+                        cfg.seed,
                     ).as_dict()
                     for metric in METRICS
                 }
@@ -103,18 +137,26 @@ def mean_over_runs(trees: Sequence[dict]) -> dict:
         return {k: mean_over_runs([t[k] for t in trees]) for k in first}
     if first is None or isinstance(first, (str, bool)) or (isinstance(first, int) and len(set(trees)) == 1):
         if len(set(map(repr, trees))) != 1:
-            raise DataError(f"runs disagree on a value that cannot be averaged: {sorted(set(map(repr, trees)))}")
+            raise DataError(
+                f"runs disagree on a value that cannot be averaged: {sorted(set(map(repr, trees)))}"
+            )
         return first
     return float(np.mean(trees))
 
 
-def group_metrics(suites: dict[str, dict[str, dict]], groups: dict[str, Sequence[str]]) -> dict[str, dict[str, dict]]:
+def group_metrics(
+    suites: dict[str, dict[str, dict]], groups: dict[str, Sequence[str]]
+) -> dict[str, dict[str, dict]]:
     """``{suite: {group: metrics averaged over the group's runs}}``."""
-    return {suite: {g: mean_over_runs([runs_metrics[r] for r in runs]) for g, runs in groups.items()}
-            for suite, runs_metrics in suites.items()}
+    return {
+        suite: {g: mean_over_runs([runs_metrics[r] for r in runs]) for g, runs in groups.items()}
+        for suite, runs_metrics in suites.items()
+    }
 
 
-def seed_spread(suites: dict[str, dict[str, dict]], groups: dict[str, Sequence[str]], caps: Sequence[str]) -> dict:
+def seed_spread(
+    suites: dict[str, dict[str, dict]], groups: dict[str, Sequence[str]], caps: Sequence[str]
+) -> dict:
     """``{suite: {capN: {variant: {metric: {mean, sd, runs}}}}}``: each run's mean metric over its
     seeds (full image and all ROIs); ``sd`` is the sample standard deviation (None for one seed)."""
     out: dict = {}
@@ -125,8 +167,11 @@ def seed_spread(suites: dict[str, dict[str, dict]], groups: dict[str, Sequence[s
             for g, runs in groups.items():
                 values = {metric: [pick(suites[suite][r], cap)[metric] for r in runs] for metric in METRICS}
                 out[suite][cap][g] = {
-                    metric: {"mean": float(np.mean(v)), "sd": float(np.std(v, ddof=1)) if len(v) > 1 else None,
-                             "runs": dict(zip(runs, map(float, v)))}
+                    metric: {
+                        "mean": float(np.mean(v)),
+                        "sd": float(np.std(v, ddof=1)) if len(v) > 1 else None,
+                        "runs": dict(zip(runs, map(float, v))),
+                    }
                     for metric, v in values.items()
                 }
     return out
@@ -155,8 +200,11 @@ def _ci_rows(block: dict, baselines: Sequence[str]) -> list[list[str]]:
 
 
 def image_dependence(
-    suites: dict[str, dict[str, dict]], tables: dict[str, dict[str, pd.DataFrame]], groups: dict[str, Sequence[str]],
-    prior: str, cap: float,
+    suites: dict[str, dict[str, dict]],
+    tables: dict[str, dict[str, pd.DataFrame]],
+    groups: dict[str, Sequence[str]],
+    prior: str,
+    cap: float,
 ) -> dict[str, dict]:
     """Per run: its ``variation_ratio`` (from the full-image suite), the correlation of its
     per-image abs_rel with the image-blind ``prior``'s, and ``image_blind`` (ratio below
@@ -169,11 +217,16 @@ def image_dependence(
             ratio = suites["full"][run].get("image_dependence", {}).get("variation_ratio")
             corr = None
             if prior in full and run != prior:
-                errors, prior_errors = paired_table(full[run], full[prior], ["frame"], "abs_rel", f"full {run} vs {prior}")
+                errors, prior_errors = paired_table(
+                    full[run], full[prior], ["frame"], "abs_rel", f"full {run} vs {prior}"
+                )
                 if len(errors) > 2 and np.std(errors) > 0 and np.std(prior_errors) > 0:
                     corr = float(np.corrcoef(errors, prior_errors)[0, 1])
-            out[run] = {"variation_ratio": ratio, "prior_correlation": corr,
-                        "image_blind": ratio is not None and bool(ratio < IMAGE_BLIND_BELOW)}
+            out[run] = {
+                "variation_ratio": ratio,
+                "prior_correlation": corr,
+                "image_blind": ratio is not None and bool(ratio < IMAGE_BLIND_BELOW),
+            }
     return out
 
 
@@ -216,17 +269,35 @@ def build_comparison(
     """
     runs = [*variants, *baselines]
     caps = [k for k in suites["full"][runs[0]] if k.startswith("cap")]
-    result: dict = {"variants": list(variants), "baselines": list(baselines), "seeds": list(seeds),
-                    "full": {}, "roi": {}, "gradients": {}}
+    result: dict = {
+        "variants": list(variants),
+        "baselines": list(baselines),
+        "seeds": list(seeds),
+        "full": {},
+        "roi": {},
+        "gradients": {},
+    }
     several = len(seeds) > 1
-    trained = (f"Each variant's numbers are the mean of {len(seeds)} training runs (seeds {', '.join(map(str, seeds))})."
-               if several else f"One training run per variant (seed {seeds[0]}).")
-    md = ["# Comparison of loss variants", "",
-          f"Variants: {', '.join(variants)}. Baselines (image-blind, from training GT): {', '.join(baselines) or 'none'}.",
-          trained, "Errors: lower is better; a1–a3: higher is better. Best variant per column in **bold**.", ""]
+    trained = (
+        f"Each variant's numbers are the mean of {len(seeds)} training runs "
+        f"(seeds {', '.join(map(str, seeds))})."
+        if several
+        else f"One training run per variant (seed {seeds[0]})."
+    )
+    md = [
+        "# Comparison of loss variants",
+        "",
+        f"Variants: {', '.join(variants)}. "
+        f"Baselines (image-blind, from training GT): {', '.join(baselines) or 'none'}.",
+        trained,
+        "Errors: lower is better; a1–a3: higher is better. Best variant per column in **bold**.",
+        "",
+    ]
     groups = groups or {r: [r] for r in runs}
-    blind = {g: [r for r in groups.get(g, [g]) if dependence and dependence.get(r, {}).get("image_blind")]
-             for g in runs}
+    blind = {
+        g: [r for r in groups.get(g, [g]) if dependence and dependence.get(r, {}).get("image_blind")]
+        for g in runs
+    }
 
     def label(run: str) -> str:
         n, total = len(blind[run]), len(groups.get(run, [run]))
@@ -237,50 +308,82 @@ def build_comparison(
     if stats is not None:
         result["statistics"] = stats
         if len(seeds) >= MIN_SEEDS_FOR_MARKS:
-            covers = ("resampling images (ROIs) and, per variant, seeds: the intervals cover the choice of "
-                      "images and training noise. `*`: the interval excludes 0.")
+            covers = (
+                "resampling images (ROIs) and, per variant, seeds: the intervals cover the choice of "
+                "images and training noise. `*`: the interval excludes 0."
+            )
         else:
-            covers = (f"resampling images (ROIs){' and seeds' if several else ''}. With {len(seeds)} "
-                      f"seed{'s' if several else ''} per variant the intervals cover the choice of images "
-                      f"{'and barely any' if several else 'only, not'} training noise, so no difference is "
-                      f"marked (that takes at least {MIN_SEEDS_FOR_MARKS} seeds, see the README).")
-        md += [f"Differences are `run − {stats['reference']}` (mean over images or ROIs) with a "
-               f"bootstrap {stats['confidence']:.0%} interval ({stats['bootstrap_samples']} resamples) {covers}", ""]
+            covers = (
+                f"resampling images (ROIs){' and seeds' if several else ''}. With {len(seeds)} "
+                f"seed{'s' if several else ''} per variant the intervals cover the choice of images "
+                f"{'and barely any' if several else 'only, not'} training noise, so no difference is "
+                f"marked (that takes at least {MIN_SEEDS_FOR_MARKS} seeds, see the README)."
+            )
+        md += [
+            f"Differences are `run − {stats['reference']}` (mean over images or ROIs) with a "
+            f"bootstrap {stats['confidence']:.0%} interval ({stats['bootstrap_samples']} resamples) {covers}",
+            "",
+        ]
     if dependence is not None:
         result["image_dependence"] = dependence
         rows = []
         for g in runs:
             for r in groups.get(g, [g]):
                 d = dependence[r]
-                verdict = ("image-blind: its predictions barely change between images" if d["image_blind"]
-                           else "follows the image")
-                rows.append([r, _fmt(d["variation_ratio"]), _fmt(d["prior_correlation"]),
-                             "image-blind by construction" if g in baselines else verdict])
-        md += ["## Does each run use the image?", "",
-               "Variation: how much the predicted depth changes from image to image, as a fraction of how "
-               "much the GT does (per pixel, std/mean across frames; 0 for a constant or the prior). "
-               "Correlation: of the run's per-image abs_rel with the per-pixel prior's. A network with "
-               f"variation below {IMAGE_BLIND_BELOW} has learned the average scene, not depth from the image: "
-               "its numbers say nothing about its loss.", "",
-               _table(["run", "variation", "corr. with prior", "verdict"], rows), ""]
+                verdict = (
+                    "image-blind: its predictions barely change between images"
+                    if d["image_blind"]
+                    else "follows the image"
+                )
+                rows.append(
+                    [
+                        r,
+                        _fmt(d["variation_ratio"]),
+                        _fmt(d["prior_correlation"]),
+                        "image-blind by construction" if g in baselines else verdict,
+                    ]
+                )
+        md += [
+            "## Does each run use the image?",
+            "",
+            "Variation: how much the predicted depth changes from image to image, as a fraction of how "
+            "much the GT does (per pixel, std/mean across frames; 0 for a constant or the prior). "
+            "Correlation: of the run's per-image abs_rel with the per-pixel prior's. A network with "
+            f"variation below {IMAGE_BLIND_BELOW} has learned the average scene, not depth from the image: "
+            "its numbers say nothing about its loss.",
+            "",
+            _table(["run", "variation", "corr. with prior", "verdict"], rows),
+            "",
+        ]
     if spread is not None:
         result["seed_spread"] = spread
 
     def spread_table(suite: str, cap: str) -> list[str]:
         if spread is None or not several:
             return []
-        rows = [[v, *[f"{d[m]['mean']:.4f} ± {d[m]['sd']:.4f}" for m in METRICS]]
-                for v, d in spread[suite][cap].items() if v in variants]
-        return [f"Seed-to-seed spread (mean ± sd over {len(seeds)} seeds of the per-run mean):", "",
-                _table(["variant", *METRICS], rows), ""]
+        rows = [
+            [v, *[f"{d[m]['mean']:.4f} ± {d[m]['sd']:.4f}" for m in METRICS]]
+            for v, d in spread[suite][cap].items()
+            if v in variants
+        ]
+        return [
+            f"Seed-to-seed spread (mean ± sd over {len(seeds)} seeds of the per-run mean):",
+            "",
+            _table(["variant", *METRICS], rows),
+            "",
+        ]
 
     def ci_table(suite: str, cap: str, unit: str) -> list[str]:
         if stats is None:
             return []
         block = stats[suite][cap]
         n = next(iter(next(iter(block.values())).values()))["n"] if block else 0
-        return [f"Difference to {stats['reference']} ({n} paired {unit}):", "",
-                _table(["run", *METRICS], _ci_rows(block, baselines)), ""]
+        return [
+            f"Difference to {stats['reference']} ({n} paired {unit}):",
+            "",
+            _table(["run", *METRICS], _ci_rows(block, baselines)),
+            "",
+        ]
 
     for cap in caps:
         result["full"][cap] = {r: suites["full"][r][cap] for r in runs}
@@ -295,38 +398,70 @@ def build_comparison(
                 rows.append([label(r), *cells])
             return rows
 
-        md += [f"## Full image, cap {cap[3:]} m", "", _table(["run", *METRICS], metric_rows(result["full"][cap])), ""]
+        md += [
+            f"## Full image, cap {cap[3:]} m",
+            "",
+            _table(["run", *METRICS], metric_rows(result["full"][cap])),
+            "",
+        ]
         md += ci_table("full", cap, "images")
         md += spread_table("full", cap)
         roi = {r: result["roi"][cap][r]["overall"] for r in runs}
-        md += [f"## ROI, cap {cap[3:]} m (mean over {roi[runs[0]]['count']} ROIs)", "", _table(["run", *METRICS], metric_rows(roi)), ""]
+        md += [
+            f"## ROI, cap {cap[3:]} m (mean over {roi[runs[0]]['count']} ROIs)",
+            "",
+            _table(["run", *METRICS], metric_rows(roi)),
+            "",
+        ]
         md += ci_table("roi", cap, "ROIs")
         md += spread_table("roi", cap)
         classes = sorted({c for r in runs for c in result["roi"][cap][r]["by_class"]})
-        rows = [[label(r), *[_fmt(result["roi"][cap][r]["by_class"].get(c, {}).get("abs_rel")) for c in classes]]
-                for r in runs]
+        rows = [
+            [label(r), *[_fmt(result["roi"][cap][r]["by_class"].get(c, {}).get("abs_rel")) for c in classes]]
+            for r in runs
+        ]
         md += [f"### ROI abs rel per class, cap {cap[3:]} m", "", _table(["run", *classes], rows), ""]
         if all(cap in suites["roi"][r].get("masks", {}) for r in runs):
             masks = {r: suites["roi"][r]["masks"] for r in runs}
             result.setdefault("roi_masks", {})[cap] = {r: m[cap] for r, m in masks.items()}
             classes = sorted({c for r in runs for c in masks[r][cap]["by_class"]})
-            rows = [[label(r), *[_fmt(masks[r][cap]["overall"][m]) for m in ("abs_rel", "rmse", "a1")],
-                     *[_fmt(masks[r][cap]["by_class"].get(c, {}).get("abs_rel")) for c in classes]] for r in runs]
+            rows = [
+                [
+                    label(r),
+                    *[_fmt(masks[r][cap]["overall"][m]) for m in ("abs_rel", "rmse", "a1")],
+                    *[_fmt(masks[r][cap]["by_class"].get(c, {}).get("abs_rel")) for c in classes],
+                ]
+                for r in runs
+            ]
             first = masks[runs[0]]
-            md += [f"### ROI, exact masks, cap {cap[3:]} m", "",
-                   f"Each box's own pixels of its class (the renderer's class map: a car without the road "
-                   f"behind it, a windshield without the bonnet); {first['rois']} ROIs, "
-                   f"{first['excluded_rois']} without valid GT on their pixels excluded.", "",
-                   _table(["run", "abs_rel", "rmse", "a1", *[f"{c} abs_rel" for c in classes]], rows), ""]
+            md += [
+                f"### ROI, exact masks, cap {cap[3:]} m",
+                "",
+                f"Each box's own pixels of its class (the renderer's class map: a car without the road "
+                f"behind it, a windshield without the bonnet); {first['rois']} ROIs, "
+                f"{first['excluded_rois']} without valid GT on their pixels excluded.",
+                "",
+                _table(["run", "abs_rel", "rmse", "a1", *[f"{c} abs_rel" for c in classes]], rows),
+                "",
+            ]
         grad = result["gradients"][cap]
         header = ["run", *[f"pred {g}" for g in GRADIENTS], *[f"|pred−GT| {g}" for g in GRADIENTS]]
         rows = []
         for r in runs:
             dense = grad[r]["dense_gt"]["overall"]
-            rows.append([r, *[_fmt(grad[r]["overall"][f"pred_{g}"]) for g in GRADIENTS],
-                         *[_fmt(dense.get(f"error_{g}")) for g in GRADIENTS]])
+            rows.append(
+                [
+                    r,
+                    *[_fmt(grad[r]["overall"][f"pred_{g}"]) for g in GRADIENTS],
+                    *[_fmt(dense.get(f"error_{g}")) for g in GRADIENTS],
+                ]
+            )
         gt_row = grad[runs[0]]["dense_gt"]["overall"]
         rows.append(["GT (dense ROIs)", *[_fmt(gt_row.get(f"gt_{g}")) for g in GRADIENTS], "", "", ""])
-        md += [f"## Gradient consistency on ROIs, cap {cap[3:]} m (mean |derivative| of depth, m/px)", "",
-               _table(header, rows), ""]
+        md += [
+            f"## Gradient consistency on ROIs, cap {cap[3:]} m (mean |derivative| of depth, m/px)",
+            "",
+            _table(header, rows),
+            "",
+        ]
     return result, "\n".join(md) + "\n"

@@ -251,14 +251,29 @@ def validate(p: Params) -> Params:
     _check(k.jobs >= 1, "data.kitti.jobs", f"must be >= 1, got {k.jobs}")
     _check(k.roi_min_size >= 1, "data.kitti.roi_min_size", f"must be >= 1, got {k.roi_min_size}")
     _check(0 <= k.roi_min_valid <= 1, "data.kitti.roi_min_valid", f"must be in [0, 1], got {k.roi_min_valid}")
-    _check(k.drives is None or not k.drive_count, "data.kitti.drive_count", "give either drives or drive_count, not both")
+    _check(
+        k.drives is None or not k.drive_count,
+        "data.kitti.drive_count",
+        "give either drives or drive_count, not both",
+    )
     scheme = urllib.parse.urlsplit(k.base_url).scheme.lower()
-    refused = (f"plain http is refused unless data.kitti.allow_http is true (a mirror you trust), "
-               f"got {k.base_url!r}" if scheme == "http" else f"must be an https URL, got {k.base_url!r}")
+    refused = (
+        f"plain http is refused unless data.kitti.allow_http is true (a mirror you trust), got {k.base_url!r}"
+        if scheme == "http"
+        else f"must be an https URL, got {k.base_url!r}"
+    )
     _check(scheme == "https" or (scheme == "http" and k.allow_http), "data.kitti.base_url", refused)
-    _check(s.gt_max_depth >= 0, "data.synthetic.gt_max_depth", f"must be >= 0 (0 = no limit), got {s.gt_max_depth}")
+    _check(
+        s.gt_max_depth >= 0,
+        "data.synthetic.gt_max_depth",
+        f"must be >= 0 (0 = no limit), got {s.gt_max_depth}",
+    )
     _check(p.model.width_multiplier > 0, "model.width_multiplier", "must be > 0")
-    _check(0 < p.model.init_disparity < 0.3, "model.init_disparity", "must be in (0, 0.3) (heads output 0.3*sigmoid)")
+    _check(
+        0 < p.model.init_disparity < 0.3,
+        "model.init_disparity",
+        "must be in (0, 0.3) (heads output 0.3*sigmoid)",
+    )
     t = p.train
     _check(t.epochs >= 1, "train.epochs", "must be >= 1")
     _check(t.batch_size >= 1, "train.batch_size", "must be >= 1")
@@ -270,7 +285,11 @@ def validate(p: Params) -> Params:
     _check(t.dist_timeout_s > 0, "train.dist_timeout_s", "must be > 0")
     _check(all(s >= 0 for s in t.seeds), "train.seeds", f"must be >= 0, got {list(t.seeds)}")
     _check(len(set(t.seeds)) == len(t.seeds), "train.seeds", f"must not repeat a seed, got {list(t.seeds)}")
-    _check(len(set(p.variants)) == len(p.variants), "variants", f"must not repeat a variant, got {list(p.variants)}")
+    _check(
+        len(set(p.variants)) == len(p.variants),
+        "variants",
+        f"must not repeat a variant, got {list(p.variants)}",
+    )
     _check(0 <= p.loss.alpha <= 1, "loss.alpha", "must be in [0, 1]")
     _check(p.loss.smoothness_weight >= 0, "loss.smoothness_weight", "must be >= 0")
     _check(p.loss.lr_weight >= 0, "loss.lr_weight", "must be >= 0")
@@ -279,9 +298,12 @@ def validate(p: Params) -> Params:
         _check(k >= 1 and k % 2 == 1, f"{sec}.kernel_size", f"must be a positive odd integer, got {k}")
     if p.ssim.padding == "valid":  # SSIM's valid windows must fit the coarsest scale (input / 8)
         smallest = min(d.height, d.width) // 8
-        _check(p.ssim.kernel_size <= smallest, "ssim.kernel_size",
-               f"{p.ssim.kernel_size} px windows do not fit the coarsest training scale "
-               f"({d.height // 8}x{d.width // 8} px) with valid padding")
+        _check(
+            p.ssim.kernel_size <= smallest,
+            "ssim.kernel_size",
+            f"{p.ssim.kernel_size} px windows do not fit the coarsest training scale "
+            f"({d.height // 8}x{d.width // 8} px) with valid padding",
+        )
     m = p.msssim
     _check(1 <= m.levels <= 5, "msssim.levels", f"must be in 1..5, got {m.levels}")
     _check(m.kernel_size <= min(d.height, d.width), "msssim.kernel_size", "must not exceed the input image")
@@ -298,8 +320,14 @@ def validate(p: Params) -> Params:
     _check(e.min_depth > 0, "eval.min_depth", "must be > 0")
     _check(0 < e.dense_gt_fraction <= 1, "eval.dense_gt_fraction", "must be in (0, 1]")
     c = p.compare
-    _check(c.reference in p.variants, "compare.reference", f"{c.reference!r} is not a variant; configured: {list(p.variants)}")
-    _check(c.bootstrap_samples >= 100, "compare.bootstrap_samples", f"must be >= 100, got {c.bootstrap_samples}")
+    _check(
+        c.reference in p.variants,
+        "compare.reference",
+        f"{c.reference!r} is not a variant; configured: {list(p.variants)}",
+    )
+    _check(
+        c.bootstrap_samples >= 100, "compare.bootstrap_samples", f"must be >= 100, got {c.bootstrap_samples}"
+    )
     _check(0 < c.confidence < 1, "compare.confidence", f"must be in (0, 1), got {c.confidence}")
     return p
 

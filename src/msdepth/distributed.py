@@ -131,4 +131,6 @@ def check_replicas(modules: list[nn.Module], ctx: Context) -> None:
     diff = (flat - reference).abs().max().reshape(1)
     dist.all_reduce(diff, op=dist.ReduceOp.MAX)
     if diff.item() != 0.0:
-        raise MsdepthError(f"rank {ctx.rank}: model replicas differ across ranks (max |diff| {diff.item():.3g})")
+        raise MsdepthError(
+            f"rank {ctx.rank}: model replicas differ across ranks (max |diff| {diff.item():.3g})"
+        )

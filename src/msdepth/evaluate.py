@@ -45,8 +45,13 @@ class Frame:
 def load_frames(index: pd.DataFrame) -> list[Frame]:
     """Read the GT disparity of every row of the evaluation index."""
     return [
-        Frame(row.frame, kitti.read_disparity(row.disp), float(row.focal), float(row.baseline),
-              kitti.read_class_map(row.class_map) if getattr(row, "class_map", "") else None)
+        Frame(
+            row.frame,
+            kitti.read_disparity(row.disp),
+            float(row.focal),
+            float(row.baseline),
+            kitti.read_class_map(row.class_map) if getattr(row, "class_map", "") else None,
+        )
         for row in index.itertuples()
     ]
 
@@ -62,7 +67,9 @@ def depth_maps(disparities: np.ndarray, frames: list[Frame]) -> dict[str, np.nda
     return out
 
 
-def _metrics_in(gt_depth: np.ndarray, pred: np.ndarray, mask: np.ndarray, cap: float, cfg: EvalConfig) -> dict | None:
+def _metrics_in(
+    gt_depth: np.ndarray, pred: np.ndarray, mask: np.ndarray, cap: float, cfg: EvalConfig
+) -> dict | None:
     if cfg.mask_gt_beyond_cap:
         mask = mask & (gt_depth <= cap)
     if not mask.any():
@@ -74,7 +81,9 @@ def _mean(rows: list[dict], keys: tuple[str, ...]) -> dict[str, float]:
     return {k: float(np.mean([r[k] for r in rows])) for k in keys}
 
 
-def evaluate_full(pred: dict[str, np.ndarray], frames: list[Frame], cfg: EvalConfig) -> tuple[dict, pd.DataFrame]:
+def evaluate_full(
+    pred: dict[str, np.ndarray], frames: list[Frame], cfg: EvalConfig
+) -> tuple[dict, pd.DataFrame]:
     """Suite 1: the 7 metrics per image over valid GT, then averaged, per cap."""
     rows = []
     summary: dict = {}
@@ -94,7 +103,9 @@ def evaluate_full(pred: dict[str, np.ndarray], frames: list[Frame], cfg: EvalCon
     return summary, pd.DataFrame(rows)
 
 
-def image_dependence(pred: dict[str, np.ndarray], frames: list[Frame], cap: float, min_frames: int = 3) -> dict:
+def image_dependence(
+    pred: dict[str, np.ndarray], frames: list[Frame], cap: float, min_frames: int = 3
+) -> dict:
     """How much the predictions change from image to image, against how much the GT does.
 
     Every frame's predicted and GT depth (capped at ``cap``; GT 0 = invalid) are resampled to
@@ -122,8 +133,12 @@ def image_dependence(pred: dict[str, np.ndarray], frames: list[Frame], cap: floa
     count = valid.sum(0)
     use = count >= min_frames
     if not use.any():
-        return {"pixels": 0, "pred_variation": float("nan"), "gt_variation": float("nan"),
-                "variation_ratio": float("nan")}
+        return {
+            "pixels": 0,
+            "pred_variation": float("nan"),
+            "gt_variation": float("nan"),
+            "variation_ratio": float("nan"),
+        }
 
     def cv(x: np.ndarray) -> np.ndarray:
         n = np.maximum(count, 1)
@@ -132,8 +147,12 @@ def image_dependence(pred: dict[str, np.ndarray], frames: list[Frame], cap: floa
         return (np.sqrt(var) / np.maximum(mean, 1e-9))[use]
 
     pred_cv, gt_cv = float(cv(pred_s).mean()), float(cv(gt_s).mean())
-    return {"pixels": int(use.sum()), "pred_variation": pred_cv, "gt_variation": gt_cv,
-            "variation_ratio": pred_cv / gt_cv if gt_cv > 0 else float("nan")}
+    return {
+        "pixels": int(use.sum()),
+        "pred_variation": pred_cv,
+        "gt_variation": gt_cv,
+        "variation_ratio": pred_cv / gt_cv if gt_cv > 0 else float("nan"),
+    }
 
 
 def _boxes_for(rois: pd.DataFrame, frames: list[Frame]):
@@ -145,7 +164,10 @@ def _boxes_for(rois: pd.DataFrame, frames: list[Frame]):
             raise DataError(f"ROI {i}: image {roi['image']!r} is not an evaluation frame")
         h, w = frame.gt_disp.shape
         if roi["x1"] > w or roi["y1"] > h:
-            raise DataError(f"ROI {i} ({roi['image']}): box {roi['x0']},{roi['y0']},{roi['x1']},{roi['y1']} exceeds {w}x{h}")
+            raise DataError(
+                f"ROI {i} ({roi['image']}): box {roi['x0']},{roi['y0']},{roi['x1']},{roi['y1']} "
+                f"exceeds {w}x{h}"
+            )
         yield i, roi, frame, (slice(roi["y0"], roi["y1"]), slice(roi["x0"], roi["x1"]))
 
 
@@ -157,7 +179,9 @@ def _summarise_by_class(rows: list[dict], keys: tuple[str, ...]) -> dict:
     return out
 
 
-def evaluate_roi(pred: dict[str, np.ndarray], frames: list[Frame], rois: pd.DataFrame, cfg: EvalConfig) -> tuple[dict, pd.DataFrame]:
+def evaluate_roi(
+    pred: dict[str, np.ndarray], frames: list[Frame], rois: pd.DataFrame, cfg: EvalConfig
+) -> tuple[dict, pd.DataFrame]:
     """Suite 2: the same metrics inside each ROI box; mean over ROIs, overall and per class.
 
     Where every frame has a class map (the synthetic set), ``summary["masks"]`` holds the same
@@ -205,7 +229,9 @@ def gradient_maps(depth: np.ndarray) -> dict[str, np.ndarray]:
     }
 
 
-def evaluate_gradients(pred: dict[str, np.ndarray], frames: list[Frame], rois: pd.DataFrame, cfg: EvalConfig) -> tuple[dict, pd.DataFrame]:
+def evaluate_gradients(
+    pred: dict[str, np.ndarray], frames: list[Frame], rois: pd.DataFrame, cfg: EvalConfig
+) -> tuple[dict, pd.DataFrame]:
     """Suite 3: mean absolute depth derivatives in each ROI (lower = smoother, more consistent).
 
     Derivatives are taken on the whole capped depth map and then cropped, so the box edge
@@ -229,7 +255,12 @@ def evaluate_gradients(pred: dict[str, np.ndarray], frames: list[Frame], rois: p
                 if frame.name not in gt_cache:
                     mask = frame.gt_disp > 0
                     gt_depth = np.where(mask, np.minimum(frame.gt_depth, cap), 0.0)
-                    inner = cv2.erode(mask.astype(np.uint8), kernel, borderType=cv2.BORDER_CONSTANT, borderValue=0) > 0
+                    inner = (
+                        cv2.erode(
+                            mask.astype(np.uint8), kernel, borderType=cv2.BORDER_CONSTANT, borderValue=0
+                        )
+                        > 0
+                    )
                     gt_cache[frame.name] = (gradient_maps(gt_depth), inner)
                 gg, inner = gt_cache[frame.name]
                 sel = inner[box]
@@ -243,7 +274,9 @@ def evaluate_gradients(pred: dict[str, np.ndarray], frames: list[Frame], rois: p
         block = _summarise_by_class(per_cap, keys)
         dense = [r for r in per_cap if "gt_sobel_x" in r]
         gt_keys = tuple(f"{p}_{g}" for p in ("gt", "pred_on_gt", "error") for g in GRADIENTS)
-        block["dense_gt"] = _summarise_by_class(dense, gt_keys) if dense else {"overall": {"count": 0}, "by_class": {}}
+        block["dense_gt"] = (
+            _summarise_by_class(dense, gt_keys) if dense else {"overall": {"count": 0}, "by_class": {}}
+        )
         summary[f"cap{cap:g}"] = block
         rows += per_cap
     summary["rois"] = len(rois)

@@ -102,7 +102,8 @@ class _Inputs:
             for v in self.variants:
                 if self.depth[v][name].shape != frame.gt_disp.shape:
                     raise DataError(
-                        f"{rows['disp'].iloc[0]}: GT of frame {name} is {frame.gt_disp.shape} but the depth map of "
+                        f"{rows['disp'].iloc[0]}: GT of frame {name} is {frame.gt_disp.shape} "
+                        "but the depth map of "
                         f"{v!r} is {self.depth[v][name].shape} (index paths are relative to the project root)"
                     )
             self._frames[name] = frame
@@ -116,8 +117,9 @@ def _runs(variants: Sequence[str] | Mapping[str, str]) -> dict[str, str]:
     return dict(variants) if isinstance(variants, Mapping) else {v: v for v in variants}
 
 
-def _load(variants: Sequence[str] | Mapping[str, str], eval_index: Path, rois: Path, outputs: Path,
-          cfg: EvalConfig) -> _Inputs:
+def _load(
+    variants: Sequence[str] | Mapping[str, str], eval_index: Path, rois: Path, outputs: Path, cfg: EvalConfig
+) -> _Inputs:
     runs = _runs(variants)
     if not runs:
         raise ValueError("make_figures needs at least one variant")
@@ -130,7 +132,9 @@ def _load(variants: Sequence[str] | Mapping[str, str], eval_index: Path, rois: P
             raise DataError(f"{path}: no disparities for run {run!r} (run the infer stage)")
         disp = np.load(path)
         if disp.ndim != 3 or len(disp) != len(index):
-            raise DataError(f"{path}: expected ({len(index)}, h, w) disparities for {eval_index}, got {disp.shape}")
+            raise DataError(
+                f"{path}: expected ({len(index)}, h, w) disparities for {eval_index}, got {disp.shape}"
+            )
         disparities[v] = disp
         npz = Path(outputs) / run / "depth.npz"
         depth[v] = read_depth_maps(npz)
@@ -253,13 +257,22 @@ def _roi_examples(inp: _Inputs) -> list[RoiExample]:
         inner = cv2.erode(valid.astype(np.uint8), kernel, borderType=cv2.BORDER_CONSTANT, borderValue=0) > 0
         gt_grad = np.where(inner, gradient_maps(gt_capped)["sobel_x"], np.nan)[box]
         sel = inner[box]
-        out.append(RoiExample(
-            roi=i, image=frame.name, cls=roi["class"], box=(roi["x0"], roi["y0"], roi["x1"], roi["y1"]),
-            gt_valid_fraction=float(valid[box].mean()), abs_rel=abs_rel, pred_sobel_x=pred_sx,
-            gt_sobel_x=float(gt_grad[sel].mean()) if sel.any() else float("nan"),
-            gt_depth=np.where(valid[box], frame.gt_depth[box], np.nan), pred_depth=pred_depth,
-            gt_grad=gt_grad, pred_grad=pred_grad,
-        ))
+        out.append(
+            RoiExample(
+                roi=i,
+                image=frame.name,
+                cls=roi["class"],
+                box=(roi["x0"], roi["y0"], roi["x1"], roi["y1"]),
+                gt_valid_fraction=float(valid[box].mean()),
+                abs_rel=abs_rel,
+                pred_sobel_x=pred_sx,
+                gt_sobel_x=float(gt_grad[sel].mean()) if sel.any() else float("nan"),
+                gt_depth=np.where(valid[box], frame.gt_depth[box], np.nan),
+                pred_depth=pred_depth,
+                gt_grad=gt_grad,
+                pred_grad=pred_grad,
+            )
+        )
     return out
 
 
@@ -287,8 +300,12 @@ def _roi_grid(inp: _Inputs, examples: list[RoiExample], first_col_ratio: float):
         roi_aspect = min(max((y1 - y0) / (x1 - x0), 0.3), 1.3)
         heights.append(unit * max(first_col_ratio * img_h / img_w, roi_aspect) + 0.55)  # + two title lines
     fig = _new_figure(unit * (first_col_ratio + cols - 1) + 1.0, sum(heights) + 0.4)
-    axes = fig.subplots(len(examples), cols, squeeze=False,
-                        gridspec_kw={"width_ratios": [first_col_ratio] + [1.0] * (cols - 1), "height_ratios": heights})
+    axes = fig.subplots(
+        len(examples),
+        cols,
+        squeeze=False,
+        gridspec_kw={"width_ratios": [first_col_ratio] + [1.0] * (cols - 1), "height_ratios": heights},
+    )
     return fig, axes
 
 
@@ -305,12 +322,18 @@ def _roi_depth_figure(inp: _Inputs, examples: list[RoiExample], path: Path) -> P
         ax = axes[r, 0]
         ax.imshow(inp.left_image(ex.image))
         x0, y0, x1, y1 = ex.box
-        ax.add_patch(Rectangle((x0 - 0.5, y0 - 0.5), x1 - x0, y1 - y0, fill=False, edgecolor="cyan", linewidth=1.5))
+        ax.add_patch(
+            Rectangle((x0 - 0.5, y0 - 0.5), x1 - x0, y1 - y0, fill=False, edgecolor="cyan", linewidth=1.5)
+        )
         ax.set_title(_roi_title(ex), fontsize=8)
         _off(ax)
-        values = np.concatenate([ex.gt_depth[np.isfinite(ex.gt_depth)]] + [d.ravel() for d in ex.pred_depth.values()])
+        values = np.concatenate(
+            [ex.gt_depth[np.isfinite(ex.gt_depth)]] + [d.ravel() for d in ex.pred_depth.values()]
+        )
         lo, hi = float(values.min()), float(values.max())
-        im = axes[r, 1].imshow(np.ma.masked_invalid(ex.gt_depth), cmap=cmap, vmin=lo, vmax=hi, interpolation="nearest")
+        im = axes[r, 1].imshow(
+            np.ma.masked_invalid(ex.gt_depth), cmap=cmap, vmin=lo, vmax=hi, interpolation="nearest"
+        )
         axes[r, 1].set_title("GT depth\n(grey: no GT)", fontsize=8)
         _off(axes[r, 1])
         for c, v in enumerate(inp.variants, start=2):
@@ -320,7 +343,9 @@ def _roi_depth_figure(inp: _Inputs, examples: list[RoiExample], path: Path) -> P
         cb = fig.colorbar(im, ax=list(axes[r, 1:]), fraction=0.05, pad=0.01)
         cb.set_label("depth (m)", fontsize=8)
         cb.ax.tick_params(labelsize=7)
-    fig.suptitle(f"Depth in example ROIs (predictions clamped to [{inp.cfg.min_depth:g}, {cap:g}] m)", fontsize=11)
+    fig.suptitle(
+        f"Depth in example ROIs (predictions clamped to [{inp.cfg.min_depth:g}, {cap:g}] m)", fontsize=11
+    )
     return _save(fig, path)
 
 
@@ -333,25 +358,32 @@ def _roi_gradient_figure(inp: _Inputs, examples: list[RoiExample], path: Path) -
         ax.imshow(inp.left_image(ex.image)[y0:y1, x0:x1], interpolation="nearest")
         ax.set_title(f"{ex.cls}: {ex.image}\nROI {ex.roi}", fontsize=8)
         _off(ax)
-        values = np.concatenate([ex.gt_grad[np.isfinite(ex.gt_grad)]] + [g.ravel() for g in ex.pred_grad.values()])
+        values = np.concatenate(
+            [ex.gt_grad[np.isfinite(ex.gt_grad)]] + [g.ravel() for g in ex.pred_grad.values()]
+        )
         # Depth edges give derivatives orders of magnitude above smooth surfaces: a log scale
         # shows both (values below its floor, including exact zeros, take the floor's colour).
         hi = max(float(values.max()), 1e-3)
         norm = LogNorm(vmin=hi * 1e-3, vmax=hi)
         floor = norm.vmin
-        im = axes[r, 1].imshow(np.ma.masked_invalid(np.maximum(ex.gt_grad, floor)), cmap=cmap, norm=norm,
-                               interpolation="nearest")
+        im = axes[r, 1].imshow(
+            np.ma.masked_invalid(np.maximum(ex.gt_grad, floor)), cmap=cmap, norm=norm, interpolation="nearest"
+        )
         gt_mean = "n/a" if np.isnan(ex.gt_sobel_x) else f"{ex.gt_sobel_x:.3g}"
         axes[r, 1].set_title(f"GT |Sobel x|\nmean {gt_mean} (valid px)", fontsize=8)
         _off(axes[r, 1])
         for c, v in enumerate(inp.variants, start=2):
-            axes[r, c].imshow(np.maximum(ex.pred_grad[v], floor), cmap=cmap, norm=norm, interpolation="nearest")
+            axes[r, c].imshow(
+                np.maximum(ex.pred_grad[v], floor), cmap=cmap, norm=norm, interpolation="nearest"
+            )
             axes[r, c].set_title(f"{v} |Sobel x|\nmean {ex.pred_sobel_x[v]:.3g}", fontsize=8)
             _off(axes[r, c])
         cb = fig.colorbar(im, ax=list(axes[r, 1:]), fraction=0.05, pad=0.01, extend="min")
         cb.set_label("m/px (log)", fontsize=8)
         cb.ax.tick_params(labelsize=7)
-    fig.suptitle(f"Horizontal depth derivative in example ROIs (depth capped at {inp.cfg.caps[0]:g} m)", fontsize=11)
+    fig.suptitle(
+        f"Horizontal depth derivative in example ROIs (depth capped at {inp.cfg.caps[0]:g} m)", fontsize=11
+    )
     return _save(fig, path)
 
 
@@ -367,7 +399,9 @@ def _read_curve(path: Path, name: str) -> pd.DataFrame:
     except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
         raise DataError(f"{path}: not a readable dvclive TSV: {exc}") from None
     if not {"step", name} <= set(df.columns) or df.empty:
-        raise DataError(f"{path}: expected columns 'step' and {name!r} with at least one row, got {list(df.columns)}")
+        raise DataError(
+            f"{path}: expected columns 'step' and {name!r} with at least one row, got {list(df.columns)}"
+        )
     return df
 
 
@@ -377,8 +411,12 @@ def _curve_path(train_plots: Path, run: str, term: str) -> Path:
 
 def _training_figure(runs: dict[str, list[str]], train_plots: Path, path: Path) -> Path:
     """Per variant, one line per run (seed): the first solid and labelled, the others thinner."""
-    curves = {(run, term): _read_curve(_curve_path(train_plots, run, term), term)
-              for group in runs.values() for run in group for term in LOSS_TERMS}
+    curves = {
+        (run, term): _read_curve(_curve_path(train_plots, run, term), term)
+        for group in runs.values()
+        for run in group
+        for term in LOSS_TERMS
+    }
     fig = _new_figure(4.2 * len(LOSS_TERMS), 3.4)
     axes = fig.subplots(1, len(LOSS_TERMS), squeeze=False)[0]
     for ax, term in zip(axes, LOSS_TERMS):
@@ -387,8 +425,16 @@ def _training_figure(runs: dict[str, list[str]], train_plots: Path, path: Path) 
                 df = curves[run, term]
                 # dvclive steps once per epoch, from 0: step k holds the mean loss of epoch k + 1.
                 label = (v if len(group) == 1 else f"{v} ({len(group)} seeds)") if i == 0 else None
-                ax.plot(df["step"] + 1, df[term], color=f"C{colour}", marker="o" if i == 0 else None,
-                        markersize=3, linewidth=1.5 if i == 0 else 0.9, alpha=1.0 if i == 0 else 0.6, label=label)
+                ax.plot(
+                    df["step"] + 1,
+                    df[term],
+                    color=f"C{colour}",
+                    marker="o" if i == 0 else None,
+                    markersize=3,
+                    linewidth=1.5 if i == 0 else 0.9,
+                    alpha=1.0 if i == 0 else 0.6,
+                    label=label,
+                )
         ax.set_title(f"{term} loss", fontsize=10)
         ax.set_xlabel("epoch")
         ax.xaxis.set_major_locator(MaxNLocator(integer=True))

@@ -14,7 +14,9 @@ from .data.pairs import resize, to_tensor
 from .model import MonodepthVGG
 
 
-def post_process_disparity(disp: torch.Tensor | np.ndarray, disp_of_flipped: torch.Tensor | np.ndarray) -> np.ndarray:
+def post_process_disparity(
+    disp: torch.Tensor | np.ndarray, disp_of_flipped: torch.Tensor | np.ndarray
+) -> np.ndarray:
     """Blend the disparity of an image with that of its mirror image (Monodepth).
 
     ``disp`` is the left disparity of the image, ``disp_of_flipped`` the left disparity the
@@ -26,8 +28,8 @@ def post_process_disparity(disp: torch.Tensor | np.ndarray, disp_of_flipped: tor
     d = np.asarray(disp, dtype=np.float32)
     d_f = np.flip(np.asarray(disp_of_flipped, dtype=np.float32), axis=-1)
     w = d.shape[-1]
-    l = np.linspace(0, 1, w, dtype=np.float32)
-    l_mask = 1.0 - np.clip(20 * (l - 0.05), 0, 1)
+    ramp = np.linspace(0, 1, w, dtype=np.float32)
+    l_mask = 1.0 - np.clip(20 * (ramp - 0.05), 0, 1)
     r_mask = l_mask[::-1]
     mean = 0.5 * (d + d_f)
     return (r_mask * d + l_mask * d_f + (1.0 - l_mask - r_mask) * mean).astype(np.float32)

@@ -273,7 +273,12 @@ def _unplane(planes: Tensor | None, like: Tensor) -> Tensor | None:
 
 
 def _ssim_terms(
-    x: Tensor, y: Tensor, kernel_size: int, window: Window, sigma: float, padding: Literal["valid", "same"],
+    x: Tensor,
+    y: Tensor,
+    kernel_size: int,
+    window: Window,
+    sigma: float,
+    padding: Literal["valid", "same"],
     luminance: bool,
 ) -> Tensor | tuple[Tensor, Tensor]:
     """:class:`_SSIMTerms` for a ``"valid"`` or ``"same"`` window: ``cs``, or ``(cs, ssim)``."""
@@ -421,7 +426,8 @@ def ms_ssim_pyramid(
         _check_pair("ms_ssim", x, y)
         if x.shape[:2] != xs[0].shape[:2]:
             raise ValueError(
-                f"ms_ssim: every pair needs the same (B, C), got {tuple(xs[0].shape[:2])} and {tuple(x.shape[:2])}"
+                f"ms_ssim: every pair needs the same (B, C), got {tuple(xs[0].shape[:2])} "
+                f"and {tuple(x.shape[:2])}"
             )
     _check_kernel("ms_ssim", kernel_size)
     if levels < 1:
@@ -670,7 +676,9 @@ class MonodepthLoss(nn.Module):
         cfg = self.loss_cfg
         # Built per call (cheap) rather than stored, so copies of this module never keep a
         # closure over another copy's level weights.
-        similarity = make_pyramid_similarity(self.appearance, self.ssim_cfg, self.msssim_cfg, self.level_weights)
+        similarity = make_pyramid_similarity(
+            self.appearance, self.ssim_cfg, self.msssim_cfg, self.level_weights
+        )
         # Both views in one batch (left then right): half the warp, pooling and similarity calls,
         # whose cost at the small scales is mostly per-call overhead.
         batch = left.shape[0]

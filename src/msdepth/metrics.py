@@ -18,7 +18,9 @@ def compute_errors(gt: np.ndarray, pred: np.ndarray) -> dict[str, float]:
     """
     gt, pred = np.asarray(gt), np.asarray(pred)
     if gt.shape != pred.shape or gt.ndim != 1:
-        raise ValueError(f"compute_errors expects two 1-D arrays of equal length, got {gt.shape} and {pred.shape}")
+        raise ValueError(
+            f"compute_errors expects two 1-D arrays of equal length, got {gt.shape} and {pred.shape}"
+        )
     if gt.size == 0:
         raise ValueError("compute_errors got no valid pixels")
     thresh = np.maximum((gt / pred), (pred / gt))

@@ -65,7 +65,10 @@ class MonodepthVGG(nn.Module):
     """
 
     def __init__(
-        self, width_multiplier: float = 1.0, init_disparity: float | None = None, norm: Norm = "none",
+        self,
+        width_multiplier: float = 1.0,
+        init_disparity: float | None = None,
+        norm: Norm = "none",
         heads: Heads = "independent",
     ) -> None:
         super().__init__()
@@ -79,7 +82,9 @@ class MonodepthVGG(nn.Module):
         self.encoder = nn.ModuleList()
         in_ch = 3
         for kernel, ch in enc:
-            self.encoder.append(nn.Sequential(_conv(in_ch, ch, kernel, 2, norm), _conv(ch, ch, kernel, 1, norm)))
+            self.encoder.append(
+                nn.Sequential(_conv(in_ch, ch, kernel, 2, norm), _conv(ch, ch, kernel, 1, norm))
+            )
             in_ch = ch
         skips = [ch for _, ch in enc[:-1]][::-1]  # conv6b .. conv1b
         self.upconvs = nn.ModuleList()

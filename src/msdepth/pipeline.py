@@ -21,9 +21,9 @@ from . import baselines as baselines_mod
 from .compare import (
     build_comparison,
     group_metrics,
+    image_dependence,
     load_suite_metrics,
     load_unit_tables,
-    image_dependence,
     paired_statistics,
     seed_spread,
 )
@@ -95,8 +95,12 @@ def prepare_data(params: Params, *options: str) -> None:
     names = download.parse_archive_list(k.archive_list)
     subset = list(k.drives) if k.drives is not None else (k.drive_count or None)
     common = dict(jobs=k.jobs, dry_run="--dry-run" in options, jpeg=k.jpeg, allow_http=k.allow_http)
-    raw = download.fetch_all(k.base_url, download.select_archives(names, subset), k.download_dir, lay.raw_root, **common)
-    scene = download.fetch_all(k.base_url, [k.scene_flow_archive], k.download_dir, lay.kitti2015_root, **common)
+    raw = download.fetch_all(
+        k.base_url, download.select_archives(names, subset), k.download_dir, lay.raw_root, **common
+    )
+    scene = download.fetch_all(
+        k.base_url, [k.scene_flow_archive], k.download_dir, lay.kitti2015_root, **common
+    )
     log.info("kitti: raw archives %s; KITTI 2015 %s", _summary(raw), _summary(scene))
 
 
@@ -109,7 +113,9 @@ def index(params: Params) -> None:
     report = build_indexes(params, INDEX_DIR)
     log.info(
         "index: %d/%d training pairs found, %d evaluation frames",
-        report["train_pairs_found"], report["train_pairs_listed"], report["eval_frames"],
+        report["train_pairs_found"],
+        report["train_pairs_listed"],
+        report["eval_frames"],
     )
 
 
@@ -129,10 +135,17 @@ def rois(params: Params) -> None:
             raise DataError(f"{source}: boxes name images that are not evaluation frames: {unknown[:10]}")
     else:  # extract_rois checks the user's boxes against the frames itself
         k = params.data.kitti
-        boxes = extract_rois(frames, user_csv=Path(k.rois_csv) if k.rois_csv else None,
-                             min_size=k.roi_min_size, min_valid=k.roi_min_valid)
+        boxes = extract_rois(
+            frames,
+            user_csv=Path(k.rois_csv) if k.rois_csv else None,
+            min_size=k.roi_min_size,
+            min_valid=k.roi_min_valid,
+        )
         if boxes.empty:
-            raise DataError("rois: no car in any obj_map passed data.kitti.roi_min_size/roi_min_valid, and no data.kitti.rois_csv")
+            raise DataError(
+                "rois: no car in any obj_map passed data.kitti.roi_min_size/roi_min_valid, "
+                "and no data.kitti.rois_csv"
+            )
     kitti.write_rois(INDEX_DIR / "rois.csv", boxes)
     contact_sheet(boxes, frames, INDEX_DIR / "rois.png")
     log.info("rois: %d boxes, %s", len(boxes), boxes["class"].value_counts().to_dict())
@@ -143,16 +156,27 @@ def cache(params: Params) -> None:
     pairs = load_pair_list(INDEX_DIR / "train_pairs.txt")
     report = build_pair_cache(pairs, params.data.height, params.data.width, PAIR_CACHE)
     kitti.write_split(CACHED_PAIRS, [(str(a), str(b)) for a, b in report.pairs])
-    write_json(CACHE_REPORT, {
-        "pairs_indexed": len(pairs),
-        "pairs_cached": len(report.pairs),
-        "pairs_unreadable": len(report.unreadable),
-        "unreadable": [{"left": str(a), "right": str(b), "error": e} for a, b, e in report.unreadable],
-    })
+    write_json(
+        CACHE_REPORT,
+        {
+            "pairs_indexed": len(pairs),
+            "pairs_cached": len(report.pairs),
+            "pairs_unreadable": len(report.unreadable),
+            "unreadable": [{"left": str(a), "right": str(b), "error": e} for a, b, e in report.unreadable],
+        },
+    )
     for left, right, error in report.unreadable[:20]:
         log.warning("cache: left out %s %s: %s", left, right, error)
-    log.info("cache: %d of %d pairs at %dx%d in %s (%d unreadable, listed in %s)", len(report.pairs), len(pairs),
-             params.data.height, params.data.width, PAIR_CACHE, len(report.unreadable), CACHE_REPORT)
+    log.info(
+        "cache: %d of %d pairs at %dx%d in %s (%d unreadable, listed in %s)",
+        len(report.pairs),
+        len(pairs),
+        params.data.height,
+        params.data.width,
+        PAIR_CACHE,
+        len(report.unreadable),
+        CACHE_REPORT,
+    )
 
 
 def train(params: Params, variant: str, seed: str) -> None:
@@ -165,22 +189,45 @@ def train(params: Params, variant: str, seed: str) -> None:
         # Re-run this stage under torchrun; its ranks come back here with LOCAL_RANK set.
         import subprocess
 
-        cmd = [sys.executable, "-m", "torch.distributed.run", "--standalone", f"--nproc_per_node={t.nproc}",
-               "stages/train.py", variant, seed]
+        cmd = [
+            sys.executable,
+            "-m",
+            "torch.distributed.run",
+            "--standalone",
+            f"--nproc_per_node={t.nproc}",
+            "stages/train.py",
+            variant,
+            seed,
+        ]
         log.info("train %s: %s", run, " ".join(cmd))
         if subprocess.run(cmd).returncode != 0:
-            raise MsdepthError(f"train {run}: torchrun with {t.nproc} processes failed (see the ranks' errors above)")
+            raise MsdepthError(
+                f"train {run}: torchrun with {t.nproc} processes failed (see the ranks' errors above)"
+            )
         return
     pairs = load_pair_list(CACHED_PAIRS)  # the pairs the cache holds, in its order
     images = load_pair_cache(PAIR_CACHE, len(pairs), params.data.height, params.data.width)
     result = train_variant(
-        params, variant, pairs, model_path(run), checkpoint_path(run),
-        live_dir=Path("plots") / "train" / run, cache=images, seed=params.seed(seed),
+        params,
+        variant,
+        pairs,
+        model_path(run),
+        checkpoint_path(run),
+        live_dir=Path("plots") / "train" / run,
+        cache=images,
+        seed=params.seed(seed),
         summary_path=Path("metrics") / "train" / f"{run}.json",
     )
     resumed = f", resumed from epoch {result.resumed_from_epoch}" if result.resumed_from_epoch else ""
-    log.info("train %s: %d steps%s; %.0f s of training, %.0f s in this run (%.1f examples/s)",
-             run, result.steps, resumed, result.seconds, result.seconds_this_run, result.examples_per_second)
+    log.info(
+        "train %s: %d steps%s; %.0f s of training, %.0f s in this run (%.1f examples/s)",
+        run,
+        result.steps,
+        resumed,
+        result.seconds,
+        result.seconds_this_run,
+        result.examples_per_second,
+    )
 
 
 def infer(params: Params, variant: str, seed: str) -> None:
@@ -192,7 +239,9 @@ def infer(params: Params, variant: str, seed: str) -> None:
     torch_threads(params)
     model, meta = load_model(model_path(run))
     frames = read_eval_index(INDEX_DIR / "eval_frames.csv")
-    disp = predict_disparities(model, [Path(p) for p in frames["left"]], meta["height"], meta["width"], params.eval.post_process)
+    disp = predict_disparities(
+        model, [Path(p) for p in frames["left"]], meta["height"], meta["width"], params.eval.post_process
+    )
     save_npy(run_dir(run) / "disparities.npy", disp)
 
 
@@ -220,7 +269,9 @@ def _write_suite(suite: str, run: str, summary: dict, table) -> None:
 
 def _run_suite(params: Params, suite: str, run: str, pred: dict, frames, boxes) -> None:
     fn = SUITES[suite]
-    summary, table = fn(pred, frames, params.eval) if suite == "full" else fn(pred, frames, boxes, params.eval)
+    summary, table = (
+        fn(pred, frames, params.eval) if suite == "full" else fn(pred, frames, boxes, params.eval)
+    )
     _write_suite(suite, run, summary, table)
 
 
@@ -255,8 +306,16 @@ def compare(params: Params) -> None:
     stats = paired_statistics(tables, groups, params.compare, params.eval.caps)
     caps = [f"cap{c:g}" for c in params.eval.caps]
     dependence = image_dependence(suites, tables, groups, "prior", params.eval.caps[0])
-    result, md = build_comparison(group_metrics(suites, groups), list(params.variants), BASELINES, stats,
-                                  seed_spread(suites, groups, caps), params.train.seeds, dependence, groups)
+    result, md = build_comparison(
+        group_metrics(suites, groups),
+        list(params.variants),
+        BASELINES,
+        stats,
+        seed_spread(suites, groups, caps),
+        params.train.seeds,
+        dependence,
+        groups,
+    )
     write_json(Path("metrics") / "compare.json", result)
     write_text(Path("metrics") / "compare.md", md)
 
@@ -268,8 +327,12 @@ def figures(params: Params) -> None:
     # The first seed's run of each variant: the figures show predictions, not an average of
     # them; the training curves show every seed's.
     groups = variant_runs(params)
-    paths = make_figures({v: runs[0] for v, runs in groups.items()}, Path("plots") / "figures",
-                         eval_cfg=params.eval, curves=groups)
+    paths = make_figures(
+        {v: runs[0] for v, runs in groups.items()},
+        Path("plots") / "figures",
+        eval_cfg=params.eval,
+        curves=groups,
+    )
     log.info("figures: %s", ", ".join(p.name for p in paths))
 
 
@@ -288,5 +351,10 @@ def run_stage(fn: Callable[..., None], *args: str, params_path: str | os.PathLik
     except MsdepthError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1
-    log.info("%s%s done in %.1f s", fn.__name__, f" {' '.join(args)}" if args else "", time.perf_counter() - started)
+    log.info(
+        "%s%s done in %.1f s",
+        fn.__name__,
+        f" {' '.join(args)}" if args else "",
+        time.perf_counter() - started,
+    )
     return 0

@@ -82,7 +82,9 @@ class PredictOptions:
         }
         bad = [name for name, ok in checks.items() if not ok]
         if bad:
-            raise MsdepthError(f"invalid prediction option(s): {', '.join(f'{n}={getattr(self, n)!r}' for n in bad)}")
+            raise MsdepthError(
+                f"invalid prediction option(s): {', '.join(f'{n}={getattr(self, n)!r}' for n in bad)}"
+            )
         if self.disp_format == "none" and self.depth_format == "none" and self.ply == "none":
             raise MsdepthError("nothing to write: disparity, depth and point-cloud outputs are all 'none'")
 
@@ -290,7 +292,9 @@ def _video_frames(path: Path) -> tuple[Iterator[_Frame], int]:
         finally:
             capture.release()
         if index == 0:
-            yield _Frame(path, str(path), Path(path.stem), None, f"{path}: no frame could be decoded from this video")
+            yield _Frame(
+                path, str(path), Path(path.stem), None, f"{path}: no frame could be decoded from this video"
+            )
 
     return frames(), total
 

@@ -48,14 +48,19 @@ def load_weights_file(
     try:
         state = torch.load(path, map_location=map_location, weights_only=True)
     except pickle.UnpicklingError as exc:
-        raise MsdepthError(f"{path}: refused to load: {_why_refused(path, exc)}, which a {what} file "
-                           f"written by msdepth never does; {remedy}") from None
+        raise MsdepthError(
+            f"{path}: refused to load: {_why_refused(path, exc)}, which a {what} file "
+            f"written by msdepth never does; {remedy}"
+        ) from None
     except Exception as exc:  # noqa: BLE001 - a damaged zip fails in many ways, all with long messages
-        raise MsdepthError(f"{path}: cannot read the {what} file, it is corrupt ({_first_line(exc)}); "
-                           f"{remedy}") from None
+        raise MsdepthError(
+            f"{path}: cannot read the {what} file, it is corrupt ({_first_line(exc)}); {remedy}"
+        ) from None
     if not isinstance(state, dict):
-        raise MsdepthError(f"{path}: not a {what} file written by msdepth (it holds a "
-                           f"{type(state).__name__}, not a dict); {remedy}")
+        raise MsdepthError(
+            f"{path}: not a {what} file written by msdepth (it holds a "
+            f"{type(state).__name__}, not a dict); {remedy}"
+        )
     return state
 
 

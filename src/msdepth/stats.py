@@ -46,8 +46,16 @@ def seed_bootstrap(
     paired bootstrap over units, draw for draw (:func:`paired_bootstrap`).
     """
     values, reference = np.asarray(values, np.float64), np.asarray(reference, np.float64)
-    if values.ndim != 2 or reference.ndim != 2 or values.shape[1] != reference.shape[1] or 0 in values.shape + reference.shape:
-        raise ValueError(f"seed_bootstrap: need two (seeds, units) arrays over the same units, got {values.shape} and {reference.shape}")
+    if (
+        values.ndim != 2
+        or reference.ndim != 2
+        or values.shape[1] != reference.shape[1]
+        or 0 in values.shape + reference.shape
+    ):
+        raise ValueError(
+            "seed_bootstrap: need two (seeds, units) arrays over the same units, "
+            f"got {values.shape} and {reference.shape}"
+        )
     if not 0 < confidence < 1:
         raise ValueError(f"seed_bootstrap: confidence must be in (0, 1), got {confidence}")
     (sv, n), sr = values.shape, reference.shape[0]
@@ -55,7 +63,9 @@ def seed_bootstrap(
 
     def runs_mean(rows: np.ndarray, count: int) -> np.ndarray:
         # One run: no draw at all, so that the stream matches the one-level bootstrap.
-        return rows[0] if len(rows) == 1 else rows[rng.integers(0, len(rows), (count, len(rows)))].mean(axis=1)
+        return (
+            rows[0] if len(rows) == 1 else rows[rng.integers(0, len(rows), (count, len(rows)))].mean(axis=1)
+        )
 
     means = np.empty(samples)
     # In chunks: samples x n indices at once would be 10,000 x 29,000 for a KITTI-sized ROI set.
@@ -63,7 +73,9 @@ def seed_bootstrap(
     for start in range(0, samples, chunk):
         stop = min(samples, start + chunk)
         units = rng.integers(0, n, (stop - start, n))
-        diff = runs_mean(values, stop - start) - runs_mean(reference, stop - start)  # (units,) or (draws, units)
+        diff = runs_mean(values, stop - start) - runs_mean(
+            reference, stop - start
+        )  # (units,) or (draws, units)
         picked = diff[units] if diff.ndim == 1 else np.take_along_axis(diff, units, axis=1)
         means[start:stop] = picked.mean(axis=1)
     alpha = (1 - confidence) / 2
@@ -78,11 +90,15 @@ def paired_bootstrap(
     """Percentile-bootstrap interval of ``mean(values - reference)``, resampling the pairs (one run each)."""
     values, reference = np.asarray(values, np.float64), np.asarray(reference, np.float64)
     if values.shape != reference.shape or values.ndim != 1 or values.size == 0:
-        raise ValueError(f"paired_bootstrap: need two equal-length 1-D arrays, got {values.shape} and {reference.shape}")
+        raise ValueError(
+            f"paired_bootstrap: need two equal-length 1-D arrays, got {values.shape} and {reference.shape}"
+        )
     return seed_bootstrap(values[None], reference[None], samples, confidence, seed)
 
 
-def paired_table(run: pd.DataFrame, reference: pd.DataFrame, keys: list[str], metric: str, what: str) -> tuple[np.ndarray, np.ndarray]:
+def paired_table(
+    run: pd.DataFrame, reference: pd.DataFrame, keys: list[str], metric: str, what: str
+) -> tuple[np.ndarray, np.ndarray]:
     """The ``metric`` column of two per-unit tables, aligned on ``keys`` (which must match one to one)."""
     a = run.set_index(keys)[metric]
     b = reference.set_index(keys)[metric]

@@ -23,12 +23,12 @@ from torch.nn.parallel import DistributedDataParallel
 from torch.utils.data import DataLoader
 from tqdm import tqdm
 
+from . import distributed
 from .config import Params
 from .data.pairs import StereoPairs
+from .distributed import Context, GlobalBatchSampler
 from .errors import MsdepthError
 from .io import atomic_path, write_json
-from . import distributed
-from .distributed import Context, GlobalBatchSampler
 from .losses import MonodepthLoss
 from .model import MonodepthVGG
 from .serialization import load_weights_file
@@ -115,9 +115,23 @@ def fingerprint(params: Params, variant: str, num_pairs: int, seed: int) -> str:
         "data": [params.data.height, params.data.width, num_pairs],
         "model": asdict(params.model),
         # Settings that change only speed do not invalidate a checkpoint, nor do the other seeds.
-        "train": {k: v for k, v in asdict(params.train).items()
-                  if k not in ("seeds", "num_workers", "threads", "device", "channels_last", "compile", "sync_every",
-                               "cudnn_benchmark", "launcher", "dist_timeout_s")},
+        "train": {
+            k: v
+            for k, v in asdict(params.train).items()
+            if k
+            not in (
+                "seeds",
+                "num_workers",
+                "threads",
+                "device",
+                "channels_last",
+                "compile",
+                "sync_every",
+                "cudnn_benchmark",
+                "launcher",
+                "dist_timeout_s",
+            )
+        },
         "loss": asdict(params.loss),
         "appearance": appearance,
         appearance: asdict(getattr(params, appearance)),
@@ -148,7 +162,9 @@ def load_checkpoint(path: Path, device: torch.device) -> dict:
         raise TrainingError(str(exc)) from None
 
 
-def _loader(dataset: StereoPairs, params: Params, seed: int, epoch: int, ctx: Context, pin_memory: bool = False) -> DataLoader:
+def _loader(
+    dataset: StereoPairs, params: Params, seed: int, epoch: int, ctx: Context, pin_memory: bool = False
+) -> DataLoader:
     # Shuffle order from (seed, epoch): a resumed epoch sees the same batches, on any world size.
     gen = torch.Generator().manual_seed(seed * 100_003 + epoch)
     dataset.set_epoch(epoch)
@@ -194,7 +210,9 @@ def train_variant(
     seed_everything(seed)  # the same seed on every rank: identical initial weights
     ctx, device = distributed.setup(resolve_device(t.device), t.dist_timeout_s)
     configure_cudnn(t.cudnn_benchmark, device)
-    dataset = StereoPairs(pairs, params.data.height, params.data.width, augment=t.augment, seed=seed, cache=cache)
+    dataset = StereoPairs(
+        pairs, params.data.height, params.data.width, augment=t.augment, seed=seed, cache=cache
+    )
     model = build_model(params).to(device)
     memory_format = torch.channels_last if t.channels_last else torch.contiguous_format
     model = model.to(memory_format=memory_format)
@@ -224,7 +242,9 @@ def train_variant(
             seconds_before = state.get("seconds", 0.0)
             log.info("resuming %s from epoch %d (step %d)", variant, start_epoch, step)
         else:
-            log.info("ignoring checkpoint %s: it belongs to other parameters or training code", checkpoint_path)
+            log.info(
+                "ignoring checkpoint %s: it belongs to other parameters or training code", checkpoint_path
+            )
 
     live = None
     if live_dir is not None and ctx.main:
@@ -260,7 +280,9 @@ def train_variant(
             right = batch["right"].to(device, non_blocking=True)
             losses = forward_and_loss(forward, criterion, left, right, t.amp, memory_format)
             unread.append((step, batch["index"], torch.stack([losses[k].detach() for k in LOSS_KEYS])))
-            if len(unread) >= sync_every:  # before this step's update: with 1, a NaN never reaches the weights
+            if (
+                len(unread) >= sync_every
+            ):  # before this step's update: with 1, a NaN never reaches the weights
                 batches += _read_losses(unread, sums, dataset, variant, epoch)
                 bar.set_postfix(loss=f"{sums['total'] / batches:.4f}")
             optimizer.zero_grad(set_to_none=True)
@@ -274,17 +296,20 @@ def train_variant(
         if live is not None:
             _log_epoch(live, history[-1], t.learning_rate, total_steps)
         if ctx.main:
-            save_checkpoint(checkpoint_path, {
-                "fingerprint": fp,
-                "epoch": epoch + 1,
-                "step": step,
-                "history": history,
-                "model": model.state_dict(),
-                "criterion": criterion.state_dict(),
-                "optimizer": optimizer.state_dict(),
-                "torch_rng": torch.get_rng_state(),
-                "seconds": seconds_before + time.perf_counter() - started,
-            })
+            save_checkpoint(
+                checkpoint_path,
+                {
+                    "fingerprint": fp,
+                    "epoch": epoch + 1,
+                    "step": step,
+                    "history": history,
+                    "model": model.state_dict(),
+                    "criterion": criterion.state_dict(),
+                    "optimizer": optimizer.state_dict(),
+                    "torch_rng": torch.get_rng_state(),
+                    "seconds": seconds_before + time.perf_counter() - started,
+                },
+            )
             log.info("%s epoch %d/%d: %s", variant, epoch + 1, t.epochs, json.dumps(means))
         if on_epoch is not None:
             on_epoch(epoch + 1, model, means)
@@ -329,8 +354,11 @@ def host_sync_interval(sync_every: int, device: torch.device) -> int:
 
 
 def _read_losses(
-    unread: list[tuple[int, torch.Tensor, torch.Tensor]], sums: dict[str, float], dataset: StereoPairs,
-    variant: str, epoch: int,
+    unread: list[tuple[int, torch.Tensor, torch.Tensor]],
+    sums: dict[str, float],
+    dataset: StereoPairs,
+    variant: str,
+    epoch: int,
 ) -> int:
     """Add the losses of the ``unread`` steps to ``sums`` in step order (one host read) and empty
     the list; returns how many steps that was. A non-finite total is a TrainingError naming the
@@ -376,7 +404,12 @@ def _log_epoch(live, entry: dict, base_lr: float, total_steps: int) -> None:
 
 
 def save_model(
-    path: str | os.PathLike, model: MonodepthVGG, criterion: MonodepthLoss, params: Params, variant: str, seed: int
+    path: str | os.PathLike,
+    model: MonodepthVGG,
+    criterion: MonodepthLoss,
+    params: Params,
+    variant: str,
+    seed: int,
 ) -> None:
     """Final weights plus what is needed to rebuild and run the network."""
     state = {
@@ -413,8 +446,9 @@ def load_model(path: str | os.PathLike, device: str | torch.device = "cpu") -> t
     if missing:
         raise MsdepthError(f"{path}: not a model file written by msdepth (no {', '.join(missing)})")
     # Files written before the norm and heads options hold the dissertation's network.
-    model = MonodepthVGG(state["width_multiplier"], norm=state.get("norm", "none"),
-                         heads=state.get("heads", "independent"))
+    model = MonodepthVGG(
+        state["width_multiplier"], norm=state.get("norm", "none"), heads=state.get("heads", "independent")
+    )
     model.load_state_dict(state["model"])
     meta = {k: v for k, v in state.items() if k not in ("model", "criterion")}
     return model.to(device).eval(), meta

@@ -68,7 +68,13 @@ MAX_EXPANSION = 100
 
 # Errors worth another try: the network or the server, not the request. HTTPError (a subclass of
 # URLError) is sorted by status in _open before it can reach this tuple.
-_TRANSIENT_ERRORS = (ConnectionError, TimeoutError, socket.timeout, urllib.error.URLError, http.client.HTTPException)
+_TRANSIENT_ERRORS = (
+    ConnectionError,
+    TimeoutError,
+    socket.timeout,
+    urllib.error.URLError,
+    http.client.HTTPException,
+)
 # 408 Request Timeout and 429 Too Many Requests say "try again later" by definition; other 4xx
 # (404, 403, ...) will not change on a retry.
 _RETRYABLE_4XX = (408, 429)
@@ -107,7 +113,9 @@ def parse_archive_list(path: str | os.PathLike) -> list[str]:
         if not entry or entry.startswith("#"):
             continue
         if any(c.isspace() for c in entry) or not entry.endswith(".zip"):
-            raise DataError(f"{path}:{number}: expected one URL of a .zip archive per line, got {line.strip()!r}")
+            raise DataError(
+                f"{path}:{number}: expected one URL of a .zip archive per line, got {line.strip()!r}"
+            )
         if entry.startswith(KITTI_BASE_URL):
             entry = entry[len(KITTI_BASE_URL) :]
         name = archive_filename(entry)
@@ -157,7 +165,11 @@ def select_archives(names: Sequence[str], subset: int | str | Iterable[str] | No
             raise DataError(f"archive subset: not in the archive list: {', '.join(unknown)}")
         chosen = {by_drive[w] for w in wanted}
     days = {_date_of(archive_filename(n)) for n in chosen}
-    calib = {n for n in names if archive_filename(n).endswith("_calib.zip") and _date_of(archive_filename(n)) in days}
+    calib = {
+        n
+        for n in names
+        if archive_filename(n).endswith("_calib.zip") and _date_of(archive_filename(n)) in days
+    }
     return [n for n in names if n in chosen or n in calib]
 
 
@@ -183,8 +195,10 @@ class NoDowngradeRedirect(urllib.request.HTTPRedirectHandler):
     check, which applies to the URL that is actually requested."""
 
     def redirect_request(self, req, fp, code, msg, headers, newurl):  # noqa: ANN001 - urllib's signature
-        if urllib.parse.urlsplit(req.full_url).scheme.lower() == "https" and \
-                urllib.parse.urlsplit(newurl).scheme.lower() != "https":
+        if (
+            urllib.parse.urlsplit(req.full_url).scheme.lower() == "https"
+            and urllib.parse.urlsplit(newurl).scheme.lower() != "https"
+        ):
             fp.close()
             raise DataError(
                 f"{req.full_url}: redirected to {newurl}, which is not https; refusing the downgrade"
@@ -268,7 +282,9 @@ def _attempt(
             start, total = _content_range(response.headers.get("Content-Range"))
             if start != offset:
                 part.write_bytes(b"")
-                raise _Transient(f"asked for bytes {offset}-, got a range starting at {start}; restarting from 0")
+                raise _Transient(
+                    f"asked for bytes {offset}-, got a range starting at {start}; restarting from 0"
+                )
             mode = "ab"
         else:
             # 200: the server ignored the Range header and sends the whole file. Appending it to
@@ -331,7 +347,9 @@ def download(
     dest.parent.mkdir(parents=True, exist_ok=True)
     part = dest.with_suffix(dest.suffix + ".part")
     failures = 0
-    with tqdm(desc=dest.name, unit="B", unit_scale=True, unit_divisor=1024, leave=False, disable=not progress) as bar:
+    with tqdm(
+        desc=dest.name, unit="B", unit_scale=True, unit_divisor=1024, leave=False, disable=not progress
+    ) as bar:
         while True:
             before = _size(part)
             try:
@@ -340,14 +358,19 @@ def download(
             except (_Transient, *_TRANSIENT_ERRORS) as exc:
                 failures = 0 if _size(part) > before else failures + 1
                 if failures > retries:
-                    raise DataError(f"{url}: download failed after {retries} retries: {_describe(exc)}") from None
+                    raise DataError(
+                        f"{url}: download failed after {retries} retries: {_describe(exc)}"
+                    ) from None
                 time.sleep(min(backoff * 2 ** max(failures - 1, 0), MAX_BACKOFF_S))
             except OSError as exc:  # the local side: disk full, permissions
                 raise DataError(f"{part}: cannot write the download of {url} ({exc})") from None
     size = _size(part)
     if expected_size is not None and size != expected_size:
         part.unlink()
-        raise DataError(f"{url}: downloaded {size} bytes, expected {expected_size}{'' if total is None else f' (server said {total})'}")
+        raise DataError(
+            f"{url}: downloaded {size} bytes, expected {expected_size}"
+            f"{'' if total is None else f' (server said {total})'}"
+        )
     os.replace(part, dest)
     return dest
 
@@ -426,7 +449,9 @@ class Manifest:
                 data = json.loads(path.read_text())
                 self.archives = dict(data["archives"])
             except (OSError, ValueError, KeyError, TypeError) as exc:
-                raise DataError(f"{path}: not a download manifest ({exc}); delete it to re-verify every archive") from None
+                raise DataError(
+                    f"{path}: not a download manifest ({exc}); delete it to re-verify every archive"
+                ) from None
 
     def get(self, name: str) -> dict[str, Any] | None:
         with self._lock:
@@ -494,7 +519,9 @@ def check_members(zf: zipfile.ZipFile, zip_path: Path) -> int:
         name = info.filename
         parts = re.split(r"[\\/]", name)
         if name.startswith(("/", "\\")) or re.match(r"^[A-Za-z]:", name) or ".." in parts:
-            raise DataError(f"{zip_path}: member {name!r} points outside the extraction folder; refusing to extract")
+            raise DataError(
+                f"{zip_path}: member {name!r} points outside the extraction folder; refusing to extract"
+            )
         kind = stat.S_IFMT(info.external_attr >> 16)
         if kind not in (0, stat.S_IFREG, stat.S_IFDIR):  # 0: no Unix mode (e.g. written on Windows)
             what = "a symbolic link" if kind == stat.S_IFLNK else "a device, fifo or socket"
@@ -649,13 +676,25 @@ def fetch_all(
         check_url(url, allow_http)
     if dry_run:
         return _dry_run(
-            urls, download_dir, extract_dir, jobs=jobs, retries=retries, backoff=backoff, timeout=timeout,
+            urls,
+            download_dir,
+            extract_dir,
+            jobs=jobs,
+            retries=retries,
+            backoff=backoff,
+            timeout=timeout,
             allow_http=allow_http,
         )
 
     download_dir.mkdir(parents=True, exist_ok=True)
     manifest = Manifest(download_dir / MANIFEST_NAME)
-    report: dict[str, Any] = {"fetched": [], "skipped": [], "extracted": [], "failed": {}, "bytes_downloaded": 0}
+    report: dict[str, Any] = {
+        "fetched": [],
+        "skipped": [],
+        "extracted": [],
+        "failed": {},
+        "bytes_downloaded": 0,
+    }
     lock = threading.Lock()
 
     def count(n: int) -> None:
@@ -671,8 +710,14 @@ def fetch_all(
             return
         present = archive.exists()
         download(
-            url, archive, retries=retries, backoff=backoff, timeout=timeout, progress=progress,
-            on_bytes=count, allow_http=allow_http,
+            url,
+            archive,
+            retries=retries,
+            backoff=backoff,
+            timeout=timeout,
+            progress=progress,
+            on_bytes=count,
+            allow_http=allow_http,
         )
         try:
             verify_archive(archive, manifest, url)
@@ -708,13 +753,22 @@ def fetch_all(
 
 
 def _dry_run(
-    urls: dict[str, str], download_dir: Path, extract_dir: Path, *, jobs: int, retries: int, backoff: float,
-    timeout: float, allow_http: bool = False,
+    urls: dict[str, str],
+    download_dir: Path,
+    extract_dir: Path,
+    *,
+    jobs: int,
+    retries: int,
+    backoff: float,
+    timeout: float,
+    allow_http: bool = False,
 ) -> dict[str, Any]:
     """What fetch_all would download, with sizes from HEAD requests; downloads nothing."""
     report: dict[str, Any] = {"dry_run": True, "to_fetch": {}, "skipped": [], "failed": {}, "total_bytes": 0}
     missing = [
-        name for name in urls if not ((download_dir / name).exists() or _marker(download_dir / name, extract_dir).exists())
+        name
+        for name in urls
+        if not ((download_dir / name).exists() or _marker(download_dir / name, extract_dir).exists())
     ]
     report["skipped"] = sorted(set(urls) - set(missing))
 
@@ -739,7 +793,9 @@ def _dry_run(
     )
     if report["failed"]:
         lines = "\n".join(f"  {name}: {reason}" for name, reason in sorted(report["failed"].items()))
-        raise DownloadError(f"{len(report['failed'])} of {len(urls)} archive(s) cannot be fetched:\n{lines}", report)
+        raise DownloadError(
+            f"{len(report['failed'])} of {len(urls)} archive(s) cannot be fetched:\n{lines}", report
+        )
     return report
 
 

@@ -42,7 +42,13 @@ def layout(params: Params) -> Layout:
     """The paths for ``params.data.source``: both sources share one tree shape under ``data.root``."""
     root = Path(params.data.root)
     if params.data.source == "synthetic":
-        return Layout(root / "raw", root / "train_files.txt", root / "kitti2015", root / "kitti2015" / "test_files.txt", root / "rois.csv")
+        return Layout(
+            root / "raw",
+            root / "train_files.txt",
+            root / "kitti2015",
+            root / "kitti2015" / "test_files.txt",
+            root / "rois.csv",
+        )
     k = params.data.kitti
     return Layout(root / "raw", Path(k.train_split), root / "kitti2015", Path(k.eval_split), None)
 
@@ -62,24 +68,32 @@ def build_eval_index(kitti2015_root: Path, split_file: Path, gt: str) -> pd.Data
         frame = Path(left_rel).stem
         paths = kitti.kitti2015_paths(kitti2015_root, frame, gt)
         left = kitti.resolve_image(kitti2015_root, left_rel)
-        right = kitti.resolve_image(kitti2015_root, str(Path(left_rel).parent.parent / "image_3" / Path(left_rel).name))
+        right = kitti.resolve_image(
+            kitti2015_root, str(Path(left_rel).parent.parent / "image_3" / Path(left_rel).name)
+        )
         if left is None or right is None or not Path(paths["disp"]).exists():
             missing.append(frame)
             continue
         shape = kitti.read_image(left).shape[:2]
         check_same_size(left, shape, right, kitti.read_image(right).shape, "right image")
-        check_same_size(left, shape, Path(paths["disp"]), kitti.read_disparity(paths["disp"]).shape, f"{gt} GT")
+        check_same_size(
+            left, shape, Path(paths["disp"]), kitti.read_disparity(paths["disp"]).shape, f"{gt} GT"
+        )
         width = shape[1]
         focal, baseline = kitti.focal_and_baseline(width, paths["calib"])
         obj_map = paths["obj_map"] if Path(paths["obj_map"]).exists() else ""
         class_map = paths["class_map"] if Path(paths["class_map"]).exists() else ""  # synthetic only
         if class_map:
             check_same_size(left, shape, Path(class_map), kitti.read_class_map(class_map).shape, "class map")
-        rows.append((frame, str(left), str(right), str(paths["disp"]), str(obj_map), str(class_map), focal, baseline))
+        rows.append(
+            (frame, str(left), str(right), str(paths["disp"]), str(obj_map), str(class_map), focal, baseline)
+        )
     if not rows:
         raise DataError(f"{split_file}: no evaluation frame with images and {gt} GT under {kitti2015_root}")
     if missing:
-        raise DataError(f"{split_file}: {len(missing)} evaluation frame(s) missing under {kitti2015_root}: {missing[:10]}")
+        raise DataError(
+            f"{split_file}: {len(missing)} evaluation frame(s) missing under {kitti2015_root}: {missing[:10]}"
+        )
     return pd.DataFrame(rows, columns=list(EVAL_COLUMNS))
 
 

@@ -77,7 +77,9 @@ def read_image(path: PathLike) -> np.ndarray:
     img = _decode(path, "image")
     if img.dtype != np.uint8 or img.ndim != 3 or img.shape[2] != 3:
         channels = 1 if img.ndim == 2 else img.shape[2]
-        raise DataError(f"{path}: expected an 8-bit 3-channel image, got {img.dtype} with {channels} channel(s)")
+        raise DataError(
+            f"{path}: expected an 8-bit 3-channel image, got {img.dtype} with {channels} channel(s)"
+        )
     return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
 
 
@@ -115,7 +117,8 @@ def read_obj_map(path: PathLike) -> np.ndarray:
     if img.dtype != np.uint8 or img.ndim != 2:
         channels = 1 if img.ndim == 2 else img.shape[2]
         raise DataError(
-            f"{path}: an object map must be an 8-bit single-channel PNG, got {img.dtype} with {channels} channel(s)"
+            f"{path}: an object map must be an 8-bit single-channel PNG, "
+            f"got {img.dtype} with {channels} channel(s)"
         )
     return img
 
@@ -131,7 +134,8 @@ def read_class_map(path: PathLike) -> np.ndarray:
     if img.dtype != np.uint8 or img.ndim != 2:
         channels = 1 if img.ndim == 2 else img.shape[2]
         raise DataError(
-            f"{path}: a class map must be an 8-bit single-channel PNG, got {img.dtype} with {channels} channel(s)"
+            f"{path}: a class map must be an 8-bit single-channel PNG, "
+            f"got {img.dtype} with {channels} channel(s)"
         )
     if (img & ~np.uint8(sum(CLASS_BITS.values()))).any():
         raise DataError(f"{path}: class map has bits outside {CLASS_BITS}")
@@ -238,7 +242,9 @@ def write_split(path: PathLike, pairs: list[tuple[str, str]]) -> None:
     """Write a split list (``left right`` per line), atomically."""
     for left, right in pairs:
         if not left or not right or any(c.isspace() for c in left + right):
-            raise DataError(f"{path}: split paths must be non-empty and contain no whitespace: {left!r} {right!r}")
+            raise DataError(
+                f"{path}: split paths must be non-empty and contain no whitespace: {left!r} {right!r}"
+            )
     write_text(path, "".join(f"{left} {right}\n" for left, right in pairs))
 
 

@@ -65,7 +65,9 @@ def to_tensor(image: np.ndarray) -> torch.Tensor:
     return torch.from_numpy(np.array(image)).permute(2, 0, 1).float().div_(255.0)
 
 
-def augment(left: torch.Tensor, right: torch.Tensor, gen: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:
+def augment(
+    left: torch.Tensor, right: torch.Tensor, gen: torch.Generator
+) -> tuple[torch.Tensor, torch.Tensor]:
     """Monodepth's augmentation (dissertation 3.4).
 
     With p = 0.5 the pair is mirrored: the new left view is the flipped right image (so the
@@ -85,7 +87,9 @@ def augment(left: torch.Tensor, right: torch.Tensor, gen: torch.Generator) -> tu
     return left, right
 
 
-def check_same_size(path: Path, shape: tuple[int, ...], other: Path, other_shape: tuple[int, ...], what: str) -> None:
+def check_same_size(
+    path: Path, shape: tuple[int, ...], other: Path, other_shape: tuple[int, ...], what: str
+) -> None:
     """A right view or GT map of another size than its left image would silently misplace every
     pixel: a DataError naming both files."""
     if tuple(shape[:2]) != tuple(other_shape[:2]):
@@ -127,7 +131,9 @@ def build_pair_cache(
     kept: list[tuple[Path, Path]] = []
     unreadable: list[tuple[Path, Path, str]] = []
     with atomic_path(path, suffix=".npy") as tmp:
-        cache = np.lib.format.open_memmap(tmp, mode="w+", dtype=np.uint8, shape=(len(pairs), 2, height, width, 3))
+        cache = np.lib.format.open_memmap(
+            tmp, mode="w+", dtype=np.uint8, shape=(len(pairs), 2, height, width, 3)
+        )
         for left, right in tqdm(pairs, desc="cache", unit="pair", disable=not progress):
             try:
                 left_img, right_img = kitti.read_image(left), kitti.read_image(right)
@@ -139,11 +145,15 @@ def build_pair_cache(
             cache[len(kept), 1] = resize(right_img, height, width)
             kept.append((left, right))
         if not kept:
-            raise DataError(f"{path}: none of the {len(pairs)} pairs is readable; first error: {unreadable[0][2]}")
+            raise DataError(
+                f"{path}: none of the {len(pairs)} pairs is readable; first error: {unreadable[0][2]}"
+            )
         cache.flush()
         if len(kept) < len(pairs):  # rewrite with only the rows filled (the .npy header holds the shape)
             with atomic_path(tmp, suffix=".npy") as compact_tmp:
-                compact = np.lib.format.open_memmap(compact_tmp, mode="w+", dtype=np.uint8, shape=(len(kept), *cache.shape[1:]))
+                compact = np.lib.format.open_memmap(
+                    compact_tmp, mode="w+", dtype=np.uint8, shape=(len(kept), *cache.shape[1:])
+                )
                 compact[:] = cache[: len(kept)]
                 compact.flush()
                 del compact
@@ -187,7 +197,10 @@ class StereoPairs(Dataset):
         if not pairs:
             raise DataError("StereoPairs: the pair list is empty")
         if cache is not None and cache.shape != (len(pairs), 2, height, width, 3):
-            raise DataError(f"StereoPairs: cache shape {cache.shape} does not match {len(pairs)} pairs at {height}x{width}")
+            raise DataError(
+                f"StereoPairs: cache shape {cache.shape} does not match {len(pairs)} pairs "
+                f"at {height}x{width}"
+            )
         self.pairs, self.height, self.width, self.cache = pairs, height, width, cache
         self.augment, self.seed, self.epoch = augment, seed, 0
 

@@ -59,7 +59,9 @@ def boxes_from_obj_map(
         raise ValueError(f"min_valid must be in [0, 1], got {min_valid}")
     obj_map, gt_disp = np.asarray(obj_map), np.asarray(gt_disp)
     if obj_map.ndim != 2 or not np.issubdtype(obj_map.dtype, np.integer):
-        raise DataError(f"object map must be a 2-D integer array, got {obj_map.dtype} of shape {obj_map.shape}")
+        raise DataError(
+            f"object map must be a 2-D integer array, got {obj_map.dtype} of shape {obj_map.shape}"
+        )
     if gt_disp.shape != obj_map.shape:
         raise DataError(f"object map is {obj_map.shape} but its GT disparity is {gt_disp.shape}")
     valid = gt_disp > 0  # NaN compares False: no GT
@@ -79,10 +81,13 @@ def boxes_from_obj_map(
 
 def _empty_rois() -> pd.DataFrame:
     """An ROI table with no rows but the right columns and dtypes."""
-    return pd.DataFrame({
-        "image": pd.Series(dtype=str), "class": pd.Series(dtype=str),
-        **{c: pd.Series(dtype=np.int64) for c in ("x0", "y0", "x1", "y1")},
-    })
+    return pd.DataFrame(
+        {
+            "image": pd.Series(dtype=str),
+            "class": pd.Series(dtype=str),
+            **{c: pd.Series(dtype=np.int64) for c in ("x0", "y0", "x1", "y1")},
+        }
+    )
 
 
 def _image_size(path: str) -> tuple[int, int]:
@@ -138,8 +143,9 @@ def extract_rois(
         raise DataError(f"evaluation index: missing columns {sorted(missing)}")
     rows: list[tuple[str, str, int, int, int, int]] = []
     without: list[str] = []
-    for frame in tqdm(frames.itertuples(index=False), total=len(frames), desc="rois", unit="frame",
-                      disable=not progress):
+    for frame in tqdm(
+        frames.itertuples(index=False), total=len(frames), desc="rois", unit="frame", disable=not progress
+    ):
         name = str(frame.frame)
         obj_path = frame.obj_map if isinstance(frame.obj_map, str) else ""  # NaN from a bare read_csv
         if not obj_path:
@@ -169,8 +175,13 @@ def extract_rois(
         "per_class": {c: int((rois["class"] == c).sum()) for c in kitti.ROI_CLASSES},
     }
     if without:
-        log.info("%d of %d evaluation frame(s) have no obj_map (no car boxes): %s%s", len(without),
-                 len(frames), without[:5], " ..." if len(without) > 5 else "")
+        log.info(
+            "%d of %d evaluation frame(s) have no obj_map (no car boxes): %s%s",
+            len(without),
+            len(frames),
+            without[:5],
+            " ..." if len(without) > 5 else "",
+        )
     log.info("ROIs: %d (%s)", len(rois), ", ".join(f"{c} {n}" for c, n in report["per_class"].items()))
     rois.attrs["report"] = report
     return rois
@@ -186,8 +197,15 @@ def _fit_scale(text: str, width: int, scale: float, thickness: int = 1) -> float
     return max(_MIN_SCALE, scale * min(1.0, width / max(text_w, 1)))
 
 
-def _put(img: np.ndarray, text: str, x: int, baseline: int, width: int, colour: tuple[int, int, int],
-         scale: float = _LABEL_SCALE) -> None:
+def _put(
+    img: np.ndarray,
+    text: str,
+    x: int,
+    baseline: int,
+    width: int,
+    colour: tuple[int, int, int],
+    scale: float = _LABEL_SCALE,
+) -> None:
     """Draw ``text`` at ``(x, baseline)``, shrunk to fit ``width``, anti-aliased."""
     cv2.putText(img, text, (x, baseline), _FONT, _fit_scale(text, width, scale), colour, 1, cv2.LINE_AA)
 
@@ -234,14 +252,18 @@ def contact_sheet(
     there are no ROIs).
     """
     if tile < 8 or columns < 1 or max_per_class < 1:
-        raise ValueError(f"need tile >= 8, columns >= 1, max_per_class >= 1; got {tile}, {columns}, {max_per_class}")
+        raise ValueError(
+            f"need tile >= 8, columns >= 1, max_per_class >= 1; got {tile}, {columns}, {max_per_class}"
+        )
     out_path = Path(out_path)
     cell_w, cell_h = tile + 2 * PAD, tile + LABEL_HEIGHT + 2 * PAD
     width = columns * cell_w
     lefts = dict(zip(frames["frame"].astype(str), frames["left"].astype(str)))
     # Known classes in their canonical order, then anything else a caller passes, alphabetically.
     present = list(dict.fromkeys(rois["class"])) if len(rois) else []
-    classes = [c for c in kitti.ROI_CLASSES if c in present] + sorted(c for c in present if c not in kitti.ROI_CLASSES)
+    classes = [c for c in kitti.ROI_CLASSES if c in present] + sorted(
+        c for c in present if c not in kitti.ROI_CLASSES
+    )
 
     blocks: list[np.ndarray] = []
     images: dict[str, np.ndarray] = {}  # each left image decoded once
@@ -253,7 +275,9 @@ def contact_sheet(
         block[:] = _BACKGROUND
         colour = _CLASS_COLOURS.get(cls, _TEXT)
         block[HEADER_HEIGHT - 2 : HEADER_HEIGHT] = colour  # underline: blocks stay apart at a glance
-        _put(block, f"{cls}: {len(shown)} shown of {len(group)}", 6, HEADER_HEIGHT - 8, width - 12, colour, 0.5)
+        _put(
+            block, f"{cls}: {len(shown)} shown of {len(group)}", 6, HEADER_HEIGHT - 8, width - 12, colour, 0.5
+        )
         for k, roi in enumerate(shown.itertuples(index=False)):
             name = str(roi.image)
             if name not in lefts:
@@ -264,10 +288,14 @@ def contact_sheet(
             h, w = img.shape[:2]
             x0, y0, x1, y1 = int(roi.x0), int(roi.y0), int(roi.x1), int(roi.y1)
             if not (0 <= x0 < x1 <= w and 0 <= y0 < y1 <= h):
-                raise DataError(f"{out_path}: ROI ({x0}, {y0}, {x1}, {y1}) lies outside {lefts[name]} ({w}x{h})")
+                raise DataError(
+                    f"{out_path}: ROI ({x0}, {y0}, {x1}, {y1}) lies outside {lefts[name]} ({w}x{h})"
+                )
             top = HEADER_HEIGHT + (k // columns) * cell_h
             left = (k % columns) * cell_w
-            block[top + PAD : top + PAD + tile, left + PAD : left + PAD + tile] = _letterbox(img[y0:y1, x0:x1], tile)
+            block[top + PAD : top + PAD + tile, left + PAD : left + PAD + tile] = _letterbox(
+                img[y0:y1, x0:x1], tile
+            )
             text_y = top + PAD + tile
             _put(block, f"{cls} {x1 - x0}x{y1 - y0}", left + PAD + 1, text_y + 11, tile - 2, colour)
             _put(block, name, left + PAD + 1, text_y + 23, tile - 2, _TEXT)

@@ -96,8 +96,16 @@ class _Scene:
     faces: list[dict[str, Any]] = field(default_factory=list)
     arrays: dict[str, np.ndarray] = field(default_factory=dict)
 
-    def add_face(self, normal: np.ndarray, material: int, origin: np.ndarray, colour: Iterable[float],
-                 colour2: Iterable[float] = (0, 0, 0), params: Iterable[float] = (), instance: int = 0) -> int:
+    def add_face(
+        self,
+        normal: np.ndarray,
+        material: int,
+        origin: np.ndarray,
+        colour: Iterable[float],
+        colour2: Iterable[float] = (0, 0, 0),
+        params: Iterable[float] = (),
+        instance: int = 0,
+    ) -> int:
         """Register one face's shading attributes; returns its global face id."""
         n = np.asarray(normal, float)
         nx, ny, nz = n
@@ -110,17 +118,34 @@ class _Scene:
         prm = np.zeros(8)
         p = list(params)
         prm[: len(p)] = p
-        self.faces.append(dict(normal=n, mat=material, org=np.asarray(origin, float), uax=u, vax=v,
-                               col=np.asarray(colour, float), col2=np.asarray(colour2, float),
-                               prm=prm, inst=instance))
+        self.faces.append(
+            dict(
+                normal=n,
+                mat=material,
+                org=np.asarray(origin, float),
+                uax=u,
+                vax=v,
+                col=np.asarray(colour, float),
+                col2=np.asarray(colour2, float),
+                prm=prm,
+                inst=instance,
+            )
+        )
         return len(self.faces) - 1
 
-    def add_polytope(self, normals: np.ndarray, offsets: np.ndarray, corners: np.ndarray,
-                     face_args: list[dict[str, Any]]) -> list[int]:
+    def add_polytope(
+        self, normals: np.ndarray, offsets: np.ndarray, corners: np.ndarray, face_args: list[dict[str, Any]]
+    ) -> list[int]:
         """Add a convex polytope (one face description per plane); returns its face ids."""
         ids = [self.add_face(n, **a) for n, a in zip(normals, face_args)]
-        self.prims.append(_Prim(np.asarray(normals, np.float32), np.asarray(offsets, np.float64),
-                                np.asarray(corners, float), ids[0]))
+        self.prims.append(
+            _Prim(
+                np.asarray(normals, np.float32),
+                np.asarray(offsets, np.float64),
+                np.asarray(corners, float),
+                ids[0],
+            )
+        )
         return ids
 
     def finalise(self) -> None:
@@ -143,8 +168,9 @@ def _yaw_matrix(yaw: float) -> np.ndarray:
     return np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]])
 
 
-def _place(normals: np.ndarray, offsets: np.ndarray, corners: np.ndarray, rot: np.ndarray,
-           pos: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _place(
+    normals: np.ndarray, offsets: np.ndarray, corners: np.ndarray, rot: np.ndarray, pos: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Move a polytope given in a local frame by rotation ``rot`` and translation ``pos``."""
     n = normals @ rot.T
     return n, offsets + n @ pos, corners @ rot.T + pos
@@ -152,7 +178,14 @@ def _place(normals: np.ndarray, offsets: np.ndarray, corners: np.ndarray, rot: n
 
 def _camera_rotation(yaw: float, pitch: float, roll: float) -> np.ndarray:
     """World-from-camera rotation: roll about z, then pitch about x, then yaw about y."""
-    cy, sy, cp, sp, cr, sr = np.cos(yaw), np.sin(yaw), np.cos(pitch), np.sin(pitch), np.cos(roll), np.sin(roll)
+    cy, sy, cp, sp, cr, sr = (
+        np.cos(yaw),
+        np.sin(yaw),
+        np.cos(pitch),
+        np.sin(pitch),
+        np.cos(roll),
+        np.sin(roll),
+    )
     ry = np.array([[cy, 0, sy], [0, 1, 0], [-sy, 0, cy]])
     rx = np.array([[1, 0, 0], [0, cp, -sp], [0, sp, cp]])
     rz = np.array([[cr, -sr, 0], [sr, cr, 0], [0, 0, 1]])
@@ -170,8 +203,16 @@ def _hsv(h: float, s: float, v: float) -> np.ndarray:
 # Adds an axis-aligned box: (lo, hi, face attributes given the face normal) -> face ids.
 _BoxFn = Callable[[Iterable[float], Iterable[float], Callable[[np.ndarray], dict[str, Any]]], list[int]]
 
-_CAR_COLOURS = [(0.85, 0.85, 0.85), (0.6, 0.62, 0.65), (0.08, 0.08, 0.09), (0.55, 0.06, 0.05),
-                (0.08, 0.15, 0.45), (0.25, 0.27, 0.3), (0.7, 0.7, 0.62), (0.1, 0.3, 0.15)]
+_CAR_COLOURS = [
+    (0.85, 0.85, 0.85),
+    (0.6, 0.62, 0.65),
+    (0.08, 0.08, 0.09),
+    (0.55, 0.06, 0.05),
+    (0.08, 0.15, 0.45),
+    (0.25, 0.27, 0.3),
+    (0.7, 0.7, 0.62),
+    (0.1, 0.3, 0.15),
+]
 
 
 def _build_scene(rng: np.random.Generator) -> _Scene:
@@ -193,16 +234,32 @@ def _build_scene(rng: np.random.Generator) -> _Scene:
     left, right = sides[-1]["edge"], sides[1]["edge"]
     lane = u(2.8, 3.6)
     lines = list(np.arange(left + lane, right - 1.0, lane))
-    road = dict(left=left, right=right, lines=np.array(lines), line_width=u(0.1, 0.16),
-                dash=u(2, 4), period=u(7, 12), phase=u(0, 10), asphalt=u(0.22, 0.38),
-                pave=_hsv(u(0.05, 0.12), u(0.05, 0.25), u(0.5, 0.7)),
-                grass_left=-sides[-1]["dist"] if not sides[-1]["built"] else -1e9,
-                grass_right=sides[1]["dist"] if not sides[1]["built"] else 1e9)
-    scene = _Scene(cam_height=cam_h, rot=rot, sun=sun / np.linalg.norm(sun),
-                   sun_colour=(np.array([1.0, 1.0 - warm * 0.5, 1.0 - warm]) * u(0.55, 0.9)).astype(np.float32),
-                   ambient=u(0.3, 0.5), sky_horizon=horizon.astype(np.float32),
-                   sky_zenith=zenith.astype(np.float32), cloud_cover=u(0.0, 0.8), canopy=u(0.6, 1.0),
-                   tex_shift=(u(0, 256), u(0, 256)), road=road)
+    road = dict(
+        left=left,
+        right=right,
+        lines=np.array(lines),
+        line_width=u(0.1, 0.16),
+        dash=u(2, 4),
+        period=u(7, 12),
+        phase=u(0, 10),
+        asphalt=u(0.22, 0.38),
+        pave=_hsv(u(0.05, 0.12), u(0.05, 0.25), u(0.5, 0.7)),
+        grass_left=-sides[-1]["dist"] if not sides[-1]["built"] else -1e9,
+        grass_right=sides[1]["dist"] if not sides[1]["built"] else 1e9,
+    )
+    scene = _Scene(
+        cam_height=cam_h,
+        rot=rot,
+        sun=sun / np.linalg.norm(sun),
+        sun_colour=(np.array([1.0, 1.0 - warm * 0.5, 1.0 - warm]) * u(0.55, 0.9)).astype(np.float32),
+        ambient=u(0.3, 0.5),
+        sky_horizon=horizon.astype(np.float32),
+        sky_zenith=zenith.astype(np.float32),
+        cloud_cover=u(0.0, 0.8),
+        canopy=u(0.6, 1.0),
+        tex_shift=(u(0, 256), u(0, 256)),
+        road=road,
+    )
     ground = np.array([0.0, cam_h, 0.0])
     scene.add_face(_UP, ROAD, ground, (0, 0, 0))  # face 0: the ground plane (shaded from `road`)
 
@@ -219,8 +276,13 @@ def _build_scene(rng: np.random.Generator) -> _Scene:
         zf, height = u(45, 150), u(8, 30)
         colour = _hsv(u(0, 1), u(0.05, 0.35), u(0.35, 0.8))
         prm = (u(1.6, 3.5), u(2.8, 3.6), u(0.35, 0.65), u(0.4, 0.65), float(rng.random() < 0.3), 3.0, height)
-        box((-90, cam_h - height, zf), (90, cam_h + 0.1, zf + 12),
-            lambda n: dict(material=WALL, origin=ground, colour=colour, colour2=(0.1, 0.12, 0.16), params=prm))
+        box(
+            (-90, cam_h - height, zf),
+            (90, cam_h + 0.1, zf + 12),
+            lambda n: dict(
+                material=WALL, origin=ground, colour=colour, colour2=(0.1, 0.12, 0.16), params=prm
+            ),
+        )
 
     _add_cars(scene, rng, sides, road)
     _add_poles(scene, rng, sides, ground, box)
@@ -228,8 +290,9 @@ def _build_scene(rng: np.random.Generator) -> _Scene:
     return scene
 
 
-def _add_facades(scene: _Scene, rng: np.random.Generator, s: int, dist: float, ground: np.ndarray,
-                 box: _BoxFn) -> None:
+def _add_facades(
+    scene: _Scene, rng: np.random.Generator, s: int, dist: float, ground: np.ndarray, box: _BoxFn
+) -> None:
     """Building blocks along one side: segments with their own setback, height, colour, windows."""
     u = rng.uniform
     cam_h = scene.cam_height
@@ -243,11 +306,21 @@ def _add_facades(scene: _Scene, rng: np.random.Generator, s: int, dist: float, g
         height = u(4, 22)
         colour = _hsv(u(0, 1), u(0.05, 0.4), u(0.3, 0.85))
         window = _hsv(u(0.5, 0.7), u(0.1, 0.4), u(0.08, 0.3))
-        prm = (u(1.6, 3.5), u(2.8, 3.6), u(0.35, 0.65), u(0.4, 0.65), float(rng.random() < 0.35),
-               u(2.8, 4.0), height)
+        prm = (
+            u(1.6, 3.5),
+            u(2.8, 3.6),
+            u(0.35, 0.65),
+            u(0.4, 0.65),
+            float(rng.random() < 0.35),
+            u(2.8, 4.0),
+            height,
+        )
         xs = sorted((s * d, s * (d + 12)))
-        box((xs[0], cam_h - height, z), (xs[1], cam_h + 0.1, z + length),
-            lambda n: dict(material=WALL, origin=ground, colour=colour, colour2=window, params=prm))
+        box(
+            (xs[0], cam_h - height, z),
+            (xs[1], cam_h + 0.1, z + length),
+            lambda n: dict(material=WALL, origin=ground, colour=colour, colour2=window, params=prm),
+        )
         if 3 < z + length and z < 45 and rng.random() < 0.35:  # shop window at street level
             w_len = u(2, 6)
             z0 = u(max(z, 2), max(z, 2) + max(0.1, length - w_len))
@@ -259,13 +332,19 @@ def _add_facades(scene: _Scene, rng: np.random.Generator, s: int, dist: float, g
             ids = box((xs[0], top, z0), (xs[1], bottom, z1), lambda n: glass)
             front = ids[0] if s > 0 else ids[1]  # the face looking at the street
             x = s * (d - 0.04)
-            scene.rois.append(_Roi("glass", np.array([front]), np.array(
-                [[x, top, z0], [x, bottom, z0], [x, top, z1], [x, bottom, z1]])))
+            scene.rois.append(
+                _Roi(
+                    "glass",
+                    np.array([front]),
+                    np.array([[x, top, z0], [x, bottom, z0], [x, top, z1], [x, bottom, z1]]),
+                )
+            )
         z += length
 
 
-def _add_open_side(scene: _Scene, rng: np.random.Generator, s: int, dist: float, ground: np.ndarray,
-                   box: _BoxFn) -> None:
+def _add_open_side(
+    scene: _Scene, rng: np.random.Generator, s: int, dist: float, ground: np.ndarray, box: _BoxFn
+) -> None:
     """No buildings: a hedge along the road and/or a distant tree line across a field."""
     u = rng.uniform
     cam_h = scene.cam_height
@@ -273,14 +352,20 @@ def _add_open_side(scene: _Scene, rng: np.random.Generator, s: int, dist: float,
     if rng.random() < 0.6:
         xs = sorted((s * dist, s * (dist + u(0.6, 1.5))))
         h = u(0.8, 2.2)
-        box((xs[0], cam_h - h, u(-10, -2)), (xs[1], cam_h + 0.1, u(30, 120)),
-            lambda n: dict(material=FOLIAGE, origin=ground, colour=green))
+        box(
+            (xs[0], cam_h - h, u(-10, -2)),
+            (xs[1], cam_h + 0.1, u(30, 120)),
+            lambda n: dict(material=FOLIAGE, origin=ground, colour=green),
+        )
     if rng.random() < 0.7:
         far = dist + u(10, 50)
         xs = sorted((s * far, s * (far + 8)))
         h = u(5, 15)
-        box((xs[0], cam_h - h, u(-20, 10)), (xs[1], cam_h + 0.1, u(60, 200)),
-            lambda n: dict(material=FOLIAGE, origin=ground, colour=green * u(0.6, 1.0)))
+        box(
+            (xs[0], cam_h - h, u(-20, 10)),
+            (xs[1], cam_h + 0.1, u(60, 200)),
+            lambda n: dict(material=FOLIAGE, origin=ground, colour=green * u(0.6, 1.0)),
+        )
 
 
 def _add_cars(scene: _Scene, rng: np.random.Generator, sides: dict, road: dict) -> None:
@@ -289,7 +374,8 @@ def _add_cars(scene: _Scene, rng: np.random.Generator, sides: dict, road: dict) 
     cam_h = scene.cam_height
     placed: list[tuple[float, float, float, float]] = []
     lane_centres = np.concatenate([[road["left"]], road["lines"]]) + 0.5 * (
-        np.diff(np.concatenate([[road["left"]], road["lines"], [road["right"]]])))
+        np.diff(np.concatenate([[road["left"]], road["lines"], [road["right"]]]))
+    )
     instance = 0
     for _ in range(int(rng.integers(0, 7))):
         for _attempt in range(20):
@@ -314,8 +400,15 @@ def _add_cars(scene: _Scene, rng: np.random.Generator, sides: dict, road: dict) 
             break
 
 
-def _add_car(scene: _Scene, rng: np.random.Generator, instance: int, pos: np.ndarray, yaw: float,
-             length: float, width: float) -> None:
+def _add_car(
+    scene: _Scene,
+    rng: np.random.Generator,
+    instance: int,
+    pos: np.ndarray,
+    yaw: float,
+    length: float,
+    width: float,
+) -> None:
     """One car at ``pos`` (centre on the ground) heading ``yaw``; registers its ROIs."""
     u = rng.uniform
     rot = _yaw_matrix(yaw)
@@ -331,8 +424,13 @@ def _add_car(scene: _Scene, rng: np.random.Generator, instance: int, pos: np.nda
 
     def faces(material: int, extra: tuple = ()) -> dict[str, Any]:
         prm = glass_prm if material == GLASS else extra
-        return dict(material=material, origin=pos, colour=tint if material == GLASS else paint,
-                    params=prm, instance=instance)
+        return dict(
+            material=material,
+            origin=pos,
+            colour=tint if material == GLASS else paint,
+            params=prm,
+            instance=instance,
+        )
 
     # Lower body (paint) with lights on the front/back faces (params[0]: 1 front, 2 back).
     n, c, k = _box_planes(np.array([-width / 2, -top, -half_l]), np.array([width / 2, -clear, half_l]))
@@ -351,8 +449,13 @@ def _add_car(scene: _Scene, rng: np.random.Generator, instance: int, pos: np.nda
     nb, cb = tilted(base_back, roof_back, -1.0)
     n = np.array([[0, 1, 0], [0, -1, 0], [1, 0, 0], [-1, 0, 0], nf, nb], float)
     c = np.array([-top + 0.02, roof, w2, w2, cf, cb])
-    k = np.array([[x, -yy, zz] for x in (-w2, w2) for yy, zz in
-                  ((top, base_front), (roof, roof_front), (top, base_back), (roof, roof_back))])
+    k = np.array(
+        [
+            [x, -yy, zz]
+            for x in (-w2, w2)
+            for yy, zz in ((top, base_front), (roof, roof_front), (top, base_back), (roof, roof_back))
+        ]
+    )
     mats = [PAINT, PAINT, GLASS, GLASS, GLASS, GLASS]
     args = [faces(m) for m in mats]
     n, c, k = _place(n, c, k, rot, pos)
@@ -367,8 +470,9 @@ def _add_car(scene: _Scene, rng: np.random.Generator, instance: int, pos: np.nda
     wheel_corners = []
     for zc in (half_l - u(0.75, 0.95), -half_l + u(0.75, 0.95)):
         r = u(0.3, 0.36)
-        n, c, k = _box_planes(np.array([-width / 2 + 0.03, -(clear + 0.2), zc - r]),
-                              np.array([width / 2 - 0.03, 0.0, zc + r]))
+        n, c, k = _box_planes(
+            np.array([-width / 2 + 0.03, -(clear + 0.2), zc - r]), np.array([width / 2 - 0.03, 0.0, zc + r])
+        )
         args = [dict(material=TYRE, origin=pos, colour=(0.05, 0.05, 0.055), instance=instance) for _ in n]
         n, c, k = _place(n, c, k, rot, pos)
         car_faces += scene.add_polytope(n, c, k, args)
@@ -388,8 +492,11 @@ def _add_poles(scene: _Scene, rng: np.random.Generator, sides: dict, ground: np.
         z = u(4, 50)
         height, r = u(2.5, 4.2), u(0.04, 0.08)
         grey = np.full(3, u(0.35, 0.6))
-        box((x - r, cam_h - height, z - r), (x + r, cam_h + 0.1, z + r),
-            lambda n: dict(material=POLE, origin=ground, colour=grey))
+        box(
+            (x - r, cam_h - height, z - r),
+            (x + r, cam_h + 0.1, z + r),
+            lambda n: dict(material=POLE, origin=ground, colour=grey),
+        )
         if rng.random() > 0.75:
             continue
         w, h = u(0.5, 0.9), u(0.45, 0.9)
@@ -398,8 +505,12 @@ def _add_poles(scene: _Scene, rng: np.random.Generator, sides: dict, ground: np.
         kind = float(rng.integers(4))
         n, c, k = _box_planes(np.array([-w / 2, -h / 2, -0.015]), np.array([w / 2, h / 2, 0.015]))
         rot = _yaw_matrix(yaw)
-        args = [dict(material=SIGN, origin=centre, colour=(0, 0, 0), params=(kind, w, h, u(0.6, 1.6)))
-                if nl[2] < -0.5 else dict(material=METAL, origin=centre, colour=grey) for nl in n]
+        args = [
+            dict(material=SIGN, origin=centre, colour=(0, 0, 0), params=(kind, w, h, u(0.6, 1.6)))
+            if nl[2] < -0.5
+            else dict(material=METAL, origin=centre, colour=grey)
+            for nl in n
+        ]
         n, c, k = _place(n, c, k, rot, centre)
         ids = scene.add_polytope(n, c, k, args)
         front = ids[4]  # the -z face of the local plate looks at the camera (before the yaw)
@@ -525,7 +636,9 @@ def _noise(u: np.ndarray, v: np.ndarray) -> np.ndarray:
     return (top * (1 - b) + bottom * b).astype(np.float32, copy=False)
 
 
-def _fbm(u: np.ndarray, v: np.ndarray, footprint: np.ndarray | float, freq: float, octaves: int = 3) -> np.ndarray:
+def _fbm(
+    u: np.ndarray, v: np.ndarray, footprint: np.ndarray | float, freq: float, octaves: int = 3
+) -> np.ndarray:
     """Fractal value noise (mean ~0.5) at ``freq`` cycles per unit, band-limited to the pixel footprint.
 
     Octaves finer than ~2 px fade to their mean so distant surfaces do not alias (aliasing would
@@ -634,8 +747,14 @@ def _shade_wall(h: dict[str, np.ndarray]) -> np.ndarray:
         tone[brick] = np.where(mortar, 1.35, per_brick)
     albedo = tone[:, None] * col
     fu, fv = _frac(u / prm[:, 0]), _frac(v / prm[:, 1])
-    win = ((fu > 0.5 - prm[:, 2] / 2) & (fu < 0.5 + prm[:, 2] / 2) & (fv > 0.5 - prm[:, 3] / 2)
-           & (fv < 0.5 + prm[:, 3] / 2) & (v > prm[:, 5]) & (v < prm[:, 6] - 1.0))
+    win = (
+        (fu > 0.5 - prm[:, 2] / 2)
+        & (fu < 0.5 + prm[:, 2] / 2)
+        & (fv > 0.5 - prm[:, 3] / 2)
+        & (fv < 0.5 + prm[:, 3] / 2)
+        & (v > prm[:, 5])
+        & (v < prm[:, 6] - 1.0)
+    )
     if win.any():
         lit = _noise(np.floor(u[win] / prm[win, 0]) * 5.3, np.floor(v[win] / prm[win, 1]) * 2.9)
         albedo[win] = h["col2"][win] * (0.6 + 1.2 * lit)[:, None]
@@ -656,8 +775,11 @@ def _shade_paint(h: dict[str, np.ndarray]) -> np.ndarray:
         au = np.abs(u[ends])
         lights = (v[ends] > 0.65) & (v[ends] < 0.82) & (au > 0.45) & (au < h["prm"][ends, 1] - 0.05)
         plate = (au < 0.26) & (v[ends] > 0.36) & (v[ends] < 0.47)
-        lamp = np.where((kind[ends] > 1.5)[:, None], np.array([0.7, 0.05, 0.04], np.float32),
-                        np.array([0.9, 0.9, 0.85], np.float32))
+        lamp = np.where(
+            (kind[ends] > 1.5)[:, None],
+            np.array([0.7, 0.05, 0.04], np.float32),
+            np.array([0.9, 0.9, 0.85], np.float32),
+        )
         sub = albedo[ends]
         sub[lights] = lamp[lights]
         sub[plate] = 0.85
@@ -673,7 +795,11 @@ def _shade_sign(h: dict[str, np.ndarray]) -> np.ndarray:
     r = np.hypot(a - 0.5, b - 0.5)
     out = np.empty(a.shape + (3,), np.float32)
     white, red, blue = np.array([0.92, 0.92, 0.9]), np.array([0.8, 0.08, 0.06]), np.array([0.05, 0.2, 0.65])
-    yellow, black, green = np.array([0.95, 0.75, 0.05]), np.array([0.05, 0.05, 0.05]), np.array([0.05, 0.45, 0.2])
+    yellow, black, green = (
+        np.array([0.95, 0.75, 0.05]),
+        np.array([0.05, 0.05, 0.05]),
+        np.array([0.05, 0.45, 0.2]),
+    )
     k0 = kind == 0
     out[k0] = np.where(((r[k0] > 0.33) & (r[k0] < 0.47))[:, None], red, white)
     bars = k0 & (np.abs(a - 0.5) < 0.15) & (np.abs(b - 0.5) < 0.18) & (_frac(a * 7) < 0.5)
@@ -689,7 +815,9 @@ def _shade_sign(h: dict[str, np.ndarray]) -> np.ndarray:
     return out
 
 
-def _shade(scene: _Scene, cam: _Camera, origin: np.ndarray, depth: np.ndarray, face: np.ndarray) -> np.ndarray:
+def _shade(
+    scene: _Scene, cam: _Camera, origin: np.ndarray, depth: np.ndarray, face: np.ndarray
+) -> np.ndarray:
     """Colour (float RGB, ~[0, 1]) of every pixel of one view."""
     A = scene.arrays
     out = np.empty((cam.height * cam.width, 3), np.float32)
@@ -716,12 +844,20 @@ def _shade(scene: _Scene, cam: _Camera, origin: np.ndarray, depth: np.ndarray, f
     n = gather("normal")
     n_dot_v = -_rowdot(n, d)
     rel = P - gather("org")
-    h = dict(P=P, d=d, n=n, u=_rowdot(rel, gather("uax")), v=_rowdot(rel, gather("vax")),
-             col=gather("col"), col2=gather("col2"), prm=gather("prm"),
-             # Metres of surface per pixel, the band limit of every texture: the geometric mean of
-             # the footprint across (t/f) and along (t/f/cos) the view, so that a road seen at a
-             # grazing angle keeps some texture instead of fading to flat grey.
-             fp=t / np.float32(cam.f) / np.sqrt(np.maximum(np.abs(n_dot_v), np.float32(0.05))))
+    h = dict(
+        P=P,
+        d=d,
+        n=n,
+        u=_rowdot(rel, gather("uax")),
+        v=_rowdot(rel, gather("vax")),
+        col=gather("col"),
+        col2=gather("col2"),
+        prm=gather("prm"),
+        # Metres of surface per pixel, the band limit of every texture: the geometric mean of
+        # the footprint across (t/f) and along (t/f/cos) the view, so that a road seen at a
+        # grazing angle keeps some texture instead of fading to flat grey.
+        fp=t / np.float32(cam.f) / np.sqrt(np.maximum(np.abs(n_dot_v), np.float32(0.05))),
+    )
     # Noise coordinates carry the per-frame shift; pattern coordinates (u, v) stay put.
     h["su"], h["sv"] = h["u"] + scene.tex_shift[0], h["v"] + scene.tex_shift[1]
     albedo = np.zeros((idx.size, 3), np.float32)
@@ -877,14 +1013,26 @@ def render_frame(seed: int, split: int, index: int, height: int, width: int) -> 
         noisy = view * gain + rng.standard_normal(view.shape, dtype=np.float32) * np.float32(0.008)
         images.append((np.clip(noisy, 0, 1) * 255 + 0.5).astype(np.uint8))
     with np.errstate(divide="ignore"):
-        disp, disp_right = (np.where(np.isfinite(z), f * KITTI_BASELINE / z, 0).astype(np.float32) for z in depths)
+        disp, disp_right = (
+            np.where(np.isfinite(z), f * KITTI_BASELINE / z, 0).astype(np.float32) for z in depths
+        )
     inst = scene.arrays["inst"][np.maximum(faces[0], 0)] * (faces[0] >= 0)
     present = np.unique(inst[inst > 0])
     lookup = np.zeros(int(inst.max()) + 1, np.uint8)
     lookup[present] = np.arange(1, present.size + 1)  # renumber visible cars 1..n
-    return Frame(left=images[0], right=images[1], disp=disp, disp_right=disp_right,
-                 noc=non_occluded(disp, disp_right), obj_map=lookup[inst], class_map=_class_map(scene, faces[0]),
-                 rois=_rois(scene, cam, faces[0]), rotation=scene.rot, cam_height=scene.cam_height, focal=f)
+    return Frame(
+        left=images[0],
+        right=images[1],
+        disp=disp,
+        disp_right=disp_right,
+        noc=non_occluded(disp, disp_right),
+        obj_map=lookup[inst],
+        class_map=_class_map(scene, faces[0]),
+        rois=_rois(scene, cam, faces[0]),
+        rotation=scene.rot,
+        cam_height=scene.cam_height,
+        focal=f,
+    )
 
 
 # --------------------------------------------------------------------------------------------
@@ -997,14 +1145,20 @@ def generate(cfg: SyntheticConfig, root: Path, progress: bool = True, workers: i
         write_text(raw / date / "calib_cam_to_cam.txt", calib_text(cfg.height, cfg.width))
 
     key = str(root)
-    with tqdm(total=cfg.train_pairs + cfg.eval_frames, desc="synthetic", unit="frame", disable=not progress) as bar:
+    with tqdm(
+        total=cfg.train_pairs + cfg.eval_frames, desc="synthetic", unit="frame", disable=not progress
+    ) as bar:
         pairs = _run(_write_train, [(cfg, key, i) for i in range(cfg.train_pairs)], workers, bar)
         boxes = _run(_write_eval, [(cfg, key, i) for i in range(cfg.eval_frames)], workers, bar)
 
     write_split(root / "train_files.txt", pairs)
     names = [f"{i:06d}_10" for i in range(cfg.eval_frames)]
-    write_split(k2015 / "test_files.txt", [(f"training/image_2/{n}.png", f"training/image_3/{n}.png") for n in names])
-    rois = pd.DataFrame([row for rows in boxes for row in rows], columns=["image", "class", "x0", "y0", "x1", "y1"])
+    write_split(
+        k2015 / "test_files.txt", [(f"training/image_2/{n}.png", f"training/image_3/{n}.png") for n in names]
+    )
+    rois = pd.DataFrame(
+        [row for rows in boxes for row in rows], columns=["image", "class", "x0", "y0", "x1", "y1"]
+    )
     write_rois(root / "rois.csv", rois)
     summary = {
         "config": dataclasses.asdict(cfg),
