@@ -330,11 +330,12 @@ def build_comparison(
         for g in runs:
             for r in groups.get(g, [g]):
                 d = dependence[r]
-                verdict = (
-                    "image-blind: its predictions barely change between images"
-                    if d["image_blind"]
-                    else "follows the image"
-                )
+                if d["variation_ratio"] is None:
+                    verdict = "not measured (its metrics predate image_dependence: re-run eval_full)"
+                elif d["image_blind"]:
+                    verdict = "image-blind: its predictions barely change between images"
+                else:
+                    verdict = "follows the image"
                 rows.append(
                     [
                         r,
