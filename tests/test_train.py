@@ -297,3 +297,28 @@ def test_each_seed_is_its_own_repeatable_run(pairs, tmp_path: Path) -> None:
     assert load_model(tmp_path / "a" / "model.pt")[1]["seed"] == 1
     summary = json.loads((tmp_path / "a" / "summary.json").read_text())
     assert summary["steps"] == 2 * (len(pairs) // 4) and summary["resumed_from_epoch"] == 0
+
+
+def test_speed_only_keys_are_marked_once_and_leave_the_fingerprint_alone():
+    from msdepth.config import speed_only_train_keys
+    from msdepth.train import fingerprint
+
+    keys = set(speed_only_train_keys())
+    assert keys == {
+        "num_workers",
+        "device",
+        "threads",
+        "channels_last",
+        "compile",
+        "cudnn_benchmark",
+        "sync_every",
+        "launcher",
+        "dist_timeout_s",
+    }
+    base = _params()
+    for key, value in {"threads": 2, "sync_every": 3, "channels_last": True, "dist_timeout_s": 5.0}.items():
+        changed = _params(**{key: value})
+        assert fingerprint(changed, "ssim", 8, 0) == fingerprint(base, "ssim", 8, 0), key
+    for key, value in {"learning_rate": 2e-4, "amp": "bf16", "nproc": 2, "epochs": 3}.items():
+        changed = _params(**{key: value})
+        assert fingerprint(changed, "ssim", 8, 0) != fingerprint(base, "ssim", 8, 0), key

@@ -16,6 +16,11 @@ import yaml
 from .errors import ConfigError
 
 
+def _speed_only(default: Any) -> Any:
+    """A TrainConfig field that only changes speed (see :func:`speed_only_train_keys`)."""
+    return field(default=default, metadata={"speed_only": True})
+
+
 @dataclass(frozen=True)
 class SyntheticConfig:
     """The generated KITTI-format stereo set."""
@@ -79,24 +84,32 @@ class TrainConfig:
     epochs: int = 8
     batch_size: int = 8
     learning_rate: float = 1e-4
-    num_workers: int = 0
+    num_workers: int = _speed_only(0)
     augment: bool = True
-    device: Literal["cpu", "cuda", "auto"] = "cpu"
-    threads: int = 2
-    # Speed switches for a GPU (all off on the CPU default). The loss is always computed in fp32.
+    device: Literal["cpu", "cuda", "auto"] = _speed_only("cpu")
+    threads: int = _speed_only(2)
+    # Speed switches for a GPU (all off on the CPU default). The loss is always computed in fp32;
+    # amp changes the network's arithmetic, so it is not speed-only.
     amp: Literal["none", "bf16"] = "none"
-    channels_last: bool = False
-    compile: bool = False
+    channels_last: bool = _speed_only(False)
+    compile: bool = _speed_only(False)
     # cuDNN picks its convolution algorithms by timing them (fixed input size: once per shape).
     # CUDA only; GPU runs are not bit-repeatable anyway (grid_sample's backward adds atomically).
-    cudnn_benchmark: bool = True
+    cudnn_benchmark: bool = _speed_only(True)
     # Steps between reads of the loss on the host (non-finite check, progress bar, epoch means);
     # 0 = automatic: every step on the CPU, every 50 on a GPU, whose queue each read drains.
-    sync_every: int = 0
-    # Data parallel: `torchrun` runs nproc processes (batch_size is per process).
-    launcher: Literal["local", "torchrun"] = "local"
+    sync_every: int = _speed_only(0)
+    # Data parallel: `torchrun` runs nproc processes (batch_size is per process, so nproc
+    # changes the global batch and is not speed-only).
+    launcher: Literal["local", "torchrun"] = _speed_only("local")
     nproc: int = 1
-    dist_timeout_s: float = 600.0  # a collective waiting longer (a dead rank) is an error
+    dist_timeout_s: float = _speed_only(600.0)  # a collective waiting longer (a dead rank) is an error
+
+
+def speed_only_train_keys() -> tuple[str, ...]:
+    """The ``train.*`` keys that change how fast a run goes, never what it computes: a
+    checkpoint stays valid when they change (the training fingerprint leaves them out)."""
+    return tuple(f.name for f in dataclasses.fields(TrainConfig) if f.metadata.get("speed_only"))
 
 
 @dataclass(frozen=True)

@@ -24,7 +24,7 @@ from torch.utils.data import DataLoader
 from tqdm import tqdm
 
 from . import distributed
-from .config import Params
+from .config import Params, speed_only_train_keys
 from .data.pairs import StereoPairs
 from .distributed import Context, GlobalBatchSampler
 from .errors import MsdepthError
@@ -109,29 +109,14 @@ def fingerprint(params: Params, variant: str, num_pairs: int, seed: int) -> str:
     """Hash of everything that shapes the training run, so a checkpoint is only resumed by its own
     run: parameters, seed, data size and the training code (:func:`code_digest`)."""
     appearance = params.variant(variant)
+    # Settings that change only speed do not invalidate a checkpoint, nor do the other seeds.
+    ignored = ("seeds", *speed_only_train_keys())
     relevant = {
         "code": code_digest(),
         "seed": seed,
         "data": [params.data.height, params.data.width, num_pairs],
         "model": asdict(params.model),
-        # Settings that change only speed do not invalidate a checkpoint, nor do the other seeds.
-        "train": {
-            k: v
-            for k, v in asdict(params.train).items()
-            if k
-            not in (
-                "seeds",
-                "num_workers",
-                "threads",
-                "device",
-                "channels_last",
-                "compile",
-                "sync_every",
-                "cudnn_benchmark",
-                "launcher",
-                "dist_timeout_s",
-            )
-        },
+        "train": {k: v for k, v in asdict(params.train).items() if k not in ignored},
         "loss": asdict(params.loss),
         "appearance": appearance,
         appearance: asdict(getattr(params, appearance)),
