@@ -85,3 +85,13 @@ def test_views_or_gt_of_another_size_name_both_files(tree, what: str) -> None:
         DataError, match=rf"image_2/000002_10.png is \(48, 160\) but its {what} .*000002_10.png is"
     ):
         build_indexes(params, out)
+
+
+def test_an_index_written_before_class_maps_reads_as_having_none(tmp_path: Path) -> None:
+    path = tmp_path / "eval_frames.csv"
+    path.write_text("frame,left,right,disp,obj_map,focal,baseline\n000000_10,l.png,r.png,d.png,,721.5,0.54\n")
+    frames = read_eval_index(path)
+    assert frames["class_map"].tolist() == [""] and frames["frame"].tolist() == ["000000_10"]
+    path.write_text("frame,left,right\n000000_10,l.png,r.png\n")
+    with pytest.raises(DataError, match="missing columns"):
+        read_eval_index(path)

@@ -129,6 +129,8 @@ def read_eval_index(path: str | os.PathLike) -> pd.DataFrame:
     if not path.exists():
         raise DataError(f"{path}: no evaluation index (run the index stage)")
     frames = pd.read_csv(path, dtype={"frame": str, "obj_map": str, "class_map": str}, keep_default_na=False)
+    if "class_map" not in frames.columns:  # an index written before class maps existed: none
+        frames["class_map"] = ""
     missing = set(EVAL_COLUMNS) - set(frames.columns)
     if missing:
         raise DataError(f"{path}: missing columns {sorted(missing)}")
