@@ -93,6 +93,11 @@ def test_repro_writes_every_suite_and_the_comparison(repo: Path):
         compare["seeds"] == [0] and compare["statistics"]["full"]["cap80"]["msssim"]["abs_rel"]["seeds"] == 1
     )
     assert (repo / "plots" / "train" / "ssim" / "seed0").is_dir()
+    # Timings are kept apart from the tracked summary: a rerun elsewhere changes only them.
+    summary = json.loads((repo / "metrics" / "train" / "ssim" / "seed0.json").read_text())
+    timing = json.loads((repo / "logs" / "train" / "ssim" / "seed0.json").read_text())
+    assert "seconds" not in summary and "resumed_from_epoch" not in summary and summary["steps"] == 8
+    assert timing["seconds"] > 0 and timing["resumed_from_epoch"] == 0
     figures = sorted(p.name for p in (repo / "plots" / "figures").iterdir())
     assert figures == [
         "disparity.png",
@@ -167,6 +172,23 @@ def test_killed_repro_reruns_to_identical_results(repo: Path, tmp_path: Path):
         curves = Path("plots") / "train" / run / "plots" / "metrics" / "train"
         for tsv in ("total.tsv", "appearance.tsv", "learning_rate.tsv"):
             assert (work / curves / tsv).read_text() == (repo / curves / tsv).read_text(), curves / tsv
+
+
+def test_dvc_metrics_show_lists_the_headline_numbers_and_fits_a_terminal(repo: Path):
+    shown = json.loads(_run([sys.executable, "-m", "dvc", "metrics", "show", "--json"], repo))
+    files = {path for rev in shown.values() for path in rev.get("data", {})}
+    assert files == {f"metrics/headline/{suite}/{run}.json" for suite in ("full", "roi") for run in RUNS}
+    table = _run([sys.executable, "-m", "dvc", "metrics", "show"], repo)
+    assert max(map(len, table.splitlines())) <= 160, table
+    mean = json.loads((repo / "metrics" / "headline" / "mean.json").read_text())
+    assert set(mean) == {"ssim", "msssim", "constant", "prior"} and set(mean["ssim"]) == {
+        "abs_rel",
+        "roi_abs_rel",
+    }
+    full = json.loads((repo / "metrics" / "headline" / "full" / "ssim" / "seed0.json").read_text())
+    assert set(full) == {"abs_rel", "rmse", "a1", "variation"}
+    roi = json.loads((repo / "metrics" / "headline" / "roi" / "ssim" / "seed0.json").read_text())
+    assert set(roi) == {"roi_abs_rel", "roi_a1", "mask_abs_rel"}  # the synthetic set has class maps
 
 
 def test_kernel_size_change_reruns_only_msssim(repo: Path):

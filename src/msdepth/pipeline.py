@@ -217,6 +217,7 @@ def train(params: Params, variant: str, seed: str) -> None:
         cache=images,
         seed=params.seed(seed),
         summary_path=Path("metrics") / "train" / f"{run}.json",
+        timing_path=Path("logs") / "train" / f"{run}.json",
     )
     resumed = f", resumed from epoch {result.resumed_from_epoch}" if result.resumed_from_epoch else ""
     log.info(
@@ -261,8 +262,31 @@ def depth(params: Params, variant: str, seed: str) -> None:
     save_npz(run_dir(run) / "depth.npz", **depth_maps(np.load(path), frames))
 
 
+def headline(suite: str, summary: dict) -> dict[str, float] | None:
+    """The few numbers of a suite's summary that a reader compares (first cap): what
+    ``dvc metrics show`` and ``dvc metrics diff`` list, one small file per run and suite. The
+    full summary stays beside it as a plain output."""
+    cap = next(k for k in summary if k.startswith("cap"))
+    if suite == "full":
+        m = summary[cap]
+        out = {"abs_rel": m["abs_rel"], "rmse": m["rmse"], "a1": m["a1"]}
+        if "image_dependence" in summary:
+            out["variation"] = summary["image_dependence"]["variation_ratio"]
+        return out
+    if suite == "roi":
+        m = summary[cap]["overall"]
+        out = {"roi_abs_rel": m["abs_rel"], "roi_a1": m["a1"]}
+        if cap in summary.get("masks", {}):
+            out["mask_abs_rel"] = summary["masks"][cap]["overall"]["abs_rel"]
+        return out
+    return None
+
+
 def _write_suite(suite: str, run: str, summary: dict, table) -> None:
     write_json(Path("metrics") / suite / f"{run}.json", summary)
+    top = headline(suite, summary)
+    if top is not None:
+        write_json(Path("metrics") / "headline" / suite / f"{run}.json", top)
     with atomic_path(Path("metrics") / suite / f"{run}.csv") as tmp:
         table.to_csv(tmp, index=False, float_format="%.6g")
 
@@ -318,6 +342,24 @@ def compare(params: Params) -> None:
     )
     write_json(Path("metrics") / "compare.json", result)
     write_text(Path("metrics") / "compare.md", md)
+    write_json(Path("metrics") / "headline" / "mean.json", mean_headline(suites, groups))
+
+
+def mean_headline(suites: dict, groups: dict[str, list[str]]) -> dict:
+    """Per variant (and baseline) the headline numbers averaged over its runs, with the
+    seed-to-seed sd of abs_rel: the one file to read in ``dvc exp show`` across experiments."""
+    out = {}
+    for group, runs in groups.items():
+        full = [headline("full", suites["full"][r]) for r in runs]
+        roi = [headline("roi", suites["roi"][r]) for r in runs]
+        abs_rel = [h["abs_rel"] for h in full]
+        out[group] = {
+            "abs_rel": float(np.mean(abs_rel)),
+            "roi_abs_rel": float(np.mean([h["roi_abs_rel"] for h in roi])),
+        }
+        if len(runs) > 1:
+            out[group]["abs_rel_sd"] = float(np.std(abs_rel, ddof=1))
+    return out
 
 
 def figures(params: Params) -> None:

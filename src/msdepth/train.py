@@ -42,6 +42,11 @@ class TrainingError(MsdepthError):
     """Training cannot go on (e.g. a non-finite loss); the message names the step and files."""
 
 
+# TrainResult fields that depend on the machine and on interruptions, not on the params: kept
+# out of the tracked training summary, so that a rerun leaves it (and `dvc metrics diff`) unchanged.
+TIMING_KEYS = ("resumed_from_epoch", "seconds", "seconds_this_run", "examples_per_second")
+
+
 @dataclass(frozen=True)
 class TrainResult:
     steps: int  # in total, including those before a resume
@@ -175,6 +180,7 @@ def train_variant(
     cache: np.ndarray | None = None,
     seed: int | None = None,
     summary_path: str | os.PathLike | None = None,
+    timing_path: str | os.PathLike | None = None,
     on_epoch: Callable[[int, MonodepthVGG, dict[str, float]], None] | None = None,
 ) -> TrainResult:
     """Train ``variant`` with training seed ``seed`` (default: the first of ``train.seeds``) on
@@ -185,9 +191,11 @@ def train_variant(
 
     A checkpoint is written atomically at ``checkpoint_path`` after every epoch and resumed
     from when its fingerprint matches. Per-epoch mean losses go to dvclive in ``live_dir``, the
-    training summary (steps, speed, final losses) to ``summary_path``; under torchrun only rank 0
-    writes files. ``on_epoch(epoch, model, mean_losses)`` is called after each epoch trained in
-    this call (epochs count from 1), e.g. to evaluate the network as it learns.
+    training summary (steps, final losses: what the same params reproduce) to ``summary_path``,
+    its timing (seconds, examples/s, the epoch it resumed from: what varies between machines and
+    interruptions) to ``timing_path``; under torchrun only rank 0 writes files.
+    ``on_epoch(epoch, model, mean_losses)`` is called after each epoch trained in this call
+    (epochs count from 1), e.g. to evaluate the network as it learns.
     """
     t = params.train
     seed = t.seeds[0] if seed is None else seed
@@ -317,8 +325,13 @@ def train_variant(
         examples_per_second=step * global_batch / seconds if seconds > 0 and step else math.nan,
         final_losses={k: final.get(k, math.nan) for k in LOSS_KEYS},
     )
-    if summary_path is not None and ctx.main:
-        write_json(summary_path, asdict(result))
+    if ctx.main:
+        record = asdict(result)
+        timing = {k: record.pop(k) for k in TIMING_KEYS}
+        if summary_path is not None:
+            write_json(summary_path, record)
+        if timing_path is not None:
+            write_json(timing_path, timing)
     return result
 
 
