@@ -248,3 +248,28 @@ def test_compare_shows_the_exact_mask_tables():
     result, md = build_comparison(suites, ["ssim", "msssim"], [])
     assert "### ROI, exact masks, cap 80 m" in md and "| msssim | 0.1000 | 0.2000 | 0.8000 | 0.1000 |" in md
     assert result["roi_masks"]["cap80"]["ssim"]["overall"]["abs_rel"] == 0.3
+
+
+def test_compare_names_missing_baselines_with_their_reasons():
+    metrics = {"abs_rel": 0.2, "sq_rel": 0.2, "rmse": 0.2, "rmse_log": 0.2, "a1": 0.8, "a2": 0.8, "a3": 0.8}
+    roi = {"cap80": {"overall": {**metrics, "count": 1}, "by_class": {}}}
+    grad = {
+        "cap80": {
+            "overall": {"pred_sobel_x": 1, "pred_sobel_y": 1, "pred_laplacian": 1},
+            "dense_gt": {"overall": {}},
+        }
+    }
+    suites = {
+        "full": {r: {"cap80": metrics} for r in ("ssim", "constant")},
+        "roi": {r: roi for r in ("ssim", "constant")},
+        "gradients": {r: grad for r in ("ssim", "constant")},
+    }
+    missing = {"prior": "no metrics/full/prior.json"}
+    result, md = build_comparison(suites, ["ssim"], ["constant"], missing_baselines=missing)
+    assert "Missing baselines (not built): prior: no metrics/full/prior.json." in md
+    assert result["missing_baselines"] == missing and result["baselines"] == ["constant"]
+    two = {"constant": "no training GT", "prior": "no metrics/full/prior.json"}
+    _, md = build_comparison(suites, ["ssim"], [], missing_baselines=two)
+    assert "Missing baselines (not built): constant: no training GT; prior: no metrics/full/prior.json." in md
+    _, md = build_comparison(suites, ["ssim"], ["constant"])
+    assert "Missing" not in md
