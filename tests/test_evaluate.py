@@ -273,3 +273,29 @@ def test_compare_names_missing_baselines_with_their_reasons():
     assert "Missing baselines (not built): constant: no training GT; prior: no metrics/full/prior.json." in md
     _, md = build_comparison(suites, ["ssim"], ["constant"])
     assert "Missing" not in md
+
+
+def test_compare_says_when_image_dependence_cannot_be_measured():
+    """One evaluation frame (or GT never at the same pixels in 3): the ratio is NaN, which must
+    read as "not measured", not as "follows the image"."""
+    from msdepth.compare import image_dependence as compare_dependence
+    from msdepth.evaluate import image_dependence
+
+    frame = _frames_with_depth([np.full((10, 20), 20.0, dtype=np.float32)])
+    measured = image_dependence({frame[0].name: frame[0].gt_depth}, frame, 80.0)
+    assert np.isnan(measured["variation_ratio"])
+    metrics = {"abs_rel": 0.2, "sq_rel": 0.2, "rmse": 0.2, "rmse_log": 0.2, "a1": 0.8, "a2": 0.8, "a3": 0.8}
+    table = pd.DataFrame([{"frame": frame[0].name, "cap": 80.0, **metrics}])
+    suites = {"full": {"ssim": {"cap80": metrics, "image_dependence": measured}}}
+    dependence = compare_dependence(suites, {"full": {"ssim": table}}, {"ssim": ["ssim"]}, "prior", 80.0)
+    assert dependence["ssim"] == {"variation_ratio": None, "prior_correlation": None, "image_blind": False}
+    roi = {"cap80": {"overall": {**metrics, "count": 1}, "by_class": {}}}
+    grad = {
+        "cap80": {
+            "overall": {"pred_sobel_x": 1, "pred_sobel_y": 1, "pred_laplacian": 1},
+            "dense_gt": {"overall": {}},
+        }
+    }
+    suites = {"full": suites["full"], "roi": {"ssim": roi}, "gradients": {"ssim": grad}}
+    _, md = build_comparison(suites, ["ssim"], [], dependence=dependence, groups={"ssim": ["ssim"]})
+    assert "| ssim | – | – | not measured: too few evaluation frames with GT at the same pixels |" in md

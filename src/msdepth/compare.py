@@ -215,6 +215,8 @@ def image_dependence(
     for runs in groups.values():
         for run in runs:
             ratio = suites["full"][run].get("image_dependence", {}).get("variation_ratio")
+            if ratio is not None and not np.isfinite(ratio):
+                ratio = None  # NaN: no pixel has GT in enough frames (e.g. fewer than 3 frames)
             corr = None
             if prior in full and run != prior:
                 errors, prior_errors = paired_table(
@@ -345,11 +347,12 @@ def build_comparison(
         for g in runs:
             for r in groups.get(g, [g]):
                 d = dependence[r]
-                verdict = (
-                    "image-blind: its predictions barely change between images"
-                    if d["image_blind"]
-                    else "follows the image"
-                )
+                if d["variation_ratio"] is None:
+                    verdict = "not measured: too few evaluation frames with GT at the same pixels"
+                elif d["image_blind"]:
+                    verdict = "image-blind: its predictions barely change between images"
+                else:
+                    verdict = "follows the image"
                 rows.append(
                     [
                         r,
