@@ -8,10 +8,11 @@ which is used as it is. A real KITTI raw drive has none; its GT is the frame's V
 projected into camera 2 (:func:`msdepth.data.kitti.velodyne_depth`, the field's raw-LiDAR GT)
 and turned into disparity with the focal and baseline the evaluation uses for that image width
 (:func:`msdepth.data.kitti.focal_and_baseline`), so that the conversion back to depth is its
-exact inverse. KITTI's days differ in image size (1242 x 375, 1241 x 376, 1238 x 374,
-1224 x 370, 1226 x 370): maps of other sizes are resampled to the most common one, each
-valid sample to the nearest pixel of that grid (the nearest point wins where two meet), as
-disparities are fractions of the width and need no rescaling.
+exact inverse (a width outside Monodepth's table takes them from the day's ``P_rect_02`` /
+``P_rect_03``). KITTI's days differ in image size (1242 x 375, 1241 x 376, 1238 x 374,
+1224 x 370, ...): maps of other sizes are resampled to the most common one, each valid sample
+to the nearest pixel of that grid (the nearest point wins where two meet), as disparities are
+fractions of the width and need no rescaling.
 """
 
 from __future__ import annotations
