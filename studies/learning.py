@@ -37,6 +37,7 @@ from msdepth.config import Params, params_from_dict  # noqa: E402
 from msdepth.data import kitti  # noqa: E402
 from msdepth.data.index import read_eval_index  # noqa: E402
 from msdepth.data.pairs import build_pair_cache, load_pair_cache, load_pair_list  # noqa: E402
+from msdepth.errors import DataError  # noqa: E402
 from msdepth.evaluate import depth_maps, evaluate_full, evaluate_roi, image_dependence, load_frames  # noqa: E402
 
 INDEX = Path("data/index")
@@ -158,7 +159,9 @@ def run_one(base: dict, spec: str, seed: int, out: str, threads: int) -> dict:
 def prior_metrics(params: Params) -> dict:
     """The image-blind per-pixel prior's abs_rel (full and ROI, cap 80) on the evaluation frames."""
     pairs = load_pair_list(INDEX / "train_pairs.txt")
-    gt = baselines.training_gt_disparities([left for left, _ in pairs], progress=False)
+    gt = baselines.training_gt([left for left, _ in pairs], progress=False).maps
+    if gt is None:
+        raise DataError(f"{INDEX / 'train_pairs.txt'}: no training frame has GT (disp_02 or a Velodyne scan)")
     frames = load_frames(read_eval_index(INDEX / "eval_frames.csv"))
     boxes = kitti.read_rois(INDEX / "rois.csv")
     out = {}

@@ -248,3 +248,54 @@ def test_compare_shows_the_exact_mask_tables():
     result, md = build_comparison(suites, ["ssim", "msssim"], [])
     assert "### ROI, exact masks, cap 80 m" in md and "| msssim | 0.1000 | 0.2000 | 0.8000 | 0.1000 |" in md
     assert result["roi_masks"]["cap80"]["ssim"]["overall"]["abs_rel"] == 0.3
+
+
+def test_compare_names_missing_baselines_with_their_reasons():
+    metrics = {"abs_rel": 0.2, "sq_rel": 0.2, "rmse": 0.2, "rmse_log": 0.2, "a1": 0.8, "a2": 0.8, "a3": 0.8}
+    roi = {"cap80": {"overall": {**metrics, "count": 1}, "by_class": {}}}
+    grad = {
+        "cap80": {
+            "overall": {"pred_sobel_x": 1, "pred_sobel_y": 1, "pred_laplacian": 1},
+            "dense_gt": {"overall": {}},
+        }
+    }
+    suites = {
+        "full": {r: {"cap80": metrics} for r in ("ssim", "constant")},
+        "roi": {r: roi for r in ("ssim", "constant")},
+        "gradients": {r: grad for r in ("ssim", "constant")},
+    }
+    missing = {"prior": "no metrics/full/prior.json"}
+    result, md = build_comparison(suites, ["ssim"], ["constant"], missing_baselines=missing)
+    assert "Missing baselines (not built): prior: no metrics/full/prior.json." in md
+    assert result["missing_baselines"] == missing and result["baselines"] == ["constant"]
+    two = {"constant": "no training GT", "prior": "no metrics/full/prior.json"}
+    _, md = build_comparison(suites, ["ssim"], [], missing_baselines=two)
+    assert "Missing baselines (not built): constant: no training GT; prior: no metrics/full/prior.json." in md
+    _, md = build_comparison(suites, ["ssim"], ["constant"])
+    assert "Missing" not in md
+
+
+def test_compare_says_when_image_dependence_cannot_be_measured():
+    """One evaluation frame (or GT never at the same pixels in 3): the ratio is NaN, which must
+    read as "not measured", not as "follows the image"."""
+    from msdepth.compare import image_dependence as compare_dependence
+    from msdepth.evaluate import image_dependence
+
+    frame = _frames_with_depth([np.full((10, 20), 20.0, dtype=np.float32)])
+    measured = image_dependence({frame[0].name: frame[0].gt_depth}, frame, 80.0)
+    assert np.isnan(measured["variation_ratio"])
+    metrics = {"abs_rel": 0.2, "sq_rel": 0.2, "rmse": 0.2, "rmse_log": 0.2, "a1": 0.8, "a2": 0.8, "a3": 0.8}
+    table = pd.DataFrame([{"frame": frame[0].name, "cap": 80.0, **metrics}])
+    suites = {"full": {"ssim": {"cap80": metrics, "image_dependence": measured}}}
+    dependence = compare_dependence(suites, {"full": {"ssim": table}}, {"ssim": ["ssim"]}, "prior", 80.0)
+    assert dependence["ssim"] == {"variation_ratio": None, "prior_correlation": None, "image_blind": False}
+    roi = {"cap80": {"overall": {**metrics, "count": 1}, "by_class": {}}}
+    grad = {
+        "cap80": {
+            "overall": {"pred_sobel_x": 1, "pred_sobel_y": 1, "pred_laplacian": 1},
+            "dense_gt": {"overall": {}},
+        }
+    }
+    suites = {"full": suites["full"], "roi": {"ssim": roi}, "gradients": {"ssim": grad}}
+    _, md = build_comparison(suites, ["ssim"], [], dependence=dependence, groups={"ssim": ["ssim"]})
+    assert "| ssim | – | – | not measured: too few evaluation frames with GT at the same pixels, " in md

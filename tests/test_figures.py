@@ -11,6 +11,7 @@ import pytest
 
 from msdepth import pipeline
 from msdepth.config import params_from_dict
+from msdepth.data import kitti
 from msdepth.data.synthetic import generate
 from msdepth.errors import DataError
 from msdepth.figures import FIGURES, make_figures, roi_examples
@@ -202,3 +203,32 @@ def test_training_curves_draw_every_seed_and_name_a_missing_one(tree: Path, tmp_
             eval_cfg=_eval_cfg(),
             curves=curves,
         )
+
+
+def test_sparse_gt_shows_the_densest_roi_of_each_class(tree: Path, tmp_path: Path, monkeypatch):
+    """With GT as sparse as one LiDAR scan, no ROI has 50 % valid GT: each class's densest is shown."""
+    sparse = tmp_path / "tree"
+    shutil.copytree(tree, sparse)
+    monkeypatch.chdir(sparse)
+    rng = np.random.default_rng(0)
+    for path in Path("data/kitti/kitti2015/training/disp_noc_0").glob("*.png"):
+        disp = kitti.read_disparity(path)
+        kitti.write_disparity(path, np.where(rng.random(disp.shape) < 0.05, disp, 0))
+    examples = roi_examples(RUNS, **_paths(sparse), eval_cfg=_eval_cfg())
+    assert examples and all(0 < ex.gt_valid_fraction < 0.5 for ex in examples)
+    boxes = pd.read_csv(sparse / "data/index/rois.csv", dtype={"image": str})
+    for ex in examples:
+        fractions = []
+        for roi in boxes[boxes["class"] == ex.cls].itertuples():
+            disp = kitti.read_disparity(f"data/kitti/kitti2015/training/disp_noc_0/{roi.image}.png")
+            fractions.append((disp[roi.y0 : roi.y1, roi.x0 : roi.x1] > 0).mean())
+        assert ex.gt_valid_fraction == pytest.approx(max(fractions))
+    written = make_figures(
+        RUNS,
+        tmp_path / "figs",
+        **_paths(sparse),
+        metrics=sparse / "metrics",
+        train_plots=sparse / "plots/train",
+        eval_cfg=_eval_cfg(),
+    )
+    assert [p.name for p in written] == list(FIGURES)

@@ -215,6 +215,8 @@ def image_dependence(
     for runs in groups.values():
         for run in runs:
             ratio = suites["full"][run].get("image_dependence", {}).get("variation_ratio")
+            if ratio is not None and not np.isfinite(ratio):
+                ratio = None  # NaN: no pixel has GT in enough frames (e.g. fewer than 3 frames)
             corr = None
             if prior in full and run != prior:
                 errors, prior_errors = paired_table(
@@ -247,6 +249,16 @@ def _best(values: dict[str, float], metric: str) -> str | None:
     return pick(values, key=values.get)
 
 
+def _missing_lines(missing: dict[str, str] | None) -> list[str]:
+    """The header line naming the baselines that could not be built and why (none if all were)."""
+    if not missing:
+        return []
+    reasons = set(missing.values())
+    if len(reasons) == 1:
+        return [f"Missing baselines (not built): {', '.join(missing)}: {reasons.pop()}."]
+    return [f"Missing baselines (not built): {'; '.join(f'{b}: {r}' for b, r in missing.items())}."]
+
+
 def build_comparison(
     suites: dict[str, dict[str, dict]],
     variants: Sequence[str],
@@ -256,6 +268,7 @@ def build_comparison(
     seeds: Sequence[int] = (0,),
     dependence: dict[str, dict] | None = None,
     groups: dict[str, Sequence[str]] | None = None,
+    missing_baselines: dict[str, str] | None = None,
 ) -> tuple[dict, str]:
     """The comparison as JSON-ready dict and as Markdown (best variant per column in bold).
 
@@ -265,7 +278,8 @@ def build_comparison(
     (:func:`seed_spread`) and more than one seed, by each variant's mean ± sd over seeds. With
     ``dependence`` (:func:`image_dependence`, per run) and ``groups`` (variant -> its runs), a
     section says for every run whether it uses the image, and image-blind runs are flagged in
-    the tables.
+    the tables. ``missing_baselines`` (baseline -> why it could not be built, e.g. no training
+    GT) are named under the header, so that a table without them is not mistaken for complete.
     """
     runs = [*variants, *baselines]
     caps = [k for k in suites["full"][runs[0]] if k.startswith("cap")]
@@ -277,6 +291,8 @@ def build_comparison(
         "roi": {},
         "gradients": {},
     }
+    if missing_baselines:
+        result["missing_baselines"] = dict(missing_baselines)
     several = len(seeds) > 1
     trained = (
         f"Each variant's numbers are the mean of {len(seeds)} training runs "
@@ -289,6 +305,7 @@ def build_comparison(
         "",
         f"Variants: {', '.join(variants)}. "
         f"Baselines (image-blind, from training GT): {', '.join(baselines) or 'none'}.",
+        *_missing_lines(missing_baselines),
         trained,
         "Errors: lower is better; a1–a3: higher is better. Best variant per column in **bold**.",
         "",
@@ -331,7 +348,10 @@ def build_comparison(
             for r in groups.get(g, [g]):
                 d = dependence[r]
                 if d["variation_ratio"] is None:
-                    verdict = "not measured (its metrics predate image_dependence: re-run eval_full)"
+                    verdict = (
+                        "not measured: too few evaluation frames with GT at the same pixels, "
+                        "or metrics from before image_dependence (re-run eval_full)"
+                    )
                 elif d["image_blind"]:
                     verdict = "image-blind: its predictions barely change between images"
                 else:

@@ -6,7 +6,8 @@ Files written to ``out_dir`` by :func:`make_figures`:
     A row per evaluation frame (the first ``frames`` of the index): the input image, then each
     variant's disparity in pixels at GT size; one colour scale and colour bar per row.
 ``roi_depth.png`` (Figures 4.2 / 4.3)
-    A row per ROI class present: the first ROI of that class with >= 50 % valid GT. The input
+    A row per ROI class present: the first ROI of that class with >= 50 % valid GT (if no ROI
+    has that much, as with the sparse GT of single LiDAR scans, the one with the most). The input
     image with the box, the GT depth of the ROI (invalid pixels grey) and each variant's
     depth, clamped to ``[min_depth, caps[0]]`` as the evaluation does; each variant panel shows
     its abs rel on the ROI, the value the ROI suite writes.
@@ -210,21 +211,31 @@ def _disparity_figure(inp: _Inputs, frames: int, path: Path) -> Path:
 
 
 def _select_rois(inp: _Inputs) -> list[tuple[int, dict]]:
-    """The first ROI of each class (in ``kitti.ROI_CLASSES`` order) with enough valid GT."""
+    """The first ROI of each class (in ``kitti.ROI_CLASSES`` order) with enough valid GT.
+
+    If no ROI at all has :data:`MIN_VALID_FRACTION` valid GT (sparse GT, e.g. a single LiDAR
+    scan, covers a few per cent of a box), each class's ROI with the most valid GT is shown.
+    """
     cap = inp.cfg.caps[0]
     chosen: dict[str, tuple[int, dict]] = {}
+    densest: dict[str, tuple[float, int, dict]] = {}
     for i, roi in enumerate(inp.rois.to_dict("records")):
         if roi["class"] in chosen:
             continue
         frame = inp.frame(roi["image"])
         box = (slice(roi["y0"], roi["y1"]), slice(roi["x0"], roi["x1"]))
         valid = frame.gt_disp[box] > 0
-        if valid.size == 0 or valid.mean() < MIN_VALID_FRACTION:
+        if valid.size == 0:
             continue
         # With GT masked beyond the cap the suite may have no pixel left to score: skip such ROIs.
         if inp.cfg.mask_gt_beyond_cap and not (valid & (frame.gt_depth[box] <= cap)).any():
             continue
-        chosen[roi["class"]] = (i, roi)
+        if valid.any() and valid.mean() > densest.get(roi["class"], (0.0,))[0]:
+            densest[roi["class"]] = (float(valid.mean()), i, roi)
+        if valid.mean() >= MIN_VALID_FRACTION:
+            chosen[roi["class"]] = (i, roi)
+    if not chosen:
+        chosen = {c: (i, roi) for c, (_, i, roi) in densest.items()}
     return [chosen[c] for c in kitti.ROI_CLASSES if c in chosen]
 
 
@@ -233,7 +244,7 @@ def _roi_examples(inp: _Inputs) -> list[RoiExample]:
     one_cap = dataclasses.replace(inp.cfg, caps=(cap,))
     selected = _select_rois(inp)
     if not selected:
-        raise DataError(f"no ROI has >= {MIN_VALID_FRACTION:.0%} valid ground truth for the ROI figures")
+        raise DataError("no ROI has valid ground truth for the ROI figures")
     kernel = np.ones((3, 3), np.uint8)
     out = []
     for i, roi in selected:

@@ -48,7 +48,7 @@ INDEX_DIR = Path("data/index")
 PAIR_CACHE = Path("data/cache/train_pairs.npy")
 CACHED_PAIRS = Path("data/cache/train_pairs.txt")
 CACHE_REPORT = Path("data/cache/report.json")
-BASELINES = ("constant", "prior")
+BASELINES = baselines_mod.BASELINES
 SUITES = {"full": evaluate_full, "roi": evaluate_roi, "gradients": evaluate_gradients}
 
 
@@ -310,20 +310,60 @@ def evaluate(params: Params, suite: str, variant: str, seed: str) -> None:
 
 
 def baselines(params: Params) -> None:
-    """The image-blind baselines, through the same depth conversion and suites as the variants."""
+    """The image-blind baselines, through the same depth conversion and suites as the variants.
+
+    Their training GT is ``disp_02`` (synthetic) or the Velodyne scans (real KITTI); drives with
+    neither are named and left out. With no GT at all the baselines are skipped, not failed: each
+    leaves a ``{"skipped": reason}`` JSON (and a one-row CSV) that ``compare`` reports as missing.
+    """
     pairs = load_pair_list(INDEX_DIR / "train_pairs.txt")
-    gt = baselines_mod.training_gt_disparities([left for left, _ in pairs])
+    gt = baselines_mod.training_gt([left for left, _ in pairs])
+    for drive, count in gt.missing.items():
+        log.warning(
+            "baselines: %s: %d training frame(s) with neither disp_02/data/<frame>.png nor "
+            "velodyne_points/data/<frame>.bin, left out",
+            drive,
+            count,
+        )
+    if gt.maps is None:
+        reason = f"no training frame has GT (disp_02 or a Velodyne scan) in {len(gt.missing)} drive(s)"
+        log.warning("baselines: %s: %s not built", reason, " and ".join(BASELINES))
+        for run in BASELINES:
+            for suite in SUITES:
+                write_json(Path("metrics") / suite / f"{run}.json", {baselines_mod.SKIPPED: reason})
+                write_text(Path("metrics") / suite / f"{run}.csv", f"{baselines_mod.SKIPPED}\n{reason}\n")
+                if suite in ("full", "roi"):  # the headline files are declared DVC metrics too
+                    write_json(
+                        Path("metrics") / "headline" / suite / f"{run}.json", {baselines_mod.SKIPPED: reason}
+                    )
+        return
+    used, (h, w) = len(gt.maps), gt.maps.shape[1:]
+    subset = f" (an evenly spaced {used} of {gt.available}: memory budget)" if used < gt.available else ""
+    resampled = f", {gt.resampled} resampled from other sizes" if gt.resampled else ""
+    log.info(
+        "baselines: training GT of %d frames%s at %dx%d%s: %s", used, subset, h, w, resampled, gt.sources
+    )
     frames = load_frames(read_eval_index(INDEX_DIR / "eval_frames.csv"))
     boxes = kitti.read_rois(INDEX_DIR / "rois.csv")
-    for run, disp in baselines_mod.baseline_disparities(gt, len(frames)).items():
+    for run, disp in baselines_mod.baseline_disparities(gt.maps, len(frames)).items():
         pred = depth_maps(disp, frames)
         for suite in SUITES:
             _run_suite(params, suite, run, pred, frames, boxes)
 
 
 def compare(params: Params) -> None:
-    """One table of every variant (mean over its seeds) and baseline, as Markdown and JSON."""
-    groups = {**variant_runs(params), **{b: [b] for b in BASELINES}}
+    """One table of every variant (mean over its seeds) and baseline, as Markdown and JSON.
+
+    A baseline the baselines stage could not build is listed as missing, with the reason.
+    """
+    missing = {
+        b: reason
+        for b in BASELINES
+        if (reason := baselines_mod.skipped_reason("metrics", b, SUITES)) is not None
+    }
+    built = tuple(b for b in BASELINES if b not in missing)
+    groups = {**variant_runs(params), **{b: [b] for b in built}}
+
     runs = [r for group in groups.values() for r in group]
     suites = load_suite_metrics("metrics", runs)
     tables = load_unit_tables("metrics", runs)
@@ -333,12 +373,13 @@ def compare(params: Params) -> None:
     result, md = build_comparison(
         group_metrics(suites, groups),
         list(params.variants),
-        BASELINES,
+        built,
         stats,
         seed_spread(suites, groups, caps),
         params.train.seeds,
         dependence,
         groups,
+        missing_baselines=missing,
     )
     write_json(Path("metrics") / "compare.json", result)
     write_text(Path("metrics") / "compare.md", md)

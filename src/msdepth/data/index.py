@@ -56,9 +56,19 @@ def layout(params: Params) -> Layout:
 def training_gt_path(left_image: Path) -> Path:
     """GT disparity of a synthetic training frame: ``image_02/data/X.png`` -> ``disp_02/data/X.png``.
 
-    Real KITTI raw drives have no dense GT; only the synthetic set writes ``disp_02``.
+    Real KITTI raw drives have no dense GT; only the synthetic set writes ``disp_02``. Theirs is
+    the Velodyne scan (:func:`velodyne_path`).
     """
     return left_image.parent.parent.parent / "disp_02" / "data" / (left_image.stem + ".png")
+
+
+def velodyne_path(left_image: Path) -> Path:
+    """Velodyne scan of a KITTI raw frame: ``image_02/data/X.png`` -> ``velodyne_points/data/X.bin``.
+
+    Its day's calibration (``calib_cam_to_cam.txt``, ``calib_velo_to_cam.txt``) is in the folder
+    above the drive: ``velodyne_path(left).parents[3]``.
+    """
+    return left_image.parent.parent.parent / "velodyne_points" / "data" / (left_image.stem + ".bin")
 
 
 def build_eval_index(kitti2015_root: Path, split_file: Path, gt: str) -> pd.DataFrame:

@@ -8,6 +8,7 @@ KITTI tree and the synthetic one (:mod:`msdepth.data.synthetic` writes these for
 from __future__ import annotations
 
 import os
+from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
@@ -211,6 +212,126 @@ def focal_and_baseline(width: int, calib_path: PathLike | None = None) -> tuple[
         f"width {width} is not a KITTI image width ({sorted(WIDTH_TO_FOCAL)}) and no calibration file "
         f"was found{f' at {calib_path}' if calib_path is not None else ''}"
     )
+
+
+# ------------------------------------------------------------------------ LiDAR ground truth
+
+
+def read_velodyne(path: PathLike) -> np.ndarray:
+    """Read a KITTI Velodyne scan (``velodyne_points/data/*.bin``): float32 ``(N, 4)`` x, y, z, reflectance.
+
+    x points forward, y left, z up (metres). A size that is not a whole number of 16-byte points
+    means a truncated or foreign file, which would otherwise shift every later point's fields.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise DataError(f"{path}: no such Velodyne scan file")
+    data = path.read_bytes()
+    if len(data) % 16:
+        raise DataError(
+            f"{path}: Velodyne scan is {len(data)} bytes, not a multiple of 16 (4 float32 per point)"
+        )
+    return np.frombuffer(data, dtype="<f4").reshape(-1, 4).astype(np.float32)
+
+
+@dataclass(frozen=True)
+class RawCalib:
+    """One KITTI raw day's calibration, as the LiDAR projection into camera 2 needs it.
+
+    ``proj`` = ``P_rect_02`` (3x4), ``rect`` = ``R_rect_00`` (3x3, the rectifying rotation all
+    cameras share), ``velo_to_cam`` = ``[R|T]`` of ``calib_velo_to_cam.txt`` (4x4) and ``shape``
+    = ``S_rect_02`` as (height, width): the size of the rectified camera-2 images.
+    """
+
+    proj: np.ndarray
+    rect: np.ndarray
+    velo_to_cam: np.ndarray
+    shape: tuple[int, int]
+
+
+def _entry(calib: dict[str, np.ndarray], key: str, size: int, path: Path) -> np.ndarray:
+    if key not in calib:
+        raise DataError(f"{path}: no {key} entry (keys: {sorted(calib)})")
+    value = calib[key]
+    if value.size != size or not np.isfinite(value).all():
+        raise DataError(f"{path}: {key} must be {size} finite numbers, got {value.size}: {value[:12]}")
+    return value
+
+
+def read_raw_calib(day_dir: PathLike) -> RawCalib:
+    """Read ``calib_cam_to_cam.txt`` and ``calib_velo_to_cam.txt`` of a raw day folder (``raw/<date>/``)."""
+    cam_path = Path(day_dir) / "calib_cam_to_cam.txt"
+    velo_path = Path(day_dir) / "calib_velo_to_cam.txt"
+    cam, velo = read_calib(cam_path), read_calib(velo_path)
+    size = _entry(cam, "S_rect_02", 2, cam_path)
+    width, height = (int(round(v)) for v in size)
+    if width <= 0 or height <= 0 or not np.allclose(size, (width, height)):
+        raise DataError(f"{cam_path}: S_rect_02 must be a positive whole width and height, got {size}")
+    velo_to_cam = np.eye(4)
+    velo_to_cam[:3, :3] = _entry(velo, "R", 9, velo_path).reshape(3, 3)
+    velo_to_cam[:3, 3] = _entry(velo, "T", 3, velo_path)
+    return RawCalib(
+        proj=_entry(cam, "P_rect_02", 12, cam_path).reshape(3, 4),
+        rect=_entry(cam, "R_rect_00", 9, cam_path).reshape(3, 3),
+        velo_to_cam=velo_to_cam,
+        shape=(height, width),
+    )
+
+
+def _homogeneous(matrix: np.ndarray, name: str) -> np.ndarray:
+    """A 3x3, 3x4 or 4x4 transform as 4x4 (the missing rows and columns of the identity)."""
+    matrix = np.asarray(matrix, dtype=np.float64)
+    if matrix.shape not in ((3, 3), (3, 4), (4, 4)):
+        raise ValueError(f"lidar_depth_map: {name} must be 3x3, 3x4 or 4x4, got {matrix.shape}")
+    out = np.eye(4)
+    out[: matrix.shape[0], : matrix.shape[1]] = matrix
+    return out
+
+
+def lidar_depth_map(
+    points: np.ndarray,
+    velo_to_cam: np.ndarray,
+    rect: np.ndarray,
+    proj: np.ndarray,
+    shape: tuple[int, int],
+) -> np.ndarray:
+    """Sparse depth (m) of a Velodyne scan in the image, the field's raw-LiDAR GT; 0 = no point.
+
+    As Monodepth2's ``generate_depth_map(..., vel_depth=True)`` computes the Eigen split's GT, so
+    that numbers are comparable: points with x < 0 (behind the LiDAR) are dropped; the rest are
+    projected with ``proj · rect · velo_to_cam``; the pixel is ``round(u) - 1, round(v) - 1``
+    (KITTI's MATLAB convention; numpy's round, half to even); points outside ``shape`` (h, w)
+    are dropped; where several land on one pixel the nearest wins; the value is the LiDAR's
+    forward coordinate x, not the camera's z (a point at exactly x = 0 is kept and, as the
+    nearest, blanks its pixel, as there). Unlike Monodepth2 (whose ``sub2ind`` also merges
+    the last column of a row with the first of the next), only points on the same pixel compete.
+
+    ``velo_to_cam`` is 3x4 or 4x4, ``rect`` 3x3 or 4x4, ``proj`` 3x4; returns float32 (h, w).
+    """
+    points = np.asarray(points)
+    if points.ndim != 2 or points.shape[1] < 3:
+        raise ValueError(f"lidar_depth_map: points must be (N, 3) or (N, 4), got {points.shape}")
+    proj = np.asarray(proj, dtype=np.float64)
+    if proj.shape != (3, 4):
+        raise ValueError(f"lidar_depth_map: proj must be 3x4, got {proj.shape}")
+    height, width = shape
+    xyz = points[points[:, 0] >= 0, :3].astype(np.float64)
+    velo_to_image = proj @ _homogeneous(rect, "rect") @ _homogeneous(velo_to_cam, "velo_to_cam")
+    uvz = xyz @ velo_to_image[:, :3].T + velo_to_image[:, 3]
+    with np.errstate(divide="ignore", invalid="ignore"):  # z = 0: inf/NaN, dropped as outside
+        col = np.round(uvz[:, 0] / uvz[:, 2]) - 1
+        row = np.round(uvz[:, 1] / uvz[:, 2]) - 1
+    inside = (col >= 0) & (row >= 0) & (col < width) & (row < height)
+    col, row, depth = col[inside].astype(np.int64), row[inside].astype(np.int64), xyz[inside, 0]
+    flat = np.full(height * width, np.inf)
+    np.minimum.at(flat, row * width + col, depth)
+    flat[np.isinf(flat)] = 0.0
+    return flat.reshape(height, width).astype(np.float32)
+
+
+def velodyne_depth(scan_path: PathLike, calib: RawCalib) -> np.ndarray:
+    """The GT depth map (m, 0 = none) of one scan in camera 2, at the calibration's image size."""
+    return lidar_depth_map(read_velodyne(scan_path), calib.velo_to_cam, calib.rect, calib.proj, calib.shape)
 
 
 def read_split(path: PathLike) -> list[tuple[str, str]]:
