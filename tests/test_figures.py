@@ -99,6 +99,8 @@ def test_every_figure_is_a_png_and_no_temp_file_is_left(tree: Path, tmp_path: Pa
         data = path.read_bytes()
         assert data.startswith(PNG_MAGIC), path
         assert len(data) > 10_000, (path, len(data))
+        # No matplotlib version in the file: the committed figures survive a matplotlib upgrade.
+        assert b"atplotlib" not in data, path
     assert sorted(p.name for p in out.iterdir()) == sorted(FIGURES)  # no .<name>.*.png temp files
 
 

@@ -35,7 +35,7 @@ def test_failed_write_keeps_the_previous_file_and_leaves_no_temp(
         )
     elif writer == "png":
         monkeypatch.setattr(
-            io.cv2, "imwrite", lambda name, img: (Path(name).write_bytes(b"\x89PNG"), _fail_midway())
+            Path, "write_bytes", lambda self, data: (open(self, "wb").write(b"\x89PNG"), _fail_midway())
         )
     else:
         monkeypatch.setattr(
@@ -63,3 +63,76 @@ def test_outputs_get_ordinary_file_permissions(tmp_path: Path) -> None:
     finally:
         os.umask(umask)
     assert stat.S_IMODE((tmp_path / "m.json").stat().st_mode) == 0o644
+
+
+# ----------------------------------------------------------------------------- PNG encoder
+
+
+def _png_rows(data: bytes) -> tuple[dict, np.ndarray]:
+    """A minimal PNG reader for the encoder's own output: header fields and filtered rows."""
+    import struct
+    import zlib
+
+    assert data[:8] == b"\x89PNG\r\n\x1a\n"
+    pos, chunks = 8, []
+    while pos < len(data):
+        (n,) = struct.unpack(">I", data[pos : pos + 4])
+        kind, body = data[pos + 4 : pos + 8], data[pos + 8 : pos + 8 + n]
+        (crc,) = struct.unpack(">I", data[pos + 8 + n : pos + 12 + n])
+        assert crc == zlib.crc32(kind + body), kind
+        chunks.append((kind, body))
+        pos += 12 + n
+    assert [k for k, _ in chunks] == [b"IHDR", b"IDAT", b"IEND"]
+    w, h, depth, color, *_ = struct.unpack(">IIBBBBB", chunks[0][1])
+    raw = np.frombuffer(zlib.decompress(chunks[1][1]), np.uint8).reshape(h, -1)
+    return {"w": w, "h": h, "depth": depth, "color": color}, raw
+
+
+@pytest.mark.parametrize(
+    "image",
+    [
+        np.arange(5 * 7 * 3, dtype=np.uint8).reshape(5, 7, 3) * 37,
+        (np.arange(6 * 4, dtype=np.uint8).reshape(6, 4) * 91),
+        (np.arange(3 * 9, dtype=np.uint16).reshape(3, 9) * 2411),  # spans both bytes, > 255
+    ],
+    ids=["rgb", "gray8", "gray16"],
+)
+def test_png_round_trips_through_opencv_in_rgb_order(tmp_path: Path, image: np.ndarray) -> None:
+    import cv2
+
+    path = tmp_path / "x.png"
+    io.write_png(path, image)
+    back = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if image.ndim == 3:
+        back = back[..., ::-1]  # OpenCV reads BGR
+    assert back.dtype == image.dtype and np.array_equal(back, image)
+
+
+def test_png_rows_are_up_filtered_and_big_endian() -> None:
+    """Hand-checked layout: filter byte 2 ("Up") per row, row 0 raw, then differences mod 256."""
+    image = np.array([[1, 300], [258, 44]], np.uint16)
+    header, raw = _png_rows(io.encode_png(image))
+    assert header == {"w": 2, "h": 2, "depth": 16, "color": 0}
+    assert raw.tolist() == [
+        [2, 0, 1, 1, 44],  # 1 = 0x0001, 300 = 0x012C
+        [2, 1, 1, 255, 0],  # 258 = 0x0102 minus 0x0001 -> (1, 1); 44 = 0x002C minus 0x012C -> (255, 0)
+    ]
+
+
+def test_png_bytes_depend_only_on_the_pixels() -> None:
+    rng = np.random.default_rng(0)
+    image = rng.integers(0, 256, (16, 24, 3), dtype=np.uint8)
+    assert io.encode_png(image) == io.encode_png(image.copy(order="F"))
+    assert io.encode_png(image) != io.encode_png(image[::-1].copy())
+
+
+@pytest.mark.parametrize(
+    "image",
+    [np.zeros((4, 4), np.float32), np.zeros((4, 4, 4), np.uint8), np.zeros((0, 4), np.uint8)],
+    ids=["float", "rgba", "empty"],
+)
+def test_png_refuses_what_it_cannot_write_naming_the_file(tmp_path: Path, image: np.ndarray) -> None:
+    path = tmp_path / "bad.png"
+    with pytest.raises(io.DataError, match="bad.png"):
+        io.write_png(path, image)
+    assert not path.exists() and not list(tmp_path.iterdir())

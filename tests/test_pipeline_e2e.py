@@ -172,6 +172,14 @@ def test_killed_repro_reruns_to_identical_results(repo: Path, tmp_path: Path):
         curves = Path("plots") / "train" / run / "plots" / "metrics" / "train"
         for tsv in ("total.tsv", "appearance.tsv", "learning_rate.tsv"):
             assert (work / curves / tsv).read_text() == (repo / curves / tsv).read_text(), curves / tsv
+    # Another checkout of the same commit and params: every file git would track and every hash
+    # DVC records (the rendered data tree's included) equal, so its `git status` is clean.
+    assert (work / "dvc.lock").read_text() == (repo / "dvc.lock").read_text()
+    for folder in ("metrics", "plots", "data/index"):
+        for path in sorted((repo / folder).rglob("*")):
+            if path.is_file():
+                rel = path.relative_to(repo)
+                assert (work / rel).read_bytes() == path.read_bytes(), rel
 
 
 def test_dvc_metrics_show_lists_the_headline_numbers_and_fits_a_terminal(repo: Path):

@@ -160,7 +160,8 @@ def _new_figure(width: float, height: float) -> Figure:
 
 def _save(fig: Figure, path: Path) -> Path:
     with atomic_path(path, suffix=".png") as tmp:
-        fig.savefig(tmp, dpi=DPI, format="png")
+        # No "Software: matplotlib <version>" text chunk: the file then depends on the drawing only.
+        fig.savefig(tmp, dpi=DPI, format="png", metadata={"Software": None})
     fig.clear()  # drop the artists (and their image arrays) now rather than at garbage collection
     return path
 
