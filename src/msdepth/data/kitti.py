@@ -73,27 +73,28 @@ def _decode(path: PathLike, what: str) -> np.ndarray:
     return img
 
 
+def _decode_as(path: PathLike, what: str, dtype: type, channels: int) -> np.ndarray:
+    """:func:`_decode`, then a DataError unless the pixels are ``dtype`` with ``channels`` channels."""
+    img = _decode(path, what)
+    found = 1 if img.ndim == 2 else img.shape[2]
+    if img.dtype != dtype or found != channels or (channels == 1 and img.ndim != 2):
+        bits = 8 * np.dtype(dtype).itemsize
+        layout = "single-channel" if channels == 1 else f"{channels}-channel"
+        article = "an" if bits == 8 else "a"
+        raise DataError(
+            f"{path}: expected {article} {bits}-bit {layout} {what}, got {img.dtype} with {found} channel(s)"
+        )
+    return img
+
+
 def read_image(path: PathLike) -> np.ndarray:
     """Read an 8-bit colour image as uint8 RGB ``(H, W, 3)``."""
-    img = _decode(path, "image")
-    if img.dtype != np.uint8 or img.ndim != 3 or img.shape[2] != 3:
-        channels = 1 if img.ndim == 2 else img.shape[2]
-        raise DataError(
-            f"{path}: expected an 8-bit 3-channel image, got {img.dtype} with {channels} channel(s)"
-        )
-    return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+    return cv2.cvtColor(_decode_as(path, "image", np.uint8, 3), cv2.COLOR_BGR2RGB)
 
 
 def read_disparity(path: PathLike) -> np.ndarray:
     """Read a KITTI disparity PNG (uint16, value / 256) as float32 pixels; 0 marks no measurement."""
-    img = _decode(path, "disparity")
-    if img.dtype != np.uint16 or img.ndim != 2:
-        channels = 1 if img.ndim == 2 else img.shape[2]
-        raise DataError(
-            f"{path}: a KITTI disparity map must be a 16-bit single-channel PNG, "
-            f"got {img.dtype} with {channels} channel(s)"
-        )
-    return img.astype(np.float32) / 256.0
+    return _decode_as(path, "KITTI disparity map", np.uint16, 1).astype(np.float32) / 256.0
 
 
 def write_disparity(path: PathLike, disp: np.ndarray) -> None:
@@ -114,14 +115,7 @@ def write_disparity(path: PathLike, disp: np.ndarray) -> None:
 
 def read_obj_map(path: PathLike) -> np.ndarray:
     """Read a KITTI 2015 ``obj_map`` PNG: uint8 instance ids ``(H, W)``, 0 = background."""
-    img = _decode(path, "object map")
-    if img.dtype != np.uint8 or img.ndim != 2:
-        channels = 1 if img.ndim == 2 else img.shape[2]
-        raise DataError(
-            f"{path}: an object map must be an 8-bit single-channel PNG, "
-            f"got {img.dtype} with {channels} channel(s)"
-        )
-    return img
+    return _decode_as(path, "object map", np.uint8, 1)
 
 
 # Bits of a class map (synthetic set only: KITTI has no per-pixel class labels). A pixel may
@@ -131,13 +125,7 @@ CLASS_BITS = {"car": 1, "windshield": 2, "glass": 4, "sign": 8}
 
 def read_class_map(path: PathLike) -> np.ndarray:
     """Read a class map PNG: uint8 ``(H, W)``, bit :data:`CLASS_BITS` [c] set on class c's pixels."""
-    img = _decode(path, "class map")
-    if img.dtype != np.uint8 or img.ndim != 2:
-        channels = 1 if img.ndim == 2 else img.shape[2]
-        raise DataError(
-            f"{path}: a class map must be an 8-bit single-channel PNG, "
-            f"got {img.dtype} with {channels} channel(s)"
-        )
+    img = _decode_as(path, "class map", np.uint8, 1)
     if (img & ~np.uint8(sum(CLASS_BITS.values()))).any():
         raise DataError(f"{path}: class map has bits outside {CLASS_BITS}")
     return img
