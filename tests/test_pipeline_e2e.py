@@ -182,6 +182,35 @@ def test_killed_repro_reruns_to_identical_results(repo: Path, tmp_path: Path):
                 assert (work / rel).read_bytes() == path.read_bytes(), rel
 
 
+def test_experiment_then_the_way_back_and_applying_it(repo: Path, tmp_path: Path):
+    """README "Experiments": after `dvc exp run` the workspace holds the experiment; `git checkout
+    HEAD -- . && dvc checkout` returns to the committed results, `dvc exp apply` brings it back."""
+    work = tmp_path / "exp"
+    shutil.copytree(repo, work, symlinks=True)
+    dvc = [sys.executable, "-m", "dvc"]
+    for key, value in (("user.email", "t@t"), ("user.name", "t")):
+        _run(["git", "config", key, value], work)
+    _run(["git", "add", "-A"], work)
+    _run(["git", "commit", "-qm", "results"], work)
+    models = {run: work / "models" / run / "model.pt" for run in ("ssim/seed0", "msssim/seed0")}
+    committed = {run: path.read_bytes() for run, path in models.items()}
+    _run([*dvc, "exp", "run", "--quiet", "-n", "k5", "-S", "msssim.kernel_size=5"], work)
+    experiment = models["msssim/seed0"].read_bytes()
+    assert experiment != committed["msssim/seed0"]
+    assert models["ssim/seed0"].read_bytes() == committed["ssim/seed0"]
+    assert "k5" in _run([*dvc, "exp", "show", "--md", "--only-changed"], work)
+
+    _run(["git", "checkout", "HEAD", "--", "."], work)
+    _run([*dvc, "checkout", "--quiet"], work)
+    assert {run: path.read_bytes() for run, path in models.items()} == committed
+    assert _run(["git", "status", "--porcelain"], work) == ""
+    assert _run([*dvc, "status", "--quiet"], work) == ""
+
+    _run([*dvc, "exp", "apply", "k5"], work)
+    assert models["msssim/seed0"].read_bytes() == experiment
+    assert yaml.safe_load((work / "params.yaml").read_text())["msssim"]["kernel_size"] == 5
+
+
 def test_dvc_metrics_show_lists_the_headline_numbers_and_fits_a_terminal(repo: Path):
     shown = json.loads(_run([sys.executable, "-m", "dvc", "metrics", "show", "--json"], repo))
     files = {path for rev in shown.values() for path in rev.get("data", {})}
