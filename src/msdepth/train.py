@@ -24,7 +24,8 @@ from torch.utils.data import DataLoader
 from tqdm import tqdm
 
 from . import distributed
-from .config import Params, speed_only_train_keys
+from .appearance import build_appearance
+from .config import Params, fingerprint_fields, speed_only_train_keys
 from .data.pairs import StereoPairs
 from .distributed import Context, GlobalBatchSampler
 from .errors import MsdepthError
@@ -81,8 +82,8 @@ def build_model(params: Params) -> MonodepthVGG:
 
 
 def build_loss(params: Params, variant: str) -> MonodepthLoss:
-    """The training loss of ``variant`` (its appearance term names its params section)."""
-    return MonodepthLoss(params.loss, params.variant(variant), params.ssim, params.msssim)
+    """The training loss of ``variant``, with the appearance term registered under that name."""
+    return MonodepthLoss(params.loss, build_appearance(params, variant))
 
 
 def learning_rate(base: float, step: int, total_steps: int) -> float:
@@ -95,18 +96,37 @@ def learning_rate(base: float, step: int, total_steps: int) -> float:
     return base / 4
 
 
-# The modules whose code shapes a training run (the train stage's src/ deps in dvc.yaml; a test
-# keeps the two lists equal). Their bytes are part of the checkpoint fingerprint: when DVC reruns
-# the stage because one of them changed, the run trains anew instead of resuming a checkpoint
-# that the old code wrote, so a model always comes from the code that is committed with it.
-TRAINING_MODULES = ("train.py", "model.py", "losses.py", "warp.py", "data/pairs.py")
+# The modules (and packages: every .py file below them) whose code shapes a training run: the
+# train stage's src/ deps in dvc.yaml (a test keeps the two lists equal). Their bytes are part of
+# the checkpoint fingerprint: when DVC reruns the stage because one of them changed, the run
+# trains anew instead of resuming a checkpoint that the old code wrote, so a model always comes
+# from the code that is committed with it. A new appearance term lands in appearance/, already listed.
+TRAINING_MODULES = (
+    "train.py",
+    "model.py",
+    "losses.py",
+    "_ssim_kernels.py",
+    "appearance",
+    "warp.py",
+    "data/pairs.py",
+)
+
+
+def training_files() -> list[Path]:
+    """The source files of :data:`TRAINING_MODULES`, packages expanded to their sorted .py files."""
+    root = Path(__file__).resolve().parent
+    files: list[Path] = []
+    for name in TRAINING_MODULES:
+        path = root / name
+        files.extend(sorted(path.rglob("*.py")) if path.is_dir() else [path])
+    return files
 
 
 def code_digest() -> str:
-    """Hash of the source of :data:`TRAINING_MODULES`."""
+    """Hash of the source of :data:`TRAINING_MODULES` (each file under its path in the package)."""
     root, digest = Path(__file__).resolve().parent, hashlib.sha256()
-    for name in TRAINING_MODULES:
-        digest.update(name.encode() + b"\0" + (root / name).read_bytes() + b"\0")
+    for path in training_files():
+        digest.update(path.relative_to(root).as_posix().encode() + b"\0" + path.read_bytes() + b"\0")
     return digest.hexdigest()[:16]
 
 
@@ -122,9 +142,9 @@ def fingerprint(params: Params, variant: str, num_pairs: int, seed: int) -> str:
         "data": [params.data.height, params.data.width, num_pairs],
         "model": asdict(params.model),
         "train": {k: v for k, v in asdict(params.train).items() if k not in ignored},
-        "loss": asdict(params.loss),
+        "loss": fingerprint_fields(params.loss),
         "appearance": appearance,
-        appearance: asdict(getattr(params, appearance)),
+        appearance: asdict(params.appearance[appearance]),
     }
     return hashlib.sha256(json.dumps(relevant, sort_keys=True).encode()).hexdigest()[:16]
 
