@@ -78,9 +78,14 @@ def window_mean(
     coords = torch.arange(kernel_size, dtype=torch.float64) - kernel_size // 2
     g = torch.exp(-(coords**2) / (2 * sigma**2))
     g = (g / g.sum()).to(t.dtype)
-    g2d = g.outer(g).expand(t.shape[1], 1, kernel_size, kernel_size)
-    out = F.conv2d(t, g2d, padding=pad, groups=t.shape[1])
-    return out / F.conv2d(torch.ones_like(t), g2d, padding=pad, groups=t.shape[1])
+    rows = g.view(1, 1, -1, 1).expand(t.shape[1], 1, kernel_size, 1)
+    cols = g.view(1, 1, 1, -1).expand(t.shape[1], 1, 1, kernel_size)
+
+    def smooth(u: Tensor) -> Tensor:  # separable: rows, then columns
+        u = F.conv2d(u, rows, padding=(pad, 0), groups=u.shape[1])
+        return F.conv2d(u, cols, padding=(0, pad), groups=u.shape[1])
+
+    return smooth(t) / smooth(torch.ones_like(t))
 
 
 def reference_ssim_terms(
