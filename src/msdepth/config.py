@@ -328,8 +328,10 @@ def validate(p: Params) -> Params:
     check(0 <= p.loss.alpha <= 1, "loss.alpha", "must be in [0, 1]")
     check(p.loss.smoothness_weight >= 0, "loss.smoothness_weight", "must be >= 0")
     check(p.loss.lr_weight >= 0, "loss.lr_weight", "must be >= 0")
-    for name, section in p.appearance.items():
-        section.validate(name, p)  # each appearance term checks its own section
+    # Each trained variant's term checks its own section (types and unknown keys are checked for
+    # every section; the range checks of a section no run uses, e.g. against the image size, wait).
+    for name in p.variants:
+        p.appearance[name].validate(name, p)
     e = p.eval
     check(all(c > e.min_depth for c in e.caps), "eval.caps", "every cap must exceed eval.min_depth")
     check(e.min_depth > 0, "eval.min_depth", "must be > 0")

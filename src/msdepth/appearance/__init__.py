@@ -19,7 +19,7 @@ import importlib
 import pkgutil
 from dataclasses import dataclass
 from types import MappingProxyType
-from typing import TYPE_CHECKING, Any, Callable, Mapping, TypeVar
+from typing import TYPE_CHECKING, Callable, Mapping, TypeVar
 
 if TYPE_CHECKING:
     from ..config import Params
@@ -76,8 +76,3 @@ def build_appearance(params: Params, name: str) -> AppearanceTerm:
     """The appearance term of variant ``name``, configured by its params section and ``params.loss``."""
     spec = variants()[params.variant(name)]
     return spec.term(params.appearance[name], params.loss)
-
-
-def config_of(name: str, **values: Any) -> Any:
-    """The config dataclass of variant ``name`` with ``values`` (defaults otherwise), e.g. for tests."""
-    return variants()[name].config(**values)
