@@ -309,17 +309,21 @@ def validate(p: Params) -> Params:
         "model.init_disparity",
         "must be in (0, 0.3) (heads output 0.3*sigmoid)",
     )
-    t = p.train
-    check(t.epochs >= 1, "train.epochs", "must be >= 1")
-    check(t.batch_size >= 1, "train.batch_size", "must be >= 1")
-    check(t.learning_rate > 0, "train.learning_rate", f"must be > 0, got {t.learning_rate}")
-    check(t.num_workers >= 0, "train.num_workers", "must be >= 0")
-    check(t.threads >= 1, "train.threads", "must be >= 1")
-    check(t.nproc >= 1, "train.nproc", f"must be >= 1, got {t.nproc}")
-    check(t.sync_every >= 0, "train.sync_every", f"must be >= 0 (0 = automatic), got {t.sync_every}")
-    check(t.dist_timeout_s > 0, "train.dist_timeout_s", "must be > 0")
-    check(all(s >= 0 for s in t.seeds), "train.seeds", f"must be >= 0, got {list(t.seeds)}")
-    check(len(set(t.seeds)) == len(t.seeds), "train.seeds", f"must not repeat a seed, got {list(t.seeds)}")
+    train = p.train
+    check(train.epochs >= 1, "train.epochs", "must be >= 1")
+    check(train.batch_size >= 1, "train.batch_size", "must be >= 1")
+    check(train.learning_rate > 0, "train.learning_rate", f"must be > 0, got {train.learning_rate}")
+    check(train.num_workers >= 0, "train.num_workers", "must be >= 0")
+    check(train.threads >= 1, "train.threads", "must be >= 1")
+    check(train.nproc >= 1, "train.nproc", f"must be >= 1, got {train.nproc}")
+    check(train.sync_every >= 0, "train.sync_every", f"must be >= 0 (0 = automatic), got {train.sync_every}")
+    check(train.dist_timeout_s > 0, "train.dist_timeout_s", "must be > 0")
+    check(all(seed >= 0 for seed in train.seeds), "train.seeds", f"must be >= 0, got {list(train.seeds)}")
+    check(
+        len(set(train.seeds)) == len(train.seeds),
+        "train.seeds",
+        f"must not repeat a seed, got {list(train.seeds)}",
+    )
     check(
         len(set(p.variants)) == len(p.variants),
         "variants",
