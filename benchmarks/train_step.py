@@ -27,6 +27,7 @@ from pathlib import Path
 import torch
 from _timing import compare, device_from, sync, table
 
+from msdepth.appearance import build_appearance
 from msdepth.config import load_params
 from msdepth.losses import MonodepthLoss
 from msdepth.model import MonodepthVGG
@@ -98,14 +99,17 @@ def main() -> None:
 
         return loss_step if args.loss_only else step
 
-    ssim_loss = MonodepthLoss(params.loss, "ssim", params.ssim, params.msssim)
+    ssim_loss = MonodepthLoss(params.loss, build_appearance(params, "ssim"))
     if args.networks:
         run_networks(args, width, m.init_disparity, ssim_loss, device, memory_format, batch, h, w)
         return
     candidates = {"SSIM k3": step_with(ssim_loss)}
     for k in (int(s) for s in args.kernels.split(",")):
-        cfg = dataclasses.replace(params.msssim, kernel_size=k)
-        candidates[f"MS-SSIM k{k}"] = step_with(MonodepthLoss(params.loss, "msssim", params.ssim, cfg))
+        sections = {**params.appearance, "msssim": dataclasses.replace(params.msssim, kernel_size=k)}
+        with_k = dataclasses.replace(params, appearance=sections)
+        candidates[f"MS-SSIM k{k}"] = step_with(
+            MonodepthLoss(params.loss, build_appearance(with_k, "msssim"))
+        )
     peaks = {}
     if device.type == "cuda":  # one step each from a clean peak, before the timed ones
         for name, step in candidates.items():

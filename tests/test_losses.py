@@ -1,4 +1,5 @@
-"""Tests of SSIM, MS-SSIM (against pytorch-msssim), the Monodepth loss terms and MonodepthLoss."""
+"""Tests of SSIM, MS-SSIM (fast kernels against the reference formula and pytorch-msssim), the
+Monodepth loss terms, the appearance terms and MonodepthLoss."""
 
 from __future__ import annotations
 
@@ -9,25 +10,29 @@ import pytest
 import torch
 import torch.nn.functional as F
 
-from msdepth import losses
-from msdepth.config import LossConfig, MSSSIMConfig, SSIMConfig
+from msdepth import _ssim_kernels as kernels
+from msdepth.appearance import variants
+from msdepth.appearance.msssim import MSSSIMConfig, msssim_similarity
+from msdepth.appearance.ssim import SSIMConfig
+from msdepth.config import LossConfig
 from msdepth.losses import (
     C1,
     C2,
     WANG_WEIGHTS,
     LearnedLevelWeights,
     MonodepthLoss,
-    _ssim_terms,
     appearance_loss,
     level_weights,
     lr_consistency_loss,
-    make_similarity,
     ms_ssim,
     ms_ssim_pyramid,
+    reference_ssim_terms,
     scale_pyramid,
     smoothness_loss,
     ssim,
 )
+
+_ssim_terms = kernels.ssim_terms
 
 
 def _rand(*shape: int, seed: int = 0) -> torch.Tensor:
@@ -52,27 +57,11 @@ ADVERSARIAL: dict[str, Callable[[], tuple[torch.Tensor, torch.Tensor]]] = {
 # ----------------------------------------------------------------------------- SSIM
 
 
-def _plain_window_mean(t: torch.Tensor, kernel_size: int, window: str, padding: str) -> torch.Tensor:
-    """Reference window mean: avg_pool2d (box) or a Gaussian conv, divided by the in-image mass."""
-    pad = kernel_size // 2 if padding == "same" else 0
-    if window == "box":
-        return F.avg_pool2d(t, kernel_size, stride=1, padding=pad, count_include_pad=False)
-    coords = torch.arange(kernel_size, dtype=t.dtype) - kernel_size // 2
-    g = torch.exp(-(coords**2) / (2 * 1.5**2))
-    g2d = (g / g.sum()).outer(g / g.sum()).expand(t.shape[1], 1, kernel_size, kernel_size)
-    out = F.conv2d(t, g2d, padding=pad, groups=t.shape[1])
-    return out / F.conv2d(torch.ones_like(t), g2d, padding=pad, groups=t.shape[1])
-
-
 def _plain_ssim_terms(
     x: torch.Tensor, y: torch.Tensor, kernel_size: int, window: str, padding: str
 ) -> tuple[torch.Tensor, torch.Tensor]:
-    """The SSIM formula written out with autograd: (cs map, SSIM map)."""
-    mean = lambda t: _plain_window_mean(t, kernel_size, window, padding)  # noqa: E731
-    mu_x, mu_y = mean(x), mean(y)
-    var_x, var_y, cov = mean(x * x) - mu_x**2, mean(y * y) - mu_y**2, mean(x * y) - mu_x * mu_y
-    cs = (2 * cov + C2) / (var_x + var_y + C2)
-    return cs, (2 * mu_x * mu_y + C1) / (mu_x**2 + mu_y**2 + C1) * cs
+    """The SSIM formula written out with autograd (the module's reference): (cs map, SSIM map)."""
+    return reference_ssim_terms(x, y, kernel_size, window, 1.5, padding)  # type: ignore[arg-type]
 
 
 @pytest.mark.parametrize("kernel_size", [1, 3, 5, 7, 9, 11])
@@ -156,7 +145,7 @@ def test_ssim_terms_chunking_does_not_change_results(monkeypatch: pytest.MonkeyP
         return (cs, full, *torch.autograd.grad((cs + 2 * full).sum(), inputs))
 
     whole = run()
-    monkeypatch.setattr(losses, "_CHUNK_ELEMENTS", 4 * 4 * 24 * 34)  # 4 planes per chunk, 9 planes
+    monkeypatch.setattr(kernels, "_CHUNK_ELEMENTS", 4 * 4 * 24 * 34)  # 4 planes per chunk, 9 planes
     for a, b in zip(whole, run(), strict=True):
         assert torch.equal(a, b)
 
@@ -165,12 +154,12 @@ def test_ssim_terms_chunk_only_on_the_cpu() -> None:
     """Cache-sized chunks on the CPU; on a GPU every plane at once (each chunk is ~70 kernel
     launches, and at the seed's 256x512 the CPU budget would be one plane per chunk)."""
     per_plane = 4 * 258 * 514  # four padded maps of a 256x512 image, 3x3 window
-    assert losses._planes_per_chunk(torch.device("cpu"), 48, per_plane) == 1
-    assert losses._planes_per_chunk(torch.device("cpu"), 48, 4 * 66 * 194) == 10
-    assert losses._planes_per_chunk(torch.device("cpu"), 3, 4 * 66 * 194) == 3
-    assert losses._planes_per_chunk(torch.device("cuda"), 48, per_plane) == 48
+    assert kernels._planes_per_chunk(torch.device("cpu"), 48, per_plane) == 1
+    assert kernels._planes_per_chunk(torch.device("cpu"), 48, 4 * 66 * 194) == 10
+    assert kernels._planes_per_chunk(torch.device("cpu"), 3, 4 * 66 * 194) == 3
+    assert kernels._planes_per_chunk(torch.device("cuda"), 48, per_plane) == 48
     # Bounded on the GPU too: about 1 GiB of fp32 maps per chunk.
-    assert losses._planes_per_chunk(torch.device("cuda"), 10_000, per_plane) == (1 << 28) // per_plane
+    assert kernels._planes_per_chunk(torch.device("cuda"), 10_000, per_plane) == (1 << 28) // per_plane
 
 
 @pytest.mark.parametrize("kernel_size", [1, 3, 5, 7, 9, 11, 13, 15])
@@ -179,14 +168,89 @@ def test_box_sum_1d(kernel_size: int) -> None:
     before = x.clone()
     for dim in (-1, -2):
         expected = x.unfold(dim % 4, kernel_size, 1).sum(-1)
-        torch.testing.assert_close(losses._box_sum_1d(x, kernel_size, dim), expected)
+        torch.testing.assert_close(kernels._box_sum_1d(x, kernel_size, dim), expected)
     assert torch.equal(x, before)
+
+
+@pytest.mark.parametrize("kernel_size", [1, 3, 7, 11])
+@pytest.mark.parametrize("padding", ["valid", "reflect"])
+@pytest.mark.parametrize("window", ["box", "gaussian"])
+def test_ssim_fast_matches_reference(kernel_size: int, padding: str, window: str) -> None:
+    """ssim()'s two implementations: the same map and gradients (float64)."""
+    x = _rand(2, 3, 15, 23).double().requires_grad_()
+    y = _noisy(x.detach(), 0.2)
+    out = {
+        impl: ssim(x, y, kernel_size, padding, window, implementation=impl)  # type: ignore[arg-type]
+        for impl in ("fast", "reference")
+    }
+    torch.testing.assert_close(out["fast"], out["reference"], rtol=0, atol=1e-10)
+    up = _rand(*out["fast"].shape, seed=5).double()
+    fast, ref = (torch.autograd.grad((out[i] * up).sum(), x)[0] for i in ("fast", "reference"))
+    torch.testing.assert_close(fast, ref, rtol=1e-7, atol=1e-9)
+
+
+@pytest.mark.parametrize(
+    ("kernel_size", "levels", "padding"), [(3, 4, "same"), (7, 3, "same"), (5, 2, "valid")]
+)
+@pytest.mark.parametrize("window", ["box", "gaussian"])
+def test_ms_ssim_pyramid_fast_matches_reference(
+    kernel_size: int, levels: int, padding: str, window: str
+) -> None:
+    """The batched kernels and the one-level-at-a-time reference agree on a pyramid (float64)."""
+    xs = [_rand(2, 3, 32 >> s, 48 >> s, seed=s).double().requires_grad_() for s in range(3)]
+    if padding == "valid":
+        xs = xs[:1]
+    ys = [_noisy(x.detach(), 0.1, seed=10 + i) for i, x in enumerate(xs)]
+    out = {
+        impl: ms_ssim_pyramid(xs, ys, kernel_size, levels, "wang", window, 1.5, padding, impl)  # type: ignore[arg-type]
+        for impl in ("fast", "reference")
+    }
+    torch.testing.assert_close(out["fast"], out["reference"], rtol=0, atol=1e-10)
+    up = _rand(*out["fast"].shape, seed=6).double()
+    fast, ref = (torch.autograd.grad((out[i] * up).sum(), xs) for i in ("fast", "reference"))
+    for a, b in zip(fast, ref):
+        torch.testing.assert_close(a, b, rtol=1e-7, atol=1e-9)
+
+
+def test_reference_implementation_rejects_levels_smaller_than_the_window_and_unknown_names() -> None:
+    x = _rand(1, 3, 8, 24)
+    with pytest.raises(ValueError, match="smaller than"):
+        ms_ssim(x, x, kernel_size=3, levels=4, padding="valid", implementation="reference")
+    with pytest.raises(ValueError, match="implementation"):
+        ssim(x, x, implementation="slow")  # type: ignore[arg-type]
+
+
+@pytest.mark.parametrize(
+    ("appearance", "weights"), [("ssim", "wang"), ("msssim", "wang"), ("msssim", "learned")]
+)
+def test_monodepth_loss_reference_kernels_match_fast(appearance: str, weights: str) -> None:
+    """``loss.kernels: reference`` (the fallback) gives the fast loss and gradients up to rounding."""
+    left, right = _stereo_pair(shift=8)
+    terms, grads = {}, {}
+    for impl in ("fast", "reference"):
+        disps = [
+            (d * (1 + _rand(*d.shape, seed=i))).requires_grad_() for i, d in enumerate(_constant_disps(8))
+        ]
+        loss = _loss(appearance, weights, kernels=impl)
+        terms[impl] = loss(disps, left, right)
+        grads[impl] = torch.autograd.grad(terms[impl]["total"], [*disps, *loss.parameters()])
+    for k in terms["fast"]:
+        torch.testing.assert_close(terms["fast"][k], terms["reference"][k], rtol=1e-5, atol=1e-6)
+    for a, b in zip(grads["fast"], grads["reference"], strict=True):
+        torch.testing.assert_close(a, b, rtol=1e-3, atol=1e-6)
+
+
+def test_monodepth_loss_state_keeps_the_checkpoint_names() -> None:
+    """The term's learned weights are the loss's own ``level_weights``: checkpoints written before
+    the registry load as they are."""
+    assert list(_loss("msssim", "learned").state_dict()) == ["level_weights.logits"]
+    assert list(_loss("ssim").state_dict()) == []
 
 
 @pytest.mark.parametrize("size", [(8, 12), (7, 12), (8, 13), (1, 3)])
 def test_downsample_is_pytorch_msssim_average_pooling(size: tuple[int, int]) -> None:
     x = _rand(2, 3, *size).requires_grad_()
-    out = losses._downsample(x)
+    out = kernels.downsample(x)
     ref = F.avg_pool2d(x, 2, padding=[s % 2 for s in size])
     torch.testing.assert_close(out, ref, rtol=0, atol=1e-7)
     up = _rand(*out.shape, seed=2)
@@ -454,14 +518,15 @@ def test_appearance_loss_zero_for_identical_images_and_combines_terms() -> None:
     assert appearance_loss(x, y, alpha=0.0).item() == pytest.approx(l1.item(), rel=1e-6)
     dssim = ((1 - ssim(x, y)) / 2).clamp(0, 1).mean()
     assert appearance_loss(x, y, alpha=1.0).item() == pytest.approx(dssim.item(), rel=1e-6)
-    msssim = make_similarity("msssim", SSIMConfig(), MSSSIMConfig(kernel_size=3, levels=3, weights="equal"))
+    pyramid = msssim_similarity(MSSSIMConfig(kernel_size=3, levels=3, weights="equal"))
+    msssim = lambda a, b: pyramid([a], [b])[0]  # noqa: E731
     expected = 0.85 * ((1 - ms_ssim(x, y, 3, 3, "equal")) / 2).mean() + 0.15 * l1
     assert appearance_loss(x, y, similarity=msssim).item() == pytest.approx(expected.item(), rel=1e-6)
 
 
 def test_make_similarity_learned_needs_weights() -> None:
     with pytest.raises(ValueError, match="LearnedLevelWeights"):
-        make_similarity("msssim", SSIMConfig(), MSSSIMConfig(weights="learned"))
+        msssim_similarity(MSSSIMConfig(weights="learned"))
 
 
 def test_smoothness_zero_for_constant_disparity() -> None:
@@ -518,10 +583,16 @@ def _constant_disps(pixels: float, h: int = 32, w: int = 64, scales: int = 4) ->
     return [torch.full((2, 2, h >> s, w >> s), pixels / w) for s in range(scales)]
 
 
+def _monodepth_loss(loss_cfg: LossConfig, appearance: str, ssim_cfg: SSIMConfig, msssim_cfg: MSSSIMConfig):
+    """MonodepthLoss with the registered term of ``appearance`` (``ssim`` or ``msssim``)."""
+    cfg = {"ssim": ssim_cfg, "msssim": msssim_cfg}[appearance]
+    return MonodepthLoss(loss_cfg, variants()[appearance].term(cfg, loss_cfg))
+
+
 def _loss(appearance: str = "ssim", weights: str = "wang", **loss_kwargs: object) -> MonodepthLoss:
-    return MonodepthLoss(
+    return _monodepth_loss(
         LossConfig(**loss_kwargs),  # type: ignore[arg-type]
-        appearance,  # type: ignore[arg-type]
+        appearance,
         SSIMConfig(),
         MSSSIMConfig(kernel_size=3, levels=4, weights=weights),  # type: ignore[arg-type]
     )
@@ -568,7 +639,7 @@ PREVIOUS_APPEARANCE = {
 def test_monodepth_loss_matches_the_previous_implementation(appearance: str, kernel_size: int) -> None:
     left, right = _stereo_pair(shift=8)
     disps = [d * (1 + _rand(*d.shape, seed=i)) for i, d in enumerate(_constant_disps(8))]
-    loss = MonodepthLoss(LossConfig(), appearance, SSIMConfig(), MSSSIMConfig(kernel_size=kernel_size))  # type: ignore[arg-type]
+    loss = _monodepth_loss(LossConfig(), appearance, SSIMConfig(), MSSSIMConfig(kernel_size=kernel_size))
     value = loss(disps, left, right)["appearance"].item()
     # The recorded values carry their own fp32 rounding: up to 1e-5 from this loss in float64.
     assert value == pytest.approx(PREVIOUS_APPEARANCE[(appearance, kernel_size)], abs=2e-5)

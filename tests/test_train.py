@@ -126,16 +126,18 @@ def test_code_digest_covers_the_train_stage_source_deps(tmp_path: Path, monkeypa
     stage = yaml.safe_load((Path(__file__).resolve().parents[1] / "dvc.yaml").read_text())["stages"]["train"]
     src = sorted(d.removeprefix("src/msdepth/") for d in stage["deps"] if d.startswith("src/msdepth/"))
     assert src == sorted(train_mod.TRAINING_MODULES)
-    # Every listed file's bytes count.
+    # Every listed file's bytes count (every .py file of a listed package).
     package, real = Path(train_mod.__file__).resolve().parent, train_mod.code_digest()
+    names = [p.relative_to(package).as_posix() for p in train_mod.training_files()]
+    assert "appearance/__init__.py" in names and "appearance/msssim.py" in names
     fake = tmp_path / "msdepth"
-    for name in train_mod.TRAINING_MODULES:
+    for name in names:
         (fake / name).parent.mkdir(parents=True, exist_ok=True)
         (fake / name).write_bytes((package / name).read_bytes())
     monkeypatch.setattr(train_mod, "__file__", str(fake / "train.py"))
     before = train_mod.code_digest()
     assert before == real  # the same bytes elsewhere: the same digest
-    for name in train_mod.TRAINING_MODULES:
+    for name in names:
         original = (fake / name).read_bytes()
         (fake / name).write_bytes(original + b"# edited\n")
         assert train_mod.code_digest() != before, name
@@ -327,3 +329,25 @@ def test_speed_only_keys_are_marked_once_and_leave_the_fingerprint_alone():
     for key, value in {"learning_rate": 2e-4, "amp": "bf16", "nproc": 2, "epochs": 3}.items():
         changed = _params(**{key: value})
         assert fingerprint(changed, "ssim", 8, 0) != fingerprint(base, "ssim", 8, 0), key
+
+
+# fingerprint(params_from_dict(raw), variant, 8, 0) with code_digest() fixed to "fixed", computed
+# at bdd8107 (before the appearance registry and loss.kernels): the parameter part of the
+# fingerprint of every existing variant is unchanged, so only a code change voids a checkpoint.
+PREVIOUS_FINGERPRINTS = [
+    ({}, "ssim", "e02d73895de98460"),
+    ({}, "msssim", "88432aecc7937444"),
+    ({"msssim": {"kernel_size": 7, "weights": "learned"}}, "msssim", "e3c7ae91561bcadf"),
+    ({"ssim": {"padding": "reflect"}, "train": {"amp": "bf16"}}, "ssim", "2f6177ff73ee846a"),
+    ({"ssim": {"padding": "reflect"}, "train": {"amp": "bf16"}}, "msssim", "2b6d2b03930d7459"),
+]
+
+
+@pytest.mark.parametrize(("raw", "variant", "expected"), PREVIOUS_FINGERPRINTS)
+def test_fingerprint_of_existing_variants_is_unchanged(monkeypatch, raw, variant, expected) -> None:
+    monkeypatch.setattr(train_mod, "code_digest", lambda: "fixed")
+    params = params_from_dict(raw)
+    assert train_mod.fingerprint(params, variant, 8, 0) == expected
+    # The kernels switch counts once it leaves its default (it changes the rounding).
+    reference = params_from_dict({**raw, "loss": {"kernels": "reference"}})
+    assert train_mod.fingerprint(reference, variant, 8, 0) != expected

@@ -21,6 +21,12 @@ def _speed_only(default: Any) -> Any:
     return field(default=default, metadata={"speed_only": True})
 
 
+def _added_later(default: Any) -> Any:
+    """A field added after checkpoints existed: at its default it is left out of the training
+    fingerprint (:func:`fingerprint_fields`), so those checkpoints keep theirs."""
+    return field(default=default, metadata={"fingerprint_omits_default": True})
+
+
 @dataclass(frozen=True)
 class SyntheticConfig:
     """The generated KITTI-format stereo set."""
@@ -112,30 +118,33 @@ def speed_only_train_keys() -> tuple[str, ...]:
     return tuple(f.name for f in dataclasses.fields(TrainConfig) if f.metadata.get("speed_only"))
 
 
+def fingerprint_fields(cfg: Any) -> dict[str, Any]:
+    """``dataclasses.asdict(cfg)`` without the fields marked :func:`_added_later` that are at their
+    default: what the training fingerprint hashes of a config section."""
+    values = dataclasses.asdict(cfg)
+    for f in dataclasses.fields(cfg):
+        if f.metadata.get("fingerprint_omits_default") and values[f.name] == f.default:
+            del values[f.name]
+    return values
+
+
 @dataclass(frozen=True)
 class LossConfig:
-    alpha: float = 0.85
+    alpha: float = 0.85  # appearance = alpha*(1-S)/2 + (1-alpha)*L1 of the SSIM-type terms
     smoothness_weight: float = 0.1
     lr_weight: float = 1.0
     padding_mode: Literal["border", "zeros"] = "border"
+    # SSIM/MS-SSIM arithmetic: fast = msdepth._ssim_kernels, reference = the written-out autograd
+    # formula (same values up to rounding; a fallback, and what the fast kernels are tested against).
+    kernels: Literal["fast", "reference"] = _added_later("fast")
 
 
-@dataclass(frozen=True)
-class SSIMConfig:
-    kernel_size: int = 3
-    padding: Literal["valid", "reflect"] = "valid"
+def _registered_sections() -> dict[str, Any]:
+    """Default config of every registered appearance term (imported here, on first use, so that
+    importing this module stays light)."""
+    from .appearance import variants
 
-
-@dataclass(frozen=True)
-class MSSSIMConfig:
-    kernel_size: int = 3
-    levels: int = 4
-    weights: Literal["wang", "equal", "learned"] = "wang"
-
-
-# A loss variant is named after its params section (``ssim`` or ``msssim``), so that DVC can
-# track exactly that section per stage.
-Variant = Literal["ssim", "msssim"]
+    return {name: spec.config() for name, spec in variants().items()}
 
 
 @dataclass(frozen=True)
@@ -161,17 +170,27 @@ class Params:
     model: ModelConfig = field(default_factory=ModelConfig)
     train: TrainConfig = field(default_factory=TrainConfig)
     loss: LossConfig = field(default_factory=LossConfig)
-    ssim: SSIMConfig = field(default_factory=SSIMConfig)
-    msssim: MSSSIMConfig = field(default_factory=MSSSIMConfig)
-    variants: tuple[Variant, ...] = ("ssim", "msssim")
+    # A loss variant is named after its params section, so that DVC can track exactly that
+    # section per stage; each registered appearance term (msdepth.appearance) has one.
+    variants: tuple[str, ...] = ("ssim", "msssim")
     eval: EvalConfig = field(default_factory=EvalConfig)
     compare: CompareConfig = field(default_factory=CompareConfig)
+    # The params section of every registered appearance term, by name (top-level sections in
+    # params.yaml, e.g. ``ssim:``; not a key of its own).
+    appearance: dict[str, Any] = field(default_factory=_registered_sections, metadata={"yaml": False})
 
-    def variant(self, name: str) -> Variant:
+    def __getattr__(self, name: str) -> Any:
+        # ``params.ssim``: a variant's section reads like the other sections.
+        sections = self.__dict__.get("appearance", {})
+        if not name.startswith("_") and name in sections:
+            return sections[name]
+        raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
+
+    def variant(self, name: str) -> str:
         """The variant called ``name``, or a ConfigError listing the configured ones."""
         if name not in self.variants:
             raise ConfigError(f"variants: unknown variant {name!r}; configured: {list(self.variants)}")
-        return name  # type: ignore[return-value]
+        return name
 
     def seed(self, value: str | int) -> int:
         """The training seed ``value`` (e.g. a stage's argument), or a ConfigError if not in train.seeds."""
@@ -231,7 +250,7 @@ def _convert(value: Any, tp: Any, key: str) -> Any:
 
 def _build(cls: type, raw: dict, prefix: str) -> Any:
     hints = typing.get_type_hints(cls)
-    names = {f.name for f in dataclasses.fields(cls)}
+    names = {f.name for f in dataclasses.fields(cls) if f.metadata.get("yaml", True)}
     unknown = set(raw) - names
     if unknown:
         where = f"{prefix}." if prefix else ""
@@ -244,27 +263,30 @@ def _build(cls: type, raw: dict, prefix: str) -> Any:
     return cls(**kwargs)
 
 
-def _check(cond: bool, key: str, message: str) -> None:
+def check(cond: bool, key: str, message: str) -> None:
+    """Raise a ConfigError ``"key: message"`` unless ``cond`` (for the range checks of a section)."""
     if not cond:
         raise ConfigError(f"{key}: {message}")
 
 
 def validate(p: Params) -> Params:
     """Range checks that types alone cannot express; raises ConfigError naming the key."""
+    for i, name in enumerate(p.variants):
+        check(name in p.appearance, f"variants[{i}]", f"{name!r} is not one of {list(p.appearance)}")
     d, s = p.data, p.data.synthetic
     # Multiples of 8 keep the 4 output scales (1, 1/2, 1/4, 1/8) exact halvings.
     for key, size in (("data.height", d.height), ("data.width", d.width)):
-        _check(size >= 32 and size % 8 == 0, key, f"must be a multiple of 8 and >= 32, got {size}")
+        check(size >= 32 and size % 8 == 0, key, f"must be a multiple of 8 and >= 32, got {size}")
     for name in ("drives", "train_pairs", "eval_frames"):
-        _check(getattr(s, name) >= 1, f"data.synthetic.{name}", "must be >= 1")
-    _check(s.drives <= s.train_pairs, "data.synthetic.drives", "must not exceed train_pairs")
-    _check(s.height >= 32 and s.width >= 64, "data.synthetic.height", "render size must be at least 32 x 64")
+        check(getattr(s, name) >= 1, f"data.synthetic.{name}", "must be >= 1")
+    check(s.drives <= s.train_pairs, "data.synthetic.drives", "must not exceed train_pairs")
+    check(s.height >= 32 and s.width >= 64, "data.synthetic.height", "render size must be at least 32 x 64")
     k = d.kitti
-    _check(k.drive_count >= 0, "data.kitti.drive_count", f"must be >= 0 (0 = all), got {k.drive_count}")
-    _check(k.jobs >= 1, "data.kitti.jobs", f"must be >= 1, got {k.jobs}")
-    _check(k.roi_min_size >= 1, "data.kitti.roi_min_size", f"must be >= 1, got {k.roi_min_size}")
-    _check(0 <= k.roi_min_valid <= 1, "data.kitti.roi_min_valid", f"must be in [0, 1], got {k.roi_min_valid}")
-    _check(
+    check(k.drive_count >= 0, "data.kitti.drive_count", f"must be >= 0 (0 = all), got {k.drive_count}")
+    check(k.jobs >= 1, "data.kitti.jobs", f"must be >= 1, got {k.jobs}")
+    check(k.roi_min_size >= 1, "data.kitti.roi_min_size", f"must be >= 1, got {k.roi_min_size}")
+    check(0 <= k.roi_min_valid <= 1, "data.kitti.roi_min_valid", f"must be in [0, 1], got {k.roi_min_valid}")
+    check(
         k.drives is None or not k.drive_count,
         "data.kitti.drive_count",
         "give either drives or drive_count, not both",
@@ -275,73 +297,59 @@ def validate(p: Params) -> Params:
         if scheme == "http"
         else f"must be an https URL, got {k.base_url!r}"
     )
-    _check(scheme == "https" or (scheme == "http" and k.allow_http), "data.kitti.base_url", refused)
-    _check(
+    check(scheme == "https" or (scheme == "http" and k.allow_http), "data.kitti.base_url", refused)
+    check(
         s.gt_max_depth >= 0,
         "data.synthetic.gt_max_depth",
         f"must be >= 0 (0 = no limit), got {s.gt_max_depth}",
     )
-    _check(p.model.width_multiplier > 0, "model.width_multiplier", "must be > 0")
-    _check(
+    check(p.model.width_multiplier > 0, "model.width_multiplier", "must be > 0")
+    check(
         0 < p.model.init_disparity < 0.3,
         "model.init_disparity",
         "must be in (0, 0.3) (heads output 0.3*sigmoid)",
     )
-    t = p.train
-    _check(t.epochs >= 1, "train.epochs", "must be >= 1")
-    _check(t.batch_size >= 1, "train.batch_size", "must be >= 1")
-    _check(t.learning_rate > 0, "train.learning_rate", f"must be > 0, got {t.learning_rate}")
-    _check(t.num_workers >= 0, "train.num_workers", "must be >= 0")
-    _check(t.threads >= 1, "train.threads", "must be >= 1")
-    _check(t.nproc >= 1, "train.nproc", f"must be >= 1, got {t.nproc}")
-    _check(t.sync_every >= 0, "train.sync_every", f"must be >= 0 (0 = automatic), got {t.sync_every}")
-    _check(t.dist_timeout_s > 0, "train.dist_timeout_s", "must be > 0")
-    _check(all(s >= 0 for s in t.seeds), "train.seeds", f"must be >= 0, got {list(t.seeds)}")
-    _check(len(set(t.seeds)) == len(t.seeds), "train.seeds", f"must not repeat a seed, got {list(t.seeds)}")
-    _check(
+    train = p.train
+    check(train.epochs >= 1, "train.epochs", "must be >= 1")
+    check(train.batch_size >= 1, "train.batch_size", "must be >= 1")
+    check(train.learning_rate > 0, "train.learning_rate", f"must be > 0, got {train.learning_rate}")
+    check(train.num_workers >= 0, "train.num_workers", "must be >= 0")
+    check(train.threads >= 1, "train.threads", "must be >= 1")
+    check(train.nproc >= 1, "train.nproc", f"must be >= 1, got {train.nproc}")
+    check(train.sync_every >= 0, "train.sync_every", f"must be >= 0 (0 = automatic), got {train.sync_every}")
+    check(train.dist_timeout_s > 0, "train.dist_timeout_s", "must be > 0")
+    check(all(seed >= 0 for seed in train.seeds), "train.seeds", f"must be >= 0, got {list(train.seeds)}")
+    check(
+        len(set(train.seeds)) == len(train.seeds),
+        "train.seeds",
+        f"must not repeat a seed, got {list(train.seeds)}",
+    )
+    check(
         len(set(p.variants)) == len(p.variants),
         "variants",
         f"must not repeat a variant, got {list(p.variants)}",
     )
-    _check(0 <= p.loss.alpha <= 1, "loss.alpha", "must be in [0, 1]")
-    _check(p.loss.smoothness_weight >= 0, "loss.smoothness_weight", "must be >= 0")
-    _check(p.loss.lr_weight >= 0, "loss.lr_weight", "must be >= 0")
-    for sec in ("ssim", "msssim"):
-        k = getattr(p, sec).kernel_size
-        _check(k >= 1 and k % 2 == 1, f"{sec}.kernel_size", f"must be a positive odd integer, got {k}")
-    if p.ssim.padding == "valid":  # SSIM's valid windows must fit the coarsest scale (input / 8)
-        smallest = min(d.height, d.width) // 8
-        _check(
-            p.ssim.kernel_size <= smallest,
-            "ssim.kernel_size",
-            f"{p.ssim.kernel_size} px windows do not fit the coarsest training scale "
-            f"({d.height // 8}x{d.width // 8} px) with valid padding",
-        )
-    m = p.msssim
-    _check(1 <= m.levels <= 5, "msssim.levels", f"must be in 1..5, got {m.levels}")
-    _check(m.kernel_size <= min(d.height, d.width), "msssim.kernel_size", "must not exceed the input image")
-    # Windows use "same" padding, so a level only needs to exist: the coarsest level of the
-    # coarsest training scale (input / 8) must keep at least one pixel.
-    coarsest = min(d.height, d.width) // 8 // 2 ** (m.levels - 1)
-    _check(
-        coarsest >= 1,
-        "msssim.levels",
-        f"{m.levels} levels do not fit the coarsest training scale ({d.height // 8}x{d.width // 8} px)",
-    )
+    check(0 <= p.loss.alpha <= 1, "loss.alpha", "must be in [0, 1]")
+    check(p.loss.smoothness_weight >= 0, "loss.smoothness_weight", "must be >= 0")
+    check(p.loss.lr_weight >= 0, "loss.lr_weight", "must be >= 0")
+    # Each trained variant's term checks its own section (types and unknown keys are checked for
+    # every section; the range checks of a section no run uses, e.g. against the image size, wait).
+    for name in p.variants:
+        p.appearance[name].validate(name, p)
     e = p.eval
-    _check(all(c > e.min_depth for c in e.caps), "eval.caps", "every cap must exceed eval.min_depth")
-    _check(e.min_depth > 0, "eval.min_depth", "must be > 0")
-    _check(0 < e.dense_gt_fraction <= 1, "eval.dense_gt_fraction", "must be in (0, 1]")
+    check(all(c > e.min_depth for c in e.caps), "eval.caps", "every cap must exceed eval.min_depth")
+    check(e.min_depth > 0, "eval.min_depth", "must be > 0")
+    check(0 < e.dense_gt_fraction <= 1, "eval.dense_gt_fraction", "must be in (0, 1]")
     c = p.compare
-    _check(
+    check(
         c.reference in p.variants,
         "compare.reference",
         f"{c.reference!r} is not a variant; configured: {list(p.variants)}",
     )
-    _check(
+    check(
         c.bootstrap_samples >= 100, "compare.bootstrap_samples", f"must be >= 100, got {c.bootstrap_samples}"
     )
-    _check(0 < c.confidence < 1, "compare.confidence", f"must be in (0, 1), got {c.confidence}")
+    check(0 < c.confidence < 1, "compare.confidence", f"must be in (0, 1), got {c.confidence}")
     return p
 
 
@@ -349,7 +357,12 @@ def params_from_dict(raw: dict) -> Params:
     """Build and validate :class:`Params` from a parsed params.yaml mapping."""
     if not isinstance(raw, dict):
         raise ConfigError("params: expected a mapping at the top level")
-    return validate(_build(Params, raw, ""))
+    from .appearance import variants
+
+    registered = variants()
+    sections = {name: _convert(raw.get(name, {}), spec.config, name) for name, spec in registered.items()}
+    params = _build(Params, {k: v for k, v in raw.items() if k not in registered}, "")
+    return validate(dataclasses.replace(params, appearance=sections))
 
 
 def load_params(path: str | os.PathLike = "params.yaml") -> Params:

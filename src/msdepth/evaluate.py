@@ -247,8 +247,8 @@ def evaluate_gradients(
         gt_cache: dict[str, tuple[dict, np.ndarray]] = {}
         for i, roi, frame, box in _boxes_for(rois, frames):
             row = {"roi": i, "image": roi["image"], "class": roi["class"], "cap": cap}
-            pg = pred_grads[frame.name]
-            row.update({f"pred_{g}": float(pg[g][box].mean()) for g in GRADIENTS})
+            pred_grad = pred_grads[frame.name]
+            row.update({f"pred_{g}": float(pred_grad[g][box].mean()) for g in GRADIENTS})
             valid = frame.gt_disp[box] > 0
             row["gt_valid_fraction"] = float(valid.mean())
             if row["gt_valid_fraction"] >= cfg.dense_gt_fraction:
@@ -262,13 +262,15 @@ def evaluate_gradients(
                         > 0
                     )
                     gt_cache[frame.name] = (gradient_maps(gt_depth), inner)
-                gg, inner = gt_cache[frame.name]
+                gt_grad, inner = gt_cache[frame.name]
                 sel = inner[box]
                 if sel.any():
                     for g in GRADIENTS:
-                        row[f"gt_{g}"] = float(gg[g][box][sel].mean())
-                        row[f"pred_on_gt_{g}"] = float(pg[g][box][sel].mean())
-                        row[f"error_{g}"] = float(np.abs(pg[g][box][sel] - gg[g][box][sel]).mean())
+                        row[f"gt_{g}"] = float(gt_grad[g][box][sel].mean())
+                        row[f"pred_on_gt_{g}"] = float(pred_grad[g][box][sel].mean())
+                        row[f"error_{g}"] = float(
+                            np.abs(pred_grad[g][box][sel] - gt_grad[g][box][sel]).mean()
+                        )
             per_cap.append(row)
         keys = tuple(f"pred_{g}" for g in GRADIENTS)
         block = _summarise_by_class(per_cap, keys)

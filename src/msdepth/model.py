@@ -8,11 +8,19 @@ so 1.0 is the paper's model (~31 M parameters) and 0.25 runs on a laptop CPU.
 from __future__ import annotations
 
 import math
-from typing import Literal
+import os
+from pathlib import Path
+from typing import TYPE_CHECKING, Literal
 
 import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
+
+from .errors import MsdepthError
+from .serialization import load_weights_file, save_weights_file
+
+if TYPE_CHECKING:
+    from .config import Params
 
 # (kernel, channels) of the encoder blocks conv1..conv7; each block is a stride-2 conv
 # followed by a stride-1 conv ("convNb"), as in the dissertation's table.
@@ -145,3 +153,51 @@ class MonodepthVGG(nn.Module):
 def count_parameters(model: nn.Module) -> int:
     """Number of trainable parameters."""
     return sum(p.numel() for p in model.parameters() if p.requires_grad)
+
+
+# ----------------------------------------------------------------------------- files
+
+
+def save_model(
+    path: str | os.PathLike,
+    model: MonodepthVGG,
+    criterion: nn.Module,
+    params: Params,
+    variant: str,
+    seed: int,
+) -> None:
+    """Final weights (the network's and the loss's, e.g. learned level weights) plus what is needed
+    to rebuild and run the network, written atomically and reproducibly."""
+    state = {
+        "model": model.state_dict(),
+        "criterion": criterion.state_dict(),
+        "width_multiplier": params.model.width_multiplier,
+        "norm": params.model.norm,
+        "heads": params.model.heads,
+        "height": params.data.height,
+        "width": params.data.width,
+        "variant": variant,
+        "seed": seed,
+    }
+    save_weights_file(path, state)
+
+
+def load_model(path: str | os.PathLike, device: str | torch.device = "cpu") -> tuple[MonodepthVGG, dict]:
+    """Rebuild the network saved by :func:`save_model`; returns (model in eval mode, metadata).
+
+    The file is read weights-only (:func:`msdepth.serialization.load_weights_file`): one that
+    needs code to load is refused, so a shared model cannot run anything."""
+    path = Path(path)
+    if not path.exists():
+        raise MsdepthError(f"{path}: no trained model (run the train stage first)")
+    state = load_weights_file(path, device, what="model")
+    missing = [k for k in ("model", "width_multiplier", "height", "width") if k not in state]
+    if missing:
+        raise MsdepthError(f"{path}: not a model file written by msdepth (no {', '.join(missing)})")
+    # Files written before the norm and heads options hold the dissertation's network.
+    model = MonodepthVGG(
+        state["width_multiplier"], norm=state.get("norm", "none"), heads=state.get("heads", "independent")
+    )
+    model.load_state_dict(state["model"])
+    meta = {k: v for k, v in state.items() if k not in ("model", "criterion")}
+    return model.to(device).eval(), meta

@@ -35,8 +35,8 @@ from .depth import disparity_to_depth, pixel_disparity
 from .errors import DataError, MsdepthError
 from .infer import network_disparity
 from .io import atomic_path, save_npy, write_png
-from .model import MonodepthVGG
-from .train import load_model, resolve_device
+from .model import MonodepthVGG, load_model
+from .train import resolve_device
 
 IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp", ".ppm")
 VIDEO_EXTENSIONS = (".avi", ".mp4", ".mov", ".mkv", ".webm", ".m4v", ".mpg", ".mpeg", ".wmv")
@@ -113,7 +113,7 @@ class _Frame:
 
 
 def load_trained(path: str | os.PathLike, device: str | torch.device = "cpu") -> tuple[MonodepthVGG, dict]:
-    """:func:`msdepth.train.load_model`, with any failure turned into one MsdepthError naming the file."""
+    """:func:`msdepth.model.load_model`, with any failure turned into one MsdepthError naming the file."""
     try:
         return load_model(path, device)
     except MsdepthError:

@@ -1,4 +1,4 @@
-"""Loading model and checkpoint files without running code from them.
+"""Writing model and checkpoint files reproducibly, and loading them without running code from them.
 
 ``torch.save`` writes a zip holding a pickle, and a plain ``torch.load`` runs whatever that
 pickle names: a shared ``model.pt`` could call ``os.system``. The files msdepth writes hold only
@@ -6,7 +6,8 @@ tensors and plain data (dicts, lists, strings, numbers), so they are read with t
 weights-only unpickler, which builds those and nothing else. A file that needs more is refused
 with one line naming it; nothing falls back to an unrestricted load.
 
-Not part of ``train.TRAINING_MODULES``: how a file is read does not change what training computes.
+Part of ``train.TRAINING_MODULES``: :func:`save_weights_file` decides the bytes of the models
+the train stage outputs (and DVC hashes).
 """
 
 from __future__ import annotations
@@ -21,6 +22,16 @@ from typing import Any
 import torch
 
 from .errors import MsdepthError
+from .io import atomic_path
+
+
+def save_weights_file(path: str | os.PathLike, state: dict[str, Any]) -> None:
+    """``torch.save`` of ``state`` through a temp file and a rename: never a truncated file, and the
+    same bytes for the same state (OSError, e.g. a full disk, propagates; ``path`` is untouched)."""
+    # Through an open file: torch.save names the zip's root folder after a path it is given (here
+    # the random temp name), so equal weights would give different bytes (and DVC hashes) per run.
+    with atomic_path(path) as tmp, open(tmp, "wb") as f:
+        torch.save(state, f)
 
 
 def load_weights_file(

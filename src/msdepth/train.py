@@ -13,7 +13,7 @@ import math
 import os
 import random
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Callable
 
@@ -24,14 +24,15 @@ from torch.utils.data import DataLoader
 from tqdm import tqdm
 
 from . import distributed
-from .config import Params, speed_only_train_keys
+from .appearance import build_appearance
+from .config import Params, fingerprint_fields, speed_only_train_keys
 from .data.pairs import StereoPairs
 from .distributed import Context, GlobalBatchSampler
 from .errors import MsdepthError
-from .io import atomic_path, write_json
+from .io import write_json
 from .losses import MonodepthLoss
-from .model import MonodepthVGG
-from .serialization import load_weights_file
+from .model import MonodepthVGG, load_model, save_model  # noqa: F401 - load_model: imported from here too
+from .serialization import load_weights_file, save_weights_file
 
 log = logging.getLogger(__name__)
 
@@ -81,8 +82,8 @@ def build_model(params: Params) -> MonodepthVGG:
 
 
 def build_loss(params: Params, variant: str) -> MonodepthLoss:
-    """The training loss of ``variant`` (its appearance term names its params section)."""
-    return MonodepthLoss(params.loss, params.variant(variant), params.ssim, params.msssim)
+    """The training loss of ``variant``, with the appearance term registered under that name."""
+    return MonodepthLoss(params.loss, build_appearance(params, variant))
 
 
 def learning_rate(base: float, step: int, total_steps: int) -> float:
@@ -95,18 +96,38 @@ def learning_rate(base: float, step: int, total_steps: int) -> float:
     return base / 4
 
 
-# The modules whose code shapes a training run (the train stage's src/ deps in dvc.yaml; a test
-# keeps the two lists equal). Their bytes are part of the checkpoint fingerprint: when DVC reruns
-# the stage because one of them changed, the run trains anew instead of resuming a checkpoint
-# that the old code wrote, so a model always comes from the code that is committed with it.
-TRAINING_MODULES = ("train.py", "model.py", "losses.py", "warp.py", "data/pairs.py")
+# The modules (and packages: every .py file below them) whose code shapes a training run: the
+# train stage's src/ deps in dvc.yaml (a test keeps the two lists equal). Their bytes are part of
+# the checkpoint fingerprint: when DVC reruns the stage because one of them changed, the run
+# trains anew instead of resuming a checkpoint that the old code wrote, so a model always comes
+# from the code that is committed with it. A new appearance term lands in appearance/, already listed.
+TRAINING_MODULES = (
+    "train.py",
+    "model.py",
+    "losses.py",
+    "_ssim_kernels.py",
+    "appearance",
+    "warp.py",
+    "serialization.py",
+    "data/pairs.py",
+)
+
+
+def training_files() -> list[Path]:
+    """The source files of :data:`TRAINING_MODULES`, packages expanded to their sorted .py files."""
+    root = Path(__file__).resolve().parent
+    files: list[Path] = []
+    for name in TRAINING_MODULES:
+        path = root / name
+        files.extend(sorted(path.rglob("*.py")) if path.is_dir() else [path])
+    return files
 
 
 def code_digest() -> str:
-    """Hash of the source of :data:`TRAINING_MODULES`."""
+    """Hash of the source of :data:`TRAINING_MODULES` (each file under its path in the package)."""
     root, digest = Path(__file__).resolve().parent, hashlib.sha256()
-    for name in TRAINING_MODULES:
-        digest.update(name.encode() + b"\0" + (root / name).read_bytes() + b"\0")
+    for path in training_files():
+        digest.update(path.relative_to(root).as_posix().encode() + b"\0" + path.read_bytes() + b"\0")
     return digest.hexdigest()[:16]
 
 
@@ -122,9 +143,9 @@ def fingerprint(params: Params, variant: str, num_pairs: int, seed: int) -> str:
         "data": [params.data.height, params.data.width, num_pairs],
         "model": asdict(params.model),
         "train": {k: v for k, v in asdict(params.train).items() if k not in ignored},
-        "loss": asdict(params.loss),
+        "loss": fingerprint_fields(params.loss),
         "appearance": appearance,
-        appearance: asdict(getattr(params, appearance)),
+        appearance: asdict(params.appearance[appearance]),
     }
     return hashlib.sha256(json.dumps(relevant, sort_keys=True).encode()).hexdigest()[:16]
 
@@ -135,7 +156,7 @@ def save_checkpoint(path: Path, state: dict) -> None:
     A failed write (disk full, quota) is a TrainingError; the previous checkpoint is untouched.
     """
     try:
-        _save_atomically(path, state)
+        save_weights_file(path, state)
     except OSError as exc:
         raise TrainingError(
             f"{path}: cannot write the epoch {state.get('epoch')} checkpoint ({exc}); the previous "
@@ -169,6 +190,31 @@ def _loader(
     )
 
 
+@dataclass
+class _Run:
+    """One training run once set up: what the resume, the epochs and the finish share."""
+
+    params: Params
+    variant: str
+    seed: int
+    ctx: Context
+    device: torch.device
+    dataset: StereoPairs
+    model: MonodepthVGG  # what is saved
+    network: Callable[[torch.Tensor], list[torch.Tensor]]  # model, in DDP and/or compiled: what a step calls
+    criterion: MonodepthLoss
+    optimizer: torch.optim.Optimizer
+    memory_format: torch.memory_format
+    global_batch: int
+    total_steps: int
+    fingerprint: str
+    # Progress: from the checkpoint when resumed, then advanced by every epoch.
+    start_epoch: int = 0
+    step: int = 0
+    history: list[dict] = field(default_factory=list)
+    seconds_before: float = 0.0  # training time of the runs that wrote the resumed checkpoint
+
+
 def train_variant(
     params: Params,
     variant: str,
@@ -197,135 +243,188 @@ def train_variant(
     ``on_epoch(epoch, model, mean_losses)`` is called after each epoch trained in this call
     (epochs count from 1), e.g. to evaluate the network as it learns.
     """
-    t = params.train
-    seed = t.seeds[0] if seed is None else seed
-    torch.set_num_threads(t.threads)
-    seed_everything(seed)  # the same seed on every rank: identical initial weights
-    ctx, device = distributed.setup(resolve_device(t.device), t.dist_timeout_s)
-    configure_cudnn(t.cudnn_benchmark, device)
-    dataset = StereoPairs(
-        pairs, params.data.height, params.data.width, augment=t.augment, seed=seed, cache=cache
-    )
-    model = build_model(params).to(device)
-    memory_format = torch.channels_last if t.channels_last else torch.contiguous_format
-    model = model.to(memory_format=memory_format)
-    # DDP and the compiled wrapper share the parameters of `model`, which is what is saved.
-    forward = DistributedDataParallel(model) if ctx.world > 1 else model
-    forward = torch.compile(forward) if t.compile else forward
-    criterion = build_loss(params, variant).to(device)
-    trainable = list(model.parameters()) + list(criterion.parameters())
-    optimizer = torch.optim.Adam(trainable, lr=t.learning_rate)
-    global_batch = t.batch_size * ctx.world
-    steps_per_epoch = len(dataset) // global_batch if len(dataset) >= global_batch else 1
-    if ctx.world > 1 and ctx.main:
-        log.info("%s: %d ranks x batch %d = global batch %d", variant, ctx.world, t.batch_size, global_batch)
-    total_steps = steps_per_epoch * t.epochs
-    fp = fingerprint(params, variant, len(pairs), seed)
-
+    run = _set_up(params, variant, pairs, params.train.seeds[0] if seed is None else seed, cache)
     checkpoint_path = Path(checkpoint_path)
-    start_epoch, step, history, seconds_before = 0, 0, [], 0.0
-    if checkpoint_path.exists():
-        state = load_checkpoint(checkpoint_path, device)
-        if state.get("fingerprint") == fp:
-            model.load_state_dict(state["model"])
-            criterion.load_state_dict(state["criterion"])
-            optimizer.load_state_dict(state["optimizer"])
-            torch.set_rng_state(state["torch_rng"])
-            start_epoch, step, history = state["epoch"], state["step"], state["history"]
-            seconds_before = state.get("seconds", 0.0)
-            log.info("resuming %s from epoch %d (step %d)", variant, start_epoch, step)
-        else:
-            log.info(
-                "ignoring checkpoint %s: it belongs to other parameters or training code", checkpoint_path
-            )
-
-    live = None
-    if live_dir is not None and ctx.main:
-        from dvclive import Live
-
-        # Always a fresh log, the epochs of a resumed checkpoint replayed from its history: DVC
-        # deletes a stage's outputs (these curves) before it reruns it, and the curves must not
-        # depend on whether, or where, the run was interrupted.
-        live = Live(str(live_dir), resume=False, save_dvc_exp=False, dvcyaml=False)
-        live.step = 0
-        for entry in history:
-            _log_epoch(live, entry, t.learning_rate, total_steps)
-
+    _resume(run, checkpoint_path)
+    live = _open_live(run, live_dir)
     started = time.perf_counter()
-    resumed_from = start_epoch
-    pin = device.type == "cuda"
-    sync_every = host_sync_interval(t.sync_every, device)
-    for epoch in range(start_epoch, t.epochs):
-        model.train()
-        sums = dict.fromkeys(LOSS_KEYS, 0.0)
-        batches = 0
-        unread: list[tuple[int, torch.Tensor, torch.Tensor]] = []  # (step, batch indices, loss values)
-        bar = tqdm(
-            _loader(dataset, params, seed, epoch, ctx, pin_memory=pin),
-            desc=f"{variant} epoch {epoch + 1}/{t.epochs}",
-            disable=not progress or not ctx.main,
-            leave=False,
-        )
-        for batch in bar:
-            for group in optimizer.param_groups:
-                group["lr"] = learning_rate(t.learning_rate, step, total_steps)
-            left = batch["left"].to(device, non_blocking=True)
-            right = batch["right"].to(device, non_blocking=True)
-            losses = forward_and_loss(forward, criterion, left, right, t.amp, memory_format)
-            unread.append((step, batch["index"], torch.stack([losses[k].detach() for k in LOSS_KEYS])))
-            if (
-                len(unread) >= sync_every
-            ):  # before this step's update: with 1, a NaN never reaches the weights
-                batches += _read_losses(unread, sums, dataset, variant, epoch)
-                bar.set_postfix(loss=f"{sums['total'] / batches:.4f}")
-            optimizer.zero_grad(set_to_none=True)
-            losses["total"].backward()
-            distributed.average_gradients(criterion, ctx)  # learned level weights stay identical
-            optimizer.step()
-            step += 1
-        batches += _read_losses(unread, sums, dataset, variant, epoch)
-        means = distributed.mean_over_ranks({k: v / max(batches, 1) for k, v in sums.items()}, ctx)
-        history.append({"epoch": epoch + 1, "step": step, **means})
+    resumed_from = run.start_epoch
+    for epoch in range(run.start_epoch, params.train.epochs):
+        means = _train_epoch(run, epoch, progress)
+        run.history.append({"epoch": epoch + 1, "step": run.step, **means})
         if live is not None:
-            _log_epoch(live, history[-1], t.learning_rate, total_steps)
-        if ctx.main:
-            save_checkpoint(
-                checkpoint_path,
-                {
-                    "fingerprint": fp,
-                    "epoch": epoch + 1,
-                    "step": step,
-                    "history": history,
-                    "model": model.state_dict(),
-                    "criterion": criterion.state_dict(),
-                    "optimizer": optimizer.state_dict(),
-                    "torch_rng": torch.get_rng_state(),
-                    "seconds": seconds_before + time.perf_counter() - started,
-                },
+            _log_epoch(live, run.history[-1], params.train.learning_rate, run.total_steps)
+        if run.ctx.main:
+            _save_epoch_checkpoint(
+                run, checkpoint_path, epoch + 1, run.seconds_before + time.perf_counter() - started
             )
-            log.info("%s epoch %d/%d: %s", variant, epoch + 1, t.epochs, json.dumps(means))
+            log.info("%s epoch %d/%d: %s", variant, epoch + 1, params.train.epochs, json.dumps(means))
         if on_epoch is not None:
-            on_epoch(epoch + 1, model, means)
+            on_epoch(epoch + 1, run.model, means)
     if live is not None:
         live.end()
-    this_run = time.perf_counter() - started
-    seconds = seconds_before + this_run
-    distributed.check_replicas([model, criterion], ctx)
-    if ctx.main:
-        save_model(model_path, model, criterion, params, variant, seed)
-    del forward  # the DDP wrapper holds the process group: let teardown() free it
+    return _finish(run, model_path, resumed_from, time.perf_counter() - started, summary_path, timing_path)
+
+
+def _set_up(
+    params: Params, variant: str, pairs: list[tuple[Path, Path]], seed: int, cache: np.ndarray | None
+) -> _Run:
+    """Seed, threads, process group, data, network, loss and optimiser of a run from scratch."""
+    train_cfg = params.train
+    torch.set_num_threads(train_cfg.threads)
+    seed_everything(seed)  # the same seed on every rank: identical initial weights
+    ctx, device = distributed.setup(resolve_device(train_cfg.device), train_cfg.dist_timeout_s)
+    configure_cudnn(train_cfg.cudnn_benchmark, device)
+    dataset = StereoPairs(
+        pairs, params.data.height, params.data.width, augment=train_cfg.augment, seed=seed, cache=cache
+    )
+    model = build_model(params).to(device)
+    memory_format = torch.channels_last if train_cfg.channels_last else torch.contiguous_format
+    model = model.to(memory_format=memory_format)
+    # DDP and the compiled wrapper share the parameters of `model`, which is what is saved.
+    network = DistributedDataParallel(model) if ctx.world > 1 else model
+    network = torch.compile(network) if train_cfg.compile else network
+    criterion = build_loss(params, variant).to(device)
+    trainable = list(model.parameters()) + list(criterion.parameters())
+    optimizer = torch.optim.Adam(trainable, lr=train_cfg.learning_rate)
+    global_batch = train_cfg.batch_size * ctx.world
+    steps_per_epoch = len(dataset) // global_batch if len(dataset) >= global_batch else 1
+    if ctx.world > 1 and ctx.main:
+        log.info(
+            "%s: %d ranks x batch %d = global batch %d",
+            variant,
+            ctx.world,
+            train_cfg.batch_size,
+            global_batch,
+        )
+    return _Run(
+        params=params,
+        variant=variant,
+        seed=seed,
+        ctx=ctx,
+        device=device,
+        dataset=dataset,
+        model=model,
+        network=network,
+        criterion=criterion,
+        optimizer=optimizer,
+        memory_format=memory_format,
+        global_batch=global_batch,
+        total_steps=steps_per_epoch * train_cfg.epochs,
+        fingerprint=fingerprint(params, variant, len(pairs), seed),
+    )
+
+
+def _resume(run: _Run, checkpoint_path: Path) -> None:
+    """Continue ``run`` from the checkpoint at ``checkpoint_path`` if it is this run's (same fingerprint)."""
+    if not checkpoint_path.exists():
+        return
+    state = load_checkpoint(checkpoint_path, run.device)
+    if state.get("fingerprint") != run.fingerprint:
+        log.info("ignoring checkpoint %s: it belongs to other parameters or training code", checkpoint_path)
+        return
+    run.model.load_state_dict(state["model"])
+    run.criterion.load_state_dict(state["criterion"])
+    run.optimizer.load_state_dict(state["optimizer"])
+    torch.set_rng_state(state["torch_rng"])
+    run.start_epoch, run.step, run.history = state["epoch"], state["step"], state["history"]
+    run.seconds_before = state.get("seconds", 0.0)
+    log.info("resuming %s from epoch %d (step %d)", run.variant, run.start_epoch, run.step)
+
+
+def _open_live(run: _Run, live_dir: str | os.PathLike | None):
+    """The dvclive logger of ``live_dir`` (rank 0 only; else None), the resumed epochs replayed."""
+    if live_dir is None or not run.ctx.main:
+        return None
+    from dvclive import Live
+
+    # Always a fresh log, the epochs of a resumed checkpoint replayed from its history: DVC
+    # deletes a stage's outputs (these curves) before it reruns it, and the curves must not
+    # depend on whether, or where, the run was interrupted.
+    live = Live(str(live_dir), resume=False, save_dvc_exp=False, dvcyaml=False)
+    live.step = 0
+    for entry in run.history:
+        _log_epoch(live, entry, run.params.train.learning_rate, run.total_steps)
+    return live
+
+
+def _train_epoch(run: _Run, epoch: int, progress: bool) -> dict[str, float]:
+    """One epoch (0-based) of optimiser steps; returns its mean losses, averaged over ranks."""
+    train_cfg, dataset = run.params.train, run.dataset
+    run.model.train()
+    sums = dict.fromkeys(LOSS_KEYS, 0.0)
+    batches = 0
+    unread: list[tuple[int, torch.Tensor, torch.Tensor]] = []  # (step, batch indices, loss values)
+    sync_every = host_sync_interval(train_cfg.sync_every, run.device)
+    bar = tqdm(
+        _loader(dataset, run.params, run.seed, epoch, run.ctx, pin_memory=run.device.type == "cuda"),
+        desc=f"{run.variant} epoch {epoch + 1}/{train_cfg.epochs}",
+        disable=not progress or not run.ctx.main,
+        leave=False,
+    )
+    for batch in bar:
+        for group in run.optimizer.param_groups:
+            group["lr"] = learning_rate(train_cfg.learning_rate, run.step, run.total_steps)
+        left = batch["left"].to(run.device, non_blocking=True)
+        right = batch["right"].to(run.device, non_blocking=True)
+        losses = forward_and_loss(run.network, run.criterion, left, right, train_cfg.amp, run.memory_format)
+        unread.append((run.step, batch["index"], torch.stack([losses[k].detach() for k in LOSS_KEYS])))
+        if len(unread) >= sync_every:  # before this step's update: with 1, a NaN never reaches the weights
+            batches += _read_losses(unread, sums, dataset, run.variant, epoch)
+            bar.set_postfix(loss=f"{sums['total'] / batches:.4f}")
+        run.optimizer.zero_grad(set_to_none=True)
+        losses["total"].backward()
+        distributed.average_gradients(run.criterion, run.ctx)  # learned level weights stay identical
+        run.optimizer.step()
+        run.step += 1
+    batches += _read_losses(unread, sums, dataset, run.variant, epoch)
+    return distributed.mean_over_ranks({k: v / max(batches, 1) for k, v in sums.items()}, run.ctx)
+
+
+def _save_epoch_checkpoint(run: _Run, path: Path, epoch: int, seconds: float) -> None:
+    """The resume state after ``epoch`` (1-based) epochs, ``seconds`` of training in all."""
+    save_checkpoint(
+        path,
+        {
+            "fingerprint": run.fingerprint,
+            "epoch": epoch,
+            "step": run.step,
+            "history": run.history,
+            "model": run.model.state_dict(),
+            "criterion": run.criterion.state_dict(),
+            "optimizer": run.optimizer.state_dict(),
+            "torch_rng": torch.get_rng_state(),
+            "seconds": seconds,
+        },
+    )
+
+
+def _finish(
+    run: _Run,
+    model_path: str | os.PathLike,
+    resumed_from: int,
+    this_run: float,
+    summary_path: str | os.PathLike | None,
+    timing_path: str | os.PathLike | None,
+) -> TrainResult:
+    """Check the replicas agree, save the model, leave the process group, write the summary files."""
+    seconds = run.seconds_before + this_run
+    distributed.check_replicas([run.model, run.criterion], run.ctx)
+    if run.ctx.main:
+        save_model(model_path, run.model, run.criterion, run.params, run.variant, run.seed)
+    run.network = run.model  # drop the DDP wrapper: it holds the process group, which teardown() frees
     distributed.teardown()
-    final = history[-1] if history else {}
+    final = run.history[-1] if run.history else {}
     result = TrainResult(
-        steps=step,
-        epochs=t.epochs,
+        steps=run.step,
+        epochs=run.params.train.epochs,
         resumed_from_epoch=resumed_from,
         seconds=seconds,
         seconds_this_run=this_run,
-        examples_per_second=step * global_batch / seconds if seconds > 0 and step else math.nan,
+        examples_per_second=run.step * run.global_batch / seconds if seconds > 0 and run.step else math.nan,
         final_losses={k: final.get(k, math.nan) for k in LOSS_KEYS},
     )
-    if ctx.main:
+    if run.ctx.main:
         record = asdict(result)
         timing = {k: record.pop(k) for k in TIMING_KEYS}
         if summary_path is not None:
@@ -379,7 +478,7 @@ def _read_losses(
 
 
 def forward_and_loss(
-    forward: Callable[[torch.Tensor], list[torch.Tensor]],
+    network: Callable[[torch.Tensor], list[torch.Tensor]],
     criterion: MonodepthLoss,
     left: torch.Tensor,
     right: torch.Tensor,
@@ -389,7 +488,7 @@ def forward_and_loss(
     """The network on ``left`` (bf16 autocast with ``amp == "bf16"``, in ``memory_format``) and the
     loss of its disparities, always in fp32: SSIM's E[x²] - E[x]² cancels badly in bf16."""
     with torch.autocast(left.device.type, dtype=torch.bfloat16, enabled=amp == "bf16"):
-        disps = forward(left.contiguous(memory_format=memory_format))
+        disps = network(left.contiguous(memory_format=memory_format))
     return criterion([d.float() for d in disps], left, right)
 
 
@@ -399,54 +498,3 @@ def _log_epoch(live, entry: dict, base_lr: float, total_steps: int) -> None:
         live.log_metric(f"train/{k}", entry[k])
     live.log_metric("train/learning_rate", learning_rate(base_lr, entry["step"] - 1, total_steps))
     live.next_step()
-
-
-def save_model(
-    path: str | os.PathLike,
-    model: MonodepthVGG,
-    criterion: MonodepthLoss,
-    params: Params,
-    variant: str,
-    seed: int,
-) -> None:
-    """Final weights plus what is needed to rebuild and run the network."""
-    state = {
-        "model": model.state_dict(),
-        "criterion": criterion.state_dict(),
-        "width_multiplier": params.model.width_multiplier,
-        "norm": params.model.norm,
-        "heads": params.model.heads,
-        "height": params.data.height,
-        "width": params.data.width,
-        "variant": variant,
-        "seed": seed,
-    }
-    _save_atomically(path, state)
-
-
-def _save_atomically(path: str | os.PathLike, state: dict) -> None:
-    # Through an open file: torch.save names the zip's root folder after a path it is given (here
-    # the random temp name), so equal weights would give different bytes (and DVC hashes) per run.
-    with atomic_path(path) as tmp, open(tmp, "wb") as f:
-        torch.save(state, f)
-
-
-def load_model(path: str | os.PathLike, device: str | torch.device = "cpu") -> tuple[MonodepthVGG, dict]:
-    """Rebuild the network saved by :func:`save_model`; returns (model in eval mode, metadata).
-
-    The file is read weights-only (:func:`msdepth.serialization.load_weights_file`): one that
-    needs code to load is refused, so a shared model cannot run anything."""
-    path = Path(path)
-    if not path.exists():
-        raise MsdepthError(f"{path}: no trained model (run the train stage first)")
-    state = load_weights_file(path, device, what="model")
-    missing = [k for k in ("model", "width_multiplier", "height", "width") if k not in state]
-    if missing:
-        raise MsdepthError(f"{path}: not a model file written by msdepth (no {', '.join(missing)})")
-    # Files written before the norm and heads options hold the dissertation's network.
-    model = MonodepthVGG(
-        state["width_multiplier"], norm=state.get("norm", "none"), heads=state.get("heads", "independent")
-    )
-    model.load_state_dict(state["model"])
-    meta = {k: v for k, v in state.items() if k not in ("model", "criterion")}
-    return model.to(device).eval(), meta

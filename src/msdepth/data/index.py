@@ -109,11 +109,11 @@ def build_eval_index(kitti2015_root: Path, split_file: Path, gt: str) -> pd.Data
 
 def build_indexes(params: Params, out_dir: str | os.PathLike) -> dict:
     """Write ``train_pairs.txt``, ``eval_frames.csv`` and ``report.json`` to ``out_dir``."""
-    lay = layout(params)
+    paths = layout(params)
     out = Path(out_dir)
-    pairs = index_pairs(lay.train_split, lay.raw_root)
+    pairs = index_pairs(paths.train_split, paths.raw_root)
     kitti.write_split(out / "train_pairs.txt", [(str(a), str(b)) for a, b in pairs.pairs])
-    frames = build_eval_index(lay.kitti2015_root, lay.eval_split, params.data.gt)
+    frames = build_eval_index(paths.kitti2015_root, paths.eval_split, params.data.gt)
     write_eval_index(out / "eval_frames.csv", frames)
     report = {
         "source": params.data.source,

@@ -1,0 +1,92 @@
+"""Zhao, Gallo, Frosio & Kautz (2017), "Loss Functions for Image Restoration with Neural Networks":
+``alpha·(1 - MS-SSIM) + (1 - alpha)·mean(G_σ ⊛ |x - y|)`` per scale, their alpha = 0.84.
+
+Their MS-SSIM uses Gaussian windows of σ_G^i = 0.5, 1, 2, 4, 8 px at full resolution; ours halves
+the images between levels (Wang et al.), so one window of ``sigma`` = 0.5 px at every level is
+``sigma·2^i`` px of the compared image at level i: the same σ_G^i. The L1 map is weighted by the
+Gaussian of the coarsest level, ``sigma·2^(levels-1)`` px (their σ_G^M = 8 for 5 levels), with
+"same" padding that divides by the window's mass inside the image (so a constant |x - y| = c
+gives c). Their level exponents are all 1 (``weights: ones``: the product of the levels' values).
+Defaults: 4 levels, since the 64 x 192 input's coarsest training scale (8 x 24 px) has no fifth.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Literal, Sequence
+
+from torch import Tensor
+
+from ..config import LossConfig, check
+from ..losses import AppearanceTerm, ms_ssim_pyramid, window_mean
+from . import register
+
+if TYPE_CHECKING:
+    from ..config import Params
+
+
+@dataclass(frozen=True)
+class MixConfig:
+    alpha: float = 0.84  # Zhao et al.'s weight of the MS-SSIM term
+    levels: int = 4  # 5 in Zhao et al.; needs an input whose coarsest training scale has 16 px
+    sigma: float = 0.5  # px, the Gaussian window of every level (level i: sigma·2^i px of the image)
+    kernel_size: int = 5  # taps of that window (±4σ at 0.5 px)
+    weights: Literal["ones", "wang", "equal"] = "ones"  # ones: Zhao et al.'s exponents of 1
+
+    @property
+    def l1_sigma(self) -> float:
+        """σ of the L1 weighting: the coarsest level's Gaussian, in px of the compared image."""
+        return self.sigma * 2 ** (self.levels - 1)
+
+    def validate(self, key: str, params: Params) -> None:
+        """Range checks of the ``key`` section; a ConfigError names the key."""
+        k, d = self.kernel_size, params.data
+        check(0 <= self.alpha <= 1, f"{key}.alpha", f"must be in [0, 1], got {self.alpha}")
+        check(self.sigma > 0, f"{key}.sigma", f"must be > 0, got {self.sigma}")
+        check(k >= 1 and k % 2 == 1, f"{key}.kernel_size", f"must be a positive odd integer, got {k}")
+        check(k <= min(d.height, d.width), f"{key}.kernel_size", "must not exceed the input image")
+        check(1 <= self.levels <= 5, f"{key}.levels", f"must be in 1..5, got {self.levels}")
+        coarsest = min(d.height, d.width) // 8 // 2 ** (self.levels - 1)
+        check(
+            coarsest >= 1,
+            f"{key}.levels",
+            f"{self.levels} levels do not fit the coarsest training scale "
+            f"({d.height // 8}x{d.width // 8} px)",
+        )
+
+
+def gaussian_l1(x: Tensor, y: Tensor, sigma: float) -> Tensor:
+    """``mean(G_σ ⊛ |x - y|)``: every pixel's L1 error averaged over its Gaussian neighbourhood
+    (±3σ window, "same" padding divided by the in-image mass)."""
+    kernel_size = 2 * math.ceil(3 * sigma) + 1
+    return window_mean((x - y).abs(), kernel_size, "gaussian", sigma, "same").mean()
+
+
+@register("mix", MixConfig)
+class MixAppearance(AppearanceTerm):
+    """Per scale, Zhao et al.'s ``alpha·mean(1 - MS-SSIM) + (1 - alpha)·mean(G_σ ⊛ |x - y|)``."""
+
+    def __init__(self, cfg: MixConfig, loss_cfg: LossConfig) -> None:
+        super().__init__()
+        self.cfg, self.implementation = cfg, loss_cfg.kernels
+
+    def forward(self, estimates: Sequence[Tensor], targets: Sequence[Tensor]) -> list[Tensor]:
+        """Per scale, the mix of ``estimates[s]`` against ``targets[s]``."""
+        cfg = self.cfg
+        weights = [1.0] * cfg.levels if cfg.weights == "ones" else cfg.weights
+        msssim = ms_ssim_pyramid(
+            estimates,
+            targets,
+            cfg.kernel_size,
+            cfg.levels,
+            weights,
+            "gaussian",
+            cfg.sigma,
+            "same",
+            self.implementation,  # type: ignore[arg-type]
+        )
+        return [
+            cfg.alpha * (1 - value).mean() + (1 - cfg.alpha) * gaussian_l1(x, y, cfg.l1_sigma)
+            for value, x, y in zip(msssim, estimates, targets)
+        ]

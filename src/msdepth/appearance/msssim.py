@@ -1,0 +1,96 @@
+"""MS-SSIM (the study's variant): ``alpha·(1 - MS-SSIM)/2 + (1 - alpha)·L1`` per scale.
+
+Box windows of ``kernel_size`` at ``levels`` levels, "same" padding, Wang's (or equal, or
+learned) level weights; all scales of the pyramid through the kernels together.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Literal, Sequence
+
+from torch import Tensor
+
+from ..config import LossConfig, check
+from ..losses import (
+    AppearanceTerm,
+    LearnedLevelWeights,
+    PyramidSimilarity,
+    ms_ssim_pyramid,
+    similarity_appearance_loss,
+)
+from . import register
+
+if TYPE_CHECKING:
+    from ..config import Params
+
+
+@dataclass(frozen=True)
+class MSSSIMConfig:
+    kernel_size: int = 3
+    levels: int = 4
+    weights: Literal["wang", "equal", "learned"] = "wang"
+
+    def validate(self, key: str, params: Params) -> None:
+        """Range checks of the ``key`` section; a ConfigError names the key."""
+        k, d = self.kernel_size, params.data
+        check(k >= 1 and k % 2 == 1, f"{key}.kernel_size", f"must be a positive odd integer, got {k}")
+        check(1 <= self.levels <= 5, f"{key}.levels", f"must be in 1..5, got {self.levels}")
+        check(k <= min(d.height, d.width), f"{key}.kernel_size", "must not exceed the input image")
+        # Windows use "same" padding, so a level only needs to exist: the coarsest level of the
+        # coarsest training scale (input / 8) must keep at least one pixel.
+        coarsest = min(d.height, d.width) // 8 // 2 ** (self.levels - 1)
+        check(
+            coarsest >= 1,
+            f"{key}.levels",
+            f"{self.levels} levels do not fit the coarsest training scale "
+            f"({d.height // 8}x{d.width // 8} px)",
+        )
+
+
+def msssim_similarity(
+    cfg: MSSSIMConfig, learned_weights: LearnedLevelWeights | None = None, implementation: str = "fast"
+) -> PyramidSimilarity:
+    """``(xs, ys) -> [MS-SSIM(xs[i], ys[i]) per image]`` of a scale pyramid, all scales together.
+
+    With ``cfg.weights == "learned"``, ``learned_weights`` must be given; it is called on every use,
+    so the current parameter values (and their gradient) are used.
+    """
+    if cfg.weights == "learned" and learned_weights is None:
+        raise ValueError("msssim weights 'learned' need a LearnedLevelWeights module")
+
+    def similarity(xs: Sequence[Tensor], ys: Sequence[Tensor]) -> list[Tensor]:
+        weights = cfg.weights if learned_weights is None else learned_weights()
+        values = ms_ssim_pyramid(
+            xs,
+            ys,
+            cfg.kernel_size,
+            cfg.levels,
+            weights=weights,
+            implementation=implementation,  # type: ignore[arg-type]
+        )
+        return list(values)
+
+    return similarity
+
+
+@register("msssim", MSSSIMConfig)
+class MSSSIMAppearance(AppearanceTerm):
+    """Per scale, ``alpha·mean(clip((1 - MS-SSIM)/2)) + (1 - alpha)·mean|x - y|``; holds
+    :class:`LearnedLevelWeights` as ``level_weights`` when ``cfg.weights == "learned"``."""
+
+    def __init__(self, cfg: MSSSIMConfig, loss_cfg: LossConfig) -> None:
+        super().__init__()
+        self.cfg, self.alpha, self.implementation = cfg, loss_cfg.alpha, loss_cfg.kernels
+        if cfg.weights == "learned":
+            self.level_weights = LearnedLevelWeights(cfg.levels)
+
+    def forward(self, estimates: Sequence[Tensor], targets: Sequence[Tensor]) -> list[Tensor]:
+        """Per scale, the appearance loss of ``estimates[s]`` against ``targets[s]``."""
+        # Built per call (cheap) rather than stored, so copies of this module never keep a
+        # closure over another copy's level weights.
+        similarity = msssim_similarity(self.cfg, getattr(self, "level_weights", None), self.implementation)
+        return [
+            similarity_appearance_loss(sim, x, y, self.alpha)
+            for sim, x, y in zip(similarity(estimates, targets), estimates, targets)
+        ]
