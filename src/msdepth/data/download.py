@@ -733,12 +733,22 @@ def fetch_all(
     }
     lock = threading.Lock()
     unreachable: list[NetworkUnreachable] = []
+    stop = threading.Event()  # set at the first NetworkUnreachable: the archives not started stay so
 
     def count(n: int) -> None:
         with lock:
             report["bytes_downloaded"] += n
 
     def one(name: str) -> None:
+        if stop.is_set():
+            return
+        try:
+            fetch_one(name)
+        except NetworkUnreachable:
+            stop.set()
+            raise
+
+    def fetch_one(name: str) -> None:
         url, archive = urls[name], download_dir / name
         if not archive.exists() and _marker(archive, extract_dir).exists():
             # Extracted by an earlier run and the archive deleted since (to save space): done.
@@ -774,15 +784,10 @@ def fetch_all(
             futures = {pool.submit(one, name): name for name in urls}
             for future in as_completed(futures):
                 name = futures[future]
-                if future.cancelled():
-                    continue
                 try:
                     future.result()
-                except NetworkUnreachable as exc:
-                    # Every other archive would fail the same way: stop the ones not started.
+                except NetworkUnreachable as exc:  # every other archive would fail the same way
                     unreachable.append(exc)
-                    for other in futures:
-                        other.cancel()
                 except DataError as exc:
                     report["failed"][name] = str(exc)
                 except Exception as exc:  # noqa: BLE001 - one archive's surprise must not hide the others' results
@@ -857,18 +862,25 @@ def _dry_run(
                 report["resume"][name] = part
     report["skipped"] = sorted(report["complete"] + report["downloaded"])
 
+    stop = threading.Event()  # set at the first NetworkUnreachable: every other HEAD would fail too
+
     def size(name: str) -> int | None:
-        return remote_size(
-            urls[name], retries=retries, backoff=backoff, timeout=timeout, allow_http=allow_http
-        )
+        if stop.is_set():
+            return None
+        try:
+            return remote_size(
+                urls[name], retries=retries, backoff=backoff, timeout=timeout, allow_http=allow_http
+            )
+        except NetworkUnreachable:
+            stop.set()
+            raise
 
     with ThreadPoolExecutor(max_workers=max(1, jobs)) as pool:
         futures = [(n, pool.submit(size, n)) for n in missing]
         for name, future in futures:
             try:
                 report["to_fetch"][name] = future.result()
-            except NetworkUnreachable:
-                pool.shutdown(wait=False, cancel_futures=True)  # every other HEAD would fail the same way
+            except NetworkUnreachable:  # not one archive's failure: the whole dry run's
                 raise
             except DataError as exc:
                 report["failed"][name] = str(exc)
