@@ -31,6 +31,7 @@ from .stages.infer import infer, torch_threads
 from .stages.prepare_data import prepare_data
 from .stages.rois import rois
 from .stages.train import train
+from .stages.validate_params import validate_params
 
 __all__ = [
     "BASELINES",
@@ -59,5 +60,6 @@ __all__ = [
     "run_stage",
     "torch_threads",
     "train",
+    "validate_params",
     "variant_runs",
 ]
