@@ -184,3 +184,13 @@ def test_deps_check_reports_both_directions(toy: Path):
     stage["deps"] = ["stages/run.py", "src/msdepth"]
     (toy / "dvc.yaml").write_text(yaml.safe_dump({"stages": {"run": stage}}))
     assert deps_problems(toy) == ([], ["run: src/msdepth/data/unused.py", "run: src/msdepth/unused.py"])
+
+
+def test_figures_and_evaluation_code_are_no_training_dep():
+    """Redrawing a figure or changing a metric must never retrain (or re-infer) a model."""
+    stages = yaml.safe_load((ROOT / "dvc.yaml").read_text())["stages"]
+    later = {
+        f"src/msdepth/{m}.py" for m in ("figures", "evaluate", "metrics", "compare", "stats", "baselines")
+    }
+    for name in ("train", "infer"):
+        assert not later & set(stages[name]["deps"]), name
