@@ -70,9 +70,28 @@ def test_prepare_data_dry_run_of_the_synthetic_set_writes_nothing(tmp_path: Path
     assert [p.name for p in tmp_path.iterdir()] == ["params.yaml"]
 
 
-def test_a_bad_param_is_one_line_naming_the_key(tmp_path: Path):
-    (tmp_path / "params.yaml").write_text("msssim: {kernel_size: 4}\n")
-    proc = _run("stages/validate_params.py", cwd=tmp_path)
-    assert proc.returncode == 1
-    assert proc.stderr == "error: params.yaml: msssim.kernel_size: must be a positive odd integer, got 4\n"
+@pytest.mark.parametrize(
+    ("params", "message"),
+    [
+        ("msssim: {kernel_size: 4}", "msssim.kernel_size: must be a positive odd integer, got 4"),
+        ("train: {learning_rate: fast}", "train.learning_rate: expected a number, got 'fast'"),
+        ("trian: {epochs: 3}", "unknown parameter(s) ['trian']"),
+        ("train: {epcohs: 3}", "unknown parameter(s) ['train.epcohs']"),
+    ],
+)
+def test_validate_params_rejects_a_bad_value_or_unknown_key_in_one_line(
+    tmp_path: Path, monkeypatch, capsys, params: str, message: str
+):
+    from msdepth.stages.common import run_stage
+    from msdepth.stages.validate_params import CHECKED, validate_params
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "params.yaml").write_text(params + "\n")
+    assert run_stage(validate_params) == 1
+    assert capsys.readouterr().err == f"error: params.yaml: {message}\n"
     assert [p.name for p in tmp_path.iterdir()] == ["params.yaml"]
+    (tmp_path / "params.yaml").write_text("msssim: {kernel_size: 5}\n")
+    assert run_stage(validate_params) == 0
+    written = CHECKED.read_bytes()
+    (tmp_path / "params.yaml").write_text("msssim: {kernel_size: 7}\ntrain: {seeds: [4]}\n")
+    assert run_stage(validate_params) == 0 and CHECKED.read_bytes() == written  # whatever the params
