@@ -24,7 +24,8 @@ CHECKED_TEXT = (
 def validate_params(params: Params) -> None:
     """Validate params.yaml (types, ranges, unknown keys) and write data/params_checked.txt.
 
-    run_stage has already loaded and validated the params; an error stops there, in one line.
+    The checks are msdepth.config.load_params's, done on loading: an error is one line naming
+    the key, and then nothing is written.
     """
     if not CHECKED.is_file() or CHECKED.read_text() != CHECKED_TEXT:
         CHECKED.parent.mkdir(parents=True, exist_ok=True)
