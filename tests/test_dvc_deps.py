@@ -37,7 +37,20 @@ def imported_modules(path: Path, module: str | None, src: Path, package: str = P
     """
     is_package = path.name == "__init__.py"
     found: set[str] = set()
-    for node in ast.walk(ast.parse(path.read_text(), filename=str(path))):
+    tree = ast.parse(path.read_text(), filename=str(path))
+    skipped = {  # `if TYPE_CHECKING:` blocks never run
+        id(n)
+        for block in ast.walk(tree)
+        if isinstance(block, ast.If) and "TYPE_CHECKING" in ast.unparse(block.test)
+        for stmt in block.body
+        for n in ast.walk(stmt)
+    }
+    if is_package and re.search(r"\b(pkgutil\.iter_modules|importlib\.import_module)\(", path.read_text()):
+        # A package that imports its own modules by name (a registry): count them all.
+        found.update(f"{module}.{p.stem}" for p in path.parent.glob("*.py") if p.name != "__init__.py")
+    for node in ast.walk(tree):
+        if id(node) in skipped:
+            continue
         if isinstance(node, ast.Import):
             found.update(a.name for a in node.names)
         elif isinstance(node, ast.ImportFrom):
@@ -131,17 +144,21 @@ def test_no_stage_script_imports_the_whole_pipeline():
 
 @pytest.fixture
 def toy(tmp_path: Path) -> Path:
-    """A package ``msdepth`` (under tmp_path/src) using every import form the closure must follow."""
+    """A package ``msdepth`` (under tmp_path/src) using every import form the closure must follow,
+    a registry package that imports its modules by name, and a TYPE_CHECKING-only import."""
     files = {
         "stages/run.py": "import sys\nfrom msdepth.stages import job\nimport msdepth.plain\n",
         "src/msdepth/__init__.py": "",
-        "src/msdepth/plain.py": "import os\n",
+        "src/msdepth/plain.py": "import os\nfrom . import plugins\n",
+        "src/msdepth/plugins/__init__.py": "import importlib\nimportlib.import_module(__name__ + '.a')\n",
+        "src/msdepth/plugins/a.py": "",
+        "src/msdepth/plugins/b.py": "from ..errors import X\n",
         "src/msdepth/stages/__init__.py": "",
         "src/msdepth/stages/job.py": "from .. import errors\nfrom ..data.kitti import read\n"
         "def f():\n    from ..lazy import g\n    from . import helper\n",
         "src/msdepth/stages/helper.py": "from msdepth.data import pairs\n",
         "src/msdepth/errors.py": "",
-        "src/msdepth/lazy.py": "from .data import *\n",
+        "src/msdepth/lazy.py": "from .data import *\nif TYPE_CHECKING:\n    from . import unused\n",
         "src/msdepth/data/__init__.py": "",
         "src/msdepth/data/kitti.py": "",
         "src/msdepth/data/pairs.py": "from . import kitti\n",
@@ -165,6 +182,9 @@ def test_closure_follows_relative_absolute_and_function_level_imports(toy: Path)
         "errors.py",
         "lazy.py",
         "plain.py",
+        "plugins/__init__.py",
+        "plugins/a.py",
+        "plugins/b.py",
         "stages/__init__.py",
         "stages/helper.py",
         "stages/job.py",
