@@ -2,7 +2,8 @@
 
 import sys
 
-from msdepth.pipeline import baselines, run_stage
+from msdepth.stages.baselines import baselines
+from msdepth.stages.common import run_stage
 
 if __name__ == "__main__":
-    sys.exit(run_stage(baselines))
+    sys.exit(run_stage(baselines, *sys.argv[1:]))

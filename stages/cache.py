@@ -2,7 +2,8 @@
 
 import sys
 
-from msdepth.pipeline import cache, run_stage
+from msdepth.stages.cache import cache
+from msdepth.stages.common import run_stage
 
 if __name__ == "__main__":
-    sys.exit(run_stage(cache))
+    sys.exit(run_stage(cache, *sys.argv[1:]))

@@ -2,7 +2,8 @@
 
 import sys
 
-from msdepth.pipeline import compare, run_stage
+from msdepth.stages.common import run_stage
+from msdepth.stages.compare import compare
 
 if __name__ == "__main__":
-    sys.exit(run_stage(compare))
+    sys.exit(run_stage(compare, *sys.argv[1:]))

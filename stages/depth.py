@@ -2,7 +2,8 @@
 
 import sys
 
-from msdepth.pipeline import depth, run_stage
+from msdepth.stages.common import run_stage
+from msdepth.stages.depth import depth
 
 if __name__ == "__main__":
     sys.exit(run_stage(depth, *sys.argv[1:]))

@@ -2,7 +2,8 @@
 
 import sys
 
-from msdepth.pipeline import evaluate, run_stage
+from msdepth.stages.common import run_stage
+from msdepth.stages.evaluate import evaluate
 
 if __name__ == "__main__":
     sys.exit(run_stage(evaluate, *sys.argv[1:]))

@@ -2,7 +2,8 @@
 
 import sys
 
-from msdepth.pipeline import figures, run_stage
+from msdepth.stages.common import run_stage
+from msdepth.stages.figures import figures
 
 if __name__ == "__main__":
-    sys.exit(run_stage(figures))
+    sys.exit(run_stage(figures, *sys.argv[1:]))

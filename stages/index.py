@@ -2,7 +2,8 @@
 
 import sys
 
-from msdepth.pipeline import index, run_stage
+from msdepth.stages.common import run_stage
+from msdepth.stages.index import index
 
 if __name__ == "__main__":
-    sys.exit(run_stage(index))
+    sys.exit(run_stage(index, *sys.argv[1:]))

@@ -2,7 +2,8 @@
 
 import sys
 
-from msdepth.pipeline import infer, run_stage
+from msdepth.stages.common import run_stage
+from msdepth.stages.infer import infer
 
 if __name__ == "__main__":
     sys.exit(run_stage(infer, *sys.argv[1:]))

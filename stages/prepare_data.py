@@ -2,7 +2,8 @@
 
 import sys
 
-from msdepth.pipeline import prepare_data, run_stage
+from msdepth.stages.common import run_stage
+from msdepth.stages.prepare_data import prepare_data
 
 if __name__ == "__main__":
-    sys.exit(run_stage(prepare_data))
+    sys.exit(run_stage(prepare_data, *sys.argv[1:]))

@@ -2,7 +2,8 @@
 
 import sys
 
-from msdepth.pipeline import rois, run_stage
+from msdepth.stages.common import run_stage
+from msdepth.stages.rois import rois
 
 if __name__ == "__main__":
-    sys.exit(run_stage(rois))
+    sys.exit(run_stage(rois, *sys.argv[1:]))

@@ -2,7 +2,8 @@
 
 import sys
 
-from msdepth.pipeline import run_stage, train
+from msdepth.stages.common import run_stage
+from msdepth.stages.train import train
 
 if __name__ == "__main__":
     sys.exit(run_stage(train, *sys.argv[1:]))

@@ -710,3 +710,181 @@ def test_extracted_archive_deleted_to_save_space_is_not_fetched_again(
     (tmp_path / "zips" / DRIVE).unlink()
     report = dl.fetch_all(server.base_url, names, tmp_path / "zips", tmp_path / "raw", **FAST)
     assert report["skipped"] == [DRIVE] and len(server.gets(DRIVE)) == 1
+
+
+def _tree(root: Path) -> dict[str, bytes]:
+    """Every file under ``root`` with its bytes, and every folder (as b"<dir>")."""
+    return {
+        p.relative_to(root).as_posix(): (p.read_bytes() if p.is_file() else b"<dir>")
+        for p in sorted(root.rglob("*"))
+    }
+
+
+def test_dry_run_states_every_archive_and_writes_nothing(server: _Server, tmp_path: Path, capsys) -> None:
+    """One archive extracted (its zip deleted since), one downloaded, one half downloaded, one
+    missing: HEAD requests for the last two only, their sizes and the rest to fetch in the total."""
+    names = [f"2011_09_26_drive_000{i}_sync.zip" for i in range(1, 5)]
+    data = {n: _serve_drive(server, name=n, seed=i) for i, n in enumerate(names)}
+    zips, raw = tmp_path / "zips", tmp_path / "raw"
+    zips.mkdir()
+    raw.mkdir()
+    (raw / f".{names[0]}.complete").write_text("{}")
+    (zips / names[1]).write_bytes(data[names[1]])
+    (zips / (names[2] + ".part")).write_bytes(data[names[2]][:1000])
+    before = _tree(tmp_path)
+    report = dl.fetch_all(
+        server.base_url, [f"raw_data/{n}" for n in names], zips, raw, dry_run=True, label="KITTI raw", **FAST
+    )
+    assert _tree(tmp_path) == before
+    assert sorted((e["method"], e["name"]) for e in server.log) == [("HEAD", names[2]), ("HEAD", names[3])]
+    assert report["complete"] == [names[0]] and report["downloaded"] == [names[1]]
+    assert report["to_fetch"] == {names[2]: len(data[names[2]]), names[3]: len(data[names[3]])}
+    assert report["resume"] == {names[2]: 1000}
+    assert report["total_bytes"] == len(data[names[2]]) - 1000 + len(data[names[3]])
+    lines = capsys.readouterr().out.splitlines()
+    human = dl._human
+    assert lines == [
+        f"  {names[0]:<34} complete (downloaded and extracted)",
+        f"  {names[1]:<34} downloaded; would be verified and extracted",
+        f"  {names[2]:<34} to fetch {human(len(data[names[2]]) - 1000)} of {human(len(data[names[2]]))} "
+        "(1000 B in its .part)",
+        f"  {names[3]:<34} to fetch, {human(len(data[names[3]]))}",
+        f"KITTI raw: would fetch 2 archive(s), {human(report['total_bytes'])}; 1 already complete, "
+        "1 downloaded and not yet extracted",
+    ]
+    assert dl.dry_run_total([report, report]).startswith("dry run, in all: would fetch 4 archive(s), ")
+
+
+def _closed_port() -> int:
+    """A local port that nothing listens on (connections to it are refused)."""
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return sock.getsockname()[1]
+
+
+@pytest.mark.parametrize("dry_run", [True, False])
+def test_connection_refused_stops_at_once_and_writes_nothing(tmp_path: Path, dry_run: bool) -> None:
+    """Retried like a reset, 66 archives would take minutes; it stops at the first refusal."""
+    base = f"http://127.0.0.1:{_closed_port()}/avg-kitti/"
+    names = [f"raw_data/2011_09_26_drive_{i:04d}_sync.zip" for i in range(1, 67)]
+    started = time.monotonic()
+    with pytest.raises(dl.NetworkUnreachable) as err:
+        dl.fetch_all(
+            base, names, tmp_path / "zips", tmp_path / "raw", dry_run=dry_run, **{**FAST, "backoff": 1}
+        )
+    assert time.monotonic() - started < 5
+    message = str(err.value)
+    assert "\n" not in message and "cannot reach 127.0.0.1 (ConnectionRefusedError" in message
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("dry_run", [True, False])
+def test_failed_name_resolution_is_asked_once(tmp_path: Path, monkeypatch, dry_run: bool) -> None:
+    calls = []
+
+    def no_dns(host, *args, **kwargs):
+        calls.append(host)
+        raise socket.gaierror(socket.EAI_NONAME, "Name or service not known")
+
+    monkeypatch.setattr(socket, "getaddrinfo", no_dns)
+    names = [f"raw_data/2011_09_26_drive_{i:04d}_sync.zip" for i in range(1, 4)]
+    with pytest.raises(dl.NetworkUnreachable, match=r"cannot reach kitti\.invalid \(gaierror: .*not known\)"):
+        dl.fetch_all(
+            "https://kitti.invalid/",
+            names,
+            tmp_path / "zips",
+            tmp_path / "raw",
+            dry_run=dry_run,
+            jobs=1,
+            **FAST,
+        )
+    assert calls == ["kitti.invalid"] and list(tmp_path.iterdir()) == []
+
+
+def test_unreachable_host_mid_run_stops_the_archives_not_started(server: _Server, tmp_path: Path) -> None:
+    """The network goes away after the probe: the first archive's failure stops the others."""
+    _serve_drive(server)
+    names = [f"raw_data/{DRIVE}"] + [f"raw_data/2011_09_26_drive_{i:04d}_sync.zip" for i in range(2, 9)]
+    real, answered = dl._open, []
+
+    def goes_away(url, timeout, **kwargs):
+        if answered:  # after the probe's HEAD
+            raise dl.NetworkUnreachable(f"{url}: cannot reach the host")
+        answered.append(url)
+        return real(url, timeout, **kwargs)
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(dl, "_open", goes_away)
+        with pytest.raises(dl.NetworkUnreachable, match=r"stopped with 0 of 8 archive\(s\) complete$"):
+            dl.fetch_all(server.base_url, names, tmp_path / "zips", tmp_path / "raw", jobs=1, **FAST)
+    assert server.gets(DRIVE) == []
+
+
+# --------------------------------------------------------------------------- the stage
+
+
+def _kitti_project(tmp_path: Path, base_url: str, drives: int = 2) -> Path:
+    """A working directory for stages/prepare_data.py: params.yaml for KITTI from ``base_url``."""
+    import yaml
+
+    listed = ["raw_data/2011_09_26_calib.zip"] + [
+        f"raw_data/2011_09_26_drive_{i:04d}/2011_09_26_drive_{i:04d}_sync.zip" for i in range(1, drives + 1)
+    ]
+    (tmp_path / "archives.txt").write_text("".join(f"{n}\n" for n in listed))
+    kitti = {"base_url": base_url, "allow_http": True, "archive_list": "archives.txt"}
+    (tmp_path / "params.yaml").write_text(yaml.safe_dump({"data": {"source": "kitti", "kitti": kitti}}))
+    return tmp_path
+
+
+def _stage(cwd: Path, *args: str) -> tuple[int, str, str, float]:
+    import os
+    import subprocess
+    import sys
+
+    root = Path(__file__).resolve().parents[1]
+    env = dict(os.environ, PYTHONPATH=str(root / "src"))
+    started = time.monotonic()
+    proc = subprocess.run(
+        [sys.executable, str(root / "stages" / "prepare_data.py"), *args],
+        cwd=cwd,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    return proc.returncode, proc.stdout, proc.stderr, time.monotonic() - started
+
+
+def test_stage_dry_run_prints_each_archive_and_the_totals(server: _Server, tmp_path: Path) -> None:
+    server.files["2011_09_26_calib.zip"] = calib = calib_zip("2011_09_26")
+    d1 = _serve_drive(server, name="2011_09_26_drive_0001_sync.zip", seed=1)
+    d2 = _serve_drive(server, name="2011_09_26_drive_0002_sync.zip", seed=2)
+    server.files["data_scene_flow.zip"] = scene = calib_zip("2015_00_00")
+    work = _kitti_project(tmp_path, server.base_url)
+    before = _tree(work)
+    rc, out, err, _ = _stage(work, "--dry-run")
+    assert rc == 0, err
+    assert _tree(work) == before  # no data/, no data/downloads/
+    assert {e["method"] for e in server.log} == {"HEAD"} and len(server.log) == 4
+    lines = out.splitlines()
+    assert lines[0] == f"  {'2011_09_26_calib.zip':<34} to fetch, {dl._human(len(calib))}"
+    raw = dl._human(len(calib) + len(d1) + len(d2))
+    assert lines[3] == f"KITTI raw: would fetch 3 archive(s), {raw}; 0 already complete"
+    assert lines[5] == f"KITTI 2015: would fetch 1 archive(s), {dl._human(len(scene))}; 0 already complete"
+    total = dl._human(len(calib) + len(d1) + len(d2) + len(scene))
+    assert lines[6:] == [
+        f"dry run, in all: would fetch 4 archive(s), {total}; 0 already complete; nothing was written"
+    ]
+    print(out)
+
+
+@pytest.mark.parametrize("dry_run", [True, False])
+def test_stage_without_network_says_so_in_one_line(tmp_path: Path, dry_run: bool) -> None:
+    work = _kitti_project(tmp_path, f"http://127.0.0.1:{_closed_port()}/avg-kitti/", drives=61)
+    rc, out, err, seconds = _stage(work, *(["--dry-run"] if dry_run else []))
+    assert rc == 1 and seconds < 30
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: http://127.0.0.1:"), err
+    assert "cannot reach 127.0.0.1 (ConnectionRefusedError" in lines[0]
+    assert out == "" and sorted(p.name for p in work.iterdir()) == ["archives.txt", "params.yaml"]
+    print(f"{seconds:.1f} s: {lines[0]}")

@@ -228,6 +228,50 @@ def test_dvc_metrics_show_lists_the_headline_numbers_and_fits_a_terminal(repo: P
     assert set(roi) == {"roi_abs_rel", "roi_a1", "mask_abs_rel"}  # the synthetic set has class maps
 
 
+def _workspace(repo: Path) -> dict[str, bytes]:
+    """Every file of the workspace but DVC's and git's own, with its bytes."""
+    return {
+        p.relative_to(repo).as_posix(): p.read_bytes()
+        for p in sorted(repo.rglob("*"))
+        if p.is_file() and p.relative_to(repo).parts[0] not in (".git", ".dvc")
+    }
+
+
+@pytest.mark.parametrize(
+    ("patch", "message"),
+    [
+        ({"msssim": {"kernel_size": 4}}, "msssim.kernel_size: must be a positive odd integer, got 4"),
+        ({"trian": {"epochs": 3}}, "unknown parameter(s) ['trian']"),  # test_stages.py: more of each
+    ],
+)
+def test_bad_params_fail_dvc_repro_first_and_delete_nothing(repo: Path, patch: dict, message: str):
+    """DVC removes a stage's outputs just before running it: validate_params runs first and stops
+    `dvc repro` with one line, so the trained models and tracked results stay as they were."""
+    good = (repo / "params.yaml").read_text()
+    before, git_before = _workspace(repo), _run(["git", "status", "--porcelain"], repo)
+    (repo / "params.yaml").write_text(yaml.safe_dump(_merge(yaml.safe_load(good), patch), sort_keys=False))
+    env = dict(
+        os.environ,
+        PATH=f"{Path(sys.executable).parent}{os.pathsep}{os.environ.get('PATH', '')}",
+        PYTHONPATH=str(repo / "src"),
+    )
+    try:
+        proc = subprocess.run(
+            [sys.executable, "-m", "dvc", "repro"], cwd=repo, env=env, capture_output=True, text=True
+        )
+        after, git_after = _workspace(repo), _run(["git", "status", "--porcelain"], repo)
+    finally:
+        (repo / "params.yaml").write_text(good)
+    assert proc.returncode != 0
+    errors = [line for line in proc.stderr.splitlines() if line.startswith("error: ")]
+    assert errors == [f"error: params.yaml: {message}"], proc.stderr
+    assert "Running stage 'validate_params'" in proc.stdout and proc.stdout.count("Running stage") == 1
+    changed = {name for name in before.keys() | after.keys() if before.get(name) != after.get(name)}
+    assert changed == {"params.yaml"}
+    assert set(git_after.splitlines()) - set(git_before.splitlines()) <= {" M params.yaml"}
+    assert _run([sys.executable, "-m", "dvc", "status", "--quiet"], repo) == ""
+
+
 def test_kernel_size_change_reruns_only_msssim(repo: Path):
     params = yaml.safe_load((repo / "params.yaml").read_text())
     params["msssim"]["kernel_size"] = 5

@@ -125,7 +125,9 @@ def test_code_digest_covers_the_train_stage_source_deps(tmp_path: Path, monkeypa
 
     stage = yaml.safe_load((Path(__file__).resolve().parents[1] / "dvc.yaml").read_text())["stages"]["train"]
     src = sorted(d.removeprefix("src/msdepth/") for d in stage["deps"] if d.startswith("src/msdepth/"))
-    assert src == sorted(train_mod.TRAINING_MODULES)
+    # The stage lists its whole import closure (tests/test_dvc_deps.py); the digest covers the
+    # part that shapes a run, so every digested module must be a dep (a change to it reruns DVC).
+    assert set(train_mod.TRAINING_MODULES) <= set(src)
     # Every listed file's bytes count (every .py file of a listed package).
     package, real = Path(train_mod.__file__).resolve().parent, train_mod.code_digest()
     names = [p.relative_to(package).as_posix() for p in train_mod.training_files()]

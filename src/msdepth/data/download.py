@@ -15,13 +15,16 @@ takes for complete:
   redirect never leaves https. Before anything is unpacked, every member is checked: no path
   outside the destination, no symlink or device, and the declared sizes must fit the disk and
   stay within :data:`MAX_EXPANSION` times the archive (a zip bomb is refused undecompressed).
-- :func:`fetch_all` does all of that for many archives in parallel and reports per archive.
+- :func:`fetch_all` does all of that for many archives in parallel and reports per archive. A
+  host that cannot be reached at all (no name resolution, connection refused, no route) is not
+  retried: the first such error stops every archive with one line (:class:`NetworkUnreachable`).
 
 Standard library only (``urllib``, ``zipfile``, ``hashlib``); tqdm for progress bars.
 """
 
 from __future__ import annotations
 
+import errno
 import glob
 import hashlib
 import http.client
@@ -75,6 +78,9 @@ _TRANSIENT_ERRORS = (
     urllib.error.URLError,
     http.client.HTTPException,
 )
+# Errors that say the host cannot be reached at all (no network, a wrong host name, nothing
+# listening): retrying them per archive only multiplies the wait, as every archive shares the host.
+_UNREACHABLE_ERRNOS = (errno.ENETUNREACH, errno.EHOSTUNREACH, errno.ENETDOWN)
 # 408 Request Timeout and 429 Too Many Requests say "try again later" by definition; other 4xx
 # (404, 403, ...) will not change on a retry.
 _RETRYABLE_4XX = (408, 429)
@@ -82,6 +88,17 @@ _RETRYABLE_4XX = (408, 429)
 
 class _Transient(Exception):
     """A failed attempt worth retrying (5xx, short read, inconsistent range answer)."""
+
+
+class NetworkUnreachable(DataError):
+    """The server cannot be reached at all (name resolution failed, connection refused, no route):
+    not retried, and it stops :func:`fetch_all` as a whole."""
+
+
+def _unreachable(reason: object) -> bool:
+    return isinstance(reason, (socket.gaierror, ConnectionRefusedError)) or (
+        isinstance(reason, OSError) and reason.errno in _UNREACHABLE_ERRNOS
+    )
 
 
 class DownloadError(DataError):
@@ -231,8 +248,13 @@ def _open(
             raise _Transient(f"HTTP {exc.code} {exc.reason}") from None
         raise DataError(f"{url}: HTTP {exc.code} {exc.reason}") from None
     except urllib.error.URLError as exc:
-        # A socket-level reason (refused, reset, DNS) may pass; a plain message such as "unknown
-        # url type" is a typo in the list or the base URL and will not.
+        # A socket-level reason (reset, timeout) may pass; a plain message such as "unknown url
+        # type" is a typo in the list or the base URL and will not, nor will an unreachable host.
+        if _unreachable(exc.reason):
+            host = urllib.parse.urlsplit(url).hostname
+            raise NetworkUnreachable(
+                f"{url}: cannot reach {host} ({_describe(exc)}): no network, or a wrong host in the URL"
+            ) from None
         if isinstance(exc.reason, OSError):
             raise
         raise DataError(f"{url}: {exc.reason}") from None
@@ -650,6 +672,7 @@ def fetch_all(
     backoff: float = 1.0,
     timeout: float = 30,
     allow_http: bool = False,
+    label: str = "",
 ) -> dict[str, Any]:
     """Download, verify and extract the archives ``names`` (URL paths relative to ``base_url``,
     as :func:`parse_archive_list` returns them; absolute URLs are used as they are).
@@ -660,8 +683,13 @@ def fetch_all(
     carries the report. The report: ``fetched``, ``skipped`` (already there and verified),
     ``extracted``, ``failed`` (name -> reason), ``bytes_downloaded``.
 
-    ``dry_run`` asks each missing archive's size with a HEAD request, prints what would be
-    fetched and returns ``to_fetch`` (name -> size), ``skipped``, ``failed`` and ``total_bytes``.
+    A host that cannot be reached at all stops everything with one :class:`NetworkUnreachable`:
+    before anything is written when there is something to fetch (one HEAD request probes the
+    host first), or at the first such error later (the network went away mid-run).
+
+    ``dry_run`` writes nothing: it asks each missing archive's size with a HEAD request, prints
+    one line per archive (complete, downloaded, to fetch, to resume) and a total, headed by
+    ``label``, and returns the report of :func:`_dry_run`.
 
     Every URL must be https, or http with ``allow_http`` (:func:`check_url`): the first that is
     not is a DataError before anything is fetched or written.
@@ -684,7 +712,15 @@ def fetch_all(
             backoff=backoff,
             timeout=timeout,
             allow_http=allow_http,
+            label=label,
         )
+    to_download = [
+        name
+        for name in urls
+        if not (download_dir / name).exists() and not _marker(download_dir / name, extract_dir).exists()
+    ]
+    if to_download:  # a complete tree needs no network: probe only when something must be fetched
+        _probe(urls[to_download[0]], timeout, allow_http)
 
     download_dir.mkdir(parents=True, exist_ok=True)
     manifest = Manifest(download_dir / MANIFEST_NAME)
@@ -696,12 +732,23 @@ def fetch_all(
         "bytes_downloaded": 0,
     }
     lock = threading.Lock()
+    unreachable: list[NetworkUnreachable] = []
+    stop = threading.Event()  # set at the first NetworkUnreachable: the archives not started stay so
 
     def count(n: int) -> None:
         with lock:
             report["bytes_downloaded"] += n
 
     def one(name: str) -> None:
+        if stop.is_set():
+            return
+        try:
+            fetch_one(name)
+        except NetworkUnreachable:
+            stop.set()
+            raise
+
+    def fetch_one(name: str) -> None:
         url, archive = urls[name], download_dir / name
         if not archive.exists() and _marker(archive, extract_dir).exists():
             # Extracted by an earlier run and the archive deleted since (to save space): done.
@@ -739,6 +786,8 @@ def fetch_all(
                 name = futures[future]
                 try:
                     future.result()
+                except NetworkUnreachable as exc:  # every other archive would fail the same way
+                    unreachable.append(exc)
                 except DataError as exc:
                     report["failed"][name] = str(exc)
                 except Exception as exc:  # noqa: BLE001 - one archive's surprise must not hide the others' results
@@ -746,10 +795,27 @@ def fetch_all(
                 bar.update(1)
     for key in ("fetched", "skipped", "extracted"):
         report[key].sort()
+    if unreachable:
+        done = len(report["fetched"]) + len(report["skipped"])
+        raise NetworkUnreachable(f"{unreachable[0]}; stopped with {done} of {len(urls)} archive(s) complete")
     if report["failed"]:
         lines = "\n".join(f"  {name}: {reason}" for name, reason in sorted(report["failed"].items()))
         raise DownloadError(f"{len(report['failed'])} of {len(urls)} archive(s) failed:\n{lines}", report)
     return report
+
+
+def _probe(url: str, timeout: float, allow_http: bool) -> None:
+    """One HEAD request to ``url``: NetworkUnreachable if its host cannot be reached at all.
+
+    Any other answer or error is left to the download itself, which retries or reports it.
+    """
+    try:
+        with _open(url, timeout, method="HEAD", allow_http=allow_http):
+            pass
+    except NetworkUnreachable:
+        raise
+    except (DataError, _Transient, *_TRANSIENT_ERRORS):
+        pass
 
 
 def _dry_run(
@@ -762,34 +828,76 @@ def _dry_run(
     backoff: float,
     timeout: float,
     allow_http: bool = False,
+    label: str = "",
 ) -> dict[str, Any]:
-    """What fetch_all would download, with sizes from HEAD requests; downloads nothing."""
-    report: dict[str, Any] = {"dry_run": True, "to_fetch": {}, "skipped": [], "failed": {}, "total_bytes": 0}
-    missing = [
-        name
-        for name in urls
-        if not ((download_dir / name).exists() or _marker(download_dir / name, extract_dir).exists())
-    ]
-    report["skipped"] = sorted(set(urls) - set(missing))
+    """What fetch_all would do, with sizes from HEAD requests; writes nothing.
+
+    Prints one line per archive and a summary. Returns ``complete`` (extracted), ``downloaded``
+    (there, still to verify and extract), ``skipped`` (both), ``to_fetch`` (name -> size, None if
+    the server does not say), ``resume`` (name -> bytes already in its ``.part``), ``failed`` and
+    ``total_bytes`` (what would be downloaded). A host that cannot be reached raises
+    NetworkUnreachable at its first HEAD.
+    """
+    report: dict[str, Any] = {
+        "dry_run": True,
+        "complete": [],
+        "downloaded": [],
+        "skipped": [],
+        "to_fetch": {},
+        "resume": {},
+        "failed": {},
+        "total_bytes": 0,
+    }
+    missing = []
+    for name in urls:
+        archive = download_dir / name
+        if _marker(archive, extract_dir).exists():
+            report["complete"].append(name)
+        elif archive.exists():
+            report["downloaded"].append(name)
+        else:
+            missing.append(name)
+            part = _size(archive.with_suffix(archive.suffix + ".part"))
+            if part:
+                report["resume"][name] = part
+    report["skipped"] = sorted(report["complete"] + report["downloaded"])
+
+    stop = threading.Event()  # set at the first NetworkUnreachable: every other HEAD would fail too
 
     def size(name: str) -> int | None:
-        return remote_size(
-            urls[name], retries=retries, backoff=backoff, timeout=timeout, allow_http=allow_http
-        )
+        if stop.is_set():
+            return None
+        try:
+            return remote_size(
+                urls[name], retries=retries, backoff=backoff, timeout=timeout, allow_http=allow_http
+            )
+        except NetworkUnreachable:
+            stop.set()
+            raise
 
     with ThreadPoolExecutor(max_workers=max(1, jobs)) as pool:
-        for name, future in [(n, pool.submit(size, n)) for n in missing]:
+        futures = [(n, pool.submit(size, n)) for n in missing]
+        for name, future in futures:
             try:
                 report["to_fetch"][name] = future.result()
+            except NetworkUnreachable:  # not one archive's failure: the whole dry run's
+                raise
             except DataError as exc:
                 report["failed"][name] = str(exc)
-    report["total_bytes"] = sum(s or 0 for s in report["to_fetch"].values())
+    report["total_bytes"] = sum(
+        max(nbytes - report["resume"].get(name, 0), 0)
+        for name, nbytes in report["to_fetch"].items()
+        if nbytes
+    )
+    for name in urls:
+        print(f"  {name:<34} {_dry_run_status(name, report)}")
     unknown = sum(s is None for s in report["to_fetch"].values())
-    for name, nbytes in report["to_fetch"].items():
-        print(f"{name}\t{'size unknown' if nbytes is None else _human(nbytes)}")
+    downloaded = len(report["downloaded"])
     print(
-        f"would fetch {len(report['to_fetch'])} archive(s), {_human(report['total_bytes'])}"
-        f"{f' (+{unknown} of unknown size)' if unknown else ''}; {len(report['skipped'])} already present"
+        f"{label + ': ' if label else ''}would fetch {len(report['to_fetch'])} archive(s), "
+        f"{_human(report['total_bytes'])}{f' (+{unknown} of unknown size)' if unknown else ''}; "
+        f"{len(report['complete'])} already complete"
+        f"{f', {downloaded} downloaded and not yet extracted' if downloaded else ''}"
     )
     if report["failed"]:
         lines = "\n".join(f"  {name}: {reason}" for name, reason in sorted(report["failed"].items()))
@@ -797,6 +905,34 @@ def _dry_run(
             f"{len(report['failed'])} of {len(urls)} archive(s) cannot be fetched:\n{lines}", report
         )
     return report
+
+
+def _dry_run_status(name: str, report: dict[str, Any]) -> str:
+    """One archive's line of the dry run: what a real run would do with it."""
+    if name in report["complete"]:
+        return "complete (downloaded and extracted)"
+    if name in report["downloaded"]:
+        return "downloaded; would be verified and extracted"
+    if name in report["failed"]:
+        return "cannot be fetched (below)"
+    nbytes, part = report["to_fetch"][name], report["resume"].get(name, 0)
+    if nbytes is None:
+        return "to fetch, size unknown"
+    if part:
+        return f"to fetch {_human(max(nbytes - part, 0))} of {_human(nbytes)} ({_human(part)} in its .part)"
+    return f"to fetch, {_human(nbytes)}"
+
+
+def dry_run_total(reports: Sequence[dict[str, Any]]) -> str:
+    """The grand total line of several dry runs (e.g. the raw archives and KITTI 2015)."""
+    fetch = sum(len(r["to_fetch"]) for r in reports)
+    total = sum(r["total_bytes"] for r in reports)
+    complete = sum(len(r["complete"]) for r in reports)
+    downloaded = sum(len(r["downloaded"]) for r in reports)
+    return (
+        f"dry run, in all: would fetch {fetch} archive(s), {_human(total)}; {complete} already complete"
+        f"{f', {downloaded} downloaded and not yet extracted' if downloaded else ''}; nothing was written"
+    )
 
 
 def _human(nbytes: int) -> str:

@@ -9,7 +9,6 @@ split lists. Everything after this module reads only the indexes, never the sour
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass
 from pathlib import Path
 
 import pandas as pd
@@ -18,39 +17,10 @@ from ..config import Params
 from ..errors import DataError
 from ..io import atomic_path, write_json
 from . import kitti
+from .layout import Layout, layout  # noqa: F401 - re-exported: msdepth.data.index.layout
 from .pairs import check_same_size, index_pairs
 
 EVAL_COLUMNS = ("frame", "left", "right", "disp", "obj_map", "class_map", "focal", "baseline")
-
-
-@dataclass(frozen=True)
-class Layout:
-    """Paths of one data source's KITTI-format tree.
-
-    ``rois`` is the exact box file of the synthetic set; real KITTI has none (``None``): its
-    boxes come from ``obj_map`` and the user's CSV (:mod:`msdepth.data.rois`).
-    """
-
-    raw_root: Path
-    train_split: Path
-    kitti2015_root: Path
-    eval_split: Path
-    rois: Path | None
-
-
-def layout(params: Params) -> Layout:
-    """The paths for ``params.data.source``: both sources share one tree shape under ``data.root``."""
-    root = Path(params.data.root)
-    if params.data.source == "synthetic":
-        return Layout(
-            root / "raw",
-            root / "train_files.txt",
-            root / "kitti2015",
-            root / "kitti2015" / "test_files.txt",
-            root / "rois.csv",
-        )
-    k = params.data.kitti
-    return Layout(root / "raw", Path(k.train_split), root / "kitti2015", Path(k.eval_split), None)
 
 
 def training_gt_path(left_image: Path) -> Path:

@@ -1,0 +1,42 @@
+"""Where each data source's files live under ``data.root``: paths only, no I/O.
+
+Apart from :mod:`msdepth.data.index` so that a stage needing only the paths (``prepare_data``)
+does not import, and so depend on, the indexing code.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+from ..config import Params
+
+
+@dataclass(frozen=True)
+class Layout:
+    """Paths of one data source's KITTI-format tree.
+
+    ``rois`` is the exact box file of the synthetic set; real KITTI has none (``None``): its
+    boxes come from ``obj_map`` and the user's CSV (:mod:`msdepth.data.rois`).
+    """
+
+    raw_root: Path
+    train_split: Path
+    kitti2015_root: Path
+    eval_split: Path
+    rois: Path | None
+
+
+def layout(params: Params) -> Layout:
+    """The paths for ``params.data.source``: both sources share one tree shape under ``data.root``."""
+    root = Path(params.data.root)
+    if params.data.source == "synthetic":
+        return Layout(
+            root / "raw",
+            root / "train_files.txt",
+            root / "kitti2015",
+            root / "kitti2015" / "test_files.txt",
+            root / "rois.csv",
+        )
+    k = params.data.kitti
+    return Layout(root / "raw", Path(k.train_split), root / "kitti2015", Path(k.eval_split), None)

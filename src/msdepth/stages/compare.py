@@ -1,0 +1,72 @@
+"""Stage ``compare``: every variant (mean over its seeds) and baseline side by side, Markdown + JSON."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from ..baselines import BASELINES, skipped_reason
+from ..compare import (
+    build_comparison,
+    group_metrics,
+    image_dependence,
+    load_suite_metrics,
+    load_unit_tables,
+    paired_statistics,
+    seed_spread,
+)
+from ..config import Params
+from ..io import write_json, write_text
+from .common import SUITE_NAMES, variant_runs
+from .evaluate import headline
+
+
+def compare(params: Params) -> None:
+    """One table of every variant (mean over its seeds) and baseline, as Markdown and JSON.
+
+    A baseline the baselines stage could not build is listed as missing, with the reason.
+    """
+    missing = {
+        b: reason for b in BASELINES if (reason := skipped_reason("metrics", b, SUITE_NAMES)) is not None
+    }
+    built = tuple(b for b in BASELINES if b not in missing)
+    groups = {**variant_runs(params), **{b: [b] for b in built}}
+
+    runs = [r for group in groups.values() for r in group]
+    suites = load_suite_metrics("metrics", runs)
+    tables = load_unit_tables("metrics", runs)
+    stats = paired_statistics(tables, groups, params.compare, params.eval.caps)
+    caps = [f"cap{c:g}" for c in params.eval.caps]
+    dependence = image_dependence(suites, tables, groups, "prior", params.eval.caps[0])
+    result, md = build_comparison(
+        group_metrics(suites, groups),
+        list(params.variants),
+        built,
+        stats,
+        seed_spread(suites, groups, caps),
+        params.train.seeds,
+        dependence,
+        groups,
+        missing_baselines=missing,
+    )
+    write_json(Path("metrics") / "compare.json", result)
+    write_text(Path("metrics") / "compare.md", md)
+    write_json(Path("metrics") / "headline" / "mean.json", mean_headline(suites, groups))
+
+
+def mean_headline(suites: dict, groups: dict[str, list[str]]) -> dict:
+    """Per variant (and baseline) the headline numbers averaged over its runs, with the
+    seed-to-seed sd of abs_rel: the one file to read in ``dvc exp show`` across experiments."""
+    out = {}
+    for group, runs in groups.items():
+        full = [headline("full", suites["full"][r]) for r in runs]
+        roi = [headline("roi", suites["roi"][r]) for r in runs]
+        abs_rel = [h["abs_rel"] for h in full]
+        out[group] = {
+            "abs_rel": float(np.mean(abs_rel)),
+            "roi_abs_rel": float(np.mean([h["roi_abs_rel"] for h in roi])),
+        }
+        if len(runs) > 1:
+            out[group]["abs_rel_sd"] = float(np.std(abs_rel, ddof=1))
+    return out

@@ -1,0 +1,74 @@
+"""Stage ``eval_<suite>@<variant>-<seed>``: one evaluation suite on one run's depth maps.
+
+Also the suites' file writing, shared with the baselines stage, and :func:`headline`, the few
+numbers per suite that ``dvc metrics show`` lists (and compare averages).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+from ..config import Params
+from ..data import kitti
+from ..data.index import read_eval_index
+from ..errors import ConfigError
+from ..evaluate import evaluate_full, evaluate_gradients, evaluate_roi, load_frames, read_depth_maps
+from ..io import atomic_path, write_json
+from .common import INDEX_DIR, SUITE_NAMES, SeedArg, VariantArg, checked_run, run_dir
+
+SUITES = {"full": evaluate_full, "roi": evaluate_roi, "gradients": evaluate_gradients}  # SUITE_NAMES' order
+
+
+def headline(suite: str, summary: dict) -> dict[str, float] | None:
+    """The few numbers of a suite's summary that a reader compares (first cap): what
+    ``dvc metrics show`` and ``dvc metrics diff`` list, one small file per run and suite. The
+    full summary stays beside it as a plain output."""
+    cap = next(k for k in summary if k.startswith("cap"))
+    if suite == "full":
+        m = summary[cap]
+        out = {"abs_rel": m["abs_rel"], "rmse": m["rmse"], "a1": m["a1"]}
+        if "image_dependence" in summary:
+            out["variation"] = summary["image_dependence"]["variation_ratio"]
+        return out
+    if suite == "roi":
+        m = summary[cap]["overall"]
+        out = {"roi_abs_rel": m["abs_rel"], "roi_a1": m["a1"]}
+        if cap in summary.get("masks", {}):
+            out["mask_abs_rel"] = summary["masks"][cap]["overall"]["abs_rel"]
+        return out
+    return None
+
+
+def write_suite(suite: str, run: str, summary: dict, table) -> None:  # noqa: ANN001 - a DataFrame
+    """A suite's summary JSON, its headline JSON (full, roi) and its per-unit CSV for one run."""
+    write_json(Path("metrics") / suite / f"{run}.json", summary)
+    top = headline(suite, summary)
+    if top is not None:
+        write_json(Path("metrics") / "headline" / suite / f"{run}.json", top)
+    with atomic_path(Path("metrics") / suite / f"{run}.csv") as tmp:
+        table.to_csv(tmp, index=False, float_format="%.6g")
+
+
+def run_suite(params: Params, suite: str, run: str, pred: dict, frames, boxes) -> None:  # noqa: ANN001
+    """Evaluate ``pred`` (frame -> depth map) with one suite and write its files as run ``run``."""
+    fn = SUITES[suite]
+    summary, table = (
+        fn(pred, frames, params.eval) if suite == "full" else fn(pred, frames, boxes, params.eval)
+    )
+    write_suite(suite, run, summary, table)
+
+
+def evaluate(
+    params: Params,
+    suite: Annotated[str, f"the evaluation suite: {', '.join(SUITE_NAMES)}"],
+    variant: VariantArg,
+    seed: SeedArg,
+) -> None:
+    """Run one evaluation suite on one run's depth maps."""
+    if suite not in SUITES:
+        raise ConfigError(f"unknown evaluation suite {suite!r}; known: {sorted(SUITES)}")
+    run = checked_run(params, variant, seed)
+    frames = load_frames(read_eval_index(INDEX_DIR / "eval_frames.csv"))
+    boxes = kitti.read_rois(INDEX_DIR / "rois.csv") if suite != "full" else None
+    run_suite(params, suite, run, read_depth_maps(run_dir(run) / "depth.npz"), frames, boxes)

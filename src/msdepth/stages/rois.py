@@ -1,0 +1,47 @@
+"""Stage ``rois``: validate the ROI boxes and write the ROI index and its contact sheet."""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+from ..config import Params
+from ..data import kitti
+from ..data.index import read_eval_index
+from ..data.layout import layout
+from ..errors import DataError
+from .common import INDEX_DIR
+
+log = logging.getLogger("msdepth")
+
+
+def rois(params: Params) -> None:
+    """The ROI boxes: the synthetic set's exact ones, or KITTI's obj_map cars plus the user's CSV.
+
+    Writes the ROI index and a contact sheet of the crops (``data/index/rois.png``).
+    """
+    from ..data.rois import contact_sheet, extract_rois
+
+    frames = read_eval_index(INDEX_DIR / "eval_frames.csv")
+    source = layout(params).rois
+    if source is not None:
+        boxes = kitti.read_rois(source)
+        unknown = sorted(set(boxes["image"]) - set(frames["frame"]))
+        if unknown:
+            raise DataError(f"{source}: boxes name images that are not evaluation frames: {unknown[:10]}")
+    else:  # extract_rois checks the user's boxes against the frames itself
+        k = params.data.kitti
+        boxes = extract_rois(
+            frames,
+            user_csv=Path(k.rois_csv) if k.rois_csv else None,
+            min_size=k.roi_min_size,
+            min_valid=k.roi_min_valid,
+        )
+        if boxes.empty:
+            raise DataError(
+                "rois: no car in any obj_map passed data.kitti.roi_min_size/roi_min_valid, "
+                "and no data.kitti.rois_csv"
+            )
+    kitti.write_rois(INDEX_DIR / "rois.csv", boxes)
+    contact_sheet(boxes, frames, INDEX_DIR / "rois.png")
+    log.info("rois: %d boxes, %s", len(boxes), boxes["class"].value_counts().to_dict())

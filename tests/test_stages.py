@@ -1,0 +1,97 @@
+"""The stage scripts' command lines: ``--help`` runs nothing, bad arguments are a usage error."""
+
+from __future__ import annotations
+
+import os
+import runpy
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import yaml
+
+ROOT = Path(__file__).resolve().parents[1]
+SCRIPTS = sorted(
+    {stage["cmd"].split()[1] for stage in yaml.safe_load((ROOT / "dvc.yaml").read_text())["stages"].values()}
+)
+
+
+def _run(script: str, *args: str, cwd: Path) -> subprocess.CompletedProcess:
+    env = dict(os.environ, PYTHONPATH=str(ROOT / "src"))
+    return subprocess.run(
+        [sys.executable, str(ROOT / script), *args],
+        cwd=cwd,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+
+
+@pytest.mark.parametrize("script", SCRIPTS)
+def test_help_prints_usage_and_runs_nothing(script: str, tmp_path: Path, monkeypatch, capsys):
+    """In this process (the imports are paid once), where there is no params.yaml: a stage that
+    ran would fail, or write, there."""
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr(sys, "argv", [script, "--help"])
+    with pytest.raises(SystemExit) as exit_:
+        runpy.run_path(str(ROOT / script), run_name="__main__")
+    assert exit_.value.code == 0
+    out, err = capsys.readouterr()
+    assert out.startswith(f"usage: {script} [-h]") and err == ""
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_help_from_the_command_line(tmp_path: Path):
+    proc = _run("stages/train.py", "--help", cwd=tmp_path)
+    assert proc.returncode == 0 and proc.stdout.startswith("usage: stages/train.py [-h] VARIANT SEED")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_usage_errors_exit_2_before_reading_params(tmp_path: Path, monkeypatch, capsys):
+    from msdepth.stages.common import run_stage
+    from msdepth.stages.figures import figures
+    from msdepth.stages.train import train
+
+    monkeypatch.chdir(tmp_path)
+    assert run_stage(train, "ssim") == 2
+    assert "error: the following arguments are required: SEED" in capsys.readouterr().err
+    assert run_stage(figures, "extra") == 2
+    assert "unrecognized arguments: extra" in capsys.readouterr().err
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_prepare_data_dry_run_of_the_synthetic_set_writes_nothing(tmp_path: Path):
+    (tmp_path / "params.yaml").write_text("data: {source: synthetic}\n")
+    proc = _run("stages/prepare_data.py", "--dry-run", cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.startswith("dry run: would render the synthetic set under data/kitti: 12 drive(s)")
+    assert [p.name for p in tmp_path.iterdir()] == ["params.yaml"]
+
+
+@pytest.mark.parametrize(
+    ("params", "message"),
+    [
+        ("msssim: {kernel_size: 4}", "msssim.kernel_size: must be a positive odd integer, got 4"),
+        ("train: {learning_rate: fast}", "train.learning_rate: expected a number, got 'fast'"),
+        ("trian: {epochs: 3}", "unknown parameter(s) ['trian']"),
+        ("train: {epcohs: 3}", "unknown parameter(s) ['train.epcohs']"),
+    ],
+)
+def test_validate_params_rejects_a_bad_value_or_unknown_key_in_one_line(
+    tmp_path: Path, monkeypatch, capsys, params: str, message: str
+):
+    from msdepth.stages.common import run_stage
+    from msdepth.stages.validate_params import CHECKED, validate_params
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "params.yaml").write_text(params + "\n")
+    assert run_stage(validate_params) == 1
+    assert capsys.readouterr().err == f"error: params.yaml: {message}\n"
+    assert [p.name for p in tmp_path.iterdir()] == ["params.yaml"]
+    (tmp_path / "params.yaml").write_text("msssim: {kernel_size: 5}\n")
+    assert run_stage(validate_params) == 0
+    written = CHECKED.read_bytes()
+    (tmp_path / "params.yaml").write_text("msssim: {kernel_size: 7}\ntrain: {seeds: [4]}\n")
+    assert run_stage(validate_params) == 0 and CHECKED.read_bytes() == written  # whatever the params
