@@ -269,6 +269,18 @@ def check(cond: bool, key: str, message: str) -> None:
         raise ConfigError(f"{key}: {message}")
 
 
+def check_levels_fit(key: str, levels: int, data: DataConfig) -> None:
+    """Raise a ConfigError on ``key.levels`` unless an MS-SSIM-type pyramid of ``levels`` levels
+    keeps at least one pixel at the coarsest training scale (input / 8). Windows use "same"
+    padding, so a level only needs to exist."""
+    check(1 <= levels <= 5, f"{key}.levels", f"must be in 1..5, got {levels}")
+    check(
+        min(data.height, data.width) // 8 // 2 ** (levels - 1) >= 1,
+        f"{key}.levels",
+        f"{levels} levels do not fit the coarsest training scale ({data.height // 8}x{data.width // 8} px)",
+    )
+
+
 def validate(p: Params) -> Params:
     """Range checks that types alone cannot express; raises ConfigError naming the key."""
     for i, name in enumerate(p.variants):

@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING, Literal, Sequence
 
 from torch import Tensor
 
-from ..config import LossConfig, check
+from ..config import LossConfig, check, check_levels_fit
 from ..losses import AppearanceTerm, ms_ssim_pyramid, window_mean
 from . import register
 
@@ -46,14 +46,7 @@ class MixConfig:
         check(self.sigma > 0, f"{key}.sigma", f"must be > 0, got {self.sigma}")
         check(k >= 1 and k % 2 == 1, f"{key}.kernel_size", f"must be a positive odd integer, got {k}")
         check(k <= min(d.height, d.width), f"{key}.kernel_size", "must not exceed the input image")
-        check(1 <= self.levels <= 5, f"{key}.levels", f"must be in 1..5, got {self.levels}")
-        coarsest = min(d.height, d.width) // 8 // 2 ** (self.levels - 1)
-        check(
-            coarsest >= 1,
-            f"{key}.levels",
-            f"{self.levels} levels do not fit the coarsest training scale "
-            f"({d.height // 8}x{d.width // 8} px)",
-        )
+        check_levels_fit(key, self.levels, d)
 
 
 def gaussian_l1(x: Tensor, y: Tensor, sigma: float) -> Tensor:

@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING, Literal, Sequence
 
 from torch import Tensor
 
-from ..config import LossConfig, check
+from ..config import LossConfig, check, check_levels_fit
 from ..losses import (
     AppearanceTerm,
     LearnedLevelWeights,
@@ -35,17 +35,8 @@ class MSSSIMConfig:
         """Range checks of the ``key`` section; a ConfigError names the key."""
         k, d = self.kernel_size, params.data
         check(k >= 1 and k % 2 == 1, f"{key}.kernel_size", f"must be a positive odd integer, got {k}")
-        check(1 <= self.levels <= 5, f"{key}.levels", f"must be in 1..5, got {self.levels}")
         check(k <= min(d.height, d.width), f"{key}.kernel_size", "must not exceed the input image")
-        # Windows use "same" padding, so a level only needs to exist: the coarsest level of the
-        # coarsest training scale (input / 8) must keep at least one pixel.
-        coarsest = min(d.height, d.width) // 8 // 2 ** (self.levels - 1)
-        check(
-            coarsest >= 1,
-            f"{key}.levels",
-            f"{self.levels} levels do not fit the coarsest training scale "
-            f"({d.height // 8}x{d.width // 8} px)",
-        )
+        check_levels_fit(key, self.levels, d)
 
 
 def msssim_similarity(
