@@ -94,8 +94,9 @@ def _png_rows(data: bytes) -> tuple[dict, np.ndarray]:
         np.arange(5 * 7 * 3, dtype=np.uint8).reshape(5, 7, 3) * 37,
         (np.arange(6 * 4, dtype=np.uint8).reshape(6, 4) * 91),
         (np.arange(3 * 9, dtype=np.uint16).reshape(3, 9) * 2411),  # spans both bytes, > 255
+        (np.arange(4 * 5 * 3, dtype=np.uint16).reshape(4, 5, 3) * 1013),  # KITTI flow maps
     ],
-    ids=["rgb", "gray8", "gray16"],
+    ids=["rgb", "gray8", "gray16", "rgb16"],
 )
 def test_png_round_trips_through_opencv_in_rgb_order(tmp_path: Path, image: np.ndarray) -> None:
     import cv2

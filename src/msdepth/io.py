@@ -80,19 +80,17 @@ def _png_chunk(kind: bytes, data: bytes) -> bytes:
 
 
 def encode_png(image: np.ndarray) -> bytes:
-    """PNG bytes of a uint8 gray/RGB or uint16 gray ``(h, w[, 3])`` image (RGB order).
+    """PNG bytes of a uint8 or uint16 gray/RGB ``(h, w[, 3])`` image (RGB order; KITTI's flow
+    maps are 16-bit RGB).
 
     Deterministic: rows use PNG's "Up" filter (a row minus the row above, which suits smooth
     renders and 16-bit disparities alike) and deflate at a fixed level.
     """
-    if image.dtype == np.uint8 and image.ndim == 3 and image.shape[2] == 3:
-        color_type, depth = 2, 8
-    elif image.ndim == 2 and image.dtype in (np.uint8, np.uint16):
-        color_type, depth = 0, 8 * image.dtype.itemsize
-    else:
-        raise DataError(
-            f"PNG: expected uint8 (h, w) / (h, w, 3) or uint16 (h, w), got {image.dtype} {image.shape}"
-        )
+    if image.dtype not in (np.uint8, np.uint16) or not (
+        image.ndim == 2 or (image.ndim == 3 and image.shape[2] == 3)
+    ):
+        raise DataError(f"PNG: expected uint8 or uint16 (h, w) / (h, w, 3), got {image.dtype} {image.shape}")
+    color_type, depth = (0 if image.ndim == 2 else 2), 8 * image.dtype.itemsize
     h, w = image.shape[:2]
     if h == 0 or w == 0:
         raise DataError(f"PNG: empty image {image.shape}")
@@ -112,7 +110,7 @@ def encode_png(image: np.ndarray) -> bytes:
 
 
 def write_png(path: str | os.PathLike, image: np.ndarray) -> None:
-    """Write an image (uint8 RGB/gray, or uint16 gray) as PNG, atomically (see :func:`encode_png`)."""
+    """Write a uint8 or uint16 RGB/gray image as PNG, atomically (see :func:`encode_png`)."""
     try:
         data = encode_png(image)
     except DataError as err:
