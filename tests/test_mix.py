@@ -12,7 +12,6 @@ from msdepth.appearance import build_appearance, variants
 from msdepth.appearance.mix import MixAppearance, MixConfig, gaussian_l1
 from msdepth.config import LossConfig, params_from_dict
 from msdepth.errors import ConfigError
-from msdepth.io import write_png
 from msdepth.losses import MonodepthLoss, ms_ssim, reference_ssim_terms
 from msdepth.train import load_model, train_variant
 
@@ -131,18 +130,10 @@ def test_bad_mix_params_name_the_key(section: dict, key: str) -> None:
         params_from_dict({"mix": section, "variants": ["ssim", "mix"]})
 
 
-def test_the_pipeline_trains_mix(tmp_path) -> None:
+def test_the_pipeline_trains_mix(tmp_path, pairs) -> None:
     """A small train_variant run of ``mix``: finite losses, its own section in the fingerprint,
     and the same weights from the same seed."""
-    h, w = 32, 64
-    rng = np.random.default_rng(0)
-    pairs = []
-    for i in range(8):
-        scene = rng.integers(0, 256, (h, w + 2, 3), dtype=np.uint8)
-        left, right = tmp_path / f"l{i}.png", tmp_path / f"r{i}.png"
-        write_png(left, scene[:, 2:])
-        write_png(right, scene[:, :-2])
-        pairs.append((left, right))
+    h, w = 32, 64  # the shared ``pairs`` fixture's size (tests/conftest.py)
     raw = {
         "data": {"height": h, "width": w},
         "model": {"width_multiplier": 0.0625},

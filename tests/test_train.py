@@ -13,25 +13,9 @@ import torch
 
 import msdepth.train as train_mod
 from msdepth.config import Params, params_from_dict
-from msdepth.io import write_png
 from msdepth.train import TrainingError, load_model, train_variant
 
 H, W = 32, 64
-
-
-@pytest.fixture(scope="module")
-def pairs(tmp_path_factory) -> list[tuple[Path, Path]]:
-    """Eight stereo pairs: a random texture and the same texture shifted by 2 px."""
-    root = tmp_path_factory.mktemp("pairs")
-    rng = np.random.default_rng(0)
-    out = []
-    for i in range(8):
-        scene = rng.integers(0, 256, (H, W + 2, 3), dtype=np.uint8)
-        left, right = root / f"l{i}.png", root / f"r{i}.png"
-        write_png(left, scene[:, 2:])
-        write_png(right, scene[:, :-2])
-        out.append((left, right))
-    return out
 
 
 def _params(weights: str = "wang", **train) -> Params:
