@@ -10,7 +10,7 @@ import textwrap
 from pathlib import Path
 
 import torch
-from test_train import _params, _train, _weights, pairs  # noqa: F401  (pairs is a fixture)
+from test_train import _params, _train, _weights
 from torch.utils.data import DataLoader
 
 from msdepth.distributed import Context, GlobalBatchSampler

@@ -11,7 +11,7 @@ import textwrap
 from pathlib import Path
 
 import torch
-from test_train import _params, _train, _weights, pairs  # noqa: F401  (pairs is a fixture)
+from test_train import _params, _train, _weights
 
 ROOT = Path(__file__).resolve().parents[1]
 
