@@ -173,6 +173,7 @@ def _kitti_project(root: Path, mirror: Path, tree: Path) -> object:
             },
             "train": {"seeds": [0]},
             "msssim": {"levels": 3},
+            "eval": {"extra_sets": []},  # KITTI 2015's suites here; the Eigen set: test_kitti_pipeline
             "compare": {"bootstrap_samples": 200},
         }
     )

@@ -39,6 +39,12 @@ def monodepth_kitti2015(pred_disparities, gt_disparities, cap, min_depth=1e-3):
     return np.mean(results, axis=0)
 
 
+def _disparity(frame: Frame) -> np.ndarray:
+    """The GT disparity a frame's depth came from (the Monodepth transcription takes disparities)."""
+    valid = frame.gt_depth > 0
+    return np.where(valid, FOCAL * BASELINE / np.where(valid, frame.gt_depth, 1.0), 0.0)
+
+
 @pytest.fixture
 def scene():
     rng = np.random.default_rng(3)
@@ -46,7 +52,7 @@ def scene():
     for i in range(3):
         gt = rng.uniform(2, 120, (375, 1242)).astype(np.float32)
         gt[rng.random(gt.shape) < 0.6] = 0  # sparse, like KITTI
-        frames.append(Frame(f"{i:06d}_10", gt, FOCAL, BASELINE))
+        frames.append(Frame.from_disparity(f"{i:06d}_10", gt, FOCAL, BASELINE))
         preds.append(rng.uniform(0.002, 0.25, (64, 192)).astype(np.float32))
     return frames, np.stack(preds)
 
@@ -56,7 +62,7 @@ def test_full_suite_matches_monodepth(scene):
     cfg = EvalConfig()
     summary, table = evaluate_full(depth_maps(disps, frames), frames, cfg)
     for cap in cfg.caps:
-        ref = monodepth_kitti2015(disps, [f.gt_disp for f in frames], cap)
+        ref = monodepth_kitti2015(disps, [_disparity(f) for f in frames], cap)
         ours = [
             summary[f"cap{cap:g}"][k] for k in ("abs_rel", "sq_rel", "rmse", "rmse_log", "a1", "a2", "a3")
         ]
@@ -66,10 +72,10 @@ def test_full_suite_matches_monodepth(scene):
 
 def test_all_invalid_frame_is_excluded_and_counted(scene):
     frames, disps = scene
-    frames[1] = Frame(frames[1].name, np.zeros_like(frames[1].gt_disp), FOCAL, BASELINE)
+    frames[1] = Frame.from_disparity(frames[1].name, np.zeros_like(frames[1].gt_depth), FOCAL, BASELINE)
     summary, _ = evaluate_full(depth_maps(disps, frames), frames, EvalConfig())
     assert summary["excluded_images"] == 1
-    ref = monodepth_kitti2015(disps[[0, 2]], [frames[0].gt_disp, frames[2].gt_disp], 80)
+    ref = monodepth_kitti2015(disps[[0, 2]], [_disparity(frames[0]), _disparity(frames[2])], 80)
     assert summary["cap80"]["abs_rel"] == pytest.approx(ref[0], rel=1e-6)
 
 
@@ -82,7 +88,7 @@ def test_gt_masking_beyond_cap_is_a_param(scene):
 
 
 def _dense_frame(depth: np.ndarray, name="000000_10") -> Frame:
-    return Frame(name, (FOCAL * BASELINE / depth).astype(np.float32), FOCAL, BASELINE)
+    return Frame.from_disparity(name, (FOCAL * BASELINE / depth).astype(np.float32), FOCAL, BASELINE)
 
 
 def test_roi_suite_per_class_and_perfect_prediction():
@@ -157,12 +163,7 @@ def test_compare_table_marks_best_variant():
 
 def _frames_with_depth(depths):
     return [
-        Frame(
-            f"{i:06d}_10",
-            np.where(d > 0, FOCAL * BASELINE / np.maximum(d, 1e-9), 0).astype(np.float32),
-            FOCAL,
-            BASELINE,
-        )
+        Frame(f"{i:06d}_10", np.where(d > 0, d, 0).astype(np.float32), FOCAL, BASELINE)
         for i, d in enumerate(depths)
     ]
 
@@ -211,7 +212,8 @@ def test_roi_suite_over_exact_masks_ignores_the_background_in_the_box():
     depth[5:15, 10:20] = 8.0  # a car in front of a wall at 30 m
     classes = np.zeros((20, 40), np.uint8)
     classes[5:15, 10:20] = CLASS_BITS["car"]
-    frame = Frame("000000_10", (FOCAL * BASELINE / depth).astype(np.float32), FOCAL, BASELINE, classes)
+    disp = (FOCAL * BASELINE / depth).astype(np.float32)
+    frame = Frame.from_disparity("000000_10", disp, FOCAL, BASELINE, class_map=classes)
     pred = np.where(classes > 0, 8.0, 12.0).astype(np.float32)  # right on the car, wrong on the wall
     rois = pd.DataFrame(
         [("000000_10", "car", 5, 2, 25, 18)], columns=["image", "class", "x0", "y0", "x1", "y1"]
@@ -221,7 +223,7 @@ def test_roi_suite_over_exact_masks_ignores_the_background_in_the_box():
     assert summary["masks"]["cap80"]["overall"]["abs_rel"] == pytest.approx(0.0, abs=1e-6)
     assert summary["masks"]["cap80"]["by_class"]["car"]["count"] == 1 and summary["masks"]["rois"] == 1
     assert len(table) == 1  # the per-ROI table (and its bootstrap) stays the boxes'
-    no_maps = Frame(frame.name, frame.gt_disp, FOCAL, BASELINE)
+    no_maps = Frame(frame.name, frame.gt_depth, FOCAL, BASELINE)
     assert "masks" not in evaluate_roi({"000000_10": pred}, [no_maps], rois, EvalConfig(caps=(80.0,)))[0]
 
 

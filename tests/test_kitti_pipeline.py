@@ -100,6 +100,7 @@ def _kitti_params(base_url: str, lists: Path, **kitti: object) -> dict:
                 "jobs": 2,
                 "train_split": str(lists / "train.txt"),
                 "eval_split": str(lists / "eval.txt"),
+                "eigen_split": str(lists / "eigen.txt"),
                 **kitti,
             },
         }
@@ -117,6 +118,10 @@ def _check_run(work: Path, archives: int) -> str:
     for suite in ("full", "roi", "gradients"):
         for run in ("msssim/seed0", "ssim/seed0", "constant", "prior"):
             assert "cap80" in json.loads((work / "metrics" / suite / f"{run}.json").read_text()), (suite, run)
+    for run in ("msssim/seed0", "ssim/seed0", "constant", "prior"):  # the Eigen split, LiDAR GT
+        assert "cap80" in json.loads(
+            (work / "metrics" / "sets" / "eigen" / "full" / f"{run}.json").read_text()
+        )
     md = (work / "metrics" / "compare.md").read_text()
     assert "Baselines (image-blind, from training GT): constant, prior." in md and "Missing" not in md
     assert "| prior |" in md and "| constant |" in md
@@ -139,6 +144,13 @@ def mirror(tmp_path_factory):
     (lists / "train.txt").write_text((tree / "train_files.txt").read_text())
     (lists / "eval.txt").write_text(
         (tree / "kitti2015" / "test_files.txt").read_text().replace(".png", ".jpg")
+    )
+    # An Eigen-format list of a few raw frames with scans, in Monodepth's .jpg names.
+    (lists / "eigen.txt").write_text(
+        "".join(
+            line.replace(".png", ".jpg") + "\n"
+            for line in (tree / "train_files.txt").read_text().splitlines()[:3]
+        )
     )
     with _serve(served) as base_url:
         yield base_url, lists, len(urls)
@@ -183,6 +195,9 @@ def test_real_kitti_files_run_every_stage(tmp_path: Path) -> None:
         )
     )
     (lists / "eval.txt").write_text("training/image_2/000000_10.jpg training/image_3/000000_10.jpg\n")
+    (lists / "eigen.txt").write_text(
+        f"{drive}/image_02/data/0000000000.jpg {drive}/image_03/data/0000000000.jpg\n"
+    )
     (lists / "rois.csv").write_text(REAL_USER_ROIS)
     with _serve(tmp_path / "served") as base_url:
         # One scan's GT is sparse (3-9 % of a car's box; KITTI 2015's fitted car models are denser).
@@ -202,3 +217,9 @@ def test_real_kitti_files_run_every_stage(tmp_path: Path) -> None:
     # depth round trip of training and evaluation agree but for the GT PNG's 1/256 px steps.
     full = json.loads((work / "metrics" / "full" / "prior.json").read_text())
     assert 0 < full["cap80"]["abs_rel"] < 0.01
+    # The same on the Eigen path: the raw scan itself as GT, projected by the index's calibration,
+    # inside Garg's crop (measured 0.0135: the prior, built at the training GT's resampled size and
+    # resized back, blurs the near objects that fill the crop; a wrong focal, baseline or
+    # projection would be off by far more).
+    eigen = json.loads((work / "metrics" / "sets" / "eigen" / "full" / "prior.json").read_text())
+    assert eigen["images"] == 1 and 0 < eigen["cap80"]["abs_rel"] < 0.02

@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 import os
 from pathlib import Path
-from typing import Sequence
+from typing import Callable, Sequence
 
 import numpy as np
 import pandas as pd
@@ -41,9 +41,11 @@ def _load_runs(
     return out
 
 
-def load_suite_metrics(metrics_dir: str | os.PathLike, runs: Sequence[str]) -> dict[str, dict[str, dict]]:
+def load_suite_metrics(
+    metrics_dir: str | os.PathLike, runs: Sequence[str], suites: Sequence[str] = SUITES
+) -> dict[str, dict[str, dict]]:
     """``{suite: {run: metrics}}`` from ``metrics_dir/<suite>/<run>.json``."""
-    return _load_runs(metrics_dir, SUITES, runs, ".json", lambda p: json.loads(p.read_text()), "metrics")
+    return _load_runs(metrics_dir, suites, runs, ".json", lambda p: json.loads(p.read_text()), "metrics")
 
 
 # Per-unit tables of the suites that are compared statistically, and the column pairing units.
@@ -51,12 +53,12 @@ UNIT_KEYS = {"full": ["frame"], "roi": ["roi"]}
 
 
 def load_unit_tables(
-    metrics_dir: str | os.PathLike, runs: Sequence[str]
+    metrics_dir: str | os.PathLike, runs: Sequence[str], suites: Sequence[str] = tuple(UNIT_KEYS)
 ) -> dict[str, dict[str, pd.DataFrame]]:
     """``{suite: {run: per-image or per-ROI table}}`` from ``metrics_dir/<suite>/<run>.csv``."""
     return _load_runs(
         metrics_dir,
-        list(UNIT_KEYS),
+        suites,
         runs,
         ".csv",
         lambda p: pd.read_csv(p, dtype={"frame": str, "image": str}),
@@ -86,13 +88,15 @@ def paired_statistics(
 
     ``groups`` maps a variant to its runs (one per seed) and a baseline to its one run; the
     reference's runs and each group's runs enter :func:`msdepth.stats.seed_bootstrap` as rows.
+    ``tables`` holds the suites to compare (from :func:`load_unit_tables`).
     """
     stats: dict = {
         "reference": cfg.reference,
         "confidence": cfg.confidence,
         "bootstrap_samples": cfg.bootstrap_samples,
     }
-    for suite, keys in UNIT_KEYS.items():
+    for suite in tables:
+        keys = UNIT_KEYS[suite]
         stats[suite] = {}
         by_cap = {cap: {run: t[t["cap"] == cap] for run, t in tables[suite].items()} for cap in caps}
         for cap, cap_tables in by_cap.items():
@@ -158,9 +162,13 @@ def seed_spread(
     suites: dict[str, dict[str, dict]], groups: dict[str, Sequence[str]], caps: Sequence[str]
 ) -> dict:
     """``{suite: {capN: {variant: {metric: {mean, sd, runs}}}}}``: each run's mean metric over its
-    seeds (full image and all ROIs); ``sd`` is the sample standard deviation (None for one seed)."""
+    seeds (full image and all ROIs, those of the two in ``suites``); ``sd`` is the sample standard
+    deviation (None for one seed)."""
     out: dict = {}
-    for suite, pick in (("full", lambda m, cap: m[cap]), ("roi", lambda m, cap: m[cap]["overall"])):
+    picks = {"full": lambda m, cap: m[cap], "roi": lambda m, cap: m[cap]["overall"]}
+    for suite, pick in picks.items():
+        if suite not in suites:
+            continue
         out[suite] = {}
         for cap in caps:
             out[suite][cap] = {}
@@ -257,6 +265,93 @@ def _missing_lines(missing: dict[str, str] | None) -> list[str]:
     if len(reasons) == 1:
         return [f"Missing baselines (not built): {', '.join(missing)}: {reasons.pop()}."]
     return [f"Missing baselines (not built): {'; '.join(f'{b}: {r}' for b, r in missing.items())}."]
+
+
+def _metric_rows(
+    block: dict[str, dict], runs: Sequence[str], variants: Sequence[str], label: Callable[[str], str] = str
+) -> list[list[str]]:
+    """One table row per run, the best variant per metric in bold."""
+    best = {m: _best({v: block[v][m] for v in variants}, m) for m in METRICS}
+    rows = []
+    for r in runs:
+        cells = [f"**{_fmt(block[r][m])}**" if best[m] == r else _fmt(block[r][m]) for m in METRICS]
+        rows.append([label(r), *cells])
+    return rows
+
+
+def _spread_lines(block: dict, variants: Sequence[str], seeds: int) -> list[str]:
+    """The mean ± sd over seeds of each variant's per-run mean, as Markdown lines."""
+    rows = [
+        [v, *[f"{d[m]['mean']:.4f} ± {d[m]['sd']:.4f}" for m in METRICS]]
+        for v, d in block.items()
+        if v in variants
+    ]
+    return [
+        f"Seed-to-seed spread (mean ± sd over {seeds} seeds of the per-run mean):",
+        "",
+        _table(["variant", *METRICS], rows),
+        "",
+    ]
+
+
+# The extra evaluation sets' names in compare.md (msdepth.data.eval_sets).
+SET_TITLES = {
+    "eigen": "Eigen split (raw LiDAR GT, Garg crop)",
+    "eigen_benchmark": "Eigen benchmark split (KITTI's annotated depth GT, Garg crop)",
+}
+
+
+def build_set_section(
+    name: str,
+    suites: dict[str, dict[str, dict]],
+    variants: Sequence[str],
+    baselines: Sequence[str],
+    stats: dict,
+    spread: dict,
+    seeds: Sequence[int],
+    missing_baselines: dict[str, str] | None = None,
+) -> tuple[dict, str]:
+    """An extra set's full-image tables for ``compare.md`` (per cap: the metrics, the differences
+    to the reference with their intervals, the seed spread), and the same as a dict.
+
+    ``suites`` is ``{"full": {group: metrics averaged over its runs}}`` of that set,
+    ``stats``/``spread`` from :func:`paired_statistics`/:func:`seed_spread` on its tables.
+    """
+    runs = [*variants, *baselines]
+    caps = [k for k in suites["full"][runs[0]] if k.startswith("cap")]
+    images = suites["full"][runs[0]]["images"]
+    md = [f"# {SET_TITLES.get(name, name)}", "", *_missing_lines(missing_baselines)]
+    result: dict = {"full": {}, "statistics": stats, "seed_spread": spread, "images": images}
+    scaling = suites["full"][runs[0]][caps[0]].get("median_scaling")
+    md += [
+        f"{images} images; GT in (min_depth, cap) inside Garg's crop, the 7 metrics per image, then "
+        + (
+            "averaged; every prediction median-scaled per image (eval.median_scaling)."
+            if scaling
+            else "averaged; metric depth, no median scaling."
+        ),
+        "",
+    ]
+    for cap in caps:
+        block = {r: suites["full"][r][cap] for r in runs}
+        result["full"][cap] = block
+        md += [
+            f"## {name}: full image, cap {cap[3:]} m",
+            "",
+            _table(["run", *METRICS], _metric_rows(block, runs, variants)),
+            "",
+        ]
+        diff = stats["full"][cap]
+        n = next(iter(next(iter(diff.values())).values()))["n"] if diff else 0
+        md += [
+            f"Difference to {stats['reference']} ({n} paired images):",
+            "",
+            _table(["run", *METRICS], _ci_rows(diff, baselines)),
+            "",
+        ]
+        if len(seeds) > 1:
+            md += _spread_lines(spread["full"][cap], variants, len(seeds))
+    return result, "\n".join(md) + "\n"
 
 
 def build_comparison(
@@ -382,17 +477,7 @@ def build_comparison(
     def spread_table(suite: str, cap: str) -> list[str]:
         if spread is None or not several:
             return []
-        rows = [
-            [v, *[f"{d[m]['mean']:.4f} ± {d[m]['sd']:.4f}" for m in METRICS]]
-            for v, d in spread[suite][cap].items()
-            if v in variants
-        ]
-        return [
-            f"Seed-to-seed spread (mean ± sd over {len(seeds)} seeds of the per-run mean):",
-            "",
-            _table(["variant", *METRICS], rows),
-            "",
-        ]
+        return _spread_lines(spread[suite][cap], variants, len(seeds))
 
     def ci_table(suite: str, cap: str, unit: str) -> list[str]:
         if stats is None:
@@ -412,12 +497,7 @@ def build_comparison(
         result["gradients"][cap] = {r: suites["gradients"][r][cap] for r in runs}
 
         def metric_rows(block: dict[str, dict]) -> list[list[str]]:
-            best = {m: _best({v: block[v][m] for v in variants}, m) for m in METRICS}
-            rows = []
-            for r in runs:
-                cells = [f"**{_fmt(block[r][m])}**" if best[m] == r else _fmt(block[r][m]) for m in METRICS]
-                rows.append([label(r), *cells])
-            return rows
+            return _metric_rows(block, runs, variants, label)
 
         md += [
             f"## Full image, cap {cap[3:]} m",

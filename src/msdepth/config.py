@@ -21,6 +21,11 @@ def _speed_only(default: Any) -> Any:
     return field(default=default, metadata={"speed_only": True})
 
 
+def _list_may_be_empty(default: tuple) -> Any:
+    """A tuple field whose YAML list may be empty (every other list must name something)."""
+    return field(default=default, metadata={"may_be_empty": True})
+
+
 def _added_later(default: Any) -> Any:
     """A field added after checkpoints existed: at its default it is left out of the training
     fingerprint (:func:`fingerprint_fields`), so those checkpoints keep theirs."""
@@ -57,6 +62,9 @@ class KittiConfig:
     scene_flow_archive: str = "data_scene_flow.zip"  # KITTI 2015 (evaluation frames and GT)
     train_split: str = "data_lists/kitti_train_files.txt"
     eval_split: str = "data_lists/kitti_stereo_2015_test_files.txt"
+    eigen_split: str = "data_lists/eigen_test_files.txt"  # 697 frames, raw-LiDAR GT
+    eigen_benchmark_split: str = "data_lists/eigen_benchmark_test_files.txt"  # 652, annotated depth GT
+    depth_annotated: str = "depth_annotated"  # below data.root: data_depth_annotated.zip's train/ and val/
     rois_csv: str = ""  # hand-drawn boxes (image, class, x0, y0, x1, y1) added to the obj_map cars
     roi_min_size: int = 16  # px, both sides of an automatic car box
     roi_min_valid: float = 0.3  # fraction of an automatic car box with valid GT
@@ -154,6 +162,10 @@ class EvalConfig:
     mask_gt_beyond_cap: bool = False
     post_process: bool = True
     dense_gt_fraction: float = 0.9
+    # Evaluated beside KITTI 2015 (which always runs: the dissertation's tables and the ROI
+    # suites), full-image suite only, each under metrics/<set>/ (msdepth.data.eval_sets).
+    extra_sets: tuple[Literal["eigen", "eigen_benchmark"], ...] = _list_may_be_empty(("eigen",))
+    median_scaling: bool = False  # per-image median scaling of the extra sets (Monodepth2's mono evaluation)
 
 
 @dataclass(frozen=True)
@@ -255,8 +267,11 @@ def _build(cls: type, raw: dict, prefix: str) -> Any:
     if unknown:
         where = f"{prefix}." if prefix else ""
         raise ConfigError(f"unknown parameter(s) {sorted(where + u for u in unknown)}")
+    empty_ok = {f.name for f in dataclasses.fields(cls) if f.metadata.get("may_be_empty")}
     kwargs = {
-        name: _convert(raw[name], hints[name], f"{prefix}.{name}" if prefix else name)
+        name: ()
+        if name in empty_ok and raw[name] == []
+        else _convert(raw[name], hints[name], f"{prefix}.{name}" if prefix else name)
         for name in names
         if name in raw
     }
@@ -352,6 +367,11 @@ def validate(p: Params) -> Params:
     check(all(c > e.min_depth for c in e.caps), "eval.caps", "every cap must exceed eval.min_depth")
     check(e.min_depth > 0, "eval.min_depth", "must be > 0")
     check(0 < e.dense_gt_fraction <= 1, "eval.dense_gt_fraction", "must be in (0, 1]")
+    check(
+        len(set(e.extra_sets)) == len(e.extra_sets),
+        "eval.extra_sets",
+        f"must not repeat a set, got {list(e.extra_sets)}",
+    )
     c = p.compare
     check(
         c.reference in p.variants,

@@ -1,9 +1,10 @@
 """The three evaluation suites: full image, ROI crops, gradient consistency on ROIs.
 
-Every suite reads the same inputs: predicted depth per frame (from :func:`depth_maps`),
-the GT disparity of the evaluation index, and (for the ROI suites) the ROI boxes. Metrics
-are computed per image (or per ROI) with :func:`msdepth.metrics.compute_errors`, then
-averaged, for each depth cap. Frames or ROIs without valid GT are excluded and counted.
+Every suite reads the same inputs whatever the evaluation set: predicted depth per frame (from
+:func:`depth_maps`), the frames (:class:`Frame`: GT depth, camera, crop) and, for the ROI suites,
+the ROI boxes. Metrics are computed per image (or per ROI) with
+:func:`msdepth.metrics.compute_errors`, then averaged, for each depth cap. Frames or ROIs
+without valid GT are excluded and counted.
 """
 
 from __future__ import annotations
@@ -19,41 +20,71 @@ import pandas as pd
 
 from .config import EvalConfig
 from .data import kitti
+from .data.ground_truth import read_gt_depth
 from .depth import clamp_depth, disparity_to_depth, pixel_disparity
 from .errors import DataError
-from .metrics import METRICS, compute_errors
+from .metrics import METRICS, compute_errors, garg_crop_mask, median_scale
 
 GRADIENTS = ("sobel_x", "sobel_y", "laplacian")
+CROPS = {"garg": garg_crop_mask}  # the index's ``crop`` column -> the mask of a frame size
 
 
 @dataclass(frozen=True)
 class Frame:
-    """One evaluation frame: GT disparity (pixels, 0 = invalid) and its camera."""
+    """One evaluation frame of any set: GT depth, its camera, and how its set evaluates it.
+
+    ``gt_depth`` is in metres, 0 = no GT (KITTI 2015's disparity becomes depth when it is read).
+    ``crop``: the pixels evaluated (the Eigen split's Garg crop), None = all. ``gt_in_range``:
+    GT outside (min_depth, cap) is left out, as the Eigen evaluation does; KITTI 2015's keeps it
+    (``eval.mask_gt_beyond_cap`` can ask for it there).
+    """
 
     name: str
-    gt_disp: np.ndarray
+    gt_depth: np.ndarray
     focal: float
     baseline: float
     class_map: np.ndarray | None = None  # bits of kitti.CLASS_BITS (synthetic set only)
+    crop: np.ndarray | None = None
+    gt_in_range: bool = False
+
+    @classmethod
+    def from_disparity(cls, name: str, gt_disp: np.ndarray, focal: float, baseline: float, **kw) -> Frame:
+        """A frame whose GT is a disparity map (pixels, 0 = invalid), as KITTI 2015's."""
+        return cls(name, disparity_to_depth(gt_disp, focal, baseline), focal, baseline, **kw)
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.gt_depth.shape
 
     @cached_property
-    def gt_depth(self) -> np.ndarray:
-        """GT depth in metres, 0 where GT is invalid."""
-        return disparity_to_depth(self.gt_disp, self.focal, self.baseline)
+    def valid(self) -> np.ndarray:
+        """Pixels with GT inside the crop."""
+        valid = self.gt_depth > 0
+        return valid & self.crop if self.crop is not None else valid
 
 
 def load_frames(index: pd.DataFrame) -> list[Frame]:
-    """Read the GT disparity of every row of the evaluation index."""
-    return [
-        Frame(
-            row.frame,
-            kitti.read_disparity(row.disp),
-            float(row.focal),
-            float(row.baseline),
-            kitti.read_class_map(row.class_map) if getattr(row, "class_map", "") else None,
+    """Read the GT of every row of an evaluation index (any set: :mod:`msdepth.data.index`)."""
+    frames = []
+    for row in index.itertuples():
+        focal, baseline = float(row.focal), float(row.baseline)
+        depth = read_gt_depth(row.gt_kind, row.gt, calib=row.calib, focal=focal, baseline=baseline)
+        if row.crop and row.crop not in CROPS:
+            raise DataError(
+                f"evaluation frame {row.frame}: unknown crop {row.crop!r}; known: {sorted(CROPS)}"
+            )
+        frames.append(
+            Frame(
+                row.frame,
+                depth,
+                focal,
+                baseline,
+                kitti.read_class_map(row.class_map) if row.class_map else None,
+                CROPS[row.crop](*depth.shape) if row.crop else None,
+                gt_in_range=bool(row.crop),
+            )
         )
-        for row in index.itertuples()
-    ]
+    return frames
 
 
 def depth_maps(disparities: np.ndarray, frames: list[Frame]) -> dict[str, np.ndarray]:
@@ -62,19 +93,36 @@ def depth_maps(disparities: np.ndarray, frames: list[Frame]) -> dict[str, np.nda
         raise DataError(f"{len(disparities)} predicted disparities for {len(frames)} evaluation frames")
     out = {}
     for disp, frame in zip(disparities, frames):
-        h, w = frame.gt_disp.shape
+        h, w = frame.shape
         out[frame.name] = disparity_to_depth(pixel_disparity(disp, h, w), frame.focal, frame.baseline)
     return out
 
 
 def _metrics_in(
-    gt_depth: np.ndarray, pred: np.ndarray, mask: np.ndarray, cap: float, cfg: EvalConfig
+    frame: Frame,
+    pred: np.ndarray,
+    mask: np.ndarray,
+    cap: float,
+    cfg: EvalConfig,
+    box: tuple[slice, slice] | None = None,
+    scale: bool = False,
 ) -> dict | None:
+    """The 7 metrics of ``pred`` against ``frame``'s GT on ``mask`` (``pred`` and ``mask`` already
+    cropped to ``box``). ``scale``: the prediction is median-scaled first (per image, as
+    Monodepth2's monocular evaluation) and the ratio returned as ``ratio``."""
+    gt = frame.gt_depth if box is None else frame.gt_depth[box]
     if cfg.mask_gt_beyond_cap:
-        mask = mask & (gt_depth <= cap)
+        mask = mask & (gt <= cap)
+    if frame.gt_in_range:
+        mask = mask & (gt > cfg.min_depth) & (gt < cap)
     if not mask.any():
         return None
-    return compute_errors(gt_depth[mask], clamp_depth(pred, cfg.min_depth, cap)[mask])
+    gt, pred = gt[mask], pred[mask]
+    ratio = None
+    if scale:
+        pred, ratio = median_scale(gt, pred)
+    metrics = compute_errors(gt, clamp_depth(pred, cfg.min_depth, cap))
+    return metrics if ratio is None else {**metrics, "ratio": ratio}
 
 
 def _mean(rows: list[dict], keys: tuple[str, ...]) -> dict[str, float]:
@@ -82,20 +130,32 @@ def _mean(rows: list[dict], keys: tuple[str, ...]) -> dict[str, float]:
 
 
 def evaluate_full(
-    pred: dict[str, np.ndarray], frames: list[Frame], cfg: EvalConfig
+    pred: dict[str, np.ndarray], frames: list[Frame], cfg: EvalConfig, *, median_scaling: bool = False
 ) -> tuple[dict, pd.DataFrame]:
-    """Suite 1: the 7 metrics per image over valid GT, then averaged, per cap."""
+    """Suite 1: the 7 metrics per image over valid GT, then averaged, per cap.
+
+    ``median_scaling``: each prediction is first scaled by median(GT) / median(prediction) over
+    its evaluated pixels (Monodepth2's monocular evaluation); the ratios' median and relative
+    spread are reported per cap.
+    """
     rows = []
     summary: dict = {}
     for cap in cfg.caps:
         per_cap = []
         for f in frames:
-            m = _metrics_in(f.gt_depth, pred[f.name], f.gt_disp > 0, cap, cfg)
+            m = _metrics_in(f, pred[f.name], f.valid, cap, cfg, scale=median_scaling)
             if m is not None:
                 per_cap.append({"frame": f.name, "cap": cap, **m})
         if not per_cap:
             raise DataError("full-image evaluation: no frame has valid ground truth")
         summary[f"cap{cap:g}"] = _mean(per_cap, METRICS)
+        if median_scaling:
+            ratios = np.array([r["ratio"] for r in per_cap])
+            med = float(np.median(ratios))
+            summary[f"cap{cap:g}"]["median_scaling"] = {
+                "ratio_median": med,
+                "ratio_std_over_median": float(ratios.std() / med),
+            }
         rows += per_cap
     summary["images"] = len(frames)
     summary["excluded_images"] = len(frames) - len(rows) // len(cfg.caps)
@@ -116,11 +176,11 @@ def image_dependence(
     the scene, ~0 for one that predicts the same depth whatever the image (a prior or a
     constant gives exactly 0).
     """
-    h = min(f.gt_disp.shape[0] for f in frames)
-    w = min(f.gt_disp.shape[1] for f in frames)
+    h = min(f.shape[0] for f in frames)
+    w = min(f.shape[1] for f in frames)
     pred_grid, gt_grid = [], []
     for f in frames:
-        gt = f.gt_depth
+        gt = np.where(f.valid, f.gt_depth, 0.0)
         pd_ = np.minimum(pred[f.name], cap)
         gt = np.where(gt > cap, 0.0, gt)
         if gt.shape != (h, w):
@@ -162,7 +222,7 @@ def _boxes_for(rois: pd.DataFrame, frames: list[Frame]):
         frame = by_name.get(roi["image"])
         if frame is None:
             raise DataError(f"ROI {i}: image {roi['image']!r} is not an evaluation frame")
-        h, w = frame.gt_disp.shape
+        h, w = frame.shape
         if roi["x1"] > w or roi["y1"] > h:
             raise DataError(
                 f"ROI {i} ({roi['image']}): box {roi['x0']},{roi['y0']},{roi['x1']},{roi['y1']} "
@@ -196,13 +256,13 @@ def evaluate_roi(
     for cap in cfg.caps:
         per_cap, per_mask = [], []
         for i, roi, frame, box in _boxes_for(rois, frames):
-            valid = frame.gt_disp[box] > 0
-            m = _metrics_in(frame.gt_depth[box], pred[frame.name][box], valid, cap, cfg)
+            valid = frame.valid[box]
+            m = _metrics_in(frame, pred[frame.name][box], valid, cap, cfg, box)
             if m is not None:
                 per_cap.append({"roi": i, "image": roi["image"], "class": roi["class"], "cap": cap, **m})
             if masked:
                 exact = (frame.class_map[box] & kitti.CLASS_BITS.get(roi["class"], 0)) > 0
-                m = _metrics_in(frame.gt_depth[box], pred[frame.name][box], valid & exact, cap, cfg)
+                m = _metrics_in(frame, pred[frame.name][box], valid & exact, cap, cfg, box)
                 if m is not None:
                     per_mask.append({"class": roi["class"], **m})
         if not per_cap:
@@ -249,11 +309,11 @@ def evaluate_gradients(
             row = {"roi": i, "image": roi["image"], "class": roi["class"], "cap": cap}
             pred_grad = pred_grads[frame.name]
             row.update({f"pred_{g}": float(pred_grad[g][box].mean()) for g in GRADIENTS})
-            valid = frame.gt_disp[box] > 0
+            valid = frame.valid[box]
             row["gt_valid_fraction"] = float(valid.mean())
             if row["gt_valid_fraction"] >= cfg.dense_gt_fraction:
                 if frame.name not in gt_cache:
-                    mask = frame.gt_disp > 0
+                    mask = frame.valid
                     gt_depth = np.where(mask, np.minimum(frame.gt_depth, cap), 0.0)
                     inner = (
                         cv2.erode(

@@ -101,9 +101,9 @@ class _Inputs:
             # Index paths are relative to the project root: run from elsewhere they could name
             # another project's files of another size, and every number would be silently wrong.
             for v in self.variants:
-                if self.depth[v][name].shape != frame.gt_disp.shape:
+                if self.depth[v][name].shape != frame.shape:
                     raise DataError(
-                        f"{rows['disp'].iloc[0]}: GT of frame {name} is {frame.gt_disp.shape} "
+                        f"{rows['gt'].iloc[0]}: GT of frame {name} is {frame.shape} "
                         "but the depth map of "
                         f"{v!r} is {self.depth[v][name].shape} (index paths are relative to the project root)"
                     )
@@ -178,7 +178,7 @@ def _off(ax) -> None:
 def _disparity_figure(inp: _Inputs, frames: int, path: Path) -> Path:
     n = min(frames, len(inp.index))
     names = list(inp.index["frame"][:n])
-    h, w = inp.frame(names[0]).gt_disp.shape
+    h, w = inp.frame(names[0]).shape
     cols = 1 + len(inp.variants)
     panel_w = 3.2
     fig = _new_figure(panel_w * cols + 1.0, n * (panel_w * h / w + 0.45) + 0.3)
@@ -186,7 +186,7 @@ def _disparity_figure(inp: _Inputs, frames: int, path: Path) -> Path:
     cmap = _cmap("plasma")
     for r, name in enumerate(names):
         frame = inp.frame(name)
-        fh, fw = frame.gt_disp.shape
+        fh, fw = frame.shape
         i = int(np.flatnonzero(inp.index["frame"].to_numpy() == name)[0])
         disp = {v: pixel_disparity(inp.disparities[v][i], fh, fw) for v in inp.variants}
         # One scale per row so that the variants are compared colour for colour; percentiles
@@ -225,7 +225,7 @@ def _select_rois(inp: _Inputs) -> list[tuple[int, dict]]:
             continue
         frame = inp.frame(roi["image"])
         box = (slice(roi["y0"], roi["y1"]), slice(roi["x0"], roi["x1"]))
-        valid = frame.gt_disp[box] > 0
+        valid = frame.valid[box]
         if valid.size == 0:
             continue
         # With GT masked beyond the cap the suite may have no pixel left to score: skip such ROIs.
@@ -251,7 +251,7 @@ def _roi_examples(inp: _Inputs) -> list[RoiExample]:
     for i, roi in selected:
         frame = inp.frame(roi["image"])
         box = (slice(roi["y0"], roi["y1"]), slice(roi["x0"], roi["x1"]))
-        valid = frame.gt_disp > 0
+        valid = frame.valid
         abs_rel, pred_depth, pred_grad, pred_sx = {}, {}, {}, {}
         for v in inp.variants:
             pred = inp.depth[v][frame.name]
@@ -304,7 +304,7 @@ def _roi_grid(inp: _Inputs, examples: list[RoiExample], first_col_ratio: float):
     """One row per ROI; rows as tall as their widest-to-tallest panel needs (no empty bands)."""
     cols = 2 + len(inp.variants)
     unit = 2.0  # inches per width-ratio unit
-    img_h, img_w = inp.frame(examples[0].image).gt_disp.shape
+    img_h, img_w = inp.frame(examples[0].image).shape
     heights = []
     for ex in examples:
         x0, y0, x1, y1 = ex.box

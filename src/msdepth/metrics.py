@@ -1,4 +1,5 @@
-"""The field's standard depth metrics, exactly as Monodepth's ``compute_errors``."""
+"""The field's standard depth metrics, exactly as Monodepth's ``compute_errors``, and the Eigen
+split's evaluation crop and median scaling, as Monodepth2's ``evaluate_depth.py`` applies them."""
 
 from __future__ import annotations
 
@@ -38,3 +39,41 @@ def compute_errors(gt: np.ndarray, pred: np.ndarray) -> dict[str, float]:
     sq_rel = np.mean(((gt - pred) ** 2) / gt)
     values = (abs_rel, sq_rel, rmse, rmse_log, a1, a2, a3)
     return {name: float(v) for name, v in zip(METRICS, values)}
+
+
+# Garg et al.'s crop of the Eigen split, as fractions of the GT image size (Monodepth2's
+# evaluate_depth.py; Monodepth's evaluate_kitti.py uses the same numbers).
+GARG_CROP = (0.40810811, 0.99189189, 0.03594771, 0.96405229)  # top, bottom, left, right
+
+
+def garg_crop_mask(height: int, width: int) -> np.ndarray:
+    """Bool ``(height, width)`` mask of the Garg crop: rows [0.408 h, 0.992 h), cols [0.036 w, 0.964 w).
+
+    The bounds are truncated to integers as the anchors do (``.astype(np.int32)``), so that the
+    evaluated pixels are exactly theirs.
+    """
+    if height <= 0 or width <= 0:
+        raise ValueError(f"garg_crop_mask: the size must be positive, got {height}x{width}")
+    top, bottom, left, right = (
+        np.array([GARG_CROP[0] * height, GARG_CROP[1] * height, GARG_CROP[2] * width, GARG_CROP[3] * width])
+        .astype(np.int32)
+        .tolist()
+    )
+    mask = np.zeros((height, width), dtype=bool)
+    mask[top:bottom, left:right] = True
+    return mask
+
+
+def median_scale(gt: np.ndarray, pred: np.ndarray) -> tuple[np.ndarray, float]:
+    """``pred`` times median(gt) / median(pred) over the same valid pixels, and that ratio.
+
+    Monodepth2's per-image scaling of a monocular model's up-to-scale depth (applied before the
+    prediction is clamped); a metric (stereo-trained) model's ratios sit near 1.
+    """
+    gt, pred = np.asarray(gt), np.asarray(pred)
+    if gt.shape != pred.shape or gt.ndim != 1 or gt.size == 0:
+        raise ValueError(
+            f"median_scale expects two non-empty 1-D arrays of equal length, got {gt.shape}, {pred.shape}"
+        )
+    ratio = float(np.median(gt) / np.median(pred))
+    return pred * ratio, ratio

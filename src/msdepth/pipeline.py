@@ -8,6 +8,7 @@ No stage may import this module (tests/test_dvc_deps.py checks it): it imports t
 from __future__ import annotations
 
 from .stages.baselines import BASELINES, baselines
+from .stages.baselines_set import baselines_set
 from .stages.cache import cache
 from .stages.common import (
     CACHE_REPORT,
@@ -24,6 +25,7 @@ from .stages.common import (
 )
 from .stages.compare import compare, mean_headline
 from .stages.depth import depth
+from .stages.eval_set import eval_set
 from .stages.evaluate import SUITES, evaluate, headline
 from .stages.figures import figures
 from .stages.index import index
@@ -41,11 +43,13 @@ __all__ = [
     "PAIR_CACHE",
     "SUITES",
     "baselines",
+    "baselines_set",
     "cache",
     "checked_run",
     "checkpoint_path",
     "compare",
     "depth",
+    "eval_set",
     "evaluate",
     "figures",
     "headline",

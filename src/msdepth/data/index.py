@@ -20,7 +20,12 @@ from . import kitti
 from .layout import Layout, layout  # noqa: F401 - re-exported: msdepth.data.index.layout
 from .pairs import check_same_size, index_pairs
 
-EVAL_COLUMNS = ("frame", "left", "right", "disp", "obj_map", "class_map", "focal", "baseline")
+# One evaluation index format for every set (msdepth.data.eval_sets): ``gt`` is a file of kind
+# ``gt_kind`` (msdepth.data.ground_truth.GT_KINDS), ``calib`` the raw day folder of a Velodyne
+# frame, ``crop`` the set's evaluation crop ("" = none), obj_map and class_map optional ("").
+EVAL_COLUMNS = (
+    "frame", "left", "right", "gt", "gt_kind", "calib", "crop", "obj_map", "class_map", "focal", "baseline"
+)  # fmt: skip
 
 
 def training_gt_path(left_image: Path) -> Path:
@@ -66,7 +71,18 @@ def build_eval_index(kitti2015_root: Path, split_file: Path, gt: str) -> pd.Data
         if class_map:
             check_same_size(left, shape, Path(class_map), kitti.read_class_map(class_map).shape, "class map")
         rows.append(
-            (frame, str(left), str(right), str(paths["disp"]), str(obj_map), str(class_map), focal, baseline)
+            (
+                frame,
+                str(left),
+                str(right),
+                str(paths["disp"]),
+                "disparity",
+                "",
+                "",
+                str(obj_map),
+                str(class_map),
+            )
+            + (focal, baseline)
         )
     if not rows:
         raise DataError(f"{split_file}: no evaluation frame with images and {gt} GT under {kitti2015_root}")
@@ -77,14 +93,24 @@ def build_eval_index(kitti2015_root: Path, split_file: Path, gt: str) -> pd.Data
     return pd.DataFrame(rows, columns=list(EVAL_COLUMNS))
 
 
-def build_indexes(params: Params, out_dir: str | os.PathLike) -> dict:
-    """Write ``train_pairs.txt``, ``eval_frames.csv`` and ``report.json`` to ``out_dir``."""
+def build_indexes(
+    params: Params, out_dir: str | os.PathLike, extra: dict[str, pd.DataFrame] | None = None
+) -> dict:
+    """Write ``train_pairs.txt``, ``eval_frames.csv`` (KITTI 2015), ``sets/<set>.csv`` (the extra
+    sets' indexes ``extra``, :mod:`msdepth.data.eval_sets`) and ``report.json`` to ``out_dir``."""
     paths = layout(params)
     out = Path(out_dir)
     pairs = index_pairs(paths.train_split, paths.raw_root)
     kitti.write_split(out / "train_pairs.txt", [(str(a), str(b)) for a, b in pairs.pairs])
     frames = build_eval_index(paths.kitti2015_root, paths.eval_split, params.data.gt)
     write_eval_index(out / "eval_frames.csv", frames)
+    extra = extra or {}
+    (out / "sets").mkdir(parents=True, exist_ok=True)
+    for stale in (out / "sets").glob("*.csv"):
+        if stale.stem not in extra:
+            stale.unlink()
+    for name, table in extra.items():
+        write_eval_index(set_index_path(out, name), table)
     report = {
         "source": params.data.source,
         "train_pairs_listed": len(pairs.pairs) + len(pairs.missing),
@@ -92,9 +118,15 @@ def build_indexes(params: Params, out_dir: str | os.PathLike) -> dict:
         "train_pairs_missing": [f"{a} {b}" for a, b in pairs.missing],
         "eval_frames": len(frames),
         "gt": params.data.gt,
+        "extra_sets": {name: len(table) for name, table in extra.items()},
     }
     write_json(out / "report.json", report)
     return report
+
+
+def set_index_path(index_dir: str | os.PathLike, name: str) -> Path:
+    """The evaluation index of extra set ``name`` below the index folder."""
+    return Path(index_dir) / "sets" / f"{name}.csv"
 
 
 def write_eval_index(path: Path, frames: pd.DataFrame) -> None:
@@ -108,10 +140,11 @@ def read_eval_index(path: str | os.PathLike) -> pd.DataFrame:
     path = Path(path)
     if not path.exists():
         raise DataError(f"{path}: no evaluation index (run the index stage)")
-    frames = pd.read_csv(path, dtype={"frame": str, "obj_map": str, "class_map": str}, keep_default_na=False)
-    if "class_map" not in frames.columns:  # an index written before class maps existed: none
-        frames["class_map"] = ""
+    text = {c: str for c in EVAL_COLUMNS if c not in ("focal", "baseline")}
+    frames = pd.read_csv(path, dtype=text, keep_default_na=False)
     missing = set(EVAL_COLUMNS) - set(frames.columns)
     if missing:
-        raise DataError(f"{path}: missing columns {sorted(missing)}")
+        raise DataError(
+            f"{path}: missing columns {sorted(missing)} (an older index format: run the index stage)"
+        )
     return frames

@@ -97,6 +97,15 @@ def read_disparity(path: PathLike) -> np.ndarray:
     return _decode_as(path, "KITTI disparity map", np.uint16, 1).astype(np.float32) / 256.0
 
 
+def read_depth(path: PathLike) -> np.ndarray:
+    """Read a KITTI depth-benchmark PNG (``proj_depth/groundtruth``: uint16, metres x 256) as float32 metres.
+
+    0 marks no measurement, as in :func:`read_disparity`; the two formats differ only in what the
+    value is, so which one a file holds is the index's to say.
+    """
+    return _decode_as(path, "KITTI depth map", np.uint16, 1).astype(np.float32) / 256.0
+
+
 def write_disparity(path: PathLike, disp: np.ndarray) -> None:
     """Write a disparity map (pixels, 0 = invalid) as a KITTI uint16 x256 PNG, atomically.
 

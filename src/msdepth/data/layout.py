@@ -25,6 +25,11 @@ class Layout:
     kitti2015_root: Path
     eval_split: Path
     rois: Path | None
+    # The extra evaluation sets' lists (msdepth.data.eval_sets) and the KITTI depth benchmark's
+    # annotated GT (data_depth_annotated.zip's train/ and val/).
+    eigen_split: Path
+    eigen_benchmark_split: Path
+    depth_annotated: Path
 
 
 def layout(params: Params) -> Layout:
@@ -37,6 +42,18 @@ def layout(params: Params) -> Layout:
             root / "kitti2015",
             root / "kitti2015" / "test_files.txt",
             root / "rois.csv",
+            root / "eigen_test_files.txt",
+            root / "eigen_benchmark_test_files.txt",
+            root / "depth_annotated",
         )
     k = params.data.kitti
-    return Layout(root / "raw", Path(k.train_split), root / "kitti2015", Path(k.eval_split), None)
+    return Layout(
+        root / "raw",
+        Path(k.train_split),
+        root / "kitti2015",
+        Path(k.eval_split),
+        None,
+        Path(k.eigen_split),
+        Path(k.eigen_benchmark_split),
+        root / k.depth_annotated,
+    )

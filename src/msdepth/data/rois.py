@@ -138,7 +138,7 @@ def extract_rois(
     """
     from tqdm import tqdm
 
-    missing = {"frame", "left", "disp", "obj_map"} - set(frames.columns)
+    missing = {"frame", "left", "gt", "gt_kind", "obj_map"} - set(frames.columns)
     if missing:
         raise DataError(f"evaluation index: missing columns {sorted(missing)}")
     rows: list[tuple[str, str, int, int, int, int]] = []
@@ -151,12 +151,16 @@ def extract_rois(
         if not obj_path:
             without.append(name)
             continue
+        if frame.gt_kind != "disparity":
+            raise DataError(
+                f"{name}: car boxes need a KITTI 2015 disparity GT, got {frame.gt_kind!r} ({frame.gt})"
+            )
         obj_map = kitti.read_obj_map(obj_path)
-        gt = kitti.read_disparity(frame.disp)
+        gt = kitti.read_disparity(frame.gt)
         try:
             boxes = boxes_from_obj_map(obj_map, gt, min_size=min_size, min_valid=min_valid)
         except DataError as exc:
-            raise DataError(f"{obj_path}: {exc} ({frame.disp})") from None
+            raise DataError(f"{obj_path}: {exc} ({frame.gt})") from None
         rows += [(name, "car", x0, y0, x1, y1) for _, x0, y0, x1, y1 in boxes]
 
     auto = pd.DataFrame(rows, columns=list(kitti.ROI_COLUMNS)) if rows else _empty_rois()

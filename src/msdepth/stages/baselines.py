@@ -20,13 +20,8 @@ log = logging.getLogger("msdepth")
 BASELINES = baselines_mod.BASELINES
 
 
-def baselines(params: Params) -> None:
-    """The image-blind baselines, through the same depth conversion and suites as the variants.
-
-    Their training GT is ``disp_02`` (synthetic) or the Velodyne scans (real KITTI); drives with
-    neither are named and left out. With no GT at all the baselines are skipped, not failed: each
-    leaves a ``{"skipped": reason}`` JSON (and a one-row CSV) that ``compare`` reports as missing.
-    """
+def training_gt() -> baselines_mod.TrainingGT:
+    """The training frames' GT the baselines are built from, with a warning per drive without."""
     pairs = load_pair_list(INDEX_DIR / "train_pairs.txt")
     gt = baselines_mod.training_gt([left for left, _ in pairs])
     for drive, count in gt.missing.items():
@@ -36,27 +31,52 @@ def baselines(params: Params) -> None:
             drive,
             count,
         )
+    if gt.maps is not None:
+        used, (h, w) = len(gt.maps), gt.maps.shape[1:]
+        subset = f" (an evenly spaced {used} of {gt.available}: memory budget)" if used < gt.available else ""
+        resampled = f", {gt.resampled} resampled from other sizes" if gt.resampled else ""
+        log.info(
+            "baselines: training GT of %d frames%s at %dx%d%s: %s", used, subset, h, w, resampled, gt.sources
+        )
+    return gt
+
+
+def skip_reason(gt: baselines_mod.TrainingGT) -> str:
+    reason = f"no training frame has GT (disp_02 or a Velodyne scan) in {len(gt.missing)} drive(s)"
+    log.warning("baselines: %s: %s not built", reason, " and ".join(BASELINES))
+    return reason
+
+
+def baselines(params: Params) -> None:
+    """The image-blind baselines, through the same depth conversion and suites as the variants.
+
+    Their training GT is ``disp_02`` (synthetic) or the Velodyne scans (real KITTI); drives with
+    neither are named and left out. With no GT at all the baselines are skipped, not failed: each
+    leaves a ``{"skipped": reason}`` JSON (and a one-row CSV) that ``compare`` reports as missing.
+    """
+    gt = training_gt()
     if gt.maps is None:
-        reason = f"no training frame has GT (disp_02 or a Velodyne scan) in {len(gt.missing)} drive(s)"
-        log.warning("baselines: %s: %s not built", reason, " and ".join(BASELINES))
+        reason = skip_reason(gt)
         for run in BASELINES:
             for suite in SUITE_NAMES:
-                write_json(Path("metrics") / suite / f"{run}.json", {baselines_mod.SKIPPED: reason})
-                write_text(Path("metrics") / suite / f"{run}.csv", f"{baselines_mod.SKIPPED}\n{reason}\n")
-                if suite in ("full", "roi"):  # the headline files are declared DVC metrics too
-                    write_json(
-                        Path("metrics") / "headline" / suite / f"{run}.json", {baselines_mod.SKIPPED: reason}
-                    )
+                write_skipped(Path("metrics"), suite, run, reason, headline=suite in ("full", "roi"))
         return
-    used, (h, w) = len(gt.maps), gt.maps.shape[1:]
-    subset = f" (an evenly spaced {used} of {gt.available}: memory budget)" if used < gt.available else ""
-    resampled = f", {gt.resampled} resampled from other sizes" if gt.resampled else ""
-    log.info(
-        "baselines: training GT of %d frames%s at %dx%d%s: %s", used, subset, h, w, resampled, gt.sources
-    )
     frames = load_frames(read_eval_index(INDEX_DIR / "eval_frames.csv"))
     boxes = kitti.read_rois(INDEX_DIR / "rois.csv")
     for run, disp in baselines_mod.baseline_disparities(gt.maps, len(frames)).items():
         pred = depth_maps(disp, frames)
         for suite in SUITE_NAMES:
             run_suite(params, suite, run, pred, frames, boxes)
+
+
+def write_skipped(
+    root: Path, suite: str, run: str, reason: str, headline: bool, headline_root: str = ""
+) -> None:
+    """A skipped baseline's files: ``{"skipped": reason}`` where its metrics would be."""
+    write_json(root / suite / f"{run}.json", {baselines_mod.SKIPPED: reason})
+    write_text(root / suite / f"{run}.csv", f"{baselines_mod.SKIPPED}\n{reason}\n")
+    if headline:  # the headline files are declared DVC metrics too
+        write_json(
+            Path("metrics") / "headline" / headline_root / suite / f"{run}.json",
+            {baselines_mod.SKIPPED: reason},
+        )

@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Annotated, Callable
 
 from ..config import Params, load_params
-from ..errors import MsdepthError
+from ..errors import ConfigError, MsdepthError
 
 log = logging.getLogger("msdepth")
 
@@ -45,6 +45,17 @@ def checked_run(params: Params, variant: str, seed: str) -> str:
 def variant_runs(params: Params) -> dict[str, list[str]]:
     """``{variant: [its run of every seed in train.seeds]}``."""
     return {v: [run_name(v, s) for s in params.train.seeds] for v in params.variants}
+
+
+SetArg = Annotated[str, "an evaluation set listed in eval.extra_sets (e.g. eigen)"]
+SETS_METRICS = Path("metrics/sets")  # metrics/sets/<set>/full/<run>.json; headline in metrics/headline/sets/
+
+
+def checked_set(params: Params, name: str) -> str:
+    """``name`` if it is in ``eval.extra_sets``, else a ConfigError naming them."""
+    if name not in params.eval.extra_sets:
+        raise ConfigError(f"evaluation set {name!r} is not in eval.extra_sets {list(params.eval.extra_sets)}")
+    return name
 
 
 def model_path(run: str) -> Path:

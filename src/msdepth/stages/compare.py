@@ -9,6 +9,7 @@ import numpy as np
 from ..baselines import BASELINES, skipped_reason
 from ..compare import (
     build_comparison,
+    build_set_section,
     group_metrics,
     image_dependence,
     load_suite_metrics,
@@ -18,7 +19,7 @@ from ..compare import (
 )
 from ..config import Params
 from ..io import write_json, write_text
-from .common import SUITE_NAMES, variant_runs
+from .common import SETS_METRICS, SUITE_NAMES, variant_runs
 from .evaluate import headline
 
 
@@ -50,6 +51,9 @@ def compare(params: Params) -> None:
         groups,
         missing_baselines=missing,
     )
+    for name in params.eval.extra_sets:
+        result.setdefault("sets", {})[name], section = compare_set(params, name)
+        md += "\n" + section
     write_json(Path("metrics") / "compare.json", result)
     write_text(Path("metrics") / "compare.md", md)
     write_json(Path("metrics") / "headline" / "mean.json", mean_headline(suites, groups))
@@ -70,3 +74,26 @@ def mean_headline(suites: dict, groups: dict[str, list[str]]) -> dict:
         if len(runs) > 1:
             out[group]["abs_rel_sd"] = float(np.std(abs_rel, ddof=1))
     return out
+
+
+def compare_set(params: Params, name: str) -> tuple[dict, str]:
+    """An extra evaluation set's full-image comparison (``metrics/sets/<set>/full/``): the same
+    groups, reference, bootstrap and seed spread as KITTI 2015's full-image tables."""
+    root = SETS_METRICS / name
+    missing = {b: reason for b in BASELINES if (reason := skipped_reason(root, b, ["full"])) is not None}
+    built = tuple(b for b in BASELINES if b not in missing)
+    groups = {**variant_runs(params), **{b: [b] for b in built}}
+    runs = [r for group in groups.values() for r in group]
+    suites = load_suite_metrics(root, runs, ["full"])
+    tables = load_unit_tables(root, runs, ["full"])
+    caps = [f"cap{c:g}" for c in params.eval.caps]
+    return build_set_section(
+        name,
+        group_metrics(suites, groups),
+        list(params.variants),
+        built,
+        paired_statistics(tables, groups, params.compare, params.eval.caps),
+        seed_spread(suites, groups, caps),
+        params.train.seeds,
+        missing_baselines=missing,
+    )

@@ -15,7 +15,7 @@ from ..data.index import read_eval_index
 from ..errors import ConfigError
 from ..evaluate import evaluate_full, evaluate_gradients, evaluate_roi, load_frames, read_depth_maps
 from ..io import atomic_path, write_json
-from .common import INDEX_DIR, SUITE_NAMES, SeedArg, VariantArg, checked_run, run_dir
+from .common import INDEX_DIR, SETS_METRICS, SUITE_NAMES, SeedArg, VariantArg, checked_run, run_dir
 
 SUITES = {"full": evaluate_full, "roi": evaluate_roi, "gradients": evaluate_gradients}  # SUITE_NAMES' order
 
@@ -40,13 +40,22 @@ def headline(suite: str, summary: dict) -> dict[str, float] | None:
     return None
 
 
-def write_suite(suite: str, run: str, summary: dict, table) -> None:  # noqa: ANN001 - a DataFrame
-    """A suite's summary JSON, its headline JSON (full, roi) and its per-unit CSV for one run."""
-    write_json(Path("metrics") / suite / f"{run}.json", summary)
+def write_suite(
+    suite: str,
+    run: str,
+    summary: dict,
+    table,  # noqa: ANN001 - a DataFrame
+    root: Path = Path("metrics"),
+    headline_root: str = "",
+) -> None:
+    """A suite's summary JSON, its headline JSON (full, roi) and its per-unit CSV for one run:
+    ``<root>/<suite>/<run>.json|csv`` and ``metrics/headline/[<headline_root>/]<suite>/<run>.json``
+    (an extra set's: ``metrics/sets/<set>/full/...`` and ``metrics/headline/sets/<set>/full/...``)."""
+    write_json(root / suite / f"{run}.json", summary)
     top = headline(suite, summary)
     if top is not None:
-        write_json(Path("metrics") / "headline" / suite / f"{run}.json", top)
-    with atomic_path(Path("metrics") / suite / f"{run}.csv") as tmp:
+        write_json(Path("metrics") / "headline" / headline_root / suite / f"{run}.json", top)
+    with atomic_path(root / suite / f"{run}.csv") as tmp:
         table.to_csv(tmp, index=False, float_format="%.6g")
 
 
@@ -57,6 +66,12 @@ def run_suite(params: Params, suite: str, run: str, pred: dict, frames, boxes) -
         fn(pred, frames, params.eval) if suite == "full" else fn(pred, frames, boxes, params.eval)
     )
     write_suite(suite, run, summary, table)
+
+
+def score_set(params: Params, name: str, run: str, pred: dict, frames) -> None:  # noqa: ANN001 - Frames
+    """The full-image suite of ``pred`` on extra set ``name``, written below ``metrics/sets/<set>/``."""
+    summary, table = evaluate_full(pred, frames, params.eval, median_scaling=params.eval.median_scaling)
+    write_suite("full", run, summary, table, root=SETS_METRICS / name, headline_root=f"sets/{name}")
 
 
 def evaluate(

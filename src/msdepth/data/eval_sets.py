@@ -1,0 +1,141 @@
+"""The evaluation sets beside KITTI 2015: one index builder per set, one index format for all.
+
+- ``eigen``: the Eigen split (697 frames of 28 raw drives), GT = the frame's Velodyne scan
+  projected with the day's calibration, as Monodepth and Monodepth2 evaluate it;
+- ``eigen_benchmark``: its 652 frames with KITTI's improved, accumulated GT (Uhrig et al. 2017,
+  ``data_depth_annotated.zip``).
+
+Both are evaluated inside Garg's crop with GT in (min_depth, cap) (:mod:`msdepth.evaluate`). Each
+builder returns rows of :data:`msdepth.data.index.EVAL_COLUMNS`, so the suites read every set the
+same way (:func:`msdepth.evaluate.load_frames`).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Callable
+
+import pandas as pd
+
+from ..config import Params
+from ..errors import DataError
+from . import kitti
+from .index import EVAL_COLUMNS, velodyne_path
+from .layout import layout
+from .pairs import check_same_size
+
+CROP = "garg"
+
+
+def _frame_name(left: Path) -> str:
+    """``<drive>_sync_<frame>``: unique over the raw tree (dates are part of the drive name)."""
+    return f"{left.parents[2].name}_{left.stem}"
+
+
+def _camera(left: Path, day: Path) -> tuple[float, float]:
+    """Focal (px) and baseline (m) of a raw frame from its day's ``calib_cam_to_cam.txt``, as
+    Monodepth's Eigen evaluation takes them."""
+    path = day / "calib_cam_to_cam.txt"
+    try:
+        return kitti.stereo_from_calib(kitti.read_calib(path))
+    except DataError as exc:
+        raise DataError(f"{path} (for {left}): {exc}") from None
+
+
+def _raw_row(raw_root: Path, left_rel: str, right_rel: str) -> tuple[Path, Path, Path] | None:
+    """(left, right, day folder) of a listed raw frame, None if either image is missing."""
+    left, right = kitti.resolve_image(raw_root, left_rel), kitti.resolve_image(raw_root, right_rel)
+    if left is None or right is None:
+        return None
+    check_same_size(left, kitti.read_image(left).shape, right, kitti.read_image(right).shape, "right image")
+    return left, right, left.parents[3]
+
+
+def _finish(rows: list[tuple], missing: list[str], split: Path, what: str) -> pd.DataFrame:
+    if missing:
+        raise DataError(
+            f"{split}: {len(missing)} of {len(rows) + len(missing)} frame(s) lack {what}, e.g. {missing[:5]} "
+            "(download those drives, or leave the set out of eval.extra_sets)"
+        )
+    if not rows:
+        raise DataError(f"{split}: lists no frame")
+    return pd.DataFrame(rows, columns=list(EVAL_COLUMNS))
+
+
+def build_eigen_index(raw_root: Path, split: Path) -> pd.DataFrame:
+    """The Eigen split's frames: left/right images, Velodyne scan, day folder, camera."""
+    rows, missing = [], []
+    for left_rel, right_rel in kitti.read_split(split):
+        found = _raw_row(raw_root, left_rel, right_rel)
+        scan = velodyne_path(found[0]) if found else None
+        if found is None or not scan.is_file():
+            missing.append(left_rel)
+            continue
+        left, right, day = found
+        shape = kitti.read_raw_calib(day).shape
+        image_shape = kitti.read_image(left).shape
+        if tuple(image_shape[:2]) != shape:
+            raise DataError(f"{left} is {tuple(image_shape[:2])} but S_rect_02 of {day} says {shape}")
+        focal, baseline = _camera(left, day)
+        row = (_frame_name(left), str(left), str(right), str(scan), "velodyne", str(day), CROP, "", "")
+        rows.append((*row, focal, baseline))
+    return _finish(rows, missing, split, "images or a velodyne_points scan under " + str(raw_root))
+
+
+def read_benchmark_split(path: Path) -> list[tuple[str, int]]:
+    """Monodepth2's ``<date>/<drive>_sync <frame number> l`` lines as (drive folder, frame number)."""
+    out = []
+    for i, line in enumerate(Path(path).read_text().splitlines(), 1):
+        if not line.strip():
+            continue
+        parts = line.split()
+        if len(parts) != 3 or parts[2] != "l" or not parts[1].isdigit():
+            raise DataError(f"{path}:{i}: expected '<date>/<drive>_sync <frame> l', got {line!r}")
+        out.append((parts[0], int(parts[1])))
+    return out
+
+
+def annotated_gt_path(annotated_root: Path, drive: str, number: int) -> Path | None:
+    """The depth benchmark's GT of a frame, None if absent:
+    ``{train,val}/<drive>_sync/proj_depth/groundtruth/image_02/<n:010d>.png``."""
+    for part in ("train", "val"):
+        path = annotated_root / part / Path(drive).name / "proj_depth" / "groundtruth" / "image_02"
+        path = path / f"{number:010d}.png"
+        if path.is_file():
+            return path
+    return None
+
+
+def build_eigen_benchmark_index(raw_root: Path, split: Path, annotated_root: Path) -> pd.DataFrame:
+    """The Eigen benchmark frames: raw images, annotated depth GT, day folder, camera."""
+    rows, missing = [], []
+    for drive, number in read_benchmark_split(split):
+        name = f"{number:010d}.png"
+        found = _raw_row(raw_root, f"{drive}/image_02/data/{name}", f"{drive}/image_03/data/{name}")
+        gt = annotated_gt_path(annotated_root, drive, number)
+        if found is None or gt is None:
+            missing.append(f"{drive} {number}")
+            continue
+        left, right, day = found
+        check_same_size(left, kitti.read_image(left).shape, gt, kitti.read_depth(gt).shape, "annotated GT")
+        focal, baseline = _camera(left, day)
+        row = (_frame_name(left), str(left), str(right), str(gt), "depth", str(day), CROP, "", "")
+        rows.append((*row, focal, baseline))
+    return _finish(
+        rows, missing, split, f"raw images under {raw_root} or annotated GT under {annotated_root}"
+    )
+
+
+SETS: dict[str, Callable[[Params], pd.DataFrame]] = {
+    "eigen": lambda p: build_eigen_index(layout(p).raw_root, layout(p).eigen_split),
+    "eigen_benchmark": lambda p: build_eigen_benchmark_index(
+        layout(p).raw_root, layout(p).eigen_benchmark_split, layout(p).depth_annotated
+    ),
+}
+
+
+def build_set_index(params: Params, name: str) -> pd.DataFrame:
+    """The evaluation index of extra set ``name`` (a key of :data:`SETS`)."""
+    if name not in SETS:
+        raise DataError(f"unknown evaluation set {name!r}; known: {sorted(SETS)}")
+    return SETS[name](params)
