@@ -187,6 +187,23 @@ def test_scans_are_deterministic_and_leave_the_rest_unchanged(root: Path, tmp_pa
     assert _digest(root, train + [root / "train_files.txt", root / "rois.csv"]) == TRAIN_DIGEST
 
 
+def test_angular_culling_misses_no_ray(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Casting only the (beam, azimuth) window of each primitive gives what casting every ray gives."""
+    scenes = [synthetic._build_scene(synthetic.frame_rng(CFG.seed, 1, i)) for i in (0, 4, 5)]
+    f = synthetic.focal_for_width(CFG.width)
+    culled = [velodyne_sim.simulate(s, f, CFG.width, velodyne_sim.scan_rng(0, 1, 0)) for s in scenes]
+    windows = []
+    monkeypatch.setattr(
+        velodyne_sim,
+        "_grid_window",
+        lambda prim, origin, world_to_velo, elev, az: windows.append(prim) or (slice(None), slice(None)),
+    )
+    for scene, scan in zip(scenes, culled):
+        full = velodyne_sim.simulate(scene, f, CFG.width, velodyne_sim.scan_rng(0, 1, 0))
+        assert full.points.tobytes() == scan.points.tobytes() and full.glass_hits == scan.glass_hits
+    assert len(windows) == sum(len(s.prims) for s in scenes) > 50
+
+
 def test_render_frame_is_the_same_with_the_scan() -> None:
     a = synthetic.render_frame(CFG.seed, 1, 5, 48, 160)
     b = synthetic.render_frame(CFG.seed, 1, 5, 48, 160, lidar=True)
