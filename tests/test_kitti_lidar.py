@@ -179,6 +179,16 @@ def test_velodyne_round_trip_and_bad_sizes(tmp_path: Path) -> None:
     assert kitti.read_velodyne(tmp_path / "empty.bin").shape == (0, 4)
 
 
+def test_velodyne_writer_writes_kittis_bytes(tmp_path: Path) -> None:
+    points = _random_cloud(5, 50)
+    kitti.write_velodyne(tmp_path / "a" / "0000000000.bin", points.astype(np.float64))  # cast to <f4
+    assert (tmp_path / "a" / "0000000000.bin").read_bytes() == points.astype("<f4").tobytes()
+    assert [p.name for p in (tmp_path / "a").iterdir()] == ["0000000000.bin"]  # no temp file left
+    with pytest.raises(DataError, match=r"b\.bin: a Velodyne scan must be \(N, 4\)"):
+        kitti.write_velodyne(tmp_path / "b.bin", points[:, :3])
+    assert not (tmp_path / "b.bin").exists()
+
+
 def test_raw_calibration(tmp_path: Path) -> None:
     _write_raw_calib(tmp_path / "2011_09_26")
     calib = kitti.read_raw_calib(tmp_path / "2011_09_26")

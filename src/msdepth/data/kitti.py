@@ -231,6 +231,15 @@ def read_velodyne(path: PathLike) -> np.ndarray:
     return np.frombuffer(data, dtype="<f4").reshape(-1, 4).astype(np.float32)
 
 
+def write_velodyne(path: PathLike, points: np.ndarray) -> None:
+    """Write a scan in KITTI's ``.bin`` format (float32 little-endian x, y, z, reflectance), atomically."""
+    points = np.asarray(points)
+    if points.ndim != 2 or points.shape[1] != 4:
+        raise DataError(f"{path}: a Velodyne scan must be (N, 4) x, y, z, reflectance, got {points.shape}")
+    with atomic_path(path) as tmp:
+        tmp.write_bytes(np.ascontiguousarray(points, dtype="<f4").tobytes())
+
+
 @dataclass(frozen=True)
 class RawCalib:
     """One KITTI raw day's calibration, as the LiDAR projection into camera 2 needs it.

@@ -15,7 +15,10 @@ strong view-dependent gloss.
 Output layout under ``root`` (see :func:`generate`): ``raw/`` as KITTI raw data (training pairs,
 ``train_files.txt``), ``kitti2015/training/`` as the KITTI 2015 stereo benchmark (evaluation
 frames with ``disp_occ_0``, ``disp_noc_0``, ``obj_map``, and ``class_map``: the exact pixels of
-every ROI class, which KITTI does not have), ``rois.csv`` and ``synthetic.json``.
+every ROI class, which KITTI does not have), ``rois.csv`` and ``synthetic.json``. The same
+evaluation frames also form a raw drive with a simulated Velodyne scan per frame
+(:mod:`msdepth.data.velodyne_sim`), listed in ``eigen_test_files.txt``: the Eigen split's layout,
+for the raw-LiDAR evaluation.
 """
 
 from __future__ import annotations
@@ -27,16 +30,33 @@ import shutil
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Iterable
+from typing import TYPE_CHECKING, Any, Callable, Iterable
 
 import numpy as np
 import pandas as pd
 
 from ..config import SyntheticConfig
-from ..io import write_json, write_png, write_text
-from .kitti import CLASS_BITS, KITTI_BASELINE, WIDTH_TO_FOCAL, write_disparity, write_rois, write_split
+from ..io import atomic_path, write_json, write_png, write_text
+from .kitti import (
+    CLASS_BITS,
+    KITTI_BASELINE,
+    WIDTH_TO_FOCAL,
+    read_raw_calib,
+    velodyne_depth,
+    write_disparity,
+    write_rois,
+    write_split,
+    write_velodyne,
+)
+
+if TYPE_CHECKING:
+    from .velodyne_sim import Scan
 
 DATES = ("2011_09_26", "2011_09_28", "2011_09_29", "2011_09_30", "2011_10_03")
+# The raw drive holding the evaluation frames with their LiDAR scans: training drives are numbered
+# 1..drives, so this one cannot collide with them (generate refuses drives >= EVAL_DRIVE).
+EVAL_DATE, EVAL_DRIVE = DATES[0], 9000
+EIGEN_TEST_FILES = "eigen_test_files.txt"
 EVAL_GT_OCC = "disp_occ_0"
 EVAL_GT_NOC = "disp_noc_0"
 _TRAIN, _EVAL = 0, 1  # seed-stream tags: training and evaluation frames never share a seed
@@ -941,6 +961,7 @@ class Frame:
     rotation: np.ndarray  # world-from-camera rotation (world: x right, y down, z forward)
     cam_height: float  # m above the ground plane y = cam_height
     focal: float  # px; principal point at the image centre, baseline KITTI_BASELINE
+    scan: Scan | None = None  # the simulated Velodyne's, when rendered with lidar=True
 
 
 def frame_rng(seed: int, split: int, index: int) -> np.random.Generator:
@@ -994,8 +1015,12 @@ def _class_map(scene: _Scene, face: np.ndarray) -> np.ndarray:
     return out
 
 
-def render_frame(seed: int, split: int, index: int, height: int, width: int) -> Frame:
-    """Render frame ``index`` of ``split`` (0 = training, 1 = evaluation) deterministically."""
+def render_frame(seed: int, split: int, index: int, height: int, width: int, lidar: bool = False) -> Frame:
+    """Render frame ``index`` of ``split`` (0 = training, 1 = evaluation) deterministically.
+
+    ``lidar``: also scan the scene with the simulated Velodyne (``Frame.scan``); the scan has its
+    own generator, so everything else is the same either way.
+    """
     rng = frame_rng(seed, split, index)
     scene = _build_scene(rng)
     cam = _camera(height, width, scene.rot)
@@ -1020,6 +1045,11 @@ def render_frame(seed: int, split: int, index: int, height: int, width: int) -> 
     present = np.unique(inst[inst > 0])
     lookup = np.zeros(int(inst.max()) + 1, np.uint8)
     lookup[present] = np.arange(1, present.size + 1)  # renumber visible cars 1..n
+    scan = None
+    if lidar:
+        from . import velodyne_sim  # imports this module's geometry: imported here, not at the top
+
+        scan = velodyne_sim.simulate(scene, f, width, velodyne_sim.scan_rng(seed, split, index))
     return Frame(
         left=images[0],
         right=images[1],
@@ -1032,6 +1062,7 @@ def render_frame(seed: int, split: int, index: int, height: int, width: int) -> 
         rotation=scene.rot,
         cam_height=scene.cam_height,
         focal=f,
+        scan=scan,
     )
 
 
@@ -1039,15 +1070,27 @@ def render_frame(seed: int, split: int, index: int, height: int, width: int) -> 
 # Writing the KITTI-format tree
 
 
-def calib_text(height: int, width: int) -> str:
-    """A raw-data style ``calib_cam_to_cam.txt`` for the synthetic rig (cameras 02 and 03)."""
+def calib_text(height: int, width: int, raw: bool = False) -> str:
+    """A raw-data style ``calib_cam_to_cam.txt`` for the synthetic rig (cameras 02 and 03).
+
+    ``raw``: the file of a raw day folder, which the raw-LiDAR GT is projected with. It also has
+    ``R_rect_00`` (identity: the rig is rectified), and its principal points are in KITTI's
+    MATLAB convention (1-based pixels, one more than the 0-based image centre), which the field's
+    projection assumes when it takes ``round(u) - 1`` as the pixel (:func:`kitti.lidar_depth_map`):
+    a point then lands on the pixel that shows it. The KITTI 2015 files (``raw=False``) keep the
+    0-based centre; only the focal and baseline are read from them.
+    """
     f = focal_for_width(width)
     cx, cy = (width - 1) / 2.0, (height - 1) / 2.0
+    if raw:
+        cx, cy = cx + 1.0, cy + 1.0
 
     def row(key: str, values: Iterable[float]) -> str:
         return f"{key}: " + " ".join(f"{v:.12e}" for v in values) + "\n"
 
     text = "calib_time: 01-Jan-2017 00:00:00\ncorner_dist: 0.000000e+00\n"
+    if raw:
+        text += row("R_rect_00", np.eye(3).ravel())
     for cam, tx in (("02", 0.0), ("03", -KITTI_BASELINE)):
         text += row(f"S_{cam}", (width, height))
         text += row(f"K_{cam}", (f, 0, cx, 0, f, cy, 0, 0, 1))
@@ -1092,9 +1135,17 @@ def within_range(disp: np.ndarray, focal: float, max_depth: float) -> np.ndarray
     return np.where(disp >= focal * KITTI_BASELINE / max_depth, disp, 0).astype(disp.dtype)
 
 
-def _write_eval(job: tuple[SyntheticConfig, str, int]) -> list[tuple[str, str, int, int, int, int]]:
-    cfg, root, index = job
-    frame = render_frame(cfg.seed, _EVAL, index, cfg.height, cfg.width)
+def eval_drive() -> str:
+    """The raw drive folder (relative to ``raw/``) of the evaluation frames and their scans."""
+    return f"{EVAL_DATE}/{EVAL_DATE}_drive_{EVAL_DRIVE:04d}_sync"
+
+
+def _write_eval(
+    job: tuple[SyntheticConfig, str, int, bool],
+) -> tuple[list[tuple[str, str, int, int, int, int]], dict[str, int] | None]:
+    """Write evaluation frame ``index``; returns its ROI rows and (with the LiDAR) its scan's counts."""
+    cfg, root, index, lidar = job
+    frame = render_frame(cfg.seed, _EVAL, index, cfg.height, cfg.width, lidar=lidar)
     name = f"{index:06d}_10"
     training = Path(root) / "kitti2015" / "training"
     write_png(training / "image_2" / f"{name}.png", frame.left)
@@ -1105,7 +1156,19 @@ def _write_eval(job: tuple[SyntheticConfig, str, int]) -> list[tuple[str, str, i
     write_png(training / "obj_map" / f"{name}.png", frame.obj_map)
     write_png(training / "class_map" / f"{name}.png", frame.class_map)
     write_text(training / "calib_cam_to_cam" / f"{index:06d}.txt", calib_text(cfg.height, cfg.width))
-    return [(name, *box) for box in frame.rois]
+    rows = [(name, *box) for box in frame.rois]
+    if not lidar:
+        return rows, None
+    # The same frame as a raw drive frame: images (copies of the files above), scan.
+    raw = Path(root) / "raw"
+    drive, number = raw / eval_drive(), f"{index:010d}"
+    for src, cam in (("image_2", "image_02"), ("image_3", "image_03")):
+        with atomic_path(drive / cam / "data" / f"{number}.png") as tmp:
+            shutil.copyfile(training / src / f"{name}.png", tmp)
+    scan_path = drive / "velodyne_points" / "data" / f"{number}.bin"
+    write_velodyne(scan_path, frame.scan.points)
+    gt = velodyne_depth(scan_path, read_raw_calib(raw / EVAL_DATE))  # as the evaluation reads it
+    return rows, {"points": int(len(frame.scan.points)), "gt_pixels": int((gt > 0).sum())}
 
 
 def _run(fn: Callable, jobs: list, workers: int, bar) -> list:
@@ -1125,31 +1188,49 @@ def _run(fn: Callable, jobs: list, workers: int, bar) -> list:
         return results
 
 
-def generate(cfg: SyntheticConfig, root: Path, progress: bool = True, workers: int | None = None) -> dict:
+def generate(
+    cfg: SyntheticConfig, root: Path, progress: bool = True, workers: int | None = None, lidar: bool = True
+) -> dict:
     """Render the whole synthetic set under ``root`` in KITTI's layouts; returns a summary.
 
     Always regenerates from scratch (``root/raw`` and ``root/kitti2015`` are replaced); every
     file is written atomically and the output depends only on ``cfg`` (byte-identical reruns).
     ``workers`` processes render in parallel (default: the CPUs available to this process).
+
+    The evaluation frames are written twice: as KITTI 2015 frames ``NNNNNN_10`` and, with a
+    simulated Velodyne scan each, as frames ``NNNNNNNNNN`` of the raw drive :func:`eval_drive`
+    (same image bytes), listed in ``eigen_test_files.txt``. ``lidar=False`` skips the latter
+    (for timing; nothing else changes).
     """
     from tqdm import tqdm
 
+    from . import velodyne_sim  # imports this module's geometry: imported here, not at the top
+
     root = Path(root)
+    if cfg.drives >= EVAL_DRIVE:
+        raise ValueError(f"at most {EVAL_DRIVE - 1} drives: drive {EVAL_DRIVE} holds the evaluation frames")
     if workers is None:
         workers = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
     for sub in ("raw", "kitti2015"):
         if (root / sub).exists():
             shutil.rmtree(root / sub)
+    (root / EIGEN_TEST_FILES).unlink(missing_ok=True)
     raw, k2015 = root / "raw", root / "kitti2015"
-    for date in sorted({train_drive(cfg, i)[0].split("/")[0] for i in range(cfg.train_pairs)}):
-        write_text(raw / date / "calib_cam_to_cam.txt", calib_text(cfg.height, cfg.width))
+    dates = {train_drive(cfg, i)[0].split("/")[0] for i in range(cfg.train_pairs)}
+    if lidar and cfg.eval_frames:
+        dates.add(EVAL_DATE)
+    for date in sorted(dates):
+        write_text(raw / date / "calib_cam_to_cam.txt", calib_text(cfg.height, cfg.width, raw=True))
+        if lidar:
+            write_text(raw / date / "calib_velo_to_cam.txt", velodyne_sim.calib_velo_to_cam_text())
 
     key = str(root)
     with tqdm(
         total=cfg.train_pairs + cfg.eval_frames, desc="synthetic", unit="frame", disable=not progress
     ) as bar:
         pairs = _run(_write_train, [(cfg, key, i) for i in range(cfg.train_pairs)], workers, bar)
-        boxes = _run(_write_eval, [(cfg, key, i) for i in range(cfg.eval_frames)], workers, bar)
+        evals = _run(_write_eval, [(cfg, key, i, lidar) for i in range(cfg.eval_frames)], workers, bar)
+    boxes = [rows for rows, _ in evals]
 
     write_split(root / "train_files.txt", pairs)
     names = [f"{i:06d}_10" for i in range(cfg.eval_frames)]
@@ -1169,5 +1250,24 @@ def generate(cfg: SyntheticConfig, root: Path, progress: bool = True, workers: i
         "drives": len({train_drive(cfg, i)[0] for i in range(cfg.train_pairs)}),
         "rois": {c: int((rois["class"] == c).sum()) for c in ("car", "windshield", "glass", "sign")},
     }
+    if lidar and cfg.eval_frames:
+        drive = eval_drive()
+        write_split(
+            root / EIGEN_TEST_FILES,
+            [
+                (f"{drive}/image_02/data/{i:010d}.png", f"{drive}/image_03/data/{i:010d}.png")
+                for i in range(cfg.eval_frames)
+            ],
+        )
+
+        def spread(key: str) -> dict[str, float | int]:
+            values = np.array([counts[key] for _, counts in evals], float)
+            return {"mean": float(values.mean()), "min": int(values.min()), "max": int(values.max())}
+
+        summary["lidar"] = {
+            "drive": drive,
+            "points_per_scan": spread("points"),
+            "gt_pixels_per_frame": spread("gt_pixels"),  # lidar_depth_map at the evaluation size
+        }
     write_json(root / "synthetic.json", summary)
     return summary
