@@ -86,8 +86,20 @@ def test_repro_writes_every_suite_and_the_comparison(repo: Path):
             assert (repo / "metrics" / suite / f"{run}.csv").stat().st_size > 0
     full = json.loads((repo / "metrics" / "full" / "ssim" / "seed0.json").read_text())
     assert 0 < full["cap80"]["abs_rel"] < 10
-    assert "| ssim |" in (repo / "metrics" / "compare.md").read_text()
+    md = (repo / "metrics" / "compare.md").read_text()
+    assert "| ssim |" in md
+    # The Eigen split on the rendered scans: every run and baseline, after KITTI 2015's tables.
+    for run in RUNS:
+        eigen = json.loads((repo / "metrics" / "sets" / "eigen" / "full" / f"{run}.json").read_text())
+        assert eigen["images"] == 3 and 0 < eigen["cap80"]["abs_rel"] < 10 and "cap50" in eigen
+        assert "abs_rel" in json.loads(
+            (repo / "metrics" / "headline" / "sets" / "eigen" / "full" / f"{run}.json").read_text()
+        )
+    assert md.index("# Eigen split") > md.index("## Full image, cap 80 m")
+    index = (repo / "data" / "index" / "sets" / "eigen.csv").read_text()
+    assert index.count(",velodyne,") == 3 and ",garg," in index
     compare = json.loads((repo / "metrics" / "compare.json").read_text())
+    assert set(compare["sets"]["eigen"]["full"]["cap80"]) == {"ssim", "msssim", "constant", "prior"}
     assert set(compare["full"]["cap80"]) == {"ssim", "msssim", "constant", "prior"}
     assert (
         compare["seeds"] == [0] and compare["statistics"]["full"]["cap80"]["msssim"]["abs_rel"]["seeds"] == 1

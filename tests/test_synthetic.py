@@ -278,4 +278,4 @@ def test_class_map_is_indexed_and_read_with_the_frames(root: Path) -> None:
     index = build_eval_index(root / "kitti2015", root / "kitti2015" / "test_files.txt", "disp_noc_0")
     assert all(Path(p).name.endswith(".png") and "class_map" in p for p in index["class_map"])
     frames = load_frames(index)
-    assert all(f.class_map is not None and f.class_map.shape == f.gt_disp.shape for f in frames)
+    assert all(f.class_map is not None and f.class_map.shape == f.shape for f in frames)
