@@ -198,11 +198,16 @@ def mirror_from_synthetic(tree: Path, out: Path, seed: int = 0) -> dict[str, np.
     """KITTI-shaped ``out/raw`` and ``out/kitti2015`` from the renderer's ``tree``.
 
     Returns, per training left image (path relative to ``raw/``), the depth map its scan gives.
+    The renderer's raw evaluation drive (Eigen layout, no ``disp_02``) is left out.
     """
     rng = np.random.default_rng(seed)
     expected: dict[str, np.ndarray] = {}
     for day in sorted(p for p in (tree / "raw").iterdir() if p.is_dir()):
-        drives = sorted(day.glob("*_sync"))
+        # Training drives only: the renderer's raw evaluation drive has its own scans, made for
+        # its own calibration, not the KITTI one written here.
+        drives = sorted(d for d in day.glob("*_sync") if (d / "disp_02").is_dir())
+        if not drives:
+            continue
         left0 = kitti.read_image(next((drives[0] / "image_02" / "data").glob("*.png")))
         h, w = left0.shape[:2]
         proj = synthetic_projections(w, h)

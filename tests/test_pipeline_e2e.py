@@ -226,13 +226,16 @@ def test_experiment_then_the_way_back_and_applying_it(repo: Path, tmp_path: Path
 def test_dvc_metrics_show_lists_the_headline_numbers_and_fits_a_terminal(repo: Path):
     shown = json.loads(_run([sys.executable, "-m", "dvc", "metrics", "show", "--json"], repo))
     files = {path for rev in shown.values() for path in rev.get("data", {})}
-    assert files == {f"metrics/headline/{suite}/{run}.json" for suite in ("full", "roi") for run in RUNS}
+    assert files == {f"metrics/headline/{suite}/{run}.json" for suite in ("full", "roi") for run in RUNS} | {
+        f"metrics/headline/sets/eigen/full/{run}.json" for run in RUNS
+    }
     table = _run([sys.executable, "-m", "dvc", "metrics", "show"], repo)
     assert max(map(len, table.splitlines())) <= 160, table
     mean = json.loads((repo / "metrics" / "headline" / "mean.json").read_text())
     assert set(mean) == {"ssim", "msssim", "constant", "prior"} and set(mean["ssim"]) == {
         "abs_rel",
         "roi_abs_rel",
+        "eigen_abs_rel",
     }
     full = json.loads((repo / "metrics" / "headline" / "full" / "ssim" / "seed0.json").read_text())
     assert set(full) == {"abs_rel", "rmse", "a1", "variation"}

@@ -51,17 +51,22 @@ def compare(params: Params) -> None:
         groups,
         missing_baselines=missing,
     )
+    means = mean_headline(suites, groups)
     for name in params.eval.extra_sets:
         result.setdefault("sets", {})[name], section = compare_set(params, name)
         md += "\n" + section
+        for group, block in result["sets"][name]["full"][caps[0]].items():
+            if group in means:
+                means[group][f"{name}_abs_rel"] = block["abs_rel"]
     write_json(Path("metrics") / "compare.json", result)
     write_text(Path("metrics") / "compare.md", md)
-    write_json(Path("metrics") / "headline" / "mean.json", mean_headline(suites, groups))
+    write_json(Path("metrics") / "headline" / "mean.json", means)
 
 
 def mean_headline(suites: dict, groups: dict[str, list[str]]) -> dict:
     """Per variant (and baseline) the headline numbers averaged over its runs, with the
-    seed-to-seed sd of abs_rel: the one file to read in ``dvc exp show`` across experiments."""
+    seed-to-seed sd of abs_rel: the one file to read in ``dvc exp show`` across experiments
+    (the compare stage adds each extra set's mean abs_rel as ``<set>_abs_rel``)."""
     out = {}
     for group, runs in groups.items():
         full = [headline("full", suites["full"][r]) for r in runs]
