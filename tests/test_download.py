@@ -319,6 +319,108 @@ def test_select_all_first_n_and_named_drives_add_their_calibration() -> None:
         dl.select_archives(names, -1)
 
 
+def _pairs(drives: list[str]) -> str:
+    """Split lines (``left right``) of one frame of each drive, as Godard's and Eigen's lists name them."""
+    return "".join(
+        f"{d[:10]}/{d}_sync/image_02/data/0000000000.jpg {d[:10]}/{d}_sync/image_03/data/0000000000.jpg\n"
+        for d in drives
+    )
+
+
+def _benchmark(drives: list[str]) -> str:
+    """Monodepth2's eigen_benchmark lines (``<date>/<drive>_sync <frame> l``)."""
+    return "".join(f"{d[:10]}/{d}_sync {i} l\n" for i, d in enumerate(drives))
+
+
+def test_the_splits_drives_in_list_order_with_their_days_calibration(tmp_path: Path) -> None:
+    names = dl.parse_archive_list(SHIPPED_LIST)
+    train, eigen, bench = tmp_path / "train.txt", tmp_path / "eigen.txt", tmp_path / "bench.txt"
+    train.write_text(_pairs(["2011_10_03_drive_0027", "2011_09_26_drive_0002", "2011_10_03_drive_0027"]))
+    eigen.write_text("\n" + _pairs(["2011_09_26_drive_0002", "2011_09_28_drive_0001"]))
+    bench.write_text(_benchmark(["2011_09_26_drive_0009", "2011_09_26_drive_0009"]))
+    assert dl.split_drives(train) == ["2011_10_03_drive_0027", "2011_09_26_drive_0002"]
+    assert dl.split_drives(bench) == ["2011_09_26_drive_0009"]
+
+    def files(selection: dl.Selection) -> list[str]:
+        return [dl.archive_filename(n) for n in selection.archives]
+
+    both = dl.select_needed(names, {"the train split": train, "eigen": eigen})
+    assert files(both) == [
+        "2011_09_26_calib.zip",
+        "2011_09_26_drive_0002_sync.zip",
+        "2011_09_28_calib.zip",
+        "2011_09_28_drive_0001_sync.zip",
+        "2011_10_03_calib.zip",
+        "2011_10_03_drive_0027_sync.zip",
+    ]
+    assert both.describe() == (
+        "KITTI raw: 3 drives named by the train split and eigen (of 61 in the archive list) "
+        "+ 3 calibration archives"
+    )
+    assert files(dl.select_needed(names, {"eigen_benchmark": bench})) == [
+        "2011_09_26_calib.zip",
+        "2011_09_26_drive_0009_sync.zip",
+    ]
+    # drive_count: the first N of the needed drives; drives: those of them the splits need.
+    first = dl.select_needed(names, {"the train split": train, "eigen": eigen}, 1)
+    assert files(first) == ["2011_09_26_calib.zip", "2011_09_26_drive_0002_sync.zip"]
+    assert first.describe() == (
+        "KITTI raw: the first 1 of the 3 drives named by the train split and eigen "
+        "(data.kitti.drive_count; 61 in the archive list) + 1 calibration archive"
+    )
+    named = dl.select_needed(names, {"eigen": eigen}, ["2011_09_28_drive_0001", "2011_09_26_drive_0001_sync"])
+    assert files(named) == ["2011_09_28_calib.zip", "2011_09_28_drive_0001_sync.zip"]
+    assert named.unneeded == ("2011_09_26_drive_0001",)
+    assert named.describe().endswith(
+        "; in data.kitti.drives but named by no split, so not fetched: 2011_09_26_drive_0001"
+    )
+    assert dl.select_needed(names, {"eigen": eigen}, 0).archives == []
+    with pytest.raises(DataError, match="archive subset: not in the archive list: 2011_09_26_drive_9999"):
+        dl.select_needed(names, {"eigen": eigen}, ["2011_09_26_drive_9999"])
+    with pytest.raises(DataError, match=">= 0"):
+        dl.select_needed(names, {"eigen": eigen}, -1)
+
+
+def test_the_shipped_splits_need_46_of_the_61_drives() -> None:
+    lists = SHIPPED_LIST.parent
+    names = dl.parse_archive_list(SHIPPED_LIST)
+    default = {"the train split": lists / "kitti_train_files.txt", "eigen": lists / "eigen_test_files.txt"}
+    selection = dl.select_needed(names, default)
+    assert len(selection.archives) == 51 and selection.calibrations == 5
+    assert selection.describe() == (
+        "KITTI raw: 46 drives named by the train split and eigen (of 61 in the archive list) "
+        "+ 5 calibration archives"
+    )
+    bench = dl.select_needed(names, {"eigen_benchmark": lists / "eigen_benchmark_test_files.txt"})
+    eigen = dl.select_needed(names, {"eigen": lists / "eigen_test_files.txt"})
+    assert bench.archives == eigen.archives and bench.drives == 28
+
+
+def test_a_split_naming_drives_not_in_the_archive_list_is_one_line(tmp_path: Path) -> None:
+    names = dl.parse_archive_list(SHIPPED_LIST)
+    split = tmp_path / "eigen.txt"
+    split.write_text(_pairs(["2011_09_26_drive_0001"] + [f"2011_09_26_drive_09{i:02d}" for i in range(5)]))
+    with pytest.raises(DataError) as err:
+        dl.select_needed(names, {"the train split": split}, archive_list="lists/a.txt")
+    assert str(err.value) == (
+        f"{split} (the train split): names 5 drive(s) not in lists/a.txt: 2011_09_26_drive_0900, "
+        "2011_09_26_drive_0901, 2011_09_26_drive_0902 and 2 more"
+    )
+    for text, message in [
+        (None, "no such split file"),
+        (
+            _pairs(["2011_09_26_drive_0001"]) + "training/image_2/000000_10.jpg x.jpg\n",
+            ":2: names no raw drive",
+        ),
+        ("\n\n", "split file lists no frame"),
+    ]:
+        split.unlink(missing_ok=True)
+        if text is not None:
+            split.write_text(text)
+        with pytest.raises(DataError, match=re.escape(f"{split}") + ".*" + re.escape(message)):
+            dl.select_needed(names, {"eigen": split})
+
+
 # --------------------------------------------------------------------------- download
 
 
