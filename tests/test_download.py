@@ -925,16 +925,48 @@ def test_unreachable_host_mid_run_stops_the_archives_not_started(server: _Server
 # --------------------------------------------------------------------------- the stage
 
 
-def _kitti_project(tmp_path: Path, base_url: str, drives: int = 2) -> Path:
-    """A working directory for stages/prepare_data.py: params.yaml for KITTI from ``base_url``."""
+def _kitti_project(
+    tmp_path: Path,
+    base_url: str,
+    drives: int | list[str] = 2,
+    *,
+    train: list[str] | None = None,
+    eigen: list[str] | None = None,
+    benchmark: list[str] | None = None,
+    extra_sets: list[str] | None = None,
+) -> Path:
+    """A working directory for stages/prepare_data.py: params.yaml for KITTI from ``base_url``.
+
+    The archive list holds ``drives`` (a count of 2011_09_26 drives, or drive names) after their
+    days' calibration archives; the train split names ``train`` (default: every listed drive),
+    the Eigen list ``eigen`` (default: the first), the benchmark list ``benchmark`` (if given).
+    """
     import yaml
 
-    listed = ["raw_data/2011_09_26_calib.zip"] + [
-        f"raw_data/2011_09_26_drive_{i:04d}/2011_09_26_drive_{i:04d}_sync.zip" for i in range(1, drives + 1)
-    ]
+    if isinstance(drives, int):
+        drives = [f"2011_09_26_drive_{i:04d}" for i in range(1, drives + 1)]
+    listed = []
+    for day in sorted({d[:10] for d in drives}):
+        listed += [f"raw_data/{day}_calib.zip"] + [
+            f"raw_data/{d}/{d}_sync.zip" for d in drives if d[:10] == day
+        ]
     (tmp_path / "archives.txt").write_text("".join(f"{n}\n" for n in listed))
-    kitti = {"base_url": base_url, "allow_http": True, "archive_list": "archives.txt"}
-    (tmp_path / "params.yaml").write_text(yaml.safe_dump({"data": {"source": "kitti", "kitti": kitti}}))
+    (tmp_path / "train.txt").write_text(_pairs(drives if train is None else train))
+    (tmp_path / "eigen.txt").write_text(_pairs(drives[:1] if eigen is None else eigen))
+    kitti = {
+        "base_url": base_url,
+        "allow_http": True,
+        "archive_list": "archives.txt",
+        "train_split": "train.txt",
+        "eigen_split": "eigen.txt",
+    }
+    if benchmark is not None:
+        (tmp_path / "bench.txt").write_text(_benchmark(benchmark))
+        kitti["eigen_benchmark_split"] = "bench.txt"
+    params: dict = {"data": {"source": "kitti", "kitti": kitti}}
+    if extra_sets is not None:
+        params["eval"] = {"extra_sets": extra_sets}
+    (tmp_path / "params.yaml").write_text(yaml.safe_dump(params))
     return tmp_path
 
 
@@ -969,12 +1001,16 @@ def test_stage_dry_run_prints_each_archive_and_the_totals(server: _Server, tmp_p
     assert _tree(work) == before  # no data/, no data/downloads/
     assert {e["method"] for e in server.log} == {"HEAD"} and len(server.log) == 4
     lines = out.splitlines()
-    assert lines[0] == f"  {'2011_09_26_calib.zip':<34} to fetch, {dl._human(len(calib))}"
+    assert lines[0] == (
+        "KITTI raw: 2 drives named by the train split and eigen (of 2 in the archive list) "
+        "+ 1 calibration archive"
+    )
+    assert lines[1] == f"  {'2011_09_26_calib.zip':<34} to fetch, {dl._human(len(calib))}"
     raw = dl._human(len(calib) + len(d1) + len(d2))
-    assert lines[3] == f"KITTI raw: would fetch 3 archive(s), {raw}; 0 already complete"
-    assert lines[5] == f"KITTI 2015: would fetch 1 archive(s), {dl._human(len(scene))}; 0 already complete"
+    assert lines[4] == f"KITTI raw: would fetch 3 archive(s), {raw}; 0 already complete"
+    assert lines[6] == f"KITTI 2015: would fetch 1 archive(s), {dl._human(len(scene))}; 0 already complete"
     total = dl._human(len(calib) + len(d1) + len(d2) + len(scene))
-    assert lines[6:] == [
+    assert lines[7:] == [
         f"dry run, in all: would fetch 4 archive(s), {total}; 0 already complete; nothing was written"
     ]
     print(out)
@@ -988,5 +1024,131 @@ def test_stage_without_network_says_so_in_one_line(tmp_path: Path, dry_run: bool
     lines = err.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("error: http://127.0.0.1:"), err
     assert "cannot reach 127.0.0.1 (ConnectionRefusedError" in lines[0]
-    assert out == "" and sorted(p.name for p in work.iterdir()) == ["archives.txt", "params.yaml"]
+    listed = ["archives.txt", "eigen.txt", "params.yaml", "train.txt"]
+    assert out == "" and sorted(p.name for p in work.iterdir()) == listed
     print(f"{seconds:.1f} s: {lines[0]}")
+
+
+# Two days, five drives: the train split names two of them, the Eigen list another and one of
+# those, the benchmark list one; the fifth (2011_09_26_drive_0005) no list names.
+LISTED = [
+    "2011_09_26_drive_0001",
+    "2011_09_26_drive_0002",
+    "2011_09_26_drive_0003",
+    "2011_09_26_drive_0005",
+    "2011_09_28_drive_0001",
+]
+
+
+@pytest.mark.parametrize(
+    ("extra_sets", "header", "asked"),
+    [
+        (
+            ["eigen"],
+            "KITTI raw: 3 drives named by the train split and eigen (of 5 in the archive list) "
+            "+ 2 calibration archives",
+            [
+                "2011_09_26_calib.zip",
+                "2011_09_26_drive_0001_sync.zip",
+                "2011_09_26_drive_0003_sync.zip",
+                "2011_09_28_calib.zip",
+                "2011_09_28_drive_0001_sync.zip",
+                "data_scene_flow.zip",
+            ],
+        ),
+        (
+            ["eigen_benchmark"],
+            "KITTI raw: 2 drives named by the train split and eigen_benchmark (of 5 in the archive list) "
+            "+ 1 calibration archive",
+            [
+                "2011_09_26_calib.zip",
+                "2011_09_26_drive_0001_sync.zip",
+                "2011_09_26_drive_0003_sync.zip",
+                "data_depth_annotated.zip",
+                "data_scene_flow.zip",
+            ],
+        ),
+    ],
+)
+def test_stage_dry_run_asks_only_for_what_the_splits_and_sets_need(
+    server: _Server, tmp_path: Path, extra_sets: list[str], header: str, asked: list[str]
+) -> None:
+    for i, drive in enumerate(LISTED):
+        _serve_drive(server, name=f"{drive}_sync.zip", seed=i)
+    for day in ("2011_09_26", "2011_09_28"):
+        server.files[f"{day}_calib.zip"] = calib_zip(day)
+    server.files["data_scene_flow.zip"] = calib_zip("2015_00_00")
+    server.files["data_depth_annotated.zip"] = calib_zip("train")
+    work = _kitti_project(
+        tmp_path,
+        server.base_url,
+        LISTED,
+        train=["2011_09_26_drive_0003", "2011_09_26_drive_0001"],
+        eigen=["2011_09_28_drive_0001", "2011_09_26_drive_0003"],
+        benchmark=["2011_09_26_drive_0003"],
+        extra_sets=extra_sets,
+    )
+    before = _tree(work)
+    rc, out, err, _ = _stage(work, "--dry-run")
+    assert rc == 0, err
+    assert _tree(work) == before
+    assert {e["method"] for e in server.log} == {"HEAD"}
+    assert sorted(e["name"] for e in server.log) == asked
+    lines = out.splitlines()
+    assert lines[0] == header
+    annotated = [line for line in lines if line.startswith("KITTI annotated depth: ")]
+    assert len(annotated) == ("eigen_benchmark" in extra_sets)
+    assert lines[-1].startswith(f"dry run, in all: would fetch {len(asked)} archive(s), ")
+
+
+def test_stage_with_a_split_naming_an_unlisted_drive_fails_in_one_line_asking_nothing(
+    server: _Server, tmp_path: Path
+) -> None:
+    work = _kitti_project(
+        tmp_path, server.base_url, 2, eigen=["2011_09_26_drive_0001", "2011_09_26_drive_0099"]
+    )
+    rc, out, err, _ = _stage(work, "--dry-run")
+    assert rc == 1 and out == ""
+    assert err.strip().splitlines() == [
+        "error: eigen.txt (eigen): names 1 drive(s) not in archives.txt: 2011_09_26_drive_0099"
+    ]
+    assert server.log == []
+
+
+def test_annotated_depth_archive_unpacks_where_the_benchmark_index_looks(
+    server: _Server, tmp_path: Path
+) -> None:
+    """data_depth_annotated.zip holds train/ and val/ at its top: fetched into data.root/<depth_annotated>,
+    each frame's GT is where msdepth.data.eval_sets.annotated_gt_path finds it."""
+    from msdepth.data.eval_sets import annotated_gt_path
+
+    depth = np.full((24, 40), 256 * 10, dtype=np.uint16)  # 10 m everywhere, KITTI's depth PNG scale
+    ok, png = cv2.imencode(".png", depth)
+    assert ok
+    members = {
+        "train/2011_09_26_drive_0001_sync/proj_depth/groundtruth/image_02/0000000005.png": png.tobytes(),
+        "val/2011_09_26_drive_0002_sync/proj_depth/groundtruth/image_02/0000000069.png": png.tobytes(),
+    }
+    buf = stdio.BytesIO()
+    with zipfile.ZipFile(buf, "w") as zf:
+        for name, data in members.items():
+            zf.writestr(name, data)
+    server.files["data_depth_annotated.zip"] = buf.getvalue()
+    root = tmp_path / "kitti" / "depth_annotated"
+    report = dl.fetch_all(server.base_url, ["data_depth_annotated.zip"], tmp_path / "zips", root, **FAST)
+    assert report["extracted"] == ["data_depth_annotated.zip"]
+    assert sorted(p.name for p in root.iterdir()) == [".data_depth_annotated.zip.complete", "train", "val"]
+    for (name, data), (drive, number) in zip(
+        members.items(),
+        [("2011_09_26/2011_09_26_drive_0001_sync", 5), ("2011_09_26/2011_09_26_drive_0002_sync", 69)],
+    ):
+        found = annotated_gt_path(root, drive, number)
+        assert found == root / name and found.read_bytes() == data
+    assert annotated_gt_path(root, "2011_09_26/2011_09_26_drive_0001_sync", 6) is None
+
+
+def test_every_extra_set_has_its_list_for_the_download() -> None:
+    from msdepth.data.eval_sets import SETS
+    from msdepth.stages.prepare_data import SET_SPLITS
+
+    assert set(SET_SPLITS) == set(SETS)

@@ -817,6 +817,7 @@ def fetch_all(
     timeout: float = 30,
     allow_http: bool = False,
     label: str = "",
+    header: str = "",
 ) -> dict[str, Any]:
     """Download, verify and extract the archives ``names`` (URL paths relative to ``base_url``,
     as :func:`parse_archive_list` returns them; absolute URLs are used as they are).
@@ -832,8 +833,10 @@ def fetch_all(
     host first), or at the first such error later (the network went away mid-run).
 
     ``dry_run`` writes nothing: it asks each missing archive's size with a HEAD request, prints
-    one line per archive (complete, downloaded, to fetch, to resume) and a total, headed by
-    ``label``, and returns the report of :func:`_dry_run`.
+    one line per archive (complete, downloaded, to fetch, to resume), after the line ``header``
+    if given (e.g. how the archives were chosen), and a total, headed by ``label``, and returns
+    the report of :func:`_dry_run`. Nothing is printed before every HEAD has answered, so a host
+    that cannot be reached leaves only its one-line error.
 
     Every URL must be https, or http with ``allow_http`` (:func:`check_url`): the first that is
     not is a DataError before anything is fetched or written.
@@ -857,6 +860,7 @@ def fetch_all(
             timeout=timeout,
             allow_http=allow_http,
             label=label,
+            header=header,
         )
     to_download = [
         name
@@ -973,6 +977,7 @@ def _dry_run(
     timeout: float,
     allow_http: bool = False,
     label: str = "",
+    header: str = "",
 ) -> dict[str, Any]:
     """What fetch_all would do, with sizes from HEAD requests; writes nothing.
 
@@ -1033,6 +1038,8 @@ def _dry_run(
         for name, nbytes in report["to_fetch"].items()
         if nbytes
     )
+    if header:
+        print(header)
     for name in urls:
         print(f"  {name:<34} {_dry_run_status(name, report)}")
     unknown = sum(s is None for s in report["to_fetch"].values())
