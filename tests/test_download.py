@@ -319,6 +319,108 @@ def test_select_all_first_n_and_named_drives_add_their_calibration() -> None:
         dl.select_archives(names, -1)
 
 
+def _pairs(drives: list[str]) -> str:
+    """Split lines (``left right``) of one frame of each drive, as Godard's and Eigen's lists name them."""
+    return "".join(
+        f"{d[:10]}/{d}_sync/image_02/data/0000000000.jpg {d[:10]}/{d}_sync/image_03/data/0000000000.jpg\n"
+        for d in drives
+    )
+
+
+def _benchmark(drives: list[str]) -> str:
+    """Monodepth2's eigen_benchmark lines (``<date>/<drive>_sync <frame> l``)."""
+    return "".join(f"{d[:10]}/{d}_sync {i} l\n" for i, d in enumerate(drives))
+
+
+def test_the_splits_drives_in_list_order_with_their_days_calibration(tmp_path: Path) -> None:
+    names = dl.parse_archive_list(SHIPPED_LIST)
+    train, eigen, bench = tmp_path / "train.txt", tmp_path / "eigen.txt", tmp_path / "bench.txt"
+    train.write_text(_pairs(["2011_10_03_drive_0027", "2011_09_26_drive_0002", "2011_10_03_drive_0027"]))
+    eigen.write_text("\n" + _pairs(["2011_09_26_drive_0002", "2011_09_28_drive_0001"]))
+    bench.write_text(_benchmark(["2011_09_26_drive_0009", "2011_09_26_drive_0009"]))
+    assert dl.split_drives(train) == ["2011_10_03_drive_0027", "2011_09_26_drive_0002"]
+    assert dl.split_drives(bench) == ["2011_09_26_drive_0009"]
+
+    def files(selection: dl.Selection) -> list[str]:
+        return [dl.archive_filename(n) for n in selection.archives]
+
+    both = dl.select_needed(names, {"the train split": train, "eigen": eigen})
+    assert files(both) == [
+        "2011_09_26_calib.zip",
+        "2011_09_26_drive_0002_sync.zip",
+        "2011_09_28_calib.zip",
+        "2011_09_28_drive_0001_sync.zip",
+        "2011_10_03_calib.zip",
+        "2011_10_03_drive_0027_sync.zip",
+    ]
+    assert both.describe() == (
+        "KITTI raw: 3 drives named by the train split and eigen (of 61 in the archive list) "
+        "+ 3 calibration archives"
+    )
+    assert files(dl.select_needed(names, {"eigen_benchmark": bench})) == [
+        "2011_09_26_calib.zip",
+        "2011_09_26_drive_0009_sync.zip",
+    ]
+    # drive_count: the first N of the needed drives; drives: those of them the splits need.
+    first = dl.select_needed(names, {"the train split": train, "eigen": eigen}, 1)
+    assert files(first) == ["2011_09_26_calib.zip", "2011_09_26_drive_0002_sync.zip"]
+    assert first.describe() == (
+        "KITTI raw: the first 1 of the 3 drives named by the train split and eigen "
+        "(data.kitti.drive_count; 61 in the archive list) + 1 calibration archive"
+    )
+    named = dl.select_needed(names, {"eigen": eigen}, ["2011_09_28_drive_0001", "2011_09_26_drive_0001_sync"])
+    assert files(named) == ["2011_09_28_calib.zip", "2011_09_28_drive_0001_sync.zip"]
+    assert named.unneeded == ("2011_09_26_drive_0001",)
+    assert named.describe().endswith(
+        "; in data.kitti.drives but named by no split, so not fetched: 2011_09_26_drive_0001"
+    )
+    assert dl.select_needed(names, {"eigen": eigen}, 0).archives == []
+    with pytest.raises(DataError, match="archive subset: not in the archive list: 2011_09_26_drive_9999"):
+        dl.select_needed(names, {"eigen": eigen}, ["2011_09_26_drive_9999"])
+    with pytest.raises(DataError, match=">= 0"):
+        dl.select_needed(names, {"eigen": eigen}, -1)
+
+
+def test_the_shipped_splits_need_46_of_the_61_drives() -> None:
+    lists = SHIPPED_LIST.parent
+    names = dl.parse_archive_list(SHIPPED_LIST)
+    default = {"the train split": lists / "kitti_train_files.txt", "eigen": lists / "eigen_test_files.txt"}
+    selection = dl.select_needed(names, default)
+    assert len(selection.archives) == 51 and selection.calibrations == 5
+    assert selection.describe() == (
+        "KITTI raw: 46 drives named by the train split and eigen (of 61 in the archive list) "
+        "+ 5 calibration archives"
+    )
+    bench = dl.select_needed(names, {"eigen_benchmark": lists / "eigen_benchmark_test_files.txt"})
+    eigen = dl.select_needed(names, {"eigen": lists / "eigen_test_files.txt"})
+    assert bench.archives == eigen.archives and bench.drives == 28
+
+
+def test_a_split_naming_drives_not_in_the_archive_list_is_one_line(tmp_path: Path) -> None:
+    names = dl.parse_archive_list(SHIPPED_LIST)
+    split = tmp_path / "eigen.txt"
+    split.write_text(_pairs(["2011_09_26_drive_0001"] + [f"2011_09_26_drive_09{i:02d}" for i in range(5)]))
+    with pytest.raises(DataError) as err:
+        dl.select_needed(names, {"the train split": split}, archive_list="lists/a.txt")
+    assert str(err.value) == (
+        f"{split} (the train split): names 5 drive(s) not in lists/a.txt: 2011_09_26_drive_0900, "
+        "2011_09_26_drive_0901, 2011_09_26_drive_0902 and 2 more"
+    )
+    for text, message in [
+        (None, "no such split file"),
+        (
+            _pairs(["2011_09_26_drive_0001"]) + "training/image_2/000000_10.jpg x.jpg\n",
+            ":2: names no raw drive",
+        ),
+        ("\n\n", "split file lists no frame"),
+    ]:
+        split.unlink(missing_ok=True)
+        if text is not None:
+            split.write_text(text)
+        with pytest.raises(DataError, match=re.escape(f"{split}") + ".*" + re.escape(message)):
+            dl.select_needed(names, {"eigen": split})
+
+
 # --------------------------------------------------------------------------- download
 
 
@@ -823,16 +925,48 @@ def test_unreachable_host_mid_run_stops_the_archives_not_started(server: _Server
 # --------------------------------------------------------------------------- the stage
 
 
-def _kitti_project(tmp_path: Path, base_url: str, drives: int = 2) -> Path:
-    """A working directory for stages/prepare_data.py: params.yaml for KITTI from ``base_url``."""
+def _kitti_project(
+    tmp_path: Path,
+    base_url: str,
+    drives: int | list[str] = 2,
+    *,
+    train: list[str] | None = None,
+    eigen: list[str] | None = None,
+    benchmark: list[str] | None = None,
+    extra_sets: list[str] | None = None,
+) -> Path:
+    """A working directory for stages/prepare_data.py: params.yaml for KITTI from ``base_url``.
+
+    The archive list holds ``drives`` (a count of 2011_09_26 drives, or drive names) after their
+    days' calibration archives; the train split names ``train`` (default: every listed drive),
+    the Eigen list ``eigen`` (default: the first), the benchmark list ``benchmark`` (if given).
+    """
     import yaml
 
-    listed = ["raw_data/2011_09_26_calib.zip"] + [
-        f"raw_data/2011_09_26_drive_{i:04d}/2011_09_26_drive_{i:04d}_sync.zip" for i in range(1, drives + 1)
-    ]
+    if isinstance(drives, int):
+        drives = [f"2011_09_26_drive_{i:04d}" for i in range(1, drives + 1)]
+    listed = []
+    for day in sorted({d[:10] for d in drives}):
+        listed += [f"raw_data/{day}_calib.zip"] + [
+            f"raw_data/{d}/{d}_sync.zip" for d in drives if d[:10] == day
+        ]
     (tmp_path / "archives.txt").write_text("".join(f"{n}\n" for n in listed))
-    kitti = {"base_url": base_url, "allow_http": True, "archive_list": "archives.txt"}
-    (tmp_path / "params.yaml").write_text(yaml.safe_dump({"data": {"source": "kitti", "kitti": kitti}}))
+    (tmp_path / "train.txt").write_text(_pairs(drives if train is None else train))
+    (tmp_path / "eigen.txt").write_text(_pairs(drives[:1] if eigen is None else eigen))
+    kitti = {
+        "base_url": base_url,
+        "allow_http": True,
+        "archive_list": "archives.txt",
+        "train_split": "train.txt",
+        "eigen_split": "eigen.txt",
+    }
+    if benchmark is not None:
+        (tmp_path / "bench.txt").write_text(_benchmark(benchmark))
+        kitti["eigen_benchmark_split"] = "bench.txt"
+    params: dict = {"data": {"source": "kitti", "kitti": kitti}}
+    if extra_sets is not None:
+        params["eval"] = {"extra_sets": extra_sets}
+    (tmp_path / "params.yaml").write_text(yaml.safe_dump(params))
     return tmp_path
 
 
@@ -867,12 +1001,16 @@ def test_stage_dry_run_prints_each_archive_and_the_totals(server: _Server, tmp_p
     assert _tree(work) == before  # no data/, no data/downloads/
     assert {e["method"] for e in server.log} == {"HEAD"} and len(server.log) == 4
     lines = out.splitlines()
-    assert lines[0] == f"  {'2011_09_26_calib.zip':<34} to fetch, {dl._human(len(calib))}"
+    assert lines[0] == (
+        "KITTI raw: 2 drives named by the train split and eigen (of 2 in the archive list) "
+        "+ 1 calibration archive"
+    )
+    assert lines[1] == f"  {'2011_09_26_calib.zip':<34} to fetch, {dl._human(len(calib))}"
     raw = dl._human(len(calib) + len(d1) + len(d2))
-    assert lines[3] == f"KITTI raw: would fetch 3 archive(s), {raw}; 0 already complete"
-    assert lines[5] == f"KITTI 2015: would fetch 1 archive(s), {dl._human(len(scene))}; 0 already complete"
+    assert lines[4] == f"KITTI raw: would fetch 3 archive(s), {raw}; 0 already complete"
+    assert lines[6] == f"KITTI 2015: would fetch 1 archive(s), {dl._human(len(scene))}; 0 already complete"
     total = dl._human(len(calib) + len(d1) + len(d2) + len(scene))
-    assert lines[6:] == [
+    assert lines[7:] == [
         f"dry run, in all: would fetch 4 archive(s), {total}; 0 already complete; nothing was written"
     ]
     print(out)
@@ -886,5 +1024,131 @@ def test_stage_without_network_says_so_in_one_line(tmp_path: Path, dry_run: bool
     lines = err.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("error: http://127.0.0.1:"), err
     assert "cannot reach 127.0.0.1 (ConnectionRefusedError" in lines[0]
-    assert out == "" and sorted(p.name for p in work.iterdir()) == ["archives.txt", "params.yaml"]
+    listed = ["archives.txt", "eigen.txt", "params.yaml", "train.txt"]
+    assert out == "" and sorted(p.name for p in work.iterdir()) == listed
     print(f"{seconds:.1f} s: {lines[0]}")
+
+
+# Two days, five drives: the train split names two of them, the Eigen list another and one of
+# those, the benchmark list one; the fifth (2011_09_26_drive_0005) no list names.
+LISTED = [
+    "2011_09_26_drive_0001",
+    "2011_09_26_drive_0002",
+    "2011_09_26_drive_0003",
+    "2011_09_26_drive_0005",
+    "2011_09_28_drive_0001",
+]
+
+
+@pytest.mark.parametrize(
+    ("extra_sets", "header", "asked"),
+    [
+        (
+            ["eigen"],
+            "KITTI raw: 3 drives named by the train split and eigen (of 5 in the archive list) "
+            "+ 2 calibration archives",
+            [
+                "2011_09_26_calib.zip",
+                "2011_09_26_drive_0001_sync.zip",
+                "2011_09_26_drive_0003_sync.zip",
+                "2011_09_28_calib.zip",
+                "2011_09_28_drive_0001_sync.zip",
+                "data_scene_flow.zip",
+            ],
+        ),
+        (
+            ["eigen_benchmark"],
+            "KITTI raw: 2 drives named by the train split and eigen_benchmark (of 5 in the archive list) "
+            "+ 1 calibration archive",
+            [
+                "2011_09_26_calib.zip",
+                "2011_09_26_drive_0001_sync.zip",
+                "2011_09_26_drive_0003_sync.zip",
+                "data_depth_annotated.zip",
+                "data_scene_flow.zip",
+            ],
+        ),
+    ],
+)
+def test_stage_dry_run_asks_only_for_what_the_splits_and_sets_need(
+    server: _Server, tmp_path: Path, extra_sets: list[str], header: str, asked: list[str]
+) -> None:
+    for i, drive in enumerate(LISTED):
+        _serve_drive(server, name=f"{drive}_sync.zip", seed=i)
+    for day in ("2011_09_26", "2011_09_28"):
+        server.files[f"{day}_calib.zip"] = calib_zip(day)
+    server.files["data_scene_flow.zip"] = calib_zip("2015_00_00")
+    server.files["data_depth_annotated.zip"] = calib_zip("train")
+    work = _kitti_project(
+        tmp_path,
+        server.base_url,
+        LISTED,
+        train=["2011_09_26_drive_0003", "2011_09_26_drive_0001"],
+        eigen=["2011_09_28_drive_0001", "2011_09_26_drive_0003"],
+        benchmark=["2011_09_26_drive_0003"],
+        extra_sets=extra_sets,
+    )
+    before = _tree(work)
+    rc, out, err, _ = _stage(work, "--dry-run")
+    assert rc == 0, err
+    assert _tree(work) == before
+    assert {e["method"] for e in server.log} == {"HEAD"}
+    assert sorted(e["name"] for e in server.log) == asked
+    lines = out.splitlines()
+    assert lines[0] == header
+    annotated = [line for line in lines if line.startswith("KITTI annotated depth: ")]
+    assert len(annotated) == ("eigen_benchmark" in extra_sets)
+    assert lines[-1].startswith(f"dry run, in all: would fetch {len(asked)} archive(s), ")
+
+
+def test_stage_with_a_split_naming_an_unlisted_drive_fails_in_one_line_asking_nothing(
+    server: _Server, tmp_path: Path
+) -> None:
+    work = _kitti_project(
+        tmp_path, server.base_url, 2, eigen=["2011_09_26_drive_0001", "2011_09_26_drive_0099"]
+    )
+    rc, out, err, _ = _stage(work, "--dry-run")
+    assert rc == 1 and out == ""
+    assert err.strip().splitlines() == [
+        "error: eigen.txt (eigen): names 1 drive(s) not in archives.txt: 2011_09_26_drive_0099"
+    ]
+    assert server.log == []
+
+
+def test_annotated_depth_archive_unpacks_where_the_benchmark_index_looks(
+    server: _Server, tmp_path: Path
+) -> None:
+    """data_depth_annotated.zip holds train/ and val/ at its top: fetched into data.root/<depth_annotated>,
+    each frame's GT is where msdepth.data.eval_sets.annotated_gt_path finds it."""
+    from msdepth.data.eval_sets import annotated_gt_path
+
+    depth = np.full((24, 40), 256 * 10, dtype=np.uint16)  # 10 m everywhere, KITTI's depth PNG scale
+    ok, png = cv2.imencode(".png", depth)
+    assert ok
+    members = {
+        "train/2011_09_26_drive_0001_sync/proj_depth/groundtruth/image_02/0000000005.png": png.tobytes(),
+        "val/2011_09_26_drive_0002_sync/proj_depth/groundtruth/image_02/0000000069.png": png.tobytes(),
+    }
+    buf = stdio.BytesIO()
+    with zipfile.ZipFile(buf, "w") as zf:
+        for name, data in members.items():
+            zf.writestr(name, data)
+    server.files["data_depth_annotated.zip"] = buf.getvalue()
+    root = tmp_path / "kitti" / "depth_annotated"
+    report = dl.fetch_all(server.base_url, ["data_depth_annotated.zip"], tmp_path / "zips", root, **FAST)
+    assert report["extracted"] == ["data_depth_annotated.zip"]
+    assert sorted(p.name for p in root.iterdir()) == [".data_depth_annotated.zip.complete", "train", "val"]
+    for (name, data), (drive, number) in zip(
+        members.items(),
+        [("2011_09_26/2011_09_26_drive_0001_sync", 5), ("2011_09_26/2011_09_26_drive_0002_sync", 69)],
+    ):
+        found = annotated_gt_path(root, drive, number)
+        assert found == root / name and found.read_bytes() == data
+    assert annotated_gt_path(root, "2011_09_26/2011_09_26_drive_0001_sync", 6) is None
+
+
+def test_every_extra_set_has_its_list_for_the_download() -> None:
+    from msdepth.data.eval_sets import SETS
+    from msdepth.stages.prepare_data import SET_SPLITS
+
+    assert set(SET_SPLITS) == set(SETS)

@@ -53,8 +53,9 @@ class KittiConfig:
 
     base_url: str = "https://s3.eu-central-1.amazonaws.com/avg-kitti/"
     allow_http: bool = False  # plain http only for a mirror you trust: anyone on the path can swap archives
-    drives: tuple[str, ...] | None = None  # None = every drive of the archive list
-    drive_count: int = 0  # > 0: only the first N drives (to start small)
+    # The drives fetched are those the train split and eval.extra_sets' lists name; these restrict further.
+    drives: tuple[str, ...] | None = None  # None = every needed drive; or those of the list that are needed
+    drive_count: int = 0  # > 0: only the first N needed drives (to start small)
     jobs: int = 4  # parallel connections
     jpeg: bool = False  # convert extracted PNGs to JPEG (quality 92), as Monodepth did
     download_dir: str = "data/downloads"
@@ -65,6 +66,8 @@ class KittiConfig:
     eigen_split: str = "data_lists/eigen_test_files.txt"  # 697 frames, raw-LiDAR GT
     eigen_benchmark_split: str = "data_lists/eigen_benchmark_test_files.txt"  # 652, annotated depth GT
     depth_annotated: str = "depth_annotated"  # below data.root: data_depth_annotated.zip's train/ and val/
+    # KITTI's annotated depth (~14 GB), fetched only for eval.extra_sets' eigen_benchmark
+    depth_annotated_archive: str = "data_depth_annotated.zip"
     rois_csv: str = ""  # hand-drawn boxes (image, class, x0, y0, x1, y1) added to the obj_map cars
     roi_min_size: int = 16  # px, both sides of an automatic car box
     roi_min_valid: float = 0.3  # fraction of an automatic car box with valid GT

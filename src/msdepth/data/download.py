@@ -18,6 +18,8 @@ takes for complete:
 - :func:`fetch_all` does all of that for many archives in parallel and reports per archive. A
   host that cannot be reached at all (no name resolution, connection refused, no route) is not
   retried: the first such error stops every archive with one line (:class:`NetworkUnreachable`).
+- :func:`select_needed` picks the archives that the chosen split lists need (their drives and
+  those days' calibration archives), :func:`select_archives` a count or named drives of a list.
 
 Standard library only (``urllib``, ``zipfile``, ``hashlib``); tqdm for progress bars.
 """
@@ -44,6 +46,7 @@ import zipfile
 import zlib
 from collections.abc import Callable, Iterable, Sequence
 from concurrent.futures import ThreadPoolExecutor, as_completed
+from dataclasses import dataclass
 from pathlib import Path, PurePosixPath
 from typing import Any
 
@@ -175,8 +178,8 @@ def select_archives(names: Sequence[str], subset: int | str | Iterable[str] | No
     else:
         if isinstance(subset, str):
             subset = [subset]
-        by_drive = {archive_filename(n).removesuffix(".zip").removesuffix("_sync"): n for n in names}
-        wanted = [str(s).strip().removesuffix(".zip").removesuffix("_sync") for s in subset]
+        by_drive = {_drive_of(archive_filename(n)): n for n in names}
+        wanted = [_drive_of(str(s).strip()) for s in subset]
         unknown = [w for w in wanted if w not in by_drive]
         if unknown:
             raise DataError(f"archive subset: not in the archive list: {', '.join(unknown)}")
@@ -188,6 +191,147 @@ def select_archives(names: Sequence[str], subset: int | str | Iterable[str] | No
         if archive_filename(n).endswith("_calib.zip") and _date_of(archive_filename(n)) in days
     }
     return [n for n in names if n in chosen or n in calib]
+
+
+def _drive_of(filename: str) -> str:
+    """``2011_09_26_drive_0001`` for ``2011_09_26_drive_0001_sync.zip`` (and for ``..._sync``)."""
+    return filename.removesuffix(".zip").removesuffix("_sync")
+
+
+def _few(items: Sequence[str], limit: int = 3) -> str:
+    """``a, b, c`` or ``a, b, c and 4 more``: a list that keeps an error message on one line."""
+    shown = ", ".join(items[:limit])
+    return shown + (f" and {len(items) - limit} more" if len(items) > limit else "")
+
+
+def _count(n: int, word: str) -> str:
+    return f"{n} {word}{'' if n == 1 else 's'}"
+
+
+def _joined(words: Sequence[str]) -> str:
+    return words[0] if len(words) == 1 else ", ".join(words[:-1]) + " and " + words[-1]
+
+
+def split_drives(path: str | os.PathLike) -> list[str]:
+    """The raw drives a split list names (``2011_09_26_drive_0001``), in the order first named.
+
+    Both list formats are read: image pairs (``<date>/<drive>_sync/image_02/data/<n>.jpg`` and its
+    right image: Godard's and Eigen's lists) and Monodepth2's ``<date>/<drive>_sync <frame> l``
+    lines. The drive is the ``<drive>_sync`` folder below the date; a line naming none is a
+    DataError naming the file and line (the lists' other checks are the index stage's).
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise DataError(f"{path}: no such split file")
+    try:
+        lines = path.read_bytes().decode("utf-8").splitlines()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise DataError(f"{path}: cannot read the split file ({exc})") from None
+    drives: dict[str, None] = {}
+    for number, line in enumerate(lines, 1):
+        if not line.strip():
+            continue
+        named = [
+            _drive_of(parts[1])
+            for token in line.split()
+            if len(parts := token.split("/")) >= 2 and parts[1].endswith("_sync")
+        ]
+        if not named:
+            raise DataError(
+                f"{path}:{number}: names no raw drive (expected paths '<date>/<drive>_sync/...'), "
+                f"got {line.strip()!r}"
+            )
+        drives.update(dict.fromkeys(named))
+    if not drives:
+        raise DataError(f"{path}: split file lists no frame")
+    return list(drives)
+
+
+@dataclass(frozen=True)
+class Selection:
+    """The raw archives to fetch (:func:`select_needed`) and how they were chosen."""
+
+    archives: list[str]  # in archive-list order: drives and their days' calibration archives
+    drives: int  # drive archives among them
+    calibrations: int  # calibration archives among them
+    needed: int  # drives the splits name
+    listed: int  # drive archives in the archive list
+    sources: tuple[str, ...]  # what named them: "the train split", "eigen", ...
+    restriction: str = ""  # "drives" (data.kitti.drives) or "drive_count", if one applied
+    unneeded: tuple[str, ...] = ()  # drives of data.kitti.drives that no split names (not fetched)
+
+    def describe(self, label: str = "KITTI raw") -> str:
+        """One line: e.g. ``KITTI raw: 46 drives named by the train split and eigen (of 61 in
+        the archive list) + 5 calibration archives``."""
+        named = f"named by {_joined(self.sources)}"
+        calib = f" + {_count(self.calibrations, 'calibration archive')}"
+        if self.restriction == "drive_count":
+            head = (
+                f"the first {self.drives} of the {_count(self.needed, 'drive')} {named} "
+                f"(data.kitti.drive_count; {self.listed} in the archive list)"
+            )
+        elif self.restriction == "drives":
+            head = (
+                f"{_count(self.drives, 'drive')} of data.kitti.drives, of the {self.needed} {named} "
+                f"({self.listed} in the archive list)"
+            )
+        else:
+            head = f"{_count(self.drives, 'drive')} {named} (of {self.listed} in the archive list)"
+        line = f"{label}: {head}{calib}"
+        if self.unneeded:
+            line += f"; in data.kitti.drives but named by no split, so not fetched: {_few(self.unneeded)}"
+        return line
+
+
+def select_needed(
+    names: Sequence[str],
+    splits: dict[str, str | os.PathLike],
+    subset: int | str | Iterable[str] | None = None,
+    *,
+    archive_list: str | os.PathLike = "the archive list",
+) -> Selection:
+    """The archives that the split lists ``splits`` (what names them, e.g. ``"the train split"``
+    or ``"eigen"`` -> list file; read by :func:`split_drives`) need, in the order of ``names``:
+    the drives they name and the calibration archives of those drives' days.
+
+    A split naming a drive that ``names`` lacks is a DataError naming the split file and (a few
+    of) the drives. ``subset`` restricts further, as in :func:`select_archives` and with its
+    errors: a count takes the first N of the needed drives, drive names keep those of them the
+    splits need (the others are reported in :attr:`Selection.unneeded`, not fetched).
+    """
+    drive_of = {n: _drive_of(archive_filename(n)) for n in names if "_drive_" in archive_filename(n)}
+    listed = set(drive_of.values())
+    wanted: dict[str, None] = {}
+    for source, path in splits.items():
+        drives = split_drives(path)
+        unknown = [d for d in drives if d not in listed]
+        if unknown:
+            raise DataError(
+                f"{path} ({source}): names {len(unknown)} drive(s) not in {archive_list}: {_few(unknown)}"
+            )
+        wanted.update(dict.fromkeys(drives))
+    needed = [n for n, d in drive_of.items() if d in wanted]
+    restricted = select_archives(names, subset)  # its checks and errors for the subset
+    unneeded: list[str] = []
+    if subset is None or subset == "all":
+        chosen, restriction = needed, ""
+    elif isinstance(subset, int):
+        chosen, restriction = needed[:subset], "drive_count"
+    else:
+        kept = set(restricted)
+        chosen, restriction = [n for n in needed if n in kept], "drives"
+        unneeded = [drive_of[n] for n in restricted if n in drive_of and drive_of[n] not in wanted]
+    archives = select_archives(names, [drive_of[n] for n in chosen]) if chosen else []
+    return Selection(
+        archives=archives,
+        drives=len(chosen),
+        calibrations=len(archives) - len(chosen),
+        needed=len(needed),
+        listed=len(drive_of),
+        sources=tuple(splits),
+        restriction=restriction,
+        unneeded=tuple(unneeded),
+    )
 
 
 # --------------------------------------------------------------------------- HTTP
@@ -673,6 +817,7 @@ def fetch_all(
     timeout: float = 30,
     allow_http: bool = False,
     label: str = "",
+    header: str = "",
 ) -> dict[str, Any]:
     """Download, verify and extract the archives ``names`` (URL paths relative to ``base_url``,
     as :func:`parse_archive_list` returns them; absolute URLs are used as they are).
@@ -688,8 +833,10 @@ def fetch_all(
     host first), or at the first such error later (the network went away mid-run).
 
     ``dry_run`` writes nothing: it asks each missing archive's size with a HEAD request, prints
-    one line per archive (complete, downloaded, to fetch, to resume) and a total, headed by
-    ``label``, and returns the report of :func:`_dry_run`.
+    one line per archive (complete, downloaded, to fetch, to resume), after the line ``header``
+    if given (e.g. how the archives were chosen), and a total, headed by ``label``, and returns
+    the report of :func:`_dry_run`. Nothing is printed before every HEAD has answered, so a host
+    that cannot be reached leaves only its one-line error.
 
     Every URL must be https, or http with ``allow_http`` (:func:`check_url`): the first that is
     not is a DataError before anything is fetched or written.
@@ -713,6 +860,7 @@ def fetch_all(
             timeout=timeout,
             allow_http=allow_http,
             label=label,
+            header=header,
         )
     to_download = [
         name
@@ -829,6 +977,7 @@ def _dry_run(
     timeout: float,
     allow_http: bool = False,
     label: str = "",
+    header: str = "",
 ) -> dict[str, Any]:
     """What fetch_all would do, with sizes from HEAD requests; writes nothing.
 
@@ -889,6 +1038,8 @@ def _dry_run(
         for name, nbytes in report["to_fetch"].items()
         if nbytes
     )
+    if header:
+        print(header)
     for name in urls:
         print(f"  {name:<34} {_dry_run_status(name, report)}")
     unknown = sum(s is None for s in report["to_fetch"].values())

@@ -24,7 +24,10 @@ def prepare_data(
     """Create the KITTI-format tree under data.root: render the synthetic set, or fetch KITTI.
 
     KITTI (data.source: kitti) is downloaded, verified and extracted resumably: what is complete
-    is skipped. Without any network, one line says so at once.
+    is skipped. Only what the chosen splits need is fetched: the raw drives that the training
+    split and each extra evaluation set's list name (data.kitti.drives / drive_count restrict
+    further) with their days' calibration, KITTI 2015, and KITTI's annotated depth for
+    eigen_benchmark. Without any network, one line says so at once.
     """
     if params.data.source == "synthetic":
         s, root = params.data.synthetic, Path(params.data.root)
@@ -44,27 +47,58 @@ def prepare_data(
     k, paths = params.data.kitti, layout(params)
     names = download.parse_archive_list(k.archive_list)
     subset = list(k.drives) if k.drives is not None else (k.drive_count or None)
+    selection = download.select_needed(names, needed_splits(params), subset, archive_list=k.archive_list)
     options: dict[str, Any] = dict(jobs=k.jobs, dry_run=dry_run, jpeg=k.jpeg, allow_http=k.allow_http)
-    raw = download.fetch_all(
-        k.base_url,
-        download.select_archives(names, subset),
-        k.download_dir,
-        paths.raw_root,
-        label="KITTI raw",
-        **options,
-    )
-    scene = download.fetch_all(
-        k.base_url,
-        [k.scene_flow_archive],
-        k.download_dir,
-        paths.kitti2015_root,
-        label="KITTI 2015",
-        **options,
-    )
+    reports = {
+        "raw archives": download.fetch_all(
+            k.base_url,
+            selection.archives,
+            k.download_dir,
+            paths.raw_root,
+            label="KITTI raw",
+            header=selection.describe(),
+            **options,
+        ),
+        "KITTI 2015": download.fetch_all(
+            k.base_url,
+            [k.scene_flow_archive],
+            k.download_dir,
+            paths.kitti2015_root,
+            label="KITTI 2015",
+            **options,
+        ),
+    }
+    if "eigen_benchmark" in params.eval.extra_sets:  # its GT: KITTI's annotated depth (train/, val/)
+        reports["annotated depth"] = download.fetch_all(
+            k.base_url,
+            [k.depth_annotated_archive],
+            k.download_dir,
+            paths.depth_annotated,
+            label="KITTI annotated depth",
+            **options,
+        )
     if dry_run:
-        print(download.dry_run_total([raw, scene]))
+        print(download.dry_run_total(list(reports.values())))
         return
-    log.info("kitti: raw archives %s; KITTI 2015 %s", _summary(raw), _summary(scene))
+    log.info(
+        "kitti: %s; %s",
+        selection.describe(),
+        "; ".join(f"{what} {_summary(r)}" for what, r in reports.items()),
+    )
+
+
+# The list file of each extra evaluation set (eval.extra_sets), as msdepth.data.eval_sets reads it.
+SET_SPLITS = {"eigen": "eigen_split", "eigen_benchmark": "eigen_benchmark_split"}
+
+
+def needed_splits(params: Params) -> dict[str, Path]:
+    """The split lists whose drives KITTI's download must fetch: the training split and the list
+    of each set of eval.extra_sets (KITTI 2015, always evaluated, is an archive of its own)."""
+    paths = layout(params)
+    splits = {"the train split": paths.train_split}
+    for name in params.eval.extra_sets:
+        splits[name] = getattr(paths, SET_SPLITS[name])
+    return splits
 
 
 def _summary(report: dict) -> str:
