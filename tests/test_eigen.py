@@ -291,3 +291,12 @@ def test_compare_section_of_an_extra_set(tmp_path: Path, monkeypatch: pytest.Mon
     assert "Seed-to-seed spread (mean ± sd over 3 seeds" in md
     assert (tmp_path / "sets" / "full" / "prior.csv").is_file()
     assert (tmp_path / "metrics" / "headline" / "x" / "full" / "prior.json").is_file()
+
+
+def test_a_set_stage_for_an_unconfigured_set_names_the_configured_ones() -> None:
+    from msdepth.stages.common import checked_set
+
+    params = params_from_dict({"eval": {"extra_sets": ["eigen"]}})
+    assert checked_set(params, "eigen") == "eigen"
+    with pytest.raises(ConfigError, match=r"'eigen_benchmark' is not in eval.extra_sets \['eigen'\]"):
+        checked_set(params, "eigen_benchmark")
