@@ -7,7 +7,7 @@ from pathlib import Path
 from typing import Annotated, Any
 
 from ..config import Params
-from ..data.layout import layout
+from ..data.layout import folder_layout, layout
 
 log = logging.getLogger("msdepth")
 
@@ -24,8 +24,18 @@ def prepare_data(
     """Create the KITTI-format tree under data.root: render the synthetic set, or fetch KITTI.
 
     KITTI (data.source: kitti) is downloaded, verified and extracted resumably: what is complete
-    is skipped. Without any network, one line says so at once.
+    is skipped. Without any network, one line says so at once. A stereo folder (data.source:
+    folder) is only checked: one error listing what the layout misses; nothing is written.
     """
+    if params.data.source == "folder":
+        from ..data.folder import check_folder
+
+        report = check_folder(folder_layout(params))
+        if dry_run:
+            print(f"dry run: the stereo folder {params.data.root} is complete: {report}; nothing written")
+            return
+        log.info("stereo folder %s: %s", params.data.root, report)
+        return
     if params.data.source == "synthetic":
         s, root = params.data.synthetic, Path(params.data.root)
         if dry_run:
