@@ -1,4 +1,4 @@
-"""Command line: ``msdepth predict`` and ``msdepth export-onnx`` (also ``python -m msdepth``)."""
+"""Command line: ``msdepth predict``, ``export-onnx`` and ``export-folder`` (also ``python -m msdepth``)."""
 
 from __future__ import annotations
 
@@ -85,6 +85,18 @@ def _parser() -> argparse.ArgumentParser:
     e.add_argument("--opset", type=int, help="ONNX opset, 11 to 20 (default: 17)")
     e.add_argument("--static", action="store_true", help="fix the input to 1 x 3 x height x width")
     e.set_defaults(run=_export_onnx)
+
+    f = sub.add_parser(
+        "export-folder",
+        help="write a stereo folder (data.source: folder) from the synthetic set",
+        description="Write the KITTI-format tree FROM (e.g. the synthetic set in data/kitti) as a stereo "
+        "folder for data.source: folder: left/ and right/ (training and evaluation images), camera.yaml, "
+        "eval.txt and the evaluation GT as PFM disparity in gt/. See README 'Train and evaluate on your "
+        "own stereo camera'.",
+    )
+    f.add_argument("--from", dest="source", required=True, help="KITTI-format tree, e.g. data/kitti")
+    f.add_argument("--to", dest="out", required=True, help="folder to write (must not exist or be empty)")
+    f.set_defaults(run=_export_folder)
     return parser
 
 
@@ -126,6 +138,18 @@ def _export_onnx(args: argparse.Namespace) -> int:
 
     export_onnx(args.model, args.out, args.height, args.width, args.opset, dynamic=not args.static)
     print(f"wrote {args.out}", file=sys.stderr)
+    return 0
+
+
+def _export_folder(args: argparse.Namespace) -> int:
+    from .data.folder_export import export_folder
+
+    report = export_folder(args.source, args.out)
+    print(
+        f"wrote {args.out}: {report['train_pairs']} training pairs, {report['eval_frames']} evaluation "
+        f"frames with PFM GT, camera {report['focal_px']:g} px at {report['width_px']} px",
+        file=sys.stderr,
+    )
     return 0
 
 

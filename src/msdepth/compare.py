@@ -12,11 +12,12 @@ import pandas as pd
 
 from .config import CompareConfig
 from .errors import DataError
-from .evaluate import GRADIENTS
+from .evaluate import GRADIENTS, NO_ROIS
 from .metrics import HIGHER_IS_BETTER, METRICS
 from .stats import paired_table, seed_bootstrap
 
 SUITES = ("full", "roi", "gradients")
+ROIS_SKIPPED = "no ROIs: ROI suites skipped"  # compare.md's line when the ROI index is empty
 # A difference is marked only when its interval covers training noise: at least this many seeds
 # of every trained run it involves (with fewer, the seed draws cannot show seed-to-seed spread).
 MIN_SEEDS_FOR_MARKS = 3
@@ -375,6 +376,8 @@ def build_comparison(
     section says for every run whether it uses the image, and image-blind runs are flagged in
     the tables. ``missing_baselines`` (baseline -> why it could not be built, e.g. no training
     GT) are named under the header, so that a table without them is not mistaken for complete.
+    Without ROIs (every ROI summary is :data:`msdepth.evaluate.NO_ROIS`'s) the ROI and gradient
+    tables are replaced by one line, :data:`ROIS_SKIPPED`.
     """
     runs = [*variants, *baselines]
     caps = [k for k in suites["full"][runs[0]] if k.startswith("cap")]
@@ -491,10 +494,12 @@ def build_comparison(
             "",
         ]
 
+    rois_skipped = all(NO_ROIS in suites["roi"][r] for r in runs)
+    if rois_skipped:
+        result["rois_skipped"] = suites["roi"][runs[0]][NO_ROIS]
+        md += [f"{ROIS_SKIPPED}: the ROI index is empty (no boxes to evaluate).", ""]
     for cap in caps:
         result["full"][cap] = {r: suites["full"][r][cap] for r in runs}
-        result["roi"][cap] = {r: suites["roi"][r][cap] for r in runs}
-        result["gradients"][cap] = {r: suites["gradients"][r][cap] for r in runs}
 
         def metric_rows(block: dict[str, dict]) -> list[list[str]]:
             return _metric_rows(block, runs, variants, label)
@@ -507,6 +512,10 @@ def build_comparison(
         ]
         md += ci_table("full", cap, "images")
         md += spread_table("full", cap)
+        if rois_skipped:
+            continue
+        result["roi"][cap] = {r: suites["roi"][r][cap] for r in runs}
+        result["gradients"][cap] = {r: suites["gradients"][r][cap] for r in runs}
         roi = {r: result["roi"][cap][r]["overall"] for r in runs}
         md += [
             f"## ROI, cap {cap[3:]} m (mean over {roi[runs[0]]['count']} ROIs)",

@@ -74,14 +74,31 @@ class KittiConfig:
 
 
 @dataclass(frozen=True)
+class FolderConfig:
+    """Any rectified stereo set in one folder (msdepth.data.folder): paths relative to it."""
+
+    # "" = data.root. The pipeline tracks the data as ${data.root} (dvc.yaml), so the folder must
+    # be data.root: any other value is refused by validate() with that hint.
+    root: str = ""
+    left: str = "left"  # left images ...
+    right: str = "right"  # ... and right images of the same file names
+    pairs: str = ""  # "" = pair the two folders; else a file of "left right" relative paths
+    camera: str = "camera.yaml"  # focal_px at width_px, baseline_m
+    eval_list: str = "eval.txt"  # "left right [gt]" per evaluation frame; never trained on
+    npy_is_disparity: bool = False  # .npy GT holds disparity in px (else depth in m)
+    rois_csv: str = ""  # boxes on the evaluation frames, the format of data.kitti.rois_csv
+
+
+@dataclass(frozen=True)
 class DataConfig:
-    source: Literal["synthetic", "kitti"] = "synthetic"
+    source: Literal["synthetic", "kitti", "folder"] = "synthetic"
     root: str = "data/kitti"
     height: int = 64
     width: int = 192
     gt: Literal["disp_noc_0", "disp_occ_0"] = "disp_noc_0"
     synthetic: SyntheticConfig = field(default_factory=SyntheticConfig)
     kitti: KittiConfig = field(default_factory=KittiConfig)
+    folder: FolderConfig = field(default_factory=FolderConfig)
 
 
 @dataclass(frozen=True)
@@ -333,6 +350,8 @@ def validate(p: Params) -> Params:
         "data.synthetic.gt_max_depth",
         f"must be >= 0 (0 = no limit), got {s.gt_max_depth}",
     )
+    if d.source == "folder":
+        _validate_folder(p)
     check(p.model.width_multiplier > 0, "model.width_multiplier", "must be > 0")
     check(
         0 < p.model.init_disparity < 0.3,
@@ -386,6 +405,35 @@ def validate(p: Params) -> Params:
     )
     check(0 < c.confidence < 1, "compare.confidence", f"must be in (0, 1), got {c.confidence}")
     return p
+
+
+def _validate_folder(p: Params) -> None:
+    """``data.source: folder``: the folder's keys, and what the folder cannot provide."""
+    f = p.data.folder
+    check(
+        f.root in ("", p.data.root),
+        "data.folder.root",
+        f"must be empty (= data.root) or data.root itself, got {f.root!r}: the pipeline tracks the "
+        f"data as data.root (dvc.yaml), so set data.root: {f.root} instead",
+    )
+    if not f.pairs:
+        for key in ("left", "right"):
+            check(
+                bool(getattr(f, key)),
+                f"data.folder.{key}",
+                "must name a folder when data.folder.pairs is empty",
+            )
+        check(f.left != f.right, "data.folder.right", f"must differ from data.folder.left ({f.left!r})")
+    check(bool(f.camera), "data.folder.camera", "must name the camera file (focal_px, width_px, baseline_m)")
+    check(
+        bool(f.eval_list), "data.folder.eval_list", "must name the evaluation list ('left right [gt]' lines)"
+    )
+    check(
+        not p.eval.extra_sets,
+        "eval.extra_sets",
+        f"{list(p.eval.extra_sets)} need KITTI raw data, which data.source folder has not: "
+        "set eval.extra_sets: []",
+    )
 
 
 def params_from_dict(raw: dict) -> Params:

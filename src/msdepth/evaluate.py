@@ -26,6 +26,25 @@ from .errors import DataError
 from .metrics import METRICS, compute_errors, garg_crop_mask, median_scale
 
 GRADIENTS = ("sobel_x", "sobel_y", "laplacian")
+# The summary key of an ROI or gradient suite run without any ROI (a folder without
+# data.folder.rois_csv, KITTI without obj_map or CSV): {"rois": 0, NO_ROIS: why}, no caps. Not
+# "skipped": that key marks a baseline that could not be built (msdepth.baselines.SKIPPED).
+NO_ROIS = "no_rois"
+NO_ROIS_REASON = "no ROIs: the ROI index (data/index/rois.csv) is empty, so this suite was skipped"
+ROI_COLUMNS = ("roi", "image", "class", "cap", *METRICS)
+GRADIENT_COLUMNS = ("roi", "image", "class", "cap", *(f"pred_{g}" for g in GRADIENTS), "gt_valid_fraction")
+
+
+def no_rois(summary: dict) -> bool:
+    """Whether a suite summary is the explicit "no ROIs" one."""
+    return NO_ROIS in summary
+
+
+def _no_roi_result(columns: tuple[str, ...]) -> tuple[dict, pd.DataFrame]:
+    """The summary and header-only table of an ROI suite with no ROI to evaluate."""
+    return {"rois": 0, NO_ROIS: NO_ROIS_REASON}, pd.DataFrame(columns=list(columns))
+
+
 CROPS = {"garg": garg_crop_mask}  # the index's ``crop`` column -> the mask of a frame size
 
 
@@ -247,8 +266,11 @@ def evaluate_roi(
     Where every frame has a class map (the synthetic set), ``summary["masks"]`` holds the same
     over each box's exact pixels of its class: a car box without the road and facade behind
     the car, a windshield box without the bonnet. ROIs whose exact pixels have no valid GT are
-    excluded there and counted.
+    excluded there and counted. No ROI at all gives ``{"rois": 0, NO_ROIS: why}`` and a
+    header-only table.
     """
+    if rois.empty:
+        return _no_roi_result(ROI_COLUMNS)
     rows, summary = [], {}
     masked = all(f.class_map is not None for f in frames)
     masks: dict = {}
@@ -298,7 +320,10 @@ def evaluate_gradients(
     sees its real neighbours. Where the ROI's GT is dense (valid fraction >= dense_gt_fraction)
     the GT's derivatives are reported too, over pixels whose 3x3 neighbourhood is valid,
     together with the prediction's over the same pixels and the mean |pred - GT| derivative.
+    No ROI at all gives ``{"rois": 0, NO_ROIS: why}`` and a header-only table.
     """
+    if rois.empty:
+        return _no_roi_result(GRADIENT_COLUMNS)
     kernel = np.ones((3, 3), np.uint8)
     rows, summary = [], {}
     for cap in cfg.caps:

@@ -15,6 +15,8 @@ Files written to ``out_dir`` by :func:`make_figures`:
     The same ROIs: |Sobel x| of the GT depth (over pixels whose 3x3 neighbourhood has valid
     GT, others grey) and of each variant's depth, with the mean in each title, as the gradient
     suite computes them (``gt_sobel_x`` / ``pred_sobel_x``).
+
+    Both ROI figures are left out when the ROI index is empty (a stereo folder without boxes).
 ``training_curves.png``
     Total and appearance loss per epoch of every variant (of each of its seeds, given
     ``curves``), from the dvclive TSVs.
@@ -528,7 +530,7 @@ def make_figures(
     out_dir = Path(out_dir)
     cap = eval_cfg.caps[0]
     inp = _load(variants, eval_index, rois, outputs, eval_cfg)
-    examples = _roi_examples(inp)
+    examples = _roi_examples(inp) if not inp.rois.empty else []  # no ROIs: no ROI figures
     # Read the remaining inputs up front too (cheap): a missing TSV or CSV fails before drawing.
     curve_runs = {v: list(curves[v]) if curves and v in curves else [run] for v, run in inp.runs.items()}
     for v, run in inp.runs.items():
@@ -536,12 +538,13 @@ def make_figures(
             for term in LOSS_TERMS:
                 _read_curve(_curve_path(train_plots, curve_run, term), term)
         _read_full(metrics, run, cap)
-    written = [
-        _disparity_figure(inp, frames, out_dir / "disparity.png"),
-        _roi_depth_figure(inp, examples, out_dir / "roi_depth.png"),
-        _roi_gradient_figure(inp, examples, out_dir / "roi_gradients.png"),
-        _training_figure(curve_runs, train_plots, out_dir / "training_curves.png"),
-    ]
+    written = [_disparity_figure(inp, frames, out_dir / "disparity.png")]
+    if not inp.rois.empty:
+        written += [
+            _roi_depth_figure(inp, examples, out_dir / "roi_depth.png"),
+            _roi_gradient_figure(inp, examples, out_dir / "roi_gradients.png"),
+        ]
+    written.append(_training_figure(curve_runs, train_plots, out_dir / "training_curves.png"))
     if len(inp.variants) > 1:
         written.append(_scatter_figure(inp.runs, metrics, cap, out_dir / "error_scatter.png"))
     return written

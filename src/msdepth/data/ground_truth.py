@@ -2,7 +2,8 @@
 
 One reader for every evaluation set (:func:`read_gt_depth`), so the suites see the same data
 model for KITTI 2015 (disparity PNGs), the Eigen split (Velodyne scans projected with the day's
-calibration) and the KITTI depth benchmark (depth PNGs). The index says which form a frame has.
+calibration), the KITTI depth benchmark (depth PNGs) and a stereo folder (msdepth.data.folder:
+PFM or .npy disparity, .npy depth, or no GT at all). The index says which form a frame has.
 """
 
 from __future__ import annotations
@@ -15,13 +16,42 @@ import numpy as np
 from ..depth import disparity_to_depth
 from ..errors import DataError
 from . import kitti
+from .pfm import read_pfm
 
 # The index's ``gt_kind`` column: what its ``gt`` file holds.
 GT_KINDS = {
     "disparity": "KITTI disparity PNG (uint16, pixels x 256); depth = focal * baseline / disparity",
     "depth": "KITTI depth-benchmark PNG (uint16, metres x 256)",
     "velodyne": "KITTI Velodyne scan (.bin), projected into camera 2 with the raw day's calibration",
+    "pfm": "PFM disparity in px (Scene Flow, Middlebury); inf, NaN and <= 0 are invalid",
+    "npy_depth": "NumPy .npy depth in metres (H, W); non-finite and <= 0 are invalid",
+    "npy_disparity": "NumPy .npy disparity in px (H, W); non-finite and <= 0 are invalid",
+    "none": "no GT: every pixel invalid; the gt column names the frame's left image, for its size",
 }
+
+
+def _valid_or_zero(values: np.ndarray) -> np.ndarray:
+    """float32 with every non-finite or non-positive value set to 0 (= invalid)."""
+    values = np.asarray(values, dtype=np.float32)
+    return np.where(np.isfinite(values) & (values > 0), values, np.float32(0)).astype(np.float32)
+
+
+def _disparity_depth(disp: np.ndarray, path: str | os.PathLike, focal: float, baseline: float) -> np.ndarray:
+    if disp.ndim != 2:
+        raise DataError(f"{path}: a disparity map must have one channel, got shape {disp.shape}")
+    return disparity_to_depth(_valid_or_zero(disp), focal, baseline)
+
+
+def _read_npy(path: str | os.PathLike) -> np.ndarray:
+    try:
+        values = np.load(path, allow_pickle=False)
+    except (OSError, ValueError) as exc:
+        raise DataError(f"{path}: not a readable .npy array ({exc})") from None
+    if values.ndim != 2 or not (
+        np.issubdtype(values.dtype, np.floating) or np.issubdtype(values.dtype, np.integer)
+    ):
+        raise DataError(f"{path}: GT must be a 2-D numeric array, got {values.dtype} of shape {values.shape}")
+    return values
 
 
 def read_gt_depth(
@@ -42,4 +72,12 @@ def read_gt_depth(
                 f"{path}: a Velodyne GT frame needs its raw day folder (the index's calib column)"
             )
         return kitti.velodyne_depth(path, kitti.read_raw_calib(Path(calib)))
+    if kind == "pfm":
+        return _disparity_depth(read_pfm(path), path, focal, baseline)
+    if kind == "npy_disparity":
+        return _disparity_depth(_read_npy(path), path, focal, baseline)
+    if kind == "npy_depth":
+        return _valid_or_zero(_read_npy(path))
+    if kind == "none":
+        return np.zeros(kitti.read_image(path).shape[:2], np.float32)
     raise DataError(f"{path}: unknown GT kind {kind!r}; known: {sorted(GT_KINDS)}")

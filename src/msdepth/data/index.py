@@ -3,7 +3,9 @@
 Both data sources share one KITTI-format layout under ``data.root``:
 ``raw/`` (KITTI raw: ``<date>/<drive>_sync/image_02|image_03/data``) and ``kitti2015/``
 (``training/image_2``, ``image_3``, ``disp_noc_0``, ``disp_occ_0``, ``obj_map``), plus the
-split lists. Everything after this module reads only the indexes, never the source.
+split lists. A stereo folder (``data.source: folder``) has its own layout and builders
+(:mod:`msdepth.data.folder`); its evaluation frames take KITTI 2015's place. Everything after this
+module reads only the indexes, never the source.
 """
 
 from __future__ import annotations
@@ -18,7 +20,7 @@ from ..errors import DataError
 from ..io import atomic_path, write_json
 from . import kitti
 from .layout import Layout, layout  # noqa: F401 - re-exported: msdepth.data.index.layout
-from .pairs import check_same_size, index_pairs
+from .pairs import PairIndex, check_same_size, index_pairs
 
 # One evaluation index format for every set (msdepth.data.eval_sets): ``gt`` is a file of kind
 # ``gt_kind`` (msdepth.data.ground_truth.GT_KINDS), ``calib`` the raw day folder of a Velodyne
@@ -97,12 +99,26 @@ def build_indexes(
     params: Params, out_dir: str | os.PathLike, extra: dict[str, pd.DataFrame] | None = None
 ) -> dict:
     """Write ``train_pairs.txt``, ``eval_frames.csv`` (KITTI 2015), ``sets/<set>.csv`` (the extra
-    sets' indexes ``extra``, :mod:`msdepth.data.eval_sets`) and ``report.json`` to ``out_dir``."""
+    sets' indexes ``extra``, :mod:`msdepth.data.eval_sets`) and ``report.json`` to ``out_dir``.
+    A stereo folder's: :func:`msdepth.stages.index.folder_indexes`, through :func:`write_indexes`."""
     paths = layout(params)
-    out = Path(out_dir)
     pairs = index_pairs(paths.train_split, paths.raw_root)
-    kitti.write_split(out / "train_pairs.txt", [(str(a), str(b)) for a, b in pairs.pairs])
     frames = build_eval_index(paths.kitti2015_root, paths.eval_split, params.data.gt)
+    return write_indexes(params, out_dir, pairs, frames, extra, {"gt": params.data.gt})
+
+
+def write_indexes(
+    params: Params,
+    out_dir: str | os.PathLike,
+    pairs: PairIndex,
+    frames: pd.DataFrame,
+    extra: dict[str, pd.DataFrame] | None = None,
+    details: dict | None = None,
+) -> dict:
+    """Write the training pairs, the main evaluation index ``frames``, the extra sets' indexes and
+    ``report.json`` (with ``details``) to ``out_dir``; returns the report."""
+    out = Path(out_dir)
+    kitti.write_split(out / "train_pairs.txt", [(str(a), str(b)) for a, b in pairs.pairs])
     write_eval_index(out / "eval_frames.csv", frames)
     extra = extra or {}
     (out / "sets").mkdir(parents=True, exist_ok=True)
@@ -117,7 +133,7 @@ def build_indexes(
         "train_pairs_found": len(pairs.pairs),
         "train_pairs_missing": [f"{a} {b}" for a, b in pairs.missing],
         "eval_frames": len(frames),
-        "gt": params.data.gt,
+        **(details or {}),
         "extra_sets": {name: len(table) for name, table in extra.items()},
     }
     write_json(out / "report.json", report)

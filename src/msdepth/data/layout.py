@@ -32,8 +32,40 @@ class Layout:
     depth_annotated: Path
 
 
+@dataclass(frozen=True)
+class FolderLayout:
+    """Paths of a stereo folder (``data.source: folder``, :mod:`msdepth.data.folder`): every
+    ``data.folder.*`` path below the folder (``data.root``). ``pairs`` and ``rois_csv``: None = not given."""
+
+    root: Path
+    left: Path
+    right: Path
+    pairs: Path | None
+    camera: Path
+    eval_list: Path
+    rois_csv: Path | None
+
+
+def folder_layout(params: Params) -> FolderLayout:
+    """The stereo folder's paths from ``data.folder`` (the folder is ``data.root``)."""
+    f = params.data.folder
+    root = Path(f.root or params.data.root)
+    return FolderLayout(
+        root,
+        root / f.left,
+        root / f.right,
+        root / f.pairs if f.pairs else None,
+        root / f.camera,
+        root / f.eval_list,
+        root / f.rois_csv if f.rois_csv else None,
+    )
+
+
 def layout(params: Params) -> Layout:
-    """The paths for ``params.data.source``: both sources share one tree shape under ``data.root``."""
+    """The paths for ``params.data.source``: both KITTI-format sources share one tree shape under
+    ``data.root``. A stereo folder has its own (:func:`folder_layout`)."""
+    if params.data.source == "folder":
+        raise ValueError("data.source folder has no KITTI-format layout: use folder_layout()")
     root = Path(params.data.root)
     if params.data.source == "synthetic":
         return Layout(

@@ -18,6 +18,7 @@ from .evaluate import run_suite
 log = logging.getLogger("msdepth")
 
 BASELINES = baselines_mod.BASELINES
+FOLDER_REASON = "data.source folder: the training frames have no GT to build the baselines from"
 
 
 def training_gt() -> baselines_mod.TrainingGT:
@@ -53,10 +54,15 @@ def baselines(params: Params) -> None:
     Their training GT is ``disp_02`` (synthetic) or the Velodyne scans (real KITTI); drives with
     neither are named and left out. With no GT at all the baselines are skipped, not failed: each
     leaves a ``{"skipped": reason}`` JSON (and a one-row CSV) that ``compare`` reports as missing.
+    A stereo folder (data.source: folder) has no training GT: its baselines are always skipped.
     """
-    gt = training_gt()
-    if gt.maps is None:
-        reason = skip_reason(gt)
+    if params.data.source == "folder":
+        reason = FOLDER_REASON
+        log.warning("baselines: %s: %s not built", reason, " and ".join(BASELINES))
+    else:
+        gt = training_gt()
+        reason = skip_reason(gt) if gt.maps is None else None
+    if reason is not None:
         for run in BASELINES:
             for suite in SUITE_NAMES:
                 write_skipped(Path("metrics"), suite, run, reason, headline=suite in ("full", "roi"))

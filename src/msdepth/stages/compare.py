@@ -18,6 +18,7 @@ from ..compare import (
     seed_spread,
 )
 from ..config import Params
+from ..evaluate import no_rois
 from ..io import write_json, write_text
 from .common import SETS_METRICS, SUITE_NAMES, variant_runs
 from .evaluate import headline
@@ -37,7 +38,9 @@ def compare(params: Params) -> None:
     runs = [r for group in groups.values() for r in group]
     suites = load_suite_metrics("metrics", runs)
     tables = load_unit_tables("metrics", runs)
-    stats = paired_statistics(tables, groups, params.compare, params.eval.caps)
+    # Without ROIs (an empty ROI index) only the full-image suite has numbers to compare.
+    compared = ("full",) if all(no_rois(suites["roi"][r]) for r in runs) else ("full", "roi")
+    stats = paired_statistics({s: tables[s] for s in compared}, groups, params.compare, params.eval.caps)
     caps = [f"cap{c:g}" for c in params.eval.caps]
     dependence = image_dependence(suites, tables, groups, "prior", params.eval.caps[0])
     result, md = build_comparison(
@@ -45,7 +48,7 @@ def compare(params: Params) -> None:
         list(params.variants),
         built,
         stats,
-        seed_spread(suites, groups, caps),
+        seed_spread({s: suites[s] for s in compared}, groups, caps),
         params.train.seeds,
         dependence,
         groups,
@@ -66,16 +69,16 @@ def compare(params: Params) -> None:
 def mean_headline(suites: dict, groups: dict[str, list[str]]) -> dict:
     """Per variant (and baseline) the headline numbers averaged over its runs, with the
     seed-to-seed sd of abs_rel: the one file to read in ``dvc exp show`` across experiments
-    (the compare stage adds each extra set's mean abs_rel as ``<set>_abs_rel``)."""
+    (the compare stage adds each extra set's mean abs_rel as ``<set>_abs_rel``). Without ROIs
+    there is no ``roi_abs_rel``."""
     out = {}
     for group, runs in groups.items():
         full = [headline("full", suites["full"][r]) for r in runs]
         roi = [headline("roi", suites["roi"][r]) for r in runs]
         abs_rel = [h["abs_rel"] for h in full]
-        out[group] = {
-            "abs_rel": float(np.mean(abs_rel)),
-            "roi_abs_rel": float(np.mean([h["roi_abs_rel"] for h in roi])),
-        }
+        out[group] = {"abs_rel": float(np.mean(abs_rel))}
+        if all("roi_abs_rel" in h for h in roi):  # absent without ROIs
+            out[group]["roi_abs_rel"] = float(np.mean([h["roi_abs_rel"] for h in roi]))
         if len(runs) > 1:
             out[group]["abs_rel_sd"] = float(np.std(abs_rel, ddof=1))
     return out

@@ -13,7 +13,14 @@ from ..config import Params
 from ..data import kitti
 from ..data.index import read_eval_index
 from ..errors import ConfigError
-from ..evaluate import evaluate_full, evaluate_gradients, evaluate_roi, load_frames, read_depth_maps
+from ..evaluate import (
+    evaluate_full,
+    evaluate_gradients,
+    evaluate_roi,
+    load_frames,
+    no_rois,
+    read_depth_maps,
+)
 from ..io import atomic_path, write_json
 from .common import INDEX_DIR, SETS_METRICS, SUITE_NAMES, SeedArg, VariantArg, checked_run, run_dir
 
@@ -23,8 +30,13 @@ SUITES = {"full": evaluate_full, "roi": evaluate_roi, "gradients": evaluate_grad
 def headline(suite: str, summary: dict) -> dict[str, float] | None:
     """The few numbers of a suite's summary that a reader compares (first cap): what
     ``dvc metrics show`` and ``dvc metrics diff`` list, one small file per run and suite. The
-    full summary stays beside it as a plain output."""
-    cap = next(k for k in summary if k.startswith("cap"))
+    full summary stays beside it as a plain output. An ROI suite run without ROIs: ``{"rois": 0}``
+    (a valid metrics file with nothing to compare)."""
+    if suite == "roi" and no_rois(summary):
+        return {"rois": 0}
+    cap = next((k for k in summary if k.startswith("cap")), None)
+    if cap is None:
+        return None
     if suite == "full":
         m = summary[cap]
         out = {"abs_rel": m["abs_rel"], "rmse": m["rmse"], "a1": m["a1"]}

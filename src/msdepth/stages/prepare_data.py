@@ -7,7 +7,7 @@ from pathlib import Path
 from typing import Annotated, Any
 
 from ..config import Params
-from ..data.layout import layout
+from ..data.layout import folder_layout, layout
 
 log = logging.getLogger("msdepth")
 
@@ -27,8 +27,19 @@ def prepare_data(
     is skipped. Only what the chosen splits need is fetched: the raw drives that the training
     split and each extra evaluation set's list name (data.kitti.drives / drive_count restrict
     further) with their days' calibration, KITTI 2015, and KITTI's annotated depth for
-    eigen_benchmark. Without any network, one line says so at once.
+    eigen_benchmark. Without any network, one line says so at once. A stereo folder
+    (data.source: folder) is only checked: one error listing what the layout misses; nothing is
+    written.
     """
+    if params.data.source == "folder":
+        from ..data.folder import check_folder
+
+        report = check_folder(folder_layout(params))
+        if dry_run:
+            print(f"dry run: the stereo folder {params.data.root} is complete: {report}; nothing written")
+            return
+        log.info("stereo folder %s: %s", params.data.root, report)
+        return
     if params.data.source == "synthetic":
         s, root = params.data.synthetic, Path(params.data.root)
         if dry_run:

@@ -8,7 +8,7 @@ from pathlib import Path
 from ..config import Params
 from ..data import kitti
 from ..data.index import read_eval_index
-from ..data.layout import layout
+from ..data.layout import folder_layout, layout
 from ..errors import DataError
 from .common import INDEX_DIR
 
@@ -16,15 +16,18 @@ log = logging.getLogger("msdepth")
 
 
 def rois(params: Params) -> None:
-    """The ROI boxes: the synthetic set's exact ones, or KITTI's obj_map cars plus the user's CSV.
+    """The ROI boxes: the synthetic set's exact ones, KITTI's obj_map cars plus the user's CSV,
+    or a stereo folder's data.folder.rois_csv. No ROI at all is allowed (the ROI suites say so).
 
     Writes the ROI index and a contact sheet of the crops (``data/index/rois.png``).
     """
     from ..data.rois import contact_sheet, extract_rois
 
     frames = read_eval_index(INDEX_DIR / "eval_frames.csv")
-    source = layout(params).rois
-    if source is not None:
+    if params.data.source == "folder":  # the user's boxes only: a folder has no obj_map
+        user = folder_layout(params).rois_csv
+        boxes = extract_rois(frames, user_csv=user)
+    elif (source := layout(params).rois) is not None:
         boxes = kitti.read_rois(source)
         unknown = sorted(set(boxes["image"]) - set(frames["frame"]))
         if unknown:
@@ -37,11 +40,14 @@ def rois(params: Params) -> None:
             min_size=k.roi_min_size,
             min_valid=k.roi_min_valid,
         )
-        if boxes.empty:
-            raise DataError(
-                "rois: no car in any obj_map passed data.kitti.roi_min_size/roi_min_valid, "
-                "and no data.kitti.rois_csv"
-            )
+    if boxes.empty:  # the ROI suites then write an explicit "no ROIs" summary
+        log.warning(
+            "rois: no ROI (%s): the ROI and gradient suites will be skipped",
+            "no data.folder.rois_csv"
+            if params.data.source == "folder"
+            else "no car in any obj_map passed data.kitti.roi_min_size/roi_min_valid, "
+            "and no data.kitti.rois_csv",
+        )
     kitti.write_rois(INDEX_DIR / "rois.csv", boxes)
     contact_sheet(boxes, frames, INDEX_DIR / "rois.png")
     log.info("rois: %d boxes, %s", len(boxes), boxes["class"].value_counts().to_dict())

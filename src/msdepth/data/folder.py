@@ -1,0 +1,271 @@
+"""Any rectified stereo set in one folder: ``data.source: folder``.
+
+The folder is ``data.root`` (DVC tracks the data under that name); every other name below is a
+``data.folder.*`` key, relative to it::
+
+    <data.root>/
+      left/000123.png ...     data.folder.left: the left images (.png, .jpg or .jpeg, any depth
+      right/000123.png ...    data.folder.right: the right images, with the same relative names
+      camera.yaml             data.folder.camera: focal_px, width_px, baseline_m
+      eval.txt                data.folder.eval_list: "left right [gt]" per line
+      gt/000123.pfm ...       the evaluation GT the list names (any place below the folder)
+      rois.csv                data.folder.rois_csv (optional): boxes on the evaluation frames
+
+- Training pairs: every left image with its right namesake, minus the evaluation list's left
+  images (evaluation frames are never trained on). With ``data.folder.pairs`` (a file of
+  ``left right`` relative paths, the format of :func:`msdepth.data.kitti.read_split`) the listed
+  pairs instead, minus the evaluation frames too. A missing right image is an error naming it.
+- Camera: ``focal_px`` is the focal length in pixels for images ``width_px`` wide; an image of
+  another width (the same camera, resized) gets ``focal_px * width / width_px``. ``baseline_m``
+  is the distance between the two cameras in metres.
+- Evaluation list: ``left right [gt]``; the GT is optional per frame. A frame without GT is
+  listed (it is predicted like every other) and the suites exclude it and count it. The GT's
+  suffix says what it holds (:func:`gt_kind`): ``.png`` a KITTI disparity PNG (uint16, px x 256,
+  0 = none), ``.pfm`` disparity in px as Scene Flow and Middlebury ship it (inf, NaN and <= 0 =
+  none), ``.npy`` depth in metres, or disparity in px with ``data.folder.npy_is_disparity``.
+  The frame's name (ROI CSV ``image`` column, metrics tables) is its left image's file stem.
+- ROIs: only those of ``data.folder.rois_csv`` (there is no ``obj_map``); none is fine: the ROI
+  suites then say they were skipped.
+
+``python -m msdepth export-folder`` writes such a folder from the synthetic set
+(:mod:`msdepth.data.folder_export`). This module imports neither torch nor the index code: the
+``prepare_data`` stage checks a folder with it (:func:`check_folder`).
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from ..errors import DataError
+from ..io import write_text
+from . import kitti
+from .ground_truth import read_gt_depth
+from .layout import FolderLayout
+
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
+CAMERA_KEYS = ("focal_px", "width_px", "baseline_m")
+
+
+@dataclass(frozen=True)
+class Camera:
+    """A rectified stereo rig: focal length ``focal_px`` at image width ``width_px``, baseline in m."""
+
+    focal_px: float
+    width_px: float
+    baseline_m: float
+
+    def focal_at(self, width: int) -> float:
+        """The focal length (px) for an image ``width`` px wide: rescaled if it is not ``width_px``."""
+        return self.focal_px * width / self.width_px
+
+
+def read_camera(path: str | os.PathLike) -> Camera:
+    """The camera file (YAML: ``focal_px``, ``width_px``, ``baseline_m``, all > 0)."""
+    path = Path(path)
+    try:
+        raw = yaml.safe_load(path.read_text())
+    except FileNotFoundError:
+        raise DataError(f"{path}: no camera file (data.folder.camera: {', '.join(CAMERA_KEYS)})") from None
+    except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
+        raise DataError(f"{path}: not a readable YAML camera file ({exc})") from None
+    if not isinstance(raw, dict):
+        raise DataError(f"{path}: expected a mapping with {', '.join(CAMERA_KEYS)}")
+    missing, unknown = set(CAMERA_KEYS) - set(raw), set(raw) - set(CAMERA_KEYS)
+    if missing or unknown:
+        raise DataError(
+            f"{path}: camera file needs exactly {list(CAMERA_KEYS)}; "
+            f"missing {sorted(missing)}, unknown {sorted(map(str, unknown))}"
+        )
+    values = {}
+    for key in CAMERA_KEYS:
+        value = raw[key]
+        if (
+            isinstance(value, bool)
+            or not isinstance(value, (int, float))
+            or not np.isfinite(value)
+            or value <= 0
+        ):
+            raise DataError(f"{path}: {key} must be a number > 0, got {value!r}")
+        values[key] = float(value)
+    return Camera(**values)
+
+
+def write_camera(path: str | os.PathLike, camera: Camera) -> None:
+    write_text(path, yaml.safe_dump({k: getattr(camera, k) for k in CAMERA_KEYS}, sort_keys=False))
+
+
+def gt_kind(path: str | os.PathLike, *, npy_is_disparity: bool = False) -> str:
+    """The ``gt_kind`` (:data:`msdepth.data.ground_truth.GT_KINDS`) of a GT file, by its suffix."""
+    suffix = Path(path).suffix.lower()
+    if suffix == ".png":
+        return "disparity"
+    if suffix == ".pfm":
+        return "pfm"
+    if suffix == ".npy":
+        return "npy_disparity" if npy_is_disparity else "npy_depth"
+    raise DataError(
+        f"{path}: unknown GT format {suffix or '(no suffix)'!r}: use .png (KITTI disparity), "
+        ".pfm (disparity in px) or .npy (depth in m, or disparity with data.folder.npy_is_disparity)"
+    )
+
+
+def read_ground_truth(
+    path: str | os.PathLike, *, focal: float, baseline: float, npy_is_disparity: bool = False
+) -> np.ndarray:
+    """GT depth (m, float32, 0 = invalid) of a GT file in any of the folder's formats (:func:`gt_kind`)."""
+    kind = gt_kind(path, npy_is_disparity=npy_is_disparity)
+    return read_gt_depth(kind, path, focal=focal, baseline=baseline)
+
+
+def read_eval_list(path: str | os.PathLike) -> list[tuple[str, str, str]]:
+    """The evaluation list's ``left right [gt]`` lines as (left, right, gt or "")."""
+    path = Path(path)
+    if not path.is_file():
+        raise DataError(f"{path}: no evaluation list (data.folder.eval_list: 'left right [gt]' per line)")
+    try:
+        text = path.read_bytes().decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise DataError(f"{path}: not a UTF-8 text file ({exc.reason} at byte {exc.start})") from None
+    rows = []
+    for number, line in enumerate(text.splitlines(), start=1):
+        fields = line.split()
+        if not fields:
+            continue
+        if len(fields) not in (2, 3):
+            raise DataError(f"{path}:{number}: expected 'left right [gt]', got {line.strip()!r}")
+        rows.append((fields[0], fields[1], fields[2] if len(fields) == 3 else ""))
+    if not rows:
+        raise DataError(f"{path}: the evaluation list lists no frame")
+    return rows
+
+
+def _image_files(folder: Path) -> list[Path]:
+    if not folder.is_dir():
+        raise DataError(f"{folder}: no image folder")
+    return sorted(p for p in folder.rglob("*") if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES)
+
+
+def _existing(path: Path, what: str) -> Path:
+    if not path.is_file():
+        raise DataError(f"{path}: no such {what}")
+    return path
+
+
+def build_train_pairs(paths: FolderLayout) -> tuple[list[tuple[Path, Path]], int]:
+    """(training pairs, how many evaluation frames were left out of them).
+
+    The left folder's images with their right namesakes, or ``paths.pairs``'s lines; either way
+    without the evaluation list's left images. A missing right (or listed) image is a DataError.
+    """
+    eval_lefts = {(paths.root / left).resolve() for left, _, _ in read_eval_list(paths.eval_list)}
+    if paths.pairs is None:
+        lefts = _image_files(paths.left)
+        if not lefts:
+            raise DataError(f"{paths.left}: no images ({', '.join(IMAGE_SUFFIXES)})")
+        pairs = [(left, paths.right / left.relative_to(paths.left)) for left in lefts]
+        lonely = [(left, right) for left, right in pairs if not right.is_file()]
+        if lonely:
+            left, right = lonely[0]
+            raise DataError(
+                f"{right}: no right image for {left} ({len(lonely)} of {len(pairs)} left images lack "
+                f"their namesake in {paths.right})"
+            )
+    else:
+        pairs = [
+            (
+                _existing(paths.root / left, f"left image (listed in {paths.pairs})"),
+                _existing(paths.root / right, f"right image (listed in {paths.pairs})"),
+            )
+            for left, right in kitti.read_split(paths.pairs)
+        ]
+    train = [(left, right) for left, right in pairs if left.resolve() not in eval_lefts]
+    if not train:
+        raise DataError(
+            f"{paths.pairs or paths.left}: no training pair left once the {len(eval_lefts)} evaluation "
+            f"frames of {paths.eval_list} are taken out"
+        )
+    return train, len(pairs) - len(train)
+
+
+def _same_size(left: Path, shape: tuple, other: Path, other_shape: tuple, what: str) -> None:
+    # As msdepth.data.pairs.check_same_size, which would make the prepare_data stage import torch.
+    if tuple(shape[:2]) != tuple(other_shape[:2]):
+        raise DataError(f"{left} is {tuple(shape[:2])} but its {what} {other} is {tuple(other_shape[:2])}")
+
+
+def eval_rows(
+    paths: FolderLayout, camera: Camera | None = None, *, npy_is_disparity: bool = False
+) -> list[tuple]:
+    """One row of :data:`msdepth.data.index.EVAL_COLUMNS` per evaluation frame (the DataFrame:
+    :func:`msdepth.data.index.build_folder_eval_index`): the images, the GT and its kind (by
+    suffix; ``none`` without GT), the camera at the image's width, no crop. Each GT is read once
+    here, so a bad file fails the index stage, not the evaluation."""
+    camera = camera or read_camera(paths.camera)
+    rows, names = [], {}
+    for left_rel, right_rel, gt_rel in read_eval_list(paths.eval_list):
+        left = _existing(paths.root / left_rel, f"left image (listed in {paths.eval_list})")
+        right = _existing(paths.root / right_rel, f"right image (listed in {paths.eval_list})")
+        name = left.stem
+        if name in names:
+            raise DataError(
+                f"{paths.eval_list}: {left} and {names[name]} share the frame name {name!r} "
+                "(the left image's file stem): rename one"
+            )
+        names[name] = left
+        shape = kitti.read_image(left).shape
+        _same_size(left, shape, right, kitti.read_image(right).shape, "right image")
+        focal, baseline = camera.focal_at(shape[1]), camera.baseline_m
+        if gt_rel:
+            gt = _existing(paths.root / gt_rel, f"GT file (listed in {paths.eval_list})")
+            kind = gt_kind(gt, npy_is_disparity=npy_is_disparity)
+            depth = read_gt_depth(kind, gt, focal=focal, baseline=baseline)
+            _same_size(left, shape, gt, depth.shape, "GT")
+        else:
+            gt, kind = left, "none"
+        rows.append((name, str(left), str(right), str(gt), kind, "", "", "", "", focal, baseline))
+    return rows
+
+
+def check_folder(paths: FolderLayout) -> dict:
+    """What the ``prepare_data`` stage checks: the folder holds what the layout needs (images,
+    right namesakes, camera, evaluation list and the files it names). One DataError listing every
+    problem found; nothing is written. Returns counts for the log."""
+    if not paths.root.is_dir():
+        raise DataError(
+            f"{paths.root}: no such folder (data.root, with data.source folder: the stereo folder; "
+            "see README 'Train and evaluate on your own stereo camera')"
+        )
+    problems, report = [], {}
+    for what, check in (
+        ("camera", lambda: read_camera(paths.camera)),
+        ("evaluation list", lambda: read_eval_list(paths.eval_list)),
+    ):
+        try:
+            report[what] = check()
+        except DataError as exc:
+            problems.append(str(exc))
+    if "evaluation list" in report:
+        for left, right, gt in report["evaluation list"]:
+            for rel in (left, right, gt):
+                if rel and not (paths.root / rel).is_file():
+                    problems.append(f"{paths.root / rel}: listed in {paths.eval_list} but missing")
+        try:
+            train, excluded = build_train_pairs(paths)
+            report["train_pairs"], report["eval_frames_excluded"] = len(train), excluded
+        except DataError as exc:
+            problems.append(str(exc))
+    if paths.rois_csv is not None and not paths.rois_csv.is_file():
+        problems.append(f"{paths.rois_csv}: no such ROI file (data.folder.rois_csv)")
+    if problems:
+        shown = "; ".join(problems[:5]) + (f"; and {len(problems) - 5} more" if len(problems) > 5 else "")
+        raise DataError(f"{paths.root}: not a usable stereo folder (data.source folder): {shown}")
+    return {
+        "train_pairs": report["train_pairs"],
+        "eval_frames": len(report["evaluation list"]),
+        "eval_frames_with_gt": sum(1 for *_, gt in report["evaluation list"] if gt),
+    }

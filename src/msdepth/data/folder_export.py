@@ -1,0 +1,60 @@
+"""``msdepth export-folder``: a stereo folder (:mod:`msdepth.data.folder`) from a KITTI-format tree.
+
+For the README's walk-through: the synthetic set as "your own stereo camera", with PFM GT.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import DataError
+from ..io import write_text
+from . import kitti
+from .folder import Camera, write_camera
+from .index import build_eval_index
+from .pairs import index_pairs
+from .pfm import write_pfm
+
+
+def export_folder(source_root: str | os.PathLike, out: str | os.PathLike) -> dict:
+    """Write a stereo folder from a KITTI-format tree holding ``train_files.txt``, ``raw/`` and
+    ``kitti2015/`` (the synthetic set: ``data.root`` after ``dvc repro prepare_data``).
+
+    The training pairs become ``left/<drive>_<frame>.png`` and ``right/``; the KITTI 2015 frames
+    ``left/eval_<frame>.png`` and ``right/`` too (the index leaves them out of training), their
+    ``disp_noc_0`` GT ``gt/eval_<frame>.pfm`` (disparity in px, inf = none), listed in
+    ``eval.txt``; the camera in ``camera.yaml``. ``out`` must not exist or be empty.
+    """
+    source_root, out = Path(source_root), Path(out)
+    if out.exists() and (not out.is_dir() or any(out.iterdir())):
+        raise DataError(f"{out}: exists and is not an empty folder (not overwriting it)")
+    pairs = index_pairs(source_root / "train_files.txt", source_root / "raw").pairs
+    frames = build_eval_index(
+        source_root / "kitti2015", source_root / "kitti2015" / "test_files.txt", "disp_noc_0"
+    )
+    cameras = {(float(r.focal), float(r.baseline)) for r in frames.itertuples()}
+    if len(cameras) != 1:
+        raise DataError(f"{source_root}: the evaluation frames have {len(cameras)} cameras; a folder has one")
+    (focal, baseline), width = cameras.pop(), kitti.read_image(frames["left"].iloc[0]).shape[1]
+    for side in ("left", "right", "gt"):
+        (out / side).mkdir(parents=True, exist_ok=True)
+    for left, right in pairs:
+        name = f"{left.parents[2].name}_{left.stem}{left.suffix}"
+        shutil.copyfile(left, out / "left" / name)
+        shutil.copyfile(right, out / "right" / name)
+    lines = []
+    for row in frames.itertuples():
+        name = f"eval_{row.frame}"
+        suffix = Path(row.left).suffix
+        shutil.copyfile(row.left, out / "left" / f"{name}{suffix}")
+        shutil.copyfile(row.right, out / "right" / f"{name}{suffix}")
+        disp = kitti.read_disparity(row.gt)
+        write_pfm(out / "gt" / f"{name}.pfm", np.where(disp > 0, disp, np.inf))
+        lines.append(f"left/{name}{suffix} right/{name}{suffix} gt/{name}.pfm\n")
+    write_text(out / "eval.txt", "".join(lines))
+    write_camera(out / "camera.yaml", Camera(focal, float(width), baseline))
+    return {"train_pairs": len(pairs), "eval_frames": len(frames), "focal_px": focal, "width_px": width}

@@ -1,0 +1,72 @@
+"""PFM (Portable Float Map) files: the disparity format of Scene Flow and Middlebury.
+
+A PFM file is a text header and raw float32 samples::
+
+    PF | Pf          colour (3 channels) | greyscale (1 channel)
+    <width> <height>
+    <scale>          its sign is the byte order: negative = little-endian, positive = big-endian
+    <samples>        width * height * channels float32, rows from the BOTTOM of the image up
+
+Written here from that description (no third-party reader).
+"""
+
+from __future__ import annotations
+
+import os
+import re
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import DataError
+from ..io import atomic_path
+
+# Three whitespace-separated header fields after the magic; exactly one whitespace byte ends the
+# scale, then the samples start (a binary sample may itself look like whitespace).
+_HEADER = re.compile(rb"\A(PF|Pf)\s+(\d+)\s+(\d+)\s+([-+]?[0-9]*\.?[0-9]+(?:[eE][-+]?[0-9]+)?)\s")
+
+
+def read_pfm(path: str | os.PathLike) -> np.ndarray:
+    """The samples of a PFM file as float32, top row first: ``(H, W)`` for ``Pf``, ``(H, W, 3)``
+    for ``PF``. A malformed or truncated file is a DataError naming it."""
+    path = Path(path)
+    try:
+        data = path.read_bytes()
+    except OSError as exc:
+        raise DataError(f"{path}: cannot read the PFM file ({exc.strerror or exc})") from None
+    match = _HEADER.match(data)
+    if match is None:
+        raise DataError(f"{path}: not a PFM file (expects 'PF' or 'Pf', width height, scale)")
+    magic, width, height, scale = (
+        match.group(1),
+        int(match.group(2)),
+        int(match.group(3)),
+        float(match.group(4)),
+    )
+    if width < 1 or height < 1:
+        raise DataError(f"{path}: PFM size {width}x{height} is empty")
+    if scale == 0:
+        raise DataError(f"{path}: PFM scale is 0 (its sign gives the byte order)")
+    channels = 3 if magic == b"PF" else 1
+    count = width * height * channels
+    body = data[match.end() :]
+    if len(body) < 4 * count:
+        raise DataError(
+            f"{path}: truncated PFM: {width}x{height}x{channels} float32 need {4 * count} bytes, "
+            f"the file has {len(body)} after its header"
+        )
+    samples = np.frombuffer(body, dtype="<f4" if scale < 0 else ">f4", count=count)
+    shape = (height, width) if channels == 1 else (height, width, 3)
+    return np.ascontiguousarray(samples.reshape(shape)[::-1]).astype(np.float32)
+
+
+def write_pfm(path: str | os.PathLike, image: np.ndarray, *, little_endian: bool = True) -> None:
+    """Write a float ``(H, W)`` (``Pf``) or ``(H, W, 3)`` (``PF``) array as PFM, atomically."""
+    image = np.asarray(image, dtype=np.float32)
+    if image.ndim not in (2, 3) or (image.ndim == 3 and image.shape[2] != 3):
+        raise DataError(f"{path}: a PFM holds (H, W) or (H, W, 3) samples, got shape {image.shape}")
+    magic = b"Pf" if image.ndim == 2 else b"PF"
+    header = magic + b"\n%d %d\n%s\n" % (image.shape[1], image.shape[0], b"-1.0" if little_endian else b"1.0")
+    body = np.ascontiguousarray(image[::-1]).astype("<f4" if little_endian else ">f4").tobytes()
+    with atomic_path(path, suffix=".pfm") as tmp:
+        Path(tmp).write_bytes(header + body)
