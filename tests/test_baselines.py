@@ -31,7 +31,10 @@ def trees(tmp_path_factory) -> tuple[Path, Path, dict[str, np.ndarray]]:
 
 
 def _lefts(root: Path) -> list[Path]:
-    return sorted((root / "raw").glob("*/*_sync/image_02/data/*.png"))
+    """Every training left image (the renderer's raw evaluation drive, which has scans but no
+    disp_02, is no training drive: its frames are in no training split)."""
+    eval_drive = f"_drive_{synthetic.EVAL_DRIVE:04d}_sync"
+    return sorted(p for p in (root / "raw").glob("*/*_sync/image_02/data/*.png") if eval_drive not in str(p))
 
 
 def test_synthetic_gt_is_disp_02_as_before(trees) -> None:
