@@ -124,18 +124,9 @@ def read_ground_truth(
 
 def read_eval_list(path: str | os.PathLike) -> list[tuple[str, str, str]]:
     """The evaluation list's ``left right [gt]`` lines as (left, right, gt or "")."""
-    path = Path(path)
-    if not path.is_file():
-        raise DataError(f"{path}: no evaluation list (data.folder.eval_list: 'left right [gt]' per line)")
-    try:
-        text = path.read_bytes().decode("utf-8")
-    except UnicodeDecodeError as exc:
-        raise DataError(f"{path}: not a UTF-8 text file ({exc.reason} at byte {exc.start})") from None
     rows = []
-    for number, line in enumerate(text.splitlines(), start=1):
-        fields = line.split()
-        if not fields:
-            continue
+    missing = "no evaluation list (data.folder.eval_list: 'left right [gt]' per line)"
+    for number, line, fields in kitti.list_lines(path, missing):
         if len(fields) not in (2, 3):
             raise DataError(f"{path}:{number}: expected 'left right [gt]', got {line.strip()!r}")
         rows.append((fields[0], fields[1], fields[2] if len(fields) == 3 else ""))

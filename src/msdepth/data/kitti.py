@@ -10,6 +10,7 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Iterator
 
 import cv2
 import numpy as np
@@ -340,20 +341,26 @@ def velodyne_depth(scan_path: PathLike, calib: RawCalib) -> np.ndarray:
     return lidar_depth_map(read_velodyne(scan_path), calib.velo_to_cam, calib.rect, calib.proj, calib.shape)
 
 
-def read_split(path: PathLike) -> list[tuple[str, str]]:
-    """Read a split list: one ``left right`` pair of relative paths per line (blank lines skipped)."""
+def list_lines(path: PathLike, missing: str) -> Iterator[tuple[int, str, list[str]]]:
+    """``(line number, line, its whitespace-separated fields)`` of every non-blank line of a
+    UTF-8 list file; ``missing`` is the error's text when the file does not exist."""
     path = Path(path)
     if not path.is_file():
-        raise DataError(f"{path}: no such split file")
+        raise DataError(f"{path}: {missing}")
     try:
         text = path.read_bytes().decode("utf-8")
     except UnicodeDecodeError as exc:
         raise DataError(f"{path}: not a UTF-8 text file ({exc.reason} at byte {exc.start})") from None
-    pairs: list[tuple[str, str]] = []
     for number, line in enumerate(text.splitlines(), start=1):
         fields = line.split()
-        if not fields:
-            continue
+        if fields:
+            yield number, line, fields
+
+
+def read_split(path: PathLike) -> list[tuple[str, str]]:
+    """Read a split list: one ``left right`` pair of relative paths per line (blank lines skipped)."""
+    pairs: list[tuple[str, str]] = []
+    for number, line, fields in list_lines(path, "no such split file"):
         if len(fields) != 2:
             raise DataError(
                 f"{path}:{number}: expected 'left right' (two paths), "

@@ -617,16 +617,24 @@ def _hit(prim: _Prim, origin: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np
     return np.where(hit, t_in, np.inf), plane
 
 
-def _trace(scene: _Scene, cam: _Camera, origin: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Depth (inf where nothing is hit) and face id (-1 = sky) of the first hit for every pixel."""
-    depth = np.full((cam.height, cam.width), np.inf, np.float32)
-    face = np.full((cam.height, cam.width), -1, np.int32)
-    dy = cam.dirs[..., 1]
+def ground_hits(scene: _Scene, dirs: np.ndarray, origin: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Ray length to the ground plane (inf = none) and face id (0 = ground, -1 = none) of rays
+    ``origin + t dirs`` (dirs (..., 3), y down): where tracing starts before the primitives."""
+    shape = dirs.shape[:-1]
+    depth = np.full(shape, np.inf, np.float32)
+    face = np.full(shape, -1, np.int32)
+    dy = dirs[..., 1]
     with np.errstate(divide="ignore", invalid="ignore"):
         t = np.float32(scene.cam_height - origin[1]) / dy
     ground = (dy > 1e-6) & (t > _NEAR)
     depth[ground] = t[ground]
     face[ground] = 0
+    return depth, face
+
+
+def _trace(scene: _Scene, cam: _Camera, origin: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Depth (inf where nothing is hit) and face id (-1 = sky) of the first hit for every pixel."""
+    depth, face = ground_hits(scene, cam.dirs, origin)
     for prim in scene.prims:
         win = _window(prim, scene.rot, origin, cam)
         if win is None:

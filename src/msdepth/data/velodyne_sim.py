@@ -33,7 +33,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from .synthetic import (
-    _NEAR,
     FOLIAGE,
     GLASS,
     METAL,
@@ -46,6 +45,7 @@ from .synthetic import (
     _hit,
     _Prim,
     _Scene,
+    ground_hits,
 )
 
 # The Velodyne HDL-64E: 64 beams evenly spread over +2.0 .. -24.8 degrees of elevation, one
@@ -165,15 +165,7 @@ def _cast(
     scene: _Scene, origin: np.ndarray, dirs: np.ndarray, world_to_velo: np.ndarray, elev, az
 ) -> tuple[np.ndarray, np.ndarray]:
     """Range (inf = nothing) and face id (-1 = none) of the first hit of every ray, as ``_trace``."""
-    shape = dirs.shape[:2]
-    rng_ = np.full(shape, np.inf, np.float32)
-    face = np.full(shape, -1, np.int32)
-    dy = dirs[..., 1]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t = np.float32(scene.cam_height - origin[1]) / dy
-    ground = (dy > 1e-6) & (t > _NEAR)
-    rng_[ground] = t[ground]
-    face[ground] = 0
+    rng_, face = ground_hits(scene, dirs, origin)
     for prim in scene.prims:
         win = _grid_window(prim, origin, world_to_velo, elev, az)
         if win is None:
