@@ -183,7 +183,7 @@ class EvalConfig:
     post_process: bool = True
     dense_gt_fraction: float = 0.9
     # Evaluated beside KITTI 2015 (which always runs: the dissertation's tables and the ROI
-    # suites), full-image suite only, each under metrics/<set>/ (msdepth.data.eval_sets).
+    # suites), full-image suite only, each under metrics/sets/<set>/ (msdepth.data.eval_sets).
     extra_sets: tuple[Literal["eigen", "eigen_benchmark"], ...] = _list_may_be_empty(("eigen",))
     median_scaling: bool = False  # per-image median scaling of the extra sets (Monodepth2's mono evaluation)
 
