@@ -29,7 +29,7 @@ from msdepth.serialization import load_weights_file
 from msdepth.train import TrainingError, load_model, train_variant
 
 ROOT = Path(__file__).resolve().parents[1]
-H, W = 32, 64
+H, W = 32, 64  # the size of conftest.py's training pairs (PAIR_H, PAIR_W)
 
 
 class Touch:
@@ -135,19 +135,6 @@ def test_infer_stage_refuses_a_poisoned_model(tmp_path: Path, monkeypatch, capsy
     line = _one_line(capsys.readouterr().err)
     assert line.startswith(f"error: {model}: refused to load: the file needs code to be unpickled")
     assert not marker.exists() and not Path("outputs").exists()
-
-
-@pytest.fixture(scope="module")
-def pairs(tmp_path_factory) -> list[tuple[Path, Path]]:
-    root = tmp_path_factory.mktemp("pairs")
-    rng = np.random.default_rng(0)
-    out = []
-    for i in range(4):
-        scene = rng.integers(0, 256, (H, W + 2, 3), dtype=np.uint8)
-        out.append((root / f"l{i}.png", root / f"r{i}.png"))
-        write_png(out[-1][0], scene[:, 2:])
-        write_png(out[-1][1], scene[:, :-2])
-    return out
 
 
 def test_training_refuses_to_resume_a_poisoned_checkpoint(pairs, tmp_path: Path) -> None:

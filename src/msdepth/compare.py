@@ -280,6 +280,18 @@ def _metric_rows(
     return rows
 
 
+def _ci_lines(stats: dict, suite: str, cap: str, unit: str, baselines: Sequence[str]) -> list[str]:
+    """Every run minus the reference with its interval (:func:`_ci_rows`), as Markdown lines."""
+    block = stats[suite][cap]
+    n = next(iter(next(iter(block.values())).values()))["n"] if block else 0
+    return [
+        f"Difference to {stats['reference']} ({n} paired {unit}):",
+        "",
+        _table(["run", *METRICS], _ci_rows(block, baselines)),
+        "",
+    ]
+
+
 def _spread_lines(block: dict, variants: Sequence[str], seeds: int) -> list[str]:
     """The mean ± sd over seeds of each variant's per-run mean, as Markdown lines."""
     rows = [
@@ -342,14 +354,7 @@ def build_set_section(
             _table(["run", *METRICS], _metric_rows(block, runs, variants)),
             "",
         ]
-        diff = stats["full"][cap]
-        n = next(iter(next(iter(diff.values())).values()))["n"] if diff else 0
-        md += [
-            f"Difference to {stats['reference']} ({n} paired images):",
-            "",
-            _table(["run", *METRICS], _ci_rows(diff, baselines)),
-            "",
-        ]
+        md += _ci_lines(stats, "full", cap, "images", baselines)
         if len(seeds) > 1:
             md += _spread_lines(spread["full"][cap], variants, len(seeds))
     return result, "\n".join(md) + "\n"
@@ -483,16 +488,7 @@ def build_comparison(
         return _spread_lines(spread[suite][cap], variants, len(seeds))
 
     def ci_table(suite: str, cap: str, unit: str) -> list[str]:
-        if stats is None:
-            return []
-        block = stats[suite][cap]
-        n = next(iter(next(iter(block.values())).values()))["n"] if block else 0
-        return [
-            f"Difference to {stats['reference']} ({n} paired {unit}):",
-            "",
-            _table(["run", *METRICS], _ci_rows(block, baselines)),
-            "",
-        ]
+        return [] if stats is None else _ci_lines(stats, suite, cap, unit, baselines)
 
     rois_skipped = all(NO_ROIS in suites["roi"][r] for r in runs)
     if rois_skipped:

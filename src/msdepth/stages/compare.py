@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Sequence
 
 import numpy as np
 
@@ -24,18 +25,23 @@ from .common import SETS_METRICS, SUITE_NAMES, variant_runs
 from .evaluate import headline
 
 
+def run_groups(
+    params: Params, root: Path, suites: Sequence[str]
+) -> tuple[dict[str, str], tuple[str, ...], dict[str, list[str]], list[str]]:
+    """What is compared below ``root``: the baselines missing (with why), those built, the groups
+    (each variant's runs over the seeds, each built baseline alone) and all their runs."""
+    missing = {b: reason for b in BASELINES if (reason := skipped_reason(root, b, suites)) is not None}
+    built = tuple(b for b in BASELINES if b not in missing)
+    groups = {**variant_runs(params), **{b: [b] for b in built}}
+    return missing, built, groups, [r for group in groups.values() for r in group]
+
+
 def compare(params: Params) -> None:
     """One table of every variant (mean over its seeds) and baseline, as Markdown and JSON.
 
     A baseline the baselines stage could not build is listed as missing, with the reason.
     """
-    missing = {
-        b: reason for b in BASELINES if (reason := skipped_reason("metrics", b, SUITE_NAMES)) is not None
-    }
-    built = tuple(b for b in BASELINES if b not in missing)
-    groups = {**variant_runs(params), **{b: [b] for b in built}}
-
-    runs = [r for group in groups.values() for r in group]
+    missing, built, groups, runs = run_groups(params, Path("metrics"), SUITE_NAMES)
     suites = load_suite_metrics("metrics", runs)
     tables = load_unit_tables("metrics", runs)
     # Without ROIs (an empty ROI index) only the full-image suite has numbers to compare.
@@ -88,10 +94,7 @@ def compare_set(params: Params, name: str) -> tuple[dict, str]:
     """An extra evaluation set's full-image comparison (``metrics/sets/<set>/full/``): the same
     groups, reference, bootstrap and seed spread as KITTI 2015's full-image tables."""
     root = SETS_METRICS / name
-    missing = {b: reason for b in BASELINES if (reason := skipped_reason(root, b, ["full"])) is not None}
-    built = tuple(b for b in BASELINES if b not in missing)
-    groups = {**variant_runs(params), **{b: [b] for b in built}}
-    runs = [r for group in groups.values() for r in group]
+    missing, built, groups, runs = run_groups(params, root, ["full"])
     suites = load_suite_metrics(root, runs, ["full"])
     tables = load_unit_tables(root, runs, ["full"])
     caps = [f"cap{c:g}" for c in params.eval.caps]
