@@ -327,6 +327,29 @@ def test_more_seeds_train_only_the_new_runs_and_widen_the_comparison(repo: Path)
     _run([sys.executable, "-m", "dvc", "repro", "--quiet"], repo)
 
 
+def test_a_new_variant_in_variants_trains_only_its_runs_and_joins_the_comparison(repo: Path):
+    """README "Loss variants": listing a registered variant (Zhao et al.'s mix) in `variants` is
+    all `dvc repro` needs; the runs that exist stand, the new one is evaluated and compared."""
+    params = yaml.safe_load((repo / "params.yaml").read_text())
+    params["variants"] = ["ssim", "msssim", "mix"]
+    params["mix"]["levels"] = 3  # the tiny input's coarsest training scale is 4 x 12 px
+    (repo / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
+    changed = set(json.loads(_run([sys.executable, "-m", "dvc", "status", "--json"], repo)))
+    assert {"train@mix-0", "infer@mix-0", "compare"} <= changed
+    assert not any("@ssim" in stage or "@msssim" in stage for stage in changed), changed
+    before = (repo / "metrics" / "full" / "msssim" / "seed0.json").read_text()
+    _run([sys.executable, "-m", "dvc", "repro", "--quiet"], repo)
+    assert (repo / "metrics" / "full" / "msssim" / "seed0.json").read_text() == before
+    for suite in ("full", "roi", "gradients"):
+        assert (repo / "metrics" / suite / "mix" / "seed0.json").is_file(), suite
+    compare = json.loads((repo / "metrics" / "compare.json").read_text())
+    assert "mix" in compare["statistics"]["full"]["cap80"]
+    assert "mix" in (repo / "metrics" / "compare.md").read_text()
+    params["variants"] = ["ssim", "msssim"]  # back, for the tests that follow
+    (repo / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
+    _run([sys.executable, "-m", "dvc", "repro", "--quiet"], repo)
+
+
 def test_train_stage_tracks_every_train_key_but_the_seeds():
     """The train stage lists train.* keys one by one (so that adding a seed keeps the other
     runs); a new TrainConfig field must be listed there too, or changing it would not retrain."""
