@@ -214,3 +214,15 @@ def test_figures_and_evaluation_code_are_no_training_dep():
     }
     for name in ("train", "infer"):
         assert not later & set(stages[name]["deps"]), name
+
+
+def test_reading_params_depends_on_no_loss_code():
+    """The variants' configs are apart from their terms, so a change to the loss code (e.g. the
+    MS-SSIM kernels) re-runs only the stages that train or build a model, not every stage."""
+    closure = {
+        p.relative_to(ROOT / "src" / PACKAGE).as_posix()
+        for p in import_closure(ROOT / "stages" / "validate_params.py", ROOT / "src")
+    }
+    assert "variants/ssim.py" in closure and "config.py" in closure
+    loss_code = {"losses.py", "warp.py", "_ssim_kernels.py"}
+    assert not {f for f in closure if f in loss_code or f.startswith("appearance/")}

@@ -4,6 +4,7 @@ Monodepth loss terms, the appearance terms and MonodepthLoss."""
 from __future__ import annotations
 
 import math
+import typing
 from typing import Callable
 
 import pytest
@@ -11,14 +12,14 @@ import torch
 import torch.nn.functional as F
 
 from msdepth import _ssim_kernels as kernels
-from msdepth.appearance import variants
-from msdepth.appearance.msssim import MSSSIMConfig, msssim_similarity
-from msdepth.appearance.ssim import SSIMConfig
+from msdepth.appearance import terms
+from msdepth.appearance.msssim import msssim_similarity
 from msdepth.config import LossConfig
 from msdepth.losses import (
     C1,
     C2,
     WANG_WEIGHTS,
+    AppearanceTerm,
     LearnedLevelWeights,
     MonodepthLoss,
     appearance_loss,
@@ -31,6 +32,9 @@ from msdepth.losses import (
     smoothness_loss,
     ssim,
 )
+from msdepth.variants import configs
+from msdepth.variants.msssim import MSSSIMConfig
+from msdepth.variants.ssim import SSIMConfig
 
 _ssim_terms = kernels.ssim_terms
 
@@ -586,7 +590,7 @@ def _constant_disps(pixels: float, h: int = 32, w: int = 64, scales: int = 4) ->
 def _monodepth_loss(loss_cfg: LossConfig, appearance: str, ssim_cfg: SSIMConfig, msssim_cfg: MSSSIMConfig):
     """MonodepthLoss with the registered term of ``appearance`` (``ssim`` or ``msssim``)."""
     cfg = {"ssim": ssim_cfg, "msssim": msssim_cfg}[appearance]
-    return MonodepthLoss(loss_cfg, variants()[appearance].term(cfg, loss_cfg))
+    return MonodepthLoss(loss_cfg, terms()[appearance](cfg, loss_cfg))
 
 
 def _loss(appearance: str = "ssim", weights: str = "wang", **loss_kwargs: object) -> MonodepthLoss:
@@ -596,6 +600,17 @@ def _loss(appearance: str = "ssim", weights: str = "wang", **loss_kwargs: object
         SSIMConfig(),
         MSSSIMConfig(kernel_size=3, levels=4, weights=weights),  # type: ignore[arg-type]
     )
+
+
+def test_every_variant_has_one_term_built_from_its_config() -> None:
+    """The two registries (configs in msdepth.variants, terms in msdepth.appearance) name the same
+    variants, and each term takes its own variant's config class (and keeps it)."""
+    assert list(terms()) == list(configs()) and len(terms()) >= 3
+    for name, term in terms().items():
+        config = configs()[name]
+        assert typing.get_type_hints(term.__init__)["cfg"] is config, name
+        built = term(config(), LossConfig())
+        assert isinstance(built, AppearanceTerm) and built.cfg == config(), name
 
 
 @pytest.mark.parametrize("appearance", ["ssim", "msssim"])

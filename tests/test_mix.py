@@ -8,12 +8,14 @@ import numpy as np
 import pytest
 import torch
 
-from msdepth.appearance import build_appearance, variants
-from msdepth.appearance.mix import MixAppearance, MixConfig, gaussian_l1
+from msdepth.appearance import build_appearance, terms
+from msdepth.appearance.mix import MixAppearance, gaussian_l1
 from msdepth.config import LossConfig, params_from_dict
 from msdepth.errors import ConfigError
 from msdepth.losses import MonodepthLoss, ms_ssim, reference_ssim_terms
 from msdepth.train import load_model, train_variant
+from msdepth.variants import configs
+from msdepth.variants.mix import MixConfig
 
 
 def _rand(*shape: int, seed: int = 0) -> torch.Tensor:
@@ -30,7 +32,7 @@ def _mix(**cfg: object) -> MixAppearance:
 
 
 def test_mix_is_registered_with_zhaos_defaults() -> None:
-    assert variants()["mix"].term is MixAppearance
+    assert terms()["mix"] is MixAppearance and configs()["mix"] is MixConfig
     cfg = params_from_dict({}).appearance["mix"]
     assert cfg == MixConfig() and (cfg.alpha, cfg.sigma, cfg.weights) == (0.84, 0.5, "ones")
     assert cfg.l1_sigma == 4.0  # 0.5 px at the 4th level: 0.5 * 2**3 px of the compared image

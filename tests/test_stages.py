@@ -70,6 +70,22 @@ def test_prepare_data_dry_run_of_the_synthetic_set_writes_nothing(tmp_path: Path
     assert [p.name for p in tmp_path.iterdir()] == ["params.yaml"]
 
 
+def test_reading_params_imports_neither_torch_nor_numpy(tmp_path: Path):
+    """Every stage reads its params: the loss variants' configs come without their terms."""
+    (tmp_path / "params.yaml").write_text("variants: [ssim, msssim, mix]\n")
+    code = (
+        "import sys; from msdepth.stages.common import load_params; p = load_params('params.yaml'); "
+        "heavy = [m for m in ('torch', 'numpy', 'msdepth.appearance') if m in sys.modules]; "
+        "print(sorted(p.appearance), heavy)"
+    )
+    env = dict(os.environ, PYTHONPATH=str(ROOT / "src"))
+    proc = subprocess.run(
+        [sys.executable, "-c", code], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=120
+    )
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout == "['mix', 'msssim', 'ssim'] []\n"
+
+
 @pytest.mark.parametrize(
     ("params", "message"),
     [
@@ -77,6 +93,12 @@ def test_prepare_data_dry_run_of_the_synthetic_set_writes_nothing(tmp_path: Path
         ("train: {learning_rate: fast}", "train.learning_rate: expected a number, got 'fast'"),
         ("trian: {epochs: 3}", "unknown parameter(s) ['trian']"),
         ("train: {epcohs: 3}", "unknown parameter(s) ['train.epcohs']"),
+        (
+            "ssim: {kernel_size: 9}",
+            "ssim.kernel_size: 9 px windows do not fit the coarsest training scale (8x24 px) "
+            "with valid padding",
+        ),
+        ("mix: {alfa: 0.5}", "unknown parameter(s) ['mix.alfa']"),
     ],
 )
 def test_validate_params_rejects_a_bad_value_or_unknown_key_in_one_line(

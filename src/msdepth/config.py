@@ -14,6 +14,7 @@ from typing import Any, Literal, get_args, get_origin
 import yaml
 
 from .errors import ConfigError
+from .variants import configs as variant_configs  # light: the loss variants' configs, not their terms
 
 
 def _speed_only(default: Any) -> Any:
@@ -168,11 +169,8 @@ class LossConfig:
 
 
 def _registered_sections() -> dict[str, Any]:
-    """Default config of every registered appearance term (imported here, on first use, so that
-    importing this module stays light)."""
-    from .appearance import variants
-
-    return {name: spec.config() for name, spec in variants().items()}
+    """Default config of every registered loss variant (:mod:`msdepth.variants`)."""
+    return {name: config() for name, config in variant_configs().items()}
 
 
 @dataclass(frozen=True)
@@ -203,11 +201,11 @@ class Params:
     train: TrainConfig = field(default_factory=TrainConfig)
     loss: LossConfig = field(default_factory=LossConfig)
     # A loss variant is named after its params section, so that DVC can track exactly that
-    # section per stage; each registered appearance term (msdepth.appearance) has one.
+    # section per stage; each registered variant (msdepth.variants) has one.
     variants: tuple[str, ...] = ("ssim", "msssim")
     eval: EvalConfig = field(default_factory=EvalConfig)
     compare: CompareConfig = field(default_factory=CompareConfig)
-    # The params section of every registered appearance term, by name (top-level sections in
+    # The params section of every registered variant, by name (top-level sections in
     # params.yaml, e.g. ``ssim:``; not a key of its own).
     appearance: dict[str, Any] = field(default_factory=_registered_sections, metadata={"yaml": False})
 
@@ -381,7 +379,7 @@ def validate(p: Params) -> Params:
     check(0 <= p.loss.alpha <= 1, "loss.alpha", "must be in [0, 1]")
     check(p.loss.smoothness_weight >= 0, "loss.smoothness_weight", "must be >= 0")
     check(p.loss.lr_weight >= 0, "loss.lr_weight", "must be >= 0")
-    # Each trained variant's term checks its own section (types and unknown keys are checked for
+    # Each trained variant's config checks its own section (types and unknown keys are checked for
     # every section; the range checks of a section no run uses, e.g. against the image size, wait).
     for name in p.variants:
         p.appearance[name].validate(name, p)
@@ -440,10 +438,8 @@ def params_from_dict(raw: dict) -> Params:
     """Build and validate :class:`Params` from a parsed params.yaml mapping."""
     if not isinstance(raw, dict):
         raise ConfigError("params: expected a mapping at the top level")
-    from .appearance import variants
-
-    registered = variants()
-    sections = {name: _convert(raw.get(name, {}), spec.config, name) for name, spec in registered.items()}
+    registered = variant_configs()
+    sections = {name: _convert(raw.get(name, {}), config, name) for name, config in registered.items()}
     params = _build(Params, {k: v for k, v in raw.items() if k not in registered}, "")
     return validate(dataclasses.replace(params, appearance=sections))
 

@@ -100,13 +100,15 @@ def learning_rate(base: float, step: int, total_steps: int) -> float:
 # train stage's src/ deps in dvc.yaml (a test keeps the two lists equal). Their bytes are part of
 # the checkpoint fingerprint: when DVC reruns the stage because one of them changed, the run
 # trains anew instead of resuming a checkpoint that the old code wrote, so a model always comes
-# from the code that is committed with it. A new appearance term lands in appearance/, already listed.
+# from the code that is committed with it. A new variant lands in appearance/ and variants/ (its
+# config's code, e.g. MixConfig.l1_sigma, shapes the run too), both already listed.
 TRAINING_MODULES = (
     "train.py",
     "model.py",
     "losses.py",
     "_ssim_kernels.py",
     "appearance",
+    "variants",
     "warp.py",
     "serialization.py",
     "data/pairs.py",

@@ -1,25 +1,20 @@
-"""The registry of appearance terms: a loss variant's name -> its config section and its term.
+"""The registry of appearance terms: a loss variant's name -> its :class:`msdepth.losses.AppearanceTerm`.
 
-A variant is one module of this package: a frozen dataclass of its ``params.yaml`` section
-(whose ``validate(key, params)`` raises a ConfigError naming the key) and an
-:class:`msdepth.losses.AppearanceTerm` built from it, tied together by :func:`register`. The
-name is also the params section and the run's folder (``models/<name>/seed<s>``). Nothing
-else names a variant: :mod:`msdepth.config` reads every registered section,
-:func:`build_appearance` gives training its term, and the checkpoint fingerprint hashes the
-section of whichever variant it trains. Adding a variant = a module here, its params section,
-its docs.
-
-This file imports nothing heavy; :func:`variants` imports the variant modules (and torch).
+A variant is two modules of the same name: its config, the dataclass of its ``params.yaml``
+section, in :mod:`msdepth.variants`, and its term here, registered by :func:`term` and built as
+``Term(config, params.loss)`` (per scale, the photometric loss of the reconstruction against its
+target). The configs are apart so that reading params (every stage) imports no torch and no loss
+code; only training, which builds the term (:func:`build_appearance`), imports this package.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import importlib
 import pkgutil
-from dataclasses import dataclass
 from types import MappingProxyType
 from typing import TYPE_CHECKING, Callable, Mapping, TypeVar
+
+from ..variants import configs
 
 if TYPE_CHECKING:
     from ..config import Params
@@ -27,42 +22,29 @@ if TYPE_CHECKING:
 
 T = TypeVar("T", bound=type)
 
-
-@dataclass(frozen=True)
-class Registered:
-    """One variant: its name (= params section), config dataclass and appearance term class."""
-
-    name: str
-    config: type  # frozen dataclass with ``validate(key, params)``; built as term(config, loss_cfg)
-    term: type
-
-
-_REGISTRY: dict[str, Registered] = {}
+_REGISTRY: dict[str, type] = {}
 _discovered = False
 
 
-def register(name: str, config: type) -> Callable[[T], T]:
-    """Class decorator: register the decorated :class:`AppearanceTerm` as variant ``name``,
-    configured by the params section ``name`` (dataclass ``config``)."""
-    from ..config import Params
+def term(name: str) -> Callable[[T], T]:
+    """Class decorator: register the decorated :class:`AppearanceTerm` as the term of variant
+    ``name``, whose config (:mod:`msdepth.variants`) it is built from."""
+    if name not in configs():
+        raise ValueError(f"appearance {name!r}: no variant config of that name in msdepth.variants")
 
-    if not dataclasses.is_dataclass(config) or not callable(getattr(config, "validate", None)):
-        raise TypeError(f"appearance {name!r}: config must be a dataclass with validate(key, params)")
-    if name in {f.name for f in dataclasses.fields(Params)}:
-        raise ValueError(f"appearance {name!r}: the name of a params section that is not a variant")
-
-    def decorate(term: T) -> T:
+    def decorate(cls: T) -> T:
         known = _REGISTRY.get(name)
-        if known is not None and known.term.__qualname__ != term.__qualname__:
-            raise ValueError(f"appearance {name!r} is registered twice ({known.term} and {term})")
-        _REGISTRY[name] = Registered(name, config, term)
-        return term
+        if known is not None and known.__qualname__ != cls.__qualname__:
+            raise ValueError(f"appearance {name!r} is registered twice ({known} and {cls})")
+        _REGISTRY[name] = cls
+        return cls
 
     return decorate
 
 
-def variants() -> Mapping[str, Registered]:
-    """Every registered variant by name (sorted), after importing each module of this package once."""
+def terms() -> Mapping[str, type]:
+    """Every registered term class by variant name (sorted), after importing each module of this
+    package once."""
     global _discovered
     if not _discovered:
         for module in sorted(pkgutil.iter_modules(__path__), key=lambda m: m.name):
@@ -74,5 +56,4 @@ def variants() -> Mapping[str, Registered]:
 
 def build_appearance(params: Params, name: str) -> AppearanceTerm:
     """The appearance term of variant ``name``, configured by its params section and ``params.loss``."""
-    spec = variants()[params.variant(name)]
-    return spec.term(params.appearance[name], params.loss)
+    return terms()[params.variant(name)](params.appearance[name], params.loss)

@@ -6,12 +6,11 @@ learned) level weights; all scales of the pyramid through the kernels together.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import TYPE_CHECKING, Literal, Sequence
+from typing import Sequence
 
 from torch import Tensor
 
-from ..config import LossConfig, check, check_levels_fit
+from ..config import LossConfig
 from ..losses import (
     AppearanceTerm,
     LearnedLevelWeights,
@@ -19,24 +18,8 @@ from ..losses import (
     ms_ssim_pyramid,
     similarity_appearance_loss,
 )
-from . import register
-
-if TYPE_CHECKING:
-    from ..config import Params
-
-
-@dataclass(frozen=True)
-class MSSSIMConfig:
-    kernel_size: int = 3
-    levels: int = 4
-    weights: Literal["wang", "equal", "learned"] = "wang"
-
-    def validate(self, key: str, params: Params) -> None:
-        """Range checks of the ``key`` section; a ConfigError names the key."""
-        k, d = self.kernel_size, params.data
-        check(k >= 1 and k % 2 == 1, f"{key}.kernel_size", f"must be a positive odd integer, got {k}")
-        check(k <= min(d.height, d.width), f"{key}.kernel_size", "must not exceed the input image")
-        check_levels_fit(key, self.levels, d)
+from ..variants.msssim import MSSSIMConfig
+from . import term
 
 
 def msssim_similarity(
@@ -65,7 +48,7 @@ def msssim_similarity(
     return similarity
 
 
-@register("msssim", MSSSIMConfig)
+@term("msssim")
 class MSSSIMAppearance(AppearanceTerm):
     """Per scale, ``alpha·mean(clip((1 - MS-SSIM)/2)) + (1 - alpha)·mean|x - y|``; holds
     :class:`LearnedLevelWeights` as ``level_weights`` when ``cfg.weights == "learned"``."""

@@ -2,39 +2,17 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import TYPE_CHECKING, Literal, Sequence
+from typing import Sequence
 
 from torch import Tensor
 
-from ..config import LossConfig, check
+from ..config import LossConfig
 from ..losses import AppearanceTerm, similarity_appearance_loss, ssim
-from . import register
-
-if TYPE_CHECKING:
-    from ..config import Params
+from ..variants.ssim import SSIMConfig
+from . import term
 
 
-@dataclass(frozen=True)
-class SSIMConfig:
-    kernel_size: int = 3
-    padding: Literal["valid", "reflect"] = "valid"
-
-    def validate(self, key: str, params: Params) -> None:
-        """Range checks of the ``key`` section; a ConfigError names the key."""
-        k, d = self.kernel_size, params.data
-        check(k >= 1 and k % 2 == 1, f"{key}.kernel_size", f"must be a positive odd integer, got {k}")
-        if self.padding == "valid":  # SSIM's valid windows must fit the coarsest scale (input / 8)
-            smallest = min(d.height, d.width) // 8
-            check(
-                k <= smallest,
-                f"{key}.kernel_size",
-                f"{k} px windows do not fit the coarsest training scale "
-                f"({d.height // 8}x{d.width // 8} px) with valid padding",
-            )
-
-
-@register("ssim", SSIMConfig)
+@term("ssim")
 class SSIMAppearance(AppearanceTerm):
     """Per scale, Monodepth's ``alpha·mean(clip((1 - SSIM)/2)) + (1 - alpha)·mean|x - y|``."""
 

@@ -1,0 +1,57 @@
+"""The registry of loss variants' configs: a variant's name -> the dataclass of its params section.
+
+A variant is named after its ``params.yaml`` section, which is also its run's folder
+(``models/<name>/seed<s>``). Each module of this package is one variant's config: a frozen
+dataclass whose ``validate(key, params)`` raises a ConfigError naming the key, tied to the name by
+:func:`register`. Its torch half, the appearance term, is the module of the same name in
+:mod:`msdepth.appearance` (a test checks that both registries name the same variants).
+
+:mod:`msdepth.config`, which every stage imports to read its params, imports only this package:
+so a stage that only reads params neither depends on the loss code (dvc.yaml) nor imports torch.
+Hence these modules import only the standard library, ``..config`` and ``..errors``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import importlib
+import pkgutil
+from types import MappingProxyType
+from typing import Callable, Mapping, TypeVar
+
+T = TypeVar("T", bound=type)
+
+_REGISTRY: dict[str, type] = {}
+_discovered = False
+
+
+def register(name: str) -> Callable[[T], T]:
+    """Class decorator: register the decorated frozen dataclass as the config (params section
+    ``name``) of variant ``name``."""
+
+    def decorate(config: T) -> T:
+        from ..config import Params  # here: ..config imports this package
+
+        if not dataclasses.is_dataclass(config) or not callable(getattr(config, "validate", None)):
+            raise TypeError(f"variant {name!r}: config must be a dataclass with validate(key, params)")
+        if name in {f.name for f in dataclasses.fields(Params)}:
+            raise ValueError(f"variant {name!r}: the name of a params section that is not a variant")
+        known = _REGISTRY.get(name)
+        if known is not None and known.__qualname__ != config.__qualname__:
+            raise ValueError(f"variant {name!r} is registered twice ({known} and {config})")
+        _REGISTRY[name] = config
+        return config
+
+    return decorate
+
+
+def configs() -> Mapping[str, type]:
+    """Every registered variant's config class by name (sorted), after importing each module of
+    this package once."""
+    global _discovered
+    if not _discovered:
+        for module in sorted(pkgutil.iter_modules(__path__), key=lambda m: m.name):
+            if not module.name.startswith("_"):
+                importlib.import_module(f"{__name__}.{module.name}")
+        _discovered = True
+    return MappingProxyType(dict(sorted(_REGISTRY.items())))
