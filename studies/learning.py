@@ -94,6 +94,7 @@ def run_one(base: dict, spec: str, seed: int, out: str, threads: int) -> dict:
     index = read_eval_index(INDEX / "eval_frames.csv")
     frames = load_frames(index)
     images = [Path(p) for p in index["left"]]
+    boxes = kitti.read_rois(INDEX / "rois.csv")
     history: list[dict] = []
 
     def on_epoch(epoch: int, model, means: dict) -> None:
@@ -103,12 +104,15 @@ def run_one(base: dict, spec: str, seed: int, out: str, threads: int) -> dict:
         )
         pred = depth_maps(disp, frames)
         full, _ = evaluate_full(pred, frames, params.eval)
+        roi, _ = evaluate_roi(pred, frames, boxes, params.eval)
         model.train()
         history.append(
             {
                 "epoch": epoch,
                 **means,
                 "abs_rel": full["cap80"]["abs_rel"],
+                "roi_abs_rel": roi["cap80"]["overall"]["abs_rel"],
+                "roi_by_class": {c: v["abs_rel"] for c, v in roi["cap80"]["by_class"].items()},
                 "variation_ratio": image_dependence(pred, frames, 80.0)["variation_ratio"],
             }
         )
@@ -137,7 +141,7 @@ def run_one(base: dict, spec: str, seed: int, out: str, threads: int) -> dict:
     )
     pred = depth_maps(disp, frames)
     full, table = evaluate_full(pred, frames, params.eval)
-    roi, _ = evaluate_roi(pred, frames, kitti.read_rois(INDEX / "rois.csv"), params.eval)
+    roi, _ = evaluate_roi(pred, frames, boxes, params.eval)
     row = {
         "per_image_abs_rel": table[table["cap"] == 80]["abs_rel"].tolist(),
         "spec": spec,
@@ -218,6 +222,20 @@ def summarise(rows: list[dict], prior: dict) -> str:
             f"| {spec} | {len(a)} | {a.mean():.4f} ± {sd(a):.4f} | {b.mean():.4f} ± {sd(b):.4f} "
             f"| {a.max():.4f} |"
         )
+    classes = sorted({c for r in rows for c in r["roi_by_class"]})
+    lines += [
+        "",
+        "ROI abs_rel per class (cap 80; mean over the runs), against the image-blind baselines:",
+        "",
+        f"| run | {' | '.join(classes)} |",
+        f"|---|{'---|' * len(classes)}",
+    ]
+    for spec in sorted({r["spec"] for r in rows}):
+        means = [np.mean([r["roi_by_class"][c] for r in rows if r["spec"] == spec]) for c in classes]
+        lines.append(f"| {spec} | {' | '.join(f'{m:.3f}' for m in means)} |")
+    for name in ("constant", "prior"):
+        cells = " | ".join(f"{prior[name]['roi_by_class'][c]:.3f}" for c in classes)
+        lines.append(f"| {name} | {cells} |")
     return "\n".join(lines)
 
 

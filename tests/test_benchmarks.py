@@ -3,6 +3,7 @@ benchmark would only be found when a GPU session needs it."""
 
 from __future__ import annotations
 
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -148,14 +149,16 @@ def test_train_step_benchmark_by_network() -> None:
         assert f"| {name} |" in out
 
 
-def test_learning_study_smoke(tmp_path: Path) -> None:
-    """studies/learning.py end to end on a tiny generated set: trains, evaluates per epoch, summarises."""
+@pytest.fixture(scope="module")
+def study_set(tmp_path_factory) -> Path:
+    """A tiny generated set, indexed and cached as `dvc repro cache rois` leaves it (the studies' input)."""
     import yaml
 
     from msdepth import pipeline
     from msdepth.config import params_from_dict
     from msdepth.data.synthetic import generate
 
+    work = tmp_path_factory.mktemp("study")
     raw = {
         "data": {
             "height": 32,
@@ -164,7 +167,7 @@ def test_learning_study_smoke(tmp_path: Path) -> None:
                 "seed": 3,
                 "drives": 1,
                 "train_pairs": 8,
-                "eval_frames": 4,
+                "eval_frames": 8,
                 "height": 48,
                 "width": 160,
             },
@@ -173,14 +176,20 @@ def test_learning_study_smoke(tmp_path: Path) -> None:
         "train": {"epochs": 2, "batch_size": 4, "seeds": [0]},
         "msssim": {"levels": 3},
     }
-    (tmp_path / "params.yaml").write_text(yaml.safe_dump(raw))
+    (work / "params.yaml").write_text(yaml.safe_dump(raw))
     params = params_from_dict(raw)
     with pytest.MonkeyPatch.context() as mp:
-        mp.chdir(tmp_path)
+        mp.chdir(work)
         generate(params.data.synthetic, Path(params.data.root), progress=False, workers=1)
         pipeline.index(params)
         pipeline.rois(params)
         pipeline.cache(params)
+    return work
+
+
+def test_learning_study_smoke(study_set: Path, tmp_path: Path) -> None:
+    """studies/learning.py end to end on a tiny generated set: trains, evaluates per epoch, summarises."""
+    shutil.copytree(study_set, tmp_path, dirs_exist_ok=True)
     proc = subprocess.run(
         [
             sys.executable,
@@ -206,4 +215,42 @@ def test_learning_study_smoke(tmp_path: Path) -> None:
 
     run = json.loads((tmp_path / "out" / "msssim_k5_seed0.json").read_text())
     assert [h["epoch"] for h in run["history"]] == [1, 2] and 0 <= run["history"][0]["variation_ratio"]
+    # Goal 3's measure per epoch and in the summary: each class's ROI abs_rel beside the constant's.
+    assert set(run["history"][-1]["roi_by_class"]) == set(run["roi_by_class"])
+    assert "ROI abs_rel per class" in proc.stdout and "| constant |" in proc.stdout
     assert (tmp_path / "out" / "curves.png").stat().st_size > 0
+
+
+def test_roi_error_study_known_answers(study_set: Path, tmp_path: Path, monkeypatch) -> None:
+    """studies/roi_errors.py: a run that predicts the GT has ratio 1.00 in every row, one at twice
+    the GT 2.00, and both see the same prior ratios."""
+    import numpy as np
+
+    from msdepth.data.index import read_eval_index
+    from msdepth.evaluate import load_frames
+    from msdepth.io import save_npz
+
+    shutil.copytree(study_set, tmp_path, dirs_exist_ok=True)
+    monkeypatch.chdir(tmp_path)  # the index's paths are relative to the project
+    frames = load_frames(read_eval_index(Path("data/index/eval_frames.csv")))
+    for run, factor in (("exact/seed0", 1.0), ("far/seed0", 2.0)):
+        save_npz(tmp_path / "outputs" / run / "depth.npz", **{f.name: factor * f.gt_depth for f in frames})
+    proc = subprocess.run(
+        [sys.executable, str(ROOT / "studies" / "roi_errors.py"), "--runs", "exact/seed0", "far/seed0"],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    rows = [
+        line.split(" | ")
+        for line in proc.stdout.splitlines()
+        if line.startswith("| exact/") or line.startswith("| far/")
+    ]
+    exact = {r[1]: r for r in rows if r[0] == "| exact/seed0"}
+    far = {r[1]: r for r in rows if r[0] == "| far/seed0"}
+    assert exact and exact.keys() == far.keys(), proc.stdout
+    for key in exact:
+        assert (exact[key][4], far[key][4]) == ("1.00", "2.00"), key
+        assert exact[key][5] == far[key][5] and np.isfinite(float(exact[key][5])), key
