@@ -45,8 +45,10 @@ def imported_modules(path: Path, module: str | None, src: Path, package: str = P
         for stmt in block.body
         for n in ast.walk(stmt)
     }
-    if is_package and re.search(r"\b(pkgutil\.iter_modules|importlib\.import_module)\(", path.read_text()):
-        # A package that imports its own modules by name (a registry): count them all.
+    registry = r"\b(pkgutil\.iter_modules|importlib\.import_module)\(|\bRegistry\(__name__\b"
+    if is_package and re.search(registry, path.read_text()):
+        # A package that imports its own modules by name (a registry, msdepth.variants._registry's
+        # Registry): count them all.
         found.update(f"{module}.{p.stem}" for p in path.parent.glob("*.py") if p.name != "__init__.py")
     for node in ast.walk(tree):
         if id(node) in skipped:

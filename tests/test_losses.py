@@ -4,6 +4,8 @@ Monodepth loss terms, the appearance terms and MonodepthLoss."""
 from __future__ import annotations
 
 import math
+import subprocess
+import sys
 import typing
 from typing import Callable
 
@@ -611,6 +613,26 @@ def test_every_variant_has_one_term_built_from_its_config() -> None:
         assert typing.get_type_hints(term.__init__)["cfg"] is config, name
         built = term(config(), LossConfig())
         assert isinstance(built, AppearanceTerm) and built.cfg == config(), name
+
+
+def test_registry_refuses_a_second_class_under_a_name_and_finds_the_package_modules() -> None:
+    from msdepth.variants._registry import Registry
+
+    class A: ...
+
+    class B: ...
+
+    registry = Registry("msdepth.variants", "variant")
+    assert set(registry.entries()) == set()  # the package's modules were imported before: no re-registration
+    registry.add("x", A)
+    registry.add("x", A)  # the same class again (a module imported twice) is fine
+    with pytest.raises(ValueError, match="variant 'x' is registered twice"):
+        registry.add("x", B)
+    assert dict(registry.entries()) == {"x": A}
+    # A fresh process: the first lookup imports every variant module, which registers itself.
+    code = "from msdepth.variants import configs; print(' '.join(configs()))"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert {"ssim", "msssim", "mix"} <= set(out.split())
 
 
 @pytest.mark.parametrize("appearance", ["ssim", "msssim"])

@@ -9,12 +9,10 @@ code; only training, which builds the term (:func:`build_appearance`), imports t
 
 from __future__ import annotations
 
-import importlib
-import pkgutil
-from types import MappingProxyType
 from typing import TYPE_CHECKING, Callable, Mapping, TypeVar
 
 from ..variants import configs
+from ..variants._registry import Registry
 
 if TYPE_CHECKING:
     from ..config import Params
@@ -22,8 +20,7 @@ if TYPE_CHECKING:
 
 T = TypeVar("T", bound=type)
 
-_REGISTRY: dict[str, type] = {}
-_discovered = False
+_TERMS = Registry(__name__, "appearance")
 
 
 def term(name: str) -> Callable[[T], T]:
@@ -33,10 +30,7 @@ def term(name: str) -> Callable[[T], T]:
         raise ValueError(f"appearance {name!r}: no variant config of that name in msdepth.variants")
 
     def decorate(cls: T) -> T:
-        known = _REGISTRY.get(name)
-        if known is not None and known.__qualname__ != cls.__qualname__:
-            raise ValueError(f"appearance {name!r} is registered twice ({known} and {cls})")
-        _REGISTRY[name] = cls
+        _TERMS.add(name, cls)
         return cls
 
     return decorate
@@ -45,13 +39,7 @@ def term(name: str) -> Callable[[T], T]:
 def terms() -> Mapping[str, type]:
     """Every registered term class by variant name (sorted), after importing each module of this
     package once."""
-    global _discovered
-    if not _discovered:
-        for module in sorted(pkgutil.iter_modules(__path__), key=lambda m: m.name):
-            if not module.name.startswith("_"):
-                importlib.import_module(f"{__name__}.{module.name}")
-        _discovered = True
-    return MappingProxyType(dict(sorted(_REGISTRY.items())))
+    return _TERMS.entries()
 
 
 def build_appearance(params: Params, name: str) -> AppearanceTerm:

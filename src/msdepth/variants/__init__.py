@@ -14,15 +14,13 @@ Hence these modules import only the standard library, ``..config`` and ``..error
 from __future__ import annotations
 
 import dataclasses
-import importlib
-import pkgutil
-from types import MappingProxyType
 from typing import Callable, Mapping, TypeVar
+
+from ._registry import Registry
 
 T = TypeVar("T", bound=type)
 
-_REGISTRY: dict[str, type] = {}
-_discovered = False
+_CONFIGS = Registry(__name__, "variant")
 
 
 def register(name: str) -> Callable[[T], T]:
@@ -36,10 +34,7 @@ def register(name: str) -> Callable[[T], T]:
             raise TypeError(f"variant {name!r}: config must be a dataclass with validate(key, params)")
         if name in {f.name for f in dataclasses.fields(Params)}:
             raise ValueError(f"variant {name!r}: the name of a params section that is not a variant")
-        known = _REGISTRY.get(name)
-        if known is not None and known.__qualname__ != config.__qualname__:
-            raise ValueError(f"variant {name!r} is registered twice ({known} and {config})")
-        _REGISTRY[name] = config
+        _CONFIGS.add(name, config)
         return config
 
     return decorate
@@ -48,10 +43,4 @@ def register(name: str) -> Callable[[T], T]:
 def configs() -> Mapping[str, type]:
     """Every registered variant's config class by name (sorted), after importing each module of
     this package once."""
-    global _discovered
-    if not _discovered:
-        for module in sorted(pkgutil.iter_modules(__path__), key=lambda m: m.name):
-            if not module.name.startswith("_"):
-                importlib.import_module(f"{__name__}.{module.name}")
-        _discovered = True
-    return MappingProxyType(dict(sorted(_REGISTRY.items())))
+    return _CONFIGS.entries()
