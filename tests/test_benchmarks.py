@@ -13,16 +13,23 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def _run(script: str, *args: str) -> str:
+def _script(path: Path, *args: str, cwd: Path) -> str:
+    """Run the Python script ``path`` in ``cwd``; its stdout (it must succeed)."""
     proc = subprocess.run(
-        [sys.executable, str(ROOT / "benchmarks" / script), *args],
-        cwd=ROOT,
-        capture_output=True,
-        text=True,
-        timeout=300,
+        [sys.executable, str(path), *args], cwd=cwd, capture_output=True, text=True, timeout=600
     )
     assert proc.returncode == 0, proc.stderr[-3000:]
     return proc.stdout
+
+
+def _run(script: str, *args: str) -> str:
+    """``benchmarks/<script>`` from the repository root."""
+    return _script(ROOT / "benchmarks" / script, *args, cwd=ROOT)
+
+
+def _study(script: str, *args: str, cwd: Path) -> str:
+    """``studies/<script>`` in the project folder ``cwd`` (a tiny generated set)."""
+    return _script(ROOT / "studies" / script, *args, cwd=cwd)
 
 
 def test_loss_benchmark_prints_the_ratios_to_pytorch_msssim() -> None:
@@ -190,56 +197,42 @@ def study_set(tmp_path_factory) -> Path:
 def test_learning_study_smoke(study_set: Path, tmp_path: Path) -> None:
     """studies/learning.py end to end on a tiny generated set: trains, evaluates per epoch, summarises."""
     shutil.copytree(study_set, tmp_path, dirs_exist_ok=True)
-    proc = subprocess.run(
-        [
-            sys.executable,
-            str(ROOT / "studies" / "learning.py"),
-            "--variants",
-            "ssim",
-            "msssim:5",
-            "--seeds",
-            "0",
-            "--out",
-            "out",
-            "--jobs",
-            "1",
-        ],
+    stdout = _study(
+        "learning.py",
+        "--variants",
+        "ssim",
+        "msssim:5",
+        "--seeds",
+        "0",
+        "--out",
+        "out",
+        "--jobs",
+        "1",
         cwd=tmp_path,
-        capture_output=True,
-        text=True,
-        timeout=600,
     )
-    assert proc.returncode == 0, proc.stderr[-3000:]
-    assert "| msssim:5 | 0 |" in proc.stdout and "| ssim | 1 |" in proc.stdout
+    assert "| msssim:5 | 0 |" in stdout and "| ssim | 1 |" in stdout
     import json
 
     run = json.loads((tmp_path / "out" / "msssim_k5_seed0.json").read_text())
     assert [h["epoch"] for h in run["history"]] == [1, 2] and 0 <= run["history"][0]["variation_ratio"]
     # Goal 3's measure per epoch and in the summary: each class's ROI abs_rel beside the constant's.
     assert set(run["history"][-1]["roi_by_class"]) == set(run["roi_by_class"])
-    assert "ROI abs_rel per class" in proc.stdout and "| constant |" in proc.stdout
+    assert "ROI abs_rel per class" in stdout and "| constant |" in stdout
     assert (tmp_path / "out" / "curves.png").stat().st_size > 0
     # studies/side_by_side.py on the two models the study trained.
     work = tmp_path / "out" / "work"
-    figure = subprocess.run(
-        [
-            sys.executable,
-            str(ROOT / "studies" / "side_by_side.py"),
-            "--models",
-            f"SSIM={work / 'ssim_seed0' / 'model.pt'}",
-            f"k5={work / 'msssim_k5_seed0' / 'model.pt'}",
-            "--frames",
-            "000000_10",
-            "000001_10",
-            "--out",
-            "side.png",
-        ],
+    _study(
+        "side_by_side.py",
+        "--models",
+        f"SSIM={work / 'ssim_seed0' / 'model.pt'}",
+        f"k5={work / 'msssim_k5_seed0' / 'model.pt'}",
+        "--frames",
+        "000000_10",
+        "000001_10",
+        "--out",
+        "side.png",
         cwd=tmp_path,
-        capture_output=True,
-        text=True,
-        timeout=300,
     )
-    assert figure.returncode == 0, figure.stderr[-3000:]
     assert (tmp_path / "side.png").stat().st_size > 0
 
 
@@ -257,22 +250,15 @@ def test_roi_error_study_known_answers(study_set: Path, tmp_path: Path, monkeypa
     frames = load_frames(read_eval_index(Path("data/index/eval_frames.csv")))
     for run, factor in (("exact/seed0", 1.0), ("far/seed0", 2.0)):
         save_npz(tmp_path / "outputs" / run / "depth.npz", **{f.name: factor * f.gt_depth for f in frames})
-    proc = subprocess.run(
-        [sys.executable, str(ROOT / "studies" / "roi_errors.py"), "--runs", "exact/seed0", "far/seed0"],
-        cwd=tmp_path,
-        capture_output=True,
-        text=True,
-        timeout=300,
-    )
-    assert proc.returncode == 0, proc.stderr[-3000:]
+    stdout = _study("roi_errors.py", "--runs", "exact/seed0", "far/seed0", cwd=tmp_path)
     rows = [
         line.split(" | ")
-        for line in proc.stdout.splitlines()
+        for line in stdout.splitlines()
         if line.startswith("| exact/") or line.startswith("| far/")
     ]
     exact = {r[1]: r for r in rows if r[0] == "| exact/seed0"}
     far = {r[1]: r for r in rows if r[0] == "| far/seed0"}
-    assert exact and exact.keys() == far.keys(), proc.stdout
+    assert exact and exact.keys() == far.keys(), stdout
     for key in exact:
         assert (exact[key][4], far[key][4]) == ("1.00", "2.00"), key
         assert exact[key][5] == far[key][5] and np.isfinite(float(exact[key][5])), key
