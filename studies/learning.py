@@ -31,6 +31,9 @@ import numpy as np
 import yaml
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "src"))
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # prepare_set, beside this script
+
+from prepare_set import apply  # noqa: E402
 
 from msdepth import baselines  # noqa: E402
 from msdepth.config import Params, params_from_dict  # noqa: E402
@@ -41,17 +44,6 @@ from msdepth.errors import DataError  # noqa: E402
 from msdepth.evaluate import depth_maps, evaluate_full, evaluate_roi, image_dependence, load_frames  # noqa: E402
 
 INDEX = Path("data/index")
-
-
-def _apply(raw: dict, assignments: list[str]) -> dict:
-    for item in assignments:
-        key, _, value = item.partition("=")
-        node = raw
-        *parents, last = key.split(".")
-        for part in parents:
-            node = node.setdefault(part, {})
-        node[last] = yaml.safe_load(value)
-    return raw
 
 
 def _params_for(base: dict, spec: str, threads: int) -> tuple[Params, str]:
@@ -275,7 +267,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", type=Path, required=True)
     ap.add_argument("--jobs", type=int, default=1)
     args = ap.parse_args(argv)
-    base = _apply(yaml.safe_load(Path("params.yaml").read_text()), args.set)
+    base = apply(yaml.safe_load(Path("params.yaml").read_text()), args.set)
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "overrides.json").write_text(json.dumps(args.set))
     threads = max(1, (os.cpu_count() or 1) // args.jobs)
@@ -291,7 +283,10 @@ def main(argv: list[str] | None = None) -> int:
         )
     text = summarise(rows, prior)
     (args.out / "summary.md").write_text(text + "\n")
-    curves_figure(rows, prior, args.out / "curves.png")
+    try:
+        curves_figure(rows, prior, args.out / "curves.png")
+    except ImportError:  # e.g. the GPU machine's image has no matplotlib: the numbers are the result
+        print("matplotlib is not installed: no curves.png", file=sys.stderr)
     print(text)
     return 0
 

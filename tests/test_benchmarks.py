@@ -3,6 +3,7 @@ benchmark would only be found when a GPU session needs it."""
 
 from __future__ import annotations
 
+import os
 import shutil
 import subprocess
 import sys
@@ -156,41 +157,37 @@ def test_train_step_benchmark_by_network() -> None:
         assert f"| {name} |" in out
 
 
+# The tiny size of the studies' tests (and of tests/test_pipeline_e2e.py), as --set overrides.
+TINY_STUDY = (
+    "data.height=32",
+    "data.width=96",
+    "data.synthetic.seed=3",
+    "data.synthetic.drives=1",
+    "data.synthetic.train_pairs=8",
+    "data.synthetic.eval_frames=8",
+    "data.synthetic.height=48",
+    "data.synthetic.width=160",
+    "model.width_multiplier=0.0625",
+    "train.epochs=2",
+    "train.batch_size=4",
+    "train.seeds=[0]",
+    "msssim.levels=3",
+)
+
+
 @pytest.fixture(scope="module")
 def study_set(tmp_path_factory) -> Path:
-    """A tiny generated set, indexed and cached as `dvc repro cache rois` leaves it (the studies' input)."""
-    import yaml
-
-    from msdepth import pipeline
-    from msdepth.config import params_from_dict
-    from msdepth.data.synthetic import generate
-
+    """A tiny project folder from studies/prepare_set.py: params, rendered set, index, ROIs, cache
+    (what `dvc repro cache rois` leaves, the studies' input)."""
     work = tmp_path_factory.mktemp("study")
-    raw = {
-        "data": {
-            "height": 32,
-            "width": 96,
-            "synthetic": {
-                "seed": 3,
-                "drives": 1,
-                "train_pairs": 8,
-                "eval_frames": 8,
-                "height": 48,
-                "width": 160,
-            },
-        },
-        "model": {"width_multiplier": 0.0625},
-        "train": {"epochs": 2, "batch_size": 4, "seeds": [0]},
-        "msssim": {"levels": 3},
-    }
-    (work / "params.yaml").write_text(yaml.safe_dump(raw))
-    params = params_from_dict(raw)
-    with pytest.MonkeyPatch.context() as mp:
-        mp.chdir(work)
-        generate(params.data.synthetic, Path(params.data.root), progress=False, workers=1)
-        pipeline.index(params)
-        pipeline.rois(params)
-        pipeline.cache(params)
+    _study("prepare_set.py", "--out", str(work), *(f"--set={kv}" for kv in TINY_STUDY), cwd=work)
+    for made in (
+        "params.yaml",
+        "data/index/eval_frames.csv",
+        "data/index/rois.csv",
+        "data/cache/train_pairs.npy",
+    ):
+        assert (work / made).is_file(), made
     return work
 
 
@@ -262,3 +259,40 @@ def test_roi_error_study_known_answers(study_set: Path, tmp_path: Path, monkeypa
     for key in exact:
         assert (exact[key][4], far[key][4]) == ("1.00", "2.00"), key
         assert exact[key][5] == far[key][5] and np.isfinite(float(exact[key][5])), key
+
+
+def test_objects_gpu_script_runs_tiny_on_the_cpu_without_matplotlib_or_dvclive(tmp_path: Path) -> None:
+    """studies/objects_gpu.sh, the prepared GPU run for issue 17's goal 3, at the tiny size on the
+    CPU, with matplotlib and dvclive made unimportable as on the GPU machine's image."""
+    blocked = tmp_path / "blocked"
+    for name in ("matplotlib", "dvclive"):
+        (blocked / name).mkdir(parents=True)
+        (blocked / name / "__init__.py").write_text(f"raise ImportError('{name} is not installed here')\n")
+    env = dict(
+        os.environ,
+        PYTHONPATH=str(blocked),
+        OUT=str(tmp_path / "out"),
+        WORK=str(tmp_path / "work"),
+        DEVICE="cpu",
+        RENDER="48x160",  # TINY_STUDY's sizes, through the script's own variables
+        INPUT="32x96",
+        WIDTH="0.0625",
+        EPOCHS="1",
+        PAIRS="8",
+        VARIANTS="ssim",
+        EXTRA=" ".join(
+            ("data.synthetic.seed=3", "data.synthetic.drives=1", "data.synthetic.eval_frames=8")
+            + ("train.batch_size=4", "msssim.levels=3")
+        ),
+    )
+    proc = subprocess.run(
+        ["bash", str(ROOT / "studies" / "objects_gpu.sh")],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-3000:]
+    assert "ROI abs_rel per class" in proc.stdout and "| constant |" in proc.stdout
+    assert (tmp_path / "out" / "ssim_seed0.json").is_file()
+    assert "no curves.png" in proc.stderr and not (tmp_path / "out" / "curves.png").exists()

@@ -1,0 +1,77 @@
+"""A study's own project folder: params.yaml with overrides, the rendered set, index, ROIs, cache.
+
+What ``dvc repro cache rois`` leaves in the repository, made elsewhere and at other sizes, so a
+study (``studies/learning.py``, run with that folder as its working directory) can screen e.g. a
+larger render and input without touching the committed default run::
+
+    python studies/prepare_set.py --out /tmp/big --set data.synthetic.height=250 \\
+        --set data.synthetic.width=828 --set data.height=128 --set data.width=416
+    cd /tmp/big && python <repo>/studies/learning.py --variants ssim --seeds 0 --out results
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import yaml
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "src"))
+
+# The stages' own wiring, not msdepth.pipeline, which imports the figures too (matplotlib: the
+# GPU machine's image has none).
+from msdepth.config import params_from_dict  # noqa: E402
+from msdepth.data.synthetic import generate  # noqa: E402
+from msdepth.errors import MsdepthError  # noqa: E402
+from msdepth.stages.cache import cache  # noqa: E402
+from msdepth.stages.index import index  # noqa: E402
+from msdepth.stages.rois import rois  # noqa: E402
+
+
+def apply(raw: dict, assignments: list[str]) -> dict:
+    """``raw`` with each ``a.b.c=value`` (a YAML value) set, creating sections as needed."""
+    for item in assignments:
+        key, sep, value = item.partition("=")
+        if not sep or not key:
+            raise ValueError(f"--set: expected KEY=VALUE, got {item!r}")
+        node = raw
+        *parents, last = key.split(".")
+        for part in parents:
+            node = node.setdefault(part, {})
+        node[last] = yaml.safe_load(value)
+    return raw
+
+
+def prepare(out: Path, assignments: list[str]) -> None:
+    """Write ``out/params.yaml`` (the repository's, with ``assignments``), then render, index,
+    find the ROIs and cache the training pairs there, as the pipeline's first stages do."""
+    import os
+
+    raw = apply(yaml.safe_load((ROOT / "params.yaml").read_text()), assignments)
+    params = params_from_dict(raw)  # checked before anything is written
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "params.yaml").write_text(yaml.safe_dump(raw, sort_keys=False))
+    os.chdir(out)  # the pipeline's paths are relative to the project folder
+    generate(params.data.synthetic, Path(params.data.root), progress=True)
+    index(params)
+    rois(params)
+    cache(params)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--out", type=Path, required=True, help="the study's project folder")
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE")
+    args = ap.parse_args(argv)
+    try:
+        prepare(args.out.resolve(), args.set)
+    except (MsdepthError, ValueError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
