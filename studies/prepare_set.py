@@ -20,14 +20,8 @@ import yaml
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "src"))
 
-# The stages' own wiring, not msdepth.pipeline, which imports the figures too (matplotlib: the
-# GPU machine's image has none).
 from msdepth.config import params_from_dict  # noqa: E402
-from msdepth.data.synthetic import generate  # noqa: E402
 from msdepth.errors import MsdepthError  # noqa: E402
-from msdepth.stages.cache import cache  # noqa: E402
-from msdepth.stages.index import index  # noqa: E402
-from msdepth.stages.rois import rois  # noqa: E402
 
 
 def apply(raw: dict, assignments: list[str]) -> dict:
@@ -48,6 +42,14 @@ def prepare(out: Path, assignments: list[str]) -> None:
     """Write ``out/params.yaml`` (the repository's, with ``assignments``), then render, index,
     find the ROIs and cache the training pairs there, as the pipeline's first stages do."""
     import os
+
+    # Here, not at the top: studies/learning.py imports this module for apply() alone. The stages'
+    # own wiring, not msdepth.pipeline, which imports the figures too (matplotlib: the GPU
+    # machine's image has none).
+    from msdepth.data.synthetic import generate
+    from msdepth.stages.cache import cache
+    from msdepth.stages.index import index
+    from msdepth.stages.rois import rois
 
     raw = apply(yaml.safe_load((ROOT / "params.yaml").read_text()), assignments)
     params = params_from_dict(raw)  # checked before anything is written

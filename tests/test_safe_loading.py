@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from conftest import PAIR_H, PAIR_W
 
 from msdepth.config import params_from_dict
 from msdepth.errors import MsdepthError
@@ -29,7 +30,7 @@ from msdepth.serialization import load_weights_file
 from msdepth.train import TrainingError, load_model, train_variant
 
 ROOT = Path(__file__).resolve().parents[1]
-H, W = 32, 64  # the size of conftest.py's training pairs (PAIR_H, PAIR_W)
+H, W = PAIR_H, PAIR_W  # the size of conftest.py's training pairs
 
 
 class Touch:
