@@ -1,9 +1,33 @@
-"""Stage: Score the image-blind baselines on an extra evaluation set. Usage: baselines_set.py SET_NAME"""
+"""Stage ``baselines_set@<set>``: the image-blind baselines on an extra evaluation set."""
+
+from __future__ import annotations
 
 import sys
 
-from msdepth.stages.baselines_set import baselines_set
-from msdepth.stages.common import run_stage
+from msdepth import baselines as baselines_mod
+from msdepth.config import Params
+from msdepth.data.index import read_eval_index, set_index_path
+from msdepth.evaluate import depth_maps, load_frames
+from msdepth.pipeline import INDEX_DIR, SETS_METRICS, SetArg, checked_set, run_stage
+from msdepth.suites import score_set
+
+
+def baselines_set(params: Params, set_name: SetArg) -> None:
+    """The constant and per-pixel prior of the training GT, scored on an extra set's full images
+    (skipped, with the reason in their JSON, when no training frame has GT)."""
+    name = checked_set(params, set_name)
+    gt = baselines_mod.indexed_training_gt()
+    if gt.maps is None:
+        reason = baselines_mod.skip_reason(gt)
+        for run in baselines_mod.BASELINES:
+            baselines_mod.write_skipped(
+                SETS_METRICS / name, "full", run, reason, headline=True, headline_root=f"sets/{name}"
+            )
+        return
+    frames = load_frames(read_eval_index(set_index_path(INDEX_DIR, name)))
+    for run, disp in baselines_mod.baseline_disparities(gt.maps, len(frames)).items():
+        score_set(params, name, run, depth_maps(disp, frames), frames)
+
 
 if __name__ == "__main__":
     sys.exit(run_stage(baselines_set, *sys.argv[1:]))

@@ -1,9 +1,115 @@
-"""Stage: Compare every variant and baseline side by side (Markdown + JSON)."""
+"""Stage ``compare``: every variant (mean over its seeds) and baseline side by side, Markdown + JSON."""
+
+from __future__ import annotations
 
 import sys
+from pathlib import Path
+from typing import Sequence
 
-from msdepth.stages.common import run_stage
-from msdepth.stages.compare import compare
+import numpy as np
+
+from msdepth.baselines import BASELINES, skipped_reason
+from msdepth.compare import (
+    build_comparison,
+    build_set_section,
+    group_metrics,
+    image_dependence,
+    load_suite_metrics,
+    load_unit_tables,
+    paired_statistics,
+    seed_spread,
+)
+from msdepth.config import Params
+from msdepth.evaluate import no_rois
+from msdepth.io import write_json, write_text
+from msdepth.pipeline import SETS_METRICS, SUITE_NAMES, run_stage, variant_runs
+from msdepth.suites import headline
+
+
+def run_groups(
+    params: Params, root: Path, suites: Sequence[str]
+) -> tuple[dict[str, str], tuple[str, ...], dict[str, list[str]], list[str]]:
+    """What is compared below ``root``: the baselines missing (with why), those built, the groups
+    (each variant's runs over the seeds, each built baseline alone) and all their runs."""
+    missing = {b: reason for b in BASELINES if (reason := skipped_reason(root, b, suites)) is not None}
+    built = tuple(b for b in BASELINES if b not in missing)
+    groups = {**variant_runs(params), **{b: [b] for b in built}}
+    return missing, built, groups, [r for group in groups.values() for r in group]
+
+
+def compare(params: Params) -> None:
+    """One table of every variant (mean over its seeds) and baseline, as Markdown and JSON.
+
+    A baseline the baselines stage could not build is listed as missing, with the reason.
+    """
+    missing, built, groups, runs = run_groups(params, Path("metrics"), SUITE_NAMES)
+    suites = load_suite_metrics("metrics", runs)
+    tables = load_unit_tables("metrics", runs)
+    # Without ROIs (an empty ROI index) only the full-image suite has numbers to compare.
+    compared = ("full",) if all(no_rois(suites["roi"][r]) for r in runs) else ("full", "roi")
+    stats = paired_statistics({s: tables[s] for s in compared}, groups, params.compare, params.eval.caps)
+    caps = [f"cap{c:g}" for c in params.eval.caps]
+    dependence = image_dependence(suites, tables, groups, "prior", params.eval.caps[0])
+    result, md = build_comparison(
+        group_metrics(suites, groups),
+        list(params.variants),
+        built,
+        stats,
+        seed_spread({s: suites[s] for s in compared}, groups, caps),
+        params.train.seeds,
+        dependence,
+        groups,
+        missing_baselines=missing,
+    )
+    means = mean_headline(suites, groups)
+    for name in params.eval.extra_sets:
+        result.setdefault("sets", {})[name], section = compare_set(params, name)
+        md += "\n" + section
+        for group, block in result["sets"][name]["full"][caps[0]].items():
+            if group in means:
+                means[group][f"{name}_abs_rel"] = block["abs_rel"]
+    write_json(Path("metrics") / "compare.json", result)
+    write_text(Path("metrics") / "compare.md", md)
+    write_json(Path("metrics") / "headline" / "mean.json", means)
+
+
+def mean_headline(suites: dict, groups: dict[str, list[str]]) -> dict:
+    """Per variant (and baseline) the headline numbers averaged over its runs, with the
+    seed-to-seed sd of abs_rel: the one file to read in ``dvc exp show`` across experiments
+    (the compare stage adds each extra set's mean abs_rel as ``<set>_abs_rel``). Without ROIs
+    there is no ``roi_abs_rel``."""
+    out = {}
+    for group, runs in groups.items():
+        full = [headline("full", suites["full"][r]) for r in runs]
+        roi = [headline("roi", suites["roi"][r]) for r in runs]
+        abs_rel = [h["abs_rel"] for h in full]
+        out[group] = {"abs_rel": float(np.mean(abs_rel))}
+        if all("roi_abs_rel" in h for h in roi):  # absent without ROIs
+            out[group]["roi_abs_rel"] = float(np.mean([h["roi_abs_rel"] for h in roi]))
+        if len(runs) > 1:
+            out[group]["abs_rel_sd"] = float(np.std(abs_rel, ddof=1))
+    return out
+
+
+def compare_set(params: Params, name: str) -> tuple[dict, str]:
+    """An extra evaluation set's full-image comparison (``metrics/sets/<set>/full/``): the same
+    groups, reference, bootstrap and seed spread as KITTI 2015's full-image tables."""
+    root = SETS_METRICS / name
+    missing, built, groups, runs = run_groups(params, root, ["full"])
+    suites = load_suite_metrics(root, runs, ["full"])
+    tables = load_unit_tables(root, runs, ["full"])
+    caps = [f"cap{c:g}" for c in params.eval.caps]
+    return build_set_section(
+        name,
+        group_metrics(suites, groups),
+        list(params.variants),
+        built,
+        paired_statistics(tables, groups, params.compare, params.eval.caps),
+        seed_spread(suites, groups, caps),
+        params.train.seeds,
+        missing_baselines=missing,
+    )
+
 
 if __name__ == "__main__":
     sys.exit(run_stage(compare, *sys.argv[1:]))

@@ -1,9 +1,33 @@
-"""Stage: one evaluation suite on one run. Usage: evaluate.py {full,roi,gradients} VARIANT SEED"""
+"""Stage ``eval_<suite>@<variant>-<seed>``: one evaluation suite on one run's depth maps."""
+
+from __future__ import annotations
 
 import sys
+from typing import Annotated
 
-from msdepth.stages.common import run_stage
-from msdepth.stages.evaluate import evaluate
+from msdepth.config import Params
+from msdepth.data import kitti
+from msdepth.data.index import read_eval_index
+from msdepth.errors import ConfigError
+from msdepth.evaluate import load_frames, read_depth_maps
+from msdepth.pipeline import INDEX_DIR, SUITE_NAMES, SeedArg, VariantArg, checked_run, run_dir, run_stage
+from msdepth.suites import SUITES, run_suite
+
+
+def evaluate(
+    params: Params,
+    suite: Annotated[str, f"the evaluation suite: {', '.join(SUITE_NAMES)}"],
+    variant: VariantArg,
+    seed: SeedArg,
+) -> None:
+    """Run one evaluation suite on one run's depth maps."""
+    if suite not in SUITES:
+        raise ConfigError(f"unknown evaluation suite {suite!r}; known: {sorted(SUITES)}")
+    run = checked_run(params, variant, seed)
+    frames = load_frames(read_eval_index(INDEX_DIR / "eval_frames.csv"))
+    boxes = kitti.read_rois(INDEX_DIR / "rois.csv") if suite != "full" else None
+    run_suite(params, suite, run, read_depth_maps(run_dir(run) / "depth.npz"), frames, boxes)
+
 
 if __name__ == "__main__":
     sys.exit(run_stage(evaluate, *sys.argv[1:]))

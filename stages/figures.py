@@ -1,9 +1,32 @@
-"""Stage: Draw the dissertation's figures under plots/figures/."""
+"""Stage ``figures``: the dissertation's figures under plots/figures/."""
 
+from __future__ import annotations
+
+import logging
 import sys
+from pathlib import Path
 
-from msdepth.stages.common import run_stage
-from msdepth.stages.figures import figures
+from msdepth.config import Params
+from msdepth.pipeline import run_stage, variant_runs
+
+log = logging.getLogger("msdepth")
+
+
+def figures(params: Params) -> None:
+    """The dissertation's figures (disparities, ROI depth and gradients, curves, error scatter)."""
+    from msdepth.figures import make_figures
+
+    # The first seed's run of each variant: the figures show predictions, not an average of
+    # them; the training curves show every seed's.
+    groups = variant_runs(params)
+    paths = make_figures(
+        {v: runs[0] for v, runs in groups.items()},
+        Path("plots") / "figures",
+        eval_cfg=params.eval,
+        curves=groups,
+    )
+    log.info("figures: %s", ", ".join(p.name for p in paths))
+
 
 if __name__ == "__main__":
     sys.exit(run_stage(figures, *sys.argv[1:]))

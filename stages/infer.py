@@ -1,9 +1,32 @@
-"""Stage: Predict the evaluation frames' disparities with one trained variant. Usage: infer.py VARIANT SEED"""
+"""Stage ``infer@<variant>-<seed>``: one run's disparities of every evaluation frame."""
+
+from __future__ import annotations
 
 import sys
+from pathlib import Path
 
-from msdepth.stages.common import run_stage
-from msdepth.stages.infer import infer
+from msdepth.config import Params
+from msdepth.data.index import read_eval_index
+from msdepth.io import save_npy
+from msdepth.pipeline import INDEX_DIR, SeedArg, VariantArg, checked_run, model_path, run_dir, run_stage
+
+
+def infer(params: Params, variant: VariantArg, seed: SeedArg) -> None:
+    """Left disparities of every evaluation frame, at the network's input size."""
+    import torch
+
+    from msdepth.infer import predict_disparities
+    from msdepth.train import load_model
+
+    run = checked_run(params, variant, seed)
+    torch.set_num_threads(params.train.threads)
+    model, meta = load_model(model_path(run))
+    frames = read_eval_index(INDEX_DIR / "eval_frames.csv")
+    disp = predict_disparities(
+        model, [Path(p) for p in frames["left"]], meta["height"], meta["width"], params.eval.post_process
+    )
+    save_npy(run_dir(run) / "disparities.npy", disp)
+
 
 if __name__ == "__main__":
     sys.exit(run_stage(infer, *sys.argv[1:]))

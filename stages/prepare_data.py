@@ -1,9 +1,122 @@
-"""Stage: Create the KITTI-format data tree (the synthetic set by default)."""
+"""Stage ``prepare_data``: the KITTI-format data tree (the synthetic set, or the downloaded KITTI)."""
 
+from __future__ import annotations
+
+import logging
 import sys
+from pathlib import Path
+from typing import Annotated, Any
 
-from msdepth.stages.common import run_stage
-from msdepth.stages.prepare_data import prepare_data
+from msdepth.config import Params
+from msdepth.data.layout import folder_layout, layout
+from msdepth.pipeline import run_stage
+
+log = logging.getLogger("msdepth")
+
+
+def prepare_data(
+    params: Params,
+    *,
+    dry_run: Annotated[
+        bool,
+        "write nothing: for KITTI, ask each missing archive's size (HEAD requests only) and print "
+        "per archive and in total what would be fetched and what is already complete",
+    ] = False,
+) -> None:
+    """Create the KITTI-format tree under data.root: render the synthetic set, or fetch KITTI.
+
+    KITTI (data.source: kitti) is downloaded, verified and extracted resumably: what is complete
+    is skipped. Only what the chosen splits need is fetched: the raw drives that the training
+    split and each extra evaluation set's list name (data.kitti.drives / drive_count restrict
+    further) with their days' calibration, KITTI 2015, and KITTI's annotated depth for
+    eigen_benchmark. Without any network, one line says so at once. A stereo folder
+    (data.source: folder) is only checked: one error listing what the layout misses; nothing is
+    written.
+    """
+    if params.data.source == "folder":
+        from msdepth.data.folder import check_folder
+
+        report = check_folder(folder_layout(params))
+        if dry_run:
+            print(f"dry run: the stereo folder {params.data.root} is complete: {report}; nothing written")
+            return
+        log.info("stereo folder %s: %s", params.data.root, report)
+        return
+    if params.data.source == "synthetic":
+        s, root = params.data.synthetic, Path(params.data.root)
+        if dry_run:
+            print(
+                f"dry run: would render the synthetic set under {root}: {s.drives} drive(s), "
+                f"{s.train_pairs} training pairs, {s.eval_frames} evaluation frames at {s.height}x{s.width}; "
+                "nothing written"
+            )
+            return
+        from msdepth.data import synthetic
+
+        log.info("synthetic set: %s", synthetic.generate(s, root))
+        return
+    from msdepth.data import download
+
+    k, paths = params.data.kitti, layout(params)
+    names = download.parse_archive_list(k.archive_list)
+    subset = list(k.drives) if k.drives is not None else (k.drive_count or None)
+    selection = download.select_needed(names, needed_splits(params), subset, archive_list=k.archive_list)
+    options: dict[str, Any] = dict(jobs=k.jobs, dry_run=dry_run, jpeg=k.jpeg, allow_http=k.allow_http)
+    reports = {
+        "raw archives": download.fetch_all(
+            k.base_url,
+            selection.archives,
+            k.download_dir,
+            paths.raw_root,
+            label="KITTI raw",
+            header=selection.describe(),
+            **options,
+        ),
+        "KITTI 2015": download.fetch_all(
+            k.base_url,
+            [k.scene_flow_archive],
+            k.download_dir,
+            paths.kitti2015_root,
+            label="KITTI 2015",
+            **options,
+        ),
+    }
+    if "eigen_benchmark" in params.eval.extra_sets:  # its GT: KITTI's annotated depth (train/, val/)
+        reports["annotated depth"] = download.fetch_all(
+            k.base_url,
+            [k.depth_annotated_archive],
+            k.download_dir,
+            paths.depth_annotated,
+            label="KITTI annotated depth",
+            **options,
+        )
+    if dry_run:
+        print(download.dry_run_total(list(reports.values())))
+        return
+    log.info(
+        "kitti: %s; %s",
+        selection.describe(),
+        "; ".join(f"{what} {_summary(r)}" for what, r in reports.items()),
+    )
+
+
+# The list file of each extra evaluation set (eval.extra_sets), as msdepth.data.eval_sets reads it.
+SET_SPLITS = {"eigen": "eigen_split", "eigen_benchmark": "eigen_benchmark_split"}
+
+
+def needed_splits(params: Params) -> dict[str, Path]:
+    """The split lists whose drives KITTI's download must fetch: the training split and the list
+    of each set of eval.extra_sets (KITTI 2015, always evaluated, is an archive of its own)."""
+    paths = layout(params)
+    splits = {"the train split": paths.train_split}
+    for name in params.eval.extra_sets:
+        splits[name] = getattr(paths, SET_SPLITS[name])
+    return splits
+
+
+def _summary(report: dict) -> str:
+    return ", ".join(f"{k} {len(v) if isinstance(v, (list, dict)) else v}" for k, v in report.items())
+
 
 if __name__ == "__main__":
     sys.exit(run_stage(prepare_data, *sys.argv[1:]))

@@ -1,9 +1,80 @@
-"""Stage: Train one loss variant. Usage: train.py VARIANT SEED"""
+"""Stage ``train@<variant>-<seed>``: train one loss variant with one seed."""
 
+from __future__ import annotations
+
+import logging
+import os
 import sys
+from pathlib import Path
 
-from msdepth.stages.common import run_stage
-from msdepth.stages.train import train
+from msdepth.config import Params
+from msdepth.data.pairs import load_pair_cache, load_pair_list
+from msdepth.errors import MsdepthError
+from msdepth.pipeline import (
+    CACHED_PAIRS,
+    PAIR_CACHE,
+    SeedArg,
+    VariantArg,
+    checked_run,
+    checkpoint_path,
+    model_path,
+    run_stage,
+)
+
+log = logging.getLogger("msdepth")
+
+
+def train(params: Params, variant: VariantArg, seed: SeedArg) -> None:
+    """Train one loss variant with one seed; write its model, training summary and dvclive curves."""
+    from msdepth.train import train_variant
+
+    run = checked_run(params, variant, seed)
+    t = params.train
+    if t.launcher == "torchrun" and "LOCAL_RANK" not in os.environ:
+        # Re-run this stage under torchrun; its ranks come back here with LOCAL_RANK set.
+        import subprocess
+
+        cmd = [
+            sys.executable,
+            "-m",
+            "torch.distributed.run",
+            "--standalone",
+            f"--nproc_per_node={t.nproc}",
+            "stages/train.py",
+            variant,
+            seed,
+        ]
+        log.info("train %s: %s", run, " ".join(cmd))
+        if subprocess.run(cmd).returncode != 0:
+            raise MsdepthError(
+                f"train {run}: torchrun with {t.nproc} processes failed (see the ranks' errors above)"
+            )
+        return
+    pairs = load_pair_list(CACHED_PAIRS)  # the pairs the cache holds, in its order
+    images = load_pair_cache(PAIR_CACHE, len(pairs), params.data.height, params.data.width)
+    result = train_variant(
+        params,
+        variant,
+        pairs,
+        model_path(run),
+        checkpoint_path(run),
+        live_dir=Path("plots") / "train" / run,
+        cache=images,
+        seed=params.seed(seed),
+        summary_path=Path("metrics") / "train" / f"{run}.json",
+        timing_path=Path("logs") / "train" / f"{run}.json",
+    )
+    resumed = f", resumed from epoch {result.resumed_from_epoch}" if result.resumed_from_epoch else ""
+    log.info(
+        "train %s: %d steps%s; %.0f s of training, %.0f s in this run (%.1f examples/s)",
+        run,
+        result.steps,
+        resumed,
+        result.seconds,
+        result.seconds_this_run,
+        result.examples_per_second,
+    )
+
 
 if __name__ == "__main__":
     sys.exit(run_stage(train, *sys.argv[1:]))

@@ -42,14 +42,10 @@ def prepare(out: Path, assignments: list[str]) -> None:
     """Write ``out/params.yaml`` (the repository's, with ``assignments``), then render, index,
     find the ROIs and cache the training pairs there, as the pipeline's first stages do."""
     import os
+    import runpy
 
-    # Here, not at the top: studies/learning.py imports this module for apply() alone. The stages'
-    # own wiring, not msdepth.pipeline, which imports the figures too (matplotlib: the GPU
-    # machine's image has none).
+    # Here, not at the top: studies/learning.py imports this module for apply() alone.
     from msdepth.data.synthetic import generate
-    from msdepth.stages.cache import cache
-    from msdepth.stages.index import index
-    from msdepth.stages.rois import rois
 
     raw = apply(yaml.safe_load((ROOT / "params.yaml").read_text()), assignments)
     params = params_from_dict(raw)  # checked before anything is written
@@ -57,9 +53,8 @@ def prepare(out: Path, assignments: list[str]) -> None:
     (out / "params.yaml").write_text(yaml.safe_dump(raw, sort_keys=False))
     os.chdir(out)  # the pipeline's paths are relative to the project folder
     generate(params.data.synthetic, Path(params.data.root), progress=True)
-    index(params)
-    rois(params)
-    cache(params)
+    for name in ("index", "rois", "cache"):  # the stage scripts' own functions, as dvc repro runs them
+        runpy.run_path(str(ROOT / "stages" / f"{name}.py"))[name](params)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -12,10 +12,12 @@ import kitti_mirror
 import numpy as np
 import pandas as pd
 import pytest
+from conftest import stage
 
 from msdepth import baselines, pipeline
 from msdepth.config import SyntheticConfig, params_from_dict
 from msdepth.data import kitti, synthetic
+from msdepth.suites import SUITES
 
 SYN = SyntheticConfig(seed=5, drives=2, train_pairs=6, eval_frames=3, height=48, width=160)
 
@@ -180,8 +182,8 @@ def _kitti_project(root: Path, mirror: Path, tree: Path) -> object:
             "compare": {"bootstrap_samples": 200},
         }
     )
-    pipeline.index(params)
-    pipeline.rois(params)
+    stage("index").index(params)
+    stage("rois").rois(params)
     rng = np.random.default_rng(0)
     for v in params.variants:
         run = pipeline.run_name(v, 0)
@@ -189,9 +191,9 @@ def _kitti_project(root: Path, mirror: Path, tree: Path) -> object:
         np.save(
             pipeline.run_dir(run) / "disparities.npy", rng.uniform(0.01, 0.1, (3, 32, 96)).astype(np.float32)
         )
-        pipeline.depth(params, v, "0")
-        for suite in pipeline.SUITES:
-            pipeline.evaluate(params, suite, v, "0")
+        stage("depth").depth(params, v, "0")
+        for suite in SUITES:
+            stage("evaluate").evaluate(params, suite, v, "0")
     return params
 
 
@@ -199,8 +201,8 @@ def test_kitti_stages_build_the_baselines_from_the_scans(trees, tmp_path: Path, 
     tree, mirror, _ = trees
     monkeypatch.chdir(tmp_path)
     params = _kitti_project(tmp_path, mirror, tree)
-    pipeline.baselines(params)
-    pipeline.compare(params)
+    stage("baselines").baselines(params)
+    stage("compare").compare(params)
     md = Path("metrics/compare.md").read_text()
     assert "Baselines (image-blind, from training GT): constant, prior." in md and "Missing" not in md
     result = json.loads(Path("metrics/compare.json").read_text())
@@ -218,12 +220,12 @@ def test_no_training_gt_skips_the_baselines_and_compare_names_them(
     for drive in drives:
         shutil.rmtree(drive / "velodyne_points")
     with caplog.at_level(logging.WARNING, logger="msdepth"):
-        pipeline.baselines(params)
+        stage("baselines").baselines(params)
     lines = [r.getMessage() for r in caplog.records]
     for drive in drives:  # one line per drive, naming it
         assert sum(str(drive) in line and "left out" in line for line in lines) == 1
     assert any("constant and prior not built" in line for line in lines)
-    for suite in pipeline.SUITES:
+    for suite in SUITES:
         for run in baselines.BASELINES:
             marker = json.loads(Path(f"metrics/{suite}/{run}.json").read_text())
             assert "no training frame has GT" in marker[baselines.SKIPPED]
@@ -232,7 +234,7 @@ def test_no_training_gt_skips_the_baselines_and_compare_names_them(
                 assert baselines.SKIPPED in json.loads(
                     Path(f"metrics/headline/{suite}/{run}.json").read_text()
                 )
-    pipeline.compare(params)
+    stage("compare").compare(params)
     md = Path("metrics/compare.md").read_text()
     assert "Baselines (image-blind, from training GT): none." in md
     assert "Missing baselines (not built): constant, prior: no training frame has GT" in md

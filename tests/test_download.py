@@ -26,6 +26,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from conftest import stage
 
 from msdepth.data import download as dl
 from msdepth.errors import DataError
@@ -1149,6 +1150,7 @@ def test_annotated_depth_archive_unpacks_where_the_benchmark_index_looks(
 
 def test_every_extra_set_has_its_list_for_the_download() -> None:
     from msdepth.data.eval_sets import SETS
-    from msdepth.stages.prepare_data import SET_SPLITS
+
+    SET_SPLITS = stage("prepare_data").SET_SPLITS
 
     assert set(SET_SPLITS) == set(SETS)

@@ -1,147 +1,40 @@
 """dvc.yaml's code deps follow the imports: each stage lists exactly the files its script imports.
 
-A stage's code is its script (``python stages/<x>.py`` in ``cmd``) and the transitive closure of
-the ``msdepth`` modules it imports, found statically with ``ast`` (every ``import`` statement,
-including those inside functions, and the ``__init__.py`` of every package on the way). A source
-file missing from a stage's deps lets ``dvc repro`` serve results of old code; a listed file the
-stage does not import re-runs it for nothing.
+:mod:`msdepth.codedeps` writes them (``python -m msdepth.codedeps``); these tests check that
+dvc.yaml is what it writes, and the import tracing itself on a toy package.
 """
 
 from __future__ import annotations
 
 import ast
-import re
 from pathlib import Path
 
 import pytest
 import yaml
 
+from msdepth.codedeps import COMMAND, code_deps, generate, import_closure
+from msdepth.errors import DataError
+
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGE = "msdepth"
 
 
-def module_file(name: str, src: Path) -> Path | None:
-    """The file of module ``name`` (``a.b`` -> ``src/a/b.py`` or ``src/a/b/__init__.py``), if any."""
-    base = src.joinpath(*name.split("."))
-    for path in (base.with_suffix(".py"), base / "__init__.py"):
-        if path.is_file():
-            return path
-    return None
+def test_dvc_yaml_is_what_the_generator_writes():
+    text = (ROOT / "dvc.yaml").read_text()
+    if generate(ROOT) != text:
+        pytest.fail(f"dvc.yaml's code deps differ from the stages' imports: run `{COMMAND}`", pytrace=False)
 
 
-def imported_modules(path: Path, module: str | None, src: Path, package: str = PACKAGE) -> set[str]:
-    """The ``package`` modules that the file ``path`` (module ``module``; None for a script) imports.
-
-    ``from X import y`` counts ``X`` and, when ``y`` is a submodule, ``X.y`` too; relative imports
-    are resolved against the module's package.
-    """
-    is_package = path.name == "__init__.py"
-    found: set[str] = set()
-    tree = ast.parse(path.read_text(), filename=str(path))
-    skipped = {  # `if TYPE_CHECKING:` blocks never run
-        id(n)
-        for block in ast.walk(tree)
-        if isinstance(block, ast.If) and "TYPE_CHECKING" in ast.unparse(block.test)
-        for stmt in block.body
-        for n in ast.walk(stmt)
-    }
-    registry = r"\b(pkgutil\.iter_modules|importlib\.import_module)\(|\bRegistry\(__name__\b"
-    if is_package and re.search(registry, path.read_text()):
-        # A package that imports its own modules by name (a registry, msdepth.variants._registry's
-        # Registry): count them all.
-        found.update(f"{module}.{p.stem}" for p in path.parent.glob("*.py") if p.name != "__init__.py")
-    for node in ast.walk(tree):
-        if id(node) in skipped:
-            continue
-        if isinstance(node, ast.Import):
-            found.update(a.name for a in node.names)
-        elif isinstance(node, ast.ImportFrom):
-            if node.level:
-                if module is None:
-                    raise AssertionError(f"{path}: a relative import in a script")
-                parts = module.split(".") if is_package else module.split(".")[:-1]
-                parts = parts[: len(parts) - (node.level - 1)]
-                base = ".".join(parts + ([node.module] if node.module else []))
-            else:
-                base = node.module or ""
-            found.add(base)
-            found.update(f"{base}.{a.name}" for a in node.names if module_file(f"{base}.{a.name}", src))
-    return {m for m in found if m == package or m.startswith(package + ".")}
-
-
-def import_closure(script: Path, src: Path, package: str = PACKAGE) -> set[Path]:
-    """Every source file that running ``script`` executes from ``package``: the modules it imports,
-    theirs in turn, and each one's parent packages' ``__init__.py``."""
-    files: set[Path] = set()
-    todo = [(script, None)]
-    while todo:
-        path, module = todo.pop()
-        for name in imported_modules(path, module, src, package):
-            parts = name.split(".")
-            for i in range(1, len(parts) + 1):  # importing a.b.c runs a/__init__ and a/b/__init__ first
-                sub = ".".join(parts[:i])
-                file = module_file(sub, src)
-                if file is None:
-                    raise AssertionError(f"{path}: imports {sub}, which has no file under {src}")
-                if file not in files:
-                    files.add(file)
-                    todo.append((file, sub))
-    return files
-
-
-def stage_scripts(dvc_yaml: dict) -> dict[str, str]:
-    """``{stage name: its script}`` for every stage whose cmd is ``python stages/<x>.py ...``."""
-    scripts = {}
-    for name, stage in dvc_yaml["stages"].items():
-        match = re.match(r"python (stages/\S+\.py)\b", stage["cmd"])
-        assert match, f"dvc.yaml: stage {name}: cmd {stage['cmd']!r} does not run a stage script"
-        scripts[name] = match.group(1)
-    return scripts
-
-
-def deps_problems(root: Path) -> tuple[list[str], list[str]]:
-    """(missing, extra): ``stage: file`` for each imported file a stage does not list (nor a folder
-    above it), and for each listed code file (or file under a listed folder) it does not import."""
-    dvc_yaml = yaml.safe_load((root / "dvc.yaml").read_text())
-    missing, extra = [], []
-    for name, script in stage_scripts(dvc_yaml).items():
-        code = {script} | {
-            p.relative_to(root).as_posix() for p in import_closure(root / script, root / "src")
-        }
-        deps = [d for d in dvc_yaml["stages"][name].get("deps", []) if isinstance(d, str)]
-        for file in sorted(code):
-            if not any(file == d or file.startswith(d.rstrip("/") + "/") for d in deps):
-                missing.append(f"{name}: {file}")
-        for dep in deps:
-            if not dep.startswith(("src/", "stages/")):
-                continue
-            listed = (
-                [dep]
-                if not (root / dep).is_dir()
-                else [p.relative_to(root).as_posix() for p in (root / dep).rglob("*.py")]
-            )
-            extra += [f"{name}: {f}" for f in sorted(listed) if f not in code]
-    return missing, extra
-
-
-def test_every_stage_lists_exactly_the_code_it_imports():
-    missing, extra = deps_problems(ROOT)
-    report = []
-    if missing:
-        report += [f"{len(missing)} (stage, imported file) pair(s) missing from dvc.yaml's deps:"]
-        report += [f"  {m}" for m in missing]
-    if extra:
-        report += [f"{len(extra)} code dep(s) listed in dvc.yaml that the stage does not import:"]
-        report += [f"  {e}" for e in extra]
-    if report:
-        pytest.fail("\n".join(report), pytrace=False)
-
-
-def test_no_stage_script_imports_the_whole_pipeline():
-    """``msdepth.pipeline`` imports every stage's wiring: a stage importing it would depend on all."""
-    for script in stage_scripts(yaml.safe_load((ROOT / "dvc.yaml").read_text())).values():
-        closure = import_closure(ROOT / script, ROOT / "src")
-        assert ROOT / "src" / PACKAGE / "pipeline.py" not in closure, script
+def test_no_package_module_imports_a_stage_script():
+    """The stages call into the package, never the other way: a stage is one hop from dvc.yaml."""
+    for path in (ROOT / "src").rglob("*.py"):
+        for node in ast.walk(ast.parse(path.read_text())):
+            names = [a.name for a in node.names] if isinstance(node, ast.Import) else []
+            names += [node.module or ""] if isinstance(node, ast.ImportFrom) else []
+            assert not [n for n in names if n.split(".")[0] == "stages"], path
+        assert "run_path(" not in path.read_text() and "spec_from_file_location(" not in path.read_text(), (
+            path
+        )
 
 
 @pytest.fixture
@@ -193,19 +86,72 @@ def test_closure_follows_relative_absolute_and_function_level_imports(toy: Path)
     ]
 
 
-def test_deps_check_reports_both_directions(toy: Path):
-    closure = sorted(
-        p.relative_to(toy).as_posix()
-        for p in import_closure(toy / "stages" / "run.py", toy / "src")
-        if p.name != "pairs.py"
+TOY_YAML = """\
+# header comment
+stages:
+  run:  # the stage
+    matrix:
+      x: [1, 2]
+    cmd: python stages/run.py ${item.x}
+    deps:
+      - stages/run.py
+      - src/msdepth/unused.py
+      # data below
+      - data/in.txt  # kept
+    outs:
+      - out.txt
+
+  fresh:
+    cmd: python stages/run.py
+    outs:
+      - src/not_a_dep.txt
+"""
+
+
+def test_generator_rewrites_only_the_code_deps(toy: Path):
+    """The code deps at the head of each deps list become the closure (a package folder whose every
+    module is imported listed as the folder); comments and every other line keep their bytes; a
+    stage without deps gets them after its cmd."""
+    (toy / "dvc.yaml").write_text(TOY_YAML)
+    code = [
+        "stages/run.py",
+        "src/msdepth/__init__.py",
+        "src/msdepth/data/__init__.py",
+        "src/msdepth/data/kitti.py",
+        "src/msdepth/data/pairs.py",
+        "src/msdepth/errors.py",
+        "src/msdepth/lazy.py",
+        "src/msdepth/plain.py",
+        "src/msdepth/plugins",
+        "src/msdepth/stages",
+    ]
+    assert code_deps(toy, "stages/run.py") == code
+    listed = "".join(f"      - {c}\n" for c in code)
+    expected = TOY_YAML.replace("      - stages/run.py\n      - src/msdepth/unused.py\n", listed).replace(
+        "    cmd: python stages/run.py\n", "    cmd: python stages/run.py\n    deps:\n" + listed
     )
-    stage = {"cmd": "python stages/run.py A", "deps": ["stages/run.py", *closure, "src/msdepth/unused.py"]}
-    (toy / "dvc.yaml").write_text(yaml.safe_dump({"stages": {"run": stage}}))
-    assert deps_problems(toy) == (["run: src/msdepth/data/pairs.py"], ["run: src/msdepth/unused.py"])
-    # A listed folder covers what is under it, and then must hold nothing the stage does not import.
-    stage["deps"] = ["stages/run.py", "src/msdepth"]
-    (toy / "dvc.yaml").write_text(yaml.safe_dump({"stages": {"run": stage}}))
-    assert deps_problems(toy) == ([], ["run: src/msdepth/data/unused.py", "run: src/msdepth/unused.py"])
+    assert generate(toy) == expected
+    (toy / "dvc.yaml").write_text(expected)
+    assert generate(toy) == expected  # a fixed point
+
+
+def test_generator_refuses_a_code_dep_after_the_data_deps(toy: Path):
+    (toy / "dvc.yaml").write_text(
+        TOY_YAML.replace("      - data/in.txt  # kept\n", "      - data/in.txt\n      - src/x.py\n")
+    )
+    with pytest.raises(DataError, match="stage run: code dep src/x.py follows other deps"):
+        generate(toy)
+
+
+def test_the_command_checks_and_writes(toy: Path, capsys):
+    from msdepth.codedeps import main
+
+    (toy / "dvc.yaml").write_text(TOY_YAML)
+    assert main(["--root", str(toy), "--check"]) == 1
+    assert f"code deps out of date (run, fresh): run `{COMMAND}`" in capsys.readouterr().err
+    assert (toy / "dvc.yaml").read_text() == TOY_YAML
+    assert main(["--root", str(toy)]) == 0 and main(["--root", str(toy), "--check"]) == 0
+    assert (toy / "dvc.yaml").read_text() == generate(toy)
 
 
 def test_figures_and_evaluation_code_are_no_training_dep():

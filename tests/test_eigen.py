@@ -253,7 +253,7 @@ def test_compare_section_of_an_extra_set(tmp_path: Path, monkeypatch: pytest.Mon
         seed_spread,
     )
     from msdepth.config import CompareConfig
-    from msdepth.stages.evaluate import write_suite
+    from msdepth.suites import write_suite
 
     monkeypatch.chdir(tmp_path)  # write_suite puts the headline files below ./metrics
     gts, disps = _sparse_scene(2, n=4, shape=(60, 200))
@@ -294,7 +294,7 @@ def test_compare_section_of_an_extra_set(tmp_path: Path, monkeypatch: pytest.Mon
 
 
 def test_a_set_stage_for_an_unconfigured_set_names_the_configured_ones() -> None:
-    from msdepth.stages.common import checked_set
+    from msdepth.pipeline import checked_set
 
     params = params_from_dict({"eval": {"extra_sets": ["eigen"]}})
     assert checked_set(params, "eigen") == "eigen"

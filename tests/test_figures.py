@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
+from conftest import stage
 
 from msdepth import pipeline
 from msdepth.config import params_from_dict
@@ -15,6 +16,7 @@ from msdepth.data import kitti
 from msdepth.data.synthetic import generate
 from msdepth.errors import DataError
 from msdepth.figures import FIGURES, make_figures, roi_examples
+from msdepth.suites import SUITES
 
 VARIANTS = ["ssim", "msssim"]
 RUNS = {v: f"{v}/seed0" for v in VARIANTS}  # label -> run, as the figures stage passes them
@@ -45,17 +47,17 @@ def tree(tmp_path_factory) -> Path:
     with pytest.MonkeyPatch.context() as mp:
         mp.chdir(root)  # the stage functions read and write relative to the project root
         generate(params.data.synthetic, Path(params.data.root), progress=False, workers=1)
-        pipeline.index(params)
-        pipeline.rois(params)
+        stage("index").index(params)
+        stage("rois").rois(params)
         rng = np.random.default_rng(0)
         ramp = np.linspace(0.01, 0.12, 32, dtype=np.float32)[None, :, None]  # nearer towards the bottom
         for k, v in enumerate(VARIANTS):
             disp = ramp * (1 + 0.1 * k) * (1 + 0.2 * rng.random((3, 32, 96), dtype=np.float32))
             pipeline.run_dir(RUNS[v]).mkdir(parents=True)
             np.save(pipeline.run_dir(RUNS[v]) / "disparities.npy", disp.astype(np.float32))
-            pipeline.depth(params, v, "0")
-            for suite in pipeline.SUITES:
-                pipeline.evaluate(params, suite, v, "0")
+            stage("depth").depth(params, v, "0")
+            for suite in SUITES:
+                stage("evaluate").evaluate(params, suite, v, "0")
             live = Path("plots/train") / RUNS[v] / "plots/metrics/train"
             live.mkdir(parents=True)
             for term in ("total", "appearance"):

@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
+from conftest import stage
 
 from msdepth.config import ConfigError, params_from_dict
 from msdepth.data import folder, kitti
@@ -172,7 +173,8 @@ def test_a_missing_right_image_is_named(tmp_path: Path):
 
 def test_evaluation_index_rows_kinds_camera_and_no_gt(tmp_path: Path):
     from msdepth.data.index import EVAL_COLUMNS
-    from msdepth.stages.index import folder_eval_index
+
+    folder_eval_index = stage("index").folder_eval_index
 
     root = _folder(tmp_path / "s")
     frames = folder_eval_index(_params(root))
@@ -191,7 +193,7 @@ def test_evaluation_index_rows_kinds_camera_and_no_gt(tmp_path: Path):
 
 
 def test_folder_indexes_write_the_pipeline_files(tmp_path: Path):
-    from msdepth.stages.index import folder_indexes
+    folder_indexes = stage("index").folder_indexes
 
     root = _folder(tmp_path / "s")
     report = folder_indexes(_params(root), tmp_path / "index")
@@ -242,7 +244,7 @@ def _no_rois() -> pd.DataFrame:
 @pytest.mark.parametrize("suite", [evaluate_roi, evaluate_gradients])
 def test_zero_rois_give_an_explicit_summary_and_a_header_only_table(suite, tmp_path: Path):
     from msdepth.config import EvalConfig
-    from msdepth.stages.evaluate import headline
+    from msdepth.suites import headline
 
     frame = Frame("f", np.full((4, 6), 10.0, np.float32), 100.0, 0.5)
     summary, table = suite({"f": np.full((4, 6), 9.0, np.float32)}, [frame], _no_rois(), EvalConfig())
@@ -268,7 +270,8 @@ def test_compare_without_rois_says_the_roi_suites_were_skipped():
 
 def test_mean_headline_without_rois_has_no_roi_number():
     from msdepth.metrics import METRICS
-    from msdepth.stages.compare import mean_headline
+
+    mean_headline = stage("compare").mean_headline
 
     full = {"cap80": dict.fromkeys(METRICS, 0.5)}
     suites = {"full": {"a/seed0": full}, "roi": {"a/seed0": {"rois": 0, NO_ROIS: "x"}}}

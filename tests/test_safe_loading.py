@@ -19,13 +19,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from conftest import PAIR_H, PAIR_W
+from conftest import PAIR_H, PAIR_W, stage
 
 from msdepth.config import params_from_dict
 from msdepth.errors import MsdepthError
 from msdepth.io import write_png
 from msdepth.model import MonodepthVGG
-from msdepth.pipeline import infer, run_stage
+from msdepth.pipeline import run_stage
 from msdepth.serialization import load_weights_file
 from msdepth.train import TrainingError, load_model, train_variant
 
@@ -132,7 +132,7 @@ def test_infer_stage_refuses_a_poisoned_model(tmp_path: Path, monkeypatch, capsy
     shutil.copy(ROOT / "params.yaml", tmp_path / "params.yaml")
     marker = tmp_path / "ran"
     model = poisoned_model(Path("models") / "ssim" / "seed0" / "model.pt", marker)
-    assert run_stage(infer, "ssim", "0") == 1
+    assert run_stage(stage("infer").infer, "ssim", "0") == 1
     line = _one_line(capsys.readouterr().err)
     assert line.startswith(f"error: {model}: refused to load: the file needs code to be unpickled")
     assert not marker.exists() and not Path("outputs").exists()

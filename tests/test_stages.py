@@ -10,6 +10,7 @@ from pathlib import Path
 
 import pytest
 import yaml
+from conftest import stage
 
 ROOT = Path(__file__).resolve().parents[1]
 SCRIPTS = sorted(
@@ -50,9 +51,9 @@ def test_help_from_the_command_line(tmp_path: Path):
 
 
 def test_usage_errors_exit_2_before_reading_params(tmp_path: Path, monkeypatch, capsys):
-    from msdepth.stages.common import run_stage
-    from msdepth.stages.figures import figures
-    from msdepth.stages.train import train
+    from msdepth.pipeline import run_stage
+
+    figures, train = stage("figures").figures, stage("train").train
 
     monkeypatch.chdir(tmp_path)
     assert run_stage(train, "ssim") == 2
@@ -74,7 +75,7 @@ def test_reading_params_imports_neither_torch_nor_numpy(tmp_path: Path):
     """Every stage reads its params: the loss variants' configs come without their terms."""
     (tmp_path / "params.yaml").write_text("variants: [ssim, msssim, mix]\n")
     code = (
-        "import sys; from msdepth.stages.common import load_params; p = load_params('params.yaml'); "
+        "import sys; from msdepth.pipeline import load_params; p = load_params('params.yaml'); "
         "heavy = [m for m in ('torch', 'numpy', 'msdepth.appearance') if m in sys.modules]; "
         "print(sorted(p.appearance), heavy)"
     )
@@ -104,8 +105,9 @@ def test_reading_params_imports_neither_torch_nor_numpy(tmp_path: Path):
 def test_validate_params_rejects_a_bad_value_or_unknown_key_in_one_line(
     tmp_path: Path, monkeypatch, capsys, params: str, message: str
 ):
-    from msdepth.stages.common import run_stage
-    from msdepth.stages.validate_params import CHECKED, validate_params
+    from msdepth.pipeline import run_stage
+
+    CHECKED, validate_params = stage("validate_params").CHECKED, stage("validate_params").validate_params
 
     monkeypatch.chdir(tmp_path)
     (tmp_path / "params.yaml").write_text(params + "\n")

@@ -18,6 +18,7 @@ fractions of the width and need no rescaling.
 from __future__ import annotations
 
 import json
+import logging
 import warnings
 from collections import Counter
 from dataclasses import dataclass, field
@@ -29,6 +30,11 @@ from tqdm import tqdm
 
 from .data import kitti
 from .data.index import training_gt_path, velodyne_path
+from .data.pairs import load_pair_list
+from .io import write_json, write_text
+from .pipeline import INDEX_DIR
+
+log = logging.getLogger("msdepth")
 
 BASELINES = ("constant", "prior")
 # The per-pixel median needs every frame's map in memory at once: above this many bytes of GT
@@ -195,3 +201,45 @@ def skipped_reason(metrics_dir: str | Path, run: str, suites: Sequence[str]) -> 
         if isinstance(data, dict) and SKIPPED in data:
             return str(data[SKIPPED])
     return None
+
+
+def indexed_training_gt() -> TrainingGT:
+    """The GT of the indexed training frames (data/index/train_pairs.txt) that the stages build the
+    baselines from, logged, with a warning per drive without."""
+    pairs = load_pair_list(INDEX_DIR / "train_pairs.txt")
+    gt = training_gt([left for left, _ in pairs])
+    for drive, count in gt.missing.items():
+        log.warning(
+            "baselines: %s: %d training frame(s) with neither disp_02/data/<frame>.png nor "
+            "velodyne_points/data/<frame>.bin, left out",
+            drive,
+            count,
+        )
+    if gt.maps is not None:
+        used, (h, w) = len(gt.maps), gt.maps.shape[1:]
+        subset = f" (an evenly spaced {used} of {gt.available}: memory budget)" if used < gt.available else ""
+        resampled = f", {gt.resampled} resampled from other sizes" if gt.resampled else ""
+        log.info(
+            "baselines: training GT of %d frames%s at %dx%d%s: %s", used, subset, h, w, resampled, gt.sources
+        )
+    return gt
+
+
+def skip_reason(gt: TrainingGT) -> str:
+    """Why the baselines are not built when no training frame has GT (also logged)."""
+    reason = f"no training frame has GT (disp_02 or a Velodyne scan) in {len(gt.missing)} drive(s)"
+    log.warning("baselines: %s: %s not built", reason, " and ".join(BASELINES))
+    return reason
+
+
+def write_skipped(
+    root: Path, suite: str, run: str, reason: str, headline: bool, headline_root: str = ""
+) -> None:
+    """A skipped baseline's files: ``{"skipped": reason}`` where its metrics would be."""
+    write_json(root / suite / f"{run}.json", {SKIPPED: reason})
+    write_text(root / suite / f"{run}.csv", f"{SKIPPED}\n{reason}\n")
+    if headline:  # the headline files are declared DVC metrics too
+        write_json(
+            Path("metrics") / "headline" / headline_root / suite / f"{run}.json",
+            {SKIPPED: reason},
+        )

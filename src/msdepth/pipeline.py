@@ -1,69 +1,124 @@
-"""Every stage's wiring in one namespace, for tests and interactive use: ``pipeline.index(params)``.
+"""What every stage shares: :func:`run_stage`, run names and the pipeline's fixed paths.
 
-The stages themselves live in :mod:`msdepth.stages` (one module per stage) and the scripts under
-``stages/`` import only their own, so that each stage depends on the code it runs and no more.
-No stage may import this module (tests/test_dvc_deps.py checks it): it imports them all.
+The stages themselves are the scripts ``stages/<name>.py`` that dvc.yaml runs: each parses its
+arguments with :func:`run_stage` and calls the logic in the package. No module of the package
+imports a stage script. This module imports only the config and the errors (no numpy, no
+torch): every stage imports it, so whatever it imports is every stage's dependency.
 """
 
 from __future__ import annotations
 
-from .stages.baselines import BASELINES, baselines
-from .stages.baselines_set import baselines_set
-from .stages.cache import cache
-from .stages.common import (
-    CACHE_REPORT,
-    CACHED_PAIRS,
-    INDEX_DIR,
-    PAIR_CACHE,
-    checked_run,
-    checkpoint_path,
-    model_path,
-    run_dir,
-    run_name,
-    run_stage,
-    variant_runs,
-)
-from .stages.compare import compare, mean_headline
-from .stages.depth import depth
-from .stages.eval_set import eval_set
-from .stages.evaluate import SUITES, evaluate, headline
-from .stages.figures import figures
-from .stages.index import index
-from .stages.infer import infer, torch_threads
-from .stages.prepare_data import prepare_data
-from .stages.rois import rois
-from .stages.train import train
-from .stages.validate_params import validate_params
+import argparse
+import inspect
+import logging
+import os
+import sys
+import time
+import typing
+from pathlib import Path
+from typing import Annotated, Callable
 
-__all__ = [
-    "BASELINES",
-    "CACHED_PAIRS",
-    "CACHE_REPORT",
-    "INDEX_DIR",
-    "PAIR_CACHE",
-    "SUITES",
-    "baselines",
-    "baselines_set",
-    "cache",
-    "checked_run",
-    "checkpoint_path",
-    "compare",
-    "depth",
-    "eval_set",
-    "evaluate",
-    "figures",
-    "headline",
-    "index",
-    "infer",
-    "mean_headline",
-    "model_path",
-    "prepare_data",
-    "rois",
-    "run_dir",
-    "run_name",
-    "run_stage",
-    "torch_threads",
-    "train",
-    "validate_params",
-    "variant_runs",
-]
+from .config import Params, load_params
+from .errors import ConfigError, MsdepthError
+
+log = logging.getLogger("msdepth")
+
+INDEX_DIR = Path("data/index")
+PAIR_CACHE = Path("data/cache/train_pairs.npy")
+CACHED_PAIRS = Path("data/cache/train_pairs.txt")
+CACHE_REPORT = Path("data/cache/report.json")
+SUITE_NAMES = ("full", "roi", "gradients")
+
+# The command-line arguments of the per-run stages (see stage_parser).
+VariantArg = Annotated[str, "a loss variant listed in params.yaml's variants (e.g. ssim, msssim)"]
+SeedArg = Annotated[str, "a training seed listed in train.seeds"]
+
+
+def run_name(variant: str, seed: int) -> str:
+    """One training run: ``<variant>/seed<seed>``, also its path below models/, outputs/, metrics/<suite>/."""
+    return f"{variant}/seed{seed}"
+
+
+def checked_run(params: Params, variant: str, seed: str) -> str:
+    """The run of a stage's ``VARIANT SEED`` arguments, a ConfigError if either is not configured."""
+    return run_name(params.variant(variant), params.seed(seed))
+
+
+def variant_runs(params: Params) -> dict[str, list[str]]:
+    """``{variant: [its run of every seed in train.seeds]}``."""
+    return {v: [run_name(v, s) for s in params.train.seeds] for v in params.variants}
+
+
+SetArg = Annotated[str, "an evaluation set listed in eval.extra_sets (e.g. eigen)"]
+SETS_METRICS = Path("metrics/sets")  # metrics/sets/<set>/full/<run>.json; headline in metrics/headline/sets/
+
+
+def checked_set(params: Params, name: str) -> str:
+    """``name`` if it is in ``eval.extra_sets``, else a ConfigError naming them."""
+    if name not in params.eval.extra_sets:
+        raise ConfigError(f"evaluation set {name!r} is not in eval.extra_sets {list(params.eval.extra_sets)}")
+    return name
+
+
+def model_path(run: str) -> Path:
+    return Path("models") / run / "model.pt"
+
+
+def checkpoint_path(run: str) -> Path:
+    return Path("checkpoints") / run / "checkpoint.pt"
+
+
+def run_dir(run: str) -> Path:
+    return Path("outputs") / run
+
+
+def stage_parser(fn: Callable[..., None]) -> argparse.ArgumentParser:
+    """The command line of stage function ``fn(params, ...)``, built from its signature.
+
+    Positional parameters after ``params`` become positional arguments (``VARIANT``); keyword-only
+    booleans become flags (``dry_run`` -> ``--dry-run``). Help texts come from
+    ``Annotated[str, "help"]`` annotations, the description from the docstring.
+    """
+    hints = typing.get_type_hints(fn, include_extras=True)
+    parser = argparse.ArgumentParser(
+        prog=f"stages/{Path(inspect.getfile(fn)).name}",
+        description=inspect.getdoc(fn),
+        epilog="Reads params.yaml in the working directory; run by `dvc repro` (see dvc.yaml).",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    for name, param in list(inspect.signature(fn).parameters.items())[1:]:
+        extras = typing.get_args(hints.get(name))
+        help_text = extras[1] if len(extras) > 1 else None
+        if param.kind is inspect.Parameter.KEYWORD_ONLY:
+            parser.add_argument(f"--{name.replace('_', '-')}", action="store_true", dest=name, help=help_text)
+        else:
+            parser.add_argument(name, metavar=name.upper(), help=help_text)
+    return parser
+
+
+def run_stage(fn: Callable[..., None], *args: str, params_path: str | os.PathLike = "params.yaml") -> int:
+    """Parse a stage's arguments, load params, run the stage, report errors as one line.
+
+    Returns the exit code: 0 (also for ``--help``, which runs nothing), 1 for the project's errors,
+    2 for a usage error.
+    """
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)s", stream=sys.stderr)
+    try:
+        parsed = vars(stage_parser(fn).parse_args(args))
+    except SystemExit as exc:  # --help (0) or a usage error (2), already printed by argparse
+        return int(exc.code or 0)
+    parameters = list(inspect.signature(fn).parameters.values())[1:]
+    positional = [parsed.pop(p.name) for p in parameters if p.kind is not inspect.Parameter.KEYWORD_ONLY]
+    started = time.perf_counter()
+    try:
+        fn(load_params(params_path), *positional, **parsed)
+    except MsdepthError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
+    log.info(
+        "%s%s done in %.1f s",
+        fn.__name__,
+        f" {' '.join(args)}" if args else "",
+        time.perf_counter() - started,
+    )
+    return 0

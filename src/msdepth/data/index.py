@@ -100,7 +100,7 @@ def build_indexes(
 ) -> dict:
     """Write ``train_pairs.txt``, ``eval_frames.csv`` (KITTI 2015), ``sets/<set>.csv`` (the extra
     sets' indexes ``extra``, :mod:`msdepth.data.eval_sets`) and ``report.json`` to ``out_dir``.
-    A stereo folder's: :func:`msdepth.stages.index.folder_indexes`, through :func:`write_indexes`."""
+    A stereo folder's: ``folder_indexes`` in ``stages/index.py``, through :func:`write_indexes`."""
     paths = layout(params)
     pairs = index_pairs(paths.train_split, paths.raw_root)
     frames = build_eval_index(paths.kitti2015_root, paths.eval_split, params.data.gt)

@@ -1,28 +1,15 @@
-"""Stage ``eval_<suite>@<variant>-<seed>``: one evaluation suite on one run's depth maps.
-
-Also the suites' file writing, shared with the baselines stage, and :func:`headline`, the few
-numbers per suite that ``dvc metrics show`` lists (and compare averages).
-"""
+"""The evaluation suites run and written as the pipeline's metric files, shared by the stages
+that score a run or a baseline: :func:`run_suite`, :func:`score_set` and :func:`headline`, the
+few numbers per suite that ``dvc metrics show`` lists (and compare averages)."""
 
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated
 
-from ..config import Params
-from ..data import kitti
-from ..data.index import read_eval_index
-from ..errors import ConfigError
-from ..evaluate import (
-    evaluate_full,
-    evaluate_gradients,
-    evaluate_roi,
-    load_frames,
-    no_rois,
-    read_depth_maps,
-)
-from ..io import atomic_path, write_json
-from .common import INDEX_DIR, SETS_METRICS, SUITE_NAMES, SeedArg, VariantArg, checked_run, run_dir
+from .config import Params
+from .evaluate import evaluate_full, evaluate_gradients, evaluate_roi, no_rois
+from .io import atomic_path, write_json
+from .pipeline import SETS_METRICS
 
 SUITES = {"full": evaluate_full, "roi": evaluate_roi, "gradients": evaluate_gradients}  # SUITE_NAMES' order
 
@@ -84,18 +71,3 @@ def score_set(params: Params, name: str, run: str, pred: dict, frames) -> None: 
     """The full-image suite of ``pred`` on extra set ``name``, written below ``metrics/sets/<set>/``."""
     summary, table = evaluate_full(pred, frames, params.eval, median_scaling=params.eval.median_scaling)
     write_suite("full", run, summary, table, root=SETS_METRICS / name, headline_root=f"sets/{name}")
-
-
-def evaluate(
-    params: Params,
-    suite: Annotated[str, f"the evaluation suite: {', '.join(SUITE_NAMES)}"],
-    variant: VariantArg,
-    seed: SeedArg,
-) -> None:
-    """Run one evaluation suite on one run's depth maps."""
-    if suite not in SUITES:
-        raise ConfigError(f"unknown evaluation suite {suite!r}; known: {sorted(SUITES)}")
-    run = checked_run(params, variant, seed)
-    frames = load_frames(read_eval_index(INDEX_DIR / "eval_frames.csv"))
-    boxes = kitti.read_rois(INDEX_DIR / "rois.csv") if suite != "full" else None
-    run_suite(params, suite, run, read_depth_maps(run_dir(run) / "depth.npz"), frames, boxes)
