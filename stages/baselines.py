@@ -11,7 +11,7 @@ from msdepth.config import Params
 from msdepth.data import kitti
 from msdepth.data.index import read_eval_index
 from msdepth.evaluate import depth_maps, load_frames
-from msdepth.pipeline import INDEX_DIR, SUITE_NAMES, run_stage
+from msdepth.pipeline import EVAL_FRAMES, ROIS, SUITE_NAMES, run_stage
 from msdepth.suites import run_suite
 
 log = logging.getLogger("msdepth")
@@ -41,8 +41,8 @@ def baselines(params: Params) -> None:
                     Path("metrics"), suite, run, reason, headline=suite in ("full", "roi")
                 )
         return
-    frames = load_frames(read_eval_index(INDEX_DIR / "eval_frames.csv"))
-    boxes = kitti.read_rois(INDEX_DIR / "rois.csv")
+    frames = load_frames(read_eval_index(EVAL_FRAMES))
+    boxes = kitti.read_rois(ROIS)
     for run, disp in baselines_mod.baseline_disparities(gt.maps, len(frames)).items():
         pred = depth_maps(disp, frames)
         for suite in SUITE_NAMES:

@@ -9,14 +9,14 @@ from msdepth.config import Params
 from msdepth.data import kitti
 from msdepth.data.pairs import build_pair_cache, load_pair_list
 from msdepth.io import write_json
-from msdepth.pipeline import CACHE_REPORT, CACHED_PAIRS, INDEX_DIR, PAIR_CACHE, run_stage
+from msdepth.pipeline import CACHE_REPORT, CACHED_PAIRS, PAIR_CACHE, TRAIN_PAIRS, run_stage
 
 log = logging.getLogger("msdepth")
 
 
 def cache(params: Params) -> None:
     """Decode and resize the training pairs once; pairs with unreadable images are left out and reported."""
-    pairs = load_pair_list(INDEX_DIR / "train_pairs.txt")
+    pairs = load_pair_list(TRAIN_PAIRS)
     report = build_pair_cache(pairs, params.data.height, params.data.width, PAIR_CACHE)
     kitti.write_split(CACHED_PAIRS, [(str(a), str(b)) for a, b in report.pairs])
     write_json(

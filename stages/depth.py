@@ -11,17 +11,25 @@ from msdepth.data.index import read_eval_index
 from msdepth.errors import DataError
 from msdepth.evaluate import depth_maps, load_frames
 from msdepth.io import save_npz
-from msdepth.pipeline import INDEX_DIR, SeedArg, VariantArg, checked_run, run_dir, run_stage
+from msdepth.pipeline import (
+    EVAL_FRAMES,
+    SeedArg,
+    VariantArg,
+    checked_run,
+    depth_path,
+    disparities_path,
+    run_stage,
+)
 
 
 def depth(params: Params, variant: VariantArg, seed: SeedArg) -> None:
     """Disparities (fraction of width) -> metric depth at each frame's GT resolution."""
     run = checked_run(params, variant, seed)
-    path = run_dir(run) / "disparities.npy"
+    path = disparities_path(run)
     if not path.exists():
         raise DataError(f"{path}: no disparities for run {run!r}")
-    frames = load_frames(read_eval_index(INDEX_DIR / "eval_frames.csv"))
-    save_npz(run_dir(run) / "depth.npz", **depth_maps(np.load(path), frames))
+    frames = load_frames(read_eval_index(EVAL_FRAMES))
+    save_npz(depth_path(run), **depth_maps(np.load(path), frames))
 
 
 if __name__ == "__main__":

@@ -10,7 +10,16 @@ from msdepth.data import kitti
 from msdepth.data.index import read_eval_index
 from msdepth.errors import ConfigError
 from msdepth.evaluate import load_frames, read_depth_maps
-from msdepth.pipeline import INDEX_DIR, SUITE_NAMES, SeedArg, VariantArg, checked_run, run_dir, run_stage
+from msdepth.pipeline import (
+    EVAL_FRAMES,
+    ROIS,
+    SUITE_NAMES,
+    SeedArg,
+    VariantArg,
+    checked_run,
+    depth_path,
+    run_stage,
+)
 from msdepth.suites import SUITES, run_suite
 
 
@@ -24,9 +33,9 @@ def evaluate(
     if suite not in SUITES:
         raise ConfigError(f"unknown evaluation suite {suite!r}; known: {sorted(SUITES)}")
     run = checked_run(params, variant, seed)
-    frames = load_frames(read_eval_index(INDEX_DIR / "eval_frames.csv"))
-    boxes = kitti.read_rois(INDEX_DIR / "rois.csv") if suite != "full" else None
-    run_suite(params, suite, run, read_depth_maps(run_dir(run) / "depth.npz"), frames, boxes)
+    frames = load_frames(read_eval_index(EVAL_FRAMES))
+    boxes = kitti.read_rois(ROIS) if suite != "full" else None
+    run_suite(params, suite, run, read_depth_maps(depth_path(run)), frames, boxes)
 
 
 if __name__ == "__main__":

@@ -8,7 +8,15 @@ from pathlib import Path
 from msdepth.config import Params
 from msdepth.data.index import read_eval_index
 from msdepth.io import save_npy
-from msdepth.pipeline import INDEX_DIR, SeedArg, VariantArg, checked_run, model_path, run_dir, run_stage
+from msdepth.pipeline import (
+    EVAL_FRAMES,
+    SeedArg,
+    VariantArg,
+    checked_run,
+    disparities_path,
+    model_path,
+    run_stage,
+)
 
 
 def infer(params: Params, variant: VariantArg, seed: SeedArg) -> None:
@@ -21,11 +29,11 @@ def infer(params: Params, variant: VariantArg, seed: SeedArg) -> None:
     run = checked_run(params, variant, seed)
     torch.set_num_threads(params.train.threads)
     model, meta = load_model(model_path(run))
-    frames = read_eval_index(INDEX_DIR / "eval_frames.csv")
+    frames = read_eval_index(EVAL_FRAMES)
     disp = predict_disparities(
         model, [Path(p) for p in frames["left"]], meta["height"], meta["width"], params.eval.post_process
     )
-    save_npy(run_dir(run) / "disparities.npy", disp)
+    save_npy(disparities_path(run), disp)
 
 
 if __name__ == "__main__":

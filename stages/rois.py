@@ -11,7 +11,7 @@ from msdepth.data import kitti
 from msdepth.data.index import read_eval_index
 from msdepth.data.layout import folder_layout, layout
 from msdepth.errors import DataError
-from msdepth.pipeline import INDEX_DIR, run_stage
+from msdepth.pipeline import EVAL_FRAMES, ROI_SHEET, ROIS, run_stage
 
 log = logging.getLogger("msdepth")
 
@@ -24,7 +24,7 @@ def rois(params: Params) -> None:
     """
     from msdepth.data.rois import contact_sheet, extract_rois
 
-    frames = read_eval_index(INDEX_DIR / "eval_frames.csv")
+    frames = read_eval_index(EVAL_FRAMES)
     if params.data.source == "folder":  # the user's boxes only: a folder has no obj_map
         user = folder_layout(params).rois_csv
         boxes = extract_rois(frames, user_csv=user)
@@ -49,8 +49,8 @@ def rois(params: Params) -> None:
             else "no car in any obj_map passed data.kitti.roi_min_size/roi_min_valid, "
             "and no data.kitti.rois_csv",
         )
-    kitti.write_rois(INDEX_DIR / "rois.csv", boxes)
-    contact_sheet(boxes, frames, INDEX_DIR / "rois.png")
+    kitti.write_rois(ROIS, boxes)
+    contact_sheet(boxes, frames, ROI_SHEET)
     log.info("rois: %d boxes, %s", len(boxes), boxes["class"].value_counts().to_dict())
 
 

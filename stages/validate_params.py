@@ -9,12 +9,10 @@ or an unknown key stops ``dvc repro`` here, before anything else runs or is remo
 from __future__ import annotations
 
 import sys
-from pathlib import Path
 
 from msdepth.config import Params
-from msdepth.pipeline import run_stage
+from msdepth.pipeline import CHECKED, run_stage
 
-CHECKED = Path("data/params_checked.txt")
 # The same bytes whatever the params: the stages after this one then re-run only for the params
 # keys (and code) they list themselves, never because this file changed.
 CHECKED_TEXT = (

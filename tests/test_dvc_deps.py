@@ -1,6 +1,6 @@
 """dvc.yaml's code deps follow the imports: each stage lists exactly the files its script imports.
 
-:mod:`msdepth.codedeps` writes them (``python -m msdepth.codedeps``); these tests check that
+:mod:`msdepth.dvcyaml` writes them (``python -m msdepth.dvcyaml``); these tests check that
 dvc.yaml is what it writes, and the import tracing itself on a toy package.
 """
 
@@ -12,7 +12,8 @@ from pathlib import Path
 import pytest
 import yaml
 
-from msdepth.codedeps import COMMAND, code_deps, generate, import_closure
+from msdepth import pipeline
+from msdepth.dvcyaml import COMMAND, TAGGED, code_deps, generate, import_closure, tagged_path
 from msdepth.errors import DataError
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -100,6 +101,8 @@ stages:
       - data/in.txt  # kept
     outs:
       - out.txt
+      - old/place.csv:  # = EVAL_FRAMES
+          cache: false
 
   fresh:
     cmd: python stages/run.py
@@ -127,12 +130,49 @@ def test_generator_rewrites_only_the_code_deps(toy: Path):
     ]
     assert code_deps(toy, "stages/run.py") == code
     listed = "".join(f"      - {c}\n" for c in code)
-    expected = TOY_YAML.replace("      - stages/run.py\n      - src/msdepth/unused.py\n", listed).replace(
-        "    cmd: python stages/run.py\n", "    cmd: python stages/run.py\n    deps:\n" + listed
+    expected = (
+        TOY_YAML.replace("      - stages/run.py\n      - src/msdepth/unused.py\n", listed)
+        .replace("    cmd: python stages/run.py\n", "    cmd: python stages/run.py\n    deps:\n" + listed)
+        .replace("old/place.csv:", "data/index/eval_frames.csv:")
     )
     assert generate(toy) == expected
     (toy / "dvc.yaml").write_text(expected)
     assert generate(toy) == expected  # a fixed point
+
+
+def test_tagged_paths_come_from_the_pipeline_module():
+    assert tagged_path("EVAL_FRAMES") == "data/index/eval_frames.csv"
+    assert tagged_path("model_path(RUN)") == "models/${item.variant}/seed${item.seed}/model.pt"
+    assert tagged_path('run_dir("constant") / "x.npy"') == "outputs/constant/x.npy"
+    for bad, message in [
+        ("__import__('os')", "is not a name or path function"),
+        ("pipeline.log", "is not a name or path function"),
+        ("SUITE_NAMES", "is not a path"),
+        ("model_path(", "was never closed"),
+    ]:
+        with pytest.raises(DataError, match=message):
+            tagged_path(bad)
+
+
+def test_every_file_the_pipeline_module_defines_is_written_into_dvc_yaml():
+    """Each path constant and path function of msdepth.pipeline names a file that dvc.yaml tracks:
+    its copies there are tagged `# = NAME`, so that they are written from the one definition."""
+    tags = {
+        m.group(5).split("(")[0]
+        for line in (ROOT / "dvc.yaml").read_text().splitlines()
+        if (m := TAGGED.match(line + "\n"))
+    }
+    not_tracked = {"INDEX_DIR", "run_dir", "checkpoint_path"}  # a folder of outs; resume state
+    defined = {
+        name
+        for name, value in vars(pipeline).items()
+        if not name.startswith("_")
+        and (
+            isinstance(value, Path)
+            or (callable(value) and getattr(value, "__annotations__", {}).get("return") in (Path, "Path"))
+        )
+    }
+    assert defined - not_tracked - tags == set() and "model_path" in tags
 
 
 def test_generator_refuses_a_code_dep_after_the_data_deps(toy: Path):
@@ -144,11 +184,11 @@ def test_generator_refuses_a_code_dep_after_the_data_deps(toy: Path):
 
 
 def test_the_command_checks_and_writes(toy: Path, capsys):
-    from msdepth.codedeps import main
+    from msdepth.dvcyaml import main
 
     (toy / "dvc.yaml").write_text(TOY_YAML)
     assert main(["--root", str(toy), "--check"]) == 1
-    assert f"code deps out of date (run, fresh): run `{COMMAND}`" in capsys.readouterr().err
+    assert f"generated parts out of date (run, fresh): run `{COMMAND}`" in capsys.readouterr().err
     assert (toy / "dvc.yaml").read_text() == TOY_YAML
     assert main(["--root", str(toy)]) == 0 and main(["--root", str(toy), "--check"]) == 0
     assert (toy / "dvc.yaml").read_text() == generate(toy)

@@ -32,7 +32,7 @@ from .data import kitti
 from .data.index import training_gt_path, velodyne_path
 from .data.pairs import load_pair_list
 from .io import write_json, write_text
-from .pipeline import INDEX_DIR
+from .pipeline import TRAIN_PAIRS
 
 log = logging.getLogger("msdepth")
 
@@ -206,7 +206,7 @@ def skipped_reason(metrics_dir: str | Path, run: str, suites: Sequence[str]) -> 
 def indexed_training_gt() -> TrainingGT:
     """The GT of the indexed training frames (data/index/train_pairs.txt) that the stages build the
     baselines from, logged, with a warning per drive without."""
-    pairs = load_pair_list(INDEX_DIR / "train_pairs.txt")
+    pairs = load_pair_list(TRAIN_PAIRS)
     gt = training_gt([left for left, _ in pairs])
     for drive, count in gt.missing.items():
         log.warning(

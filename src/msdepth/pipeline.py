@@ -23,7 +23,15 @@ from .errors import ConfigError, MsdepthError
 
 log = logging.getLogger("msdepth")
 
+# The pipeline's files that its stages pass to each other, defined here only: dvc.yaml's lines
+# that name them end in `# = NAME` (or `# = model_path(RUN)`), and `python -m msdepth.dvcyaml`
+# writes their paths from these definitions.
+CHECKED = Path("data/params_checked.txt")
 INDEX_DIR = Path("data/index")
+TRAIN_PAIRS = INDEX_DIR / "train_pairs.txt"
+EVAL_FRAMES = INDEX_DIR / "eval_frames.csv"
+ROIS = INDEX_DIR / "rois.csv"
+ROI_SHEET = INDEX_DIR / "rois.png"
 PAIR_CACHE = Path("data/cache/train_pairs.npy")
 CACHED_PAIRS = Path("data/cache/train_pairs.txt")
 CACHE_REPORT = Path("data/cache/report.json")
@@ -70,6 +78,16 @@ def checkpoint_path(run: str) -> Path:
 
 def run_dir(run: str) -> Path:
     return Path("outputs") / run
+
+
+def disparities_path(run: str) -> Path:
+    """A run's disparities of the evaluation frames (the infer stage's output)."""
+    return run_dir(run) / "disparities.npy"
+
+
+def depth_path(run: str) -> Path:
+    """A run's metric depth maps at GT resolution (the depth stage's output)."""
+    return run_dir(run) / "depth.npz"
 
 
 def stage_parser(fn: Callable[..., None]) -> argparse.ArgumentParser:

@@ -1,4 +1,11 @@
-"""dvc.yaml's code deps, written from the imports: ``python -m msdepth.codedeps`` (``--check``).
+"""dvc.yaml's generated parts: ``python -m msdepth.dvcyaml`` writes them (``--check`` compares).
+
+Two parts of dvc.yaml are written from the code, so that each is defined once:
+
+- every stage's code deps, from its script's imports;
+- every path that ends in ``# = EXPR``, from :mod:`msdepth.pipeline`'s definition of that file
+  (EXPR: one of its names, e.g. ``EVAL_FRAMES``, or a call of one of its path functions on
+  ``RUN``, a matrix stage's run as dvc.yaml spells it: ``model_path(RUN)``).
 
 A stage's code is its script (``python stages/<x>.py`` in ``cmd``) and the transitive closure of
 the ``msdepth`` modules it imports, found statically with ``ast`` (every ``import`` statement,
@@ -8,9 +15,9 @@ stage does not import re-runs it for nothing.
 
 In dvc.yaml a stage's code deps are the entries under ``stages/`` and ``src/`` at the head of its
 ``deps`` list (a package folder whose every module the stage imports is listed as the folder).
-The command rewrites those lines and nothing else: comments, order and every other key keep their
-bytes (pyyaml would drop the comments, so the file is edited as text). A stage without ``deps``
-gets the list after its ``cmd`` line.
+The command rewrites those lines and the tagged paths, nothing else: comments, order and every
+other key keep their bytes (pyyaml would drop the comments, so the file is edited as text). A
+stage without ``deps`` gets the list after its ``cmd`` line.
 """
 
 from __future__ import annotations
@@ -27,7 +34,7 @@ from .errors import DataError, MsdepthError
 
 PACKAGE = "msdepth"
 CODE_PREFIXES = ("stages/", "src/")
-COMMAND = "python -m msdepth.codedeps"
+COMMAND = "python -m msdepth.dvcyaml"
 
 
 def module_file(name: str, src: Path) -> Path | None:
@@ -199,8 +206,57 @@ def _rewrite_stage(lines: list[str], name: str, deps: list[str]) -> list[str]:
     return lines[:first] + [f"{item_indent}- {d}\n" for d in deps] + lines[last:]
 
 
+TAGGED = re.compile(r"^(\s*- )(\S+?)(:?)(\s+# = )(.+?)\s*$")
+
+
+def tagged_path(expr: str) -> str:
+    """The path that a dvc.yaml line's ``# = EXPR`` names: EXPR is a public name of
+    :mod:`msdepth.pipeline`, a call of one of its functions on ``RUN`` (a matrix stage's run, as
+    dvc.yaml spells it) or on strings, or either joined with ``/`` to a string."""
+    from . import pipeline
+
+    run = pipeline.run_name("${item.variant}", "${item.seed}")  # type: ignore[arg-type]
+
+    def value(node: ast.expr) -> object:
+        if isinstance(node, ast.Constant) and isinstance(node.value, str):
+            return node.value
+        if isinstance(node, ast.Name) and node.id == "RUN":
+            return run
+        if isinstance(node, ast.Name) and not node.id.startswith("_") and hasattr(pipeline, node.id):
+            return getattr(pipeline, node.id)
+        if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and not node.keywords:
+            return value(node.func)(*[value(a) for a in node.args])  # type: ignore[operator]
+        if isinstance(node, ast.BinOp) and isinstance(node.op, ast.Div):
+            return Path(value(node.left)) / value(node.right)  # type: ignore[arg-type,operator]
+        raise DataError(f"{ast.unparse(node)!r} is not a name or path function of msdepth.pipeline")
+
+    try:
+        result = value(ast.parse(expr, mode="eval").body)
+    except (SyntaxError, TypeError) as exc:
+        raise DataError(f"{expr!r}: {exc}") from None
+    if not isinstance(result, (str, Path)):
+        raise DataError(f"{expr!r} is not a path")
+    return Path(result).as_posix()
+
+
+def _rewrite_tagged(lines: list[str]) -> list[str]:
+    """``lines`` with the path of every line that ends in ``# = EXPR`` written from EXPR."""
+    out = []
+    for number, line in enumerate(lines, 1):
+        match = TAGGED.match(line)
+        if match:
+            try:
+                path = tagged_path(match.group(5))
+            except DataError as exc:
+                raise DataError(f"dvc.yaml, line {number}: {exc}") from None
+            line = f"{match.group(1)}{path}{match.group(3)}{match.group(4)}{match.group(5)}\n"
+        out.append(line)
+    return out
+
+
 def generate(root: Path) -> str:
-    """dvc.yaml under ``root`` with every stage's code deps written from its imports."""
+    """dvc.yaml under ``root`` with every stage's code deps written from its imports and every
+    tagged path from its definition in :mod:`msdepth.pipeline`."""
     path = root / "dvc.yaml"
     text = path.read_text()
     try:
@@ -210,17 +266,17 @@ def generate(root: Path) -> str:
     lines = text.splitlines(keepends=True)
     for name, script in stage_scripts(dvc_yaml).items():
         lines = _rewrite_stage(lines, name, code_deps(root, script))
-    return "".join(lines)
+    return "".join(_rewrite_tagged(lines))
 
 
 def changed_stages(old: str, new: str) -> list[str]:
-    """The stages whose deps differ between two versions of dvc.yaml."""
+    """The stages that differ between two versions of dvc.yaml."""
     before, after = yaml.safe_load(old)["stages"], yaml.safe_load(new)["stages"]
-    return [n for n in after if before.get(n, {}).get("deps") != after[n].get("deps")]
+    return [n for n in after if before.get(n) != after[n]]
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Write (or with ``--check`` only compare) dvc.yaml's code deps; the exit code is 1 on a
+    """Write (or with ``--check`` only compare) dvc.yaml's generated parts; the exit code is 1 on a
     difference under ``--check`` or an error."""
     ap = argparse.ArgumentParser(
         prog=COMMAND, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
@@ -240,17 +296,17 @@ def main(argv: list[str] | None = None) -> int:
     if args.check:
         if old != new:
             print(
-                f"{path}: code deps out of date ({', '.join(stages) or 'layout'}): run `{COMMAND}`",
+                f"{path}: generated parts out of date ({', '.join(stages) or 'layout'}): run `{COMMAND}`",
                 file=sys.stderr,
             )
             return 1
-        print(f"{path}: code deps up to date")
+        print(f"{path}: generated parts up to date")
         return 0
     if old != new:
         from .io import write_text
 
         write_text(path, new)
-    print(f"{path}: code deps {'rewritten for ' + ', '.join(stages) if old != new else 'up to date'}")
+    print(f"{path}: generated parts {'rewritten for ' + ', '.join(stages) if old != new else 'up to date'}")
     return 0
 
 
