@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import math
 import os
 import types
 import typing
@@ -11,11 +12,16 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal, get_args, get_origin
 
-import yaml
-
-from .checks import check
+from .checks import check, shown
 from .errors import ConfigError
+from .params_yaml import parse
 from .variants import configs as variant_configs  # light: the loss variants' configs, not their terms
+
+# The ranges of the checks below that bound a value only so that it cannot fail later.
+SEED_MAX = 2**32 - 1  # numpy's legacy seeding (np.random.seed) takes seeds below 2^32
+MAX_SIZE = 4096  # px, network input and render size (KITTI: 375 x 1242)
+MAX_WIDTH_MULTIPLIER = 4.0  # 1.0 = the dissertation's ~31 M parameters; 4.0 about 16 times that
+MAX_DIST_TIMEOUT_S = 86_400.0  # a day; Python's timedelta (torch.distributed) overflows far above
 
 
 def _speed_only(default: Any) -> Any:
@@ -52,8 +58,12 @@ class SyntheticConfig:
         """Range checks of the ``key`` section; a ConfigError names the key."""
         for name in ("drives", "train_pairs", "eval_frames"):
             check(getattr(self, name) >= 1, f"{key}.{name}", "must be >= 1")
+        check(0 <= self.seed <= SEED_MAX, f"{key}.seed", f"must be in 0..{SEED_MAX}, got {self.seed}")
         check(self.drives <= self.train_pairs, f"{key}.drives", "must not exceed train_pairs")
         check(self.height >= 32 and self.width >= 64, f"{key}.height", "render size must be at least 32 x 64")
+        for name in ("height", "width"):
+            size = getattr(self, name)
+            check(size <= MAX_SIZE, f"{key}.{name}", f"must be <= {MAX_SIZE} (px), got {size}")
         check(
             self.gt_max_depth >= 0,
             f"{key}.gt_max_depth",
@@ -104,9 +114,9 @@ class KittiConfig:
         scheme = urllib.parse.urlsplit(self.base_url).scheme.lower()
         refused = (
             f"plain http is refused unless {key}.allow_http is true (a mirror you trust), "
-            f"got {self.base_url!r}"
+            f"got {shown(self.base_url)}"
             if scheme == "http"
-            else f"must be an https URL, got {self.base_url!r}"
+            else f"must be an https URL, got {shown(self.base_url)}"
         )
         check(scheme == "https" or (scheme == "http" and self.allow_http), f"{key}.base_url", refused)
 
@@ -128,11 +138,13 @@ class FolderConfig:
 
     def validate(self, key: str, params: Params) -> None:
         """``data.source: folder``: the folder's keys, and what the folder cannot provide."""
+        root = shown(self.root)
+        suggested = root[1:-1] if root[0] == root[-1] else root  # without the quotes, unless elided
         check(
             self.root in ("", params.data.root),
             f"{key}.root",
-            f"must be empty (= data.root) or data.root itself, got {self.root!r}: the pipeline tracks the "
-            f"data as data.root (dvc.yaml), so set data.root: {self.root} instead",
+            f"must be empty (= data.root) or data.root itself, got {root}: the pipeline tracks the data "
+            f"as data.root (dvc.yaml), so set data.root: {suggested} instead",
         )
         if not self.pairs:
             for name in ("left", "right"):
@@ -141,7 +153,9 @@ class FolderConfig:
                     f"{key}.{name}",
                     f"must name a folder when {key}.pairs is empty",
                 )
-            check(self.left != self.right, f"{key}.right", f"must differ from {key}.left ({self.left!r})")
+            check(
+                self.left != self.right, f"{key}.right", f"must differ from {key}.left ({shown(self.left)})"
+            )
         check(
             bool(self.camera), f"{key}.camera", "must name the camera file (focal_px, width_px, baseline_m)"
         )
@@ -179,6 +193,7 @@ class DataConfig:
                 f"{key}.{name}",
                 f"must be a multiple of 8 and >= 32, got {size}",
             )
+            check(size <= MAX_SIZE, f"{key}.{name}", f"must be <= {MAX_SIZE} (px), got {size}")
         self.synthetic.validate(f"{key}.synthetic", params)
         self.kitti.validate(f"{key}.kitti", params)
         if self.source == "folder":
@@ -196,7 +211,13 @@ class ModelConfig:
 
     def validate(self, key: str, params: Params) -> None:
         """Range checks of the ``key`` section; a ConfigError names the key."""
-        check(self.width_multiplier > 0, f"{key}.width_multiplier", "must be > 0")
+        multiplier = self.width_multiplier
+        check(multiplier > 0, f"{key}.width_multiplier", "must be > 0")
+        check(
+            multiplier <= MAX_WIDTH_MULTIPLIER,
+            f"{key}.width_multiplier",
+            f"must be <= {MAX_WIDTH_MULTIPLIER} (1.0 = the dissertation's network), got {multiplier}",
+        )
         check(
             0 < self.init_disparity < 0.3,
             f"{key}.init_disparity",
@@ -243,10 +264,15 @@ class TrainConfig:
         check(
             self.sync_every >= 0, f"{key}.sync_every", f"must be >= 0 (0 = automatic), got {self.sync_every}"
         )
-        check(self.dist_timeout_s > 0, f"{key}.dist_timeout_s", "must be > 0")
+        timeout = self.dist_timeout_s
+        check(timeout > 0, f"{key}.dist_timeout_s", "must be > 0")
+        check(
+            timeout <= MAX_DIST_TIMEOUT_S, f"{key}.dist_timeout_s", f"must be <= {MAX_DIST_TIMEOUT_S:g} (s)"
+        )
         seeds = list(self.seeds)
-        check(all(seed >= 0 for seed in seeds), f"{key}.seeds", f"must be >= 0, got {seeds}")
-        check(len(set(seeds)) == len(seeds), f"{key}.seeds", f"must not repeat a seed, got {seeds}")
+        in_range = all(0 <= seed <= SEED_MAX for seed in seeds)
+        check(in_range, f"{key}.seeds", f"must be in 0..{SEED_MAX}, got {shown(seeds)}")
+        check(len(set(seeds)) == len(seeds), f"{key}.seeds", f"must not repeat a seed, got {shown(seeds)}")
 
 
 def speed_only_train_keys() -> tuple[str, ...]:
@@ -319,7 +345,7 @@ class EvalConfig:
         check(self.min_depth > 0, f"{key}.min_depth", "must be > 0")
         check(0 < self.dense_gt_fraction <= 1, f"{key}.dense_gt_fraction", "must be in (0, 1]")
         sets = list(self.extra_sets)
-        check(len(set(sets)) == len(sets), f"{key}.extra_sets", f"must not repeat a set, got {sets}")
+        check(len(set(sets)) == len(sets), f"{key}.extra_sets", f"must not repeat a set, got {shown(sets)}")
 
 
 @dataclass(frozen=True)
@@ -334,11 +360,12 @@ class CompareConfig:
         check(
             self.reference in params.variants,
             f"{key}.reference",
-            f"{self.reference!r} is not a variant; configured: {list(params.variants)}",
+            f"{shown(self.reference)} is not a variant; configured: {list(params.variants)}",
         )
         samples = self.bootstrap_samples
         check(samples >= 100, f"{key}.bootstrap_samples", f"must be >= 100, got {samples}")
         check(0 < self.confidence < 1, f"{key}.confidence", f"must be in (0, 1), got {self.confidence}")
+        check(0 <= self.seed <= SEED_MAX, f"{key}.seed", f"must be in 0..{SEED_MAX}, got {self.seed}")
 
 
 @dataclass(frozen=True)
@@ -366,7 +393,7 @@ class Params:
     def variant(self, name: str) -> str:
         """The variant called ``name``, or a ConfigError listing the configured ones."""
         if name not in self.variants:
-            raise ConfigError(f"variants: unknown variant {name!r}; configured: {list(self.variants)}")
+            raise ConfigError(f"variants: unknown variant {shown(name)}; configured: {list(self.variants)}")
         return name
 
     def seed(self, value: str | int) -> int:
@@ -374,9 +401,11 @@ class Params:
         try:
             seed = int(value)
         except ValueError:
-            raise ConfigError(f"train.seeds: {value!r} is not an integer seed") from None
+            raise ConfigError(f"train.seeds: {shown(value)} is not an integer seed") from None
         if seed not in self.train.seeds:
-            raise ConfigError(f"train.seeds: seed {seed} is not listed; configured: {list(self.train.seeds)}")
+            raise ConfigError(
+                f"train.seeds: seed {seed} is not listed; configured: {shown(list(self.train.seeds))}"
+            )
         return seed
 
 
@@ -389,38 +418,50 @@ def _convert(value: Any, tp: Any, key: str) -> Any:
         return _build(tp, value, key)
     if origin is Literal:
         if value not in get_args(tp):
-            raise ConfigError(f"{key}: {value!r} is not one of {list(get_args(tp))}")
+            raise ConfigError(f"{key}: {shown(value)} is not one of {list(get_args(tp))}")
         return value
     if origin is tuple:
         (inner, _) = get_args(tp)
         if not isinstance(value, (list, tuple)) or not value:
-            raise ConfigError(f"{key}: expected a non-empty list, got {value!r}")
+            raise ConfigError(f"{key}: expected a non-empty list, got {shown(value)}")
         return tuple(_convert(v, inner, f"{key}[{i}]") for i, v in enumerate(value))
     if origin is dict:
         _, inner = get_args(tp)
         if not isinstance(value, dict) or not value:
-            raise ConfigError(f"{key}: expected a non-empty mapping, got {value!r}")
+            raise ConfigError(f"{key}: expected a non-empty mapping, got {shown(value)}")
         return {str(k): _convert(v, inner, f"{key}.{k}") for k, v in value.items()}
     if origin in (typing.Union, types.UnionType):
         if value is None and type(None) in get_args(tp):
             return None
         (inner,) = [a for a in get_args(tp) if a is not type(None)]
         return _convert(value, inner, key)
+    return _convert_scalar(value, tp, key)
+
+
+# Every integer parameter fits a signed 64-bit integer (numpy, torch); every float one is finite.
+INT_RANGE = (-(2**63), 2**63 - 1)
+
+
+def _convert_scalar(value: Any, tp: Any, key: str) -> Any:
+    """Check a YAML scalar against ``tp`` (bool, int, float or str); a ConfigError names ``key``."""
     if tp is bool:
         if not isinstance(value, bool):
-            raise ConfigError(f"{key}: expected true/false, got {value!r}")
+            raise ConfigError(f"{key}: expected true/false, got {shown(value)}")
         return value
-    if tp is int:
-        if isinstance(value, bool) or not isinstance(value, int):
-            raise ConfigError(f"{key}: expected an integer, got {value!r}")
-        return value
-    if tp is float:
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise ConfigError(f"{key}: expected a number, got {value!r}")
-        return float(value)
+    if tp in (int, float):
+        number = isinstance(value, int) or (tp is float and isinstance(value, float))
+        if isinstance(value, bool) or not number:
+            raise ConfigError(
+                f"{key}: expected {'an integer' if tp is int else 'a number'}, got {shown(value)}"
+            )
+        if isinstance(value, int) and not INT_RANGE[0] <= value <= INT_RANGE[1]:
+            raise ConfigError(f"{key}: {shown(value)} is out of range (a 64-bit integer)")
+        if tp is float and not math.isfinite(value):
+            raise ConfigError(f"{key}: expected a finite number, got {value}")
+        return float(value) if tp is float else value
     if tp is str:
         if not isinstance(value, str):
-            raise ConfigError(f"{key}: expected a string, got {value!r}")
+            raise ConfigError(f"{key}: expected a string, got {shown(value)}")
         return value
     raise TypeError(f"unsupported config type {tp} at {key}")  # programming error
 
@@ -428,10 +469,12 @@ def _convert(value: Any, tp: Any, key: str) -> Any:
 def _build(cls: type, raw: dict, prefix: str) -> Any:
     hints = typing.get_type_hints(cls)
     names = {f.name for f in dataclasses.fields(cls) if f.metadata.get("yaml", True)}
+    for name in raw:  # YAML reads an unquoted 1, ~ or true as a number, null or boolean
+        check(isinstance(name, str), prefix or "top level", f"key {shown(name)} is not a parameter name")
     unknown = set(raw) - names
     if unknown:
         where = f"{prefix}." if prefix else ""
-        raise ConfigError(f"unknown parameter(s) {sorted(where + u for u in unknown)}")
+        raise ConfigError(f"unknown parameter(s) {shown(sorted(where + u for u in unknown))}")
     empty_ok = {f.name for f in dataclasses.fields(cls) if f.metadata.get("may_be_empty")}
     kwargs = {
         name: ()
@@ -446,7 +489,7 @@ def _build(cls: type, raw: dict, prefix: str) -> Any:
 def validate(p: Params) -> Params:
     """Range checks that types alone cannot express, section by section; raises ConfigError naming the key."""
     for i, name in enumerate(p.variants):
-        check(name in p.appearance, f"variants[{i}]", f"{name!r} is not one of {list(p.appearance)}")
+        check(name in p.appearance, f"variants[{i}]", f"{shown(name)} is not one of {list(p.appearance)}")
     p.data.validate("data", p)
     p.model.validate("model", p)
     p.train.validate("train", p)
@@ -472,16 +515,31 @@ def params_from_dict(raw: dict) -> Params:
     return validate(dataclasses.replace(params, appearance=sections))
 
 
+MAX_PARAMS_BYTES = 1 << 20  # params.yaml is about 10 KB; a file this large is not one
+
+
 def load_params(path: str | os.PathLike = "params.yaml") -> Params:
     """Read ``params.yaml`` into a validated :class:`Params` (one ConfigError naming the key)."""
     path = Path(path)
     try:
-        raw = yaml.safe_load(path.read_text())
+        with path.open("rb") as file:
+            data = file.read(MAX_PARAMS_BYTES + 1)
     except FileNotFoundError:
         raise ConfigError(f"{path}: no such params file") from None
-    except yaml.YAMLError as exc:
-        raise ConfigError(f"{path}: not valid YAML: {exc}") from None
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot read: {exc.strerror or exc}") from None
     try:
-        return params_from_dict(raw or {})
+        check(
+            len(data) <= MAX_PARAMS_BYTES,
+            "file",
+            f"larger than {MAX_PARAMS_BYTES >> 20} MiB: not a params file",
+        )
+        try:
+            text = data.decode("utf-8")
+        except UnicodeDecodeError as exc:
+            line = data.count(b"\n", 0, exc.start) + 1
+            raise ConfigError(f"not UTF-8 text (byte 0x{data[exc.start]:02x} on line {line})") from None
+        raw = parse(text)
+        return params_from_dict({} if raw is None else raw)
     except ConfigError as exc:
         raise ConfigError(f"{path}: {exc}") from None
