@@ -64,6 +64,10 @@ HOSTILE = [
     (b"train:\n  epochs: 3\n  epochs: 4\n", "train.epochs: duplicate key (lines 2 and 3): keep one"),
     (b"loss: {alpha: &a 0.5, lr_weight: *a}\n", "loss.lr_weight: " + ALIAS.format(1)),
     (alias_bomb(4).encode(), "train.learning_rate[1][0]: " + ALIAS.format(3)),
+    (
+        b"x: &x {height: 64}\ndata:\n  <<: *x\n",
+        "data: YAML merge keys (<<, line 3) are refused: write the keys out",
+    ),
     (b"data: !!set {a, b}\n", "data: YAML tag 'tag:yaml.org,2002:set' is not a params value (line 1)"),
     (b"train: " + b"[" * 40 + b"\n", "not valid YAML: line 1, column 23: nested deeper than 16 levels"),
     (b"train: [1, 2\n", "not valid YAML: line 2, column 1: expected ',' or ']', but got '<stream end>'"),

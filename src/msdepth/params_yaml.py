@@ -1,10 +1,11 @@
 """``params.yaml`` read as plain data, refusing what a params file never needs (stdlib and PyYAML only).
 
 :func:`parse` is ``yaml.safe_load`` with bounds: no aliases (a few hundred bytes of nested aliases
-expand to gigabytes: "billion laughs"), no duplicate key (YAML would keep the last one silently),
-no integer too long to convert, no nesting deeper than :data:`MAX_DEPTH` and no collection tags
-(``!!set``, ``!!omap``). Every refusal is one ConfigError naming the key, or the line and column
-where there is no key yet. Types and ranges are checked afterwards, by :mod:`msdepth.config`.
+expand to gigabytes: "billion laughs") nor merge keys (``<<``), no duplicate key (YAML would keep
+the last one silently), no integer too long to convert, no nesting deeper than :data:`MAX_DEPTH`
+and no collection tags (``!!set``, ``!!omap``). Every refusal is one ConfigError naming the key,
+or the line and column where there is no key yet. Types and ranges are checked afterwards, by
+:mod:`msdepth.config`.
 """
 
 from __future__ import annotations
@@ -99,6 +100,8 @@ class _Builder:
                 where,
                 f"a key must be a name, not a collection (line {line})",
             )
+            merge = key_node.tag == "tag:yaml.org,2002:merge"
+            check(not merge, where, f"YAML merge keys (<<, line {line}) are refused: write the keys out")
             name = self.build(key_node, where)
             # A key that is not a string (1, ~, true) is refused by msdepth.config, naming it.
             label = name if isinstance(name, str) and len(name) <= SHOWN_CHARS else shown(name)
