@@ -139,3 +139,13 @@ def test_the_new_ranges_accept_their_bounds():
         }
     )
     assert params.model.width_multiplier == 4.0 and params.compare.seed == 2**32 - 1
+
+
+def test_a_variant_named_like_a_params_section_is_refused(monkeypatch):
+    """msdepth.variants.register no longer imports the config (that made a cycle): config checks."""
+    from msdepth import config
+    from msdepth.variants.ssim import SSIMConfig
+
+    monkeypatch.setattr(config, "variant_configs", lambda: {"ssim": SSIMConfig, "train": SSIMConfig})
+    with pytest.raises(ValueError, match=r"variant\(s\) \['train'\]: the name of a params section"):
+        params_from_dict({})
