@@ -7,18 +7,14 @@ and values that passed the checks but failed a later stage.
 
 from __future__ import annotations
 
-import os
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
+from test_stages import _run as run_script
 
 from msdepth.checks import SHOWN_CHARS, shown
 from msdepth.config import MAX_PARAMS_BYTES, load_params, params_from_dict
 from msdepth.errors import ConfigError
-
-ROOT = Path(__file__).resolve().parents[1]
 
 
 def alias_bomb(levels: int) -> str:
@@ -105,15 +101,12 @@ def test_an_alias_bomb_is_refused_in_bounded_memory(tmp_path: Path):
     """In a child limited to 400 MB of address space: the 490-byte bomb took 700 MB when the
     refusal echoed the expanded value."""
     (tmp_path / "params.yaml").write_text(alias_bomb(8))
-    code = (
-        "import resource; resource.setrlimit(resource.RLIMIT_AS, (400 << 20, 400 << 20)); "
-        "from msdepth.config import load_params; from msdepth.errors import ConfigError\n"
-        "try:\n    load_params('params.yaml')\nexcept ConfigError as exc:\n    print(exc)"
+    (tmp_path / "child.py").write_text(
+        "import resource\nresource.setrlimit(resource.RLIMIT_AS, (400 << 20, 400 << 20))\n"
+        "from msdepth.config import load_params\nfrom msdepth.errors import ConfigError\n"
+        "try:\n    load_params('params.yaml')\nexcept ConfigError as exc:\n    print(exc)\n"
     )
-    env = dict(os.environ, PYTHONPATH=str(ROOT / "src"))
-    proc = subprocess.run(
-        [sys.executable, "-c", code], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300
-    )
+    proc = run_script(str(tmp_path / "child.py"), cwd=tmp_path)  # an absolute path stays itself
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert proc.stdout == f"params.yaml: train.learning_rate[1][0]: {ALIAS.format(3)}\n"
 
