@@ -18,7 +18,7 @@ from msdepth.errors import ConfigError
 
 
 def alias_bomb(levels: int) -> str:
-    """ "Billion laughs": ``levels`` lists of 9 aliases of the one before, 9**levels strings in all
+    """A "billion laughs": ``levels`` lists of 9 aliases of the one before, 9**levels strings in all
     (levels=8: 490 bytes that expand to 43 million strings, echoed as a 351 MB line before)."""
     items = ['&a0 ["lol", "lol", "lol", "lol", "lol", "lol", "lol", "lol", "lol"]']
     items += [f"&a{i} [" + ", ".join([f"*a{i - 1}"] * 9) + "]" for i in range(1, levels)]
