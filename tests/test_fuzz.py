@@ -1,5 +1,6 @@
 """Fuzz the KITTI readers: whatever bytes or shapes they are given, they either return a result
-that keeps their documented invariants or raise one DataError naming the file, nothing else.
+that keeps their documented invariants or raise one DataError naming the file, nothing else. And
+params files: random trees (keys that are not strings, aliases) load or give one ConfigError line.
 
 Three kinds of input per reader: random bytes (some dressed up with a PNG/JPEG signature),
 well-formed files of random shapes, dtypes and values, and well-formed files that were then
@@ -22,11 +23,13 @@ import cv2
 import numpy as np
 import pandas as pd
 import pytest
+import yaml
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
+from msdepth.config import Params, load_params, params_from_dict
 from msdepth.data import kitti
-from msdepth.errors import DataError, MsdepthError
+from msdepth.errors import ConfigError, DataError, MsdepthError
 
 FUZZ = settings(
     max_examples=60,
@@ -494,3 +497,69 @@ def test_calibration_readers_on_random_files(base: Path, data: bytes) -> None:
         # A depth of focal * baseline / disparity must be a positive, finite number of metres.
         assert np.isfinite(focal) and focal > 0, f"focal {focal}"
         assert np.isfinite(baseline) and baseline > 0, f"baseline {baseline}"
+
+
+# ------------------------------------------------------------------------------------ params
+
+_PARAM_NAMES = ["data", "train", "eval", "model", "loss", "compare", "msssim", "variants", "synthetic"]
+_PARAM_NAMES += ["kitti", "height", "width", "seed", "seeds", "epochs", "caps", "alpha", "levels", "source"]
+_param_keys = st.one_of(
+    st.sampled_from(_PARAM_NAMES), st.text(max_size=6), st.integers(), st.booleans(), st.none(), st.floats()
+)
+_param_leaves = st.one_of(
+    st.none(),
+    st.booleans(),
+    st.integers(-(2**70), 2**70),
+    st.floats(),  # nan, inf, huge, tiny
+    st.text(max_size=8),
+    st.sampled_from([0, 1, 8, 64, 192, 0.5, "ssim", "msssim", "synthetic", "eigen", [], {}]),
+)
+_param_trees = st.recursive(
+    _param_leaves,
+    lambda inner: st.lists(inner, max_size=4) | st.dictionaries(_param_keys, inner, max_size=4),
+    max_leaves=12,
+)
+_YAMLISH = st.text(":-[]{}&*!|>'\"#?,~. \n\t0aby1", max_size=60)
+
+
+@st.composite
+def _params_files(draw: st.DrawFn) -> tuple[dict | None, bytes]:
+    """(tree, its YAML) for a random params tree placed at a real section, some of its keys not
+    strings and one of its values under two keys (safe_dump writes an anchor and an alias); or
+    (None, YAML-like text)."""
+    if draw(st.booleans()):
+        return None, draw(_YAMLISH).encode("utf-8")
+    tree = draw(st.dictionaries(_param_keys, _param_trees, max_size=4))
+    shared = draw(st.one_of(st.lists(_param_leaves, min_size=1, max_size=3), _param_trees))
+    for name in draw(st.lists(st.sampled_from(_PARAM_NAMES), max_size=2)):
+        tree[name] = shared
+    for section in reversed(
+        draw(st.sampled_from([[], ["train"], ["data"], ["data", "synthetic"], ["msssim"]]))
+    ):
+        tree = {section: tree}
+    return tree, yaml.safe_dump(tree, sort_keys=False, allow_unicode=True).encode("utf-8")
+
+
+def _check_params_refusal(build: Callable[[], Any], prefix: str) -> None:
+    """``build()`` returns Params or raises one short ConfigError line starting with ``prefix``."""
+    try:
+        assert isinstance(build(), Params)
+    except ConfigError as exc:
+        assert "\n" not in str(exc) and len(str(exc)) < 400, str(exc)[:1000]
+        assert str(exc).startswith(prefix), str(exc)
+
+
+@settings(FUZZ, max_examples=200)
+@given(case=_params_files())
+@example(case=(None, b"1: x\n~: y\ntrue: z\n"))  # keys that are not strings: was a TypeError
+@example(
+    case=(None, b'a: &a ["lol", "lol"]\nb: &b [*a, *a]\ntrain: {learning_rate: *b}\n')
+)  # echoed expanded
+@example(case=(None, b"train: {epochs: " + b"9" * 5001 + b"}\n"))  # int too long to convert: was a ValueError
+@example(case=(None, b"train: {epochs: 3}\n\xff\n"))  # not UTF-8: was a UnicodeDecodeError
+def test_params_on_random_trees_keys_and_aliases(base: Path, case: tuple[dict | None, bytes]) -> None:
+    tree, data = case
+    with _file(base, "params.yaml", data) as path:
+        _check_params_refusal(lambda: load_params(path), f"{path}: ")
+    if tree is not None:
+        _check_params_refusal(lambda: params_from_dict(tree), "")

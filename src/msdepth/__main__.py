@@ -4,16 +4,18 @@ from __future__ import annotations
 
 import argparse
 import sys
-from typing import Sequence
+from typing import Callable, Sequence
 
 from .errors import MsdepthError
 
+# A subcommand is a function that adds its parser with ``add_parser`` (the subparsers' own method:
+# name, help, description) and sets ``run``, the function that runs it; _COMMANDS lists them in
+# the order of ``msdepth --help``.
+AddParser = Callable[..., argparse.ArgumentParser]
 
-def _parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="msdepth", description="Use a trained msdepth model.")
-    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
-    p = sub.add_parser(
+def _predict_command(add_parser: AddParser) -> None:
+    p = add_parser(
         "predict",
         help="disparity, metric depth and point clouds for images, folders or videos",
         description="Predict every image of INPUT (an image, a folder searched recursively, or a video "
@@ -31,6 +33,16 @@ def _parser() -> argparse.ArgumentParser:
         action="store_false",
         help="skip Monodepth's flip post-processing (twice as fast, slightly worse near edges)",
     )
+    _camera_options(p)
+    _output_options(p)
+    p.add_argument("--device", choices=("auto", "cpu", "cuda"), help="default: auto (CUDA if available)")
+    p.add_argument("--batch-size", type=int, help="frames per network batch (default: 8)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(run=_predict)
+
+
+def _camera_options(p: argparse.ArgumentParser) -> None:
+    """predict's camera: focal length, baseline and principal point."""
     p.add_argument(
         "--focal",
         type=float,
@@ -44,6 +56,10 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--cy", type=float, help="principal point y in px for the point cloud (default: image centre)"
     )
+
+
+def _output_options(p: argparse.ArgumentParser) -> None:
+    """predict's outputs: depth range, file formats, point cloud and colour bar."""
     p.add_argument(
         "--max-depth",
         type=float,
@@ -66,12 +82,10 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--colorbar", action="store_true", help="add a colour bar (disparity in px) to the disparity PNG"
     )
-    p.add_argument("--device", choices=("auto", "cpu", "cuda"), help="default: auto (CUDA if available)")
-    p.add_argument("--batch-size", type=int, help="frames per network batch (default: 8)")
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
-    p.set_defaults(run=_predict)
 
-    e = sub.add_parser(
+
+def _export_onnx_command(add_parser: AddParser) -> None:
+    e = add_parser(
         "export-onnx",
         help="export the depth network to ONNX",
         description="Export the network to ONNX. Input 'image': float32 (B, 3, H, W), RGB in [0, 1]; "
@@ -86,7 +100,9 @@ def _parser() -> argparse.ArgumentParser:
     e.add_argument("--static", action="store_true", help="fix the input to 1 x 3 x height x width")
     e.set_defaults(run=_export_onnx)
 
-    f = sub.add_parser(
+
+def _export_folder_command(add_parser: AddParser) -> None:
+    f = add_parser(
         "export-folder",
         help="write a stereo folder (data.source: folder) from the synthetic set",
         description="Write the KITTI-format tree FROM (e.g. the synthetic set in data/kitti) as a stereo "
@@ -97,6 +113,20 @@ def _parser() -> argparse.ArgumentParser:
     f.add_argument("--from", dest="source", required=True, help="KITTI-format tree, e.g. data/kitti")
     f.add_argument("--to", dest="out", required=True, help="folder to write (must not exist or be empty)")
     f.set_defaults(run=_export_folder)
+
+
+_COMMANDS: tuple[Callable[[AddParser], None], ...] = (
+    _predict_command,
+    _export_onnx_command,
+    _export_folder_command,
+)
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="msdepth", description="Use a trained msdepth model.")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    for add_command in _COMMANDS:
+        add_command(sub.add_parser)
     return parser
 
 

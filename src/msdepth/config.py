@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import math
 import os
 import types
 import typing
@@ -11,10 +12,16 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal, get_args, get_origin
 
-import yaml
-
+from .checks import check, shown
 from .errors import ConfigError
+from .params_yaml import parse
 from .variants import configs as variant_configs  # light: the loss variants' configs, not their terms
+
+# The ranges of the checks below that bound a value only so that it cannot fail later.
+SEED_MAX = 2**32 - 1  # numpy's legacy seeding (np.random.seed) takes seeds below 2^32
+MAX_SIZE = 4096  # px, network input and render size (KITTI: 375 x 1242)
+MAX_WIDTH_MULTIPLIER = 4.0  # 1.0 = the dissertation's ~31 M parameters; 4.0 about 16 times that
+MAX_DIST_TIMEOUT_S = 86_400.0  # a day; Python's timedelta (torch.distributed) overflows far above
 
 
 def _speed_only(default: Any) -> Any:
@@ -47,6 +54,22 @@ class SyntheticConfig:
     # points past its range (~80 m); 0 keeps every rendered surface.
     gt_max_depth: float = 80.0
 
+    def validate(self, key: str, params: Params) -> None:
+        """Range checks of the ``key`` section; a ConfigError names the key."""
+        for name in ("drives", "train_pairs", "eval_frames"):
+            check(getattr(self, name) >= 1, f"{key}.{name}", "must be >= 1")
+        check(0 <= self.seed <= SEED_MAX, f"{key}.seed", f"must be in 0..{SEED_MAX}, got {self.seed}")
+        check(self.drives <= self.train_pairs, f"{key}.drives", "must not exceed train_pairs")
+        check(self.height >= 32 and self.width >= 64, f"{key}.height", "render size must be at least 32 x 64")
+        for name in ("height", "width"):
+            size = getattr(self, name)
+            check(size <= MAX_SIZE, f"{key}.{name}", f"must be <= {MAX_SIZE} (px), got {size}")
+        check(
+            self.gt_max_depth >= 0,
+            f"{key}.gt_max_depth",
+            f"must be >= 0 (0 = no limit), got {self.gt_max_depth}",
+        )
+
 
 @dataclass(frozen=True)
 class KittiConfig:
@@ -73,6 +96,30 @@ class KittiConfig:
     roi_min_size: int = 16  # px, both sides of an automatic car box
     roi_min_valid: float = 0.3  # fraction of an automatic car box with valid GT
 
+    def validate(self, key: str, params: Params) -> None:
+        """Range checks of the ``key`` section; a ConfigError names the key."""
+        check(self.drive_count >= 0, f"{key}.drive_count", f"must be >= 0 (0 = all), got {self.drive_count}")
+        check(self.jobs >= 1, f"{key}.jobs", f"must be >= 1, got {self.jobs}")
+        check(self.roi_min_size >= 1, f"{key}.roi_min_size", f"must be >= 1, got {self.roi_min_size}")
+        check(
+            0 <= self.roi_min_valid <= 1,
+            f"{key}.roi_min_valid",
+            f"must be in [0, 1], got {self.roi_min_valid}",
+        )
+        check(
+            self.drives is None or not self.drive_count,
+            f"{key}.drive_count",
+            "give either drives or drive_count, not both",
+        )
+        scheme = urllib.parse.urlsplit(self.base_url).scheme.lower()
+        refused = (
+            f"plain http is refused unless {key}.allow_http is true (a mirror you trust), "
+            f"got {shown(self.base_url)}"
+            if scheme == "http"
+            else f"must be an https URL, got {shown(self.base_url)}"
+        )
+        check(scheme == "https" or (scheme == "http" and self.allow_http), f"{key}.base_url", refused)
+
 
 @dataclass(frozen=True)
 class FolderConfig:
@@ -89,6 +136,41 @@ class FolderConfig:
     npy_is_disparity: bool = False  # .npy GT holds disparity in px (else depth in m)
     rois_csv: str = ""  # boxes on the evaluation frames, the format of data.kitti.rois_csv
 
+    def validate(self, key: str, params: Params) -> None:
+        """``data.source: folder``: the folder's keys, and what the folder cannot provide."""
+        root = shown(self.root)
+        suggested = root[1:-1] if root[0] == root[-1] else root  # without the quotes, unless elided
+        check(
+            self.root in ("", params.data.root),
+            f"{key}.root",
+            f"must be empty (= data.root) or data.root itself, got {root}: the pipeline tracks the data "
+            f"as data.root (dvc.yaml), so set data.root: {suggested} instead",
+        )
+        if not self.pairs:
+            for name in ("left", "right"):
+                check(
+                    bool(getattr(self, name)),
+                    f"{key}.{name}",
+                    f"must name a folder when {key}.pairs is empty",
+                )
+            check(
+                self.left != self.right, f"{key}.right", f"must differ from {key}.left ({shown(self.left)})"
+            )
+        check(
+            bool(self.camera), f"{key}.camera", "must name the camera file (focal_px, width_px, baseline_m)"
+        )
+        check(
+            bool(self.eval_list),
+            f"{key}.eval_list",
+            "must name the evaluation list ('left right [gt]' lines)",
+        )
+        check(
+            not params.eval.extra_sets,
+            "eval.extra_sets",
+            f"{list(params.eval.extra_sets)} need KITTI raw data, which data.source folder has not: "
+            "set eval.extra_sets: []",
+        )
+
 
 @dataclass(frozen=True)
 class DataConfig:
@@ -101,6 +183,22 @@ class DataConfig:
     kitti: KittiConfig = field(default_factory=KittiConfig)
     folder: FolderConfig = field(default_factory=FolderConfig)
 
+    def validate(self, key: str, params: Params) -> None:
+        """Range checks of the ``key`` section and its subsections; a ConfigError names the key."""
+        # Multiples of 8 keep the 4 output scales (1, 1/2, 1/4, 1/8) exact halvings.
+        for name in ("height", "width"):
+            size = getattr(self, name)
+            check(
+                size >= 32 and size % 8 == 0,
+                f"{key}.{name}",
+                f"must be a multiple of 8 and >= 32, got {size}",
+            )
+            check(size <= MAX_SIZE, f"{key}.{name}", f"must be <= {MAX_SIZE} (px), got {size}")
+        self.synthetic.validate(f"{key}.synthetic", params)
+        self.kitti.validate(f"{key}.kitti", params)
+        if self.source == "folder":
+            self.folder.validate(f"{key}.folder", params)
+
 
 @dataclass(frozen=True)
 class ModelConfig:
@@ -110,6 +208,21 @@ class ModelConfig:
     norm: Literal["none", "group"] = "group"
     # independent = the dissertation's heads; residual = each finer scale corrects the coarser one
     heads: Literal["independent", "residual"] = "residual"
+
+    def validate(self, key: str, params: Params) -> None:
+        """Range checks of the ``key`` section; a ConfigError names the key."""
+        multiplier = self.width_multiplier
+        check(multiplier > 0, f"{key}.width_multiplier", "must be > 0")
+        check(
+            multiplier <= MAX_WIDTH_MULTIPLIER,
+            f"{key}.width_multiplier",
+            f"must be <= {MAX_WIDTH_MULTIPLIER} (1.0 = the dissertation's network), got {multiplier}",
+        )
+        check(
+            0 < self.init_disparity < 0.3,
+            f"{key}.init_disparity",
+            "must be in (0, 0.3) (heads output 0.3*sigmoid)",
+        )
 
 
 @dataclass(frozen=True)
@@ -140,6 +253,27 @@ class TrainConfig:
     nproc: int = 1
     dist_timeout_s: float = _speed_only(600.0)  # a collective waiting longer (a dead rank) is an error
 
+    def validate(self, key: str, params: Params) -> None:
+        """Range checks of the ``key`` section; a ConfigError names the key."""
+        check(self.epochs >= 1, f"{key}.epochs", "must be >= 1")
+        check(self.batch_size >= 1, f"{key}.batch_size", "must be >= 1")
+        check(self.learning_rate > 0, f"{key}.learning_rate", f"must be > 0, got {self.learning_rate}")
+        check(self.num_workers >= 0, f"{key}.num_workers", "must be >= 0")
+        check(self.threads >= 1, f"{key}.threads", "must be >= 1")
+        check(self.nproc >= 1, f"{key}.nproc", f"must be >= 1, got {self.nproc}")
+        check(
+            self.sync_every >= 0, f"{key}.sync_every", f"must be >= 0 (0 = automatic), got {self.sync_every}"
+        )
+        timeout = self.dist_timeout_s
+        check(timeout > 0, f"{key}.dist_timeout_s", "must be > 0")
+        check(
+            timeout <= MAX_DIST_TIMEOUT_S, f"{key}.dist_timeout_s", f"must be <= {MAX_DIST_TIMEOUT_S:g} (s)"
+        )
+        seeds = list(self.seeds)
+        in_range = all(0 <= seed <= SEED_MAX for seed in seeds)
+        check(in_range, f"{key}.seeds", f"must be in 0..{SEED_MAX}, got {shown(seeds)}")
+        check(len(set(seeds)) == len(seeds), f"{key}.seeds", f"must not repeat a seed, got {shown(seeds)}")
+
 
 def speed_only_train_keys() -> tuple[str, ...]:
     """The ``train.*`` keys that change how fast a run goes, never what it computes: a
@@ -167,10 +301,26 @@ class LossConfig:
     # formula (same values up to rounding; a fallback, and what the fast kernels are tested against).
     kernels: Literal["fast", "reference"] = _added_later("fast")
 
+    def validate(self, key: str, params: Params) -> None:
+        """Range checks of the ``key`` section; a ConfigError names the key."""
+        check(0 <= self.alpha <= 1, f"{key}.alpha", "must be in [0, 1]")
+        check(self.smoothness_weight >= 0, f"{key}.smoothness_weight", "must be >= 0")
+        check(self.lr_weight >= 0, f"{key}.lr_weight", "must be >= 0")
+
+
+def _variant_configs() -> dict[str, type]:
+    """Every registered loss variant's config class by name (:mod:`msdepth.variants`); a variant
+    named like a section of :class:`Params` is a programming error."""
+    registered = dict(variant_configs())
+    clash = sorted(set(registered) & {f.name for f in dataclasses.fields(Params)})
+    if clash:
+        raise ValueError(f"variant(s) {clash}: the name of a params section that is not a variant")
+    return registered
+
 
 def _registered_sections() -> dict[str, Any]:
     """Default config of every registered loss variant (:mod:`msdepth.variants`)."""
-    return {name: config() for name, config in variant_configs().items()}
+    return {name: config() for name, config in _variant_configs().items()}
 
 
 @dataclass(frozen=True)
@@ -185,6 +335,18 @@ class EvalConfig:
     extra_sets: tuple[Literal["eigen", "eigen_benchmark"], ...] = _list_may_be_empty(("eigen",))
     median_scaling: bool = False  # per-image median scaling of the extra sets (Monodepth2's mono evaluation)
 
+    def validate(self, key: str, params: Params) -> None:
+        """Range checks of the ``key`` section; a ConfigError names the key."""
+        check(
+            all(c > self.min_depth for c in self.caps),
+            f"{key}.caps",
+            f"every cap must exceed {key}.min_depth",
+        )
+        check(self.min_depth > 0, f"{key}.min_depth", "must be > 0")
+        check(0 < self.dense_gt_fraction <= 1, f"{key}.dense_gt_fraction", "must be in (0, 1]")
+        sets = list(self.extra_sets)
+        check(len(set(sets)) == len(sets), f"{key}.extra_sets", f"must not repeat a set, got {shown(sets)}")
+
 
 @dataclass(frozen=True)
 class CompareConfig:
@@ -192,6 +354,18 @@ class CompareConfig:
     bootstrap_samples: int = 10_000
     confidence: float = 0.95
     seed: int = 0
+
+    def validate(self, key: str, params: Params) -> None:
+        """Range checks of the ``key`` section; a ConfigError names the key."""
+        check(
+            self.reference in params.variants,
+            f"{key}.reference",
+            f"{shown(self.reference)} is not a variant; configured: {list(params.variants)}",
+        )
+        samples = self.bootstrap_samples
+        check(samples >= 100, f"{key}.bootstrap_samples", f"must be >= 100, got {samples}")
+        check(0 < self.confidence < 1, f"{key}.confidence", f"must be in (0, 1), got {self.confidence}")
+        check(0 <= self.seed <= SEED_MAX, f"{key}.seed", f"must be in 0..{SEED_MAX}, got {self.seed}")
 
 
 @dataclass(frozen=True)
@@ -219,7 +393,7 @@ class Params:
     def variant(self, name: str) -> str:
         """The variant called ``name``, or a ConfigError listing the configured ones."""
         if name not in self.variants:
-            raise ConfigError(f"variants: unknown variant {name!r}; configured: {list(self.variants)}")
+            raise ConfigError(f"variants: unknown variant {shown(name)}; configured: {list(self.variants)}")
         return name
 
     def seed(self, value: str | int) -> int:
@@ -227,9 +401,11 @@ class Params:
         try:
             seed = int(value)
         except ValueError:
-            raise ConfigError(f"train.seeds: {value!r} is not an integer seed") from None
+            raise ConfigError(f"train.seeds: {shown(value)} is not an integer seed") from None
         if seed not in self.train.seeds:
-            raise ConfigError(f"train.seeds: seed {seed} is not listed; configured: {list(self.train.seeds)}")
+            raise ConfigError(
+                f"train.seeds: seed {seed} is not listed; configured: {shown(list(self.train.seeds))}"
+            )
         return seed
 
 
@@ -242,38 +418,50 @@ def _convert(value: Any, tp: Any, key: str) -> Any:
         return _build(tp, value, key)
     if origin is Literal:
         if value not in get_args(tp):
-            raise ConfigError(f"{key}: {value!r} is not one of {list(get_args(tp))}")
+            raise ConfigError(f"{key}: {shown(value)} is not one of {list(get_args(tp))}")
         return value
     if origin is tuple:
         (inner, _) = get_args(tp)
         if not isinstance(value, (list, tuple)) or not value:
-            raise ConfigError(f"{key}: expected a non-empty list, got {value!r}")
+            raise ConfigError(f"{key}: expected a non-empty list, got {shown(value)}")
         return tuple(_convert(v, inner, f"{key}[{i}]") for i, v in enumerate(value))
     if origin is dict:
         _, inner = get_args(tp)
         if not isinstance(value, dict) or not value:
-            raise ConfigError(f"{key}: expected a non-empty mapping, got {value!r}")
+            raise ConfigError(f"{key}: expected a non-empty mapping, got {shown(value)}")
         return {str(k): _convert(v, inner, f"{key}.{k}") for k, v in value.items()}
     if origin in (typing.Union, types.UnionType):
         if value is None and type(None) in get_args(tp):
             return None
         (inner,) = [a for a in get_args(tp) if a is not type(None)]
         return _convert(value, inner, key)
+    return _convert_scalar(value, tp, key)
+
+
+# Every integer parameter fits a signed 64-bit integer (numpy, torch); every float one is finite.
+INT_RANGE = (-(2**63), 2**63 - 1)
+
+
+def _convert_scalar(value: Any, tp: Any, key: str) -> Any:
+    """Check a YAML scalar against ``tp`` (bool, int, float or str); a ConfigError names ``key``."""
     if tp is bool:
         if not isinstance(value, bool):
-            raise ConfigError(f"{key}: expected true/false, got {value!r}")
+            raise ConfigError(f"{key}: expected true/false, got {shown(value)}")
         return value
-    if tp is int:
-        if isinstance(value, bool) or not isinstance(value, int):
-            raise ConfigError(f"{key}: expected an integer, got {value!r}")
-        return value
-    if tp is float:
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise ConfigError(f"{key}: expected a number, got {value!r}")
-        return float(value)
+    if tp in (int, float):
+        number = isinstance(value, int) or (tp is float and isinstance(value, float))
+        if isinstance(value, bool) or not number:
+            raise ConfigError(
+                f"{key}: expected {'an integer' if tp is int else 'a number'}, got {shown(value)}"
+            )
+        if isinstance(value, int) and not INT_RANGE[0] <= value <= INT_RANGE[1]:
+            raise ConfigError(f"{key}: {shown(value)} is out of range (a 64-bit integer)")
+        if tp is float and not math.isfinite(value):
+            raise ConfigError(f"{key}: expected a finite number, got {value}")
+        return float(value) if tp is float else value
     if tp is str:
         if not isinstance(value, str):
-            raise ConfigError(f"{key}: expected a string, got {value!r}")
+            raise ConfigError(f"{key}: expected a string, got {shown(value)}")
         return value
     raise TypeError(f"unsupported config type {tp} at {key}")  # programming error
 
@@ -281,10 +469,12 @@ def _convert(value: Any, tp: Any, key: str) -> Any:
 def _build(cls: type, raw: dict, prefix: str) -> Any:
     hints = typing.get_type_hints(cls)
     names = {f.name for f in dataclasses.fields(cls) if f.metadata.get("yaml", True)}
+    for name in raw:  # YAML reads an unquoted 1, ~ or true as a number, null or boolean
+        check(isinstance(name, str), prefix or "top level", f"key {shown(name)} is not a parameter name")
     unknown = set(raw) - names
     if unknown:
         where = f"{prefix}." if prefix else ""
-        raise ConfigError(f"unknown parameter(s) {sorted(where + u for u in unknown)}")
+        raise ConfigError(f"unknown parameter(s) {shown(sorted(where + u for u in unknown))}")
     empty_ok = {f.name for f in dataclasses.fields(cls) if f.metadata.get("may_be_empty")}
     kwargs = {
         name: ()
@@ -296,164 +486,60 @@ def _build(cls: type, raw: dict, prefix: str) -> Any:
     return cls(**kwargs)
 
 
-def check(cond: bool, key: str, message: str) -> None:
-    """Raise a ConfigError ``"key: message"`` unless ``cond`` (for the range checks of a section)."""
-    if not cond:
-        raise ConfigError(f"{key}: {message}")
-
-
-def check_levels_fit(key: str, levels: int, data: DataConfig) -> None:
-    """Raise a ConfigError on ``key.levels`` unless an MS-SSIM-type pyramid of ``levels`` levels
-    keeps at least one pixel at the coarsest training scale (input / 8). Windows use "same"
-    padding, so a level only needs to exist."""
-    check(1 <= levels <= 5, f"{key}.levels", f"must be in 1..5, got {levels}")
-    check(
-        min(data.height, data.width) // 8 // 2 ** (levels - 1) >= 1,
-        f"{key}.levels",
-        f"{levels} levels do not fit the coarsest training scale ({data.height // 8}x{data.width // 8} px)",
-    )
-
-
 def validate(p: Params) -> Params:
-    """Range checks that types alone cannot express; raises ConfigError naming the key."""
+    """Range checks that types alone cannot express, section by section; raises ConfigError naming the key."""
     for i, name in enumerate(p.variants):
-        check(name in p.appearance, f"variants[{i}]", f"{name!r} is not one of {list(p.appearance)}")
-    d, s = p.data, p.data.synthetic
-    # Multiples of 8 keep the 4 output scales (1, 1/2, 1/4, 1/8) exact halvings.
-    for key, size in (("data.height", d.height), ("data.width", d.width)):
-        check(size >= 32 and size % 8 == 0, key, f"must be a multiple of 8 and >= 32, got {size}")
-    for name in ("drives", "train_pairs", "eval_frames"):
-        check(getattr(s, name) >= 1, f"data.synthetic.{name}", "must be >= 1")
-    check(s.drives <= s.train_pairs, "data.synthetic.drives", "must not exceed train_pairs")
-    check(s.height >= 32 and s.width >= 64, "data.synthetic.height", "render size must be at least 32 x 64")
-    k = d.kitti
-    check(k.drive_count >= 0, "data.kitti.drive_count", f"must be >= 0 (0 = all), got {k.drive_count}")
-    check(k.jobs >= 1, "data.kitti.jobs", f"must be >= 1, got {k.jobs}")
-    check(k.roi_min_size >= 1, "data.kitti.roi_min_size", f"must be >= 1, got {k.roi_min_size}")
-    check(0 <= k.roi_min_valid <= 1, "data.kitti.roi_min_valid", f"must be in [0, 1], got {k.roi_min_valid}")
-    check(
-        k.drives is None or not k.drive_count,
-        "data.kitti.drive_count",
-        "give either drives or drive_count, not both",
-    )
-    scheme = urllib.parse.urlsplit(k.base_url).scheme.lower()
-    refused = (
-        f"plain http is refused unless data.kitti.allow_http is true (a mirror you trust), got {k.base_url!r}"
-        if scheme == "http"
-        else f"must be an https URL, got {k.base_url!r}"
-    )
-    check(scheme == "https" or (scheme == "http" and k.allow_http), "data.kitti.base_url", refused)
-    check(
-        s.gt_max_depth >= 0,
-        "data.synthetic.gt_max_depth",
-        f"must be >= 0 (0 = no limit), got {s.gt_max_depth}",
-    )
-    if d.source == "folder":
-        _validate_folder(p)
-    check(p.model.width_multiplier > 0, "model.width_multiplier", "must be > 0")
-    check(
-        0 < p.model.init_disparity < 0.3,
-        "model.init_disparity",
-        "must be in (0, 0.3) (heads output 0.3*sigmoid)",
-    )
-    train = p.train
-    check(train.epochs >= 1, "train.epochs", "must be >= 1")
-    check(train.batch_size >= 1, "train.batch_size", "must be >= 1")
-    check(train.learning_rate > 0, "train.learning_rate", f"must be > 0, got {train.learning_rate}")
-    check(train.num_workers >= 0, "train.num_workers", "must be >= 0")
-    check(train.threads >= 1, "train.threads", "must be >= 1")
-    check(train.nproc >= 1, "train.nproc", f"must be >= 1, got {train.nproc}")
-    check(train.sync_every >= 0, "train.sync_every", f"must be >= 0 (0 = automatic), got {train.sync_every}")
-    check(train.dist_timeout_s > 0, "train.dist_timeout_s", "must be > 0")
-    check(all(seed >= 0 for seed in train.seeds), "train.seeds", f"must be >= 0, got {list(train.seeds)}")
-    check(
-        len(set(train.seeds)) == len(train.seeds),
-        "train.seeds",
-        f"must not repeat a seed, got {list(train.seeds)}",
-    )
-    check(
-        len(set(p.variants)) == len(p.variants),
-        "variants",
-        f"must not repeat a variant, got {list(p.variants)}",
-    )
-    check(0 <= p.loss.alpha <= 1, "loss.alpha", "must be in [0, 1]")
-    check(p.loss.smoothness_weight >= 0, "loss.smoothness_weight", "must be >= 0")
-    check(p.loss.lr_weight >= 0, "loss.lr_weight", "must be >= 0")
+        check(name in p.appearance, f"variants[{i}]", f"{shown(name)} is not one of {list(p.appearance)}")
+    p.data.validate("data", p)
+    p.model.validate("model", p)
+    p.train.validate("train", p)
+    variants = list(p.variants)
+    check(len(set(variants)) == len(variants), "variants", f"must not repeat a variant, got {variants}")
+    p.loss.validate("loss", p)
     # Each trained variant's config checks its own section (types and unknown keys are checked for
     # every section; the range checks of a section no run uses, e.g. against the image size, wait).
     for name in p.variants:
         p.appearance[name].validate(name, p)
-    e = p.eval
-    check(all(c > e.min_depth for c in e.caps), "eval.caps", "every cap must exceed eval.min_depth")
-    check(e.min_depth > 0, "eval.min_depth", "must be > 0")
-    check(0 < e.dense_gt_fraction <= 1, "eval.dense_gt_fraction", "must be in (0, 1]")
-    check(
-        len(set(e.extra_sets)) == len(e.extra_sets),
-        "eval.extra_sets",
-        f"must not repeat a set, got {list(e.extra_sets)}",
-    )
-    c = p.compare
-    check(
-        c.reference in p.variants,
-        "compare.reference",
-        f"{c.reference!r} is not a variant; configured: {list(p.variants)}",
-    )
-    check(
-        c.bootstrap_samples >= 100, "compare.bootstrap_samples", f"must be >= 100, got {c.bootstrap_samples}"
-    )
-    check(0 < c.confidence < 1, "compare.confidence", f"must be in (0, 1), got {c.confidence}")
+    p.eval.validate("eval", p)
+    p.compare.validate("compare", p)
     return p
-
-
-def _validate_folder(p: Params) -> None:
-    """``data.source: folder``: the folder's keys, and what the folder cannot provide."""
-    f = p.data.folder
-    check(
-        f.root in ("", p.data.root),
-        "data.folder.root",
-        f"must be empty (= data.root) or data.root itself, got {f.root!r}: the pipeline tracks the "
-        f"data as data.root (dvc.yaml), so set data.root: {f.root} instead",
-    )
-    if not f.pairs:
-        for key in ("left", "right"):
-            check(
-                bool(getattr(f, key)),
-                f"data.folder.{key}",
-                "must name a folder when data.folder.pairs is empty",
-            )
-        check(f.left != f.right, "data.folder.right", f"must differ from data.folder.left ({f.left!r})")
-    check(bool(f.camera), "data.folder.camera", "must name the camera file (focal_px, width_px, baseline_m)")
-    check(
-        bool(f.eval_list), "data.folder.eval_list", "must name the evaluation list ('left right [gt]' lines)"
-    )
-    check(
-        not p.eval.extra_sets,
-        "eval.extra_sets",
-        f"{list(p.eval.extra_sets)} need KITTI raw data, which data.source folder has not: "
-        "set eval.extra_sets: []",
-    )
 
 
 def params_from_dict(raw: dict) -> Params:
     """Build and validate :class:`Params` from a parsed params.yaml mapping."""
     if not isinstance(raw, dict):
         raise ConfigError("params: expected a mapping at the top level")
-    registered = variant_configs()
+    registered = _variant_configs()
     sections = {name: _convert(raw.get(name, {}), config, name) for name, config in registered.items()}
     params = _build(Params, {k: v for k, v in raw.items() if k not in registered}, "")
     return validate(dataclasses.replace(params, appearance=sections))
+
+
+MAX_PARAMS_BYTES = 1 << 20  # params.yaml is about 10 KB; a file this large is not one
 
 
 def load_params(path: str | os.PathLike = "params.yaml") -> Params:
     """Read ``params.yaml`` into a validated :class:`Params` (one ConfigError naming the key)."""
     path = Path(path)
     try:
-        raw = yaml.safe_load(path.read_text())
+        with path.open("rb") as file:
+            data = file.read(MAX_PARAMS_BYTES + 1)
     except FileNotFoundError:
         raise ConfigError(f"{path}: no such params file") from None
-    except yaml.YAMLError as exc:
-        raise ConfigError(f"{path}: not valid YAML: {exc}") from None
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot read: {exc.strerror or exc}") from None
     try:
-        return params_from_dict(raw or {})
+        check(
+            len(data) <= MAX_PARAMS_BYTES,
+            "file",
+            f"larger than {MAX_PARAMS_BYTES >> 20} MiB: not a params file",
+        )
+        try:
+            text = data.decode("utf-8")
+        except UnicodeDecodeError as exc:
+            line = data.count(b"\n", 0, exc.start) + 1
+            raise ConfigError(f"not UTF-8 text (byte 0x{data[exc.start]:02x} on line {line})") from None
+        raw = parse(text)
+        return params_from_dict({} if raw is None else raw)
     except ConfigError as exc:
         raise ConfigError(f"{path}: {exc}") from None

@@ -8,7 +8,9 @@ dataclass whose ``validate(key, params)`` raises a ConfigError naming the key, t
 
 :mod:`msdepth.config`, which every stage imports to read its params, imports only this package:
 so a stage that only reads params neither depends on the loss code (dvc.yaml) nor imports torch.
-Hence these modules import only the standard library, ``..config`` and ``..errors``.
+Hence these modules import only the standard library, ``..checks`` and ``..errors`` (``..config``
+only for type hints: config imports this package, and checks that no variant is named like one of
+its sections).
 """
 
 from __future__ import annotations
@@ -28,12 +30,8 @@ def register(name: str) -> Callable[[T], T]:
     ``name``) of variant ``name``."""
 
     def decorate(config: T) -> T:
-        from ..config import Params  # here: ..config imports this package
-
         if not dataclasses.is_dataclass(config) or not callable(getattr(config, "validate", None)):
             raise TypeError(f"variant {name!r}: config must be a dataclass with validate(key, params)")
-        if name in {f.name for f in dataclasses.fields(Params)}:
-            raise ValueError(f"variant {name!r}: the name of a params section that is not a variant")
         _CONFIGS.add(name, config)
         return config
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Literal
 
-from ..config import check, check_levels_fit
+from ..checks import check, check_levels_fit
 from . import register
 
 if TYPE_CHECKING:
@@ -34,4 +34,4 @@ class MixConfig:
         check(self.sigma > 0, f"{key}.sigma", f"must be > 0, got {self.sigma}")
         check(k >= 1 and k % 2 == 1, f"{key}.kernel_size", f"must be a positive odd integer, got {k}")
         check(k <= min(d.height, d.width), f"{key}.kernel_size", "must not exceed the input image")
-        check_levels_fit(key, self.levels, d)
+        check_levels_fit(key, self.levels, d.height, d.width)

@@ -5,7 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Literal
 
-from ..config import check, check_levels_fit
+from ..checks import check, check_levels_fit
 from . import register
 
 if TYPE_CHECKING:
@@ -24,4 +24,4 @@ class MSSSIMConfig:
         k, d = self.kernel_size, params.data
         check(k >= 1 and k % 2 == 1, f"{key}.kernel_size", f"must be a positive odd integer, got {k}")
         check(k <= min(d.height, d.width), f"{key}.kernel_size", "must not exceed the input image")
-        check_levels_fit(key, self.levels, d)
+        check_levels_fit(key, self.levels, d.height, d.width)

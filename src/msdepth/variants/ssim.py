@@ -5,7 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Literal
 
-from ..config import check
+from ..checks import check
 from . import register
 
 if TYPE_CHECKING:

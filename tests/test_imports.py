@@ -1,0 +1,179 @@
+"""The ``msdepth`` package's import graph: no cycle, and no module reaching into another's private names.
+
+The graph is static (``ast``), with the same reading of imports as dvc.yaml's code deps
+(:func:`test_dvc_deps.imported_modules`): every ``import`` statement, including those inside
+functions, and a registry package's imports of its own modules by name; ``if TYPE_CHECKING:``
+blocks never run and are left out. An import of a module's own enclosing package is left out too:
+Python runs a package's ``__init__`` before any of its modules, whether or not the module names it,
+so that edge is always there and only its reverse (a package importing its modules) is a choice.
+
+Run ``python tests/test_imports.py`` to print the cycles and private-name imports it finds.
+"""
+
+from __future__ import annotations
+
+import ast
+import sys
+from pathlib import Path
+
+import pytest
+from test_dvc_deps import PACKAGE, imported_modules, module_file
+
+ROOT = Path(__file__).resolve().parents[1]
+SRC = ROOT / "src"
+
+# The renderer's split into a package (issue 28, item 1) removes this cycle on its own branch.
+KNOWN_CYCLE = ["msdepth.data.synthetic", "msdepth.data.velodyne_sim"]
+
+
+def modules(src: Path, package: str = PACKAGE) -> dict[str, Path]:
+    """``{module name: file}`` for every module of ``package`` under ``src``."""
+    found = {}
+    for path in sorted((src / package).rglob("*.py")):
+        parts = list(path.relative_to(src).with_suffix("").parts)
+        if parts[-1] == "__init__":
+            parts.pop()
+        found[".".join(parts)] = path
+    return found
+
+
+def import_graph(src: Path, package: str = PACKAGE) -> dict[str, set[str]]:
+    """``{module: the package's modules it imports}``, without edges to its own enclosing packages."""
+    graph = {}
+    for name, path in modules(src, package).items():
+        own = {".".join(name.split(".")[:i]) for i in range(1, name.count(".") + 1)}
+        graph[name] = {m for m in imported_modules(path, name, src, package) if m != name and m not in own}
+    return graph
+
+
+def cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """The strongly connected components of more than one module (each sorted; Tarjan's algorithm)."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on_stack: set[str] = set()
+    found = []
+
+    def visit(node: str) -> None:
+        index[node] = low[node] = len(index)
+        stack.append(node)
+        on_stack.add(node)
+        for succ in sorted(graph.get(node, ())):
+            if succ not in index:
+                visit(succ)
+                low[node] = min(low[node], low[succ])
+            elif succ in on_stack:
+                low[node] = min(low[node], index[succ])
+        if low[node] == index[node]:
+            component = []
+            while True:
+                member = stack.pop()
+                on_stack.discard(member)
+                component.append(member)
+                if member == node:
+                    break
+            if len(component) > 1:
+                found.append(sorted(component))
+
+    for node in sorted(graph):
+        if node not in index:
+            visit(node)
+    return sorted(found)
+
+
+def _resolve(node: ast.ImportFrom, module: str, is_package: bool) -> str:
+    """The absolute module name of a ``from X import ...`` statement in ``module``."""
+    if not node.level:
+        return node.module or ""
+    parts = module.split(".") if is_package else module.split(".")[:-1]
+    parts = parts[: len(parts) - (node.level - 1)]
+    return ".".join(parts + ([node.module] if node.module else []))
+
+
+def private_imports(src: Path, package: str = PACKAGE) -> list[str]:
+    """``module: name`` for each private name (``_x``, not a module) that a module of ``package``
+    imports from, or reads as an attribute of, another module of the package."""
+    found = []
+    for name, path in modules(src, package).items():
+        tree = ast.parse(path.read_text(), filename=str(path))
+        bound: dict[str, str] = {}  # local name -> the package module it is bound to
+        for node in ast.walk(tree):
+            if isinstance(node, ast.ImportFrom):
+                base = _resolve(node, name, path.name == "__init__.py")
+                if base != package and not base.startswith(package + "."):
+                    continue
+                for alias in node.names:
+                    if module_file(f"{base}.{alias.name}", src):
+                        bound[alias.asname or alias.name] = f"{base}.{alias.name}"
+                    elif alias.name.startswith("_") and base != name:
+                        found.append(f"{name}: from {base} import {alias.name}")
+            elif isinstance(node, ast.Import):
+                for alias in node.names:
+                    if alias.asname and alias.name.startswith(package + "."):
+                        bound[alias.asname] = alias.name
+        for node in ast.walk(tree):
+            if (
+                isinstance(node, ast.Attribute)
+                and isinstance(node.value, ast.Name)
+                and node.value.id in bound
+                and node.attr.startswith("_")
+                and not node.attr.startswith("__")
+                and not module_file(f"{bound[node.value.id]}.{node.attr}", src)
+            ):
+                found.append(f"{name}: {node.value.id}.{node.attr} (of {bound[node.value.id]})")
+    return sorted(set(found))
+
+
+def test_no_import_cycle_in_src():
+    found = cycles(import_graph(SRC))
+    if found == [KNOWN_CYCLE]:
+        pytest.xfail(f"the one known cycle {KNOWN_CYCLE} (the renderer package removes it)")
+    assert found == [], "import cycles: " + "; ".join(" <-> ".join(c) for c in found)
+
+
+def test_no_module_imports_another_modules_private_names():
+    found = private_imports(SRC)
+    known = [f for f in found if f.startswith(f"{KNOWN_CYCLE[1]}: ") and KNOWN_CYCLE[0] in f]
+    if found and found == known:
+        pytest.xfail(
+            f"only {KNOWN_CYCLE[1]}'s names from {KNOWN_CYCLE[0]} (the renderer package removes them)"
+        )
+    assert found == [], "private names imported across modules:\n" + "\n".join(found)
+
+
+@pytest.fixture
+def toy(tmp_path: Path) -> Path:
+    """A package with a two-module cycle through a function-level import, a package that imports
+    its own module (no cycle), a TYPE_CHECKING-only back edge (no cycle) and private-name uses."""
+    files = {
+        "__init__.py": "",
+        "a.py": "from . import b\n",
+        "b.py": "def f():\n    from .a import x\n",
+        "c.py": "from typing import TYPE_CHECKING\nfrom .b import _hidden\nif TYPE_CHECKING:\n"
+        "    from .d import T\n",
+        "d.py": "from . import c\nimport msdepth.b as bee\nbee._peek()\nc.__name__\n",
+        "pkg/__init__.py": "from .mod import run\n",
+        "pkg/mod.py": "from . import _helper\nfrom ._helper import go\nfrom .. import pkg\n"
+        "from .mod import _self\n",
+        "pkg/_helper.py": "",
+    }
+    for name, text in files.items():
+        (tmp_path / "msdepth" / name).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / "msdepth" / name).write_text(text)
+    return tmp_path
+
+
+def test_the_checks_find_what_they_should_on_a_toy_package(toy: Path):
+    assert cycles(import_graph(toy)) == [["msdepth.a", "msdepth.b"]]
+    assert private_imports(toy) == [
+        "msdepth.c: from msdepth.b import _hidden",
+        "msdepth.d: bee._peek (of msdepth.b)",
+    ]
+
+
+if __name__ == "__main__":
+    for cycle in cycles(import_graph(SRC)):
+        print("cycle:", " <-> ".join(cycle))
+    for line in private_imports(SRC):
+        print("private name:", line)
+    sys.exit(0)
