@@ -76,8 +76,11 @@ HOSTILE = [
 def test_hostile_params_are_one_line_naming_the_key_at_validate_params(
     tmp_path: Path, monkeypatch, capsys, text: bytes, message: str
 ):
-    from msdepth.stages.common import run_stage
-    from msdepth.stages.validate_params import validate_params
+    from conftest import stage
+
+    from msdepth.pipeline import run_stage
+
+    validate_params = stage("validate_params").validate_params
 
     monkeypatch.chdir(tmp_path)
     (tmp_path / "params.yaml").write_bytes(text)

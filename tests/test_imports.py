@@ -1,7 +1,7 @@
 """The ``msdepth`` package's import graph: no cycle, and no module reaching into another's private names.
 
 The graph is static (``ast``), with the same reading of imports as dvc.yaml's code deps
-(:func:`test_dvc_deps.imported_modules`): every ``import`` statement, including those inside
+(:func:`msdepth.dvcyaml.imported_modules`): every ``import`` statement, including those inside
 functions, and a registry package's imports of its own modules by name; ``if TYPE_CHECKING:``
 blocks never run and are left out. An import of a module's own enclosing package is left out too:
 Python runs a package's ``__init__`` before any of its modules, whether or not the module names it,
@@ -17,7 +17,8 @@ import sys
 from pathlib import Path
 
 import pytest
-from test_dvc_deps import PACKAGE, imported_modules, module_file
+
+from msdepth.dvcyaml import PACKAGE, imported_modules, module_file
 
 ROOT = Path(__file__).resolve().parents[1]
 SRC = ROOT / "src"
