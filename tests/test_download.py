@@ -7,6 +7,7 @@ tests can prove a resume fetched only the rest of the file. No test touches the 
 
 from __future__ import annotations
 
+import dataclasses
 import email.message
 import hashlib
 import io as stdio
@@ -32,7 +33,8 @@ from msdepth.errors import DataError
 
 SHIPPED_LIST = Path(__file__).resolve().parents[1] / "data_lists" / "kitti_archives_to_download.txt"
 # The local server speaks plain http, which the downloader refuses unless told otherwise.
-FAST = {"retries": 3, "backoff": 0.01, "timeout": 5, "progress": False, "allow_http": True}
+FAST = dl.FetchOptions(retries=3, backoff=0.01, timeout=5, progress=False, allow_http=True)
+DRY = dataclasses.replace(FAST, dry_run=True)
 
 
 def drive_zip(date: str, drive: int, frames: int = 3, seed: int = 0) -> bytes:
@@ -209,7 +211,7 @@ def test_unknown_url_scheme_is_a_data_error_naming_the_url(tmp_path: Path) -> No
     for url in ("ftp-ish://x/a.zip", "raw_data/a.zip", "file:///etc/passwd", "ftp://x/a.zip"):
         refused = re.escape(url) + r": not an https URL \(or http\); refusing to fetch it"
         with pytest.raises(DataError, match=refused):
-            dl.download(url, tmp_path / "a.zip", **FAST)
+            dl.download(url, tmp_path / "a.zip", FAST)
     assert list(tmp_path.iterdir()) == []
 
 
@@ -219,21 +221,22 @@ def test_unknown_url_scheme_is_a_data_error_naming_the_url(tmp_path: Path) -> No
 def test_plain_http_is_refused_without_allow_http(server: _Server, tmp_path: Path, capsys) -> None:
     """Nothing is requested and nothing written: not by download, fetch_all, its dry run or HEAD."""
     _serve_drive(server)
-    strict = {**FAST, "allow_http": False}
+    strict = dataclasses.replace(FAST, allow_http=False)
     refused = re.escape(server.url(DRIVE)) + r": plain http is refused .*data\.kitti\.allow_http: true"
     with pytest.raises(DataError, match=refused):
-        dl.download(server.url(DRIVE), tmp_path / "zips" / DRIVE, **strict)
+        dl.download(server.url(DRIVE), tmp_path / "zips" / DRIVE, strict)
     with pytest.raises(DataError, match=refused):
-        dl.remote_size(server.url(DRIVE), **{k: v for k, v in strict.items() if k != "progress"})
+        dl.remote_size(server.url(DRIVE), strict)
     zips, raw = tmp_path / "zips", tmp_path / "raw"
     for dry_run in (False, True):
         with pytest.raises(DataError, match=refused):
-            dl.fetch_all(server.base_url, [f"raw_data/{DRIVE}"], zips, raw, dry_run=dry_run, **strict)
+            options = dataclasses.replace(strict, dry_run=dry_run)
+            dl.fetch_all(server.base_url, [f"raw_data/{DRIVE}"], zips, raw, options)
     # An https base does not let an absolute http entry of the list through either.
     with pytest.raises(DataError, match=refused):
-        dl.fetch_all("https://example.org/", [server.url(DRIVE)], zips, raw, **strict)
+        dl.fetch_all("https://example.org/", [server.url(DRIVE)], zips, raw, strict)
     assert server.log == [] and list(tmp_path.iterdir()) == []
-    assert dl.download(server.url(DRIVE), tmp_path / DRIVE, **FAST).exists()  # allowed: fetched
+    assert dl.download(server.url(DRIVE), tmp_path / DRIVE, FAST).exists()  # allowed: fetched
 
 
 def test_base_url_scheme_is_checked_with_the_config(tmp_path: Path) -> None:
@@ -289,7 +292,7 @@ def test_redirects_go_through_the_no_downgrade_handler(server: _Server, tmp_path
         return real(self, req, fp, code, msg, headers, newurl)
 
     monkeypatch.setattr(dl.NoDowngradeRedirect, "redirect_request", spy)
-    assert dl.download(server.url("moved.zip"), tmp_path / DRIVE, **FAST).read_bytes() == data
+    assert dl.download(server.url("moved.zip"), tmp_path / DRIVE, FAST).read_bytes() == data
     assert seen == [(server.url("moved.zip"), server.url(DRIVE))]
 
 
@@ -426,7 +429,7 @@ def test_a_split_naming_drives_not_in_the_archive_list_is_one_line(tmp_path: Pat
 
 def test_normal_download_is_byte_identical_and_leaves_no_part(server: _Server, tmp_path: Path) -> None:
     data = _serve_drive(server)
-    dest = dl.download(server.url(DRIVE), tmp_path / DRIVE, **FAST)
+    dest = dl.download(server.url(DRIVE), tmp_path / DRIVE, FAST)
     assert dest.read_bytes() == data
     assert not (tmp_path / (DRIVE + ".part")).exists()
     assert [e["range"] for e in server.gets(DRIVE)] == [None]
@@ -437,7 +440,7 @@ def test_reset_truncated_or_stalled_transfer_resumes_with_a_range_request(
     server: _Server, tmp_path: Path, mode: str
 ) -> None:
     data = _serve_drive(server, mode)
-    dest = dl.download(server.url(DRIVE), tmp_path / DRIVE, **{**FAST, "timeout": 0.3})
+    dest = dl.download(server.url(DRIVE), tmp_path / DRIVE, dataclasses.replace(FAST, timeout=0.3))
     assert dest.read_bytes() == data
     first, second = server.gets(DRIVE)
     assert first["range"] is None and 0 < first["sent"] < len(data)
@@ -451,19 +454,19 @@ def test_404_fails_at_once_naming_the_url(server: _Server, tmp_path: Path) -> No
     _serve_drive(server, "404")
     url = server.url(DRIVE)
     with pytest.raises(DataError, match=re.escape(url) + ": HTTP 404"):
-        dl.download(url, tmp_path / DRIVE, **FAST)
+        dl.download(url, tmp_path / DRIVE, FAST)
     assert len(server.gets(DRIVE)) == 1  # no retries on a 4xx
     assert list(tmp_path.iterdir()) == []
 
 
 def test_5xx_is_retried_and_gives_up_after_the_retries(server: _Server, tmp_path: Path) -> None:
     data = _serve_drive(server, "503_once")
-    assert dl.download(server.url(DRIVE), tmp_path / DRIVE, **FAST).read_bytes() == data
+    assert dl.download(server.url(DRIVE), tmp_path / DRIVE, FAST).read_bytes() == data
     assert len(server.gets(DRIVE)) == 2
     server.modes[DRIVE], server.log[:] = "always_500", []
     with pytest.raises(DataError, match=r"download failed after 3 retries: HTTP 500"):
-        dl.download(server.url(DRIVE), tmp_path / "again.zip", **FAST)
-    assert len(server.gets(DRIVE)) == 1 + FAST["retries"]
+        dl.download(server.url(DRIVE), tmp_path / "again.zip", FAST)
+    assert len(server.gets(DRIVE)) == 1 + FAST.retries
 
 
 def test_resets_that_make_no_progress_give_up(server: _Server, tmp_path: Path) -> None:
@@ -472,8 +475,8 @@ def test_resets_that_make_no_progress_give_up(server: _Server, tmp_path: Path) -
         DataError,
         match=re.escape(server.url(DRIVE)) + ": download failed after 3 retries: ConnectionResetError",
     ):
-        dl.download(server.url(DRIVE), tmp_path / DRIVE, **FAST)
-    assert len(server.gets(DRIVE)) == 1 + FAST["retries"]
+        dl.download(server.url(DRIVE), tmp_path / DRIVE, FAST)
+    assert len(server.gets(DRIVE)) == 1 + FAST.retries
     assert not (tmp_path / DRIVE).exists()
 
 
@@ -481,7 +484,7 @@ def test_server_without_range_support_discards_the_partial_file(server: _Server,
     data = _serve_drive(server, "no_range")
     part = tmp_path / (DRIVE + ".part")
     part.write_bytes(b"\xff" * (len(data) // 2))  # a stale partial download of someone else's bytes
-    dest = dl.download(server.url(DRIVE), tmp_path / DRIVE, **FAST)
+    dest = dl.download(server.url(DRIVE), tmp_path / DRIVE, FAST)
     assert dest.read_bytes() == data  # not garbage + full body appended
     (get,) = server.gets(DRIVE)
     assert get["range"] == f"bytes={len(data) // 2}-" and get["sent"] == len(data)
@@ -492,7 +495,7 @@ def test_a_whole_part_left_by_a_killed_run_is_finished_without_refetching(
 ) -> None:
     data = _serve_drive(server)
     (tmp_path / (DRIVE + ".part")).write_bytes(data)  # killed between the last write and the rename
-    assert dl.download(server.url(DRIVE), tmp_path / DRIVE, **FAST).read_bytes() == data
+    assert dl.download(server.url(DRIVE), tmp_path / DRIVE, FAST).read_bytes() == data
     assert [e["sent"] for e in server.gets(DRIVE)] == [0]  # answered 416, nothing sent
 
 
@@ -532,7 +535,7 @@ def test_manifest_recorded_on_first_success_and_later_tamper_detected(
     data = _serve_drive(server)
     dl_dir, raw = tmp_path / "zips", tmp_path / "raw"
     names = [f"raw_data/2011_09_26_drive_0001/{DRIVE}"]
-    report = dl.fetch_all(server.base_url, names, dl_dir, raw, jobs=1, **FAST)
+    report = dl.fetch_all(server.base_url, names, dl_dir, raw, dataclasses.replace(FAST, jobs=1))
     assert (
         report["fetched"] == [DRIVE]
         and report["extracted"] == [DRIVE]
@@ -543,7 +546,7 @@ def test_manifest_recorded_on_first_success_and_later_tamper_detected(
     assert manifest[DRIVE]["size"] == len(data)
 
     # Second run: verified against the manifest, nothing downloaded or extracted again.
-    report = dl.fetch_all(server.base_url, names, dl_dir, raw, jobs=1, **FAST)
+    report = dl.fetch_all(server.base_url, names, dl_dir, raw, dataclasses.replace(FAST, jobs=1))
     assert report["skipped"] == [DRIVE] and report["fetched"] == report["extracted"] == []
     assert report["bytes_downloaded"] == 0 and len(server.gets(DRIVE)) == 1
 
@@ -552,13 +555,13 @@ def test_manifest_recorded_on_first_success_and_later_tamper_detected(
     with pytest.raises(
         dl.DownloadError, match=f"{DRIVE}: size .* sha256 .* differ from manifest.json"
     ) as err:
-        dl.fetch_all(server.base_url, names, dl_dir, raw, jobs=1, **FAST)
+        dl.fetch_all(server.base_url, names, dl_dir, raw, dataclasses.replace(FAST, jobs=1))
     assert list(err.value.report["failed"]) == [DRIVE]
     assert (dl_dir / (DRIVE + ".corrupt")).exists() and not (dl_dir / DRIVE).exists()
     assert DRIVE not in json.loads((dl_dir / "manifest.json").read_text())["archives"]
 
     # Third run fetches it again and records it again.
-    report = dl.fetch_all(server.base_url, names, dl_dir, raw, jobs=1, **FAST)
+    report = dl.fetch_all(server.base_url, names, dl_dir, raw, dataclasses.replace(FAST, jobs=1))
     assert report["fetched"] == [DRIVE] and (dl_dir / DRIVE).read_bytes() == data
     assert (
         json.loads((dl_dir / "manifest.json").read_text())["archives"][DRIVE]["sha256"]
@@ -570,7 +573,7 @@ def test_corrupted_download_is_reported_failed_and_moved_aside(server: _Server, 
     data = _serve_drive(server)
     server.files[DRIVE] = _corrupt(data)  # right length, wrong bytes: the size check cannot see it
     with pytest.raises(dl.DownloadError, match=f"{DRIVE}: member .* is corrupt") as err:
-        dl.fetch_all(server.base_url, [f"raw_data/{DRIVE}"], tmp_path / "zips", tmp_path / "raw", **FAST)
+        dl.fetch_all(server.base_url, [f"raw_data/{DRIVE}"], tmp_path / "zips", tmp_path / "raw", FAST)
     assert list(err.value.report["failed"]) == [DRIVE]
     assert (tmp_path / "zips" / (DRIVE + ".corrupt")).exists() and not (tmp_path / "zips" / DRIVE).exists()
     assert not (tmp_path / "raw").exists() or not any((tmp_path / "raw").iterdir())
@@ -753,7 +756,7 @@ def test_archive_larger_than_the_free_space_is_refused_before_writing(tmp_path: 
 def test_served_zip_bomb_is_reported_and_never_extracted(server: _Server, tmp_path: Path) -> None:
     server.files[DRIVE] = bomb_zip(tmp_path / "bomb.zip").read_bytes()
     with pytest.raises(dl.DownloadError, match=f"{DRIVE}: members declare .* a zip bomb") as err:
-        dl.fetch_all(server.base_url, [f"raw_data/{DRIVE}"], tmp_path / "zips", tmp_path / "raw", **FAST)
+        dl.fetch_all(server.base_url, [f"raw_data/{DRIVE}"], tmp_path / "zips", tmp_path / "raw", FAST)
     assert list(err.value.report["failed"]) == [DRIVE] and "moved to" in err.value.report["failed"][DRIVE]
     assert not (tmp_path / "raw").exists()
 
@@ -775,7 +778,7 @@ def test_dry_run_reports_total_size_and_downloads_nothing(server: _Server, tmp_p
     a = _serve_drive(server, name="2011_09_26_drive_0001_sync.zip", seed=1)
     b = _serve_drive(server, name="2011_09_26_drive_0002_sync.zip", seed=2)
     names = [f"raw_data/{n}" for n in server.files]
-    report = dl.fetch_all(server.base_url, names, tmp_path / "zips", tmp_path / "raw", dry_run=True, **FAST)
+    report = dl.fetch_all(server.base_url, names, tmp_path / "zips", tmp_path / "raw", DRY)
     assert report["total_bytes"] == len(a) + len(b)
     assert report["to_fetch"] == {n: len(d) for n, d in server.files.items()}
     assert {e["method"] for e in server.log} == {"HEAD"}
@@ -789,7 +792,9 @@ def test_parallel_fetch_reports_exactly_the_failing_archive(server: _Server, tmp
     _serve_drive(server, "404", name="2011_09_26_drive_0002_sync.zip", seed=2)
     names = [f"raw_data/{n}" for n in server.files]
     with pytest.raises(dl.DownloadError, match=r"1 of 3 archive\(s\) failed") as err:
-        dl.fetch_all(server.base_url, names, tmp_path / "zips", tmp_path / "raw", jobs=3, **FAST)
+        dl.fetch_all(
+            server.base_url, names, tmp_path / "zips", tmp_path / "raw", dataclasses.replace(FAST, jobs=3)
+        )
     report = err.value.report
     assert list(report["failed"]) == ["2011_09_26_drive_0002_sync.zip"]
     assert "HTTP 404" in report["failed"]["2011_09_26_drive_0002_sync.zip"]
@@ -808,9 +813,9 @@ def test_extracted_archive_deleted_to_save_space_is_not_fetched_again(
 ) -> None:
     _serve_drive(server)
     names = [f"raw_data/{DRIVE}"]
-    dl.fetch_all(server.base_url, names, tmp_path / "zips", tmp_path / "raw", **FAST)
+    dl.fetch_all(server.base_url, names, tmp_path / "zips", tmp_path / "raw", FAST)
     (tmp_path / "zips" / DRIVE).unlink()
-    report = dl.fetch_all(server.base_url, names, tmp_path / "zips", tmp_path / "raw", **FAST)
+    report = dl.fetch_all(server.base_url, names, tmp_path / "zips", tmp_path / "raw", FAST)
     assert report["skipped"] == [DRIVE] and len(server.gets(DRIVE)) == 1
 
 
@@ -835,7 +840,7 @@ def test_dry_run_states_every_archive_and_writes_nothing(server: _Server, tmp_pa
     (zips / (names[2] + ".part")).write_bytes(data[names[2]][:1000])
     before = _tree(tmp_path)
     report = dl.fetch_all(
-        server.base_url, [f"raw_data/{n}" for n in names], zips, raw, dry_run=True, label="KITTI raw", **FAST
+        server.base_url, [f"raw_data/{n}" for n in names], zips, raw, DRY, label="KITTI raw"
     )
     assert _tree(tmp_path) == before
     assert sorted((e["method"], e["name"]) for e in server.log) == [("HEAD", names[2]), ("HEAD", names[3])]
@@ -872,7 +877,11 @@ def test_connection_refused_stops_at_once_and_writes_nothing(tmp_path: Path, dry
     started = time.monotonic()
     with pytest.raises(dl.NetworkUnreachable) as err:
         dl.fetch_all(
-            base, names, tmp_path / "zips", tmp_path / "raw", dry_run=dry_run, **{**FAST, "backoff": 1}
+            base,
+            names,
+            tmp_path / "zips",
+            tmp_path / "raw",
+            dataclasses.replace(FAST, dry_run=dry_run, backoff=1),
         )
     assert time.monotonic() - started < 5
     message = str(err.value)
@@ -896,9 +905,7 @@ def test_failed_name_resolution_is_asked_once(tmp_path: Path, monkeypatch, dry_r
             names,
             tmp_path / "zips",
             tmp_path / "raw",
-            dry_run=dry_run,
-            jobs=1,
-            **FAST,
+            dataclasses.replace(FAST, dry_run=dry_run, jobs=1),
         )
     assert calls == ["kitti.invalid"] and list(tmp_path.iterdir()) == []
 
@@ -918,7 +925,9 @@ def test_unreachable_host_mid_run_stops_the_archives_not_started(server: _Server
     with pytest.MonkeyPatch.context() as mp:
         mp.setattr(dl, "_open", goes_away)
         with pytest.raises(dl.NetworkUnreachable, match=r"stopped with 0 of 8 archive\(s\) complete$"):
-            dl.fetch_all(server.base_url, names, tmp_path / "zips", tmp_path / "raw", jobs=1, **FAST)
+            dl.fetch_all(
+                server.base_url, names, tmp_path / "zips", tmp_path / "raw", dataclasses.replace(FAST, jobs=1)
+            )
     assert server.gets(DRIVE) == []
 
 
@@ -1135,7 +1144,7 @@ def test_annotated_depth_archive_unpacks_where_the_benchmark_index_looks(
             zf.writestr(name, data)
     server.files["data_depth_annotated.zip"] = buf.getvalue()
     root = tmp_path / "kitti" / "depth_annotated"
-    report = dl.fetch_all(server.base_url, ["data_depth_annotated.zip"], tmp_path / "zips", root, **FAST)
+    report = dl.fetch_all(server.base_url, ["data_depth_annotated.zip"], tmp_path / "zips", root, FAST)
     assert report["extracted"] == ["data_depth_annotated.zip"]
     assert sorted(p.name for p in root.iterdir()) == [".data_depth_annotated.zip.complete", "train", "val"]
     for (name, data), (drive, number) in zip(

@@ -15,8 +15,9 @@ takes for complete:
   redirect never leaves https. Before anything is unpacked, every member is checked: no path
   outside the destination, no symlink or device, and the declared sizes must fit the disk and
   stay within :data:`MAX_EXPANSION` times the archive (a zip bomb is refused undecompressed).
-- :func:`fetch_all` does all of that for many archives in parallel and reports per archive. A
-  host that cannot be reached at all (no name resolution, connection refused, no route) is not
+- :func:`fetch_all` does all of that for many archives in parallel and reports per archive:
+  :func:`plan` checks the list, then :func:`fetch` or :func:`dry_run` runs it, all with one
+  :class:`FetchOptions`. A host that cannot be reached at all (no name resolution, connection refused, no route) is not
   retried: the first such error stops every archive with one line (:class:`NetworkUnreachable`).
 - :func:`select_needed` picks the archives that the chosen split lists need (their drives and
   those days' calibration archives), :func:`select_archives` a count or named drives of a list.
@@ -110,6 +111,26 @@ class DownloadError(DataError):
     def __init__(self, message: str, report: dict[str, Any]) -> None:
         super().__init__(message)
         self.report = report
+
+
+@dataclass(frozen=True)
+class FetchOptions:
+    """How archives are fetched: one object, shared by every :func:`fetch_all` call of a run.
+
+    ``jobs`` archives at a time; ``dry_run`` writes nothing (:func:`dry_run`); ``jpeg`` converts
+    the PNGs on extraction (:func:`extract`); ``progress`` shows bars; ``retries``, ``backoff``
+    (seconds, doubled per retry) and ``timeout`` (seconds per read) as :func:`download` uses them;
+    ``allow_http`` lets plain http through, for a mirror you trust (:func:`check_url`).
+    """
+
+    jobs: int = 4
+    dry_run: bool = False
+    jpeg: bool = False
+    progress: bool = True
+    retries: int = 5
+    backoff: float = 1.0
+    timeout: float = 30.0
+    allow_http: bool = False
 
 
 # --------------------------------------------------------------------------- archive lists
@@ -427,14 +448,14 @@ def _size(path: Path) -> int:
 
 
 def _attempt(
-    url: str, part: Path, timeout: float, bar: tqdm, on_bytes: Callable[[int], None] | None, allow_http: bool
+    url: str, part: Path, options: FetchOptions, bar: tqdm, on_bytes: Callable[[int], None] | None
 ) -> int | None:
     """One GET, resuming ``part`` where it ends. Returns the total size if the server said it.
 
     Raises _Transient (or a network error) when the transfer should be retried from where it is.
     """
     offset = _size(part)
-    response = _open(url, timeout, offset=offset, allow_http=allow_http)
+    response = _open(url, options.timeout, offset=offset, allow_http=options.allow_http)
     with response:
         if response.status == 416:
             # Nothing left past ``offset``: either the .part is already whole (a run killed between
@@ -485,49 +506,50 @@ def _attempt(
 def download(
     url: str,
     dest: Path,
+    options: FetchOptions = FetchOptions(),
     *,
-    retries: int = 5,
-    backoff: float = 1.0,
-    timeout: float = 30,
-    progress: bool = True,
     expected_size: int | None = None,
     on_bytes: Callable[[int], None] | None = None,
-    allow_http: bool = False,
 ) -> Path:
     """Fetch ``url`` to ``dest``, resuming ``dest.part`` across failures; return ``dest``.
 
     Connection errors, resets, timeouts, 5xx and short reads are retried with exponential
-    back-off, each time resuming with a ``Range`` request; ``retries`` bounds the consecutive
+    back-off, each time resuming with a ``Range`` request; ``options.retries`` bounds the consecutive
     attempts that brought no new bytes (an attempt that made progress resets the count, so a long
     download over a flaky link is not abandoned for having been interrupted often). 4xx answers
     fail at once. The size is checked against Content-Length / Content-Range (and
     ``expected_size`` if given) before ``.part`` is renamed to ``dest``. An existing ``dest`` is
     taken as complete, since only a complete file is ever renamed to it. ``on_bytes`` is called
     with each chunk's length (for an overall count). Only https is fetched, http too with
-    ``allow_http`` (:func:`check_url`); nothing is written for a refused URL.
+    ``options.allow_http`` (:func:`check_url`); nothing is written for a refused URL.
     """
     dest = Path(dest)
     if dest.exists():
         return dest
-    check_url(url, allow_http)
+    check_url(url, options.allow_http)
     dest.parent.mkdir(parents=True, exist_ok=True)
     part = dest.with_suffix(dest.suffix + ".part")
     failures = 0
     with tqdm(
-        desc=dest.name, unit="B", unit_scale=True, unit_divisor=1024, leave=False, disable=not progress
+        desc=dest.name,
+        unit="B",
+        unit_scale=True,
+        unit_divisor=1024,
+        leave=False,
+        disable=not options.progress,
     ) as bar:
         while True:
             before = _size(part)
             try:
-                total = _attempt(url, part, timeout, bar, on_bytes, allow_http)
+                total = _attempt(url, part, options, bar, on_bytes)
                 break
             except (_Transient, *_TRANSIENT_ERRORS) as exc:
                 failures = 0 if _size(part) > before else failures + 1
-                if failures > retries:
+                if failures > options.retries:
                     raise DataError(
-                        f"{url}: download failed after {retries} retries: {_describe(exc)}"
+                        f"{url}: download failed after {options.retries} retries: {_describe(exc)}"
                     ) from None
-                time.sleep(min(backoff * 2 ** max(failures - 1, 0), MAX_BACKOFF_S))
+                time.sleep(min(options.backoff * 2 ** max(failures - 1, 0), MAX_BACKOFF_S))
             except OSError as exc:  # the local side: disk full, permissions
                 raise DataError(f"{part}: cannot write the download of {url} ({exc})") from None
     size = _size(part)
@@ -547,18 +569,18 @@ def _describe(exc: BaseException) -> str:
     return f"{type(exc).__name__}: {exc}" if not isinstance(exc, _Transient) else str(exc)
 
 
-def remote_size(
-    url: str, *, retries: int = 5, backoff: float = 1.0, timeout: float = 30, allow_http: bool = False
-) -> int | None:
+def remote_size(url: str, options: FetchOptions = FetchOptions()) -> int | None:
     """Content-Length of ``url`` from a HEAD request (None if the server does not say)."""
-    for attempt in range(retries + 1):
+    for attempt in range(options.retries + 1):
         try:
-            with _open(url, timeout, method="HEAD", allow_http=allow_http) as response:
+            with _open(url, options.timeout, method="HEAD", allow_http=options.allow_http) as response:
                 return _int_header(response.headers.get("Content-Length"))
         except (_Transient, *_TRANSIENT_ERRORS) as exc:
-            if attempt == retries:
-                raise DataError(f"{url}: HEAD failed after {retries} retries: {_describe(exc)}") from None
-            time.sleep(min(backoff * 2**attempt, MAX_BACKOFF_S))
+            if attempt == options.retries:
+                raise DataError(
+                    f"{url}: HEAD failed after {options.retries} retries: {_describe(exc)}"
+                ) from None
+            time.sleep(min(options.backoff * 2**attempt, MAX_BACKOFF_S))
     raise AssertionError("unreachable")
 
 
@@ -802,46 +824,42 @@ def extract(
 # --------------------------------------------------------------------------- everything
 
 
-def fetch_all(
+@dataclass(frozen=True)
+class Plan:
+    """What one :func:`fetch_all` call fetches (:func:`plan`): archive file name -> URL, the
+    folders the archives and their contents go to, and the dry run's headings."""
+
+    urls: dict[str, str]
+    download_dir: Path
+    extract_dir: Path
+    label: str = ""  # heads the dry run's total line, e.g. "KITTI raw"
+    header: str = ""  # printed before the dry run's lines, e.g. how the archives were chosen
+
+    def archive(self, name: str) -> Path:
+        """Where archive ``name`` is downloaded to."""
+        return self.download_dir / name
+
+    def marker(self, name: str) -> Path:
+        """The completion marker :func:`extract` writes for archive ``name``."""
+        return _marker(self.archive(name), self.extract_dir)
+
+
+def plan(
     base_url: str,
     names: Sequence[str],
     download_dir: str | os.PathLike,
     extract_dir: str | os.PathLike,
     *,
-    jobs: int = 4,
-    dry_run: bool = False,
-    jpeg: bool = False,
-    progress: bool = True,
-    retries: int = 5,
-    backoff: float = 1.0,
-    timeout: float = 30,
     allow_http: bool = False,
     label: str = "",
     header: str = "",
-) -> dict[str, Any]:
-    """Download, verify and extract the archives ``names`` (URL paths relative to ``base_url``,
-    as :func:`parse_archive_list` returns them; absolute URLs are used as they are).
+) -> Plan:
+    """Resolve ``names`` (URL paths relative to ``base_url``, as :func:`parse_archive_list`
+    returns them; absolute URLs are used as they are) and check them before anything is fetched.
 
-    Runs ``jobs`` archives at a time. An archive already downloaded and matching the manifest is
-    not fetched again; one already extracted is not extracted again. One archive's failure does
-    not stop the others; at the end a :class:`DownloadError` (a DataError) lists the failures and
-    carries the report. The report: ``fetched``, ``skipped`` (already there and verified),
-    ``extracted``, ``failed`` (name -> reason), ``bytes_downloaded``.
-
-    A host that cannot be reached at all stops everything with one :class:`NetworkUnreachable`:
-    before anything is written when there is something to fetch (one HEAD request probes the
-    host first), or at the first such error later (the network went away mid-run).
-
-    ``dry_run`` writes nothing: it asks each missing archive's size with a HEAD request, prints
-    one line per archive (complete, downloaded, to fetch, to resume), after the line ``header``
-    if given (e.g. how the archives were chosen), and a total, headed by ``label``, and returns
-    the report of :func:`_dry_run`. Nothing is printed before every HEAD has answered, so a host
-    that cannot be reached leaves only its one-line error.
-
-    Every URL must be https, or http with ``allow_http`` (:func:`check_url`): the first that is
-    not is a DataError before anything is fetched or written.
+    Every URL must be https, or http with ``allow_http`` (:func:`check_url`), and no two entries
+    may download to the same file: the first entry refused is a DataError, and nothing is written.
     """
-    download_dir, extract_dir = Path(download_dir), Path(extract_dir)
     if not base_url.endswith("/"):
         base_url += "/"  # urljoin would otherwise drop the last component of the base
     urls = {archive_filename(n): urllib.parse.urljoin(base_url, n) for n in names}
@@ -849,87 +867,59 @@ def fetch_all(
         raise DataError("fetch_all: two archives in the list share a file name")
     for url in urls.values():
         check_url(url, allow_http)
-    if dry_run:
-        return _dry_run(
-            urls,
-            download_dir,
-            extract_dir,
-            jobs=jobs,
-            retries=retries,
-            backoff=backoff,
-            timeout=timeout,
-            allow_http=allow_http,
-            label=label,
-            header=header,
-        )
+    return Plan(urls, Path(download_dir), Path(extract_dir), label, header)
+
+
+def fetch_all(
+    base_url: str,
+    names: Sequence[str],
+    download_dir: str | os.PathLike,
+    extract_dir: str | os.PathLike,
+    options: FetchOptions = FetchOptions(),
+    *,
+    label: str = "",
+    header: str = "",
+) -> dict[str, Any]:
+    """Download, verify and extract the archives ``names`` (:func:`plan` resolves and checks
+    them against ``base_url``), or with ``options.dry_run`` say what that would do.
+
+    :func:`fetch` does the work and :func:`dry_run` the dry run (headed by ``label``, after the
+    line ``header`` if given); this returns their report.
+    """
+    planned = plan(
+        base_url, names, download_dir, extract_dir, allow_http=options.allow_http, label=label, header=header
+    )
+    return dry_run(planned, options) if options.dry_run else fetch(planned, options)
+
+
+def fetch(planned: Plan, options: FetchOptions = FetchOptions()) -> dict[str, Any]:
+    """Download, verify and extract the planned archives, ``options.jobs`` at a time.
+
+    An archive already downloaded and matching the manifest is not fetched again; one already
+    extracted is not extracted again. One archive's failure does not stop the others; at the end a
+    :class:`DownloadError` (a DataError) lists the failures and carries the report. The report:
+    ``fetched``, ``skipped`` (already there and verified), ``extracted``, ``failed`` (name ->
+    reason), ``bytes_downloaded``.
+
+    A host that cannot be reached at all stops everything with one :class:`NetworkUnreachable`:
+    before anything is written when there is something to fetch (one HEAD request probes the
+    host first), or at the first such error later (the network went away mid-run).
+    """
     to_download = [
         name
-        for name in urls
-        if not (download_dir / name).exists() and not _marker(download_dir / name, extract_dir).exists()
+        for name in planned.urls
+        if not planned.archive(name).exists() and not planned.marker(name).exists()
     ]
     if to_download:  # a complete tree needs no network: probe only when something must be fetched
-        _probe(urls[to_download[0]], timeout, allow_http)
-
-    download_dir.mkdir(parents=True, exist_ok=True)
-    manifest = Manifest(download_dir / MANIFEST_NAME)
-    report: dict[str, Any] = {
-        "fetched": [],
-        "skipped": [],
-        "extracted": [],
-        "failed": {},
-        "bytes_downloaded": 0,
-    }
-    lock = threading.Lock()
+        _probe(planned.urls[to_download[0]], options)
+    planned.download_dir.mkdir(parents=True, exist_ok=True)
+    run = _Fetching(planned, options, Manifest(planned.download_dir / MANIFEST_NAME))
     unreachable: list[NetworkUnreachable] = []
-    stop = threading.Event()  # set at the first NetworkUnreachable: the archives not started stay so
-
-    def count(n: int) -> None:
-        with lock:
-            report["bytes_downloaded"] += n
-
-    def one(name: str) -> None:
-        if stop.is_set():
-            return
-        try:
-            fetch_one(name)
-        except NetworkUnreachable:
-            stop.set()
-            raise
-
-    def fetch_one(name: str) -> None:
-        url, archive = urls[name], download_dir / name
-        if not archive.exists() and _marker(archive, extract_dir).exists():
-            # Extracted by an earlier run and the archive deleted since (to save space): done.
-            with lock:
-                report["skipped"].append(name)
-            return
-        present = archive.exists()
-        download(
-            url,
-            archive,
-            retries=retries,
-            backoff=backoff,
-            timeout=timeout,
-            progress=progress,
-            on_bytes=count,
-            allow_http=allow_http,
-        )
-        try:
-            verify_archive(archive, manifest, url)
-        except DataError:
-            # The archive was set aside: forget its extraction too, so that the next run fetches
-            # and unpacks it again rather than taking the deleted archive for "extracted, removed".
-            _marker(archive, extract_dir).unlink(missing_ok=True)
-            raise
-        with lock:
-            report["skipped" if present else "fetched"].append(name)
-        if extract(archive, extract_dir, jpeg=jpeg):
-            with lock:
-                report["extracted"].append(name)
-
-    with tqdm(total=len(urls), desc="KITTI archives", unit="archive", disable=not progress) as bar:
-        with ThreadPoolExecutor(max_workers=max(1, jobs)) as pool:
-            futures = {pool.submit(one, name): name for name in urls}
+    with tqdm(
+        total=len(planned.urls), desc="KITTI archives", unit="archive", disable=not options.progress
+    ) as bar:
+        with ThreadPoolExecutor(max_workers=max(1, options.jobs)) as pool:
+            futures = {pool.submit(run.one, name): name for name in planned.urls}
             for future in as_completed(futures):
                 name = futures[future]
                 try:
@@ -937,28 +927,87 @@ def fetch_all(
                 except NetworkUnreachable as exc:  # every other archive would fail the same way
                     unreachable.append(exc)
                 except DataError as exc:
-                    report["failed"][name] = str(exc)
+                    run.report["failed"][name] = str(exc)
                 except Exception as exc:  # noqa: BLE001 - one archive's surprise must not hide the others' results
-                    report["failed"][name] = f"{type(exc).__name__}: {exc}"
+                    run.report["failed"][name] = f"{type(exc).__name__}: {exc}"
                 bar.update(1)
+    return _fetched(run.report, len(planned.urls), unreachable)
+
+
+class _Fetching:
+    """One :func:`fetch` under way: the report its threads fill in, and the stop that the first
+    unreachable host sets (the archives not started then stay so)."""
+
+    def __init__(self, planned: Plan, options: FetchOptions, manifest: Manifest) -> None:
+        self.plan, self.options, self.manifest = planned, options, manifest
+        self.report: dict[str, Any] = {
+            "fetched": [],
+            "skipped": [],
+            "extracted": [],
+            "failed": {},
+            "bytes_downloaded": 0,
+        }
+        self.lock = threading.Lock()
+        self.stop = threading.Event()
+
+    def _add(self, key: str, name: str) -> None:
+        with self.lock:
+            self.report[key].append(name)
+
+    def _count(self, nbytes: int) -> None:
+        with self.lock:
+            self.report["bytes_downloaded"] += nbytes
+
+    def one(self, name: str) -> None:
+        """Fetch, verify and extract archive ``name`` (nothing once the stop is set)."""
+        if self.stop.is_set():
+            return
+        try:
+            self._one(name)
+        except NetworkUnreachable:
+            self.stop.set()
+            raise
+
+    def _one(self, name: str) -> None:
+        url, archive, marker = self.plan.urls[name], self.plan.archive(name), self.plan.marker(name)
+        if not archive.exists() and marker.exists():
+            # Extracted by an earlier run and the archive deleted since (to save space): done.
+            self._add("skipped", name)
+            return
+        present = archive.exists()
+        download(url, archive, self.options, on_bytes=self._count)
+        try:
+            verify_archive(archive, self.manifest, url)
+        except DataError:
+            # The archive was set aside: forget its extraction too, so that the next run fetches
+            # and unpacks it again rather than taking the deleted archive for "extracted, removed".
+            marker.unlink(missing_ok=True)
+            raise
+        self._add("skipped" if present else "fetched", name)
+        if extract(archive, self.plan.extract_dir, jpeg=self.options.jpeg):
+            self._add("extracted", name)
+
+
+def _fetched(report: dict[str, Any], archives: int, unreachable: list[NetworkUnreachable]) -> dict[str, Any]:
+    """The report of a finished :func:`fetch`, or the error that ends it."""
     for key in ("fetched", "skipped", "extracted"):
         report[key].sort()
     if unreachable:
         done = len(report["fetched"]) + len(report["skipped"])
-        raise NetworkUnreachable(f"{unreachable[0]}; stopped with {done} of {len(urls)} archive(s) complete")
+        raise NetworkUnreachable(f"{unreachable[0]}; stopped with {done} of {archives} archive(s) complete")
     if report["failed"]:
         lines = "\n".join(f"  {name}: {reason}" for name, reason in sorted(report["failed"].items()))
-        raise DownloadError(f"{len(report['failed'])} of {len(urls)} archive(s) failed:\n{lines}", report)
+        raise DownloadError(f"{len(report['failed'])} of {archives} archive(s) failed:\n{lines}", report)
     return report
 
 
-def _probe(url: str, timeout: float, allow_http: bool) -> None:
+def _probe(url: str, options: FetchOptions) -> None:
     """One HEAD request to ``url``: NetworkUnreachable if its host cannot be reached at all.
 
     Any other answer or error is left to the download itself, which retries or reports it.
     """
     try:
-        with _open(url, timeout, method="HEAD", allow_http=allow_http):
+        with _open(url, options.timeout, method="HEAD", allow_http=options.allow_http):
             pass
     except NetworkUnreachable:
         raise
@@ -966,27 +1015,37 @@ def _probe(url: str, timeout: float, allow_http: bool) -> None:
         pass
 
 
-def _dry_run(
-    urls: dict[str, str],
-    download_dir: Path,
-    extract_dir: Path,
-    *,
-    jobs: int,
-    retries: int,
-    backoff: float,
-    timeout: float,
-    allow_http: bool = False,
-    label: str = "",
-    header: str = "",
-) -> dict[str, Any]:
-    """What fetch_all would do, with sizes from HEAD requests; writes nothing.
+def dry_run(planned: Plan, options: FetchOptions = FetchOptions()) -> dict[str, Any]:
+    """What :func:`fetch` would do, with sizes from HEAD requests; writes nothing.
 
-    Prints one line per archive and a summary. Returns ``complete`` (extracted), ``downloaded``
-    (there, still to verify and extract), ``skipped`` (both), ``to_fetch`` (name -> size, None if
-    the server does not say), ``resume`` (name -> bytes already in its ``.part``), ``failed`` and
-    ``total_bytes`` (what would be downloaded). A host that cannot be reached raises
-    NetworkUnreachable at its first HEAD.
+    Prints one line per archive (complete, downloaded, to fetch, to resume), after the line
+    ``planned.header`` if given, and a total headed by ``planned.label``. Nothing is printed
+    before every HEAD has answered, so a host that cannot be reached leaves only its one-line
+    error (NetworkUnreachable, at its first HEAD).
+
+    Returns ``complete`` (extracted), ``downloaded`` (there, still to verify and extract),
+    ``skipped`` (both), ``to_fetch`` (name -> size, None if the server does not say), ``resume``
+    (name -> bytes already in its ``.part``), ``failed`` and ``total_bytes`` (what would be
+    downloaded). An archive whose HEAD fails is a DownloadError listing it, after the lines.
     """
+    report, missing = _present(planned)
+    _ask_sizes(planned, options, missing, report)
+    report["total_bytes"] = sum(
+        max(nbytes - report["resume"].get(name, 0), 0)
+        for name, nbytes in report["to_fetch"].items()
+        if nbytes
+    )
+    _print_dry_run(planned, report)
+    if report["failed"]:
+        lines = "\n".join(f"  {name}: {reason}" for name, reason in sorted(report["failed"].items()))
+        raise DownloadError(
+            f"{len(report['failed'])} of {len(planned.urls)} archive(s) cannot be fetched:\n{lines}", report
+        )
+    return report
+
+
+def _present(planned: Plan) -> tuple[dict[str, Any], list[str]]:
+    """The dry run's report of what is already on disk, and the archives still to fetch."""
     report: dict[str, Any] = {
         "dry_run": True,
         "complete": [],
@@ -998,9 +1057,9 @@ def _dry_run(
         "total_bytes": 0,
     }
     missing = []
-    for name in urls:
-        archive = download_dir / name
-        if _marker(archive, extract_dir).exists():
+    for name in planned.urls:
+        archive = planned.archive(name)
+        if planned.marker(name).exists():
             report["complete"].append(name)
         elif archive.exists():
             report["downloaded"].append(name)
@@ -1010,21 +1069,23 @@ def _dry_run(
             if part:
                 report["resume"][name] = part
     report["skipped"] = sorted(report["complete"] + report["downloaded"])
+    return report, missing
 
+
+def _ask_sizes(planned: Plan, options: FetchOptions, missing: list[str], report: dict[str, Any]) -> None:
+    """HEAD each missing archive, ``options.jobs`` at a time, into ``to_fetch`` or ``failed``."""
     stop = threading.Event()  # set at the first NetworkUnreachable: every other HEAD would fail too
 
     def size(name: str) -> int | None:
         if stop.is_set():
             return None
         try:
-            return remote_size(
-                urls[name], retries=retries, backoff=backoff, timeout=timeout, allow_http=allow_http
-            )
+            return remote_size(planned.urls[name], options)
         except NetworkUnreachable:
             stop.set()
             raise
 
-    with ThreadPoolExecutor(max_workers=max(1, jobs)) as pool:
+    with ThreadPoolExecutor(max_workers=max(1, options.jobs)) as pool:
         futures = [(n, pool.submit(size, n)) for n in missing]
         for name, future in futures:
             try:
@@ -1033,29 +1094,22 @@ def _dry_run(
                 raise
             except DataError as exc:
                 report["failed"][name] = str(exc)
-    report["total_bytes"] = sum(
-        max(nbytes - report["resume"].get(name, 0), 0)
-        for name, nbytes in report["to_fetch"].items()
-        if nbytes
-    )
-    if header:
-        print(header)
-    for name in urls:
+
+
+def _print_dry_run(planned: Plan, report: dict[str, Any]) -> None:
+    """The dry run's lines: the header, one line per archive, the total."""
+    if planned.header:
+        print(planned.header)
+    for name in planned.urls:
         print(f"  {name:<34} {_dry_run_status(name, report)}")
     unknown = sum(s is None for s in report["to_fetch"].values())
     downloaded = len(report["downloaded"])
     print(
-        f"{label + ': ' if label else ''}would fetch {len(report['to_fetch'])} archive(s), "
+        f"{planned.label + ': ' if planned.label else ''}would fetch {len(report['to_fetch'])} archive(s), "
         f"{_human(report['total_bytes'])}{f' (+{unknown} of unknown size)' if unknown else ''}; "
         f"{len(report['complete'])} already complete"
         f"{f', {downloaded} downloaded and not yet extracted' if downloaded else ''}"
     )
-    if report["failed"]:
-        lines = "\n".join(f"  {name}: {reason}" for name, reason in sorted(report["failed"].items()))
-        raise DownloadError(
-            f"{len(report['failed'])} of {len(urls)} archive(s) cannot be fetched:\n{lines}", report
-        )
-    return report
 
 
 def _dry_run_status(name: str, report: dict[str, Any]) -> str:
