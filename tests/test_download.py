@@ -12,6 +12,7 @@ import email.message
 import hashlib
 import io as stdio
 import json
+import os
 import re
 import shutil
 import socket
@@ -107,7 +108,9 @@ class _Handler(BaseHTTPRequestHandler):
                 return
         body = data[start:]
         self.send_response(206 if start else 200)
-        self.send_header("Content-Length", str(len(body)))
+        length = _LENGTHS.get(mode, lambda body, head: str(len(body)))(body, head)
+        if length is not None:
+            self.send_header("Content-Length", length)
         if start:
             self.send_header("Content-Range", f"bytes {start}-{len(data) - 1}/{len(data)}")
         if mode != "no_range":
@@ -115,22 +118,50 @@ class _Handler(BaseHTTPRequestHandler):
         self.end_headers()
         if head:
             return
-        cut = (mode in ("reset_once", "truncate_once", "stall_once") and first) or mode == "always_reset"
-        if cut:
-            half = 0 if mode == "always_reset" else len(body) // 2
-            self.wfile.write(body[:half])
-            entry["sent"] = half
-            # Let the client take in what was sent before the connection dies; "stall" outlasts
-            # the client's read timeout.
-            time.sleep(1.0 if mode == "stall_once" else 0.1)
-            if mode not in ("truncate_once", "stall_once"):
-                # Linger 0: close() sends a TCP RST ("connection reset by peer"), not a clean FIN.
-                self.connection.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, struct.pack("ii", 1, 0))
-                self.connection.close()
-            self.close_connection = True
+        if (mode in ("reset_once", "truncate_once", "stall_once") and first) or mode == "always_reset":
+            self._cut(mode, body, entry)
+        elif mode in ("drip", "overlong"):
+            self._misbehave(mode, body, entry)
+        else:
+            self.wfile.write(body)
+            entry["sent"] = len(body)
+
+    def _cut(self, mode: str, body: bytes, entry: dict) -> None:
+        """Half the body (none for "always_reset"), then a reset, a clean close or a stall."""
+        half = 0 if mode == "always_reset" else len(body) // 2
+        self.wfile.write(body[:half])
+        entry["sent"] = half
+        # Let the client take in what was sent before the connection dies; "stall" outlasts
+        # the client's read timeout.
+        time.sleep(1.0 if mode == "stall_once" else 0.1)
+        if mode not in ("truncate_once", "stall_once"):
+            # Linger 0: close() sends a TCP RST ("connection reset by peer"), not a clean FIN.
+            self.connection.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, struct.pack("ii", 1, 0))
+            self.connection.close()
+        self.close_connection = True
+
+    def _misbehave(self, mode: str, body: bytes, entry: dict) -> None:
+        """ "drip": one byte every 10 ms; "overlong": the body, then 4 MiB more than HEAD said."""
+        if mode == "drip":
+            for i in range(len(body)):
+                self.wfile.write(body[i : i + 1])
+                self.wfile.flush()
+                entry["sent"] = i + 1
+                time.sleep(0.01)
             return
         self.wfile.write(body)
-        entry["sent"] = len(body)
+        for _ in range(64):
+            self.wfile.write(bytes(1 << 16))
+            entry["sent"] += 1 << 16
+
+
+# Content-Length per mode (None: no header): a number that is no byte count, none at all, or a
+# GET streamed without one after a HEAD that declared the size.
+_LENGTHS = {
+    "bad_length": lambda body, head: "\u00b2",
+    "no_length": lambda body, head: None,
+    "overlong": lambda body, head: str(len(body)) if head else None,
+}
 
 
 class _Server(ThreadingHTTPServer):
@@ -1161,3 +1192,211 @@ def test_every_extra_set_has_its_list_for_the_download() -> None:
     from msdepth.stages.prepare_data import SET_SPLITS
 
     assert set(SET_SPLITS) == set(SETS)
+
+
+# --------------------------------------------------------------------------- a hostile list or mirror
+
+D2, D3 = "2011_09_26_drive_0002_sync.zip", "2011_09_26_drive_0003_sync.zip"
+
+
+@pytest.mark.parametrize(
+    "entry",
+    ["?.zip", "raw_data/a.zip?v=.zip", "raw_data/a.zip#.zip", "raw_data/..", "raw_data/.zip"],
+)
+def test_an_entry_naming_no_archive_file_is_refused_before_anything_is_asked(
+    server: _Server, tmp_path: Path, entry: str
+) -> None:
+    """``raw_data/?.zip`` names no file: the download folder itself was taken for the archive,
+    failed to verify and was renamed to ``zips.corrupt`` with its manifest (``..``: its parent)."""
+    _serve_drive(server)
+    zips, raw = tmp_path / "zips", tmp_path / "raw"
+    dl.fetch_all(server.base_url, [f"raw_data/{DRIVE}"], zips, raw, FAST)
+    before, asked = _tree(tmp_path), len(server.log)
+    problem = "has a query or fragment" if "?" in entry or "#" in entry else "names no archive file"
+    for options in (FAST, DRY):
+        with pytest.raises(DataError, match=re.escape(f"archive {entry!r}: {problem}")) as err:
+            dl.fetch_all(server.base_url, [f"raw_data/{DRIVE}", entry], zips, raw, options)
+        assert "\n" not in str(err.value)
+    assert _tree(tmp_path) == before and len(server.log) == asked
+    listed = tmp_path / "list.txt"
+    listed.write_text(f"raw_data/{DRIVE}\n{entry}{'' if entry.endswith('.zip') else '/x.zip'}\n")
+    if entry.endswith(".zip"):  # the list's own check (one .zip URL per line) catches the others
+        with pytest.raises(DataError, match=re.escape(f"{listed}:2: archive {entry!r}: {problem}")):
+            dl.parse_archive_list(listed)
+
+
+def _zip(path: Path, members: dict[str, str]) -> Path:
+    with zipfile.ZipFile(path, "w") as zf:
+        for name, text in members.items():
+            zf.writestr(name, text)
+    return path
+
+
+@pytest.mark.parametrize(
+    ("member", "message"),
+    [
+        ("2011_09_26", "is a file but {raw}/2011_09_26 is a folder already"),
+        (
+            "2011_09_26/calib_cam_to_cam.txt/x",
+            "is a folder but {raw}/2011_09_26/calib_cam_to_cam.txt is a file already",
+        ),
+    ],
+)
+def test_a_member_colliding_with_what_other_archives_unpacked_is_refused(
+    tmp_path: Path, member: str, message: str
+) -> None:
+    """A file where a drive's day folder is: today the extracted drives were deleted (rmtree) while
+    their markers still said complete; a folder where a file is: the file was deleted."""
+    raw = tmp_path / "raw"
+    (tmp_path / "c.zip").write_bytes(calib_zip("2011_09_26"))
+    (tmp_path / "d.zip").write_bytes(drive_zip("2011_09_26", 1))
+    assert dl.extract(tmp_path / "d.zip", raw) and dl.extract(tmp_path / "c.zip", raw)
+    before = _tree(raw)
+    hostile = _zip(tmp_path / D2, {member: "x"})
+    colliding = "/".join(member.split("/")[:2])
+    expected = f"{hostile}: member {colliding!r} " + message.format(raw=raw) + "; refusing to extract"
+    with pytest.raises(DataError, match=re.escape(expected)):
+        dl.extract(hostile, raw)
+    assert _tree(raw) == before  # nothing removed, nothing added, no temp folder left
+
+
+@pytest.mark.parametrize("member", [f".{DRIVE}.complete", f"./.{DRIVE}.complete", f".{DRIVE}.x.tmp/a"])
+def test_a_top_level_dot_member_is_refused(server: _Server, tmp_path: Path, member: str) -> None:
+    """A member named like another archive's completion marker made that archive "skipped"."""
+    server.files[D2] = _zip(tmp_path / D2, {"2011_09_26/ok.txt": "fine", member: "{}"}).read_bytes()
+    _serve_drive(server)
+    zips, raw = tmp_path / "zips", tmp_path / "raw"
+    with pytest.raises(dl.DownloadError) as err:
+        dl.fetch_all(server.base_url, [f"raw_data/{D2}"], zips, raw, FAST)
+    assert f"member {member!r} is a top-level dot-file" in err.value.report["failed"][D2]
+    assert not raw.exists()
+    report = dl.fetch_all(server.base_url, [f"raw_data/{DRIVE}"], zips, raw, FAST)
+    assert report["fetched"] == report["extracted"] == [DRIVE]
+
+
+def test_a_content_length_that_is_no_byte_count_fails_only_its_archive(
+    server: _Server, tmp_path: Path, capsys
+) -> None:
+    """``²`` passes str.isdigit() and int() raised: the dry run ended in a traceback."""
+    _serve_drive(server)
+    _serve_drive(server, "bad_length", name=D2, seed=2)
+    zips, raw = tmp_path / "zips", tmp_path / "raw"
+    refused = f"{server.url(D2)}: the server's Content-Length '\u00b2' is not a byte count; refusing it"
+    for options in (DRY, FAST):
+        with pytest.raises(dl.DownloadError) as err:
+            dl.fetch_all(server.base_url, [f"raw_data/{DRIVE}", f"raw_data/{D2}"], zips, raw, options)
+        assert err.value.report["failed"] == {D2: refused}
+    assert err.value.report["fetched"] == [DRIVE] and not (zips / D2).exists()
+
+
+@pytest.mark.parametrize(
+    ("mode", "refused"),
+    [
+        ("overlong", "the server sent more than the {size} bytes it declared; refusing the rest"),
+        ("no_length", "the server declares no size (no Content-Length); refusing an unbounded download"),
+    ],
+)
+def test_a_body_past_or_without_a_declared_size_is_cut_off(
+    server: _Server, tmp_path: Path, mode: str, refused: str
+) -> None:
+    """A GET streamed without a length was read to its end (300 MB kept, from a probe): now it is
+    bounded by the size HEAD declared, and a size declared nowhere is refused."""
+    data = _serve_drive(server, mode)
+    zips = tmp_path / "zips"
+    with pytest.raises(dl.DownloadError) as err:
+        dl.fetch_all(server.base_url, [f"raw_data/{DRIVE}"], zips, tmp_path / "raw", FAST)
+    reason = err.value.report["failed"][DRIVE]
+    assert reason == f"{server.url(DRIVE)}: " + refused.format(size=len(data))
+    assert sorted(p.name for p in zips.iterdir()) == []  # no archive, no .part, no .corrupt
+
+
+def test_a_server_dripping_bytes_is_cut_off_below_the_minimum_rate(server: _Server, tmp_path: Path) -> None:
+    """One byte per 10 ms never trips a per-read timeout; 1000 B/s over 0.1 s windows does."""
+    server.files["2011_09_26_calib.zip"], server.modes["2011_09_26_calib.zip"] = (
+        calib_zip("2011_09_26"),
+        "drip",
+    )
+    _serve_drive(server)
+    slow = dataclasses.replace(FAST, min_rate=1000, rate_window=0.1)
+    names = ["raw_data/2011_09_26_calib.zip", f"raw_data/{DRIVE}"]
+    with pytest.raises(dl.DownloadError) as err:
+        dl.fetch_all(server.base_url, names, tmp_path / "zips", tmp_path / "raw", slow)
+    report = err.value.report
+    assert report["failed"] == {
+        "2011_09_26_calib.zip": f"{server.url('2011_09_26_calib.zip')}: download failed after 3 retries: "
+        "slower than 1000 B/s over 0.1 s"
+    }
+    assert report["fetched"] == [DRIVE]
+    assert len(server.gets("2011_09_26_calib.zip")) == 1 + slow.retries
+
+
+def test_a_redirect_off_http_or_to_an_unreachable_host_fails_only_its_archive(
+    server: _Server, tmp_path: Path
+) -> None:
+    """With allow_http, a redirect to ftp:// was followed, and its refused connection was taken
+    for the mirror being unreachable: NetworkUnreachable stopped every archive."""
+    _serve_drive(server)
+    port = _closed_port()
+    server.redirects[D2] = f"ftp://127.0.0.1:{port}/x.zip"
+    server.redirects[D3] = f"http://127.0.0.1:{port}/x.zip"
+    names = [f"raw_data/{n}" for n in (DRIVE, D2, D3)]
+    for options in (DRY, FAST):
+        with pytest.raises(dl.DownloadError) as err:
+            dl.fetch_all(server.base_url, names, tmp_path / "zips", tmp_path / "raw", options)
+        failed = err.value.report["failed"]
+        assert failed[D2] == (
+            f"{server.url(D2)}: redirected to ftp://127.0.0.1:{port}/x.zip, which is not an http(s) URL; "
+            "refusing to follow it"
+        )
+        assert failed[D3].startswith(
+            f"{server.url(D3)}: redirected to http://127.0.0.1:{port}/x.zip, which cannot be reached "
+            "(ConnectionRefusedError"
+        )
+        assert sorted(failed) == [D2, D3]
+    assert err.value.report["fetched"] == [DRIVE]
+
+
+def test_same_day_archives_finishing_together_both_land(tmp_path: Path, monkeypatch) -> None:
+    """Both threads found no day folder, then both moved theirs in: ENOTEMPTY for the second.
+
+    Each move of a day folder waits (up to 1 s) until the other thread reaches its own, which is
+    exactly the interleaving that failed; a move that cannot be reached meanwhile passes alone.
+    """
+    for i in (1, 2):
+        (tmp_path / f"d{i}.zip").write_bytes(drive_zip("2011_09_26", i, frames=1))
+    real = {"replace": os.replace, "rename": os.rename}
+    both = threading.Barrier(2, timeout=1.0)
+
+    def meeting(kind: str):
+        def move(src, dst, *args, **kwargs):
+            if Path(dst).name == "2011_09_26" and str(src).endswith(".tmp/2011_09_26"):
+                try:
+                    both.wait()
+                except threading.BrokenBarrierError:
+                    pass
+            return real[kind](src, dst, *args, **kwargs)
+
+        return move
+
+    for kind in real:
+        monkeypatch.setattr(os, kind, meeting(kind))
+    raw, errors = tmp_path / "raw", []
+
+    def unpack(i: int) -> None:
+        try:
+            dl.extract(tmp_path / f"d{i}.zip", raw)
+        except DataError as exc:
+            errors.append(str(exc))
+
+    threads = [threading.Thread(target=unpack, args=(i,)) for i in (1, 2)]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join()
+    assert errors == []
+    day = raw / "2011_09_26"
+    assert sorted(p.name for p in day.iterdir()) == [
+        "2011_09_26_drive_0001_sync",
+        "2011_09_26_drive_0002_sync",
+    ]
+    assert sorted(p.name for p in raw.iterdir()) == [".d1.zip.complete", ".d2.zip.complete", "2011_09_26"]

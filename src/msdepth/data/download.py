@@ -17,8 +17,9 @@ takes for complete:
   stay within :data:`MAX_EXPANSION` times the archive (a zip bomb is refused undecompressed).
 - :func:`fetch_all` does all of that for many archives in parallel and reports per archive:
   :func:`plan` checks the list, then :func:`fetch` or :func:`dry_run` runs it, all with one
-  :class:`FetchOptions`. A host that cannot be reached at all (no name resolution, connection refused, no route) is not
-  retried: the first such error stops every archive with one line (:class:`NetworkUnreachable`).
+  :class:`FetchOptions`. A host that cannot be reached at all (no name resolution, connection
+  refused, no route) is not retried: the first such error stops every archive with one line
+  (:class:`NetworkUnreachable`).
 - :func:`select_needed` picks the archives that the chosen split lists need (their drives and
   those days' calibration archives), :func:`select_archives` a count or named drives of a list.
 
@@ -72,6 +73,12 @@ USER_AGENT = "msdepth-kitti-download"
 # anything below it. zipfile never writes more than a member's declared size (it cuts the output
 # there and checks the CRC), so the declared sizes are what extraction can write.
 MAX_EXPANSION = 100
+# An attempt that brings fewer than MIN_RATE bytes/s over RATE_WINDOW_S seconds is cut off and
+# counts as a failed retry even though it made progress: a server dripping bytes (or a stalled
+# link) never trips the per-read timeout. 10 KiB/s is ~1/1000 of a home link; a 4 GB archive
+# at that rate would still take 5 days. Lower FetchOptions.min_rate for a slower link.
+MIN_RATE = 10 * 1024
+RATE_WINDOW_S = 60.0
 
 # Errors worth another try: the network or the server, not the request. HTTPError (a subclass of
 # URLError) is sorted by status in _open before it can reach this tuple.
@@ -92,6 +99,10 @@ _RETRYABLE_4XX = (408, 429)
 
 class _Transient(Exception):
     """A failed attempt worth retrying (5xx, short read, inconsistent range answer)."""
+
+
+class _TooSlow(_Transient):
+    """An attempt below the minimum rate: retried, but counted as a failure even with progress."""
 
 
 class NetworkUnreachable(DataError):
@@ -120,7 +131,9 @@ class FetchOptions:
     ``jobs`` archives at a time; ``dry_run`` writes nothing (:func:`dry_run`); ``jpeg`` converts
     the PNGs on extraction (:func:`extract`); ``progress`` shows bars; ``retries``, ``backoff``
     (seconds, doubled per retry) and ``timeout`` (seconds per read) as :func:`download` uses them;
-    ``allow_http`` lets plain http through, for a mirror you trust (:func:`check_url`).
+    an attempt slower than ``min_rate`` bytes/s over ``rate_window`` seconds is cut off (see
+    :data:`MIN_RATE`); ``allow_http`` lets plain http through, for a mirror you trust
+    (:func:`check_url`).
     """
 
     jobs: int = 4
@@ -130,6 +143,8 @@ class FetchOptions:
     retries: int = 5
     backoff: float = 1.0
     timeout: float = 30.0
+    min_rate: float = MIN_RATE
+    rate_window: float = RATE_WINDOW_S
     allow_http: bool = False
 
 
@@ -159,6 +174,9 @@ def parse_archive_list(path: str | os.PathLike) -> list[str]:
             )
         if entry.startswith(KITTI_BASE_URL):
             entry = entry[len(KITTI_BASE_URL) :]
+        problem = _entry_problem(entry)
+        if problem:
+            raise DataError(f"{path}:{number}: archive {entry!r}: {problem}")
         name = archive_filename(entry)
         if name in seen:
             # Two entries would download to the same file, concurrently.
@@ -173,6 +191,22 @@ def parse_archive_list(path: str | os.PathLike) -> list[str]:
 def archive_filename(name: str) -> str:
     """The file name an archive entry downloads to (last component of its URL path)."""
     return PurePosixPath(urllib.parse.urlsplit(name).path).name
+
+
+def _entry_problem(entry: str) -> str | None:
+    """Why ``entry`` of an archive list cannot be fetched safely, or None.
+
+    Its file name is what the download folder, the manifest and the completion marker are keyed
+    by, so it must be a plain ``<name>.zip``: not empty, ``.`` or ``..`` (which would name the
+    download folder or its parent), not a dot-file, and not hidden behind a query or fragment
+    (``x/?.zip`` ends in ``.zip`` but names the folder ``x/``).
+    """
+    if "?" in entry or "#" in entry:
+        return "has a query or fragment ('?' or '#'); list the archive's own URL"
+    name = archive_filename(entry)
+    if name.startswith(".") or not name.endswith(".zip"):
+        return "names no archive file (the URL path must end in <name>.zip)"
+    return None
 
 
 def _date_of(filename: str) -> str:
@@ -373,18 +407,27 @@ def check_url(url: str, allow_http: bool = False) -> None:
 
 
 class NoDowngradeRedirect(urllib.request.HTTPRedirectHandler):
-    """Follow redirects, except from https to anything else: a redirect must not undo the https
-    check, which applies to the URL that is actually requested."""
+    """Follow redirects to http(s) URLs with a host, never from https to anything else: a
+    redirect must not undo the https check, which applies to the URL that is actually requested,
+    nor lead to another scheme (urllib would follow one to ``ftp://``). ``followed`` keeps the
+    last target, so that an unreachable one is reported as the redirect's fault, not the mirror's.
+    """
+
+    followed = ""
 
     def redirect_request(self, req, fp, code, msg, headers, newurl):  # noqa: ANN001 - urllib's signature
-        if (
-            urllib.parse.urlsplit(req.full_url).scheme.lower() == "https"
-            and urllib.parse.urlsplit(newurl).scheme.lower() != "https"
-        ):
+        old, new = urllib.parse.urlsplit(req.full_url), urllib.parse.urlsplit(newurl)
+        problem = None
+        if old.scheme.lower() == "https" and new.scheme.lower() != "https":
+            problem = "which is not https; refusing the downgrade"
+        elif new.scheme.lower() not in ("http", "https"):
+            problem = "which is not an http(s) URL; refusing to follow it"
+        elif not new.hostname:
+            problem = "which names no host; refusing to follow it"
+        if problem:
             fp.close()
-            raise DataError(
-                f"{req.full_url}: redirected to {newurl}, which is not https; refusing the downgrade"
-            )
+            raise DataError(f"{req.full_url}: redirected to {newurl}, {problem}")
+        self.followed = newurl
         return super().redirect_request(req, fp, code, msg, headers, newurl)
 
 
@@ -394,16 +437,18 @@ def _open(
     """Send one request; return the response, or raise DataError (permanent) / _Transient.
 
     A 416 (range past the end) is returned like a response: the caller decides what it means.
-    A URL that :func:`check_url` refuses, or a redirect from https to http, is a DataError.
+    A URL that :func:`check_url` refuses, a redirect that :class:`NoDowngradeRedirect` refuses,
+    or a redirect to a host that cannot be reached, is a DataError (that archive's alone).
     """
     check_url(url, allow_http)
     headers = {"User-Agent": USER_AGENT}
     if offset:
         headers["Range"] = f"bytes={offset}-"
+    redirects = NoDowngradeRedirect()
     try:
         # build_opener puts the handler in place of urllib's default redirect handler; the rest
         # (proxies from the environment, TLS verification) is what urlopen uses.
-        opener = urllib.request.build_opener(NoDowngradeRedirect)
+        opener = urllib.request.build_opener(redirects)
         return opener.open(urllib.request.Request(url, method=method, headers=headers), timeout=timeout)
     except urllib.error.HTTPError as exc:
         if exc.code == 416:
@@ -415,6 +460,10 @@ def _open(
     except urllib.error.URLError as exc:
         # A socket-level reason (reset, timeout) may pass; a plain message such as "unknown url
         # type" is a typo in the list or the base URL and will not, nor will an unreachable host.
+        if _unreachable(exc.reason) and redirects.followed:
+            raise DataError(
+                f"{url}: redirected to {redirects.followed}, which cannot be reached ({_describe(exc)})"
+            ) from None
         if _unreachable(exc.reason):
             host = urllib.parse.urlsplit(url).hostname
             raise NetworkUnreachable(
@@ -429,15 +478,22 @@ def _open(
 
 def _content_range(value: str | None) -> tuple[int | None, int | None]:
     """``bytes 100-199/200`` -> (100, 200); ``bytes */200`` -> (None, 200); unknown parts None."""
-    match = re.fullmatch(r"\s*bytes\s+(?:(\d+)-\d+|\*)/(\d+|\*)\s*", value or "")
+    # ASCII digits only, at most 20 (int() takes other Unicode digits, and refuses 4,300 of them).
+    match = re.fullmatch(r"\s*bytes\s+(?:([0-9]{1,20})-[0-9]{1,20}|\*)/([0-9]{1,20}|\*)\s*", value or "")
     if not match:
         return None, None
     start, total = match.groups()
     return (int(start) if start else None), (int(total) if total and total != "*" else None)
 
 
-def _int_header(value: str | None) -> int | None:
-    return int(value) if value and value.strip().isdigit() else None
+def _int_header(url: str, value: str | None, name: str = "Content-Length") -> int | None:
+    """Header ``name``'s byte count, None if absent; DataError if it is anything but ASCII digits
+    (``²`` passes str.isdigit(), and int() then raises)."""
+    if value is None or not value.strip():
+        return None
+    if not re.fullmatch(r"[0-9]{1,20}", value.strip()):
+        raise DataError(f"{url}: the server's {name} {value[:40]!r} is not a byte count; refusing it")
+    return int(value)
 
 
 def _size(path: Path) -> int:
@@ -447,60 +503,121 @@ def _size(path: Path) -> int:
         return 0
 
 
-def _attempt(
-    url: str, part: Path, options: FetchOptions, bar: tqdm, on_bytes: Callable[[int], None] | None
-) -> int | None:
-    """One GET, resuming ``part`` where it ends. Returns the total size if the server said it.
+class _Overlong(DataError):
+    """The server sent more than the size it declared: the download is refused, not retried."""
 
-    Raises _Transient (or a network error) when the transfer should be retried from where it is.
+
+def _attempt(
+    url: str,
+    part: Path,
+    expected: int | None,
+    options: FetchOptions,
+    bar: tqdm,
+    on_bytes: Callable[[int], None] | None,
+) -> int:
+    """One GET, resuming ``part`` where it ends; returns the file's size.
+
+    The size is the one the answer declares (Content-Length of a 200, Content-Range of a 206),
+    which must agree with ``expected`` (HEAD's) where both are known; one of them must be, and
+    no byte past it is kept. Raises _Transient (or a network error) when the transfer should be
+    retried from where it is, DataError when the server contradicts itself, declares no size or
+    sends more than it declared (the ``.part`` is then removed).
     """
     offset = _size(part)
     response = _open(url, options.timeout, offset=offset, allow_http=options.allow_http)
     with response:
         if response.status == 416:
-            # Nothing left past ``offset``: either the .part is already whole (a run killed between
-            # the last write and the rename) or it is longer than the file; start over then.
-            _, total = _content_range(response.headers.get("Content-Range"))
-            if total is not None and total == offset:
-                return total
-            part.write_bytes(b"")
-            raise _Transient(f"range {offset}- not satisfiable (size {total}); restarting from 0")
-        if response.status == 206:
-            start, total = _content_range(response.headers.get("Content-Range"))
-            if start != offset:
-                part.write_bytes(b"")
-                raise _Transient(
-                    f"asked for bytes {offset}-, got a range starting at {start}; restarting from 0"
-                )
-            mode = "ab"
-        else:
-            # 200: the server ignored the Range header and sends the whole file. Appending it to
-            # the partial file would corrupt it, so start again from byte 0.
-            offset, mode = 0, "wb"
-            total = _int_header(response.headers.get("Content-Length"))
+            return _whole(response, part, offset, expected)
+        offset, mode, declared = _start(url, response, part, offset)
+        total = _agreed_size(url, declared, expected)
         bar.reset(total=total)
         bar.update(offset)
-        with open(part, mode) as out:
-            while True:
-                # read1 hands over what has arrived, so bytes received before a reset are kept
-                # (read() would loop for the full chunk and lose them with the exception).
-                # Network errors propagate to download()'s retry loop.
-                chunk = response.read1(CHUNK_SIZE)
-                if not chunk:
-                    break
-                out.write(chunk)
-                bar.update(len(chunk))
-                if on_bytes is not None:
-                    on_bytes(len(chunk))
-            out.flush()
-            os.fsync(out.fileno())  # the rename that follows must not publish unwritten bytes
+        try:
+            with open(part, mode) as out:
+                _copy(url, response, out, offset, total, options, bar, on_bytes)
+                out.flush()
+                os.fsync(out.fileno())  # the rename that follows must not publish unwritten bytes
+        except _Overlong:
+            part.unlink(missing_ok=True)
+            raise
     received = _size(part)
-    if total is not None and received != total:
-        if received > total:
-            part.write_bytes(b"")
+    if received != total:
         # http.client returns b"" rather than raising when the peer closes before Content-Length.
         raise _Transient(f"short read: have {received} of {total} bytes")
     return total
+
+
+def _whole(response: urllib.error.HTTPError, part: Path, offset: int, expected: int | None) -> int:
+    """A 416 (nothing past ``offset``): ``part`` is whole (a run killed between its last write and
+    the rename), or longer than the file, and then it starts over from 0."""
+    _, declared = _content_range(response.headers.get("Content-Range"))
+    total = declared if declared is not None else expected
+    if total is not None and total == offset and expected in (None, total):
+        return total
+    part.write_bytes(b"")
+    raise _Transient(f"range {offset}- not satisfiable (size {total}); restarting from 0")
+
+
+def _start(url: str, response: Any, part: Path, offset: int) -> tuple[int, str, int | None]:
+    """Where a 200 or 206 answer's body goes: (its offset in ``part``, file mode, declared size)."""
+    if response.status == 206:
+        start, total = _content_range(response.headers.get("Content-Range"))
+        if start != offset:
+            part.write_bytes(b"")
+            raise _Transient(f"asked for bytes {offset}-, got a range starting at {start}; restarting from 0")
+        return offset, "ab", total
+    # 200: the server ignored the Range header and sends the whole file. Appending it to the
+    # partial file would corrupt it, so start again from byte 0.
+    return 0, "wb", _int_header(url, response.headers.get("Content-Length"))
+
+
+def _agreed_size(url: str, declared: int | None, expected: int | None) -> int:
+    """The size a download stops at: the answer's, which must be HEAD's (``expected``) if both
+    are known. Neither known is refused: a stream without a length would never be cut off."""
+    if declared is not None and expected is not None and declared != expected:
+        raise DataError(f"{url}: the server declares {declared} bytes, its HEAD said {expected}; refusing it")
+    if declared is None and expected is None:
+        raise DataError(
+            f"{url}: the server declares no size (no Content-Length); refusing an unbounded download"
+        )
+    return declared if declared is not None else expected
+
+
+def _copy(
+    url: str,
+    response: Any,
+    out: Any,
+    offset: int,
+    total: int,
+    options: FetchOptions,
+    bar: tqdm,
+    on_bytes: Callable[[int], None] | None,
+) -> None:
+    """Copy the body into ``out`` (which holds ``offset`` bytes) up to ``total`` bytes: more is
+    _Overlong; fewer than ``options.min_rate`` bytes/s over a ``rate_window`` is _TooSlow."""
+    room, window_start, window_bytes = total - offset, time.monotonic(), 0
+    while True:
+        # read1 hands over what has arrived, so bytes received before a reset are kept (read()
+        # would loop for the full chunk and lose them with the exception). Network errors
+        # propagate to download()'s retry loop.
+        chunk = response.read1(CHUNK_SIZE)
+        if not chunk:
+            return
+        if len(chunk) > room:
+            raise _Overlong(
+                f"{url}: the server sent more than the {total} bytes it declared; refusing the rest"
+            )
+        room -= len(chunk)
+        out.write(chunk)
+        bar.update(len(chunk))
+        if on_bytes is not None:
+            on_bytes(len(chunk))
+        window_bytes += len(chunk)
+        elapsed = time.monotonic() - window_start
+        if elapsed >= options.rate_window:
+            if window_bytes < options.min_rate * elapsed:
+                raise _TooSlow(f"slower than {options.min_rate:g} B/s over {options.rate_window:g} s")
+            window_start, window_bytes = time.monotonic(), 0
 
 
 def download(
@@ -514,12 +631,15 @@ def download(
     """Fetch ``url`` to ``dest``, resuming ``dest.part`` across failures; return ``dest``.
 
     Connection errors, resets, timeouts, 5xx and short reads are retried with exponential
-    back-off, each time resuming with a ``Range`` request; ``options.retries`` bounds the consecutive
-    attempts that brought no new bytes (an attempt that made progress resets the count, so a long
-    download over a flaky link is not abandoned for having been interrupted often). 4xx answers
-    fail at once. The size is checked against Content-Length / Content-Range (and
-    ``expected_size`` if given) before ``.part`` is renamed to ``dest``. An existing ``dest`` is
-    taken as complete, since only a complete file is ever renamed to it. ``on_bytes`` is called
+    back-off, each time resuming with a ``Range`` request; ``options.retries`` bounds the
+    consecutive attempts that brought no new bytes (an attempt that made progress resets the
+    count, so a long download over a flaky link is not abandoned for having been interrupted
+    often), or that were cut off below ``options.min_rate``. 4xx answers fail at once.
+
+    The size is the one the server declares (Content-Length / Content-Range), which must equal
+    ``expected_size`` (HEAD's, as :func:`fetch` passes it) if given; a download whose size
+    neither gives is refused, and nothing past the size is kept. Only a complete ``.part`` is
+    renamed to ``dest``, so an existing ``dest`` is taken as complete. ``on_bytes`` is called
     with each chunk's length (for an overall count). Only https is fetched, http too with
     ``options.allow_http`` (:func:`check_url`); nothing is written for a refused URL.
     """
@@ -529,7 +649,6 @@ def download(
     check_url(url, options.allow_http)
     dest.parent.mkdir(parents=True, exist_ok=True)
     part = dest.with_suffix(dest.suffix + ".part")
-    failures = 0
     with tqdm(
         desc=dest.name,
         unit="B",
@@ -538,29 +657,36 @@ def download(
         leave=False,
         disable=not options.progress,
     ) as bar:
-        while True:
-            before = _size(part)
-            try:
-                total = _attempt(url, part, options, bar, on_bytes)
-                break
-            except (_Transient, *_TRANSIENT_ERRORS) as exc:
-                failures = 0 if _size(part) > before else failures + 1
-                if failures > options.retries:
-                    raise DataError(
-                        f"{url}: download failed after {options.retries} retries: {_describe(exc)}"
-                    ) from None
-                time.sleep(min(options.backoff * 2 ** max(failures - 1, 0), MAX_BACKOFF_S))
-            except OSError as exc:  # the local side: disk full, permissions
-                raise DataError(f"{part}: cannot write the download of {url} ({exc})") from None
-    size = _size(part)
-    if expected_size is not None and size != expected_size:
-        part.unlink()
-        raise DataError(
-            f"{url}: downloaded {size} bytes, expected {expected_size}"
-            f"{'' if total is None else f' (server said {total})'}"
-        )
+        _retrying(url, part, expected_size, options, bar, on_bytes)
     os.replace(part, dest)
     return dest
+
+
+def _retrying(
+    url: str,
+    part: Path,
+    expected: int | None,
+    options: FetchOptions,
+    bar: tqdm,
+    on_bytes: Callable[[int], None] | None,
+) -> None:
+    """:func:`_attempt` until ``part`` is complete, with back-off, or a DataError."""
+    failures = 0
+    while True:
+        before = _size(part)
+        try:
+            _attempt(url, part, expected, options, bar, on_bytes)
+            return
+        except (_Transient, *_TRANSIENT_ERRORS) as exc:
+            progressed = _size(part) > before and not isinstance(exc, _TooSlow)
+            failures = 0 if progressed else failures + 1
+            if failures > options.retries:
+                raise DataError(
+                    f"{url}: download failed after {options.retries} retries: {_describe(exc)}"
+                ) from None
+            time.sleep(min(options.backoff * 2 ** max(failures - 1, 0), MAX_BACKOFF_S))
+        except OSError as exc:  # the local side: disk full, permissions
+            raise DataError(f"{part}: cannot write the download of {url} ({exc})") from None
 
 
 def _describe(exc: BaseException) -> str:
@@ -574,7 +700,7 @@ def remote_size(url: str, options: FetchOptions = FetchOptions()) -> int | None:
     for attempt in range(options.retries + 1):
         try:
             with _open(url, options.timeout, method="HEAD", allow_http=options.allow_http) as response:
-                return _int_header(response.headers.get("Content-Length"))
+                return _int_header(url, response.headers.get("Content-Length"))
         except (_Transient, *_TRANSIENT_ERRORS) as exc:
             if attempt == options.retries:
                 raise DataError(
@@ -657,6 +783,8 @@ class Manifest:
 
 def _set_aside(path: Path) -> Path:
     """Move a bad archive to ``<name>.corrupt`` (kept for inspection) so the next run refetches it."""
+    if not path.is_file() or path.is_symlink():  # only what download() wrote: never a folder
+        raise DataError(f"{path}: not a downloaded archive (a folder or link?); leaving it alone")
     corrupt = path.with_name(path.name + ".corrupt")
     os.replace(path, corrupt)
     return corrupt
@@ -699,8 +827,10 @@ def check_members(zf: zipfile.ZipFile, zip_path: Path) -> int:
     """Refuse an archive with a member that must not be unpacked; return the declared total size.
 
     Refused: a path outside the destination (``..``, absolute, a drive letter or a leading
-    backslash: zip-slip), a symbolic link, device, fifo or socket (the Unix mode in the high bits
-    of ``external_attr``), and declared sizes above :data:`MAX_EXPANSION` times the archive's.
+    backslash: zip-slip), a dot-name at the top (it could forge another archive's completion
+    marker, ``.<archive>.complete``, or meet a temp folder), a symbolic link, device, fifo or
+    socket (the Unix mode in the high bits of ``external_attr``), and declared sizes above
+    :data:`MAX_EXPANSION` times the archive's.
     """
     total = 0
     for info in zf.infolist():
@@ -709,6 +839,12 @@ def check_members(zf: zipfile.ZipFile, zip_path: Path) -> int:
         if name.startswith(("/", "\\")) or re.match(r"^[A-Za-z]:", name) or ".." in parts:
             raise DataError(
                 f"{zip_path}: member {name!r} points outside the extraction folder; refusing to extract"
+            )
+        top = next((p for p in parts if p not in ("", ".")), "")  # zipfile drops "" and "." parts
+        if top.startswith("."):
+            raise DataError(
+                f"{zip_path}: member {name!r} is a top-level dot-file (completion markers and temp "
+                "folders are named so); refusing to extract"
             )
         kind = stat.S_IFMT(info.external_attr >> 16)
         if kind not in (0, stat.S_IFREG, stat.S_IFDIR):  # 0: no Unix mode (e.g. written on Windows)
@@ -755,19 +891,65 @@ def _to_jpeg(root: Path, quality: int) -> None:
         png.unlink()
 
 
-def _move_into(src: Path, dst: Path) -> None:
-    """Move the tree ``src`` into ``dst``: a folder new to ``dst`` appears by one atomic rename;
-    one that exists already (a day folder shared by several archives) is merged into."""
+# One extraction at a time moves its tree into place, so that the check for collisions and the
+# moves see the same tree: two same-day archives finishing together both found no day folder and
+# both renamed theirs there (ENOTEMPTY / EISDIR for the second, 2 of 40 trials).
+_MOVE_LOCK = threading.Lock()
+
+
+def _publish(zip_path: Path, tmp: Path, dest_dir: Path) -> None:
+    """Move the extracted tree ``tmp`` into ``dest_dir``, unless a member would replace a folder
+    with a file or a file with a folder there: that is another archive's, and refused whole."""
+    with _MOVE_LOCK:
+        collision = _collision(tmp, dest_dir, tmp)
+        if collision:
+            raise DataError(f"{zip_path}: {collision}; refusing to extract")
+        _move_into(tmp, dest_dir)
+
+
+def _collision(src: Path, dst: Path, root: Path) -> str | None:
+    """The first entry of ``src`` whose kind (file or folder) differs from what ``dst`` holds in
+    its place, described from ``root``; None if there is none."""
     for entry in sorted(src.iterdir()):
         target = dst / entry.name
-        if entry.is_dir() and target.is_dir():
-            _move_into(entry, target)
+        if not (target.exists() or target.is_symlink()):
             continue
-        if target.is_dir() and not target.is_symlink():
-            shutil.rmtree(target)
-        elif entry.is_dir() and (target.exists() or target.is_symlink()):
-            target.unlink()  # os.replace cannot put a folder over a file
-        os.replace(entry, target)
+        member = entry.relative_to(root).as_posix()
+        if entry.is_dir() and target.is_dir():
+            found = _collision(entry, target, root)
+            if found:
+                return found
+        elif entry.is_dir():
+            return f"member {member!r} is a folder but {target} is a file already"
+        elif target.is_dir():
+            return f"member {member!r} is a file but {target} is a folder already"
+    return None
+
+
+def _move_into(src: Path, dst: Path) -> None:
+    """Move the tree ``src`` into ``dst``: a folder new to ``dst`` appears by one atomic rename;
+    one that exists already (a day folder shared by several archives) is merged into, also one
+    that appeared since it was looked at. A file replaces the file of the same name (the same
+    archive extracted again)."""
+    for entry in sorted(src.iterdir()):
+        target = dst / entry.name
+        if entry.is_dir():
+            if not target.is_dir() and _renamed(entry, target):
+                continue
+            _move_into(entry, target)
+        else:
+            os.replace(entry, target)
+
+
+def _renamed(src: Path, dst: Path) -> bool:
+    """Rename the folder ``src`` to ``dst``; False if ``dst`` is a folder with something in it."""
+    try:
+        os.rename(src, dst)
+    except OSError as exc:
+        if exc.errno in (errno.ENOTEMPTY, errno.EEXIST):
+            return False
+        raise
+    return True
 
 
 def extract(
@@ -785,7 +967,9 @@ def extract(
     are converted to JPEG (``jpeg_quality``) before anything is moved into place.
 
     Nothing at all is written (not even ``dest_dir``) for an archive that :func:`check_members`
-    refuses or whose declared size exceeds the free space at ``dest_dir``.
+    refuses or whose declared size exceeds the free space at ``dest_dir``, and nothing is moved
+    into place for one with a member that would replace a folder by a file or a file by a folder
+    (:func:`_publish`): that is another archive's, whose marker would still say complete.
     """
     zip_path, dest_dir = Path(zip_path), Path(dest_dir)
     marker = _marker(zip_path, dest_dir)
@@ -811,7 +995,7 @@ def extract(
                     raise DataError(f"{zip_path}: member {info.filename} is corrupt ({exc})") from None
             if jpeg:
                 _to_jpeg(tmp, jpeg_quality)
-            _move_into(tmp, dest_dir)
+            _publish(zip_path, tmp, dest_dir)
             write_json(marker, {"archive": zip_path.name, "members": len(members), "jpeg": jpeg})
         except OSError as exc:  # disk full, permissions: name the archive, not just a member path
             raise DataError(f"{zip_path}: extraction into {dest_dir} failed ({exc})") from None
@@ -857,11 +1041,18 @@ def plan(
     """Resolve ``names`` (URL paths relative to ``base_url``, as :func:`parse_archive_list`
     returns them; absolute URLs are used as they are) and check them before anything is fetched.
 
-    Every URL must be https, or http with ``allow_http`` (:func:`check_url`), and no two entries
-    may download to the same file: the first entry refused is a DataError, and nothing is written.
+    Every entry must name a plain ``<name>.zip`` (no query or fragment, see
+    :func:`_entry_problem`), every URL must be https, or http with ``allow_http``
+    (:func:`check_url`), and no two entries may download to the same file: the first entry
+    refused is a DataError, and nothing is asked or written. One bad entry stops the whole list:
+    the list itself is wrong, and its other entries are suspect too.
     """
     if not base_url.endswith("/"):
         base_url += "/"  # urljoin would otherwise drop the last component of the base
+    for name in names:
+        problem = _entry_problem(name)
+        if problem:
+            raise DataError(f"archive {name!r}: {problem}")
     urls = {archive_filename(n): urllib.parse.urljoin(base_url, n) for n in names}
     if len(urls) != len(names):
         raise DataError("fetch_all: two archives in the list share a file name")
@@ -975,7 +1166,9 @@ class _Fetching:
             self._add("skipped", name)
             return
         present = archive.exists()
-        download(url, archive, self.options, on_bytes=self._count)
+        if not present:  # HEAD's size bounds the GET: a stream without a length is cut off there
+            size = remote_size(url, self.options)
+            download(url, archive, self.options, expected_size=size, on_bytes=self._count)
         try:
             verify_archive(archive, self.manifest, url)
         except DataError:
