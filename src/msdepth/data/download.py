@@ -6,15 +6,19 @@ restarts without starting over, and a killed run must never leave something that
 takes for complete:
 
 - :func:`download` streams to ``<archive>.part`` and resumes it with an HTTP ``Range`` request;
-  the final name appears only when the size is right.
+  the final name appears only when the size is right. The size is declared (HEAD and GET must
+  agree), nothing past it is kept, and an attempt slower than :data:`MIN_RATE` is cut off.
 - :func:`verify_zip` reads every member (CRC check); ``manifest.json`` in the download folder
   records the sha256 of each archive once verified, and later runs compare against it.
 - :func:`extract` unpacks into a temp folder beside the destination, moves it into place and
-  writes a completion marker last.
+  writes a completion marker last. A member that would replace a folder by a file (or a file by
+  a folder) that is already there, from another archive, is refused.
 - Only https is fetched unless plain http is allowed (``allow_http``, for a trusted mirror), and a
-  redirect never leaves https. Before anything is unpacked, every member is checked: no path
-  outside the destination, no symlink or device, and the declared sizes must fit the disk and
-  stay within :data:`MAX_EXPANSION` times the archive (a zip bomb is refused undecompressed).
+  redirect never leaves https, nor goes to another scheme. Each entry must name a plain ``<name>.zip``.
+  Before anything is unpacked, every member is checked: no path outside the destination, no
+  dot-name at the top (where completion markers live), no symlink or device, and the declared
+  sizes must fit the disk and stay within :data:`MAX_EXPANSION` times the archive (a zip bomb
+  is refused undecompressed).
 - :func:`fetch_all` does all of that for many archives in parallel and reports per archive:
   :func:`plan` checks the list, then :func:`fetch` or :func:`dry_run` runs it, all with one
   :class:`FetchOptions`. A host that cannot be reached at all (no name resolution, connection
@@ -1092,9 +1096,11 @@ def fetch(planned: Plan, options: FetchOptions = FetchOptions()) -> dict[str, An
     ``fetched``, ``skipped`` (already there and verified), ``extracted``, ``failed`` (name ->
     reason), ``bytes_downloaded``.
 
-    A host that cannot be reached at all stops everything with one :class:`NetworkUnreachable`:
-    before anything is written when there is something to fetch (one HEAD request probes the
-    host first), or at the first such error later (the network went away mid-run).
+    Each archive to download is asked its size with a HEAD first, and the GET must agree with it
+    (:func:`download`). A host that cannot be reached at all stops everything with one
+    :class:`NetworkUnreachable`: before anything is written when there is something to fetch
+    (one HEAD request probes the host first), or at the first such error later (the network went
+    away mid-run). A redirect to a host that cannot be reached fails that archive alone.
     """
     to_download = [
         name
