@@ -5,7 +5,7 @@ from __future__ import annotations
 import logging
 import sys
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated
 
 from msdepth.config import Params
 from msdepth.data.layout import folder_layout, layout
@@ -61,24 +61,24 @@ def prepare_data(
     names = download.parse_archive_list(k.archive_list)
     subset = list(k.drives) if k.drives is not None else (k.drive_count or None)
     selection = download.select_needed(names, needed_splits(params), subset, archive_list=k.archive_list)
-    options: dict[str, Any] = dict(jobs=k.jobs, dry_run=dry_run, jpeg=k.jpeg, allow_http=k.allow_http)
+    options = download.FetchOptions(jobs=k.jobs, dry_run=dry_run, jpeg=k.jpeg, allow_http=k.allow_http)
     reports = {
         "raw archives": download.fetch_all(
             k.base_url,
             selection.archives,
             k.download_dir,
             paths.raw_root,
+            options,
             label="KITTI raw",
             header=selection.describe(),
-            **options,
         ),
         "KITTI 2015": download.fetch_all(
             k.base_url,
             [k.scene_flow_archive],
             k.download_dir,
             paths.kitti2015_root,
+            options,
             label="KITTI 2015",
-            **options,
         ),
     }
     if "eigen_benchmark" in params.eval.extra_sets:  # its GT: KITTI's annotated depth (train/, val/)
@@ -87,8 +87,8 @@ def prepare_data(
             [k.depth_annotated_archive],
             k.download_dir,
             paths.depth_annotated,
+            options,
             label="KITTI annotated depth",
-            **options,
         )
     if dry_run:
         print(download.dry_run_total(list(reports.values())))

@@ -7,10 +7,12 @@ tests can prove a resume fetched only the rest of the file. No test touches the 
 
 from __future__ import annotations
 
+import dataclasses
 import email.message
 import hashlib
 import io as stdio
 import json
+import os
 import re
 import shutil
 import socket
@@ -33,7 +35,8 @@ from msdepth.errors import DataError
 
 SHIPPED_LIST = Path(__file__).resolve().parents[1] / "data_lists" / "kitti_archives_to_download.txt"
 # The local server speaks plain http, which the downloader refuses unless told otherwise.
-FAST = {"retries": 3, "backoff": 0.01, "timeout": 5, "progress": False, "allow_http": True}
+FAST = dl.FetchOptions(retries=3, backoff=0.01, timeout=5, progress=False, allow_http=True)
+DRY = dataclasses.replace(FAST, dry_run=True)
 
 
 def drive_zip(date: str, drive: int, frames: int = 3, seed: int = 0) -> bytes:
@@ -106,7 +109,9 @@ class _Handler(BaseHTTPRequestHandler):
                 return
         body = data[start:]
         self.send_response(206 if start else 200)
-        self.send_header("Content-Length", str(len(body)))
+        length = _LENGTHS.get(mode, lambda body, head: str(len(body)))(body, head)
+        if length is not None:
+            self.send_header("Content-Length", length)
         if start:
             self.send_header("Content-Range", f"bytes {start}-{len(data) - 1}/{len(data)}")
         if mode != "no_range":
@@ -114,22 +119,50 @@ class _Handler(BaseHTTPRequestHandler):
         self.end_headers()
         if head:
             return
-        cut = (mode in ("reset_once", "truncate_once", "stall_once") and first) or mode == "always_reset"
-        if cut:
-            half = 0 if mode == "always_reset" else len(body) // 2
-            self.wfile.write(body[:half])
-            entry["sent"] = half
-            # Let the client take in what was sent before the connection dies; "stall" outlasts
-            # the client's read timeout.
-            time.sleep(1.0 if mode == "stall_once" else 0.1)
-            if mode not in ("truncate_once", "stall_once"):
-                # Linger 0: close() sends a TCP RST ("connection reset by peer"), not a clean FIN.
-                self.connection.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, struct.pack("ii", 1, 0))
-                self.connection.close()
-            self.close_connection = True
+        if (mode in ("reset_once", "truncate_once", "stall_once") and first) or mode == "always_reset":
+            self._cut(mode, body, entry)
+        elif mode in ("drip", "overlong"):
+            self._misbehave(mode, body, entry)
+        else:
+            self.wfile.write(body)
+            entry["sent"] = len(body)
+
+    def _cut(self, mode: str, body: bytes, entry: dict) -> None:
+        """Half the body (none for "always_reset"), then a reset, a clean close or a stall."""
+        half = 0 if mode == "always_reset" else len(body) // 2
+        self.wfile.write(body[:half])
+        entry["sent"] = half
+        # Let the client take in what was sent before the connection dies; "stall" outlasts
+        # the client's read timeout.
+        time.sleep(1.0 if mode == "stall_once" else 0.1)
+        if mode not in ("truncate_once", "stall_once"):
+            # Linger 0: close() sends a TCP RST ("connection reset by peer"), not a clean FIN.
+            self.connection.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, struct.pack("ii", 1, 0))
+            self.connection.close()
+        self.close_connection = True
+
+    def _misbehave(self, mode: str, body: bytes, entry: dict) -> None:
+        """ "drip": one byte every 10 ms; "overlong": the body, then 4 MiB more than HEAD said."""
+        if mode == "drip":
+            for i in range(len(body)):
+                self.wfile.write(body[i : i + 1])
+                self.wfile.flush()
+                entry["sent"] = i + 1
+                time.sleep(0.01)
             return
         self.wfile.write(body)
-        entry["sent"] = len(body)
+        for _ in range(64):
+            self.wfile.write(bytes(1 << 16))
+            entry["sent"] += 1 << 16
+
+
+# Content-Length per mode (None: no header): a number that is no byte count, none at all, or a
+# GET streamed without one after a HEAD that declared the size.
+_LENGTHS = {
+    "bad_length": lambda body, head: "\u00b2",
+    "no_length": lambda body, head: None,
+    "overlong": lambda body, head: str(len(body)) if head else None,
+}
 
 
 class _Server(ThreadingHTTPServer):
@@ -210,7 +243,7 @@ def test_unknown_url_scheme_is_a_data_error_naming_the_url(tmp_path: Path) -> No
     for url in ("ftp-ish://x/a.zip", "raw_data/a.zip", "file:///etc/passwd", "ftp://x/a.zip"):
         refused = re.escape(url) + r": not an https URL \(or http\); refusing to fetch it"
         with pytest.raises(DataError, match=refused):
-            dl.download(url, tmp_path / "a.zip", **FAST)
+            dl.download(url, tmp_path / "a.zip", FAST)
     assert list(tmp_path.iterdir()) == []
 
 
@@ -220,21 +253,22 @@ def test_unknown_url_scheme_is_a_data_error_naming_the_url(tmp_path: Path) -> No
 def test_plain_http_is_refused_without_allow_http(server: _Server, tmp_path: Path, capsys) -> None:
     """Nothing is requested and nothing written: not by download, fetch_all, its dry run or HEAD."""
     _serve_drive(server)
-    strict = {**FAST, "allow_http": False}
+    strict = dataclasses.replace(FAST, allow_http=False)
     refused = re.escape(server.url(DRIVE)) + r": plain http is refused .*data\.kitti\.allow_http: true"
     with pytest.raises(DataError, match=refused):
-        dl.download(server.url(DRIVE), tmp_path / "zips" / DRIVE, **strict)
+        dl.download(server.url(DRIVE), tmp_path / "zips" / DRIVE, strict)
     with pytest.raises(DataError, match=refused):
-        dl.remote_size(server.url(DRIVE), **{k: v for k, v in strict.items() if k != "progress"})
+        dl.remote_size(server.url(DRIVE), strict)
     zips, raw = tmp_path / "zips", tmp_path / "raw"
     for dry_run in (False, True):
         with pytest.raises(DataError, match=refused):
-            dl.fetch_all(server.base_url, [f"raw_data/{DRIVE}"], zips, raw, dry_run=dry_run, **strict)
+            options = dataclasses.replace(strict, dry_run=dry_run)
+            dl.fetch_all(server.base_url, [f"raw_data/{DRIVE}"], zips, raw, options)
     # An https base does not let an absolute http entry of the list through either.
     with pytest.raises(DataError, match=refused):
-        dl.fetch_all("https://example.org/", [server.url(DRIVE)], zips, raw, **strict)
+        dl.fetch_all("https://example.org/", [server.url(DRIVE)], zips, raw, strict)
     assert server.log == [] and list(tmp_path.iterdir()) == []
-    assert dl.download(server.url(DRIVE), tmp_path / DRIVE, **FAST).exists()  # allowed: fetched
+    assert dl.download(server.url(DRIVE), tmp_path / DRIVE, FAST).exists()  # allowed: fetched
 
 
 def test_base_url_scheme_is_checked_with_the_config(tmp_path: Path) -> None:
@@ -290,7 +324,7 @@ def test_redirects_go_through_the_no_downgrade_handler(server: _Server, tmp_path
         return real(self, req, fp, code, msg, headers, newurl)
 
     monkeypatch.setattr(dl.NoDowngradeRedirect, "redirect_request", spy)
-    assert dl.download(server.url("moved.zip"), tmp_path / DRIVE, **FAST).read_bytes() == data
+    assert dl.download(server.url("moved.zip"), tmp_path / DRIVE, FAST).read_bytes() == data
     assert seen == [(server.url("moved.zip"), server.url(DRIVE))]
 
 
@@ -427,7 +461,7 @@ def test_a_split_naming_drives_not_in_the_archive_list_is_one_line(tmp_path: Pat
 
 def test_normal_download_is_byte_identical_and_leaves_no_part(server: _Server, tmp_path: Path) -> None:
     data = _serve_drive(server)
-    dest = dl.download(server.url(DRIVE), tmp_path / DRIVE, **FAST)
+    dest = dl.download(server.url(DRIVE), tmp_path / DRIVE, FAST)
     assert dest.read_bytes() == data
     assert not (tmp_path / (DRIVE + ".part")).exists()
     assert [e["range"] for e in server.gets(DRIVE)] == [None]
@@ -438,7 +472,7 @@ def test_reset_truncated_or_stalled_transfer_resumes_with_a_range_request(
     server: _Server, tmp_path: Path, mode: str
 ) -> None:
     data = _serve_drive(server, mode)
-    dest = dl.download(server.url(DRIVE), tmp_path / DRIVE, **{**FAST, "timeout": 0.3})
+    dest = dl.download(server.url(DRIVE), tmp_path / DRIVE, dataclasses.replace(FAST, timeout=0.3))
     assert dest.read_bytes() == data
     first, second = server.gets(DRIVE)
     assert first["range"] is None and 0 < first["sent"] < len(data)
@@ -452,19 +486,19 @@ def test_404_fails_at_once_naming_the_url(server: _Server, tmp_path: Path) -> No
     _serve_drive(server, "404")
     url = server.url(DRIVE)
     with pytest.raises(DataError, match=re.escape(url) + ": HTTP 404"):
-        dl.download(url, tmp_path / DRIVE, **FAST)
+        dl.download(url, tmp_path / DRIVE, FAST)
     assert len(server.gets(DRIVE)) == 1  # no retries on a 4xx
     assert list(tmp_path.iterdir()) == []
 
 
 def test_5xx_is_retried_and_gives_up_after_the_retries(server: _Server, tmp_path: Path) -> None:
     data = _serve_drive(server, "503_once")
-    assert dl.download(server.url(DRIVE), tmp_path / DRIVE, **FAST).read_bytes() == data
+    assert dl.download(server.url(DRIVE), tmp_path / DRIVE, FAST).read_bytes() == data
     assert len(server.gets(DRIVE)) == 2
     server.modes[DRIVE], server.log[:] = "always_500", []
     with pytest.raises(DataError, match=r"download failed after 3 retries: HTTP 500"):
-        dl.download(server.url(DRIVE), tmp_path / "again.zip", **FAST)
-    assert len(server.gets(DRIVE)) == 1 + FAST["retries"]
+        dl.download(server.url(DRIVE), tmp_path / "again.zip", FAST)
+    assert len(server.gets(DRIVE)) == 1 + FAST.retries
 
 
 def test_resets_that_make_no_progress_give_up(server: _Server, tmp_path: Path) -> None:
@@ -473,8 +507,8 @@ def test_resets_that_make_no_progress_give_up(server: _Server, tmp_path: Path) -
         DataError,
         match=re.escape(server.url(DRIVE)) + ": download failed after 3 retries: ConnectionResetError",
     ):
-        dl.download(server.url(DRIVE), tmp_path / DRIVE, **FAST)
-    assert len(server.gets(DRIVE)) == 1 + FAST["retries"]
+        dl.download(server.url(DRIVE), tmp_path / DRIVE, FAST)
+    assert len(server.gets(DRIVE)) == 1 + FAST.retries
     assert not (tmp_path / DRIVE).exists()
 
 
@@ -482,7 +516,7 @@ def test_server_without_range_support_discards_the_partial_file(server: _Server,
     data = _serve_drive(server, "no_range")
     part = tmp_path / (DRIVE + ".part")
     part.write_bytes(b"\xff" * (len(data) // 2))  # a stale partial download of someone else's bytes
-    dest = dl.download(server.url(DRIVE), tmp_path / DRIVE, **FAST)
+    dest = dl.download(server.url(DRIVE), tmp_path / DRIVE, FAST)
     assert dest.read_bytes() == data  # not garbage + full body appended
     (get,) = server.gets(DRIVE)
     assert get["range"] == f"bytes={len(data) // 2}-" and get["sent"] == len(data)
@@ -493,7 +527,7 @@ def test_a_whole_part_left_by_a_killed_run_is_finished_without_refetching(
 ) -> None:
     data = _serve_drive(server)
     (tmp_path / (DRIVE + ".part")).write_bytes(data)  # killed between the last write and the rename
-    assert dl.download(server.url(DRIVE), tmp_path / DRIVE, **FAST).read_bytes() == data
+    assert dl.download(server.url(DRIVE), tmp_path / DRIVE, FAST).read_bytes() == data
     assert [e["sent"] for e in server.gets(DRIVE)] == [0]  # answered 416, nothing sent
 
 
@@ -533,7 +567,7 @@ def test_manifest_recorded_on_first_success_and_later_tamper_detected(
     data = _serve_drive(server)
     dl_dir, raw = tmp_path / "zips", tmp_path / "raw"
     names = [f"raw_data/2011_09_26_drive_0001/{DRIVE}"]
-    report = dl.fetch_all(server.base_url, names, dl_dir, raw, jobs=1, **FAST)
+    report = dl.fetch_all(server.base_url, names, dl_dir, raw, dataclasses.replace(FAST, jobs=1))
     assert (
         report["fetched"] == [DRIVE]
         and report["extracted"] == [DRIVE]
@@ -544,7 +578,7 @@ def test_manifest_recorded_on_first_success_and_later_tamper_detected(
     assert manifest[DRIVE]["size"] == len(data)
 
     # Second run: verified against the manifest, nothing downloaded or extracted again.
-    report = dl.fetch_all(server.base_url, names, dl_dir, raw, jobs=1, **FAST)
+    report = dl.fetch_all(server.base_url, names, dl_dir, raw, dataclasses.replace(FAST, jobs=1))
     assert report["skipped"] == [DRIVE] and report["fetched"] == report["extracted"] == []
     assert report["bytes_downloaded"] == 0 and len(server.gets(DRIVE)) == 1
 
@@ -553,13 +587,13 @@ def test_manifest_recorded_on_first_success_and_later_tamper_detected(
     with pytest.raises(
         dl.DownloadError, match=f"{DRIVE}: size .* sha256 .* differ from manifest.json"
     ) as err:
-        dl.fetch_all(server.base_url, names, dl_dir, raw, jobs=1, **FAST)
+        dl.fetch_all(server.base_url, names, dl_dir, raw, dataclasses.replace(FAST, jobs=1))
     assert list(err.value.report["failed"]) == [DRIVE]
     assert (dl_dir / (DRIVE + ".corrupt")).exists() and not (dl_dir / DRIVE).exists()
     assert DRIVE not in json.loads((dl_dir / "manifest.json").read_text())["archives"]
 
     # Third run fetches it again and records it again.
-    report = dl.fetch_all(server.base_url, names, dl_dir, raw, jobs=1, **FAST)
+    report = dl.fetch_all(server.base_url, names, dl_dir, raw, dataclasses.replace(FAST, jobs=1))
     assert report["fetched"] == [DRIVE] and (dl_dir / DRIVE).read_bytes() == data
     assert (
         json.loads((dl_dir / "manifest.json").read_text())["archives"][DRIVE]["sha256"]
@@ -571,7 +605,7 @@ def test_corrupted_download_is_reported_failed_and_moved_aside(server: _Server, 
     data = _serve_drive(server)
     server.files[DRIVE] = _corrupt(data)  # right length, wrong bytes: the size check cannot see it
     with pytest.raises(dl.DownloadError, match=f"{DRIVE}: member .* is corrupt") as err:
-        dl.fetch_all(server.base_url, [f"raw_data/{DRIVE}"], tmp_path / "zips", tmp_path / "raw", **FAST)
+        dl.fetch_all(server.base_url, [f"raw_data/{DRIVE}"], tmp_path / "zips", tmp_path / "raw", FAST)
     assert list(err.value.report["failed"]) == [DRIVE]
     assert (tmp_path / "zips" / (DRIVE + ".corrupt")).exists() and not (tmp_path / "zips" / DRIVE).exists()
     assert not (tmp_path / "raw").exists() or not any((tmp_path / "raw").iterdir())
@@ -754,7 +788,7 @@ def test_archive_larger_than_the_free_space_is_refused_before_writing(tmp_path: 
 def test_served_zip_bomb_is_reported_and_never_extracted(server: _Server, tmp_path: Path) -> None:
     server.files[DRIVE] = bomb_zip(tmp_path / "bomb.zip").read_bytes()
     with pytest.raises(dl.DownloadError, match=f"{DRIVE}: members declare .* a zip bomb") as err:
-        dl.fetch_all(server.base_url, [f"raw_data/{DRIVE}"], tmp_path / "zips", tmp_path / "raw", **FAST)
+        dl.fetch_all(server.base_url, [f"raw_data/{DRIVE}"], tmp_path / "zips", tmp_path / "raw", FAST)
     assert list(err.value.report["failed"]) == [DRIVE] and "moved to" in err.value.report["failed"][DRIVE]
     assert not (tmp_path / "raw").exists()
 
@@ -776,7 +810,7 @@ def test_dry_run_reports_total_size_and_downloads_nothing(server: _Server, tmp_p
     a = _serve_drive(server, name="2011_09_26_drive_0001_sync.zip", seed=1)
     b = _serve_drive(server, name="2011_09_26_drive_0002_sync.zip", seed=2)
     names = [f"raw_data/{n}" for n in server.files]
-    report = dl.fetch_all(server.base_url, names, tmp_path / "zips", tmp_path / "raw", dry_run=True, **FAST)
+    report = dl.fetch_all(server.base_url, names, tmp_path / "zips", tmp_path / "raw", DRY)
     assert report["total_bytes"] == len(a) + len(b)
     assert report["to_fetch"] == {n: len(d) for n, d in server.files.items()}
     assert {e["method"] for e in server.log} == {"HEAD"}
@@ -790,7 +824,9 @@ def test_parallel_fetch_reports_exactly_the_failing_archive(server: _Server, tmp
     _serve_drive(server, "404", name="2011_09_26_drive_0002_sync.zip", seed=2)
     names = [f"raw_data/{n}" for n in server.files]
     with pytest.raises(dl.DownloadError, match=r"1 of 3 archive\(s\) failed") as err:
-        dl.fetch_all(server.base_url, names, tmp_path / "zips", tmp_path / "raw", jobs=3, **FAST)
+        dl.fetch_all(
+            server.base_url, names, tmp_path / "zips", tmp_path / "raw", dataclasses.replace(FAST, jobs=3)
+        )
     report = err.value.report
     assert list(report["failed"]) == ["2011_09_26_drive_0002_sync.zip"]
     assert "HTTP 404" in report["failed"]["2011_09_26_drive_0002_sync.zip"]
@@ -809,9 +845,9 @@ def test_extracted_archive_deleted_to_save_space_is_not_fetched_again(
 ) -> None:
     _serve_drive(server)
     names = [f"raw_data/{DRIVE}"]
-    dl.fetch_all(server.base_url, names, tmp_path / "zips", tmp_path / "raw", **FAST)
+    dl.fetch_all(server.base_url, names, tmp_path / "zips", tmp_path / "raw", FAST)
     (tmp_path / "zips" / DRIVE).unlink()
-    report = dl.fetch_all(server.base_url, names, tmp_path / "zips", tmp_path / "raw", **FAST)
+    report = dl.fetch_all(server.base_url, names, tmp_path / "zips", tmp_path / "raw", FAST)
     assert report["skipped"] == [DRIVE] and len(server.gets(DRIVE)) == 1
 
 
@@ -836,7 +872,7 @@ def test_dry_run_states_every_archive_and_writes_nothing(server: _Server, tmp_pa
     (zips / (names[2] + ".part")).write_bytes(data[names[2]][:1000])
     before = _tree(tmp_path)
     report = dl.fetch_all(
-        server.base_url, [f"raw_data/{n}" for n in names], zips, raw, dry_run=True, label="KITTI raw", **FAST
+        server.base_url, [f"raw_data/{n}" for n in names], zips, raw, DRY, label="KITTI raw"
     )
     assert _tree(tmp_path) == before
     assert sorted((e["method"], e["name"]) for e in server.log) == [("HEAD", names[2]), ("HEAD", names[3])]
@@ -873,7 +909,11 @@ def test_connection_refused_stops_at_once_and_writes_nothing(tmp_path: Path, dry
     started = time.monotonic()
     with pytest.raises(dl.NetworkUnreachable) as err:
         dl.fetch_all(
-            base, names, tmp_path / "zips", tmp_path / "raw", dry_run=dry_run, **{**FAST, "backoff": 1}
+            base,
+            names,
+            tmp_path / "zips",
+            tmp_path / "raw",
+            dataclasses.replace(FAST, dry_run=dry_run, backoff=1),
         )
     assert time.monotonic() - started < 5
     message = str(err.value)
@@ -897,9 +937,7 @@ def test_failed_name_resolution_is_asked_once(tmp_path: Path, monkeypatch, dry_r
             names,
             tmp_path / "zips",
             tmp_path / "raw",
-            dry_run=dry_run,
-            jobs=1,
-            **FAST,
+            dataclasses.replace(FAST, dry_run=dry_run, jobs=1),
         )
     assert calls == ["kitti.invalid"] and list(tmp_path.iterdir()) == []
 
@@ -919,7 +957,9 @@ def test_unreachable_host_mid_run_stops_the_archives_not_started(server: _Server
     with pytest.MonkeyPatch.context() as mp:
         mp.setattr(dl, "_open", goes_away)
         with pytest.raises(dl.NetworkUnreachable, match=r"stopped with 0 of 8 archive\(s\) complete$"):
-            dl.fetch_all(server.base_url, names, tmp_path / "zips", tmp_path / "raw", jobs=1, **FAST)
+            dl.fetch_all(
+                server.base_url, names, tmp_path / "zips", tmp_path / "raw", dataclasses.replace(FAST, jobs=1)
+            )
     assert server.gets(DRIVE) == []
 
 
@@ -1136,7 +1176,7 @@ def test_annotated_depth_archive_unpacks_where_the_benchmark_index_looks(
             zf.writestr(name, data)
     server.files["data_depth_annotated.zip"] = buf.getvalue()
     root = tmp_path / "kitti" / "depth_annotated"
-    report = dl.fetch_all(server.base_url, ["data_depth_annotated.zip"], tmp_path / "zips", root, **FAST)
+    report = dl.fetch_all(server.base_url, ["data_depth_annotated.zip"], tmp_path / "zips", root, FAST)
     assert report["extracted"] == ["data_depth_annotated.zip"]
     assert sorted(p.name for p in root.iterdir()) == [".data_depth_annotated.zip.complete", "train", "val"]
     for (name, data), (drive, number) in zip(
@@ -1154,3 +1194,211 @@ def test_every_extra_set_has_its_list_for_the_download() -> None:
     SET_SPLITS = stage("prepare_data").SET_SPLITS
 
     assert set(SET_SPLITS) == set(SETS)
+
+
+# --------------------------------------------------------------------------- a hostile list or mirror
+
+D2, D3 = "2011_09_26_drive_0002_sync.zip", "2011_09_26_drive_0003_sync.zip"
+
+
+@pytest.mark.parametrize(
+    "entry",
+    ["?.zip", "raw_data/a.zip?v=.zip", "raw_data/a.zip#.zip", "raw_data/..", "raw_data/.zip"],
+)
+def test_an_entry_naming_no_archive_file_is_refused_before_anything_is_asked(
+    server: _Server, tmp_path: Path, entry: str
+) -> None:
+    """``raw_data/?.zip`` names no file: the download folder itself was taken for the archive,
+    failed to verify and was renamed to ``zips.corrupt`` with its manifest (``..``: its parent)."""
+    _serve_drive(server)
+    zips, raw = tmp_path / "zips", tmp_path / "raw"
+    dl.fetch_all(server.base_url, [f"raw_data/{DRIVE}"], zips, raw, FAST)
+    before, asked = _tree(tmp_path), len(server.log)
+    problem = "has a query or fragment" if "?" in entry or "#" in entry else "names no archive file"
+    for options in (FAST, DRY):
+        with pytest.raises(DataError, match=re.escape(f"archive {entry!r}: {problem}")) as err:
+            dl.fetch_all(server.base_url, [f"raw_data/{DRIVE}", entry], zips, raw, options)
+        assert "\n" not in str(err.value)
+    assert _tree(tmp_path) == before and len(server.log) == asked
+    listed = tmp_path / "list.txt"
+    listed.write_text(f"raw_data/{DRIVE}\n{entry}{'' if entry.endswith('.zip') else '/x.zip'}\n")
+    if entry.endswith(".zip"):  # the list's own check (one .zip URL per line) catches the others
+        with pytest.raises(DataError, match=re.escape(f"{listed}:2: archive {entry!r}: {problem}")):
+            dl.parse_archive_list(listed)
+
+
+def _zip(path: Path, members: dict[str, str]) -> Path:
+    with zipfile.ZipFile(path, "w") as zf:
+        for name, text in members.items():
+            zf.writestr(name, text)
+    return path
+
+
+@pytest.mark.parametrize(
+    ("member", "message"),
+    [
+        ("2011_09_26", "is a file but {raw}/2011_09_26 is a folder already"),
+        (
+            "2011_09_26/calib_cam_to_cam.txt/x",
+            "is a folder but {raw}/2011_09_26/calib_cam_to_cam.txt is a file already",
+        ),
+    ],
+)
+def test_a_member_colliding_with_what_other_archives_unpacked_is_refused(
+    tmp_path: Path, member: str, message: str
+) -> None:
+    """A file where a drive's day folder is: today the extracted drives were deleted (rmtree) while
+    their markers still said complete; a folder where a file is: the file was deleted."""
+    raw = tmp_path / "raw"
+    (tmp_path / "c.zip").write_bytes(calib_zip("2011_09_26"))
+    (tmp_path / "d.zip").write_bytes(drive_zip("2011_09_26", 1))
+    assert dl.extract(tmp_path / "d.zip", raw) and dl.extract(tmp_path / "c.zip", raw)
+    before = _tree(raw)
+    hostile = _zip(tmp_path / D2, {member: "x"})
+    colliding = "/".join(member.split("/")[:2])
+    expected = f"{hostile}: member {colliding!r} " + message.format(raw=raw) + "; refusing to extract"
+    with pytest.raises(DataError, match=re.escape(expected)):
+        dl.extract(hostile, raw)
+    assert _tree(raw) == before  # nothing removed, nothing added, no temp folder left
+
+
+@pytest.mark.parametrize("member", [f".{DRIVE}.complete", f"./.{DRIVE}.complete", f".{DRIVE}.x.tmp/a"])
+def test_a_top_level_dot_member_is_refused(server: _Server, tmp_path: Path, member: str) -> None:
+    """A member named like another archive's completion marker made that archive "skipped"."""
+    server.files[D2] = _zip(tmp_path / D2, {"2011_09_26/ok.txt": "fine", member: "{}"}).read_bytes()
+    _serve_drive(server)
+    zips, raw = tmp_path / "zips", tmp_path / "raw"
+    with pytest.raises(dl.DownloadError) as err:
+        dl.fetch_all(server.base_url, [f"raw_data/{D2}"], zips, raw, FAST)
+    assert f"member {member!r} is a top-level dot-file" in err.value.report["failed"][D2]
+    assert not raw.exists()
+    report = dl.fetch_all(server.base_url, [f"raw_data/{DRIVE}"], zips, raw, FAST)
+    assert report["fetched"] == report["extracted"] == [DRIVE]
+
+
+def test_a_content_length_that_is_no_byte_count_fails_only_its_archive(
+    server: _Server, tmp_path: Path, capsys
+) -> None:
+    """``²`` passes str.isdigit() and int() raised: the dry run ended in a traceback."""
+    _serve_drive(server)
+    _serve_drive(server, "bad_length", name=D2, seed=2)
+    zips, raw = tmp_path / "zips", tmp_path / "raw"
+    refused = f"{server.url(D2)}: the server's Content-Length '\u00b2' is not a byte count; refusing it"
+    for options in (DRY, FAST):
+        with pytest.raises(dl.DownloadError) as err:
+            dl.fetch_all(server.base_url, [f"raw_data/{DRIVE}", f"raw_data/{D2}"], zips, raw, options)
+        assert err.value.report["failed"] == {D2: refused}
+    assert err.value.report["fetched"] == [DRIVE] and not (zips / D2).exists()
+
+
+@pytest.mark.parametrize(
+    ("mode", "refused"),
+    [
+        ("overlong", "the server sent more than the {size} bytes it declared; refusing the rest"),
+        ("no_length", "the server declares no size (no Content-Length); refusing an unbounded download"),
+    ],
+)
+def test_a_body_past_or_without_a_declared_size_is_cut_off(
+    server: _Server, tmp_path: Path, mode: str, refused: str
+) -> None:
+    """A GET streamed without a length was read to its end (300 MB kept, from a probe): now it is
+    bounded by the size HEAD declared, and a size declared nowhere is refused."""
+    data = _serve_drive(server, mode)
+    zips = tmp_path / "zips"
+    with pytest.raises(dl.DownloadError) as err:
+        dl.fetch_all(server.base_url, [f"raw_data/{DRIVE}"], zips, tmp_path / "raw", FAST)
+    reason = err.value.report["failed"][DRIVE]
+    assert reason == f"{server.url(DRIVE)}: " + refused.format(size=len(data))
+    assert sorted(p.name for p in zips.iterdir()) == []  # no archive, no .part, no .corrupt
+
+
+def test_a_server_dripping_bytes_is_cut_off_below_the_minimum_rate(server: _Server, tmp_path: Path) -> None:
+    """One byte per 10 ms never trips a per-read timeout; 1000 B/s over 0.1 s windows does."""
+    server.files["2011_09_26_calib.zip"], server.modes["2011_09_26_calib.zip"] = (
+        calib_zip("2011_09_26"),
+        "drip",
+    )
+    _serve_drive(server)
+    slow = dataclasses.replace(FAST, min_rate=1000, rate_window=0.1)
+    names = ["raw_data/2011_09_26_calib.zip", f"raw_data/{DRIVE}"]
+    with pytest.raises(dl.DownloadError) as err:
+        dl.fetch_all(server.base_url, names, tmp_path / "zips", tmp_path / "raw", slow)
+    report = err.value.report
+    assert report["failed"] == {
+        "2011_09_26_calib.zip": f"{server.url('2011_09_26_calib.zip')}: download failed after 3 retries: "
+        "slower than 1000 B/s over 0.1 s"
+    }
+    assert report["fetched"] == [DRIVE]
+    assert len(server.gets("2011_09_26_calib.zip")) == 1 + slow.retries
+
+
+def test_a_redirect_off_http_or_to_an_unreachable_host_fails_only_its_archive(
+    server: _Server, tmp_path: Path
+) -> None:
+    """With allow_http, a redirect to ftp:// was followed, and its refused connection was taken
+    for the mirror being unreachable: NetworkUnreachable stopped every archive."""
+    _serve_drive(server)
+    port = _closed_port()
+    server.redirects[D2] = f"ftp://127.0.0.1:{port}/x.zip"
+    server.redirects[D3] = f"http://127.0.0.1:{port}/x.zip"
+    names = [f"raw_data/{n}" for n in (DRIVE, D2, D3)]
+    for options in (DRY, FAST):
+        with pytest.raises(dl.DownloadError) as err:
+            dl.fetch_all(server.base_url, names, tmp_path / "zips", tmp_path / "raw", options)
+        failed = err.value.report["failed"]
+        assert failed[D2] == (
+            f"{server.url(D2)}: redirected to ftp://127.0.0.1:{port}/x.zip, which is not an http(s) URL; "
+            "refusing to follow it"
+        )
+        assert failed[D3].startswith(
+            f"{server.url(D3)}: redirected to http://127.0.0.1:{port}/x.zip, which cannot be reached "
+            "(ConnectionRefusedError"
+        )
+        assert sorted(failed) == [D2, D3]
+    assert err.value.report["fetched"] == [DRIVE]
+
+
+def test_same_day_archives_finishing_together_both_land(tmp_path: Path, monkeypatch) -> None:
+    """Both threads found no day folder, then both moved theirs in: ENOTEMPTY for the second.
+
+    Each move of a day folder waits (up to 1 s) until the other thread reaches its own, which is
+    exactly the interleaving that failed; a move that cannot be reached meanwhile passes alone.
+    """
+    for i in (1, 2):
+        (tmp_path / f"d{i}.zip").write_bytes(drive_zip("2011_09_26", i, frames=1))
+    real = {"replace": os.replace, "rename": os.rename}
+    both = threading.Barrier(2, timeout=1.0)
+
+    def meeting(kind: str):
+        def move(src, dst, *args, **kwargs):
+            if Path(dst).name == "2011_09_26" and str(src).endswith(".tmp/2011_09_26"):
+                try:
+                    both.wait()
+                except threading.BrokenBarrierError:
+                    pass
+            return real[kind](src, dst, *args, **kwargs)
+
+        return move
+
+    for kind in real:
+        monkeypatch.setattr(os, kind, meeting(kind))
+    raw, errors = tmp_path / "raw", []
+
+    def unpack(i: int) -> None:
+        try:
+            dl.extract(tmp_path / f"d{i}.zip", raw)
+        except DataError as exc:
+            errors.append(str(exc))
+
+    threads = [threading.Thread(target=unpack, args=(i,)) for i in (1, 2)]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join()
+    assert errors == []
+    day = raw / "2011_09_26"
+    assert sorted(p.name for p in day.iterdir()) == [
+        "2011_09_26_drive_0001_sync",
+        "2011_09_26_drive_0002_sync",
+    ]
+    assert sorted(p.name for p in raw.iterdir()) == [".d1.zip.complete", ".d2.zip.complete", "2011_09_26"]

@@ -6,18 +6,24 @@ restarts without starting over, and a killed run must never leave something that
 takes for complete:
 
 - :func:`download` streams to ``<archive>.part`` and resumes it with an HTTP ``Range`` request;
-  the final name appears only when the size is right.
+  the final name appears only when the size is right. The size is declared (HEAD and GET must
+  agree), nothing past it is kept, and an attempt slower than :data:`MIN_RATE` is cut off.
 - :func:`verify_zip` reads every member (CRC check); ``manifest.json`` in the download folder
   records the sha256 of each archive once verified, and later runs compare against it.
 - :func:`extract` unpacks into a temp folder beside the destination, moves it into place and
-  writes a completion marker last.
+  writes a completion marker last. A member that would replace a folder by a file (or a file by
+  a folder) that is already there, from another archive, is refused.
 - Only https is fetched unless plain http is allowed (``allow_http``, for a trusted mirror), and a
-  redirect never leaves https. Before anything is unpacked, every member is checked: no path
-  outside the destination, no symlink or device, and the declared sizes must fit the disk and
-  stay within :data:`MAX_EXPANSION` times the archive (a zip bomb is refused undecompressed).
-- :func:`fetch_all` does all of that for many archives in parallel and reports per archive. A
-  host that cannot be reached at all (no name resolution, connection refused, no route) is not
-  retried: the first such error stops every archive with one line (:class:`NetworkUnreachable`).
+  redirect never leaves https, nor goes to another scheme. Each entry must name a plain ``<name>.zip``.
+  Before anything is unpacked, every member is checked: no path outside the destination, no
+  dot-name at the top (where completion markers live), no symlink or device, and the declared
+  sizes must fit the disk and stay within :data:`MAX_EXPANSION` times the archive (a zip bomb
+  is refused undecompressed).
+- :func:`fetch_all` does all of that for many archives in parallel and reports per archive:
+  :func:`plan` checks the list, then :func:`fetch` or :func:`dry_run` runs it, all with one
+  :class:`FetchOptions`. A host that cannot be reached at all (no name resolution, connection
+  refused, no route) is not retried: the first such error stops every archive with one line
+  (:class:`NetworkUnreachable`).
 - :func:`select_needed` picks the archives that the chosen split lists need (their drives and
   those days' calibration archives), :func:`select_archives` a count or named drives of a list.
 
@@ -71,6 +77,12 @@ USER_AGENT = "msdepth-kitti-download"
 # anything below it. zipfile never writes more than a member's declared size (it cuts the output
 # there and checks the CRC), so the declared sizes are what extraction can write.
 MAX_EXPANSION = 100
+# An attempt that brings fewer than MIN_RATE bytes/s over RATE_WINDOW_S seconds is cut off and
+# counts as a failed retry even though it made progress: a server dripping bytes (or a stalled
+# link) never trips the per-read timeout. 10 KiB/s is ~1/1000 of a home link; a 4 GB archive
+# at that rate would still take 5 days. Lower FetchOptions.min_rate for a slower link.
+MIN_RATE = 10 * 1024
+RATE_WINDOW_S = 60.0
 
 # Errors worth another try: the network or the server, not the request. HTTPError (a subclass of
 # URLError) is sorted by status in _open before it can reach this tuple.
@@ -93,6 +105,10 @@ class _Transient(Exception):
     """A failed attempt worth retrying (5xx, short read, inconsistent range answer)."""
 
 
+class _TooSlow(_Transient):
+    """An attempt below the minimum rate: retried, but counted as a failure even with progress."""
+
+
 class NetworkUnreachable(DataError):
     """The server cannot be reached at all (name resolution failed, connection refused, no route):
     not retried, and it stops :func:`fetch_all` as a whole."""
@@ -110,6 +126,30 @@ class DownloadError(DataError):
     def __init__(self, message: str, report: dict[str, Any]) -> None:
         super().__init__(message)
         self.report = report
+
+
+@dataclass(frozen=True)
+class FetchOptions:
+    """How archives are fetched: one object, shared by every :func:`fetch_all` call of a run.
+
+    ``jobs`` archives at a time; ``dry_run`` writes nothing (:func:`dry_run`); ``jpeg`` converts
+    the PNGs on extraction (:func:`extract`); ``progress`` shows bars; ``retries``, ``backoff``
+    (seconds, doubled per retry) and ``timeout`` (seconds per read) as :func:`download` uses them;
+    an attempt slower than ``min_rate`` bytes/s over ``rate_window`` seconds is cut off (see
+    :data:`MIN_RATE`); ``allow_http`` lets plain http through, for a mirror you trust
+    (:func:`check_url`).
+    """
+
+    jobs: int = 4
+    dry_run: bool = False
+    jpeg: bool = False
+    progress: bool = True
+    retries: int = 5
+    backoff: float = 1.0
+    timeout: float = 30.0
+    min_rate: float = MIN_RATE
+    rate_window: float = RATE_WINDOW_S
+    allow_http: bool = False
 
 
 # --------------------------------------------------------------------------- archive lists
@@ -138,6 +178,9 @@ def parse_archive_list(path: str | os.PathLike) -> list[str]:
             )
         if entry.startswith(KITTI_BASE_URL):
             entry = entry[len(KITTI_BASE_URL) :]
+        problem = _entry_problem(entry)
+        if problem:
+            raise DataError(f"{path}:{number}: archive {entry!r}: {problem}")
         name = archive_filename(entry)
         if name in seen:
             # Two entries would download to the same file, concurrently.
@@ -152,6 +195,22 @@ def parse_archive_list(path: str | os.PathLike) -> list[str]:
 def archive_filename(name: str) -> str:
     """The file name an archive entry downloads to (last component of its URL path)."""
     return PurePosixPath(urllib.parse.urlsplit(name).path).name
+
+
+def _entry_problem(entry: str) -> str | None:
+    """Why ``entry`` of an archive list cannot be fetched safely, or None.
+
+    Its file name is what the download folder, the manifest and the completion marker are keyed
+    by, so it must be a plain ``<name>.zip``: not empty, ``.`` or ``..`` (which would name the
+    download folder or its parent), not a dot-file, and not hidden behind a query or fragment
+    (``x/?.zip`` ends in ``.zip`` but names the folder ``x/``).
+    """
+    if "?" in entry or "#" in entry:
+        return "has a query or fragment ('?' or '#'); list the archive's own URL"
+    name = archive_filename(entry)
+    if name.startswith(".") or not name.endswith(".zip"):
+        return "names no archive file (the URL path must end in <name>.zip)"
+    return None
 
 
 def _date_of(filename: str) -> str:
@@ -352,18 +411,27 @@ def check_url(url: str, allow_http: bool = False) -> None:
 
 
 class NoDowngradeRedirect(urllib.request.HTTPRedirectHandler):
-    """Follow redirects, except from https to anything else: a redirect must not undo the https
-    check, which applies to the URL that is actually requested."""
+    """Follow redirects to http(s) URLs with a host, never from https to anything else: a
+    redirect must not undo the https check, which applies to the URL that is actually requested,
+    nor lead to another scheme (urllib would follow one to ``ftp://``). ``followed`` keeps the
+    last target, so that an unreachable one is reported as the redirect's fault, not the mirror's.
+    """
+
+    followed = ""
 
     def redirect_request(self, req, fp, code, msg, headers, newurl):  # noqa: ANN001 - urllib's signature
-        if (
-            urllib.parse.urlsplit(req.full_url).scheme.lower() == "https"
-            and urllib.parse.urlsplit(newurl).scheme.lower() != "https"
-        ):
+        old, new = urllib.parse.urlsplit(req.full_url), urllib.parse.urlsplit(newurl)
+        problem = None
+        if old.scheme.lower() == "https" and new.scheme.lower() != "https":
+            problem = "which is not https; refusing the downgrade"
+        elif new.scheme.lower() not in ("http", "https"):
+            problem = "which is not an http(s) URL; refusing to follow it"
+        elif not new.hostname:
+            problem = "which names no host; refusing to follow it"
+        if problem:
             fp.close()
-            raise DataError(
-                f"{req.full_url}: redirected to {newurl}, which is not https; refusing the downgrade"
-            )
+            raise DataError(f"{req.full_url}: redirected to {newurl}, {problem}")
+        self.followed = newurl
         return super().redirect_request(req, fp, code, msg, headers, newurl)
 
 
@@ -373,16 +441,18 @@ def _open(
     """Send one request; return the response, or raise DataError (permanent) / _Transient.
 
     A 416 (range past the end) is returned like a response: the caller decides what it means.
-    A URL that :func:`check_url` refuses, or a redirect from https to http, is a DataError.
+    A URL that :func:`check_url` refuses, a redirect that :class:`NoDowngradeRedirect` refuses,
+    or a redirect to a host that cannot be reached, is a DataError (that archive's alone).
     """
     check_url(url, allow_http)
     headers = {"User-Agent": USER_AGENT}
     if offset:
         headers["Range"] = f"bytes={offset}-"
+    redirects = NoDowngradeRedirect()
     try:
         # build_opener puts the handler in place of urllib's default redirect handler; the rest
         # (proxies from the environment, TLS verification) is what urlopen uses.
-        opener = urllib.request.build_opener(NoDowngradeRedirect)
+        opener = urllib.request.build_opener(redirects)
         return opener.open(urllib.request.Request(url, method=method, headers=headers), timeout=timeout)
     except urllib.error.HTTPError as exc:
         if exc.code == 416:
@@ -394,6 +464,10 @@ def _open(
     except urllib.error.URLError as exc:
         # A socket-level reason (reset, timeout) may pass; a plain message such as "unknown url
         # type" is a typo in the list or the base URL and will not, nor will an unreachable host.
+        if _unreachable(exc.reason) and redirects.followed:
+            raise DataError(
+                f"{url}: redirected to {redirects.followed}, which cannot be reached ({_describe(exc)})"
+            ) from None
         if _unreachable(exc.reason):
             host = urllib.parse.urlsplit(url).hostname
             raise NetworkUnreachable(
@@ -408,15 +482,22 @@ def _open(
 
 def _content_range(value: str | None) -> tuple[int | None, int | None]:
     """``bytes 100-199/200`` -> (100, 200); ``bytes */200`` -> (None, 200); unknown parts None."""
-    match = re.fullmatch(r"\s*bytes\s+(?:(\d+)-\d+|\*)/(\d+|\*)\s*", value or "")
+    # ASCII digits only, at most 20 (int() takes other Unicode digits, and refuses 4,300 of them).
+    match = re.fullmatch(r"\s*bytes\s+(?:([0-9]{1,20})-[0-9]{1,20}|\*)/([0-9]{1,20}|\*)\s*", value or "")
     if not match:
         return None, None
     start, total = match.groups()
     return (int(start) if start else None), (int(total) if total and total != "*" else None)
 
 
-def _int_header(value: str | None) -> int | None:
-    return int(value) if value and value.strip().isdigit() else None
+def _int_header(url: str, value: str | None, name: str = "Content-Length") -> int | None:
+    """Header ``name``'s byte count, None if absent; DataError if it is anything but ASCII digits
+    (``²`` passes str.isdigit(), and int() then raises)."""
+    if value is None or not value.strip():
+        return None
+    if not re.fullmatch(r"[0-9]{1,20}", value.strip()):
+        raise DataError(f"{url}: the server's {name} {value[:40]!r} is not a byte count; refusing it")
+    return int(value)
 
 
 def _size(path: Path) -> int:
@@ -426,119 +507,190 @@ def _size(path: Path) -> int:
         return 0
 
 
-def _attempt(
-    url: str, part: Path, timeout: float, bar: tqdm, on_bytes: Callable[[int], None] | None, allow_http: bool
-) -> int | None:
-    """One GET, resuming ``part`` where it ends. Returns the total size if the server said it.
+class _Overlong(DataError):
+    """The server sent more than the size it declared: the download is refused, not retried."""
 
-    Raises _Transient (or a network error) when the transfer should be retried from where it is.
+
+def _attempt(
+    url: str,
+    part: Path,
+    expected: int | None,
+    options: FetchOptions,
+    bar: tqdm,
+    on_bytes: Callable[[int], None] | None,
+) -> int:
+    """One GET, resuming ``part`` where it ends; returns the file's size.
+
+    The size is the one the answer declares (Content-Length of a 200, Content-Range of a 206),
+    which must agree with ``expected`` (HEAD's) where both are known; one of them must be, and
+    no byte past it is kept. Raises _Transient (or a network error) when the transfer should be
+    retried from where it is, DataError when the server contradicts itself, declares no size or
+    sends more than it declared (the ``.part`` is then removed).
     """
     offset = _size(part)
-    response = _open(url, timeout, offset=offset, allow_http=allow_http)
+    response = _open(url, options.timeout, offset=offset, allow_http=options.allow_http)
     with response:
         if response.status == 416:
-            # Nothing left past ``offset``: either the .part is already whole (a run killed between
-            # the last write and the rename) or it is longer than the file; start over then.
-            _, total = _content_range(response.headers.get("Content-Range"))
-            if total is not None and total == offset:
-                return total
-            part.write_bytes(b"")
-            raise _Transient(f"range {offset}- not satisfiable (size {total}); restarting from 0")
-        if response.status == 206:
-            start, total = _content_range(response.headers.get("Content-Range"))
-            if start != offset:
-                part.write_bytes(b"")
-                raise _Transient(
-                    f"asked for bytes {offset}-, got a range starting at {start}; restarting from 0"
-                )
-            mode = "ab"
-        else:
-            # 200: the server ignored the Range header and sends the whole file. Appending it to
-            # the partial file would corrupt it, so start again from byte 0.
-            offset, mode = 0, "wb"
-            total = _int_header(response.headers.get("Content-Length"))
+            return _whole(response, part, offset, expected)
+        offset, mode, declared = _start(url, response, part, offset)
+        total = _agreed_size(url, declared, expected)
         bar.reset(total=total)
         bar.update(offset)
-        with open(part, mode) as out:
-            while True:
-                # read1 hands over what has arrived, so bytes received before a reset are kept
-                # (read() would loop for the full chunk and lose them with the exception).
-                # Network errors propagate to download()'s retry loop.
-                chunk = response.read1(CHUNK_SIZE)
-                if not chunk:
-                    break
-                out.write(chunk)
-                bar.update(len(chunk))
-                if on_bytes is not None:
-                    on_bytes(len(chunk))
-            out.flush()
-            os.fsync(out.fileno())  # the rename that follows must not publish unwritten bytes
+        try:
+            with open(part, mode) as out:
+                _copy(url, response, out, offset, total, options, bar, on_bytes)
+                out.flush()
+                os.fsync(out.fileno())  # the rename that follows must not publish unwritten bytes
+        except _Overlong:
+            part.unlink(missing_ok=True)
+            raise
     received = _size(part)
-    if total is not None and received != total:
-        if received > total:
-            part.write_bytes(b"")
+    if received != total:
         # http.client returns b"" rather than raising when the peer closes before Content-Length.
         raise _Transient(f"short read: have {received} of {total} bytes")
     return total
 
 
+def _whole(response: urllib.error.HTTPError, part: Path, offset: int, expected: int | None) -> int:
+    """A 416 (nothing past ``offset``): ``part`` is whole (a run killed between its last write and
+    the rename), or longer than the file, and then it starts over from 0."""
+    _, declared = _content_range(response.headers.get("Content-Range"))
+    total = declared if declared is not None else expected
+    if total is not None and total == offset and expected in (None, total):
+        return total
+    part.write_bytes(b"")
+    raise _Transient(f"range {offset}- not satisfiable (size {total}); restarting from 0")
+
+
+def _start(url: str, response: Any, part: Path, offset: int) -> tuple[int, str, int | None]:
+    """Where a 200 or 206 answer's body goes: (its offset in ``part``, file mode, declared size)."""
+    if response.status == 206:
+        start, total = _content_range(response.headers.get("Content-Range"))
+        if start != offset:
+            part.write_bytes(b"")
+            raise _Transient(f"asked for bytes {offset}-, got a range starting at {start}; restarting from 0")
+        return offset, "ab", total
+    # 200: the server ignored the Range header and sends the whole file. Appending it to the
+    # partial file would corrupt it, so start again from byte 0.
+    return 0, "wb", _int_header(url, response.headers.get("Content-Length"))
+
+
+def _agreed_size(url: str, declared: int | None, expected: int | None) -> int:
+    """The size a download stops at: the answer's, which must be HEAD's (``expected``) if both
+    are known. Neither known is refused: a stream without a length would never be cut off."""
+    if declared is not None and expected is not None and declared != expected:
+        raise DataError(f"{url}: the server declares {declared} bytes, its HEAD said {expected}; refusing it")
+    if declared is None and expected is None:
+        raise DataError(
+            f"{url}: the server declares no size (no Content-Length); refusing an unbounded download"
+        )
+    return declared if declared is not None else expected
+
+
+def _copy(
+    url: str,
+    response: Any,
+    out: Any,
+    offset: int,
+    total: int,
+    options: FetchOptions,
+    bar: tqdm,
+    on_bytes: Callable[[int], None] | None,
+) -> None:
+    """Copy the body into ``out`` (which holds ``offset`` bytes) up to ``total`` bytes: more is
+    _Overlong; fewer than ``options.min_rate`` bytes/s over a ``rate_window`` is _TooSlow."""
+    room, window_start, window_bytes = total - offset, time.monotonic(), 0
+    while True:
+        # read1 hands over what has arrived, so bytes received before a reset are kept (read()
+        # would loop for the full chunk and lose them with the exception). Network errors
+        # propagate to download()'s retry loop.
+        chunk = response.read1(CHUNK_SIZE)
+        if not chunk:
+            return
+        if len(chunk) > room:
+            raise _Overlong(
+                f"{url}: the server sent more than the {total} bytes it declared; refusing the rest"
+            )
+        room -= len(chunk)
+        out.write(chunk)
+        bar.update(len(chunk))
+        if on_bytes is not None:
+            on_bytes(len(chunk))
+        window_bytes += len(chunk)
+        elapsed = time.monotonic() - window_start
+        if elapsed >= options.rate_window:
+            if window_bytes < options.min_rate * elapsed:
+                raise _TooSlow(f"slower than {options.min_rate:g} B/s over {options.rate_window:g} s")
+            window_start, window_bytes = time.monotonic(), 0
+
+
 def download(
     url: str,
     dest: Path,
+    options: FetchOptions = FetchOptions(),
     *,
-    retries: int = 5,
-    backoff: float = 1.0,
-    timeout: float = 30,
-    progress: bool = True,
     expected_size: int | None = None,
     on_bytes: Callable[[int], None] | None = None,
-    allow_http: bool = False,
 ) -> Path:
     """Fetch ``url`` to ``dest``, resuming ``dest.part`` across failures; return ``dest``.
 
     Connection errors, resets, timeouts, 5xx and short reads are retried with exponential
-    back-off, each time resuming with a ``Range`` request; ``retries`` bounds the consecutive
-    attempts that brought no new bytes (an attempt that made progress resets the count, so a long
-    download over a flaky link is not abandoned for having been interrupted often). 4xx answers
-    fail at once. The size is checked against Content-Length / Content-Range (and
-    ``expected_size`` if given) before ``.part`` is renamed to ``dest``. An existing ``dest`` is
-    taken as complete, since only a complete file is ever renamed to it. ``on_bytes`` is called
+    back-off, each time resuming with a ``Range`` request; ``options.retries`` bounds the
+    consecutive attempts that brought no new bytes (an attempt that made progress resets the
+    count, so a long download over a flaky link is not abandoned for having been interrupted
+    often), or that were cut off below ``options.min_rate``. 4xx answers fail at once.
+
+    The size is the one the server declares (Content-Length / Content-Range), which must equal
+    ``expected_size`` (HEAD's, as :func:`fetch` passes it) if given; a download whose size
+    neither gives is refused, and nothing past the size is kept. Only a complete ``.part`` is
+    renamed to ``dest``, so an existing ``dest`` is taken as complete. ``on_bytes`` is called
     with each chunk's length (for an overall count). Only https is fetched, http too with
-    ``allow_http`` (:func:`check_url`); nothing is written for a refused URL.
+    ``options.allow_http`` (:func:`check_url`); nothing is written for a refused URL.
     """
     dest = Path(dest)
     if dest.exists():
         return dest
-    check_url(url, allow_http)
+    check_url(url, options.allow_http)
     dest.parent.mkdir(parents=True, exist_ok=True)
     part = dest.with_suffix(dest.suffix + ".part")
-    failures = 0
     with tqdm(
-        desc=dest.name, unit="B", unit_scale=True, unit_divisor=1024, leave=False, disable=not progress
+        desc=dest.name,
+        unit="B",
+        unit_scale=True,
+        unit_divisor=1024,
+        leave=False,
+        disable=not options.progress,
     ) as bar:
-        while True:
-            before = _size(part)
-            try:
-                total = _attempt(url, part, timeout, bar, on_bytes, allow_http)
-                break
-            except (_Transient, *_TRANSIENT_ERRORS) as exc:
-                failures = 0 if _size(part) > before else failures + 1
-                if failures > retries:
-                    raise DataError(
-                        f"{url}: download failed after {retries} retries: {_describe(exc)}"
-                    ) from None
-                time.sleep(min(backoff * 2 ** max(failures - 1, 0), MAX_BACKOFF_S))
-            except OSError as exc:  # the local side: disk full, permissions
-                raise DataError(f"{part}: cannot write the download of {url} ({exc})") from None
-    size = _size(part)
-    if expected_size is not None and size != expected_size:
-        part.unlink()
-        raise DataError(
-            f"{url}: downloaded {size} bytes, expected {expected_size}"
-            f"{'' if total is None else f' (server said {total})'}"
-        )
+        _retrying(url, part, expected_size, options, bar, on_bytes)
     os.replace(part, dest)
     return dest
+
+
+def _retrying(
+    url: str,
+    part: Path,
+    expected: int | None,
+    options: FetchOptions,
+    bar: tqdm,
+    on_bytes: Callable[[int], None] | None,
+) -> None:
+    """:func:`_attempt` until ``part`` is complete, with back-off, or a DataError."""
+    failures = 0
+    while True:
+        before = _size(part)
+        try:
+            _attempt(url, part, expected, options, bar, on_bytes)
+            return
+        except (_Transient, *_TRANSIENT_ERRORS) as exc:
+            progressed = _size(part) > before and not isinstance(exc, _TooSlow)
+            failures = 0 if progressed else failures + 1
+            if failures > options.retries:
+                raise DataError(
+                    f"{url}: download failed after {options.retries} retries: {_describe(exc)}"
+                ) from None
+            time.sleep(min(options.backoff * 2 ** max(failures - 1, 0), MAX_BACKOFF_S))
+        except OSError as exc:  # the local side: disk full, permissions
+            raise DataError(f"{part}: cannot write the download of {url} ({exc})") from None
 
 
 def _describe(exc: BaseException) -> str:
@@ -547,18 +699,18 @@ def _describe(exc: BaseException) -> str:
     return f"{type(exc).__name__}: {exc}" if not isinstance(exc, _Transient) else str(exc)
 
 
-def remote_size(
-    url: str, *, retries: int = 5, backoff: float = 1.0, timeout: float = 30, allow_http: bool = False
-) -> int | None:
+def remote_size(url: str, options: FetchOptions = FetchOptions()) -> int | None:
     """Content-Length of ``url`` from a HEAD request (None if the server does not say)."""
-    for attempt in range(retries + 1):
+    for attempt in range(options.retries + 1):
         try:
-            with _open(url, timeout, method="HEAD", allow_http=allow_http) as response:
-                return _int_header(response.headers.get("Content-Length"))
+            with _open(url, options.timeout, method="HEAD", allow_http=options.allow_http) as response:
+                return _int_header(url, response.headers.get("Content-Length"))
         except (_Transient, *_TRANSIENT_ERRORS) as exc:
-            if attempt == retries:
-                raise DataError(f"{url}: HEAD failed after {retries} retries: {_describe(exc)}") from None
-            time.sleep(min(backoff * 2**attempt, MAX_BACKOFF_S))
+            if attempt == options.retries:
+                raise DataError(
+                    f"{url}: HEAD failed after {options.retries} retries: {_describe(exc)}"
+                ) from None
+            time.sleep(min(options.backoff * 2**attempt, MAX_BACKOFF_S))
     raise AssertionError("unreachable")
 
 
@@ -635,6 +787,8 @@ class Manifest:
 
 def _set_aside(path: Path) -> Path:
     """Move a bad archive to ``<name>.corrupt`` (kept for inspection) so the next run refetches it."""
+    if not path.is_file() or path.is_symlink():  # only what download() wrote: never a folder
+        raise DataError(f"{path}: not a downloaded archive (a folder or link?); leaving it alone")
     corrupt = path.with_name(path.name + ".corrupt")
     os.replace(path, corrupt)
     return corrupt
@@ -677,8 +831,10 @@ def check_members(zf: zipfile.ZipFile, zip_path: Path) -> int:
     """Refuse an archive with a member that must not be unpacked; return the declared total size.
 
     Refused: a path outside the destination (``..``, absolute, a drive letter or a leading
-    backslash: zip-slip), a symbolic link, device, fifo or socket (the Unix mode in the high bits
-    of ``external_attr``), and declared sizes above :data:`MAX_EXPANSION` times the archive's.
+    backslash: zip-slip), a dot-name at the top (it could forge another archive's completion
+    marker, ``.<archive>.complete``, or meet a temp folder), a symbolic link, device, fifo or
+    socket (the Unix mode in the high bits of ``external_attr``), and declared sizes above
+    :data:`MAX_EXPANSION` times the archive's.
     """
     total = 0
     for info in zf.infolist():
@@ -687,6 +843,12 @@ def check_members(zf: zipfile.ZipFile, zip_path: Path) -> int:
         if name.startswith(("/", "\\")) or re.match(r"^[A-Za-z]:", name) or ".." in parts:
             raise DataError(
                 f"{zip_path}: member {name!r} points outside the extraction folder; refusing to extract"
+            )
+        top = next((p for p in parts if p not in ("", ".")), "")  # zipfile drops "" and "." parts
+        if top.startswith("."):
+            raise DataError(
+                f"{zip_path}: member {name!r} is a top-level dot-file (completion markers and temp "
+                "folders are named so); refusing to extract"
             )
         kind = stat.S_IFMT(info.external_attr >> 16)
         if kind not in (0, stat.S_IFREG, stat.S_IFDIR):  # 0: no Unix mode (e.g. written on Windows)
@@ -733,19 +895,65 @@ def _to_jpeg(root: Path, quality: int) -> None:
         png.unlink()
 
 
-def _move_into(src: Path, dst: Path) -> None:
-    """Move the tree ``src`` into ``dst``: a folder new to ``dst`` appears by one atomic rename;
-    one that exists already (a day folder shared by several archives) is merged into."""
+# One extraction at a time moves its tree into place, so that the check for collisions and the
+# moves see the same tree: two same-day archives finishing together both found no day folder and
+# both renamed theirs there (ENOTEMPTY / EISDIR for the second, 2 of 40 trials).
+_MOVE_LOCK = threading.Lock()
+
+
+def _publish(zip_path: Path, tmp: Path, dest_dir: Path) -> None:
+    """Move the extracted tree ``tmp`` into ``dest_dir``, unless a member would replace a folder
+    with a file or a file with a folder there: that is another archive's, and refused whole."""
+    with _MOVE_LOCK:
+        collision = _collision(tmp, dest_dir, tmp)
+        if collision:
+            raise DataError(f"{zip_path}: {collision}; refusing to extract")
+        _move_into(tmp, dest_dir)
+
+
+def _collision(src: Path, dst: Path, root: Path) -> str | None:
+    """The first entry of ``src`` whose kind (file or folder) differs from what ``dst`` holds in
+    its place, described from ``root``; None if there is none."""
     for entry in sorted(src.iterdir()):
         target = dst / entry.name
-        if entry.is_dir() and target.is_dir():
-            _move_into(entry, target)
+        if not (target.exists() or target.is_symlink()):
             continue
-        if target.is_dir() and not target.is_symlink():
-            shutil.rmtree(target)
-        elif entry.is_dir() and (target.exists() or target.is_symlink()):
-            target.unlink()  # os.replace cannot put a folder over a file
-        os.replace(entry, target)
+        member = entry.relative_to(root).as_posix()
+        if entry.is_dir() and target.is_dir():
+            found = _collision(entry, target, root)
+            if found:
+                return found
+        elif entry.is_dir():
+            return f"member {member!r} is a folder but {target} is a file already"
+        elif target.is_dir():
+            return f"member {member!r} is a file but {target} is a folder already"
+    return None
+
+
+def _move_into(src: Path, dst: Path) -> None:
+    """Move the tree ``src`` into ``dst``: a folder new to ``dst`` appears by one atomic rename;
+    one that exists already (a day folder shared by several archives) is merged into, also one
+    that appeared since it was looked at. A file replaces the file of the same name (the same
+    archive extracted again)."""
+    for entry in sorted(src.iterdir()):
+        target = dst / entry.name
+        if entry.is_dir():
+            if not target.is_dir() and _renamed(entry, target):
+                continue
+            _move_into(entry, target)
+        else:
+            os.replace(entry, target)
+
+
+def _renamed(src: Path, dst: Path) -> bool:
+    """Rename the folder ``src`` to ``dst``; False if ``dst`` is a folder with something in it."""
+    try:
+        os.rename(src, dst)
+    except OSError as exc:
+        if exc.errno in (errno.ENOTEMPTY, errno.EEXIST):
+            return False
+        raise
+    return True
 
 
 def extract(
@@ -763,7 +971,9 @@ def extract(
     are converted to JPEG (``jpeg_quality``) before anything is moved into place.
 
     Nothing at all is written (not even ``dest_dir``) for an archive that :func:`check_members`
-    refuses or whose declared size exceeds the free space at ``dest_dir``.
+    refuses or whose declared size exceeds the free space at ``dest_dir``, and nothing is moved
+    into place for one with a member that would replace a folder by a file or a file by a folder
+    (:func:`_publish`): that is another archive's, whose marker would still say complete.
     """
     zip_path, dest_dir = Path(zip_path), Path(dest_dir)
     marker = _marker(zip_path, dest_dir)
@@ -789,7 +999,7 @@ def extract(
                     raise DataError(f"{zip_path}: member {info.filename} is corrupt ({exc})") from None
             if jpeg:
                 _to_jpeg(tmp, jpeg_quality)
-            _move_into(tmp, dest_dir)
+            _publish(zip_path, tmp, dest_dir)
             write_json(marker, {"archive": zip_path.name, "members": len(members), "jpeg": jpeg})
         except OSError as exc:  # disk full, permissions: name the archive, not just a member path
             raise DataError(f"{zip_path}: extraction into {dest_dir} failed ({exc})") from None
@@ -802,134 +1012,111 @@ def extract(
 # --------------------------------------------------------------------------- everything
 
 
-def fetch_all(
+@dataclass(frozen=True)
+class Plan:
+    """What one :func:`fetch_all` call fetches (:func:`plan`): archive file name -> URL, the
+    folders the archives and their contents go to, and the dry run's headings."""
+
+    urls: dict[str, str]
+    download_dir: Path
+    extract_dir: Path
+    label: str = ""  # heads the dry run's total line, e.g. "KITTI raw"
+    header: str = ""  # printed before the dry run's lines, e.g. how the archives were chosen
+
+    def archive(self, name: str) -> Path:
+        """Where archive ``name`` is downloaded to."""
+        return self.download_dir / name
+
+    def marker(self, name: str) -> Path:
+        """The completion marker :func:`extract` writes for archive ``name``."""
+        return _marker(self.archive(name), self.extract_dir)
+
+
+def plan(
     base_url: str,
     names: Sequence[str],
     download_dir: str | os.PathLike,
     extract_dir: str | os.PathLike,
     *,
-    jobs: int = 4,
-    dry_run: bool = False,
-    jpeg: bool = False,
-    progress: bool = True,
-    retries: int = 5,
-    backoff: float = 1.0,
-    timeout: float = 30,
     allow_http: bool = False,
     label: str = "",
     header: str = "",
-) -> dict[str, Any]:
-    """Download, verify and extract the archives ``names`` (URL paths relative to ``base_url``,
-    as :func:`parse_archive_list` returns them; absolute URLs are used as they are).
+) -> Plan:
+    """Resolve ``names`` (URL paths relative to ``base_url``, as :func:`parse_archive_list`
+    returns them; absolute URLs are used as they are) and check them before anything is fetched.
 
-    Runs ``jobs`` archives at a time. An archive already downloaded and matching the manifest is
-    not fetched again; one already extracted is not extracted again. One archive's failure does
-    not stop the others; at the end a :class:`DownloadError` (a DataError) lists the failures and
-    carries the report. The report: ``fetched``, ``skipped`` (already there and verified),
-    ``extracted``, ``failed`` (name -> reason), ``bytes_downloaded``.
-
-    A host that cannot be reached at all stops everything with one :class:`NetworkUnreachable`:
-    before anything is written when there is something to fetch (one HEAD request probes the
-    host first), or at the first such error later (the network went away mid-run).
-
-    ``dry_run`` writes nothing: it asks each missing archive's size with a HEAD request, prints
-    one line per archive (complete, downloaded, to fetch, to resume), after the line ``header``
-    if given (e.g. how the archives were chosen), and a total, headed by ``label``, and returns
-    the report of :func:`_dry_run`. Nothing is printed before every HEAD has answered, so a host
-    that cannot be reached leaves only its one-line error.
-
-    Every URL must be https, or http with ``allow_http`` (:func:`check_url`): the first that is
-    not is a DataError before anything is fetched or written.
+    Every entry must name a plain ``<name>.zip`` (no query or fragment, see
+    :func:`_entry_problem`), every URL must be https, or http with ``allow_http``
+    (:func:`check_url`), and no two entries may download to the same file: the first entry
+    refused is a DataError, and nothing is asked or written. One bad entry stops the whole list:
+    the list itself is wrong, and its other entries are suspect too.
     """
-    download_dir, extract_dir = Path(download_dir), Path(extract_dir)
     if not base_url.endswith("/"):
         base_url += "/"  # urljoin would otherwise drop the last component of the base
+    for name in names:
+        problem = _entry_problem(name)
+        if problem:
+            raise DataError(f"archive {name!r}: {problem}")
     urls = {archive_filename(n): urllib.parse.urljoin(base_url, n) for n in names}
     if len(urls) != len(names):
         raise DataError("fetch_all: two archives in the list share a file name")
     for url in urls.values():
         check_url(url, allow_http)
-    if dry_run:
-        return _dry_run(
-            urls,
-            download_dir,
-            extract_dir,
-            jobs=jobs,
-            retries=retries,
-            backoff=backoff,
-            timeout=timeout,
-            allow_http=allow_http,
-            label=label,
-            header=header,
-        )
+    return Plan(urls, Path(download_dir), Path(extract_dir), label, header)
+
+
+def fetch_all(
+    base_url: str,
+    names: Sequence[str],
+    download_dir: str | os.PathLike,
+    extract_dir: str | os.PathLike,
+    options: FetchOptions = FetchOptions(),
+    *,
+    label: str = "",
+    header: str = "",
+) -> dict[str, Any]:
+    """Download, verify and extract the archives ``names`` (:func:`plan` resolves and checks
+    them against ``base_url``), or with ``options.dry_run`` say what that would do.
+
+    :func:`fetch` does the work and :func:`dry_run` the dry run (headed by ``label``, after the
+    line ``header`` if given); this returns their report.
+    """
+    planned = plan(
+        base_url, names, download_dir, extract_dir, allow_http=options.allow_http, label=label, header=header
+    )
+    return dry_run(planned, options) if options.dry_run else fetch(planned, options)
+
+
+def fetch(planned: Plan, options: FetchOptions = FetchOptions()) -> dict[str, Any]:
+    """Download, verify and extract the planned archives, ``options.jobs`` at a time.
+
+    An archive already downloaded and matching the manifest is not fetched again; one already
+    extracted is not extracted again. One archive's failure does not stop the others; at the end a
+    :class:`DownloadError` (a DataError) lists the failures and carries the report. The report:
+    ``fetched``, ``skipped`` (already there and verified), ``extracted``, ``failed`` (name ->
+    reason), ``bytes_downloaded``.
+
+    Each archive to download is asked its size with a HEAD first, and the GET must agree with it
+    (:func:`download`). A host that cannot be reached at all stops everything with one
+    :class:`NetworkUnreachable`: before anything is written when there is something to fetch
+    (one HEAD request probes the host first), or at the first such error later (the network went
+    away mid-run). A redirect to a host that cannot be reached fails that archive alone.
+    """
     to_download = [
         name
-        for name in urls
-        if not (download_dir / name).exists() and not _marker(download_dir / name, extract_dir).exists()
+        for name in planned.urls
+        if not planned.archive(name).exists() and not planned.marker(name).exists()
     ]
     if to_download:  # a complete tree needs no network: probe only when something must be fetched
-        _probe(urls[to_download[0]], timeout, allow_http)
-
-    download_dir.mkdir(parents=True, exist_ok=True)
-    manifest = Manifest(download_dir / MANIFEST_NAME)
-    report: dict[str, Any] = {
-        "fetched": [],
-        "skipped": [],
-        "extracted": [],
-        "failed": {},
-        "bytes_downloaded": 0,
-    }
-    lock = threading.Lock()
+        _probe(planned.urls[to_download[0]], options)
+    planned.download_dir.mkdir(parents=True, exist_ok=True)
+    run = _Fetching(planned, options, Manifest(planned.download_dir / MANIFEST_NAME))
     unreachable: list[NetworkUnreachable] = []
-    stop = threading.Event()  # set at the first NetworkUnreachable: the archives not started stay so
-
-    def count(n: int) -> None:
-        with lock:
-            report["bytes_downloaded"] += n
-
-    def one(name: str) -> None:
-        if stop.is_set():
-            return
-        try:
-            fetch_one(name)
-        except NetworkUnreachable:
-            stop.set()
-            raise
-
-    def fetch_one(name: str) -> None:
-        url, archive = urls[name], download_dir / name
-        if not archive.exists() and _marker(archive, extract_dir).exists():
-            # Extracted by an earlier run and the archive deleted since (to save space): done.
-            with lock:
-                report["skipped"].append(name)
-            return
-        present = archive.exists()
-        download(
-            url,
-            archive,
-            retries=retries,
-            backoff=backoff,
-            timeout=timeout,
-            progress=progress,
-            on_bytes=count,
-            allow_http=allow_http,
-        )
-        try:
-            verify_archive(archive, manifest, url)
-        except DataError:
-            # The archive was set aside: forget its extraction too, so that the next run fetches
-            # and unpacks it again rather than taking the deleted archive for "extracted, removed".
-            _marker(archive, extract_dir).unlink(missing_ok=True)
-            raise
-        with lock:
-            report["skipped" if present else "fetched"].append(name)
-        if extract(archive, extract_dir, jpeg=jpeg):
-            with lock:
-                report["extracted"].append(name)
-
-    with tqdm(total=len(urls), desc="KITTI archives", unit="archive", disable=not progress) as bar:
-        with ThreadPoolExecutor(max_workers=max(1, jobs)) as pool:
-            futures = {pool.submit(one, name): name for name in urls}
+    with tqdm(
+        total=len(planned.urls), desc="KITTI archives", unit="archive", disable=not options.progress
+    ) as bar:
+        with ThreadPoolExecutor(max_workers=max(1, options.jobs)) as pool:
+            futures = {pool.submit(run.one, name): name for name in planned.urls}
             for future in as_completed(futures):
                 name = futures[future]
                 try:
@@ -937,28 +1124,89 @@ def fetch_all(
                 except NetworkUnreachable as exc:  # every other archive would fail the same way
                     unreachable.append(exc)
                 except DataError as exc:
-                    report["failed"][name] = str(exc)
+                    run.report["failed"][name] = str(exc)
                 except Exception as exc:  # noqa: BLE001 - one archive's surprise must not hide the others' results
-                    report["failed"][name] = f"{type(exc).__name__}: {exc}"
+                    run.report["failed"][name] = f"{type(exc).__name__}: {exc}"
                 bar.update(1)
+    return _fetched(run.report, len(planned.urls), unreachable)
+
+
+class _Fetching:
+    """One :func:`fetch` under way: the report its threads fill in, and the stop that the first
+    unreachable host sets (the archives not started then stay so)."""
+
+    def __init__(self, planned: Plan, options: FetchOptions, manifest: Manifest) -> None:
+        self.plan, self.options, self.manifest = planned, options, manifest
+        self.report: dict[str, Any] = {
+            "fetched": [],
+            "skipped": [],
+            "extracted": [],
+            "failed": {},
+            "bytes_downloaded": 0,
+        }
+        self.lock = threading.Lock()
+        self.stop = threading.Event()
+
+    def _add(self, key: str, name: str) -> None:
+        with self.lock:
+            self.report[key].append(name)
+
+    def _count(self, nbytes: int) -> None:
+        with self.lock:
+            self.report["bytes_downloaded"] += nbytes
+
+    def one(self, name: str) -> None:
+        """Fetch, verify and extract archive ``name`` (nothing once the stop is set)."""
+        if self.stop.is_set():
+            return
+        try:
+            self._one(name)
+        except NetworkUnreachable:
+            self.stop.set()
+            raise
+
+    def _one(self, name: str) -> None:
+        url, archive, marker = self.plan.urls[name], self.plan.archive(name), self.plan.marker(name)
+        if not archive.exists() and marker.exists():
+            # Extracted by an earlier run and the archive deleted since (to save space): done.
+            self._add("skipped", name)
+            return
+        present = archive.exists()
+        if not present:  # HEAD's size bounds the GET: a stream without a length is cut off there
+            size = remote_size(url, self.options)
+            download(url, archive, self.options, expected_size=size, on_bytes=self._count)
+        try:
+            verify_archive(archive, self.manifest, url)
+        except DataError:
+            # The archive was set aside: forget its extraction too, so that the next run fetches
+            # and unpacks it again rather than taking the deleted archive for "extracted, removed".
+            marker.unlink(missing_ok=True)
+            raise
+        self._add("skipped" if present else "fetched", name)
+        if extract(archive, self.plan.extract_dir, jpeg=self.options.jpeg):
+            self._add("extracted", name)
+
+
+def _fetched(report: dict[str, Any], archives: int, unreachable: list[NetworkUnreachable]) -> dict[str, Any]:
+    """The report of a finished :func:`fetch`, or the error that ends it."""
     for key in ("fetched", "skipped", "extracted"):
         report[key].sort()
     if unreachable:
         done = len(report["fetched"]) + len(report["skipped"])
-        raise NetworkUnreachable(f"{unreachable[0]}; stopped with {done} of {len(urls)} archive(s) complete")
+        raise NetworkUnreachable(f"{unreachable[0]}; stopped with {done} of {archives} archive(s) complete")
     if report["failed"]:
         lines = "\n".join(f"  {name}: {reason}" for name, reason in sorted(report["failed"].items()))
-        raise DownloadError(f"{len(report['failed'])} of {len(urls)} archive(s) failed:\n{lines}", report)
+        raise DownloadError(f"{len(report['failed'])} of {archives} archive(s) failed:\n{lines}", report)
     return report
 
 
-def _probe(url: str, timeout: float, allow_http: bool) -> None:
+def _probe(url: str, options: FetchOptions) -> None:
     """One HEAD request to ``url``: NetworkUnreachable if its host cannot be reached at all.
 
     Any other answer or error is left to the download itself, which retries or reports it.
     """
     try:
-        with _open(url, timeout, method="HEAD", allow_http=allow_http):
+        with _open(url, options.timeout, method="HEAD", allow_http=options.allow_http):
             pass
     except NetworkUnreachable:
         raise
@@ -966,27 +1214,37 @@ def _probe(url: str, timeout: float, allow_http: bool) -> None:
         pass
 
 
-def _dry_run(
-    urls: dict[str, str],
-    download_dir: Path,
-    extract_dir: Path,
-    *,
-    jobs: int,
-    retries: int,
-    backoff: float,
-    timeout: float,
-    allow_http: bool = False,
-    label: str = "",
-    header: str = "",
-) -> dict[str, Any]:
-    """What fetch_all would do, with sizes from HEAD requests; writes nothing.
+def dry_run(planned: Plan, options: FetchOptions = FetchOptions()) -> dict[str, Any]:
+    """What :func:`fetch` would do, with sizes from HEAD requests; writes nothing.
 
-    Prints one line per archive and a summary. Returns ``complete`` (extracted), ``downloaded``
-    (there, still to verify and extract), ``skipped`` (both), ``to_fetch`` (name -> size, None if
-    the server does not say), ``resume`` (name -> bytes already in its ``.part``), ``failed`` and
-    ``total_bytes`` (what would be downloaded). A host that cannot be reached raises
-    NetworkUnreachable at its first HEAD.
+    Prints one line per archive (complete, downloaded, to fetch, to resume), after the line
+    ``planned.header`` if given, and a total headed by ``planned.label``. Nothing is printed
+    before every HEAD has answered, so a host that cannot be reached leaves only its one-line
+    error (NetworkUnreachable, at its first HEAD).
+
+    Returns ``complete`` (extracted), ``downloaded`` (there, still to verify and extract),
+    ``skipped`` (both), ``to_fetch`` (name -> size, None if the server does not say), ``resume``
+    (name -> bytes already in its ``.part``), ``failed`` and ``total_bytes`` (what would be
+    downloaded). An archive whose HEAD fails is a DownloadError listing it, after the lines.
     """
+    report, missing = _present(planned)
+    _ask_sizes(planned, options, missing, report)
+    report["total_bytes"] = sum(
+        max(nbytes - report["resume"].get(name, 0), 0)
+        for name, nbytes in report["to_fetch"].items()
+        if nbytes
+    )
+    _print_dry_run(planned, report)
+    if report["failed"]:
+        lines = "\n".join(f"  {name}: {reason}" for name, reason in sorted(report["failed"].items()))
+        raise DownloadError(
+            f"{len(report['failed'])} of {len(planned.urls)} archive(s) cannot be fetched:\n{lines}", report
+        )
+    return report
+
+
+def _present(planned: Plan) -> tuple[dict[str, Any], list[str]]:
+    """The dry run's report of what is already on disk, and the archives still to fetch."""
     report: dict[str, Any] = {
         "dry_run": True,
         "complete": [],
@@ -998,9 +1256,9 @@ def _dry_run(
         "total_bytes": 0,
     }
     missing = []
-    for name in urls:
-        archive = download_dir / name
-        if _marker(archive, extract_dir).exists():
+    for name in planned.urls:
+        archive = planned.archive(name)
+        if planned.marker(name).exists():
             report["complete"].append(name)
         elif archive.exists():
             report["downloaded"].append(name)
@@ -1010,21 +1268,23 @@ def _dry_run(
             if part:
                 report["resume"][name] = part
     report["skipped"] = sorted(report["complete"] + report["downloaded"])
+    return report, missing
 
+
+def _ask_sizes(planned: Plan, options: FetchOptions, missing: list[str], report: dict[str, Any]) -> None:
+    """HEAD each missing archive, ``options.jobs`` at a time, into ``to_fetch`` or ``failed``."""
     stop = threading.Event()  # set at the first NetworkUnreachable: every other HEAD would fail too
 
     def size(name: str) -> int | None:
         if stop.is_set():
             return None
         try:
-            return remote_size(
-                urls[name], retries=retries, backoff=backoff, timeout=timeout, allow_http=allow_http
-            )
+            return remote_size(planned.urls[name], options)
         except NetworkUnreachable:
             stop.set()
             raise
 
-    with ThreadPoolExecutor(max_workers=max(1, jobs)) as pool:
+    with ThreadPoolExecutor(max_workers=max(1, options.jobs)) as pool:
         futures = [(n, pool.submit(size, n)) for n in missing]
         for name, future in futures:
             try:
@@ -1033,29 +1293,22 @@ def _dry_run(
                 raise
             except DataError as exc:
                 report["failed"][name] = str(exc)
-    report["total_bytes"] = sum(
-        max(nbytes - report["resume"].get(name, 0), 0)
-        for name, nbytes in report["to_fetch"].items()
-        if nbytes
-    )
-    if header:
-        print(header)
-    for name in urls:
+
+
+def _print_dry_run(planned: Plan, report: dict[str, Any]) -> None:
+    """The dry run's lines: the header, one line per archive, the total."""
+    if planned.header:
+        print(planned.header)
+    for name in planned.urls:
         print(f"  {name:<34} {_dry_run_status(name, report)}")
     unknown = sum(s is None for s in report["to_fetch"].values())
     downloaded = len(report["downloaded"])
     print(
-        f"{label + ': ' if label else ''}would fetch {len(report['to_fetch'])} archive(s), "
+        f"{planned.label + ': ' if planned.label else ''}would fetch {len(report['to_fetch'])} archive(s), "
         f"{_human(report['total_bytes'])}{f' (+{unknown} of unknown size)' if unknown else ''}; "
         f"{len(report['complete'])} already complete"
         f"{f', {downloaded} downloaded and not yet extracted' if downloaded else ''}"
     )
-    if report["failed"]:
-        lines = "\n".join(f"  {name}: {reason}" for name, reason in sorted(report["failed"].items()))
-        raise DownloadError(
-            f"{len(report['failed'])} of {len(urls)} archive(s) cannot be fetched:\n{lines}", report
-        )
-    return report
 
 
 def _dry_run_status(name: str, report: dict[str, Any]) -> str:
