@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Sequence
 
@@ -360,6 +361,341 @@ def build_set_section(
     return result, "\n".join(md) + "\n"
 
 
+# compare.json's keys in order; the optional ones (None in :class:`Comparison`) are left out.
+JSON_FIELDS = (
+    "variants",
+    "baselines",
+    "seeds",
+    "full",
+    "roi",
+    "gradients",
+    "missing_baselines",
+    "statistics",
+    "image_dependence",
+    "seed_spread",
+    "rois_skipped",
+    "roi_masks",
+)
+
+
+@dataclass(frozen=True)
+class Comparison:
+    """What ``compare.md`` shows, as data: :meth:`as_json` is ``compare.json``.
+
+    A section is a field filled by :func:`comparison_data` (named in :data:`JSON_FIELDS` if
+    ``compare.json`` carries it) and a renderer in :data:`SECTIONS`, or in :data:`CAP_SECTIONS`
+    for a table per cap.
+    """
+
+    variants: list[str]
+    baselines: list[str]
+    seeds: list[int]
+    full: dict  # {capN: {run: metrics}}
+    roi: dict  # {capN: {run: ROI summary}}; empty without ROIs
+    gradients: dict  # {capN: {run: gradient summary}}; empty without ROIs
+    groups: dict[str, Sequence[str]]  # variant -> its runs (one per seed); not in compare.json
+    missing_baselines: dict[str, str] | None = None
+    statistics: dict | None = None
+    image_dependence: dict[str, dict] | None = None
+    seed_spread: dict | None = None
+    rois_skipped: str | None = None  # why (NO_ROIS's text) when the ROI suites were skipped
+    roi_masks: dict | None = None  # {capN: {run: exact-mask summary}} for the caps every run has
+    mask_counts: dict[str, int] | None = None  # the ROIs with exact masks and those excluded
+
+    @property
+    def runs(self) -> list[str]:
+        """The variants, then the baselines."""
+        return [*self.variants, *self.baselines]
+
+    @property
+    def caps(self) -> list[str]:
+        """The caps' keys (``capN``), in the metrics' order."""
+        return list(self.full)
+
+    def as_json(self) -> dict:
+        """``compare.json``'s content."""
+        return {k: getattr(self, k) for k in JSON_FIELDS if getattr(self, k) is not None}
+
+    def label(self, group: str) -> str:
+        """``group``'s name in the metric tables, flagging its image-blind runs."""
+        dependence = self.image_dependence or {}
+        runs = self.groups.get(group, [group])
+        blind = sum(1 for r in runs if dependence.get(r, {}).get("image_blind"))
+        if not blind or group in self.baselines:
+            return group
+        return (
+            f"{group} (image-blind)"
+            if blind == len(runs)
+            else f"{group} ({blind} of {len(runs)} runs image-blind)"
+        )
+
+
+def _by_cap(suite: dict[str, dict], runs: Sequence[str], caps: Sequence[str]) -> dict:
+    """``{capN: {run: suite[run][capN]}}``."""
+    return {cap: {r: suite[r][cap] for r in runs} for cap in caps}
+
+
+def _roi_masks(
+    roi: dict[str, dict], runs: Sequence[str], caps: Sequence[str]
+) -> tuple[dict | None, dict | None]:
+    """The exact-mask summaries per cap that every run has, and the first run's ROI counts."""
+    masks = {
+        cap: {r: roi[r]["masks"][cap] for r in runs}
+        for cap in caps
+        if all(cap in roi[r].get("masks", {}) for r in runs)
+    }
+    if not masks:
+        return None, None
+    first = roi[runs[0]]["masks"]
+    return masks, {"rois": first["rois"], "excluded_rois": first["excluded_rois"]}
+
+
+def comparison_data(
+    suites: dict[str, dict[str, dict]],
+    variants: Sequence[str],
+    baselines: Sequence[str],
+    stats: dict | None = None,
+    spread: dict | None = None,
+    seeds: Sequence[int] = (0,),
+    dependence: dict[str, dict] | None = None,
+    groups: dict[str, Sequence[str]] | None = None,
+    missing_baselines: dict[str, str] | None = None,
+) -> Comparison:
+    """The :class:`Comparison` of :func:`build_comparison`'s arguments."""
+    runs = [*variants, *baselines]
+    caps = [k for k in suites["full"][runs[0]] if k.startswith("cap")]
+    skipped = all(NO_ROIS in suites["roi"][r] for r in runs)
+    masks, counts = (None, None) if skipped else _roi_masks(suites["roi"], runs, caps)
+    return Comparison(
+        variants=list(variants),
+        baselines=list(baselines),
+        seeds=list(seeds),
+        full=_by_cap(suites["full"], runs, caps),
+        roi={} if skipped else _by_cap(suites["roi"], runs, caps),
+        gradients={} if skipped else _by_cap(suites["gradients"], runs, caps),
+        groups=groups or {r: [r] for r in runs},
+        missing_baselines=dict(missing_baselines) if missing_baselines else None,
+        statistics=stats,
+        image_dependence=dependence,
+        seed_spread=spread,
+        rois_skipped=suites["roi"][runs[0]][NO_ROIS] if skipped else None,
+        roi_masks=masks,
+        mask_counts=counts,
+    )
+
+
+def _header_lines(c: Comparison) -> list[str]:
+    """The title, what was compared and how many training runs each variant's numbers average."""
+    if len(c.seeds) > 1:
+        trained = (
+            f"Each variant's numbers are the mean of {len(c.seeds)} training runs "
+            f"(seeds {', '.join(map(str, c.seeds))})."
+        )
+    else:
+        trained = f"One training run per variant (seed {c.seeds[0]})."
+    return [
+        "# Comparison of loss variants",
+        "",
+        f"Variants: {', '.join(c.variants)}. "
+        f"Baselines (image-blind, from training GT): {', '.join(c.baselines) or 'none'}.",
+        *_missing_lines(c.missing_baselines),
+        trained,
+        "Errors: lower is better; a1–a3: higher is better. Best variant per column in **bold**.",
+        "",
+    ]
+
+
+def _statistics_lines(c: Comparison) -> list[str]:
+    """How the differences' intervals were computed and what they cover."""
+    if c.statistics is None:
+        return []
+    seeds, several = len(c.seeds), len(c.seeds) > 1
+    if seeds >= MIN_SEEDS_FOR_MARKS:
+        covers = (
+            "resampling images (ROIs) and, per variant, seeds: the intervals cover the choice of "
+            "images and training noise. `*`: the interval excludes 0."
+        )
+    else:
+        covers = (
+            f"resampling images (ROIs){' and seeds' if several else ''}. With {seeds} "
+            f"seed{'s' if several else ''} per variant the intervals cover the choice of images "
+            f"{'and barely any' if several else 'only, not'} training noise, so no difference is "
+            f"marked (that takes at least {MIN_SEEDS_FOR_MARKS} seeds, see the README)."
+        )
+    s = c.statistics
+    return [
+        f"Differences are `run − {s['reference']}` (mean over images or ROIs) with a "
+        f"bootstrap {s['confidence']:.0%} interval ({s['bootstrap_samples']} resamples) {covers}",
+        "",
+    ]
+
+
+def _verdict(dependence: dict) -> str:
+    """Whether a trained run uses the image, from its :func:`image_dependence` entry."""
+    if dependence["variation_ratio"] is None:
+        return (
+            "not measured: too few evaluation frames with GT at the same pixels, "
+            "or metrics from before image_dependence (re-run eval_full)"
+        )
+    if dependence["image_blind"]:
+        return "image-blind: its predictions barely change between images"
+    return "follows the image"
+
+
+def _dependence_lines(c: Comparison) -> list[str]:
+    """Per run: how much its predictions vary between images, and the verdict."""
+    if c.image_dependence is None:
+        return []
+    rows = []
+    for g in c.runs:
+        for r in c.groups.get(g, [g]):
+            d = c.image_dependence[r]
+            verdict = "image-blind by construction" if g in c.baselines else _verdict(d)
+            rows.append([r, _fmt(d["variation_ratio"]), _fmt(d["prior_correlation"]), verdict])
+    return [
+        "## Does each run use the image?",
+        "",
+        "Variation: how much the predicted depth changes from image to image, as a fraction of how "
+        "much the GT does (per pixel, std/mean across frames; 0 for a constant or the prior). "
+        "Correlation: of the run's per-image abs_rel with the per-pixel prior's. A network with "
+        f"variation below {IMAGE_BLIND_BELOW} has learned the average scene, not depth from the image: "
+        "its numbers say nothing about its loss.",
+        "",
+        _table(["run", "variation", "corr. with prior", "verdict"], rows),
+        "",
+    ]
+
+
+def _rois_skipped_lines(c: Comparison) -> list[str]:
+    """The one line that replaces the ROI and gradient tables without ROIs."""
+    if c.rois_skipped is None:
+        return []
+    return [f"{ROIS_SKIPPED}: the ROI index is empty (no boxes to evaluate).", ""]
+
+
+def _noise_lines(c: Comparison, suite: str, cap: str, unit: str) -> list[str]:
+    """The differences to the reference (with ``stats``) and the seed spread (with several seeds)."""
+    lines = [] if c.statistics is None else _ci_lines(c.statistics, suite, cap, unit, c.baselines)
+    if c.seed_spread is not None and len(c.seeds) > 1:
+        lines += _spread_lines(c.seed_spread[suite][cap], c.variants, len(c.seeds))
+    return lines
+
+
+def _full_lines(c: Comparison, cap: str) -> list[str]:
+    """The full-image metrics at ``cap``."""
+    return [
+        f"## Full image, cap {cap[3:]} m",
+        "",
+        _table(["run", *METRICS], _metric_rows(c.full[cap], c.runs, c.variants, c.label)),
+        "",
+        *_noise_lines(c, "full", cap, "images"),
+    ]
+
+
+def _roi_lines(c: Comparison, cap: str) -> list[str]:
+    """The metrics over all ROIs at ``cap``."""
+    if cap not in c.roi:
+        return []
+    roi = {r: c.roi[cap][r]["overall"] for r in c.runs}
+    return [
+        f"## ROI, cap {cap[3:]} m (mean over {roi[c.runs[0]]['count']} ROIs)",
+        "",
+        _table(["run", *METRICS], _metric_rows(roi, c.runs, c.variants, c.label)),
+        "",
+        *_noise_lines(c, "roi", cap, "ROIs"),
+    ]
+
+
+def _roi_class_lines(c: Comparison, cap: str) -> list[str]:
+    """The ROIs' abs_rel per class at ``cap``."""
+    if cap not in c.roi:
+        return []
+    by_class = {r: c.roi[cap][r]["by_class"] for r in c.runs}
+    classes = sorted({k for r in c.runs for k in by_class[r]})
+    rows = [[c.label(r), *[_fmt(by_class[r].get(k, {}).get("abs_rel")) for k in classes]] for r in c.runs]
+    return [f"### ROI abs rel per class, cap {cap[3:]} m", "", _table(["run", *classes], rows), ""]
+
+
+def _roi_mask_lines(c: Comparison, cap: str) -> list[str]:
+    """The ROIs scored on their exact masks at ``cap``, where every run has them."""
+    if c.roi_masks is None or cap not in c.roi_masks:
+        return []
+    masks = c.roi_masks[cap]
+    classes = sorted({k for r in c.runs for k in masks[r]["by_class"]})
+    rows = [
+        [
+            c.label(r),
+            *[_fmt(masks[r]["overall"][m]) for m in ("abs_rel", "rmse", "a1")],
+            *[_fmt(masks[r]["by_class"].get(k, {}).get("abs_rel")) for k in classes],
+        ]
+        for r in c.runs
+    ]
+    return [
+        f"### ROI, exact masks, cap {cap[3:]} m",
+        "",
+        f"Each box's own pixels of its class (the renderer's class map: a car without the road "
+        f"behind it, a windshield without the bonnet); {c.mask_counts['rois']} ROIs, "
+        f"{c.mask_counts['excluded_rois']} without valid GT on their pixels excluded.",
+        "",
+        _table(["run", "abs_rel", "rmse", "a1", *[f"{k} abs_rel" for k in classes]], rows),
+        "",
+    ]
+
+
+def _gradient_lines(c: Comparison, cap: str) -> list[str]:
+    """The depth maps' mean |derivative| on the ROIs at ``cap``, predicted and its error."""
+    if cap not in c.gradients:
+        return []
+    grad = c.gradients[cap]
+    header = ["run", *[f"pred {g}" for g in GRADIENTS], *[f"|pred−GT| {g}" for g in GRADIENTS]]
+    rows = [
+        [
+            r,
+            *[_fmt(grad[r]["overall"][f"pred_{g}"]) for g in GRADIENTS],
+            *[_fmt(grad[r]["dense_gt"]["overall"].get(f"error_{g}")) for g in GRADIENTS],
+        ]
+        for r in c.runs
+    ]
+    gt_row = grad[c.runs[0]]["dense_gt"]["overall"]
+    rows.append(["GT (dense ROIs)", *[_fmt(gt_row.get(f"gt_{g}")) for g in GRADIENTS], "", "", ""])
+    return [
+        f"## Gradient consistency on ROIs, cap {cap[3:]} m (mean |derivative| of depth, m/px)",
+        "",
+        _table(header, rows),
+        "",
+    ]
+
+
+# The tables repeated per cap, in order (the ROI ones are empty without ROIs).
+CAP_SECTIONS: tuple[Callable[[Comparison, str], list[str]], ...] = (
+    _full_lines,
+    _roi_lines,
+    _roi_class_lines,
+    _roi_mask_lines,
+    _gradient_lines,
+)
+
+
+def _cap_lines(c: Comparison) -> list[str]:
+    """:data:`CAP_SECTIONS` for every cap."""
+    return [line for cap in c.caps for section in CAP_SECTIONS for line in section(c, cap)]
+
+
+# compare.md's sections in order; each renders a Comparison as Markdown lines (none if absent).
+SECTIONS: tuple[Callable[[Comparison], list[str]], ...] = (
+    _header_lines,
+    _statistics_lines,
+    _dependence_lines,
+    _rois_skipped_lines,
+    _cap_lines,
+)
+
+
+def render_comparison(comparison: Comparison) -> str:
+    """``compare.md``'s text: :data:`SECTIONS` in order."""
+    return "\n".join(line for section in SECTIONS for line in section(comparison)) + "\n"
+
+
 def build_comparison(
     suites: dict[str, dict[str, dict]],
     variants: Sequence[str],
@@ -384,190 +720,7 @@ def build_comparison(
     Without ROIs (every ROI summary is :data:`msdepth.evaluate.NO_ROIS`'s) the ROI and gradient
     tables are replaced by one line, :data:`ROIS_SKIPPED`.
     """
-    runs = [*variants, *baselines]
-    caps = [k for k in suites["full"][runs[0]] if k.startswith("cap")]
-    result: dict = {
-        "variants": list(variants),
-        "baselines": list(baselines),
-        "seeds": list(seeds),
-        "full": {},
-        "roi": {},
-        "gradients": {},
-    }
-    if missing_baselines:
-        result["missing_baselines"] = dict(missing_baselines)
-    several = len(seeds) > 1
-    trained = (
-        f"Each variant's numbers are the mean of {len(seeds)} training runs "
-        f"(seeds {', '.join(map(str, seeds))})."
-        if several
-        else f"One training run per variant (seed {seeds[0]})."
+    comparison = comparison_data(
+        suites, variants, baselines, stats, spread, seeds, dependence, groups, missing_baselines
     )
-    md = [
-        "# Comparison of loss variants",
-        "",
-        f"Variants: {', '.join(variants)}. "
-        f"Baselines (image-blind, from training GT): {', '.join(baselines) or 'none'}.",
-        *_missing_lines(missing_baselines),
-        trained,
-        "Errors: lower is better; a1–a3: higher is better. Best variant per column in **bold**.",
-        "",
-    ]
-    groups = groups or {r: [r] for r in runs}
-    blind = {
-        g: [r for r in groups.get(g, [g]) if dependence and dependence.get(r, {}).get("image_blind")]
-        for g in runs
-    }
-
-    def label(run: str) -> str:
-        n, total = len(blind[run]), len(groups.get(run, [run]))
-        if not n or run in baselines:
-            return run
-        return f"{run} (image-blind)" if n == total else f"{run} ({n} of {total} runs image-blind)"
-
-    if stats is not None:
-        result["statistics"] = stats
-        if len(seeds) >= MIN_SEEDS_FOR_MARKS:
-            covers = (
-                "resampling images (ROIs) and, per variant, seeds: the intervals cover the choice of "
-                "images and training noise. `*`: the interval excludes 0."
-            )
-        else:
-            covers = (
-                f"resampling images (ROIs){' and seeds' if several else ''}. With {len(seeds)} "
-                f"seed{'s' if several else ''} per variant the intervals cover the choice of images "
-                f"{'and barely any' if several else 'only, not'} training noise, so no difference is "
-                f"marked (that takes at least {MIN_SEEDS_FOR_MARKS} seeds, see the README)."
-            )
-        md += [
-            f"Differences are `run − {stats['reference']}` (mean over images or ROIs) with a "
-            f"bootstrap {stats['confidence']:.0%} interval ({stats['bootstrap_samples']} resamples) {covers}",
-            "",
-        ]
-    if dependence is not None:
-        result["image_dependence"] = dependence
-        rows = []
-        for g in runs:
-            for r in groups.get(g, [g]):
-                d = dependence[r]
-                if d["variation_ratio"] is None:
-                    verdict = (
-                        "not measured: too few evaluation frames with GT at the same pixels, "
-                        "or metrics from before image_dependence (re-run eval_full)"
-                    )
-                elif d["image_blind"]:
-                    verdict = "image-blind: its predictions barely change between images"
-                else:
-                    verdict = "follows the image"
-                rows.append(
-                    [
-                        r,
-                        _fmt(d["variation_ratio"]),
-                        _fmt(d["prior_correlation"]),
-                        "image-blind by construction" if g in baselines else verdict,
-                    ]
-                )
-        md += [
-            "## Does each run use the image?",
-            "",
-            "Variation: how much the predicted depth changes from image to image, as a fraction of how "
-            "much the GT does (per pixel, std/mean across frames; 0 for a constant or the prior). "
-            "Correlation: of the run's per-image abs_rel with the per-pixel prior's. A network with "
-            f"variation below {IMAGE_BLIND_BELOW} has learned the average scene, not depth from the image: "
-            "its numbers say nothing about its loss.",
-            "",
-            _table(["run", "variation", "corr. with prior", "verdict"], rows),
-            "",
-        ]
-    if spread is not None:
-        result["seed_spread"] = spread
-
-    def spread_table(suite: str, cap: str) -> list[str]:
-        if spread is None or not several:
-            return []
-        return _spread_lines(spread[suite][cap], variants, len(seeds))
-
-    def ci_table(suite: str, cap: str, unit: str) -> list[str]:
-        return [] if stats is None else _ci_lines(stats, suite, cap, unit, baselines)
-
-    rois_skipped = all(NO_ROIS in suites["roi"][r] for r in runs)
-    if rois_skipped:
-        result["rois_skipped"] = suites["roi"][runs[0]][NO_ROIS]
-        md += [f"{ROIS_SKIPPED}: the ROI index is empty (no boxes to evaluate).", ""]
-    for cap in caps:
-        result["full"][cap] = {r: suites["full"][r][cap] for r in runs}
-
-        def metric_rows(block: dict[str, dict]) -> list[list[str]]:
-            return _metric_rows(block, runs, variants, label)
-
-        md += [
-            f"## Full image, cap {cap[3:]} m",
-            "",
-            _table(["run", *METRICS], metric_rows(result["full"][cap])),
-            "",
-        ]
-        md += ci_table("full", cap, "images")
-        md += spread_table("full", cap)
-        if rois_skipped:
-            continue
-        result["roi"][cap] = {r: suites["roi"][r][cap] for r in runs}
-        result["gradients"][cap] = {r: suites["gradients"][r][cap] for r in runs}
-        roi = {r: result["roi"][cap][r]["overall"] for r in runs}
-        md += [
-            f"## ROI, cap {cap[3:]} m (mean over {roi[runs[0]]['count']} ROIs)",
-            "",
-            _table(["run", *METRICS], metric_rows(roi)),
-            "",
-        ]
-        md += ci_table("roi", cap, "ROIs")
-        md += spread_table("roi", cap)
-        classes = sorted({c for r in runs for c in result["roi"][cap][r]["by_class"]})
-        rows = [
-            [label(r), *[_fmt(result["roi"][cap][r]["by_class"].get(c, {}).get("abs_rel")) for c in classes]]
-            for r in runs
-        ]
-        md += [f"### ROI abs rel per class, cap {cap[3:]} m", "", _table(["run", *classes], rows), ""]
-        if all(cap in suites["roi"][r].get("masks", {}) for r in runs):
-            masks = {r: suites["roi"][r]["masks"] for r in runs}
-            result.setdefault("roi_masks", {})[cap] = {r: m[cap] for r, m in masks.items()}
-            classes = sorted({c for r in runs for c in masks[r][cap]["by_class"]})
-            rows = [
-                [
-                    label(r),
-                    *[_fmt(masks[r][cap]["overall"][m]) for m in ("abs_rel", "rmse", "a1")],
-                    *[_fmt(masks[r][cap]["by_class"].get(c, {}).get("abs_rel")) for c in classes],
-                ]
-                for r in runs
-            ]
-            first = masks[runs[0]]
-            md += [
-                f"### ROI, exact masks, cap {cap[3:]} m",
-                "",
-                f"Each box's own pixels of its class (the renderer's class map: a car without the road "
-                f"behind it, a windshield without the bonnet); {first['rois']} ROIs, "
-                f"{first['excluded_rois']} without valid GT on their pixels excluded.",
-                "",
-                _table(["run", "abs_rel", "rmse", "a1", *[f"{c} abs_rel" for c in classes]], rows),
-                "",
-            ]
-        grad = result["gradients"][cap]
-        header = ["run", *[f"pred {g}" for g in GRADIENTS], *[f"|pred−GT| {g}" for g in GRADIENTS]]
-        rows = []
-        for r in runs:
-            dense = grad[r]["dense_gt"]["overall"]
-            rows.append(
-                [
-                    r,
-                    *[_fmt(grad[r]["overall"][f"pred_{g}"]) for g in GRADIENTS],
-                    *[_fmt(dense.get(f"error_{g}")) for g in GRADIENTS],
-                ]
-            )
-        gt_row = grad[runs[0]]["dense_gt"]["overall"]
-        rows.append(["GT (dense ROIs)", *[_fmt(gt_row.get(f"gt_{g}")) for g in GRADIENTS], "", "", ""])
-        md += [
-            f"## Gradient consistency on ROIs, cap {cap[3:]} m (mean |derivative| of depth, m/px)",
-            "",
-            _table(header, rows),
-            "",
-        ]
-    return result, "\n".join(md) + "\n"
+    return comparison.as_json(), render_comparison(comparison)
