@@ -11,7 +11,9 @@ to see at a glance that the boxes land on the objects.
 from __future__ import annotations
 
 import logging
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
@@ -119,6 +121,60 @@ def _check_user_rois(user_csv: Path, frames: pd.DataFrame) -> pd.DataFrame:
     return user
 
 
+def _car_rows(
+    frame: Any, min_size: int, min_valid: float
+) -> list[tuple[str, str, int, int, int, int]] | None:
+    """The ROI rows of the car boxes of ``frame`` (a row of the evaluation index's ``itertuples()``);
+    None if it has no ``obj_map``."""
+    name = str(frame.frame)
+    obj_path = frame.obj_map if isinstance(frame.obj_map, str) else ""  # NaN from a bare read_csv
+    if not obj_path:
+        return None
+    if frame.gt_kind != "disparity":
+        raise DataError(
+            f"{name}: car boxes need a KITTI 2015 disparity GT, got {frame.gt_kind!r} ({frame.gt})"
+        )
+    obj_map = kitti.read_obj_map(obj_path)
+    gt = kitti.read_disparity(frame.gt)
+    try:
+        boxes = boxes_from_obj_map(obj_map, gt, min_size=min_size, min_valid=min_valid)
+    except DataError as exc:
+        raise DataError(f"{obj_path}: {exc} ({frame.gt})") from None
+    return [(name, "car", x0, y0, x1, y1) for _, x0, y0, x1, y1 in boxes]
+
+
+def _merge_rois(auto: pd.DataFrame, user: pd.DataFrame) -> pd.DataFrame:
+    """``auto`` and ``user`` as one ROI table without exact duplicates, sorted by ROI_COLUMNS."""
+    parts = [p for p in (auto, user) if len(p)]  # concat with an empty frame would loosen the dtypes
+    rois = pd.concat(parts, ignore_index=True) if parts else _empty_rois()
+    rois = rois.drop_duplicates().astype({c: np.int64 for c in ("x0", "y0", "x1", "y1")})
+    return rois.sort_values(list(kitti.ROI_COLUMNS), kind="stable").reset_index(drop=True)
+
+
+def _report(
+    frames: pd.DataFrame, without: list[str], auto: pd.DataFrame, user: pd.DataFrame, rois: pd.DataFrame
+) -> dict:
+    """:func:`extract_rois`' summary (frame and box counts), logged as well."""
+    report = {
+        "frames": len(frames),
+        "frames_without_obj_map": len(without),
+        "car_boxes_from_obj_map": len(auto),
+        "user_boxes": len(user),
+        "rois": len(rois),
+        "per_class": {c: int((rois["class"] == c).sum()) for c in kitti.ROI_CLASSES},
+    }
+    if without:
+        log.info(
+            "%d of %d evaluation frame(s) have no obj_map (no car boxes): %s%s",
+            len(without),
+            len(frames),
+            without[:5],
+            " ..." if len(without) > 5 else "",
+        )
+    log.info("ROIs: %d (%s)", len(rois), ", ".join(f"{c} {n}" for c, n in report["per_class"].items()))
+    return report
+
+
 def extract_rois(
     frames: pd.DataFrame,
     *,
@@ -146,48 +202,15 @@ def extract_rois(
     for frame in tqdm(
         frames.itertuples(index=False), total=len(frames), desc="rois", unit="frame", disable=not progress
     ):
-        name = str(frame.frame)
-        obj_path = frame.obj_map if isinstance(frame.obj_map, str) else ""  # NaN from a bare read_csv
-        if not obj_path:
-            without.append(name)
-            continue
-        if frame.gt_kind != "disparity":
-            raise DataError(
-                f"{name}: car boxes need a KITTI 2015 disparity GT, got {frame.gt_kind!r} ({frame.gt})"
-            )
-        obj_map = kitti.read_obj_map(obj_path)
-        gt = kitti.read_disparity(frame.gt)
-        try:
-            boxes = boxes_from_obj_map(obj_map, gt, min_size=min_size, min_valid=min_valid)
-        except DataError as exc:
-            raise DataError(f"{obj_path}: {exc} ({frame.gt})") from None
-        rows += [(name, "car", x0, y0, x1, y1) for _, x0, y0, x1, y1 in boxes]
-
+        cars = _car_rows(frame, min_size, min_valid)
+        if cars is None:
+            without.append(str(frame.frame))
+        else:
+            rows += cars
     auto = pd.DataFrame(rows, columns=list(kitti.ROI_COLUMNS)) if rows else _empty_rois()
     user = _check_user_rois(Path(user_csv), frames) if user_csv is not None else _empty_rois()
-    parts = [p for p in (auto, user) if len(p)]  # concat with an empty frame would loosen the dtypes
-    rois = pd.concat(parts, ignore_index=True) if parts else _empty_rois()
-    rois = rois.drop_duplicates().astype({c: np.int64 for c in ("x0", "y0", "x1", "y1")})
-    rois = rois.sort_values(list(kitti.ROI_COLUMNS), kind="stable").reset_index(drop=True)
-
-    report = {
-        "frames": len(frames),
-        "frames_without_obj_map": len(without),
-        "car_boxes_from_obj_map": len(auto),
-        "user_boxes": len(user),
-        "rois": len(rois),
-        "per_class": {c: int((rois["class"] == c).sum()) for c in kitti.ROI_CLASSES},
-    }
-    if without:
-        log.info(
-            "%d of %d evaluation frame(s) have no obj_map (no car boxes): %s%s",
-            len(without),
-            len(frames),
-            without[:5],
-            " ..." if len(without) > 5 else "",
-        )
-    log.info("ROIs: %d (%s)", len(rois), ", ".join(f"{c} {n}" for c, n in report["per_class"].items()))
-    rois.attrs["report"] = report
+    rois = _merge_rois(auto, user)
+    rois.attrs["report"] = _report(frames, without, auto, user, rois)
     return rois
 
 
@@ -237,6 +260,88 @@ def _pick(group: pd.DataFrame, limit: int) -> pd.DataFrame:
     return group.iloc[np.linspace(0, len(group) - 1, limit).round().astype(int)]
 
 
+@dataclass(frozen=True)
+class _Sheet:
+    """A contact sheet's layout and where its crops come from."""
+
+    out_path: Path  # named in errors
+    lefts: dict[str, str]  # frame -> left image path
+    tile: int
+    columns: int
+
+    @property
+    def cell(self) -> tuple[int, int]:
+        """A cell's (width, height): the crop with its border, plus the label strip below."""
+        return self.tile + 2 * PAD, self.tile + LABEL_HEIGHT + 2 * PAD
+
+    @property
+    def width(self) -> int:
+        """The sheet's width in pixels."""
+        return self.columns * self.cell[0]
+
+
+def _class_order(rois: pd.DataFrame) -> list[str]:
+    """Known classes in their canonical order, then anything else a caller passes, alphabetically."""
+    present = list(dict.fromkeys(rois["class"])) if len(rois) else []
+    return [c for c in kitti.ROI_CLASSES if c in present] + sorted(
+        c for c in present if c not in kitti.ROI_CLASSES
+    )
+
+
+def _header_block(
+    sheet: _Sheet, rows: int, text: str, colour: tuple[int, int, int], *, underline: bool
+) -> np.ndarray:
+    """A block of ``rows`` cell rows under a header strip reading ``text``, underlined or not."""
+    block = np.empty((HEADER_HEIGHT + rows * sheet.cell[1], sheet.width, 3), np.uint8)
+    block[:] = _BACKGROUND
+    if underline:  # class blocks stay apart at a glance
+        block[HEADER_HEIGHT - 2 : HEADER_HEIGHT] = colour
+    _put(block, text, 6, HEADER_HEIGHT - 8, sheet.width - 12, colour, 0.5)
+    return block
+
+
+def _crop(sheet: _Sheet, roi: Any, images: dict[str, np.ndarray]) -> np.ndarray:
+    """The pixels of ``roi`` (a row of the ROI table) in its left image, decoded once into ``images``."""
+    name = str(roi.image)
+    if name not in sheet.lefts:
+        raise DataError(f"{sheet.out_path}: ROI image {name!r} is not in the evaluation index")
+    if name not in images:
+        images[name] = kitti.read_image(sheet.lefts[name])
+    img = images[name]
+    h, w = img.shape[:2]
+    x0, y0, x1, y1 = int(roi.x0), int(roi.y0), int(roi.x1), int(roi.y1)
+    if not (0 <= x0 < x1 <= w and 0 <= y0 < y1 <= h):
+        raise DataError(
+            f"{sheet.out_path}: ROI ({x0}, {y0}, {x1}, {y1}) lies outside {sheet.lefts[name]} ({w}x{h})"
+        )
+    return img[y0:y1, x0:x1]
+
+
+def _class_block(
+    sheet: _Sheet, cls: str, group: pd.DataFrame, max_per_class: int, images: dict[str, np.ndarray]
+) -> np.ndarray:
+    """One class's block: its header strip over its letterboxed, labelled crops."""
+    shown = _pick(group, max_per_class)
+    (cell_w, cell_h), tile = sheet.cell, sheet.tile
+    colour = _CLASS_COLOURS.get(cls, _TEXT)
+    block = _header_block(
+        sheet,
+        -(-len(shown) // sheet.columns),
+        f"{cls}: {len(shown)} shown of {len(group)}",
+        colour,
+        underline=True,
+    )
+    for k, roi in enumerate(shown.itertuples(index=False)):
+        crop = _crop(sheet, roi, images)
+        top = HEADER_HEIGHT + (k // sheet.columns) * cell_h
+        left = (k % sheet.columns) * cell_w
+        block[top + PAD : top + PAD + tile, left + PAD : left + PAD + tile] = _letterbox(crop, tile)
+        text_y = top + PAD + tile
+        _put(block, f"{cls} {crop.shape[1]}x{crop.shape[0]}", left + PAD + 1, text_y + 11, tile - 2, colour)
+        _put(block, str(roi.image), left + PAD + 1, text_y + 23, tile - 2, _TEXT)
+    return block
+
+
 def contact_sheet(
     rois: pd.DataFrame,
     frames: pd.DataFrame,
@@ -260,54 +365,20 @@ def contact_sheet(
             f"need tile >= 8, columns >= 1, max_per_class >= 1; got {tile}, {columns}, {max_per_class}"
         )
     out_path = Path(out_path)
-    cell_w, cell_h = tile + 2 * PAD, tile + LABEL_HEIGHT + 2 * PAD
-    width = columns * cell_w
     lefts = dict(zip(frames["frame"].astype(str), frames["left"].astype(str)))
-    # Known classes in their canonical order, then anything else a caller passes, alphabetically.
-    present = list(dict.fromkeys(rois["class"])) if len(rois) else []
-    classes = [c for c in kitti.ROI_CLASSES if c in present] + sorted(
-        c for c in present if c not in kitti.ROI_CLASSES
-    )
-
-    blocks: list[np.ndarray] = []
+    sheet = _Sheet(out_path, lefts, tile, columns)
     images: dict[str, np.ndarray] = {}  # each left image decoded once
-    for cls in classes:
-        group = rois[rois["class"] == cls].sort_values(["image", "x0", "y0"], kind="stable")
-        shown = _pick(group, max_per_class)
-        n_rows = -(-len(shown) // columns)
-        block = np.empty((HEADER_HEIGHT + n_rows * cell_h, width, 3), np.uint8)
-        block[:] = _BACKGROUND
-        colour = _CLASS_COLOURS.get(cls, _TEXT)
-        block[HEADER_HEIGHT - 2 : HEADER_HEIGHT] = colour  # underline: blocks stay apart at a glance
-        _put(
-            block, f"{cls}: {len(shown)} shown of {len(group)}", 6, HEADER_HEIGHT - 8, width - 12, colour, 0.5
+    blocks = [
+        _class_block(
+            sheet,
+            cls,
+            rois[rois["class"] == cls].sort_values(["image", "x0", "y0"], kind="stable"),
+            max_per_class,
+            images,
         )
-        for k, roi in enumerate(shown.itertuples(index=False)):
-            name = str(roi.image)
-            if name not in lefts:
-                raise DataError(f"{out_path}: ROI image {name!r} is not in the evaluation index")
-            if name not in images:
-                images[name] = kitti.read_image(lefts[name])
-            img = images[name]
-            h, w = img.shape[:2]
-            x0, y0, x1, y1 = int(roi.x0), int(roi.y0), int(roi.x1), int(roi.y1)
-            if not (0 <= x0 < x1 <= w and 0 <= y0 < y1 <= h):
-                raise DataError(
-                    f"{out_path}: ROI ({x0}, {y0}, {x1}, {y1}) lies outside {lefts[name]} ({w}x{h})"
-                )
-            top = HEADER_HEIGHT + (k // columns) * cell_h
-            left = (k % columns) * cell_w
-            block[top + PAD : top + PAD + tile, left + PAD : left + PAD + tile] = _letterbox(
-                img[y0:y1, x0:x1], tile
-            )
-            text_y = top + PAD + tile
-            _put(block, f"{cls} {x1 - x0}x{y1 - y0}", left + PAD + 1, text_y + 11, tile - 2, colour)
-            _put(block, name, left + PAD + 1, text_y + 23, tile - 2, _TEXT)
-        blocks.append(block)
+        for cls in _class_order(rois)
+    ]
     if not blocks:  # still an image, so that a pipeline output exists and says why it is empty
-        block = np.empty((HEADER_HEIGHT, width, 3), np.uint8)
-        block[:] = _BACKGROUND
-        _put(block, "no ROIs", 6, HEADER_HEIGHT - 8, width - 12, _TEXT, 0.5)
-        blocks.append(block)
+        blocks.append(_header_block(sheet, 0, "no ROIs", _TEXT, underline=False))
     write_png(out_path, np.concatenate(blocks, axis=0))
     return out_path
