@@ -22,19 +22,22 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Callable
 
 import torch
-from _timing import compare, device_from, sync, table
+from _timing import Timings, compare, device_from, sync, table
 
 from msdepth.appearance import build_appearance
-from msdepth.config import load_params
+from msdepth.config import Params, load_params
 from msdepth.losses import MonodepthLoss
 from msdepth.model import MonodepthVGG
 from msdepth.train import configure_cudnn, forward_and_loss
 
 
-def main() -> None:
+def _parser() -> argparse.ArgumentParser:
+    """The command line: sizes default to params.yaml's, switches to off."""
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--params", default=str(Path(__file__).resolve().parents[1] / "params.yaml"))
     ap.add_argument("--device", default="cpu")
@@ -64,8 +67,29 @@ def main() -> None:
         action="store_true",
         help="instead: the SSIM step with each network option (model.norm x model.heads)",
     )
-    args = ap.parse_args()
-    params = load_params(args.params)
+    return ap
+
+
+@dataclass(frozen=True)
+class Bench:
+    """What every candidate shares: the device, the batch, the network and its optimiser."""
+
+    device: torch.device
+    batch: int
+    h: int
+    w: int
+    width: float  # the model's width multiplier
+    memory_format: torch.memory_format
+    model: MonodepthVGG
+    forward: Callable  # the model, compiled or not
+    optimizer: torch.optim.Optimizer
+    left: torch.Tensor
+    right: torch.Tensor
+    disps: list[torch.Tensor] | None  # the network's output for --loss-only, else None
+
+
+def setup(args: argparse.Namespace, params: Params) -> Bench:
+    """The device configured as training does, the configured network and a random stereo batch."""
     device = device_from(args.device)
     torch.set_num_threads(params.train.threads)
     configure_cudnn(params.train.cudnn_benchmark, device)  # as training does (CUDA only)
@@ -81,35 +105,49 @@ def main() -> None:
     gen = torch.Generator().manual_seed(0)
     left = torch.rand(batch, 3, h, w, generator=gen).to(device)
     right = torch.roll(left, shifts=-3, dims=-1)
-
+    disps = None
     if args.loss_only:  # once, with the plain network: a compiled one would compile a no-grad graph too
         with torch.no_grad():
             disps = [d.float() for d in model(left.contiguous(memory_format=memory_format))]
+    return Bench(device, batch, h, w, width, memory_format, model, forward, optimizer, left, right, disps)
 
-    def step_with(criterion: MonodepthLoss):
-        def step():
-            losses = forward_and_loss(forward, criterion, left, right, args.amp, memory_format)
-            optimizer.zero_grad(set_to_none=True)
-            losses["total"].backward()
-            optimizer.step()
 
-        def loss_step():
-            # Fresh leaves each call: the loss and its gradient down to the disparities, no network.
-            criterion([d.detach().requires_grad_() for d in disps], left, right)["total"].backward()
+def step_with(args: argparse.Namespace, bench: Bench, criterion: MonodepthLoss) -> Callable[[], None]:
+    """The timed call: a training step with ``criterion``, or with --loss-only the loss alone."""
 
-        return loss_step if args.loss_only else step
+    def step():
+        losses = forward_and_loss(
+            bench.forward, criterion, bench.left, bench.right, args.amp, bench.memory_format
+        )
+        bench.optimizer.zero_grad(set_to_none=True)
+        losses["total"].backward()
+        bench.optimizer.step()
 
-    ssim_loss = MonodepthLoss(params.loss, build_appearance(params, "ssim"))
-    if args.networks:
-        run_networks(args, width, m.init_disparity, ssim_loss, device, memory_format, batch, h, w)
-        return
-    candidates = {"SSIM k3": step_with(ssim_loss)}
+    def loss_step():
+        # Fresh leaves each call: the loss and its gradient down to the disparities, no network.
+        criterion([d.detach().requires_grad_() for d in bench.disps], bench.left, bench.right)[
+            "total"
+        ].backward()
+
+    return loss_step if args.loss_only else step
+
+
+def kernel_candidates(
+    args: argparse.Namespace, params: Params, bench: Bench, ssim_loss: MonodepthLoss
+) -> dict:
+    """The SSIM step, then the MS-SSIM step for each of --kernels."""
+    candidates = {"SSIM k3": step_with(args, bench, ssim_loss)}
     for k in (int(s) for s in args.kernels.split(",")):
         sections = {**params.appearance, "msssim": dataclasses.replace(params.msssim, kernel_size=k)}
         with_k = dataclasses.replace(params, appearance=sections)
         candidates[f"MS-SSIM k{k}"] = step_with(
-            MonodepthLoss(params.loss, build_appearance(with_k, "msssim"))
+            args, bench, MonodepthLoss(params.loss, build_appearance(with_k, "msssim"))
         )
+    return candidates
+
+
+def peak_memory(candidates: dict, device: torch.device) -> dict[str, float]:
+    """Each candidate's peak GPU memory (GiB) over one step from a clean peak; none off CUDA."""
     peaks = {}
     if device.type == "cuda":  # one step each from a clean peak, before the timed ones
         for name, step in candidates.items():
@@ -119,29 +157,49 @@ def main() -> None:
             step()
             torch.cuda.synchronize(device)
             peaks[name] = torch.cuda.max_memory_allocated(device) / 2**30
-    timings = compare(candidates, device, repeats=args.repeats)
+    return peaks
+
+
+def report(args: argparse.Namespace, bench: Bench, timings: Timings, peaks: dict[str, float]) -> None:
+    """Print the setup line, the time table with ratios to SSIM, images/s and the peak memory."""
+    device = bench.device
     switches = f"amp {args.amp}, channels_last {args.channels_last}, compile {args.compile}"
     if device.type == "cuda":
         switches += f", cudnn.benchmark {torch.backends.cudnn.benchmark}"
     what = "loss forward+backward only" if args.loss_only else "training step"
     print(
-        f"{what}, batch {batch}x3x{h}x{w}, model x{model_width(args, params)}, {device}, "
+        f"{what}, batch {bench.batch}x3x{bench.h}x{bench.w}, model x{bench.width}, {device}, "
         f"{torch.get_num_threads()} threads, {switches}, median of {args.repeats}\n"
     )
     print(table(timings, "SSIM k3"))
-    print("\nimages/s: " + ", ".join(f"{n} {batch / t:.1f}" for n, t in timings.medians().items()))
+    print("\nimages/s: " + ", ".join(f"{n} {bench.batch / t:.1f}" for n, t in timings.medians().items()))
     if peaks:
         print("peak GPU memory (GiB): " + ", ".join(f"{n} {g:.2f}" for n, g in peaks.items()))
+
+
+def main() -> None:
+    args = _parser().parse_args()
+    params = load_params(args.params)
+    bench = setup(args, params)
+    ssim_loss = MonodepthLoss(params.loss, build_appearance(params, "ssim"))
+    if args.networks:
+        run_networks(args, bench, params.model.init_disparity, ssim_loss)
+        return
+    candidates = kernel_candidates(args, params, bench, ssim_loss)
+    peaks = peak_memory(candidates, bench.device)
+    timings = compare(candidates, bench.device, repeats=args.repeats)
+    report(args, bench, timings, peaks)
     if args.profile:
-        print("\n" + profile_table(candidates, timings.medians(), device, args.profile))
+        print("\n" + profile_table(candidates, timings.medians(), bench.device, args.profile))
 
 
-def run_networks(args, width: float, init: float, criterion, device, memory_format, batch, h, w) -> None:
+def run_networks(args: argparse.Namespace, bench: Bench, init: float, criterion: MonodepthLoss) -> None:
     """The SSIM training step with each (norm, heads) network, interleaved; ratios to the dissertation's."""
+    device, memory_format, batch, h, w = bench.device, bench.memory_format, bench.batch, bench.h, bench.w
     candidates = {}
     for norm in ("none", "group"):
         for heads in ("independent", "residual"):
-            net = MonodepthVGG(width, init_disparity=init, norm=norm, heads=heads).to(
+            net = MonodepthVGG(bench.width, init_disparity=init, norm=norm, heads=heads).to(
                 device, memory_format=memory_format
             )
             opt = torch.optim.Adam(net.parameters(), lr=1e-6)  # tiny: weights barely move between repeats
@@ -158,7 +216,7 @@ def run_networks(args, width: float, init: float, criterion, device, memory_form
             candidates[f"norm {norm}, heads {heads}"] = step
     timings = compare(candidates, device, repeats=args.repeats)
     print(
-        f"SSIM training step by network, batch {batch}x3x{h}x{w}, model x{width}, {device}, "
+        f"SSIM training step by network, batch {batch}x3x{h}x{w}, model x{bench.width}, {device}, "
         f"{torch.get_num_threads()} threads, median of {args.repeats}\n"
     )
     print(table(timings, "norm none, heads independent"))
@@ -194,10 +252,6 @@ def profile_table(candidates: dict, step_seconds: dict[str, float], device: torc
             f"| {name} | {step_ms:.2f} | {busy_ms:.2f} | {busy_ms / step_ms:.0%} | {len(ops) / steps:.0f} |"
         )
     return "\n".join(rows)
-
-
-def model_width(args, params) -> float:
-    return args.width_multiplier or params.model.width_multiplier
 
 
 if __name__ == "__main__":
