@@ -20,16 +20,18 @@ import argparse
 import dataclasses
 import tempfile
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 import torch
 from _timing import compare, device_from, table
 
-from msdepth.config import load_params
+from msdepth.config import Params, load_params
 from msdepth.train import host_sync_interval, train_variant
 
 
-def main() -> None:
+def _parser() -> argparse.ArgumentParser:
+    """The command line: sizes default to params.yaml's."""
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--params", default=str(Path(__file__).resolve().parents[1] / "params.yaml"))
     ap.add_argument("--device", default="cpu", help="cpu | cuda | auto")
@@ -51,11 +53,13 @@ def main() -> None:
     ap.add_argument("--warmup", type=int, default=1, help="untimed runs of each candidate first")
     ap.add_argument("--amp", choices=["none", "bf16"], default="none")
     ap.add_argument("--channels-last", action="store_true")
-    args = ap.parse_args()
-    base = load_params(args.params)
-    device = device_from(args.device)
+    return ap
+
+
+def bench_params(args: argparse.Namespace, base: Params, device: torch.device) -> Params:
+    """``base`` with the command line's size, model width and training switches, one seed."""
     h, w = args.height or base.data.height, args.width or base.data.width
-    params = dataclasses.replace(
+    return dataclasses.replace(
         base,
         data=dataclasses.replace(base.data, height=h, width=w),
         model=dataclasses.replace(
@@ -74,34 +78,51 @@ def main() -> None:
             launcher="local",
         ),
     )
+
+
+def random_pairs(n: int, h: int, w: int) -> tuple[np.ndarray, list[tuple[Path, Path]]]:
+    """``n`` random stereo pairs in the pair cache's layout (right = left shifted 3 px), and their names."""
     rng = np.random.default_rng(0)
-    left = rng.integers(0, 256, (args.pairs, h, w, 3), dtype=np.uint8)
+    left = rng.integers(0, 256, (n, h, w, 3), dtype=np.uint8)
     cache = np.stack([left, np.roll(left, -3, axis=2)], axis=1)  # (N, 2, H, W, 3), right = left shifted 3 px
-    pairs = [(Path(f"pair{i}_left.png"), Path(f"pair{i}_right.png")) for i in range(args.pairs)]
+    return cache, [(Path(f"pair{i}_left.png"), Path(f"pair{i}_right.png")) for i in range(n)]
 
-    def run(variant: str, sync_every: int):
-        run_params = dataclasses.replace(
-            params, train=dataclasses.replace(params.train, sync_every=sync_every)
-        )
 
-        def train() -> None:
-            with tempfile.TemporaryDirectory() as tmp:
-                train_variant(
-                    run_params,
-                    variant,
-                    pairs,
-                    Path(tmp) / "model.pt",
-                    Path(tmp) / "ck.pt",
-                    progress=False,
-                    cache=cache,
-                )
+def training_run(
+    params: Params, variant: str, sync_every: int, pairs: list[tuple[Path, Path]], cache: np.ndarray
+) -> Callable[[], None]:
+    """A complete training of ``variant``, reading the loss every ``sync_every`` steps, into a temp folder."""
+    run_params = dataclasses.replace(params, train=dataclasses.replace(params.train, sync_every=sync_every))
 
-        return train
+    def train() -> None:
+        with tempfile.TemporaryDirectory() as tmp:
+            train_variant(
+                run_params,
+                variant,
+                pairs,
+                Path(tmp) / "model.pt",
+                Path(tmp) / "ck.pt",
+                progress=False,
+                cache=cache,
+            )
 
-    candidates = {f"{v} sync {s}": run(v, s) for v in args.variants.split(",") for s in (1, args.sync)}
-    timings = compare(candidates, device, repeats=args.repeats, warmup=args.warmup)
-    images = args.pairs // params.train.batch_size * params.train.batch_size * args.epochs
+    return train
+
+
+def main() -> None:
+    args = _parser().parse_args()
+    device = device_from(args.device)
+    params = bench_params(args, load_params(args.params), device)
     t = params.train
+    h, w = params.data.height, params.data.width
+    cache, pairs = random_pairs(args.pairs, h, w)
+    candidates = {
+        f"{v} sync {s}": training_run(params, v, s, pairs, cache)
+        for v in args.variants.split(",")
+        for s in (1, args.sync)
+    }
+    timings = compare(candidates, device, repeats=args.repeats, warmup=args.warmup)
+    images = args.pairs // t.batch_size * t.batch_size * args.epochs
     print(
         f"training loop, {args.pairs} pairs x {args.epochs} epochs, batch {t.batch_size}x3x{h}x{w}, "
         f"model x{params.model.width_multiplier}, {device}, {t.num_workers} workers, "
