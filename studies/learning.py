@@ -26,8 +26,10 @@ import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
+import pandas as pd
 import yaml
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "src"))
@@ -68,47 +70,92 @@ def _pairs_and_cache(params: Params, out: Path) -> tuple[list, np.ndarray]:
         return pairs, load_pair_cache(path, len(pairs), h, w)
 
 
-def run_one(base: dict, spec: str, seed: int, out: str, threads: int) -> dict:
-    """Train and evaluate one (variant spec, seed); the result is also written to ``out``."""
-    import torch
+@dataclasses.dataclass(frozen=True)
+class EvalSet:
+    """The evaluation frames (with their GT), their left images and the ROI boxes."""
 
-    from msdepth.infer import predict_disparities
-    from msdepth.train import train_variant
+    frames: list
+    images: list[Path]
+    boxes: pd.DataFrame
 
-    out_dir = Path(out)
-    result_path = out_dir / f"{spec.replace(':', '_k')}_seed{seed}.json"
-    if result_path.exists():
-        return json.loads(result_path.read_text())
-    params, variant = _params_for(base, spec, threads)
-    params = dataclasses.replace(params, train=dataclasses.replace(params.train, seeds=(seed,)))
-    pairs, cache = _pairs_and_cache(params, out_dir)
-    work = out_dir / "work" / f"{spec.replace(':', '_k')}_seed{seed}"
+
+def load_eval_set() -> EvalSet:
+    """The pipeline's evaluation index, frames and ROIs (from ``data/index``)."""
     index = read_eval_index(INDEX / "eval_frames.csv")
     frames = load_frames(index)
-    images = [Path(p) for p in index["left"]]
-    boxes = kitti.read_rois(INDEX / "rois.csv")
-    history: list[dict] = []
+    return EvalSet(frames, [Path(p) for p in index["left"]], kitti.read_rois(INDEX / "rois.csv"))
+
+
+def _scores(pred: dict, ev: EvalSet, params: Params) -> tuple[dict, pd.DataFrame, dict]:
+    """The full-image summary and per-image table, and the ROI summary, of the depth maps ``pred``."""
+    full, table = evaluate_full(pred, ev.frames, params.eval)
+    roi, _ = evaluate_roi(pred, ev.frames, ev.boxes, params.eval)
+    return full, table, roi
+
+
+def _roi_cap80(roi: dict) -> dict:
+    """The ROI abs_rel at cap 80, overall and per class."""
+    return {
+        "roi_abs_rel": roi["cap80"]["overall"]["abs_rel"],
+        "roi_by_class": {c: v["abs_rel"] for c, v in roi["cap80"]["by_class"].items()},
+    }
+
+
+def _epoch_recorder(params: Params, ev: EvalSet, history: list[dict]) -> Callable:
+    """``train_variant``'s ``on_epoch``: evaluates the model after every epoch into ``history``."""
+    from msdepth.infer import predict_disparities
 
     def on_epoch(epoch: int, model, means: dict) -> None:
         # Plain predictions (no flip post-processing) after every epoch: the learning curve in abs_rel.
         disp = predict_disparities(
-            model, images, params.data.height, params.data.width, False, progress=False
+            model, ev.images, params.data.height, params.data.width, False, progress=False
         )
-        pred = depth_maps(disp, frames)
-        full, _ = evaluate_full(pred, frames, params.eval)
-        roi, _ = evaluate_roi(pred, frames, boxes, params.eval)
+        pred = depth_maps(disp, ev.frames)
+        full, _, roi = _scores(pred, ev, params)
         model.train()
         history.append(
             {
                 "epoch": epoch,
                 **means,
                 "abs_rel": full["cap80"]["abs_rel"],
-                "roi_abs_rel": roi["cap80"]["overall"]["abs_rel"],
-                "roi_by_class": {c: v["abs_rel"] for c, v in roi["cap80"]["by_class"].items()},
-                "variation_ratio": image_dependence(pred, frames, 80.0)["variation_ratio"],
+                **_roi_cap80(roi),
+                "variation_ratio": image_dependence(pred, ev.frames, 80.0)["variation_ratio"],
             }
         )
 
+    return on_epoch
+
+
+def _final_depth(model_path: Path, params: Params, ev: EvalSet, threads: int) -> dict:
+    """The trained model's depth maps of the evaluation frames, as the pipeline predicts them."""
+    import torch
+
+    from msdepth.infer import predict_disparities
+    from msdepth.train import load_model
+
+    torch.set_num_threads(threads)
+    model, meta = load_model(model_path)
+    disp = predict_disparities(
+        model, ev.images, meta["height"], meta["width"], params.eval.post_process, progress=False
+    )
+    return depth_maps(disp, ev.frames)
+
+
+def run_one(base: dict, spec: str, seed: int, out: str, threads: int) -> dict:
+    """Train and evaluate one (variant spec, seed); the result is also written to ``out``."""
+    from msdepth.train import train_variant
+
+    out_dir = Path(out)
+    name = f"{spec.replace(':', '_k')}_seed{seed}"
+    result_path = out_dir / f"{name}.json"
+    if result_path.exists():
+        return json.loads(result_path.read_text())
+    params, variant = _params_for(base, spec, threads)
+    params = dataclasses.replace(params, train=dataclasses.replace(params.train, seeds=(seed,)))
+    pairs, cache = _pairs_and_cache(params, out_dir)
+    work = out_dir / "work" / name
+    ev = load_eval_set()
+    history: list[dict] = []
     # The curve comes from this run's epochs only: never resume a half-finished run.
     (work / "ck.pt").unlink(missing_ok=True)
     started = time.perf_counter()
@@ -121,19 +168,11 @@ def run_one(base: dict, spec: str, seed: int, out: str, threads: int) -> dict:
         progress=False,
         cache=cache,
         seed=seed,
-        on_epoch=on_epoch,
+        on_epoch=_epoch_recorder(params, ev, history),
     )
     seconds = time.perf_counter() - started
-    from msdepth.train import load_model
-
-    torch.set_num_threads(threads)
-    model, meta = load_model(work / "model.pt")
-    disp = predict_disparities(
-        model, images, meta["height"], meta["width"], params.eval.post_process, progress=False
-    )
-    pred = depth_maps(disp, frames)
-    full, table = evaluate_full(pred, frames, params.eval)
-    roi, _ = evaluate_roi(pred, frames, boxes, params.eval)
+    pred = _final_depth(work / "model.pt", params, ev, threads)
+    full, table, roi = _scores(pred, ev, params)
     row = {
         "per_image_abs_rel": table[table["cap"] == 80]["abs_rel"].tolist(),
         "spec": spec,
@@ -143,9 +182,8 @@ def run_one(base: dict, spec: str, seed: int, out: str, threads: int) -> dict:
         "abs_rel": full["cap80"]["abs_rel"],
         "a1": full["cap80"]["a1"],
         "rmse": full["cap80"]["rmse"],
-        "roi_abs_rel": roi["cap80"]["overall"]["abs_rel"],
-        "roi_by_class": {c: v["abs_rel"] for c, v in roi["cap80"]["by_class"].items()},
-        "image_dependence": image_dependence(pred, frames, params.eval.caps[0]),
+        **_roi_cap80(roi),
+        "image_dependence": image_dependence(pred, ev.frames, params.eval.caps[0]),
         "history": history,
     }
     result_path.write_text(json.dumps(row, indent=1))
@@ -168,8 +206,7 @@ def prior_metrics(params: Params) -> dict:
         out[name] = {
             "per_image_abs_rel": table[table["cap"] == 80]["abs_rel"].tolist(),
             "abs_rel": full["cap80"]["abs_rel"],
-            "roi_abs_rel": roi["cap80"]["overall"]["abs_rel"],
-            "roi_by_class": {c: v["abs_rel"] for c, v in roi["cap80"]["by_class"].items()},
+            **_roi_cap80(roi),
         }
     return out
 
