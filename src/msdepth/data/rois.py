@@ -98,7 +98,7 @@ def _image_size(path: str) -> tuple[int, int]:
 def _check_user_rois(user_csv: Path, frames: pd.DataFrame) -> pd.DataFrame:
     """The user CSV's rows, after checking each names an evaluation frame and fits in its image."""
     user = kitti.read_rois(user_csv)  # format, classes and box sanity, with CSV line numbers
-    lefts = dict(zip(frames["frame"].astype(str), frames["left"].astype(str)))
+    lefts = dict(zip(frames["frame"].astype(str), frames["left"].astype(str), strict=True))
     sizes: dict[str, tuple[int, int]] = {}
     for i, row in enumerate(user.itertuples(index=False), start=2):  # line numbers as read_rois
         image = row.image
@@ -262,7 +262,7 @@ def contact_sheet(
     out_path = Path(out_path)
     cell_w, cell_h = tile + 2 * PAD, tile + LABEL_HEIGHT + 2 * PAD
     width = columns * cell_w
-    lefts = dict(zip(frames["frame"].astype(str), frames["left"].astype(str)))
+    lefts = dict(zip(frames["frame"].astype(str), frames["left"].astype(str), strict=True))
     # Known classes in their canonical order, then anything else a caller passes, alphabetically.
     present = list(dict.fromkeys(rois["class"])) if len(rois) else []
     classes = [c for c in kitti.ROI_CLASSES if c in present] + sorted(
