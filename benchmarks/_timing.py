@@ -35,7 +35,7 @@ class Timings:
 
     def ratio(self, name: str, baseline: str) -> tuple[float, float, float]:
         """Median, 25th and 75th percentile of the per-round ratio ``name / baseline``."""
-        ratios = sorted(a / b for a, b in zip(self.rounds[name], self.rounds[baseline]))
+        ratios = sorted(a / b for a, b in zip(self.rounds[name], self.rounds[baseline], strict=True))
         if len(ratios) < 2:
             return ratios[0], ratios[0], ratios[0]
         p25, _, p75 = statistics.quantiles(ratios, n=4, method="inclusive")

@@ -310,7 +310,11 @@ def main(argv: list[str] | None = None) -> int:
     threads = max(1, (os.cpu_count() or 1) // args.jobs)
     jobs = [(spec, seed) for seed in args.seeds for spec in args.variants]
     with ProcessPoolExecutor(args.jobs) as pool:
-        list(pool.map(run_one, *zip(*[(base, s, seed, str(args.out), threads) for s, seed in jobs])))
+        list(
+            pool.map(
+                run_one, *zip(*[(base, s, seed, str(args.out), threads) for s, seed in jobs], strict=True)
+            )
+        )
     # Every run in the folder, also those of earlier invocations with other variants or seeds.
     rows = [json.loads(p.read_text()) for p in sorted(args.out.glob("*_seed*.json"))]
     prior = prior_metrics(params_from_dict(base))

@@ -40,11 +40,11 @@ def figure(models: dict[str, Path], names: list[str], out: Path) -> None:
     from msdepth.train import load_model
 
     index = read_eval_index(INDEX / "eval_frames.csv")
-    by_name = {f.name: (f, Path(left)) for f, left in zip(load_frames(index), index["left"])}
+    by_name = {f.name: (f, Path(left)) for f, left in zip(load_frames(index), index["left"], strict=True)}
     missing = [n for n in names if n not in by_name]
     if missing:
         raise DataError(f"{INDEX / 'eval_frames.csv'}: no evaluation frame(s) {missing}")
-    frames, images = zip(*(by_name[n] for n in names))
+    frames, images = zip(*(by_name[n] for n in names), strict=True)
     predictions = {}
     for label, path in models.items():
         model, meta = load_model(path)
@@ -53,7 +53,7 @@ def figure(models: dict[str, Path], names: list[str], out: Path) -> None:
         )
     fig, axes = plt.subplots(len(names), 2 + len(models), figsize=(4 * (2 + len(models)), 2.3 * len(names)))
     axes = np.atleast_2d(axes)
-    for row, (frame, image) in enumerate(zip(frames, images)):
+    for row, (frame, image) in enumerate(zip(frames, images, strict=True)):
         depth = np.maximum(frame.gt_depth, 1e-3)
         gt = np.where(frame.gt_depth > 0, frame.focal * frame.baseline / depth / frame.shape[1], np.nan)
         vmax = float(np.nanpercentile(gt, 99)) if np.isfinite(gt).any() else 0.3

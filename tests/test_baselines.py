@@ -43,7 +43,7 @@ def test_synthetic_gt_is_disp_02_as_before(trees) -> None:
     tree, _, _ = trees
     gt = baselines.training_gt(_lefts(tree), progress=False)
     assert gt.sources == {"disp_02": SYN.train_pairs} and gt.missing == {} and gt.resampled == 0
-    for frac, left in zip(gt.maps, _lefts(tree)):
+    for frac, left in zip(gt.maps, _lefts(tree), strict=True):
         disp = kitti.read_disparity(left.parents[2] / "disp_02" / "data" / left.name)
         np.testing.assert_array_equal(frac, np.where(disp > 0, disp / disp.shape[1], np.nan))
 
@@ -56,7 +56,7 @@ def test_kitti_gt_is_the_projected_scan_as_disparity(trees) -> None:
     gt = baselines.training_gt(lefts, progress=False)
     assert gt.sources == {"velodyne": SYN.train_pairs} and gt.maps.shape == (SYN.train_pairs, 48, 160)
     focal = synthetic.focal_for_width(160)
-    for frac, left in zip(gt.maps, lefts):
+    for frac, left in zip(gt.maps, lefts, strict=True):
         depth = expected[left.relative_to(mirror / "raw").as_posix()]
         assert np.count_nonzero(depth) > 100
         want = np.full(depth.shape, np.nan, dtype=np.float32)

@@ -40,7 +40,7 @@ def test_ranks_split_each_global_batch() -> None:
         sampler=GlobalBatchSampler(10, 4, Context(), g := torch.Generator().manual_seed(1)),
         generator=g,
     )
-    for global_batch, r0, r1 in zip(one, batches(0), batches(1)):
+    for global_batch, r0, r1 in zip(one, batches(0), batches(1), strict=True):
         assert global_batch.tolist() == [int(i) for i in r0] + [int(i) for i in r1]
 
 

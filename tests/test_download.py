@@ -1182,6 +1182,7 @@ def test_annotated_depth_archive_unpacks_where_the_benchmark_index_looks(
     for (name, data), (drive, number) in zip(
         members.items(),
         [("2011_09_26/2011_09_26_drive_0001_sync", 5), ("2011_09_26/2011_09_26_drive_0002_sync", 69)],
+        strict=True,
     ):
         found = annotated_gt_path(root, drive, number)
         assert found == root / name and found.read_bytes() == data

@@ -94,7 +94,7 @@ stages:
     matrix:
       x: [1, 2]
     cmd: python stages/run.py ${item.x}
-    deps:
+    deps:  # code first
       - stages/run.py
       - src/msdepth/unused.py
       # data below

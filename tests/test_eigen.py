@@ -31,7 +31,7 @@ def reference_eigen(gt_depths, pred_disps, cap, median_scaling=False, min_depth=
     [0.03594771 w, 0.96405229 w) (int32-truncated); optional median scaling; clamp; metrics;
     mean over images."""
     rows, ratios = [], []
-    for gt, disp in zip(gt_depths, pred_disps):
+    for gt, disp in zip(gt_depths, pred_disps, strict=True):
         h, w = gt.shape
         pred = FOCAL * BASELINE / (w * cv2.resize(disp, (w, h), interpolation=cv2.INTER_LINEAR))
         mask = np.logical_and(gt > min_depth, gt < cap)
@@ -264,7 +264,7 @@ def test_compare_section_of_an_extra_set(tmp_path: Path, monkeypatch: pytest.Mon
         "prior": ["prior"],
     }
     rng = np.random.default_rng(5)
-    for i, run in enumerate(r for runs in groups.values() for r in runs):
+    for run in (r for runs in groups.values() for r in runs):
         scale = 1.0 if run.startswith("msssim") else 1.3  # msssim closer to the truth
         pred = {
             f.name: np.where(f.gt_depth > 0, f.gt_depth * scale * rng.uniform(0.95, 1.05), 20.0)

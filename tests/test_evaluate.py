@@ -15,7 +15,7 @@ FOCAL, BASELINE = 721.5377, 0.54
 def monodepth_kitti2015(pred_disparities, gt_disparities, cap, min_depth=1e-3):
     """Straight transcription of Monodepth's evaluate_kitti.py (split kitti, no GT masking)."""
     results = []
-    for pred_disp, gt_disp in zip(pred_disparities, gt_disparities):
+    for pred_disp, gt_disp in zip(pred_disparities, gt_disparities, strict=True):
         height, width = gt_disp.shape
         pred_disp = width * cv2.resize(pred_disp, (width, height), interpolation=cv2.INTER_LINEAR)
         mask = gt_disp > 0

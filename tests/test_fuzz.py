@@ -364,7 +364,7 @@ def _check_accepted_table(
         return
     assert header is not None and set(kitti.ROI_COLUMNS) <= set(header)
     assert len(df) == len(rows)
-    for got, row in zip(df.to_dict("records"), rows):
+    for got, row in zip(df.to_dict("records"), rows, strict=True):
         assert (got["image"], got["class"]) == (row["image"], row["class"])
         for c in ("x0", "y0", "x1", "y1"):
             try:

@@ -137,7 +137,7 @@ def test_residual_heads_refine_the_upsampled_coarser_disparity():
     with torch.no_grad():
         disps = model(torch.rand(1, 3, 64, 192))
     logit = lambda d: torch.logit(d / 0.3)  # noqa: E731
-    for fine, coarse in zip(disps[:-1], disps[1:]):
+    for fine, coarse in zip(disps[:-1], disps[1:], strict=True):
         up = torch.nn.functional.interpolate(
             logit(coarse), size=fine.shape[-2:], mode="bilinear", align_corners=False
         )

@@ -93,7 +93,7 @@ def test_ssim_terms_match_the_plain_formula(
     up_cs, up_full = _rand(*cs.shape, seed=8).double(), _rand(*cs.shape, seed=9).double()
     ours = torch.autograd.grad((cs * up_cs + full * up_full).sum(), (x, y))
     ref = torch.autograd.grad((ref_cs * up_cs + ref_full * up_full).sum(), (x, y))
-    for a, b in zip(ours, ref):
+    for a, b in zip(ours, ref, strict=True):
         torch.testing.assert_close(a, b, rtol=1e-7, atol=1e-8)
     cs_only = _ssim_terms(x, y, kernel_size, window, 1.5, padding, luminance=False)  # type: ignore[arg-type]
     assert torch.equal(cs_only, cs)
@@ -214,7 +214,7 @@ def test_ms_ssim_pyramid_fast_matches_reference(
     torch.testing.assert_close(out["fast"], out["reference"], rtol=0, atol=1e-10)
     up = _rand(*out["fast"].shape, seed=6).double()
     fast, ref = (torch.autograd.grad((out[i] * up).sum(), xs) for i in ("fast", "reference"))
-    for a, b in zip(fast, ref):
+    for a, b in zip(fast, ref, strict=True):
         torch.testing.assert_close(a, b, rtol=1e-7, atol=1e-9)
 
 
@@ -300,7 +300,7 @@ def test_ssim_hand_computed_on_3x3() -> None:
     mx, my = sum(xs) / n, sum(ys) / n
     vx = sum(v * v for v in xs) / n - mx * mx
     vy = sum(v * v for v in ys) / n - my * my
-    cov = sum(a * b for a, b in zip(xs, ys)) / n - mx * my
+    cov = sum(a * b for a, b in zip(xs, ys, strict=True)) / n - mx * my
     expected = (2 * mx * my + C1) * (2 * cov + C2) / ((mx * mx + my * my + C1) * (vx + vy + C2))
     x = torch.tensor(xs, dtype=torch.float64).view(1, 1, 3, 3)
     y = torch.tensor(ys, dtype=torch.float64).view(1, 1, 3, 3)
@@ -339,7 +339,7 @@ def test_ms_ssim_in_unit_range_and_decreases_with_noise() -> None:
     values = [ms_ssim(x, _noisy(x, std)) for std in (0.0, 0.02, 0.05, 0.1, 0.2, 0.5)]
     for v in values:
         assert ((v >= 0) & (v <= 1 + 1e-5)).all()
-    for finer, coarser in zip(values, values[1:]):
+    for finer, coarser in zip(values, values[1:], strict=False):
         assert (coarser < finer).all()
 
 
@@ -414,13 +414,13 @@ def test_ms_ssim_pyramid_equals_ms_ssim_per_pair(sizes: list[tuple[int, int]], w
         return learned() if weights == "learned" else weights
 
     together = ms_ssim_pyramid(xs, ys, 5, 4, w())
-    separate = torch.stack([ms_ssim(x, y, 5, 4, w()) for x, y in zip(xs, ys)])
+    separate = torch.stack([ms_ssim(x, y, 5, 4, w()) for x, y in zip(xs, ys, strict=True)])
     torch.testing.assert_close(together, separate, rtol=0, atol=1e-7)
     up = _rand(*together.shape, seed=7)
     params = [*xs, learned.logits] if weights == "learned" else xs
     grads = torch.autograd.grad((together * up).sum(), params)
     ref = torch.autograd.grad((separate * up).sum(), params)
-    for a, b in zip(grads, ref):
+    for a, b in zip(grads, ref, strict=True):
         torch.testing.assert_close(a, b, rtol=1e-6, atol=1e-8)
 
 
@@ -657,7 +657,7 @@ def test_monodepth_loss_total_combines_the_terms() -> None:
     assert torch.allclose(terms["total"], expected)
     manual = sum(
         (smoothness_loss(d[:, :1], l_s) + smoothness_loss(d[:, 1:], r_s)) / 2**s
-        for s, (d, l_s, r_s) in enumerate(zip(disps, scale_pyramid(left), scale_pyramid(right)))
+        for s, (d, l_s, r_s) in enumerate(zip(disps, scale_pyramid(left), scale_pyramid(right), strict=True))
     )
     assert torch.allclose(terms["smoothness"], manual)
 

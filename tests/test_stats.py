@@ -59,7 +59,7 @@ def test_bad_inputs() -> None:
 
 
 def _table(frames: list[str], abs_rel: list[float], cap: float = 80) -> pd.DataFrame:
-    rows = [{"frame": f, "cap": cap, **{m: v for m in METRICS}} for f, v in zip(frames, abs_rel)]
+    rows = [{"frame": f, "cap": cap, **{m: v for m in METRICS}} for f, v in zip(frames, abs_rel, strict=True)]
     return pd.DataFrame(rows)
 
 

@@ -108,7 +108,7 @@ def test_scan_agrees_with_dense_gt(root: Path, frames: list[synthetic.Frame]) ->
         a, b = u - u0, v - v0
         corners = [(v0, u0), (v0, u0 + 1), (v0 + 1, u0), (v0 + 1, u0 + 1)]
         weights = [(1 - a) * (1 - b), a * (1 - b), (1 - a) * b, a * b]
-        disp = sum(w * frame.disp[c] for w, c in zip(weights, corners))
+        disp = sum(w * frame.disp[c] for w, c in zip(weights, corners, strict=True))
         ok = np.all([frame.disp[c] > 0 for c in corners], axis=0)
         ok &= ~np.any([(frame.class_map[c] & GLASSY) > 0 for c in corners], axis=0)
         expected = frame.focal * kitti.KITTI_BASELINE / disp[ok] - calib.velo_to_cam[2, 3]
@@ -198,7 +198,7 @@ def test_angular_culling_misses_no_ray(monkeypatch: pytest.MonkeyPatch) -> None:
         "_grid_window",
         lambda prim, origin, world_to_velo, elev, az: windows.append(prim) or (slice(None), slice(None)),
     )
-    for scene, scan in zip(scenes, culled):
+    for scene, scan in zip(scenes, culled, strict=True):
         full = velodyne_sim.simulate(scene, f, CFG.width, velodyne_sim.scan_rng(0, 1, 0))
         assert full.points.tobytes() == scan.points.tobytes() and full.glass_hits == scan.glass_hits
     assert len(windows) == sum(len(s.prims) for s in scenes) > 50

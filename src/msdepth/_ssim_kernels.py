@@ -236,14 +236,14 @@ class _SSIMTerms(torch.autograd.Function):
             # (input, the other input, own μ, other μ, gradient rows) of each input that needs one.
             wanted = [(xc, yc, mu_x, mu_y, grad_x), (yc, xc, mu_y, mu_x, grad_y)]
             wanted = [item for item in wanted if item[-1] is not None]
-            for d_mu, (_, _, mu_own, mu_other, _) in zip(d_mu_maps, wanted):
+            for d_mu, (_, _, mu_own, mu_other, _) in zip(d_mu_maps, wanted, strict=True):
                 # dL/dμx = -(dL/dE[xy]·μy + 2·dL/dE[x² + y²]·μx), and symmetrically for μy; the
                 # luminance adds 2·g·(μy - luminance·μx) / (μx² + μy² + C1).
                 torch.mul(d_xy, mu_other, out=d_mu).addcmul_(d_sq, mu_own, value=2).neg_()
                 if g_lum is not None:
                     d_mu.addcmul_(g_lum, torch.addcmul(mu_other, lum, mu_own, value=-1))
             g_xy, g_sq, *g_mu = win.sum(buf[:n]).split(1, dim=1)
-            for g_mu_i, (own, other, _, _, grad) in zip(g_mu, wanted):
+            for g_mu_i, (own, other, _, _, grad) in zip(g_mu, wanted, strict=True):
                 torch.addcmul(g_mu_i, own, g_sq, value=2, out=grad[start:stop]).addcmul_(other, g_xy)
         return _unplane(grad_x, x), _unplane(grad_y, y), None, None
 

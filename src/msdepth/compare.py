@@ -180,7 +180,7 @@ def seed_spread(
                     metric: {
                         "mean": float(np.mean(v)),
                         "sd": float(np.std(v, ddof=1)) if len(v) > 1 else None,
-                        "runs": dict(zip(runs, map(float, v))),
+                        "runs": dict(zip(runs, map(float, v), strict=True)),
                     }
                     for metric, v in values.items()
                 }

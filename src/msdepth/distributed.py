@@ -117,7 +117,7 @@ def mean_over_ranks(values: dict[str, float], ctx: Context) -> dict[str, float]:
         return values
     t = torch.tensor(list(values.values()), dtype=torch.float64)
     dist.all_reduce(t, op=dist.ReduceOp.SUM)
-    return dict(zip(values, (t / ctx.world).tolist()))
+    return dict(zip(values, (t / ctx.world).tolist(), strict=True))
 
 
 def check_replicas(modules: list[nn.Module], ctx: Context) -> None:

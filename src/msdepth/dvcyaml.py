@@ -180,7 +180,7 @@ def _item(line: str) -> str | None:
 def _rewrite_stage(lines: list[str], name: str, deps: list[str]) -> list[str]:
     """``lines`` with the head of stage ``name``'s deps list replaced by ``deps``."""
     start, end, key = _stage_block(lines, name)
-    deps_at = next((i for i in range(start + 1, end) if lines[i] == f"{key}deps:\n"), None)
+    deps_at = next((i for i in range(start + 1, end) if re.match(rf"{key}deps:\s*(#.*)?$", lines[i])), None)
     if deps_at is None:  # a new stage: its deps list goes after its cmd line
         cmd_at = next(
             (i for i in range(start + 1, end) if lines[i].startswith(f"{key}cmd: python stages/")), None

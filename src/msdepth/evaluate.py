@@ -111,7 +111,7 @@ def depth_maps(disparities: np.ndarray, frames: list[Frame]) -> dict[str, np.nda
     if len(disparities) != len(frames):
         raise DataError(f"{len(disparities)} predicted disparities for {len(frames)} evaluation frames")
     out = {}
-    for disp, frame in zip(disparities, frames):
+    for disp, frame in zip(disparities, frames, strict=True):
         h, w = frame.shape
         out[frame.name] = disparity_to_depth(pixel_disparity(disp, h, w), frame.focal, frame.baseline)
     return out

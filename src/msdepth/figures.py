@@ -433,7 +433,7 @@ def _training_figure(runs: dict[str, list[str]], train_plots: Path, path: Path) 
     }
     fig = _new_figure(4.2 * len(LOSS_TERMS), 3.4)
     axes = fig.subplots(1, len(LOSS_TERMS), squeeze=False)[0]
-    for ax, term in zip(axes, LOSS_TERMS):
+    for ax, term in zip(axes, LOSS_TERMS, strict=True):
         for colour, (v, group) in enumerate(runs.items()):
             for i, run in enumerate(group):
                 df = curves[run, term]
@@ -480,7 +480,7 @@ def _scatter_figure(runs: dict[str, str], metrics: Path, cap: float, path: Path)
     fig = _new_figure(5.0, 5.0 + 0.2 * len(others))
     ax = fig.subplots()
     lines, all_values = [], [errors[ref].to_numpy()]
-    for v, marker in zip(others, "osD^v<>"):
+    for v, marker in zip(others, "osD^v<>", strict=False):
         x, y = errors[ref].align(errors[v], join="inner")
         all_values.append(y.to_numpy())
         ax.scatter(x, y, s=18, marker=marker, alpha=0.75, label=v)

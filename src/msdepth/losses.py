@@ -264,7 +264,7 @@ def ms_ssim_pyramid(
     n = len(xs)
     if n == 0 or len(ys) != n:
         raise ValueError(f"ms_ssim: expected as many estimates as targets (>= 1), got {n} and {len(ys)}")
-    for x, y in zip(xs, ys):
+    for x, y in zip(xs, ys, strict=True):
         _check_pair("ms_ssim", x, y)
         if x.shape[:2] != xs[0].shape[:2]:
             raise ValueError(
@@ -286,7 +286,7 @@ def ms_ssim_pyramid(
         stacked = torch.stack(
             [
                 _reference_ms_ssim_levels(x, y, kernel_size, levels, window, sigma, padding)
-                for x, y in zip(xs, ys)
+                for x, y in zip(xs, ys, strict=True)
             ]
         )
     stacked = stacked.clamp(min=_MS_SSIM_EPS)  # (n, levels, B, C)
@@ -439,7 +439,7 @@ class MonodepthLoss(nn.Module):
         targets = scale_pyramid(torch.cat((left, right)), len(disps))
         estimates = []
         smoothness = lr = left.new_zeros(())
-        for s, (disp, target) in enumerate(zip(disps, targets)):
+        for s, (disp, target) in enumerate(zip(disps, targets, strict=True)):
             if disp.dim() != 4 or disp.shape[1] != 2 or disp.shape[-2:] != target.shape[-2:]:
                 raise ValueError(
                     f"MonodepthLoss: scale {s} disparity must be (B, 2, {target.shape[-2]}, "

@@ -38,7 +38,7 @@ def compute_errors(gt: np.ndarray, pred: np.ndarray) -> dict[str, float]:
     abs_rel = np.mean(np.abs(gt - pred) / gt)
     sq_rel = np.mean(((gt - pred) ** 2) / gt)
     values = (abs_rel, sq_rel, rmse, rmse_log, a1, a2, a3)
-    return {name: float(v) for name, v in zip(METRICS, values)}
+    return {name: float(v) for name, v in zip(METRICS, values, strict=True)}
 
 
 # Garg et al.'s crop of the Eigen split, as fractions of the GT image size (Monodepth2's

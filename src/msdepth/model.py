@@ -132,7 +132,7 @@ class MonodepthVGG(nn.Module):
         skips = feats[:-1][::-1]  # conv6b .. conv1b
         disps: list[Tensor] = []
         logits: Tensor | None = None
-        for i, (up, iconv) in enumerate(zip(self.upconvs, self.iconvs)):
+        for i, (up, iconv) in enumerate(zip(self.upconvs, self.iconvs, strict=True)):
             size = skips[i].shape[-2:] if i < len(skips) else image.shape[-2:]
             x = up(F.interpolate(x, size=size, mode="nearest"))
             parts = [x]

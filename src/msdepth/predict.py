@@ -178,7 +178,7 @@ def _colorbar(height: int, vmin: float, vmax: float) -> np.ndarray:
     panel[:, pad : pad + bar_w] = bar
     x = 2 * pad + bar_w
     text_h = sizes[0][1]
-    for text, y in zip(labels, (text_h + 1, (height + text_h) // 2, height - 2)):
+    for text, y in zip(labels, (text_h + 1, (height + text_h) // 2, height - 2), strict=True):
         cv2.putText(panel, text, (x, y), font, font_scale, (255, 255, 255), thickness, cv2.LINE_AA)
     return panel
 
@@ -348,7 +348,7 @@ def predict(
 
     def run(batch: list[_Frame]) -> None:
         tensor = torch.stack([to_tensor(resize(f.image, height, width)) for f in batch]).to(device)
-        for frame, disp in zip(batch, network_disparity(model, tensor, options.post_process)):
+        for frame, disp in zip(batch, network_disparity(model, tensor, options.post_process), strict=True):
             try:
                 save_outputs(out_dir / frame.stem, frame.image, disp, options)
                 report.written += 1

@@ -465,14 +465,14 @@ def _read_losses(
     if not unread:
         return 0
     rows = torch.stack([values for _, _, values in unread]).cpu().tolist()
-    for (step, index, _), row in zip(unread, rows):
+    for (step, index, _), row in zip(unread, rows, strict=True):
         if not math.isfinite(row[0]):
             names = [str(dataset.pairs[int(i)][0]) for i in index]
             raise TrainingError(
                 f"{variant}: non-finite loss {row[0]} at step {step} (epoch {epoch + 1}); batch: {names}. "
                 "No checkpoint was written for this epoch."
             )
-        for k, value in zip(LOSS_KEYS, row):
+        for k, value in zip(LOSS_KEYS, row, strict=True):
             sums[k] += value
     count = len(unread)
     unread.clear()

@@ -55,5 +55,5 @@ class MixAppearance(AppearanceTerm):
         )
         return [
             cfg.alpha * (1 - value).mean() + (1 - cfg.alpha) * gaussian_l1(x, y, cfg.l1_sigma)
-            for value, x, y in zip(msssim, estimates, targets)
+            for value, x, y in zip(msssim, estimates, targets, strict=True)
         ]

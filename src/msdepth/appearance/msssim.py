@@ -66,5 +66,5 @@ class MSSSIMAppearance(AppearanceTerm):
         similarity = msssim_similarity(self.cfg, getattr(self, "level_weights", None), self.implementation)
         return [
             similarity_appearance_loss(sim, x, y, self.alpha)
-            for sim, x, y in zip(similarity(estimates, targets), estimates, targets)
+            for sim, x, y in zip(similarity(estimates, targets), estimates, targets, strict=True)
         ]

@@ -25,9 +25,9 @@ class SSIMAppearance(AppearanceTerm):
         k, padding = self.cfg.kernel_size, self.cfg.padding
         similarities = [
             ssim(x, y, kernel_size=k, padding=padding, implementation=self.implementation)
-            for x, y in zip(estimates, targets)
+            for x, y in zip(estimates, targets, strict=True)
         ]
         return [
             similarity_appearance_loss(sim, x, y, self.alpha)
-            for sim, x, y in zip(similarities, estimates, targets)
+            for sim, x, y in zip(similarities, estimates, targets, strict=True)
         ]

@@ -100,7 +100,7 @@ def _image_size(path: str) -> tuple[int, int]:
 def _check_user_rois(user_csv: Path, frames: pd.DataFrame) -> pd.DataFrame:
     """The user CSV's rows, after checking each names an evaluation frame and fits in its image."""
     user = kitti.read_rois(user_csv)  # format, classes and box sanity, with CSV line numbers
-    lefts = dict(zip(frames["frame"].astype(str), frames["left"].astype(str)))
+    lefts = dict(zip(frames["frame"].astype(str), frames["left"].astype(str), strict=True))
     sizes: dict[str, tuple[int, int]] = {}
     for i, row in enumerate(user.itertuples(index=False), start=2):  # line numbers as read_rois
         image = row.image
@@ -365,7 +365,7 @@ def contact_sheet(
             f"need tile >= 8, columns >= 1, max_per_class >= 1; got {tile}, {columns}, {max_per_class}"
         )
     out_path = Path(out_path)
-    lefts = dict(zip(frames["frame"].astype(str), frames["left"].astype(str)))
+    lefts = dict(zip(frames["frame"].astype(str), frames["left"].astype(str), strict=True))
     sheet = _Sheet(out_path, lefts, tile, columns)
     images: dict[str, np.ndarray] = {}  # each left image decoded once
     blocks = [

@@ -157,7 +157,7 @@ class _Scene:
         self, normals: np.ndarray, offsets: np.ndarray, corners: np.ndarray, face_args: list[dict[str, Any]]
     ) -> list[int]:
         """Add a convex polytope (one face description per plane); returns its face ids."""
-        ids = [self.add_face(n, **a) for n, a in zip(normals, face_args)]
+        ids = [self.add_face(n, **a) for n, a in zip(normals, face_args, strict=True)]
         self.prims.append(
             _Prim(
                 np.asarray(normals, np.float32),
@@ -339,7 +339,7 @@ def _add_facades(
         box(
             (xs[0], cam_h - height, z),
             (xs[1], cam_h + 0.1, z + length),
-            lambda n: dict(material=WALL, origin=ground, colour=colour, colour2=window, params=prm),
+            lambda n: dict(material=WALL, origin=ground, colour=colour, colour2=window, params=prm),  # noqa: B023 - box() calls it at once
         )
         if 3 < z + length and z < 45 and rng.random() < 0.35:  # shop window at street level
             w_len = u(2, 6)
@@ -349,7 +349,7 @@ def _add_facades(
             xs = sorted((s * (d - 0.04), s * d))
             tint = _hsv(u(0, 1), u(0.1, 0.5), u(0.1, 0.35))
             glass = dict(material=GLASS, origin=ground, colour=tint, params=(u(0.2, 0.45), u(1.5, 4.0)))
-            ids = box((xs[0], top, z0), (xs[1], bottom, z1), lambda n: glass)
+            ids = box((xs[0], top, z0), (xs[1], bottom, z1), lambda n: glass)  # noqa: B023 - box() calls it at once
             front = ids[0] if s > 0 else ids[1]  # the face looking at the street
             x = s * (d - 0.04)
             scene.rois.append(
@@ -515,7 +515,7 @@ def _add_poles(scene: _Scene, rng: np.random.Generator, sides: dict, ground: np.
         box(
             (x - r, cam_h - height, z - r),
             (x + r, cam_h + 0.1, z + r),
-            lambda n: dict(material=POLE, origin=ground, colour=grey),
+            lambda n: dict(material=POLE, origin=ground, colour=grey),  # noqa: B023 - box() calls it at once
         )
         if rng.random() > 0.75:
             continue
@@ -600,7 +600,7 @@ def _hit(prim: _Prim, origin: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np
     t_out = np.full(shape, np.inf, np.float32)
     plane = np.zeros(shape, np.int8)
     with np.errstate(divide="ignore", invalid="ignore"):
-        for i, (n, c) in enumerate(zip(prim.normals, prim.offsets)):
+        for i, (n, c) in enumerate(zip(prim.normals, prim.offsets, strict=True)):
             # Skip zero components: most planes are axis-aligned, so this is one multiply.
             denom = None
             for a in range(3):
