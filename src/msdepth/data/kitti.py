@@ -220,6 +220,11 @@ def write_velodyne(path: PathLike, points: np.ndarray) -> None:
         tmp.write_bytes(np.ascontiguousarray(points, dtype="<f4").tobytes())
 
 
+# S_rect_02 sizes the depth map that a scan is projected into (KITTI's: 1242 x 375); an unbounded
+# one made lidar_depth_map attempt 298 GiB.
+MAX_CALIB_SIDE = 16384
+
+
 @dataclass(frozen=True)
 class RawCalib:
     """One KITTI raw day's calibration, as the LiDAR projection into camera 2 needs it.
@@ -251,8 +256,13 @@ def read_raw_calib(day_dir: PathLike) -> RawCalib:
     cam, velo = read_calib(cam_path), read_calib(velo_path)
     size = _entry(cam, "S_rect_02", 2, cam_path)
     width, height = (int(round(v)) for v in size)
-    if width <= 0 or height <= 0 or not np.allclose(size, (width, height)):
-        raise DataError(f"{cam_path}: S_rect_02 must be a positive whole width and height, got {size}")
+    if not (0 < width <= MAX_CALIB_SIDE and 0 < height <= MAX_CALIB_SIDE) or not np.allclose(
+        size, (width, height)
+    ):
+        raise DataError(
+            f"{cam_path}: S_rect_02 must be a whole width and height from 1 to {MAX_CALIB_SIDE} px, "
+            f"got {size}"
+        )
     velo_to_cam = np.eye(4)
     velo_to_cam[:3, :3] = _entry(velo, "R", 9, velo_path).reshape(3, 3)
     velo_to_cam[:3, 3] = _entry(velo, "T", 3, velo_path)
@@ -301,6 +311,8 @@ def lidar_depth_map(
     if proj.shape != (3, 4):
         raise ValueError(f"lidar_depth_map: proj must be 3x4, got {proj.shape}")
     height, width = shape
+    if not (0 < height <= MAX_CALIB_SIDE and 0 < width <= MAX_CALIB_SIDE):
+        raise ValueError(f"lidar_depth_map: shape must be 1..{MAX_CALIB_SIDE} px a side, got {shape}")
     xyz = points[points[:, 0] >= 0, :3].astype(np.float64)
     velo_to_image = proj @ _homogeneous(rect, "rect") @ _homogeneous(velo_to_cam, "velo_to_cam")
     uvz = xyz @ velo_to_image[:, :3].T + velo_to_image[:, 3]
