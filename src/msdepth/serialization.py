@@ -67,7 +67,7 @@ def load_weights_file(
     problem = zip_problem(path)
     if problem:
         raise MsdepthError(
-            f"{path}: refused to load: {problem}; msdepth never writes such a {what} file; {remedy}"
+            f"{path}: refused to load: {problem}, unlike every {what} file written by msdepth; {remedy}"
         )
     try:
         state = torch.load(path, map_location=map_location, weights_only=True)
