@@ -71,7 +71,9 @@ def test_a_file_predict_did_not_write_is_never_replaced(tiny: Path, tmp_path: Pa
     _image(tmp_path / "in" / "b.png", 2)
     assert run(tmp_path / "in", "--model", tiny, "--out", tmp_path / "out") == 1
     err = capsys.readouterr().err
-    line = f"error: {tmp_path / 'in' / 'a.png'}: {tmp_path / 'out' / 'a_disp.png'}: exists and was not written"
+    line = (
+        f"error: {tmp_path / 'in' / 'a.png'}: {tmp_path / 'out' / 'a_disp.png'}: exists and was not written"
+    )
     assert line + " by msdepth predict" in err
     assert (tmp_path / "out" / "a_disp.png").read_bytes() == users
     assert not (tmp_path / "out" / "a_disp.npy").exists()  # nothing of that frame is written
@@ -131,3 +133,36 @@ def test_max_megapixels_refuses_a_large_image_and_keeps_the_rest(tiny: Path, tmp
     assert "large.png: image: the header declares 300 x 200 px" in err
     assert (tmp_path / "out" / "small_disp.png").exists()
     assert not (tmp_path / "out" / "large_disp.png").exists()
+
+
+@pytest.mark.parametrize(
+    "error",
+    [
+        MemoryError(),
+        RuntimeError("DefaultCPUAllocator: can't allocate memory: you tried to allocate 9600000000 bytes"),
+    ],
+    ids=["MemoryError", "torch-cpu-allocator"],
+)
+def test_running_out_of_memory_fails_the_batch_not_the_run(
+    tiny: Path, tmp_path: Path, capsys, monkeypatch, error: Exception
+) -> None:
+    # Item 4: a MemoryError escaped the per-frame handler and ended the run with a traceback.
+    import msdepth.predict as predict_module
+
+    real = predict_module.network_disparity
+    calls = []
+
+    def first_batch_runs_out(model, tensor, post_process):
+        calls.append(len(tensor))
+        if len(calls) == 1:
+            raise error
+        return real(model, tensor, post_process)
+
+    monkeypatch.setattr(predict_module, "network_disparity", first_batch_runs_out)
+    for name in ("a", "b", "c"):
+        _image(tmp_path / "in" / f"{name}.png", 1)
+    assert run(tmp_path / "in", "--model", tiny, "--out", tmp_path / "out", "--batch-size", "2") == 1
+    err = capsys.readouterr().err
+    assert f"error: {tmp_path / 'in' / 'a.png'}: out of memory while predicting it in a batch of 2" in err
+    assert "b.png: out of memory" in err and calls == [2, 1]
+    assert (tmp_path / "out" / "c_disp.png").exists() and not (tmp_path / "out" / "a_disp.png").exists()

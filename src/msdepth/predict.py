@@ -404,6 +404,37 @@ def input_frames(
     )
 
 
+def _check_out_dir(input_path: Path, out_dir: Path) -> None:
+    """MsdepthError if ``out_dir`` is the input folder: outputs could replace inputs and be read as
+    inputs on the next run (an output folder inside it is skipped instead, see input_frames)."""
+    if input_path.is_dir() and out_dir.resolve() == input_path.resolve():
+        raise MsdepthError(
+            f"{out_dir}: the output folder is the input folder, whose images the outputs could replace "
+            f"and a later run would read as inputs; choose another --out, e.g. {out_dir / 'depth'} "
+            "(an output folder inside the input folder is skipped when it is listed)"
+        )
+
+
+def _network_batch(
+    model: MonodepthVGG,
+    images: list[np.ndarray],
+    size: tuple[int, int],
+    device: torch.device,
+    post_process: bool,
+) -> list[np.ndarray | None]:
+    """:func:`network_disparity` of the images resized to ``size`` (h, w); all None if memory runs
+    out, so those frames fail and the next batch is still tried."""
+    try:
+        tensor = torch.stack([to_tensor(resize(image, *size)) for image in images]).to(device)
+        return list(network_disparity(model, tensor, post_process))
+    except (MemoryError, torch.OutOfMemoryError):
+        return [None] * len(images)
+    except RuntimeError as exc:  # torch's CPU allocator raises a plain RuntimeError
+        if "can't allocate memory" not in str(exc):
+            raise
+        return [None] * len(images)
+
+
 def predict(
     input_path: str | os.PathLike,
     model_path: str | os.PathLike,
@@ -418,12 +449,7 @@ def predict(
     """
     report = PredictReport()
     input_path, out_dir = Path(input_path), Path(out_dir)
-    if input_path.is_dir() and out_dir.resolve() == input_path.resolve():
-        raise MsdepthError(
-            f"{out_dir}: the output folder is the input folder, whose images the outputs could replace "
-            f"and a later run would read as inputs; choose another --out, e.g. {out_dir / 'depth'} "
-            "(an output folder inside the input folder is skipped when it is listed)"
-        )
+    _check_out_dir(input_path, out_dir)
     max_pixels = int(options.max_megapixels * 1e6)
     # bad input fails before the model loads
     frames, total = input_frames(input_path, report, out_dir if input_path.is_dir() else None, max_pixels)
@@ -438,9 +464,11 @@ def predict(
         tqdm.write(f"error: {message}", file=sys.stderr)
 
     def run(batch: list[_Frame]) -> None:
-        tensor = torch.stack([to_tensor(resize(f.image, height, width)) for f in batch]).to(device)
-        for frame, disp in zip(batch, network_disparity(model, tensor, options.post_process)):
+        disps = _network_batch(model, [f.image for f in batch], (height, width), device, options.post_process)
+        for frame, disp in zip(batch, disps):
             try:
+                if disp is None:
+                    raise MsdepthError(f"out of memory while predicting it in a batch of {len(batch)}")
                 guard.claim(list(output_paths(out_dir / frame.stem, options).values()))
                 save_outputs(out_dir / frame.stem, frame.image, disp, options)
                 report.written += 1
