@@ -15,6 +15,7 @@ import csv
 import io
 import sys
 import tempfile
+import zlib
 from decimal import Decimal, InvalidOperation
 from pathlib import Path
 from typing import Any, Callable, Iterator
@@ -178,17 +179,16 @@ def test_image_readers_on_valid_files_of_random_shape(base: Path, arr: np.ndarra
     channels = 1 if arr.ndim == 2 else arr.shape[2]
     with _file(base, "frame" + suffix, data) as path:
         img, disp, ids = _read_all_images(path)
-    colour8 = arr.dtype == np.uint8 and channels == 3
     gray8 = arr.dtype == np.uint8 and channels == 1
     gray16 = arr.dtype == np.uint16 and channels == 1 and suffix == ".png"
     # Each reader accepts exactly its own format: nothing lost, nothing wrong let through.
-    assert (img is not None) == colour8, f"read_image on {arr.dtype} x{channels} {suffix}"
+    # read_image converts grey, 16-bit and alpha to 8-bit RGB; the GT readers take their own format only.
+    assert img is not None, f"read_image on {arr.dtype} x{channels} {suffix}"
     assert (disp is not None) == gray16, f"read_disparity on {arr.dtype} x{channels} {suffix}"
     assert (ids is not None) == gray8, f"read_obj_map on {arr.dtype} x{channels} {suffix}"
-    if img is not None:
-        assert img.shape == arr.shape
-        if suffix == ".png":  # lossless: RGB order back from OpenCV's BGR
-            np.testing.assert_array_equal(img, arr[..., ::-1])
+    assert img.shape == (*arr.shape[:2], 3)
+    if suffix == ".png" and arr.dtype == np.uint8 and channels == 3:  # lossless: RGB from OpenCV's BGR
+        np.testing.assert_array_equal(img, arr[..., ::-1])
     if disp is not None:
         np.testing.assert_array_equal(disp, arr.astype(np.float32) / 256.0)
     if ids is not None:
@@ -563,3 +563,107 @@ def test_params_on_random_trees_keys_and_aliases(base: Path, case: tuple[dict | 
         _check_params_refusal(lambda: load_params(path), f"{path}: ")
     if tree is not None:
         _check_params_refusal(lambda: params_from_dict(tree), "")
+
+
+# ------------------------------------------------------------------- header-declared image sizes
+
+
+def _png_chunk(kind: bytes, data: bytes) -> bytes:
+    return len(data).to_bytes(4, "big") + kind + data + zlib.crc32(kind + data).to_bytes(4, "big")
+
+
+@st.composite
+def _declared_size_files(draw: st.DrawFn) -> tuple[bytes, int, int]:
+    """A valid small PNG or JPEG whose header is rewritten to declare another size, up to 2**31 - 1
+    (PNG) or 65535 (JPEG) a side: the decoder would allocate what the header says."""
+    width = draw(st.one_of(st.integers(1, 64), st.integers(1, 65535), st.integers(1, 2**31 - 1)))
+    height = draw(st.one_of(st.integers(1, 64), st.integers(1, 65535), st.integers(1, 2**31 - 1)))
+    image = np.full((8, 8, 3), draw(st.integers(0, 255)), np.uint8)
+    if draw(st.booleans()):
+        data = _encode(image, ".png")
+        ihdr = width.to_bytes(4, "big") + height.to_bytes(4, "big") + data[24:29]
+        return data[:8] + _png_chunk(b"IHDR", ihdr) + data[33:], width, height
+    width, height = min(width, 65535), min(height, 65535)
+    data = bytearray(_encode(image, ".jpg"))
+    sof = data.index(b"\xff\xc0")
+    data[sof + 5 : sof + 9] = height.to_bytes(2, "big") + width.to_bytes(2, "big")
+    return bytes(data), width, height
+
+
+@settings(FUZZ, max_examples=80)
+@given(case=_declared_size_files())
+@example(case=(b"", 50_000, 50_000))  # replaced below by a PNG declaring it: was an uncaught cv2.error
+def test_image_readers_on_header_declared_sizes(base: Path, case: tuple[bytes, int, int]) -> None:
+    from msdepth.data.imagefile import MAX_IMAGE_PIXELS
+
+    data, width, height = case
+    if not data:
+        ihdr = width.to_bytes(4, "big") + height.to_bytes(4, "big") + bytes([8, 2, 0, 0, 0])
+        idat = _png_chunk(b"IDAT", zlib.compress(b"\0" * 99))
+        data = PNG_MAGIC + _png_chunk(b"IHDR", ihdr) + idat + _png_chunk(b"IEND", b"")
+    with _file(base, "frame.png", data) as path:
+        img, _, _ = _read_all_images(path)  # memory checked there: < 512 MiB growth
+        if width * height > MAX_IMAGE_PIXELS:
+            with pytest.raises(DataError, match=f"declares {width} x {height} px"):
+                kitti.read_image(path)
+    if img is not None:  # a decoder may read a different size only if it fits the data it has
+        assert img.shape[0] * img.shape[1] <= MAX_IMAGE_PIXELS
+
+
+# ------------------------------------------------------------------------------ model metadata
+
+_ANY_VALUE = st.one_of(
+    st.none(),
+    st.booleans(),
+    st.integers(-(2**70), 2**70),
+    st.floats(allow_nan=True, allow_infinity=True),
+    st.text(max_size=8),
+    st.lists(st.integers(0, 9), max_size=3),
+    st.sampled_from([0.0625, 0.125, 3.0, 32, 96, 20000, "group", "residual", "none", "independent"]),
+)
+
+
+@pytest.fixture(scope="module")
+def tiny_weights() -> dict:
+    import torch
+
+    from msdepth.model import MonodepthVGG
+
+    torch.manual_seed(0)
+    return MonodepthVGG(0.0625).state_dict()
+
+
+@settings(FUZZ, max_examples=60)
+@given(
+    changes=st.dictionaries(
+        st.sampled_from(["width_multiplier", "height", "width", "norm", "heads", "variant", "seed", "extra"]),
+        _ANY_VALUE,
+        max_size=4,
+    ),
+    drop=st.sets(st.sampled_from(["width_multiplier", "height", "width", "model"]), max_size=1),
+)
+@example(changes={"width_multiplier": -32}, drop=set())  # were tracebacks
+@example(changes={"width_multiplier": "abc"}, drop=set())
+@example(changes={"width_multiplier": 3.0, "height": 20000, "width": 20000}, drop=set())  # 4.8 GB
+def test_load_model_on_random_metadata(base: Path, tiny_weights: dict, changes: dict, drop: set) -> None:
+    """Whatever the metadata, load_model returns a model that fits it, or one MsdepthError naming
+    the file; never another exception, and never a network other than the weights describe."""
+    import torch
+
+    from msdepth.model import load_model
+
+    state = {"model": tiny_weights, "criterion": {}, "width_multiplier": 0.0625, "height": 32, "width": 96}
+    state = {k: v for k, v in {**state, **changes}.items() if k not in drop}
+    with tempfile.TemporaryDirectory(dir=base) as folder:
+        path = Path(folder) / "model.pt"
+        torch.save(state, path)
+        before = _peak_rss_mb()
+        try:
+            model, meta = load_model(path)
+        except MsdepthError as exc:
+            message = str(exc)
+            assert message.startswith(str(path)) and "\n" not in message, message
+            return
+        assert _peak_rss_mb() - before < 256
+    assert meta["width_multiplier"] == 0.0625 and 32 <= meta["height"] <= 4096 and meta["height"] % 8 == 0
+    assert sum(p.numel() for p in model.parameters()) == sum(v.numel() for v in tiny_weights.values())

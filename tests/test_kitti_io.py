@@ -81,11 +81,21 @@ def test_read_image_not_an_image(tmp_path: Path) -> None:
         kitti.read_image(tmp_path / "junk.png")
 
 
-@pytest.mark.parametrize("image", [np.zeros((8, 8), np.uint8), np.zeros((8, 8, 3), np.uint16)])
-def test_read_image_rejects_gray_and_16_bit(tmp_path: Path, image: np.ndarray) -> None:
+@pytest.mark.parametrize(
+    "image, expected",
+    [
+        (np.full((8, 8), 100, np.uint8), 100),  # grey: repeated into R, G and B
+        (np.full((8, 8, 3), 100 * 257, np.uint16), 100),  # 16-bit: scaled to 8 bits
+        (np.full((8, 8, 4), 100, np.uint8), 100),  # BGRA: the alpha channel dropped
+    ],
+    ids=["grey", "16-bit", "rgba"],
+)
+def test_read_image_converts_grey_16_bit_and_alpha(tmp_path: Path, image: np.ndarray, expected: int) -> None:
+    # These were refused ("expected an 8-bit 3-channel image"), though a conversion serves the user.
     cv2.imwrite(str(tmp_path / "x.png"), image)
-    with pytest.raises(DataError, match="x.png.*8-bit 3-channel"):
-        kitti.read_image(tmp_path / "x.png")
+    img = kitti.read_image(tmp_path / "x.png")
+    assert img.dtype == np.uint8 and img.shape == (8, 8, 3)
+    np.testing.assert_array_equal(img, np.full((8, 8, 3), expected, np.uint8))
 
 
 # ------------------------------------------------------------------------------ disparity

@@ -37,6 +37,11 @@ def _predict_command(add_parser: AddParser) -> None:
     _output_options(p)
     p.add_argument("--device", choices=("auto", "cpu", "cuda"), help="default: auto (CUDA if available)")
     p.add_argument("--batch-size", type=int, help="frames per network batch (default: 8)")
+    p.add_argument(
+        "--max-megapixels",
+        type=float,
+        help="refuse larger images before decoding them (default: 120, a 108-megapixel photo fits)",
+    )
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(run=_predict)
 
@@ -148,6 +153,7 @@ def _predict(args: argparse.Namespace) -> int:
         "colorbar",
         "batch_size",
         "device",
+        "max_megapixels",
     )
     given = {name: getattr(args, name) for name in names if getattr(args, name) is not None}
     options = PredictOptions(**given, progress=not args.quiet)

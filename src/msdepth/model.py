@@ -182,22 +182,88 @@ def save_model(
     save_weights_file(path, state)
 
 
+# What save_model writes: a file with any other top-level key was not written by msdepth.
+MODEL_KEYS = ("model", "criterion", "width_multiplier", "norm", "heads", "height", "width", "variant", "seed")
+MAX_INPUT_SIDE = 4096  # px; a model file's height and width (20000 x 20000 took 4.8 GB to run)
+MAX_WIDTH_MULTIPLIER = 16.0
+
+
+def _metadata_problem(state: dict) -> str | None:
+    """Why a model file's top-level entries are not what :func:`save_model` writes; None if they are."""
+    unknown = sorted(str(k) for k in state if k not in MODEL_KEYS)
+    missing = [k for k in ("model", "width_multiplier", "height", "width") if k not in state]
+    if unknown or missing:
+        return f"{'unknown entry' if unknown else 'no'} {', '.join((unknown or missing)[:5])}"
+    multiplier, norm, heads = (
+        state["width_multiplier"],
+        state.get("norm", "none"),
+        state.get("heads", "independent"),
+    )
+    if not (
+        isinstance(multiplier, (int, float))
+        and not isinstance(multiplier, bool)
+        and 0 < multiplier <= MAX_WIDTH_MULTIPLIER
+    ):
+        return f"width_multiplier must be a number in (0, {MAX_WIDTH_MULTIPLIER:g}], got {multiplier!r}"
+    for key in ("height", "width"):
+        value = state[key]
+        if not (
+            isinstance(value, int)
+            and not isinstance(value, bool)
+            and 32 <= value <= MAX_INPUT_SIDE
+            and value % 8 == 0
+        ):
+            return f"{key} must be a multiple of 8 from 32 to {MAX_INPUT_SIDE} px, got {value!r}"
+    if norm not in NORMS or heads not in HEADS:
+        return f"norm must be one of {NORMS} and heads one of {HEADS}, got {norm!r} and {heads!r}"
+    weights = state["model"]
+    if not isinstance(weights, dict) or not all(isinstance(v, Tensor) for v in weights.values()):
+        return "its 'model' entry is not a state dict of tensors"
+    return None
+
+
+def _state_dict_problem(model: nn.Module, weights: dict) -> str | None:
+    """Which keys or shapes of ``weights`` differ from ``model``'s (e.g. a meta-device model)."""
+    expected = {k: tuple(v.shape) for k, v in model.state_dict().items()}
+    found = {str(k): tuple(v.shape) for k, v in weights.items()}
+    missing = [k for k in expected if k not in found]
+    extra = [k for k in found if k not in expected]
+    shapes = [
+        f"{k} {found[k]} (expected {expected[k]})" for k in expected if k in found and found[k] != expected[k]
+    ]
+    parts = [
+        f"{label} {', '.join(items[:3])}{f' and {len(items) - 3} more' if len(items) > 3 else ''}"
+        for label, items in (("missing", missing), ("unexpected", extra), ("shape of", shapes))
+        if items
+    ]
+    return "; ".join(parts) or None
+
+
 def load_model(path: str | os.PathLike, device: str | torch.device = "cpu") -> tuple[MonodepthVGG, dict]:
     """Rebuild the network saved by :func:`save_model`; returns (model in eval mode, metadata).
 
     The file is read weights-only (:func:`msdepth.serialization.load_weights_file`): one that
-    needs code to load is refused, so a shared model cannot run anything."""
+    needs code to load is refused, so a shared model cannot run anything. Its metadata must be
+    what save_model writes (types, ranges, no other key) and its weights must have the shapes of
+    the network the metadata describes, checked on the meta device before anything is allocated;
+    otherwise MsdepthError names the file and what differs."""
     path = Path(path)
     if not path.exists():
         raise MsdepthError(f"{path}: no trained model (run the train stage first)")
     state = load_weights_file(path, device, what="model")
-    missing = [k for k in ("model", "width_multiplier", "height", "width") if k not in state]
-    if missing:
-        raise MsdepthError(f"{path}: not a model file written by msdepth (no {', '.join(missing)})")
+    problem = _metadata_problem(state)
+    if problem:
+        raise MsdepthError(f"{path}: not a model file written by msdepth ({problem})")
     # Files written before the norm and heads options hold the dissertation's network.
-    model = MonodepthVGG(
-        state["width_multiplier"], norm=state.get("norm", "none"), heads=state.get("heads", "independent")
-    )
+    options = {"norm": state.get("norm", "none"), "heads": state.get("heads", "independent")}
+    with torch.device("meta"):
+        problem = _state_dict_problem(MonodepthVGG(state["width_multiplier"], **options), state["model"])
+    if problem:
+        raise MsdepthError(
+            f"{path}: its weights do not fit a width_multiplier={state['width_multiplier']} network: "
+            f"{problem}"
+        )
+    model = MonodepthVGG(state["width_multiplier"], **options)
     model.load_state_dict(state["model"])
     meta = {k: v for k, v in state.items() if k not in ("model", "criterion")}
     return model.to(device).eval(), meta

@@ -13,6 +13,11 @@ Outputs for a frame whose output stem is ``S`` (see :func:`predict` for the stem
   of 65.535 m or more are stored as 65535 (the largest code);
 - ``S_depth.npy``: depth in metres (float32); 0 = invalid or beyond ``max_depth``;
 - ``S.ply``: coloured point cloud in the camera frame (x right, y down, z forward, metres).
+
+Nothing but these outputs is ever replaced: every file written under the output folder is listed
+in its ``.msdepth-predict`` file, and a frame whose output name is taken by a file not listed
+there (a user's own ``S_disp.png``), by the input or by the model is refused. The output folder
+may lie inside an input folder (it is then skipped when the inputs are listed) but may not be it.
 """
 
 from __future__ import annotations
@@ -29,6 +34,7 @@ import torch
 from tqdm import tqdm
 
 from .data import kitti
+from .data.imagefile import MAX_IMAGE_PIXELS
 from .data.pairs import resize, to_tensor
 from .data.synthetic import focal_for_width
 from .depth import disparity_to_depth, pixel_disparity
@@ -45,6 +51,7 @@ PLY_FORMATS = ("none", "binary", "ascii")
 DEPTH_PNG_SCALE = 1000.0  # codes per metre: millimetres, so 65535 = 65.535 m
 COLORMAP = cv2.COLORMAP_PLASMA  # Monodepth's figures use plasma
 COLOR_PERCENTILE = 95  # the colour scale saturates here, so a few near pixels don't flatten the rest
+MANIFEST = ".msdepth-predict"  # in the output folder: the files predict wrote there, one a line
 
 
 @dataclass(frozen=True)
@@ -66,6 +73,7 @@ class PredictOptions:
     batch_size: int = 8
     device: str = "auto"
     progress: bool = True
+    max_megapixels: float = MAX_IMAGE_PIXELS / 1e6  # larger images are refused before decoding
 
     def __post_init__(self) -> None:
         checks = {
@@ -74,11 +82,15 @@ class PredictOptions:
             "ply": self.ply in PLY_FORMATS,
             "height": self.height is None or self.height > 0,
             "width": self.width is None or self.width > 0,
-            "focal": self.focal is None or self.focal > 0,
-            "baseline": self.baseline > 0,
-            "max_depth": self.max_depth > 0,
+            # inf and NaN would give a wrong (or empty) output with exit code 0
+            "focal": self.focal is None or _finite_positive(self.focal),
+            "baseline": _finite_positive(self.baseline),
+            "cx": self.cx is None or bool(np.isfinite(self.cx)),
+            "cy": self.cy is None or bool(np.isfinite(self.cy)),
+            "max_depth": self.max_depth > 0,  # inf: no limit
             "batch_size": self.batch_size > 0,
             "device": self.device in ("auto", "cpu", "cuda"),
+            "max_megapixels": _finite_positive(self.max_megapixels),
         }
         bad = [name for name, ok in checks.items() if not ok]
         if bad:
@@ -87,6 +99,10 @@ class PredictOptions:
             )
         if self.disp_format == "none" and self.depth_format == "none" and self.ply == "none":
             raise MsdepthError("nothing to write: disparity, depth and point-cloud outputs are all 'none'")
+
+
+def _finite_positive(value: float) -> bool:
+    return bool(np.isfinite(value)) and value > 0
 
 
 @dataclass
@@ -221,36 +237,96 @@ def write_ply(path: str | os.PathLike, points: np.ndarray, colors: np.ndarray, b
             np.savetxt(f, np.column_stack([points, colors]), fmt="%.4f %.4f %.4f %d %d %d")
 
 
+def output_paths(stem: Path, options: PredictOptions) -> dict[str, Path]:
+    """The files :func:`save_outputs` writes for ``stem``, by kind (``disp_png``, ..., ``ply``)."""
+    wanted = {
+        "disp_png": (options.disp_format in ("png", "both"), "_disp.png"),
+        "disp_npy": (options.disp_format in ("npy", "both"), "_disp.npy"),
+        "depth_png": (options.depth_format in ("png", "both"), "_depth.png"),
+        "depth_npy": (options.depth_format in ("npy", "both"), "_depth.npy"),
+        "ply": (options.ply != "none", ".ply"),
+    }
+    return {kind: Path(f"{stem}{suffix}") for kind, (on, suffix) in wanted.items() if on}
+
+
 def save_outputs(stem: Path, rgb: np.ndarray, disp_fraction: np.ndarray, options: PredictOptions) -> None:
-    """Write the requested outputs of one frame (``stem`` + ``_disp.png`` etc.)."""
+    """Write the requested outputs of one frame (:func:`output_paths`); MsdepthError, writing
+    nothing, if the network's output is not finite (a damaged model)."""
+    if not np.isfinite(disp_fraction).all():
+        raise MsdepthError(
+            "the model's output has NaN or infinite values (a damaged model file?); nothing written"
+        )
+    paths = output_paths(stem, options)
     h, w = rgb.shape[:2]
     disp = pixel_disparity(disp_fraction, h, w)
-    if options.disp_format in ("png", "both"):
-        write_png(f"{stem}_disp.png", colorize_disparity(disp, options.colorbar))
-    if options.disp_format in ("npy", "both"):
-        save_npy(f"{stem}_disp.npy", disp)
+    if "disp_png" in paths:
+        write_png(paths["disp_png"], colorize_disparity(disp, options.colorbar))
+    if "disp_npy" in paths:
+        save_npy(paths["disp_npy"], disp)
     if options.depth_format == "none" and options.ply == "none":
         return
     focal = options.focal or default_focal(w)
     depth = metric_depth(disp, focal, options.baseline, options.max_depth)
-    if options.depth_format in ("png", "both"):
-        write_png(f"{stem}_depth.png", depth_to_png16(depth))
-    if options.depth_format in ("npy", "both"):
-        save_npy(f"{stem}_depth.npy", depth)
-    if options.ply != "none":
+    if "depth_png" in paths:
+        write_png(paths["depth_png"], depth_to_png16(depth))
+    if "depth_npy" in paths:
+        save_npy(paths["depth_npy"], depth)
+    if "ply" in paths:
         points, colors = point_cloud(depth, rgb, focal, options.cx, options.cy)
-        write_ply(f"{stem}.ply", points, colors, binary=options.ply == "binary")
+        write_ply(paths["ply"], points, colors, binary=options.ply == "binary")
 
 
-def _read(path: Path, stem: Path) -> _Frame:
+class OutputGuard:
+    """Which files predict may write under ``out_dir``: never an input or the model, and no existing
+    file that predict did not write itself (those it wrote are listed in ``out_dir/MANIFEST``)."""
+
+    def __init__(self, out_dir: Path, protected: list[Path]) -> None:
+        self.out_dir = out_dir
+        self.manifest = out_dir / MANIFEST
+        self.protected = {p.resolve(): p for p in protected}
+        lines = self.manifest.read_text(errors="replace").splitlines() if self.manifest.is_file() else []
+        self.ours = set(lines)
+
+    def claim(self, paths: list[Path]) -> None:
+        """Check that every path may be written, and list the new ones in the manifest first (so a
+        run killed mid-write can rewrite them); MsdepthError naming the first that may not."""
+        names = [p.relative_to(self.out_dir).as_posix() for p in paths]
+        for path, name in zip(paths, names):
+            if path.resolve() in self.protected:
+                raise MsdepthError(
+                    f"{path}: an output would replace the input {self.protected[path.resolve()]}"
+                )
+            if (path.exists() or path.is_symlink()) and name not in self.ours:
+                raise MsdepthError(
+                    f"{path}: exists and was not written by msdepth predict (not listed in {self.manifest}); "
+                    "move it or choose another --out"
+                )
+        new = [name for name in names if name not in self.ours]
+        if new:
+            self.out_dir.mkdir(parents=True, exist_ok=True)
+            with open(self.manifest, "a", encoding="utf-8") as f:
+                f.write("".join(f"{name}\n" for name in new))
+            self.ours.update(new)
+
+
+def _read(path: Path, stem: Path, max_pixels: int) -> _Frame:
     try:
-        return _Frame(path, str(path), stem, kitti.read_image(path))
+        return _Frame(path, str(path), stem, kitti.read_image(path, max_pixels))
     except DataError as exc:
         return _Frame(path, str(path), stem, None, str(exc))
 
 
-def _folder_frames(root: Path, report: PredictReport) -> tuple[Iterator[_Frame], int]:
-    files = sorted((p for p in root.rglob("*") if p.is_file()), key=lambda p: p.relative_to(root).as_posix())
+def _inside(path: Path, folder: Path) -> bool:
+    return path.resolve().is_relative_to(folder.resolve())
+
+
+def _folder_frames(
+    root: Path, report: PredictReport, skip: Path | None, max_pixels: int
+) -> tuple[Iterator[_Frame], int]:
+    files = sorted(
+        (p for p in root.rglob("*") if p.is_file() and not (skip and _inside(p, skip))),
+        key=lambda p: p.relative_to(root).as_posix(),
+    )
     images = [p for p in files if p.suffix.lower() in IMAGE_EXTENSIONS]
     report.ignored.extend(p for p in files if p.suffix.lower() not in IMAGE_EXTENSIONS)
     if not images:
@@ -265,7 +341,7 @@ def _folder_frames(root: Path, report: PredictReport) -> tuple[Iterator[_Frame],
                 yield _Frame(path, str(path), stem, None, clash)
                 continue
             first_with_stem[stem] = path
-            yield _read(path, stem)
+            yield _read(path, stem, max_pixels)
 
     return frames(), len(images)
 
@@ -299,27 +375,64 @@ def _video_frames(path: Path) -> tuple[Iterator[_Frame], int]:
     return frames(), total
 
 
-def input_frames(path: str | os.PathLike, report: PredictReport) -> tuple[Iterator[_Frame], int]:
+def input_frames(
+    path: str | os.PathLike,
+    report: PredictReport,
+    skip: Path | None = None,
+    max_pixels: int = MAX_IMAGE_PIXELS,
+) -> tuple[Iterator[_Frame], int]:
     """The frames of an image, a folder of images (recursive, sorted) or a video, and their count.
 
     Output stems: an image ``x.png`` -> ``x``; a folder's ``sub/x.png`` -> ``sub/x`` (sub-folders
     mirrored); a video ``clip.mp4`` -> ``clip/000000``, ``clip/000001``, ... The count is the
-    video's own frame count, which may be approximate (0 if unknown).
+    video's own frame count, which may be approximate (0 if unknown). Files under ``skip`` (the
+    output folder) are not listed; images over ``max_pixels`` are refused before decoding.
     """
     path = Path(path)
     if path.is_dir():
-        return _folder_frames(path, report)
+        return _folder_frames(path, report, skip, max_pixels)
     if not path.exists():
         raise DataError(f"{path}: no such file or folder")
     suffix = path.suffix.lower()
     if suffix in IMAGE_EXTENSIONS:  # read now: an unreadable single image is a plain DataError
-        return iter([_Frame(path, str(path), Path(path.stem), kitti.read_image(path))]), 1
+        return iter([_Frame(path, str(path), Path(path.stem), kitti.read_image(path, max_pixels))]), 1
     if suffix in VIDEO_EXTENSIONS:
         return _video_frames(path)
     raise DataError(
         f"{path}: unsupported file type {suffix or '(no extension)'!r}; "
         f"images: {' '.join(IMAGE_EXTENSIONS)}; videos: {' '.join(VIDEO_EXTENSIONS)}"
     )
+
+
+def _check_out_dir(input_path: Path, out_dir: Path) -> None:
+    """MsdepthError if ``out_dir`` is the input folder: outputs could replace inputs and be read as
+    inputs on the next run (an output folder inside it is skipped instead, see input_frames)."""
+    if input_path.is_dir() and out_dir.resolve() == input_path.resolve():
+        raise MsdepthError(
+            f"{out_dir}: the output folder is the input folder, whose images the outputs could replace "
+            f"and a later run would read as inputs; choose another --out, e.g. {out_dir / 'depth'} "
+            "(an output folder inside the input folder is skipped when it is listed)"
+        )
+
+
+def _network_batch(
+    model: MonodepthVGG,
+    images: list[np.ndarray],
+    size: tuple[int, int],
+    device: torch.device,
+    post_process: bool,
+) -> list[np.ndarray | None]:
+    """:func:`network_disparity` of the images resized to ``size`` (h, w); all None if memory runs
+    out, so those frames fail and the next batch is still tried."""
+    try:
+        tensor = torch.stack([to_tensor(resize(image, *size)) for image in images]).to(device)
+        return list(network_disparity(model, tensor, post_process))
+    except (MemoryError, torch.OutOfMemoryError):
+        return [None] * len(images)
+    except RuntimeError as exc:  # torch's CPU allocator raises a plain RuntimeError
+        if "can't allocate memory" not in str(exc):
+            raise
+        return [None] * len(images)
 
 
 def predict(
@@ -335,11 +448,15 @@ def predict(
     extension, folder without images, model that does not load) raises MsdepthError.
     """
     report = PredictReport()
-    frames, total = input_frames(input_path, report)  # bad input fails before the model loads
+    input_path, out_dir = Path(input_path), Path(out_dir)
+    _check_out_dir(input_path, out_dir)
+    max_pixels = int(options.max_megapixels * 1e6)
+    # bad input fails before the model loads
+    frames, total = input_frames(input_path, report, out_dir if input_path.is_dir() else None, max_pixels)
     device = resolve_device(options.device)
     model, meta = load_trained(model_path, device)
     height, width = options.height or int(meta["height"]), options.width or int(meta["width"])
-    out_dir = Path(out_dir)
+    guard = OutputGuard(out_dir, [Path(model_path)] + ([] if input_path.is_dir() else [input_path]))
 
     def fail(frame: _Frame, error: str) -> None:
         message = frame.message(error)
@@ -347,13 +464,18 @@ def predict(
         tqdm.write(f"error: {message}", file=sys.stderr)
 
     def run(batch: list[_Frame]) -> None:
-        tensor = torch.stack([to_tensor(resize(f.image, height, width)) for f in batch]).to(device)
-        for frame, disp in zip(batch, network_disparity(model, tensor, options.post_process), strict=True):
+        disps = _network_batch(model, [f.image for f in batch], (height, width), device, options.post_process)
+        for frame, disp in zip(batch, disps, strict=True):
             try:
+                if disp is None:
+                    raise MsdepthError(f"out of memory while predicting it in a batch of {len(batch)}")
+                guard.claim(list(output_paths(out_dir / frame.stem, options).values()))
                 save_outputs(out_dir / frame.stem, frame.image, disp, options)
                 report.written += 1
             except (MsdepthError, OSError) as exc:
                 fail(frame, str(exc))
+            except MemoryError:  # e.g. a point cloud of a huge frame; the next frame may fit
+                fail(frame, "out of memory while writing its outputs")
             bar.update(1)
 
     with tqdm(total=total or None, desc="predict", unit="frame", disable=not options.progress) as bar:

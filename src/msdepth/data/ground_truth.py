@@ -42,16 +42,37 @@ def _disparity_depth(disp: np.ndarray, path: str | os.PathLike, focal: float, ba
     return disparity_to_depth(_valid_or_zero(disp), focal, baseline)
 
 
-def _read_npy(path: str | os.PathLike) -> np.ndarray:
+def _npy_header(path: str | os.PathLike) -> tuple[tuple[int, ...], np.dtype]:
+    """Shape and dtype that a ``.npy`` header declares, checked against the file's size before any
+    array is allocated (a 128-byte header can declare terabytes)."""
     try:
-        values = np.load(path, allow_pickle=False)
+        with open(path, "rb") as f:
+            version = np.lib.format.read_magic(f)
+            read = (
+                np.lib.format.read_array_header_1_0
+                if version == (1, 0)
+                else np.lib.format.read_array_header_2_0
+            )
+            shape, _, dtype = read(f)
+            data_bytes = os.fstat(f.fileno()).st_size - f.tell()
+    except (OSError, ValueError, SyntaxError) as exc:  # an .npz, a pickle or text named .npy: ValueError
+        raise DataError(f"{path}: not a readable .npy array ({' '.join(str(exc).split())[:200]})") from None
+    if len(shape) != 2 or not (np.issubdtype(dtype, np.floating) or np.issubdtype(dtype, np.integer)):
+        raise DataError(f"{path}: GT must be a 2-D numeric array, got {dtype} of shape {shape}")
+    needed = dtype.itemsize * shape[0] * shape[1]
+    if needed > data_bytes:
+        raise DataError(
+            f"{path}: its header declares {dtype} {shape} ({needed} bytes) but it holds {data_bytes}"
+        )
+    return shape, dtype
+
+
+def _read_npy(path: str | os.PathLike) -> np.ndarray:
+    _npy_header(path)
+    try:
+        return np.load(path, allow_pickle=False)
     except (OSError, ValueError) as exc:
         raise DataError(f"{path}: not a readable .npy array ({exc})") from None
-    if values.ndim != 2 or not (
-        np.issubdtype(values.dtype, np.floating) or np.issubdtype(values.dtype, np.integer)
-    ):
-        raise DataError(f"{path}: GT must be a 2-D numeric array, got {values.dtype} of shape {values.shape}")
-    return values
 
 
 def read_gt_depth(

@@ -18,6 +18,8 @@ import pandas as pd
 
 from ..errors import DataError
 from ..io import atomic_path, write_png, write_text
+from . import imagefile
+from .imagefile import MAX_IMAGE_PIXELS
 
 # Monodepth's width -> focal table (px) for the four KITTI raw image widths, and its baseline (m).
 WIDTH_TO_FOCAL: dict[int, float] = {1242: 721.5377, 1241: 718.856, 1224: 707.0493, 1238: 718.3351}
@@ -26,52 +28,24 @@ KITTI_BASELINE = 0.54
 ROI_CLASSES = ("car", "windshield", "glass", "sign")
 ROI_COLUMNS = ("image", "class", "x0", "y0", "x1", "y1")
 
-# PNG files end with an IEND chunk; JPEG files with an EOI marker. OpenCV decodes some truncated
-# files without complaint (grey bottom rows), so truncation is checked on the bytes themselves.
-_PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
-_PNG_END = b"IEND\xaeB`\x82"
-_JPEG_MAGIC = b"\xff\xd8"
-_JPEG_END = b"\xff\xd9"
-
 PathLike = str | os.PathLike
 
 
-def _png_chunk_problem(data: bytes) -> str | None:
-    """Why a PNG's chunk lengths do not lead, in bounds, to its IEND chunk; None if they do.
-
-    OpenCV allocates the length a chunk declares before reading it, so a corrupt 20-byte file can
-    cost gigabytes and seconds; walking the chunk headers first costs microseconds.
-    """
-    pos = len(_PNG_MAGIC)
-    while pos + 12 <= len(data):  # 4 length + 4 type + data + 4 CRC
-        length = int.from_bytes(data[pos : pos + 4], "big")
-        kind = data[pos + 4 : pos + 8]
-        if pos + 12 + length > len(data):
-            return f"chunk {kind!r} at byte {pos} declares {length} bytes, past the end of the file"
-        if kind == b"IEND":
-            return None
-        pos += 12 + length
-    return f"chunk at byte {pos} is cut off before the IEND chunk"
-
-
-def _decode(path: PathLike, what: str) -> np.ndarray:
-    """Read and decode an image file unchanged (depth and channels kept), or raise DataError."""
+def _decode(
+    path: PathLike, what: str, flags: int = cv2.IMREAD_UNCHANGED, max_pixels: int = MAX_IMAGE_PIXELS
+) -> np.ndarray:
+    """Read and decode an image file (:func:`imagefile.decode`: header size checked first), or raise
+    DataError naming it. ``IMREAD_UNCHANGED`` keeps the depth and channels."""
     path = Path(path)
     if not path.is_file():
         raise DataError(f"{path}: no such {what} file")
     data = path.read_bytes()
     if not data:
         raise DataError(f"{path}: {what} file is empty (0 bytes)")
-    if data.startswith(_PNG_MAGIC) and not data.rstrip(b"\x00").endswith(_PNG_END):
-        raise DataError(f"{path}: truncated PNG (no IEND chunk at the end)")
-    if data.startswith(_PNG_MAGIC) and (problem := _png_chunk_problem(data)):
-        raise DataError(f"{path}: corrupt PNG: {problem}")
-    if data.startswith(_JPEG_MAGIC) and _JPEG_END not in data[-64:]:
-        raise DataError(f"{path}: truncated JPEG (no end-of-image marker)")
-    img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
-    if img is None:
-        raise DataError(f"{path}: cannot decode the {what} (corrupt or not an image)")
-    return img
+    try:
+        return imagefile.decode(data, flags, max_pixels)
+    except DataError as exc:
+        raise DataError(f"{path}: {what}: {exc}") from None
 
 
 def _decode_as(path: PathLike, what: str, dtype: type, channels: int) -> np.ndarray:
@@ -88,9 +62,14 @@ def _decode_as(path: PathLike, what: str, dtype: type, channels: int) -> np.ndar
     return img
 
 
-def read_image(path: PathLike) -> np.ndarray:
-    """Read an 8-bit colour image as uint8 RGB ``(H, W, 3)``."""
-    return cv2.cvtColor(_decode_as(path, "image", np.uint8, 3), cv2.COLOR_BGR2RGB)
+def read_image(path: PathLike, max_pixels: int = MAX_IMAGE_PIXELS) -> np.ndarray:
+    """Read an image as uint8 RGB ``(H, W, 3)``, upright as a viewer shows it.
+
+    As other tools do: a JPEG's EXIF orientation is applied, grey is repeated into three channels,
+    an alpha channel is dropped and 16-bit samples are scaled to 8 bits (OpenCV's ``IMREAD_COLOR``).
+    A file declaring more than ``max_pixels`` pixels is refused before it is decoded.
+    """
+    return cv2.cvtColor(_decode(path, "image", cv2.IMREAD_COLOR, max_pixels), cv2.COLOR_BGR2RGB)
 
 
 def read_disparity(path: PathLike) -> np.ndarray:
@@ -241,6 +220,11 @@ def write_velodyne(path: PathLike, points: np.ndarray) -> None:
         tmp.write_bytes(np.ascontiguousarray(points, dtype="<f4").tobytes())
 
 
+# S_rect_02 sizes the depth map that a scan is projected into (KITTI's: 1242 x 375); an unbounded
+# one made lidar_depth_map attempt 298 GiB.
+MAX_CALIB_SIDE = 16384
+
+
 @dataclass(frozen=True)
 class RawCalib:
     """One KITTI raw day's calibration, as the LiDAR projection into camera 2 needs it.
@@ -272,8 +256,13 @@ def read_raw_calib(day_dir: PathLike) -> RawCalib:
     cam, velo = read_calib(cam_path), read_calib(velo_path)
     size = _entry(cam, "S_rect_02", 2, cam_path)
     width, height = (int(round(v)) for v in size)
-    if width <= 0 or height <= 0 or not np.allclose(size, (width, height)):
-        raise DataError(f"{cam_path}: S_rect_02 must be a positive whole width and height, got {size}")
+    if not (0 < width <= MAX_CALIB_SIDE and 0 < height <= MAX_CALIB_SIDE) or not np.allclose(
+        size, (width, height)
+    ):
+        raise DataError(
+            f"{cam_path}: S_rect_02 must be a whole width and height from 1 to {MAX_CALIB_SIDE} px, "
+            f"got {size}"
+        )
     velo_to_cam = np.eye(4)
     velo_to_cam[:3, :3] = _entry(velo, "R", 9, velo_path).reshape(3, 3)
     velo_to_cam[:3, 3] = _entry(velo, "T", 3, velo_path)
@@ -322,6 +311,8 @@ def lidar_depth_map(
     if proj.shape != (3, 4):
         raise ValueError(f"lidar_depth_map: proj must be 3x4, got {proj.shape}")
     height, width = shape
+    if not (0 < height <= MAX_CALIB_SIDE and 0 < width <= MAX_CALIB_SIDE):
+        raise ValueError(f"lidar_depth_map: shape must be 1..{MAX_CALIB_SIDE} px a side, got {shape}")
     xyz = points[points[:, 0] >= 0, :3].astype(np.float64)
     velo_to_image = proj @ _homogeneous(rect, "rect") @ _homogeneous(velo_to_cam, "velo_to_cam")
     uvz = xyz @ velo_to_image[:, :3].T + velo_to_image[:, 3]

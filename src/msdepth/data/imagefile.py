@@ -1,0 +1,239 @@
+"""Decoding image files with bounded cost: the header is read before any pixel is.
+
+OpenCV allocates what a file declares before it reads the pixels: a 320-byte PNG declaring
+50,000 x 50,000 px makes it raise, and a 730 KB PNG of 16,000 x 16,000 px took 7 GB. So the size
+each format declares (PNG's IHDR, JPEG's SOF, BMP, TIFF, WebP, PNM headers) is read here from
+the bytes and checked against a pixel limit first; a file in any other format is refused, as
+its cost cannot be known in advance. The structure is walked too: a PNG's chunks up to IEND
+and a JPEG's markers up to its end-of-image marker, so a truncated file is refused (OpenCV
+fills it with grey rows) while data after the image (a phone's "motion photo" video, MPF
+previews) is allowed. libjpeg reports corrupt entropy-coded data only as a warning on stderr
+(and decodes grey blocks): that warning is caught and turned into a refusal.
+
+Every problem is a DataError without the file name; callers prefix it.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import sys
+import tempfile
+import threading
+from typing import Iterator
+
+import cv2
+import numpy as np
+
+from ..errors import DataError
+
+# 120 million pixels: a 108-megapixel phone photo (12,000 x 9,000) fits; decoding one costs
+# about 2 GB at peak. Raise it with read_image(max_pixels=...) or `msdepth predict --max-megapixels`.
+MAX_IMAGE_PIXELS = 120_000_000
+
+_PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
+_JPEG_MAGIC = b"\xff\xd8"
+_JPEG_SOF = set(range(0xC0, 0xD0)) - {0xC4, 0xC8, 0xCC}  # frame headers (0xC4 etc. are tables)
+_JPEG_STANDALONE = set(range(0xD0, 0xD8)) | {0x01}  # RSTn and TEM: no length field
+_HEADER_LIMIT = 4096  # bytes of a PNM header searched for its size
+_LIBJPEG_ERRORS = (b"Corrupt JPEG data", b"Premature end of JPEG file")
+_STDERR_LOCK = threading.Lock()
+
+
+def _u16(data: bytes, pos: int, order: str = "big") -> int:
+    return int.from_bytes(data[pos : pos + 2], order)
+
+
+def _u32(data: bytes, pos: int, order: str = "big") -> int:
+    return int.from_bytes(data[pos : pos + 4], order)
+
+
+def png_size(data: bytes) -> tuple[int, int]:
+    """(width, height) of a PNG after walking its chunks to IEND; DataError if they do not get there.
+
+    Walking the chunk headers costs microseconds; OpenCV allocates a chunk's declared length first.
+    """
+    if len(data) < 33:  # signature, IHDR and its CRC
+        raise DataError(f"truncated PNG: {len(data)} bytes, its header is cut off")
+    if data[12:16] != b"IHDR":
+        raise DataError("corrupt PNG: it does not start with an IHDR chunk")
+    pos = len(_PNG_MAGIC)
+    while pos + 12 <= len(data):  # 4 length + 4 type + data + 4 CRC
+        length, kind = _u32(data, pos), data[pos + 4 : pos + 8]
+        if pos + 12 + length > len(data):
+            raise DataError(
+                f"truncated PNG: chunk {kind!r} at byte {pos} declares {length} bytes, past the end"
+            )
+        if kind == b"IEND":
+            return _u32(data, 16), _u32(data, 20)
+        pos += 12 + length
+    raise DataError(f"truncated PNG: no IEND chunk (the chunks stop at byte {pos})")
+
+
+def _jpeg_scan_end(data: bytes, pos: int) -> int:
+    """The position of the first marker after entropy-coded data starting at ``pos``."""
+    while True:
+        pos = data.find(b"\xff", pos)
+        if pos < 0 or pos + 1 >= len(data):
+            raise DataError("truncated JPEG (no end-of-image marker)")
+        follower = data[pos + 1]
+        if follower == 0x00 or 0xD0 <= follower <= 0xD7:  # stuffed 0xFF byte or restart marker
+            pos += 2
+        elif follower == 0xFF:  # fill byte before a marker
+            pos += 1
+        else:
+            return pos
+
+
+def jpeg_size(data: bytes) -> tuple[int, int]:
+    """(width, height) of a JPEG's frame header, after walking its markers to the end-of-image marker.
+
+    Bytes after that marker (a motion photo's video, MPF previews) are allowed and ignored.
+    """
+    pos, size = 2, None
+    while True:
+        while pos < len(data) and data[pos] == 0xFF and pos + 1 < len(data) and data[pos + 1] == 0xFF:
+            pos += 1  # fill bytes
+        if pos + 2 > len(data):
+            raise DataError("truncated JPEG (no end-of-image marker)")
+        if data[pos] != 0xFF:
+            raise DataError(f"corrupt JPEG: no marker at byte {pos}")
+        marker = data[pos + 1]
+        if marker == 0xD9:
+            if size is None:
+                raise DataError("corrupt JPEG: no frame header before the end-of-image marker")
+            return size
+        if marker in _JPEG_STANDALONE:
+            pos += 2
+            continue
+        if pos + 4 > len(data):
+            raise DataError("truncated JPEG (no end-of-image marker)")
+        end = pos + 2 + _u16(data, pos + 2)
+        if marker in _JPEG_SOF and end <= len(data) and end - pos >= 9:
+            size = (_u16(data, pos + 7), _u16(data, pos + 5))
+        pos = _jpeg_scan_end(data, end) if marker == 0xDA else end
+
+
+def _pnm_size(data: bytes) -> tuple[int, int]:
+    """Width and height of a PBM/PGM/PPM: the two numbers after the magic, '#' comments skipped."""
+    head = data[:_HEADER_LIMIT]
+    lines = [line.split(b"#", 1)[0] for line in head[2:].split(b"\n")]
+    tokens = b" ".join(lines).split()
+    if len(tokens) < 2 or not (tokens[0].isdigit() and tokens[1].isdigit()):
+        raise DataError(f"corrupt PNM header (no width and height in its first {_HEADER_LIMIT} bytes)")
+    return int(tokens[0]), int(tokens[1])
+
+
+def _tiff_size(data: bytes) -> tuple[int, int]:
+    """ImageWidth and ImageLength of a TIFF's first image file directory."""
+    order = "little" if data[:2] == b"II" else "big"
+    ifd = _u32(data, 4, order)
+    count = _u16(data, ifd, order) if ifd + 2 <= len(data) else 0
+    found: dict[int, int] = {}
+    for entry in range(ifd + 2, min(ifd + 2 + 12 * count, len(data) - 11), 12):
+        tag, kind = _u16(data, entry, order), _u16(data, entry + 2, order)
+        if tag in (256, 257):
+            found[tag] = _u16(data, entry + 8, order) if kind == 3 else _u32(data, entry + 8, order)
+    if len(found) < 2:
+        raise DataError("corrupt TIFF: no ImageWidth and ImageLength in its first directory")
+    return found[256], found[257]
+
+
+def _webp_size(data: bytes) -> tuple[int, int]:
+    kind = data[12:16]
+    if kind == b"VP8 " and len(data) >= 30:
+        return _u16(data, 26, "little") & 0x3FFF, _u16(data, 28, "little") & 0x3FFF
+    if kind == b"VP8L" and len(data) >= 25:
+        bits = _u32(data, 21, "little")
+        return (bits & 0x3FFF) + 1, ((bits >> 14) & 0x3FFF) + 1
+    if kind == b"VP8X" and len(data) >= 30:
+        return int.from_bytes(data[24:27], "little") + 1, int.from_bytes(data[27:30], "little") + 1
+    raise DataError("corrupt WebP: no VP8, VP8L or VP8X header")
+
+
+def declared_size(data: bytes) -> tuple[int, int]:
+    """(width, height) that an image file's header declares, read without decoding any pixel.
+
+    PNG, JPEG, BMP, TIFF, WebP and PNM (P1-P6); DataError for any other format, a header that is
+    cut off or inconsistent, a truncated PNG/JPEG (see :func:`png_size`, :func:`jpeg_size`).
+    """
+    if data.startswith(_PNG_MAGIC):
+        return png_size(data)
+    if data.startswith(_JPEG_MAGIC):
+        return jpeg_size(data)
+    if data.startswith(b"BM") and len(data) >= 26:
+        if _u32(data, 14, "little") == 12:  # OS/2 BITMAPCOREHEADER: 16-bit sizes
+            return _u16(data, 18, "little"), _u16(data, 20, "little")
+        width, height = (int.from_bytes(data[i : i + 4], "little", signed=True) for i in (18, 22))
+        return abs(width), abs(height)  # a negative height means rows stored top-down
+    if data[:4] in (b"II*\x00", b"MM\x00*") and len(data) >= 8:
+        return _tiff_size(data)
+    if data[:4] == b"RIFF" and data[8:12] == b"WEBP":
+        return _webp_size(data)
+    if len(data) >= 2 and data[:1] == b"P" and data[1:2] in b"123456":
+        return _pnm_size(data)
+    raise DataError(
+        "cannot decode it: not a PNG, JPEG, BMP, TIFF, WebP or PNM image (or its header is cut off)"
+    )
+
+
+def check_declared_size(data: bytes, max_pixels: int = MAX_IMAGE_PIXELS) -> tuple[int, int]:
+    """:func:`declared_size`, and a DataError unless it is non-empty and at most ``max_pixels``."""
+    width, height = declared_size(data)
+    if width <= 0 or height <= 0:
+        raise DataError(f"the header declares an empty image ({width} x {height} px)")
+    if width * height > max_pixels:
+        raise DataError(
+            f"the header declares {width} x {height} px ({width * height / 1e6:.0f} megapixels), over the "
+            f"limit of {max_pixels / 1e6:g} megapixels (raise it with --max-megapixels, or max_pixels=)"
+        )
+    return width, height
+
+
+@contextlib.contextmanager
+def _stderr_captured() -> Iterator[list[bytes]]:
+    """Collect what C code writes to file descriptor 2 inside the block (libjpeg's warnings)."""
+    captured: list[bytes] = []
+    try:
+        saved = os.dup(2)
+    except OSError:  # no stderr at all: nothing to capture
+        yield captured
+        return
+    with _STDERR_LOCK, tempfile.TemporaryFile() as sink:
+        sys.stderr.flush()
+        os.dup2(sink.fileno(), 2)
+        try:
+            yield captured
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+            sink.seek(0)
+            captured.append(sink.read())
+
+
+def decode(data: bytes, flags: int = cv2.IMREAD_UNCHANGED, max_pixels: int = MAX_IMAGE_PIXELS) -> np.ndarray:
+    """Decode an image file's bytes with OpenCV after :func:`check_declared_size`.
+
+    ``flags``: OpenCV's, e.g. ``IMREAD_COLOR`` (8-bit BGR, the EXIF orientation applied). Every
+    failure is a DataError: the header checks, OpenCV's own errors, running out of memory, and a
+    JPEG whose data libjpeg found corrupt.
+    """
+    check_declared_size(data, max_pixels)
+    is_jpeg = data.startswith(_JPEG_MAGIC)
+    buffer = np.frombuffer(data, np.uint8)
+    try:
+        with _stderr_captured() if is_jpeg else contextlib.nullcontext([]) as captured:
+            img = cv2.imdecode(buffer, flags)
+    except cv2.error as exc:
+        raise DataError(f"OpenCV cannot decode it ({str(exc).strip().splitlines()[-1]})") from None
+    except MemoryError:
+        raise DataError("out of memory while decoding it") from None
+    warnings = b"".join(captured)
+    problem = next((line for line in warnings.splitlines() if line.startswith(_LIBJPEG_ERRORS)), None)
+    if problem is None and warnings:
+        sys.stderr.write(warnings.decode("utf-8", "replace"))  # not ours to swallow
+    if problem is not None:
+        raise DataError(f"corrupt JPEG (libjpeg: {problem.decode('ascii', 'replace')})")
+    if img is None:
+        raise DataError("cannot decode it (corrupt or not an image)")
+    return img

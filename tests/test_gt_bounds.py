@@ -1,0 +1,71 @@
+"""GT files that declare more than they hold (issue 27, item 12): one DataError naming the file,
+before anything is allocated."""
+
+from __future__ import annotations
+
+import struct
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from msdepth.data import kitti
+from msdepth.data.ground_truth import read_gt_depth
+from msdepth.errors import DataError
+
+
+def _npy_declaring(shape: tuple[int, ...], body: bytes = b"\x00" * 64) -> bytes:
+    header = f"{{'descr': '<f4', 'fortran_order': False, 'shape': {shape}, }}".encode()
+    header += b" " * (-(10 + len(header) + 1) % 64) + b"\n"
+    return b"\x93NUMPY\x01\x00" + struct.pack("<H", len(header)) + header + body
+
+
+@pytest.mark.parametrize("kind", ["npy_depth", "npy_disparity"])
+def test_npy_declaring_a_terabyte_is_one_data_error(tmp_path: Path, kind: str) -> None:
+    # Was: MemoryError, "Unable to allocate 3.64 TiB for an array with shape (1000000000000,)".
+    (tmp_path / "gt.npy").write_bytes(_npy_declaring((1_000_000, 1_000_000)))
+    with pytest.raises(
+        DataError, match=r"gt.npy: its header declares float32 \(1000000, 1000000\) .* it holds 64"
+    ):
+        read_gt_depth(kind, tmp_path / "gt.npy", focal=700.0, baseline=0.5)
+
+
+def test_npz_named_npy_is_one_data_error(tmp_path: Path) -> None:
+    # Was: AttributeError: 'NpzFile' object has no attribute 'ndim'.
+    np.savez(tmp_path / "gt.npz", a=np.ones((4, 4), np.float32))
+    (tmp_path / "gt.npz").rename(tmp_path / "gt.npy")
+    with pytest.raises(DataError, match=r"gt.npy: not a readable .npy array"):
+        read_gt_depth("npy_depth", tmp_path / "gt.npy", focal=700.0, baseline=0.5)
+
+
+def test_a_good_npy_still_reads(tmp_path: Path) -> None:
+    depth = np.array([[1.0, 0.0], [np.nan, 2.5]], np.float32)
+    np.save(tmp_path / "gt.npy", depth)
+    np.testing.assert_array_equal(
+        read_gt_depth("npy_depth", tmp_path / "gt.npy", focal=1.0, baseline=1.0), [[1.0, 0.0], [0.0, 2.5]]
+    )
+    (tmp_path / "short.npy").write_bytes(_npy_declaring((4, 4), body=b"\x00" * 63))
+    with pytest.raises(DataError, match=r"short.npy: its header declares float32 \(4, 4\) \(64 bytes\)"):
+        read_gt_depth("npy_depth", tmp_path / "short.npy", focal=1.0, baseline=1.0)
+
+
+def _calib_day(day: Path, size: str) -> Path:
+    day.mkdir(parents=True, exist_ok=True)
+    numbers = " ".join(["1"] * 12)
+    (day / "calib_cam_to_cam.txt").write_text(
+        f"S_rect_02: {size}\nR_rect_00: 1 0 0 0 1 0 0 0 1\nP_rect_02: {numbers}\n"
+    )
+    (day / "calib_velo_to_cam.txt").write_text("R: 1 0 0 0 1 0 0 0 1\nT: 0 0 0\n")
+    return day
+
+
+def test_an_unbounded_s_rect_02_is_refused(tmp_path: Path) -> None:
+    # Was: lidar_depth_map attempted a 298 GiB depth map.
+    day = _calib_day(tmp_path / "day", "1e7 4e6")
+    with pytest.raises(
+        DataError, match=r"calib_cam_to_cam.txt: S_rect_02 must be a whole width and height from 1"
+    ):
+        kitti.read_raw_calib(day)
+    with pytest.raises(ValueError, match="lidar_depth_map: shape must be"):
+        kitti.lidar_depth_map(np.ones((1, 4)), np.eye(4), np.eye(3), np.eye(3, 4), (4_000_000, 10_000_000))
+    assert kitti.read_raw_calib(_calib_day(tmp_path / "ok", "1242 375")).shape == (375, 1242)
