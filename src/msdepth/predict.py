@@ -291,7 +291,7 @@ class OutputGuard:
         """Check that every path may be written, and list the new ones in the manifest first (so a
         run killed mid-write can rewrite them); MsdepthError naming the first that may not."""
         names = [p.relative_to(self.out_dir).as_posix() for p in paths]
-        for path, name in zip(paths, names):
+        for path, name in zip(paths, names, strict=True):
             if path.resolve() in self.protected:
                 raise MsdepthError(
                     f"{path}: an output would replace the input {self.protected[path.resolve()]}"
