@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+from typing import Callable
+
 import numpy as np
 
 from .raycast import Camera
@@ -11,6 +14,19 @@ from .scene import FOLIAGE, GLASS, METAL, PAINT, POLE, ROAD, SIGN, TYRE, WALL, S
 # that both views see the same texture. Its own fixed seed keeps it independent of the frame RNG.
 _TILE = np.random.default_rng(0x5EED).random((256, 256), dtype=np.float32)
 _TILE_FLAT = _TILE.ravel()
+
+# A material's pixels: attribute name -> one value per pixel (shade_view's _surface lists them).
+_Surface = dict[str, np.ndarray]
+
+
+@dataclass
+class _Look:
+    """What a shader gives its pixels; None = nothing of that kind."""
+
+    albedo: np.ndarray | None = None  # lit by the sun and the ambient light
+    extra: np.ndarray | None = None  # light not from Lambert: reflections, interiors
+    spec_k: np.ndarray | float = 0.0  # weight of the sun's highlight
+    shininess: np.ndarray | float = 1.0
 
 
 def _noise(u: np.ndarray, v: np.ndarray) -> np.ndarray:
@@ -91,7 +107,7 @@ def _environment(scene: Scene, d: np.ndarray) -> np.ndarray:
     return col
 
 
-def _shade_road(scene: Scene, h: dict[str, np.ndarray]) -> np.ndarray:
+def _shade_road(scene: Scene, h: _Surface) -> _Look:
     """Asphalt with lane markings, paved sidewalks, grass beyond open sides."""
     r = scene.road
     x, z, fp = h["P"][:, 0], h["P"][:, 2], h["fp"]
@@ -120,10 +136,10 @@ def _shade_road(scene: Scene, h: dict[str, np.ndarray]) -> np.ndarray:
     if grass.any():
         g = _fbm(sx[grass] * 1.3, sz[grass], fp[grass], 3.0, 3)
         col[grass] = (0.4 + 0.9 * g)[:, None] * np.array([0.2, 0.38, 0.1], np.float32)
-    return col
+    return _Look(col)
 
 
-def _shade_wall(h: dict[str, np.ndarray]) -> np.ndarray:
+def _shade_wall(scene: Scene, h: _Surface) -> _Look:
     """Plaster or brick with a grid of windows above the ground floor."""
     u, v, fp, prm, col = h["u"], h["v"], h["fp"], h["prm"], h["col"]
     su, sv = h["su"], h["sv"]
@@ -149,16 +165,16 @@ def _shade_wall(h: dict[str, np.ndarray]) -> np.ndarray:
     if win.any():
         lit = _noise(np.floor(u[win] / prm[win, 0]) * 5.3, np.floor(v[win] / prm[win, 1]) * 2.9)
         albedo[win] = h["col2"][win] * (0.6 + 1.2 * lit)[:, None]
-    return albedo
+    return _Look(albedo, spec_k=0.15, shininess=40)
 
 
-def _shade_foliage(h: dict[str, np.ndarray]) -> np.ndarray:
+def _shade_foliage(scene: Scene, h: _Surface) -> _Look:
     leaves = _fbm(h["su"], h["sv"], h["fp"], 5.0, 3) * 0.6 + _fbm(h["su"], h["sv"], h["fp"], 0.7, 2) * 0.6
-    return (0.2 + leaves)[:, None] * h["col"]
+    return _Look((0.2 + leaves)[:, None] * h["col"])
 
 
-def _shade_paint(h: dict[str, np.ndarray]) -> np.ndarray:
-    """Car paint with tail/head lights and a number plate on the front and back faces."""
+def _shade_paint(scene: Scene, h: _Surface) -> _Look:
+    """Car paint with tail/head lights and a number plate on the front and back faces, clear coat."""
     albedo = h["col"] * (0.92 + 0.16 * _fbm(h["su"], h["sv"], h["fp"], 3.0, 2))[:, None]
     u, v, kind = h["u"], h["v"], h["prm"][:, 0]
     ends = kind > 0.5
@@ -175,10 +191,11 @@ def _shade_paint(h: dict[str, np.ndarray]) -> np.ndarray:
         sub[lights] = lamp[lights]
         sub[plate] = 0.85
         albedo[ends] = sub
-    return albedo
+    fres, env = _reflection(scene, h, 0.04)  # clear coat: a faint reflection
+    return _Look(albedo, 0.3 * fres[:, None] * env, spec_k=0.8, shininess=60)
 
 
-def _shade_sign(h: dict[str, np.ndarray]) -> np.ndarray:
+def _shade_sign(scene: Scene, h: _Surface) -> _Look:
     """Pictograms on the plate's front: prohibition ring, arrow, hazard stripes, direction text."""
     prm = h["prm"]
     a, b = h["u"] / prm[:, 1] + 0.5, h["v"] / prm[:, 2] + 0.5
@@ -203,30 +220,70 @@ def _shade_sign(h: dict[str, np.ndarray]) -> np.ndarray:
     k3 = kind == 3
     text = (_frac(b * 5) < 0.35) & (np.abs(a - 0.5) < 0.38) & (_frac(a * 9 + b * 3) < 0.7)
     out[k3] = np.where(text[k3][:, None], white, green)
-    return out
+    fres, env = _reflection(scene, h, 0.2)  # glossy, partly retro-reflective film
+    return _Look(out, prm[:, 3:4] * fres[:, None] * env, spec_k=1.5 * prm[:, 3], shininess=20)
+
+
+def _shade_glass(scene: Scene, h: _Surface) -> _Look:
+    """Tinted glass: a dark interior behind it, mixed (Fresnel) with the reflected environment."""
+    fres, env = _reflection(scene, h, h["prm"][:, 0])
+    # The interior sits behind the glass: sample it further along the ray.
+    q = h["P"] + h["d"] * h["prm"][:, 1:2]
+    inside = _fbm(q[:, 0] * 1.7 + q[:, 1] * 1.1, q[:, 2] * 1.7 - q[:, 1] * 0.9, h["fp"], 1.5, 3)
+    interior = h["col"] * (0.4 + 1.6 * inside)[:, None] * np.float32(scene.ambient * 2.5)
+    return _Look(extra=(1 - fres)[:, None] * interior + fres[:, None] * env, spec_k=6.0, shininess=400)
+
+
+def _shade_tyre(scene: Scene, h: _Surface) -> _Look:
+    return _Look(h["col"] * (0.8 + 0.4 * _fbm(h["su"], h["sv"], h["fp"], 8.0, 2))[:, None])
+
+
+def _shade_metal(scene: Scene, h: _Surface) -> _Look:
+    """Poles and the backs of sign plates."""
+    albedo = h["col"] * (0.85 + 0.3 * _fbm(h["su"], h["sv"], h["fp"], 6.0, 2))[:, None]
+    return _Look(albedo, spec_k=0.5, shininess=30)
+
+
+# Each material's shader: its pixels' surface attributes -> their look.
+SHADERS: dict[int, Callable[[Scene, _Surface], _Look]] = {
+    ROAD: _shade_road,
+    WALL: _shade_wall,
+    FOLIAGE: _shade_foliage,
+    PAINT: _shade_paint,
+    GLASS: _shade_glass,
+    TYRE: _shade_tyre,
+    POLE: _shade_metal,
+    METAL: _shade_metal,
+    SIGN: _shade_sign,
+}
 
 
 def shade_view(
     scene: Scene, cam: Camera, origin: np.ndarray, depth: np.ndarray, face: np.ndarray
 ) -> np.ndarray:
     """Colour (float RGB, ~[0, 1]) of every pixel of one view."""
-    A = scene.arrays
     out = np.empty((cam.height * cam.width, 3), np.float32)
     fid = face.ravel()
-    unit = cam.unit.reshape(-1, 3)
     sky = fid < 0
     if sky.any():
-        out[sky] = _sky(scene, unit[sky])
+        out[sky] = _sky(scene, cam.unit.reshape(-1, 3)[sky])
     idx = np.nonzero(~sky)[0]
     if not idx.size:
         return out.reshape(cam.height, cam.width, 3)
     # Hit pixels sorted by material: each material's pixels are then a slice (a view, no copy).
-    mat = A["mat"].take(fid[idx])
+    mat = scene.arrays["mat"].take(fid[idx])
     idx = np.concatenate([idx[mat == m] for m in range(mat.max() + 1)])  # counting sort
-    f = fid[idx]
-    mat = A["mat"].take(f)
-    t = depth.ravel()[idx]
-    d = unit.take(idx, axis=0)
+    h = _surface(scene, cam, origin, depth.ravel()[idx], fid[idx], idx)
+    out[idx] = _light(scene, h, *_looks(scene, h, scene.arrays["mat"].take(fid[idx])))
+    return out.reshape(cam.height, cam.width, 3)
+
+
+def _surface(
+    scene: Scene, cam: Camera, origin: np.ndarray, t: np.ndarray, f: np.ndarray, idx: np.ndarray
+) -> _Surface:
+    """The attributes shaders read at hit pixels ``idx`` (ray length ``t``, face ids ``f``)."""
+    A = scene.arrays
+    d = cam.unit.reshape(-1, 3).take(idx, axis=0)
     P = origin.astype(np.float32) + cam.dirs.reshape(-1, 3).take(idx, axis=0) * t[:, None]
 
     def gather(key: str) -> np.ndarray:
@@ -239,6 +296,7 @@ def shade_view(
         P=P,
         d=d,
         n=n,
+        n_dot_v=n_dot_v,
         u=_rowdot(rel, gather("uax")),
         v=_rowdot(rel, gather("vax")),
         col=gather("col"),
@@ -251,55 +309,48 @@ def shade_view(
     )
     # Noise coordinates carry the per-frame shift; pattern coordinates (u, v) stay put.
     h["su"], h["sv"] = h["u"] + scene.tex_shift[0], h["v"] + scene.tex_shift[1]
-    albedo = np.zeros((idx.size, 3), np.float32)
-    extra = np.zeros((idx.size, 3), np.float32)  # light not from Lambert: reflections, interiors
-    spec_k = np.zeros(idx.size, np.float32)
-    shininess = np.ones(idx.size, np.float32)
+    return h
 
-    def subset(sel: np.ndarray) -> dict[str, np.ndarray]:
-        return {k: a[sel] for k, a in h.items()}
 
-    def reflection(sel: np.ndarray, f0: np.ndarray | float) -> tuple[np.ndarray, np.ndarray]:
-        """Schlick-Fresnel weight and the environment along the mirrored view ray."""
-        cos = np.clip(n_dot_v[sel], 0, 1)
-        fres = f0 + (1 - f0) * (1 - cos) ** 5
-        mirrored = d[sel] + 2 * cos[:, None] * n[sel]
-        return fres.astype(np.float32), _environment(scene, mirrored)
+def _reflection(scene: Scene, h: _Surface, f0: np.ndarray | float) -> tuple[np.ndarray, np.ndarray]:
+    """Schlick-Fresnel weight and the environment along the mirrored view ray."""
+    cos = np.clip(h["n_dot_v"], 0, 1)
+    fres = f0 + (1 - f0) * (1 - cos) ** 5
+    mirrored = h["d"] + 2 * cos[:, None] * h["n"]
+    return fres.astype(np.float32), _environment(scene, mirrored)
 
+
+def _looks(
+    scene: Scene, h: _Surface, mat: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Albedo, extra light, specular weight and shininess of every pixel of ``h`` (sorted by
+    material ``mat``), each material's slice from its shader in :data:`SHADERS`."""
+    albedo = np.zeros((mat.size, 3), np.float32)
+    extra = np.zeros((mat.size, 3), np.float32)
+    spec_k = np.zeros(mat.size, np.float32)
+    shininess = np.ones(mat.size, np.float32)
     bounds = np.searchsorted(mat, np.arange(mat[-1] + 2))
     for m in np.unique(mat):
         sel = slice(bounds[m], bounds[m + 1])
-        s = subset(sel)
-        if m == ROAD:
-            albedo[sel] = _shade_road(scene, s)
-        elif m == WALL:
-            albedo[sel] = _shade_wall(s)
-            spec_k[sel], shininess[sel] = 0.15, 40
-        elif m == FOLIAGE:
-            albedo[sel] = _shade_foliage(s)
-        elif m == PAINT:
-            albedo[sel] = _shade_paint(s)
-            fres, env = reflection(sel, 0.04)  # clear coat: a faint reflection
-            extra[sel] = 0.3 * fres[:, None] * env
-            spec_k[sel], shininess[sel] = 0.8, 60
-        elif m == GLASS:
-            fres, env = reflection(sel, s["prm"][:, 0])
-            # The interior sits behind the glass: sample it further along the ray.
-            q = s["P"] + s["d"] * s["prm"][:, 1:2]
-            inside = _fbm(q[:, 0] * 1.7 + q[:, 1] * 1.1, q[:, 2] * 1.7 - q[:, 1] * 0.9, s["fp"], 1.5, 3)
-            interior = s["col"] * (0.4 + 1.6 * inside)[:, None] * np.float32(scene.ambient * 2.5)
-            extra[sel] = (1 - fres)[:, None] * interior + fres[:, None] * env
-            spec_k[sel], shininess[sel] = 6.0, 400
-        elif m == TYRE:
-            albedo[sel] = s["col"] * (0.8 + 0.4 * _fbm(s["su"], s["sv"], s["fp"], 8.0, 2))[:, None]
-        elif m == POLE or m == METAL:
-            albedo[sel] = s["col"] * (0.85 + 0.3 * _fbm(s["su"], s["sv"], s["fp"], 6.0, 2))[:, None]
-            spec_k[sel], shininess[sel] = 0.5, 30
-        elif m == SIGN:
-            albedo[sel] = _shade_sign(s)
-            fres, env = reflection(sel, 0.2)  # glossy, partly retro-reflective film
-            extra[sel] = s["prm"][:, 3:4] * fres[:, None] * env
-            spec_k[sel], shininess[sel] = 1.5 * s["prm"][:, 3], 20
+        look = SHADERS[m](scene, {k: a[sel] for k, a in h.items()})
+        if look.albedo is not None:
+            albedo[sel] = look.albedo
+        if look.extra is not None:
+            extra[sel] = look.extra
+        spec_k[sel], shininess[sel] = look.spec_k, look.shininess
+    return albedo, extra, spec_k, shininess
+
+
+def _light(
+    scene: Scene,
+    h: _Surface,
+    albedo: np.ndarray,
+    extra: np.ndarray,
+    spec_k: np.ndarray,
+    shininess: np.ndarray,
+) -> np.ndarray:
+    """Sun and ambient light on the albedo, the sun's highlight, plus the extra light."""
+    n, d = h["n"], h["d"]
     n_dot_l = np.clip(n @ scene.sun.astype(np.float32), 0, None)
     half = scene.sun.astype(np.float32) - d
     half /= np.sqrt(_rowdot(half, half))[:, None]
@@ -309,5 +360,4 @@ def shade_view(
     spec = np.zeros_like(spec_k)
     spec[lit] = spec_k[lit] * n_dot_h[lit] ** shininess[lit]
     light = (scene.ambient + n_dot_l)[:, None] * scene.sun_colour.astype(np.float32)
-    out[idx] = albedo * light + spec[:, None] * scene.sun_colour.astype(np.float32) + extra
-    return out.reshape(cam.height, cam.width, 3)
+    return albedo * light + spec[:, None] * scene.sun_colour.astype(np.float32) + extra
