@@ -69,10 +69,9 @@ def _add_car(
     glass_prm = (u(0.25, 0.5), u(0.8, 1.6))  # (Fresnel F0 of tinted glass, interior depth m)
     clear, top = u(0.22, 0.3), u(0.85, 1.05)
     roof = top + u(0.42, 0.58)
-    half_l, w2 = length / 2, width / 2 - 0.08  # cabin slightly narrower than the body
+    half_l = length / 2
     base_front, base_back = half_l * u(0.45, 0.6), -half_l * u(0.55, 0.75)
     roof_front, roof_back = base_front - u(0.6, 1.0), base_back + u(0.3, 0.7)
-    car_faces: list[int] = []
 
     def faces(material: int, extra: tuple = ()) -> dict[str, Any]:
         prm = glass_prm if material == GLASS else extra
@@ -89,14 +88,34 @@ def _add_car(
     args = [faces(PAINT, (1.0 if nl[2] > 0.5 else 2.0 if nl[2] < -0.5 else 0.0, width / 2)) for nl in n]
     n, c, k = place(n, c, k, rot, pos)
     body_corners = k
-    car_faces += scene.add_polytope(n, c, k, args)
+    car_faces = scene.add_polytope(n, c, k, args)
 
-    # Cabin: a prism whose front and back faces are the tilted windshield and rear window.
+    cabin = _cabin_planes(width / 2 - 0.08, top, roof, (base_front, roof_front), (base_back, roof_back))
+    n, c, k = place(*cabin, rot, pos)
+    ids = scene.add_polytope(n, c, k, [faces(m) for m in (PAINT, PAINT, GLASS, GLASS, GLASS, GLASS)])
+    car_faces += ids
+    quad = {2: k[[4, 5, 6, 7]], 3: k[[0, 1, 2, 3]], 4: k[[0, 1, 4, 5]], 5: k[[2, 3, 6, 7]]}
+    for local, cls in ((2, "glass"), (3, "glass"), (4, "windshield"), (5, "windshield")):
+        scene.rois.append(Roi(cls, np.array([ids[local]]), quad[local]))
+
+    wheel_ids, wheel_corners = _add_wheels(scene, rng, instance, pos, rot, (half_l, width, clear))
+    corners = np.concatenate([body_corners, k, *wheel_corners])
+    scene.rois.append(Roi("car", np.array(car_faces + wheel_ids), corners))
+
+
+def _cabin_planes(
+    w2: float, top: float, roof: float, front: tuple[float, float], back: tuple[float, float]
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The cabin in the car's frame (half width ``w2``, from height ``top`` to ``roof``): a prism
+    whose front and back faces are the tilted windshield and rear window, each running from
+    ``z_base`` at ``top`` to ``z_roof`` at the roof (``front``, ``back``: ``(z_base, z_roof)``)."""
+
     def tilted(z_base: float, z_roof: float, sign: float) -> tuple[np.ndarray, float]:
         normal = np.array([0.0, -sign * (z_base - z_roof), sign * (roof - top)])
         normal /= np.linalg.norm(normal)
         return normal, float(normal @ np.array([0.0, -top, z_base]))
 
+    (base_front, roof_front), (base_back, roof_back) = front, back
     nf, cf = tilted(base_front, roof_front, 1.0)
     nb, cb = tilted(base_back, roof_back, -1.0)
     n = np.array([[0, 1, 0], [0, -1, 0], [1, 0, 0], [-1, 0, 0], nf, nb], float)
@@ -108,18 +127,22 @@ def _add_car(
             for yy, zz in ((top, base_front), (roof, roof_front), (top, base_back), (roof, roof_back))
         ]
     )
-    mats = [PAINT, PAINT, GLASS, GLASS, GLASS, GLASS]
-    args = [faces(m) for m in mats]
-    n, c, k = place(n, c, k, rot, pos)
-    ids = scene.add_polytope(n, c, k, args)
-    car_faces += ids
-    quad = {2: k[[4, 5, 6, 7]], 3: k[[0, 1, 2, 3]], 4: k[[0, 1, 4, 5]], 5: k[[2, 3, 6, 7]]}
-    for local, cls in ((2, "glass"), (3, "glass"), (4, "windshield"), (5, "windshield")):
-        scene.rois.append(Roi(cls, np.array([ids[local]]), quad[local]))
-    cabin_corners = k
+    return n, c, k
 
-    # Wheels: one dark box per axle, standing on the ground (part of the car's box).
-    wheel_corners = []
+
+def _add_wheels(
+    scene: Scene,
+    rng: np.random.Generator,
+    instance: int,
+    pos: np.ndarray,
+    rot: np.ndarray,
+    size: tuple[float, float, float],
+) -> tuple[list[int], list[np.ndarray]]:
+    """One dark box per axle, standing on the ground (part of the car's box), for a car of half
+    length, width and ground clearance ``size``; returns their face ids and corners."""
+    u = rng.uniform
+    half_l, width, clear = size
+    ids, corners = [], []
     for zc in (half_l - u(0.75, 0.95), -half_l + u(0.75, 0.95)):
         r = u(0.3, 0.36)
         n, c, k = box_planes(
@@ -127,7 +150,6 @@ def _add_car(
         )
         args = [dict(material=TYRE, origin=pos, colour=(0.05, 0.05, 0.055), instance=instance) for _ in n]
         n, c, k = place(n, c, k, rot, pos)
-        car_faces += scene.add_polytope(n, c, k, args)
-        wheel_corners.append(k)
-    corners = np.concatenate([body_corners, cabin_corners, *wheel_corners])
-    scene.rois.append(Roi("car", np.array(car_faces), corners))
+        ids += scene.add_polytope(n, c, k, args)
+        corners.append(k)
+    return ids, corners

@@ -42,28 +42,8 @@ def build_scene(rng: np.random.Generator) -> Scene:
     horizon = hsv(u(0.52, 0.62), u(0.05, 0.3), u(0.75, 0.95))
     zenith = hsv(u(0.55, 0.65), u(0.3, 0.7), u(0.5, 0.85))
 
-    # Street cross-section: each side has a facade line (or open land) 3-15 m away.
-    sides: dict[int, dict[str, Any]] = {}
-    for s in (-1, 1):
-        dist = u(3, 15)
-        sidewalk = u(1.0, max(1.0, min(4.0, dist - 2.0)))
-        sides[s] = dict(built=rng.random() < 0.8, dist=dist, sidewalk=sidewalk, edge=s * (dist - sidewalk))
-    left, right = sides[-1]["edge"], sides[1]["edge"]
-    lane = u(2.8, 3.6)
-    lines = list(np.arange(left + lane, right - 1.0, lane))
-    road = dict(
-        left=left,
-        right=right,
-        lines=np.array(lines),
-        line_width=u(0.1, 0.16),
-        dash=u(2, 4),
-        period=u(7, 12),
-        phase=u(0, 10),
-        asphalt=u(0.22, 0.38),
-        pave=hsv(u(0.05, 0.12), u(0.05, 0.25), u(0.5, 0.7)),
-        grass_left=-sides[-1]["dist"] if not sides[-1]["built"] else -1e9,
-        grass_right=sides[1]["dist"] if not sides[1]["built"] else 1e9,
-    )
+    sides = _draw_sides(rng)
+    road = _draw_road(rng, sides)
     scene = Scene(
         cam_height=cam_h,
         rot=rot,
@@ -89,22 +69,60 @@ def build_scene(rng: np.random.Generator) -> Scene:
             _add_facades(scene, rng, s, side["dist"], ground, box)
         else:
             _add_open_side(scene, rng, s, side["dist"], ground, box)
-    if rng.random() < 0.45:  # a building closing the street far ahead
-        zf, height = u(45, 150), u(8, 30)
-        colour = hsv(u(0, 1), u(0.05, 0.35), u(0.35, 0.8))
-        prm = (u(1.6, 3.5), u(2.8, 3.6), u(0.35, 0.65), u(0.4, 0.65), float(rng.random() < 0.3), 3.0, height)
-        box(
-            (-90, cam_h - height, zf),
-            (90, cam_h + 0.1, zf + 12),
-            lambda n: dict(
-                material=WALL, origin=ground, colour=colour, colour2=(0.1, 0.12, 0.16), params=prm
-            ),
-        )
+    if rng.random() < 0.45:
+        _add_far_building(scene, rng, ground, box)
 
     add_cars(scene, rng, sides, road)
     _add_poles(scene, rng, sides, ground, box)
     scene.finalise()
     return scene
+
+
+def _draw_sides(rng: np.random.Generator) -> dict[int, dict[str, Any]]:
+    """The street's cross-section: each side (-1 left, 1 right) has a facade line (or open land)
+    3-15 m away, behind a sidewalk that starts at ``edge`` (the road's border, signed x)."""
+    u = rng.uniform
+    sides: dict[int, dict[str, Any]] = {}
+    for s in (-1, 1):
+        dist = u(3, 15)
+        sidewalk = u(1.0, max(1.0, min(4.0, dist - 2.0)))
+        sides[s] = dict(built=rng.random() < 0.8, dist=dist, sidewalk=sidewalk, edge=s * (dist - sidewalk))
+    return sides
+
+
+def _draw_road(rng: np.random.Generator, sides: dict[int, dict[str, Any]]) -> dict[str, Any]:
+    """The road between the sidewalks: lanes and markings, asphalt, paving, grass on open sides."""
+    u = rng.uniform
+    left, right = sides[-1]["edge"], sides[1]["edge"]
+    lane = u(2.8, 3.6)
+    lines = list(np.arange(left + lane, right - 1.0, lane))
+    return dict(
+        left=left,
+        right=right,
+        lines=np.array(lines),
+        line_width=u(0.1, 0.16),
+        dash=u(2, 4),
+        period=u(7, 12),
+        phase=u(0, 10),
+        asphalt=u(0.22, 0.38),
+        pave=hsv(u(0.05, 0.12), u(0.05, 0.25), u(0.5, 0.7)),
+        grass_left=-sides[-1]["dist"] if not sides[-1]["built"] else -1e9,
+        grass_right=sides[1]["dist"] if not sides[1]["built"] else 1e9,
+    )
+
+
+def _add_far_building(scene: Scene, rng: np.random.Generator, ground: np.ndarray, box: BoxFn) -> None:
+    """A building closing the street far ahead."""
+    u = rng.uniform
+    cam_h = scene.cam_height
+    zf, height = u(45, 150), u(8, 30)
+    colour = hsv(u(0, 1), u(0.05, 0.35), u(0.35, 0.8))
+    prm = (u(1.6, 3.5), u(2.8, 3.6), u(0.35, 0.65), u(0.4, 0.65), float(rng.random() < 0.3), 3.0, height)
+    box(
+        (-90, cam_h - height, zf),
+        (90, cam_h + 0.1, zf + 12),
+        lambda n: dict(material=WALL, origin=ground, colour=colour, colour2=(0.1, 0.12, 0.16), params=prm),
+    )
 
 
 def _add_facades(
