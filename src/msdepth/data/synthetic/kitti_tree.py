@@ -8,7 +8,7 @@ import os
 import shutil
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
-from typing import Callable, Iterable
+from typing import Any, Callable, Iterable
 
 import numpy as np
 import pandas as pd
@@ -169,8 +169,6 @@ def generate(
     (same image bytes), listed in ``eigen_test_files.txt``. ``lidar=False`` skips the latter
     (for timing; nothing else changes).
     """
-    from tqdm import tqdm
-
     root = Path(root)
     if cfg.drives >= EVAL_DRIVE:
         raise ValueError(f"at most {EVAL_DRIVE - 1} drives: drive {EVAL_DRIVE} holds the evaluation frames")
@@ -180,14 +178,40 @@ def generate(
         if (root / sub).exists():
             shutil.rmtree(root / sub)
     (root / EIGEN_TEST_FILES).unlink(missing_ok=True)
-    raw, k2015 = root / "raw", root / "kitti2015"
+    _write_calibration(cfg, root, lidar)
+    pairs, evals = _render(cfg, root, workers, progress, lidar)
+    summary = _write_lists(cfg, root, pairs, [rows for rows, _ in evals], lidar)
+    if lidar and cfg.eval_frames:
+
+        def spread(key: str) -> dict[str, float | int]:
+            values = np.array([counts[key] for _, counts in evals], float)
+            return {"mean": float(values.mean()), "min": int(values.min()), "max": int(values.max())}
+
+        summary["lidar"] = {
+            "drive": eval_drive(),
+            "points_per_scan": spread("points"),
+            "gt_pixels_per_frame": spread("gt_pixels"),  # lidar_depth_map at the evaluation size
+        }
+    write_json(root / "synthetic.json", summary)
+    return summary
+
+
+def _write_calibration(cfg: SyntheticConfig, root: Path, lidar: bool) -> None:
+    """Each raw day folder's calibration files (the camera's, with ``lidar`` also the LiDAR's)."""
     dates = {train_drive(cfg, i)[0].split("/")[0] for i in range(cfg.train_pairs)}
     if lidar and cfg.eval_frames:
         dates.add(EVAL_DATE)
     for date in sorted(dates):
-        write_text(raw / date / "calib_cam_to_cam.txt", calib_text(cfg.height, cfg.width, raw=True))
+        write_text(root / "raw" / date / "calib_cam_to_cam.txt", calib_text(cfg.height, cfg.width, raw=True))
         if lidar:
-            write_text(raw / date / "calib_velo_to_cam.txt", calib_velo_to_cam_text())
+            write_text(root / "raw" / date / "calib_velo_to_cam.txt", calib_velo_to_cam_text())
+
+
+def _render(
+    cfg: SyntheticConfig, root: Path, workers: int, progress: bool, lidar: bool
+) -> tuple[list[tuple[str, str]], list]:
+    """Render and write every frame: the training pairs' paths and each evaluation frame's result."""
+    from tqdm import tqdm
 
     key = str(root)
     with tqdm(
@@ -195,26 +219,24 @@ def generate(
     ) as bar:
         pairs = _run(_write_train, [(cfg, key, i) for i in range(cfg.train_pairs)], workers, bar)
         evals = _run(_write_eval, [(cfg, key, i, lidar) for i in range(cfg.eval_frames)], workers, bar)
-    boxes = [rows for rows, _ in evals]
+    return pairs, evals
 
+
+def _write_lists(
+    cfg: SyntheticConfig, root: Path, pairs: list[tuple[str, str]], boxes: list[list], lidar: bool
+) -> dict[str, Any]:
+    """The split files and ``rois.csv`` (``boxes``: each evaluation frame's ROI rows); returns the
+    summary without the LiDAR's statistics."""
     write_split(root / "train_files.txt", pairs)
     names = [f"{i:06d}_10" for i in range(cfg.eval_frames)]
     write_split(
-        k2015 / "test_files.txt", [(f"training/image_2/{n}.png", f"training/image_3/{n}.png") for n in names]
+        root / "kitti2015" / "test_files.txt",
+        [(f"training/image_2/{n}.png", f"training/image_3/{n}.png") for n in names],
     )
     rois = pd.DataFrame(
         [row for rows in boxes for row in rows], columns=["image", "class", "x0", "y0", "x1", "y1"]
     )
     write_rois(root / "rois.csv", rois)
-    summary = {
-        "config": dataclasses.asdict(cfg),
-        "focal_px": focal_for_width(cfg.width),
-        "baseline_m": KITTI_BASELINE,
-        "train_pairs": len(pairs),
-        "eval_frames": len(names),
-        "drives": len({train_drive(cfg, i)[0] for i in range(cfg.train_pairs)}),
-        "rois": {c: int((rois["class"] == c).sum()) for c in ("car", "windshield", "glass", "sign")},
-    }
     if lidar and cfg.eval_frames:
         drive = eval_drive()
         write_split(
@@ -224,15 +246,12 @@ def generate(
                 for i in range(cfg.eval_frames)
             ],
         )
-
-        def spread(key: str) -> dict[str, float | int]:
-            values = np.array([counts[key] for _, counts in evals], float)
-            return {"mean": float(values.mean()), "min": int(values.min()), "max": int(values.max())}
-
-        summary["lidar"] = {
-            "drive": drive,
-            "points_per_scan": spread("points"),
-            "gt_pixels_per_frame": spread("gt_pixels"),  # lidar_depth_map at the evaluation size
-        }
-    write_json(root / "synthetic.json", summary)
-    return summary
+    return {
+        "config": dataclasses.asdict(cfg),
+        "focal_px": focal_for_width(cfg.width),
+        "baseline_m": KITTI_BASELINE,
+        "train_pairs": len(pairs),
+        "eval_frames": len(names),
+        "drives": len({train_drive(cfg, i)[0] for i in range(cfg.train_pairs)}),
+        "rois": {c: int((rois["class"] == c).sum()) for c in ("car", "windshield", "glass", "sign")},
+    }
