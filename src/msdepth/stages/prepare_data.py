@@ -32,27 +32,41 @@ def prepare_data(
     written.
     """
     if params.data.source == "folder":
-        from ..data.folder import check_folder
+        _check_folder(params, dry_run)
+    elif params.data.source == "synthetic":
+        _render_synthetic(params, dry_run)
+    else:
+        _fetch_kitti(params, dry_run)
 
-        report = check_folder(folder_layout(params))
-        if dry_run:
-            print(f"dry run: the stereo folder {params.data.root} is complete: {report}; nothing written")
-            return
-        log.info("stereo folder %s: %s", params.data.root, report)
-        return
-    if params.data.source == "synthetic":
-        s, root = params.data.synthetic, Path(params.data.root)
-        if dry_run:
-            print(
-                f"dry run: would render the synthetic set under {root}: {s.drives} drive(s), "
-                f"{s.train_pairs} training pairs, {s.eval_frames} evaluation frames at {s.height}x{s.width}; "
-                "nothing written"
-            )
-            return
-        from ..data import synthetic
 
-        log.info("synthetic set: %s", synthetic.generate(s, root))
+def _check_folder(params: Params, dry_run: bool) -> None:
+    """data.source folder: check the stereo folder's layout; nothing is written."""
+    from ..data.folder import check_folder
+
+    report = check_folder(folder_layout(params))
+    if dry_run:
+        print(f"dry run: the stereo folder {params.data.root} is complete: {report}; nothing written")
         return
+    log.info("stereo folder %s: %s", params.data.root, report)
+
+
+def _render_synthetic(params: Params, dry_run: bool) -> None:
+    """data.source synthetic: render the set under data.root."""
+    s, root = params.data.synthetic, Path(params.data.root)
+    if dry_run:
+        print(
+            f"dry run: would render the synthetic set under {root}: {s.drives} drive(s), "
+            f"{s.train_pairs} training pairs, {s.eval_frames} evaluation frames at {s.height}x{s.width}; "
+            "nothing written"
+        )
+        return
+    from ..data import synthetic
+
+    log.info("synthetic set: %s", synthetic.generate(s, root))
+
+
+def _fetch_kitti(params: Params, dry_run: bool) -> None:
+    """data.source kitti: fetch what the splits need (resumable); ``dry_run``: sizes only."""
     from ..data import download
 
     k, paths = params.data.kitti, layout(params)
