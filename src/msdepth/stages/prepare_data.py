@@ -8,6 +8,7 @@ from typing import Annotated, Any
 
 from ..config import Params
 from ..data.layout import folder_layout, layout
+from ..data.roots import check_kitti_root, check_synthetic_root
 
 log = logging.getLogger("msdepth")
 
@@ -53,6 +54,7 @@ def _check_folder(params: Params, dry_run: bool) -> None:
 def _render_synthetic(params: Params, dry_run: bool) -> None:
     """data.source synthetic: render the set under data.root."""
     s, root = params.data.synthetic, Path(params.data.root)
+    check_synthetic_root(root)  # also in a dry run: it says at once that the render would refuse
     if dry_run:
         print(
             f"dry run: would render the synthetic set under {root}: {s.drives} drive(s), "
@@ -66,9 +68,11 @@ def _render_synthetic(params: Params, dry_run: bool) -> None:
 
 
 def _fetch_kitti(params: Params, dry_run: bool) -> None:
-    """data.source kitti: fetch what the splits need (resumable); ``dry_run``: sizes only."""
+    """data.source kitti: fetch what the splits need (resumable); ``dry_run``: sizes only. Never
+    into the synthetic set's tree (DataError)."""
     from ..data import download
 
+    check_kitti_root(Path(params.data.root))
     k, paths = params.data.kitti, layout(params)
     names = download.parse_archive_list(k.archive_list)
     subset = list(k.drives) if k.drives is not None else (k.drive_count or None)

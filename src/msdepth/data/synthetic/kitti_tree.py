@@ -24,6 +24,7 @@ from ..kitti import (
     write_split,
     write_velodyne,
 )
+from ..roots import RENDERING, SUMMARY, check_synthetic_root
 from .frame import EVAL, TRAIN, render_frame
 from .raycast import focal_for_width
 from .velodyne_sim import calib_velo_to_cam_text
@@ -160,7 +161,9 @@ def generate(
 ) -> dict:
     """Render the whole synthetic set under ``root`` in KITTI's layouts; returns a summary.
 
-    Always regenerates from scratch (``root/raw`` and ``root/kitti2015`` are replaced); every
+    Always regenerates from scratch (``root/raw`` and ``root/kitti2015`` are replaced), but only
+    in a tree of its own: ``root`` must be empty, absent, or marked as the synthetic set's
+    (:mod:`msdepth.data.roots`); any other tree, such as KITTI's, is refused (DataError). Every
     file is written atomically and the output depends only on ``cfg`` (byte-identical reruns).
     ``workers`` processes render in parallel (default: the CPUs available to this process).
 
@@ -174,10 +177,7 @@ def generate(
         raise ValueError(f"at most {EVAL_DRIVE - 1} drives: drive {EVAL_DRIVE} holds the evaluation frames")
     if workers is None:
         workers = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
-    for sub in ("raw", "kitti2015"):
-        if (root / sub).exists():
-            shutil.rmtree(root / sub)
-    (root / EIGEN_TEST_FILES).unlink(missing_ok=True)
+    _clear(root)
     _write_calibration(cfg, root, lidar)
     pairs, evals = _render(cfg, root, workers, progress, lidar)
     summary = _write_lists(cfg, root, pairs, [rows for rows, _ in evals], lidar)
@@ -192,8 +192,21 @@ def generate(
             "points_per_scan": spread("points"),
             "gt_pixels_per_frame": spread("gt_pixels"),  # lidar_depth_map at the evaluation size
         }
-    write_json(root / "synthetic.json", summary)
+    write_json(root / SUMMARY, summary)
+    (root / RENDERING).unlink()
     return summary
+
+
+def _clear(root: Path) -> None:
+    """Remove the previous render's trees and Eigen list, after checking that ``root`` is the
+    renderer's own (:func:`~msdepth.data.roots.check_synthetic_root`, else DataError), and mark it
+    as such until the summary is written (an interrupted render is then still known as its own)."""
+    check_synthetic_root(root)
+    write_text(root / RENDERING, "a synthetic render is under way or was interrupted\n")
+    for sub in ("raw", "kitti2015"):
+        if (root / sub).exists():
+            shutil.rmtree(root / sub)
+    (root / EIGEN_TEST_FILES).unlink(missing_ok=True)
 
 
 def _write_calibration(cfg: SyntheticConfig, root: Path, lidar: bool) -> None:
