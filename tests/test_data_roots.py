@@ -13,6 +13,7 @@ import os
 import re
 import subprocess
 import sys
+import tempfile
 from pathlib import Path
 
 import pytest
@@ -93,6 +94,24 @@ def test_renderer_replaces_its_own_tree_also_after_an_interruption(tmp_path: Pat
     (root / "raw" / DRIVE / "stale.png").write_bytes(b"left by the killed render")
     generate(TINY, root, progress=False, workers=1)
     assert _files(root) == first
+
+
+def test_renderer_removes_the_temp_files_a_killed_render_left(tmp_path: Path) -> None:
+    """raw/ and kitti2015/ are replaced whole; at the root, only names of the writers' temp scheme go."""
+    root = tmp_path / "synthetic"
+    generate(TINY, root, progress=False, workers=1)
+    first = _files(root)
+    names = [p.name for p in root.iterdir() if p.is_file()] + [roots.RENDERING]
+    temps = []
+    for name in names:  # as io.atomic_path names them (mkstemp)
+        fd, tmp = tempfile.mkstemp(prefix=f".{name}.", suffix=Path(name).suffix, dir=root)
+        os.close(fd)
+        temps.append(Path(tmp))
+    (root / "raw" / DRIVE / ".0000000001.png.k1ll3d_9.png").write_bytes(b"half a frame")
+    (root / ".rois.csv.keep-me").write_text("a user's file")
+    generate(TINY, root, progress=False, workers=1)
+    assert not [t for t in temps if t.exists()]
+    assert _files(root) == {**first, ".rois.csv.keep-me": _files(root)[".rois.csv.keep-me"]}
 
 
 def _kitti_params(root: Path, tmp_path: Path) -> object:

@@ -14,7 +14,7 @@ import numpy as np
 import pandas as pd
 
 from ...config import SyntheticConfig
-from ...io import atomic_path, write_json, write_png, write_text
+from ...io import atomic_path, atomic_temps, write_json, write_png, write_text
 from ..kitti import (
     KITTI_BASELINE,
     read_raw_calib,
@@ -200,9 +200,13 @@ def generate(
 def _clear(root: Path) -> None:
     """Remove the previous render's trees and Eigen list, after checking that ``root`` is the
     renderer's own (:func:`~msdepth.data.roots.check_synthetic_root`, else DataError), and mark it
-    as such until the summary is written (an interrupted render is then still known as its own)."""
+    as such until the summary is written (an interrupted render is then still known as its own).
+    A killed render's temp files go too: in raw/ and kitti2015/ with them, at the root by name."""
     check_synthetic_root(root)
     write_text(root / RENDERING, "a synthetic render is under way or was interrupted\n")
+    for name in (SUMMARY, RENDERING, "train_files.txt", "rois.csv", EIGEN_TEST_FILES):
+        for tmp in atomic_temps(root / name):  # left by a render killed mid-write
+            tmp.unlink()
     for sub in ("raw", "kitti2015"):
         if (root / sub).exists():
             shutil.rmtree(root / sub)
