@@ -72,6 +72,13 @@ def test_renderer_refuses_a_tree_it_did_not_write(tmp_path: Path) -> None:
     assert _files(root) == before
 
 
+def test_renderer_refuses_a_file_as_its_root(tmp_path: Path) -> None:
+    (tmp_path / "data").write_text("a user's file")
+    with pytest.raises(DataError, match="^" + re.escape(f"{tmp_path / 'data'}: is a file, not a folder")):
+        generate(TINY, tmp_path / "data", progress=False, workers=1)
+    assert (tmp_path / "data").read_text() == "a user's file"
+
+
 def test_renderer_refuses_kitti_extracted_into_its_own_tree(tmp_path: Path) -> None:
     """Today's mixture (KITTI downloaded into the synthetic set) is no longer the renderer's alone."""
     root = tmp_path / "mixed"

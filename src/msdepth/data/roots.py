@@ -53,6 +53,8 @@ def check_synthetic_root(root: Path) -> None:
     kitti = kitti_mark(root)
     if kitti is not None:
         raise DataError(f"{root}: holds KITTI's download ({kitti.relative_to(root)}): {advice}")
+    if root.exists() and not root.is_dir():
+        raise DataError(f"{root}: is a file, not a folder: {advice}")
     if not root.is_dir() or synthetic_mark(root) is not None:
         return
     entries = sorted(p.name for p in root.iterdir())
