@@ -15,10 +15,10 @@ strong view-dependent gloss.
 Output layout under ``root`` (see :func:`generate`): ``raw/`` as KITTI raw data (training pairs,
 ``train_files.txt``), ``kitti2015/training/`` as the KITTI 2015 stereo benchmark (evaluation
 frames with ``disp_occ_0``, ``disp_noc_0``, ``obj_map``, and ``class_map``: the exact pixels of
-every ROI class, which KITTI does not have), ``rois.csv`` and ``synthetic.json``. The same
-evaluation frames also form a raw drive with a simulated Velodyne scan per frame
-(:mod:`msdepth.data.velodyne_sim`), listed in ``eigen_test_files.txt``: the Eigen split's layout,
-for the raw-LiDAR evaluation.
+every ROI class, which KITTI does not have), ``rois.csv`` and ``synthetic.json`` (which marks
+the tree as the renderer's own: :mod:`msdepth.data.roots`). The same evaluation frames also form
+a raw drive with a simulated Velodyne scan per frame (:mod:`.velodyne_sim`), listed in
+``eigen_test_files.txt``: the Eigen split's layout, for the raw-LiDAR evaluation.
 
 Modules, in the order a frame passes through them: :mod:`.scene` (materials, primitives, the
 data model), :mod:`.street` and :mod:`.cars` (drawing a random scene), :mod:`.raycast` (camera,
