@@ -9,6 +9,7 @@ from typing import Annotated
 
 from msdepth.config import Params
 from msdepth.data.layout import folder_layout, layout
+from msdepth.data.roots import check_kitti_root, check_synthetic_root
 from msdepth.pipeline import run_stage
 
 log = logging.getLogger("msdepth")
@@ -34,29 +35,46 @@ def prepare_data(
     written.
     """
     if params.data.source == "folder":
-        from msdepth.data.folder import check_folder
+        _check_folder(params, dry_run)
+    elif params.data.source == "synthetic":
+        _render_synthetic(params, dry_run)
+    else:
+        _fetch_kitti(params, dry_run)
 
-        report = check_folder(folder_layout(params))
-        if dry_run:
-            print(f"dry run: the stereo folder {params.data.root} is complete: {report}; nothing written")
-            return
-        log.info("stereo folder %s: %s", params.data.root, report)
-        return
-    if params.data.source == "synthetic":
-        s, root = params.data.synthetic, Path(params.data.root)
-        if dry_run:
-            print(
-                f"dry run: would render the synthetic set under {root}: {s.drives} drive(s), "
-                f"{s.train_pairs} training pairs, {s.eval_frames} evaluation frames at {s.height}x{s.width}; "
-                "nothing written"
-            )
-            return
-        from msdepth.data import synthetic
 
-        log.info("synthetic set: %s", synthetic.generate(s, root))
+def _check_folder(params: Params, dry_run: bool) -> None:
+    """data.source folder: check the stereo folder's layout; nothing is written."""
+    from msdepth.data.folder import check_folder
+
+    report = check_folder(folder_layout(params))
+    if dry_run:
+        print(f"dry run: the stereo folder {params.data.root} is complete: {report}; nothing written")
         return
+    log.info("stereo folder %s: %s", params.data.root, report)
+
+
+def _render_synthetic(params: Params, dry_run: bool) -> None:
+    """data.source synthetic: render the set under data.root."""
+    s, root = params.data.synthetic, Path(params.data.root)
+    check_synthetic_root(root)  # also in a dry run: it says at once that the render would refuse
+    if dry_run:
+        print(
+            f"dry run: would render the synthetic set under {root}: {s.drives} drive(s), "
+            f"{s.train_pairs} training pairs, {s.eval_frames} evaluation frames at {s.height}x{s.width}; "
+            "nothing written"
+        )
+        return
+    from msdepth.data import synthetic
+
+    log.info("synthetic set: %s", synthetic.generate(s, root))
+
+
+def _fetch_kitti(params: Params, dry_run: bool) -> None:
+    """data.source kitti: fetch what the splits need (resumable); ``dry_run``: sizes only. Never
+    into the synthetic set's tree (DataError)."""
     from msdepth.data import download
 
+    check_kitti_root(Path(params.data.root))
     k, paths = params.data.kitti, layout(params)
     names = download.parse_archive_list(k.archive_list)
     subset = list(k.drives) if k.drives is not None else (k.drive_count or None)

@@ -158,7 +158,7 @@ def test_per_pixel_prior_in_bands_is_the_median_of_the_whole_stack(frames: int) 
 
 
 def _kitti_project(root: Path, mirror: Path, tree: Path) -> object:
-    """A project whose data/kitti is the mirror, indexed, with ROIs and two fake trained runs."""
+    """A project whose data.root data/kitti is the mirror, indexed, with ROIs and two fake trained runs."""
     shutil.copytree(mirror, root / "data" / "kitti")
     (root / "lists").mkdir()
     (root / "lists" / "train.txt").write_text((tree / "train_files.txt").read_text())
@@ -167,6 +167,7 @@ def _kitti_project(root: Path, mirror: Path, tree: Path) -> object:
         {
             "data": {
                 "source": "kitti",
+                "root": "data/kitti",
                 "height": 32,
                 "width": 96,
                 "kitti": {

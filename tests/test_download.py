@@ -1004,7 +1004,7 @@ def _kitti_project(
     if benchmark is not None:
         (tmp_path / "bench.txt").write_text(_benchmark(benchmark))
         kitti["eigen_benchmark_split"] = "bench.txt"
-    params: dict = {"data": {"source": "kitti", "kitti": kitti}}
+    params: dict = {"data": {"source": "kitti", "root": "data/kitti", "kitti": kitti}}
     if extra_sets is not None:
         params["eval"] = {"extra_sets": extra_sets}
     (tmp_path / "params.yaml").write_text(yaml.safe_dump(params))

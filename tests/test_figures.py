@@ -215,7 +215,7 @@ def test_sparse_gt_shows_the_densest_roi_of_each_class(tree: Path, tmp_path: Pat
     shutil.copytree(tree, sparse)
     monkeypatch.chdir(sparse)
     rng = np.random.default_rng(0)
-    for path in Path("data/kitti/kitti2015/training/disp_noc_0").glob("*.png"):
+    for path in Path("data/synthetic/kitti2015/training/disp_noc_0").glob("*.png"):
         disp = kitti.read_disparity(path)
         kitti.write_disparity(path, np.where(rng.random(disp.shape) < 0.05, disp, 0))
     examples = roi_examples(RUNS, **_paths(sparse), eval_cfg=_eval_cfg())
@@ -224,7 +224,7 @@ def test_sparse_gt_shows_the_densest_roi_of_each_class(tree: Path, tmp_path: Pat
     for ex in examples:
         fractions = []
         for roi in boxes[boxes["class"] == ex.cls].itertuples():
-            disp = kitti.read_disparity(f"data/kitti/kitti2015/training/disp_noc_0/{roi.image}.png")
+            disp = kitti.read_disparity(f"data/synthetic/kitti2015/training/disp_noc_0/{roi.image}.png")
             fractions.append((disp[roi.y0 : roi.y1, roi.x0 : roi.x1] > 0).mean())
         assert ex.gt_valid_fraction == pytest.approx(max(fractions))
     written = make_figures(

@@ -23,9 +23,6 @@ from msdepth.dvcyaml import PACKAGE, imported_modules, module_file
 ROOT = Path(__file__).resolve().parents[1]
 SRC = ROOT / "src"
 
-# The renderer's split into a package (issue 28, item 1) removes this cycle on its own branch.
-KNOWN_CYCLE = ["msdepth.data.synthetic", "msdepth.data.velodyne_sim"]
-
 
 def modules(src: Path, package: str = PACKAGE) -> dict[str, Path]:
     """``{module name: file}`` for every module of ``package`` under ``src``."""
@@ -127,18 +124,11 @@ def private_imports(src: Path, package: str = PACKAGE) -> list[str]:
 
 def test_no_import_cycle_in_src():
     found = cycles(import_graph(SRC))
-    if found == [KNOWN_CYCLE]:
-        pytest.xfail(f"the one known cycle {KNOWN_CYCLE} (the renderer package removes it)")
     assert found == [], "import cycles: " + "; ".join(" <-> ".join(c) for c in found)
 
 
 def test_no_module_imports_another_modules_private_names():
     found = private_imports(SRC)
-    known = [f for f in found if f.startswith(f"{KNOWN_CYCLE[1]}: ") and KNOWN_CYCLE[0] in f]
-    if found and found == known:
-        pytest.xfail(
-            f"only {KNOWN_CYCLE[1]}'s names from {KNOWN_CYCLE[0]} (the renderer package removes them)"
-        )
     assert found == [], "private names imported across modules:\n" + "\n".join(found)
 
 

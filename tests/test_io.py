@@ -137,3 +137,23 @@ def test_png_refuses_what_it_cannot_write_naming_the_file(tmp_path: Path, image:
     with pytest.raises(io.DataError, match="bad.png"):
         io.write_png(path, image)
     assert not path.exists() and not list(tmp_path.iterdir())
+
+
+def test_atomic_temps_finds_only_what_a_killed_writer_left(tmp_path: Path) -> None:
+    path = tmp_path / "m.json"
+    killed = io.atomic_path(path)  # entered and never left: a writer killed before its rename
+    tmp = killed.__enter__()
+    lookalikes = [
+        ".m.json.notes",
+        ".m.json.ABCDEFGH.json",  # mkstemp draws lower case
+        ".m.json.abcd1234.json.bak",
+        "m.json.abcd1234.json",
+        ".other.json.abcd1234.json",
+        ".m.json.abcd123.json",
+    ]
+    for name in lookalikes:
+        (tmp_path / name).write_text("a user's file")
+    assert tmp.name.startswith(".m.json.") and tmp.suffix == ".json"
+    assert io.atomic_temps(path) == [tmp]
+    assert io.atomic_temps(tmp_path / "absent" / "m.json") == []
+    tmp.unlink()

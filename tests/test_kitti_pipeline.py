@@ -93,6 +93,7 @@ def _kitti_params(base_url: str, lists: Path, **kitti: object) -> dict:
     return {
         "data": {
             "source": "kitti",
+            "root": "data/kitti",
             "kitti": {
                 "base_url": base_url,
                 "allow_http": True,  # the local mirror speaks plain http

@@ -19,9 +19,10 @@ def folder_repo(tmp_path_factory) -> Path:
         pytest.skip("dvc is not installed")
     work = _project(tmp_path_factory.mktemp("folder"), {"eval": {"extra_sets": []}})
     dvc = [sys.executable, "-m", "dvc"]
-    _run([*dvc, "repro", "--quiet", "prepare_data"], work)  # the synthetic set in data/kitti
+    _run([*dvc, "repro", "--quiet", "prepare_data"], work)  # the synthetic set in data/synthetic
     _run(
-        [sys.executable, "-m", "msdepth", "export-folder", "--from", "data/kitti", "--to", "my_stereo"], work
+        [sys.executable, "-m", "msdepth", "export-folder", "--from", "data/synthetic", "--to", "my_stereo"],
+        work,
     )
     params = yaml.safe_load((work / "params.yaml").read_text())
     params["data"].update(source="folder", root="my_stereo")

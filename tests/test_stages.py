@@ -67,7 +67,7 @@ def test_prepare_data_dry_run_of_the_synthetic_set_writes_nothing(tmp_path: Path
     (tmp_path / "params.yaml").write_text("data: {source: synthetic}\n")
     proc = _run("stages/prepare_data.py", "--dry-run", cwd=tmp_path)
     assert proc.returncode == 0, proc.stderr
-    assert proc.stdout.startswith("dry run: would render the synthetic set under data/kitti: 12 drive(s)")
+    assert proc.stdout.startswith("dry run: would render the synthetic set under data/synthetic: 12 drive(s)")
     assert [p.name for p in tmp_path.iterdir()] == ["params.yaml"]
 
 

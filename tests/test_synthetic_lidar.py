@@ -15,8 +15,10 @@ import numpy as np
 import pytest
 
 from msdepth.config import SyntheticConfig
-from msdepth.data import kitti, synthetic, velodyne_sim
+from msdepth.data import kitti, synthetic
 from msdepth.data.index import velodyne_path
+from msdepth.data.synthetic import velodyne_sim
+from msdepth.data.synthetic.street import build_scene
 
 CFG = SyntheticConfig(seed=11, drives=2, train_pairs=3, eval_frames=8, height=96, width=320)
 
@@ -149,7 +151,7 @@ def test_glass_drops_or_sees_the_interior(root: Path, frames: list[synthetic.Fra
     hits = dropped = 0
     farther, glass_pixels = [], 0
     for index, frame in enumerate(frames):
-        scene = synthetic._build_scene(synthetic.frame_rng(CFG.seed, 1, index))
+        scene = build_scene(synthetic.frame_rng(CFG.seed, 1, index))
         scan = velodyne_sim.simulate(scene, frame.focal, CFG.width, velodyne_sim.scan_rng(CFG.seed, 1, index))
         clear = velodyne_sim.simulate(
             scene, frame.focal, CFG.width, velodyne_sim.scan_rng(CFG.seed, 1, index), 0.0
@@ -189,7 +191,7 @@ def test_scans_are_deterministic_and_leave_the_rest_unchanged(root: Path, tmp_pa
 
 def test_angular_culling_misses_no_ray(monkeypatch: pytest.MonkeyPatch) -> None:
     """Casting only the (beam, azimuth) window of each primitive gives what casting every ray gives."""
-    scenes = [synthetic._build_scene(synthetic.frame_rng(CFG.seed, 1, i)) for i in (0, 4, 5)]
+    scenes = [build_scene(synthetic.frame_rng(CFG.seed, 1, i)) for i in (0, 4, 5)]
     f = synthetic.focal_for_width(CFG.width)
     culled = [velodyne_sim.simulate(s, f, CFG.width, velodyne_sim.scan_rng(0, 1, 0)) for s in scenes]
     windows = []

@@ -110,12 +110,12 @@ def _export_folder_command(add_parser: AddParser) -> None:
     f = add_parser(
         "export-folder",
         help="write a stereo folder (data.source: folder) from the synthetic set",
-        description="Write the KITTI-format tree FROM (e.g. the synthetic set in data/kitti) as a stereo "
+        description="Write the KITTI-format tree FROM (e.g. the synthetic set in data/synthetic) as a stereo "
         "folder for data.source: folder: left/ and right/ (training and evaluation images), camera.yaml, "
         "eval.txt and the evaluation GT as PFM disparity in gt/. See README 'Train and evaluate on your "
         "own stereo camera'.",
     )
-    f.add_argument("--from", dest="source", required=True, help="KITTI-format tree, e.g. data/kitti")
+    f.add_argument("--from", dest="source", required=True, help="KITTI-format tree, e.g. data/synthetic")
     f.add_argument("--to", dest="out", required=True, help="folder to write (must not exist or be empty)")
     f.set_defaults(run=_export_folder)
 

@@ -175,7 +175,8 @@ class FolderConfig:
 @dataclass(frozen=True)
 class DataConfig:
     source: Literal["synthetic", "kitti", "folder"] = "synthetic"
-    root: str = "data/kitti"
+    # Each source its own tree (msdepth.data.roots): data/synthetic here; KITTI: data/kitti.
+    root: str = "data/synthetic"
     height: int = 64
     width: int = 192
     gt: Literal["disp_noc_0", "disp_occ_0"] = "disp_noc_0"

@@ -9,6 +9,7 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import re
 import struct
 import tempfile
 import zlib
@@ -53,6 +54,25 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[
     finally:
         if tmp_path.exists():
             tmp_path.unlink()
+
+
+# mkstemp's names: prefix, then 8 characters of this alphabet, then suffix (tempfile's
+# _RandomNameSequence); atomic_path's prefix is ".<final name>.".
+_TEMP_RANDOM = "[a-z0-9_]{8}"
+
+
+def atomic_temps(path: str | os.PathLike, suffix: str | None = None) -> list[Path]:
+    """The temp files that :func:`atomic_path` for ``path`` (with the same ``suffix``) left beside it:
+    a writer killed before its rename (``kill -9``) leaves ``.<name>.<8 random characters><suffix>``.
+
+    Only names of exactly that form count, so a caller that removes them removes nothing else.
+    """
+    path = Path(path)
+    tail = path.suffix if suffix is None else suffix
+    pattern = re.compile(re.escape(f".{path.name}.") + _TEMP_RANDOM + re.escape(tail))
+    if not path.parent.is_dir():
+        return []
+    return sorted(p for p in path.parent.iterdir() if pattern.fullmatch(p.name) and p.is_file())
 
 
 def write_json(path: str | os.PathLike, data: Any) -> None:

@@ -2,10 +2,10 @@
 
 The scanner is bolted to the camera car as on KITTI's: rigidly mounted to camera 02 (so it
 follows the synthetic camera's random height, yaw, pitch and roll), 0.27 m behind and 0.08 m
-above it. Its rays are cast into the frame's own scene with the renderer's own intersection
-(:func:`~msdepth.data.synthetic._hit` on the scene's primitives, plus the analytic ground plane
-of ``_trace``), so the scan sees exactly the surfaces the images show. Only the azimuths that
-can land in the camera's field of view (plus :data:`FOV_MARGIN_DEG`) are cast: the rest of a
+above it. Its rays are cast into the frame's own scene with the renderer's own first-hit search
+(:func:`.raycast.first_hits`: the analytic ground plane, then the scene's primitives), so the
+scan sees exactly the surfaces the images show. Only the azimuths that can land in the camera's
+field of view (plus :data:`FOV_MARGIN_DEG`) are cast: the rest of a
 real 360-degree sweep would never reach the evaluation.
 
 Returns are exact: no range noise, no beam divergence, no mixed pixels. The synthetic GT is
@@ -15,8 +15,8 @@ meant to be precise; what the scan does model is where a LiDAR has no return (sk
 Glass (windshields, side windows, shop windows): the scene has no interior geometry (a cabin
 and a building are solid polytopes, a shop window is a thin slab in front of a solid wall); the
 renderer paints the interior as a texture ``prm[1]`` metres behind the glass along the view ray
-(``_shade``: the car's interior depth 0.8-1.6 m, a shop's 1.5-4 m). A LiDAR ray whose first
-surface is glass is dropped with probability :data:`GLASS_DROP`; otherwise it transmits and
+(:mod:`.shading`: the car's interior depth 0.8-1.6 m, a shop's 1.5-4 m). A LiDAR ray whose
+first surface is glass is dropped with probability :data:`GLASS_DROP`; otherwise it transmits and
 returns from that same virtual interior, ``prm[1]`` metres beyond the glass along the ray (or
 not at all if that lies beyond the range). Nothing else is looked up behind the glass, so a
 return is the interior the images show, never the wall a shop window is mounted on.
@@ -32,21 +32,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .synthetic import (
-    FOLIAGE,
-    GLASS,
-    METAL,
-    PAINT,
-    POLE,
-    ROAD,
-    SIGN,
-    TYRE,
-    WALL,
-    _hit,
-    _Prim,
-    _Scene,
-    ground_hits,
-)
+from .raycast import first_hits
+from .scene import FOLIAGE, GLASS, METAL, PAINT, POLE, ROAD, SIGN, TYRE, WALL, Prim, Scene
 
 # The Velodyne HDL-64E: 64 beams evenly spread over +2.0 .. -24.8 degrees of elevation, one
 # firing every 0.09 degrees of azimuth (10 Hz), returns up to ~120 m.
@@ -135,7 +122,7 @@ def calib_velo_to_cam_text() -> str:
 
 
 def _grid_window(
-    prim: _Prim, origin: np.ndarray, world_to_velo: np.ndarray, elev: np.ndarray, az: np.ndarray
+    prim: Prim, origin: np.ndarray, world_to_velo: np.ndarray, elev: np.ndarray, az: np.ndarray
 ) -> tuple[slice, slice] | None:
     """The (beam, azimuth) rectangle of rays that can hit ``prim``, or None.
 
@@ -161,24 +148,8 @@ def _grid_window(
     return slice(rows[0], rows[-1] + 1), slice(cols[0], cols[-1] + 1)
 
 
-def _cast(
-    scene: _Scene, origin: np.ndarray, dirs: np.ndarray, world_to_velo: np.ndarray, elev, az
-) -> tuple[np.ndarray, np.ndarray]:
-    """Range (inf = nothing) and face id (-1 = none) of the first hit of every ray, as ``_trace``."""
-    rng_, face = ground_hits(scene, dirs, origin)
-    for prim in scene.prims:
-        win = _grid_window(prim, origin, world_to_velo, elev, az)
-        if win is None:
-            continue
-        t, plane = _hit(prim, origin, dirs[win])
-        closer = t < rng_[win]
-        rng_[win] = np.where(closer, t, rng_[win])
-        face[win] = np.where(closer, plane.astype(np.int32) + prim.face0, face[win])
-    return rng_, face
-
-
 def simulate(
-    scene: _Scene, focal: float, width: int, rng: np.random.Generator, glass_drop: float = GLASS_DROP
+    scene: Scene, focal: float, width: int, rng: np.random.Generator, glass_drop: float = GLASS_DROP
 ) -> Scan:
     """Scan ``scene`` from the LiDAR rigidly mounted on its camera (focal/width: the camera-2 image).
 
@@ -191,7 +162,10 @@ def simulate(
     velo_to_world = scene.rot @ VELO_TO_CAM_R  # world: x right, y down, z forward (as the renderer)
     origin = scene.rot @ VELO_TO_CAM_T  # the LiDAR's centre; camera 02 is the world origin
     dirs = (d_velo @ velo_to_world.T).astype(np.float32)
-    rng_, face = _cast(scene, origin, dirs, velo_to_world.T, elev, az)
+    world_to_velo = velo_to_world.T
+    rng_, face = first_hits(
+        scene, dirs, origin, lambda prim: _grid_window(prim, origin, world_to_velo, elev, az)
+    )
     draws = rng.random(rng_.shape)
 
     A = scene.arrays

@@ -1,0 +1,74 @@
+"""Which data source made the tree under a data root, so that no source deletes or writes into another's.
+
+Each source has a tree of its own (``data.root``: ``data/synthetic`` for the synthetic set,
+``data/kitti`` for real KITTI). A tree says who made it:
+
+- the synthetic set: ``synthetic.json`` (its summary, written last) or, while a render is under
+  way or was interrupted, :data:`RENDERING`;
+- KITTI: the download's completion markers ``.<archive>.complete``
+  (:mod:`msdepth.data.download`) in the folders archives are extracted into (``raw/``,
+  ``kitti2015/``, the annotated depth's).
+
+The renderer replaces only a tree it marked as its own (or an empty one), and the download
+writes into no tree the renderer marked; either refuses with one line naming the root.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from ..errors import DataError
+
+SUMMARY = "synthetic.json"
+# Written first by the renderer and removed after SUMMARY: a tree whose render was interrupted is
+# still known as the renderer's own.
+RENDERING = ".synthetic-rendering"
+_KITTI_MARKERS = ".*.complete"  # download.py's completion markers, one folder below the root
+
+
+def synthetic_mark(root: Path) -> Path | None:
+    """The file that marks ``root`` as the synthetic set's tree, or None."""
+    for name in (SUMMARY, RENDERING):
+        if (root / name).is_file():
+            return root / name
+    return None
+
+
+def kitti_mark(root: Path) -> Path | None:
+    """A completion marker of KITTI's download under ``root`` (one folder down), or None."""
+    if not root.is_dir():
+        return None
+    for folder in sorted(p for p in root.iterdir() if p.is_dir()):
+        markers = sorted(folder.glob(_KITTI_MARKERS))
+        if markers:
+            return markers[0]
+    return None
+
+
+def check_synthetic_root(root: Path) -> None:
+    """Refuse (DataError, one line naming ``root``) unless the renderer may replace what is under
+    ``root``: nothing there yet, or a tree it marked as its own that holds no KITTI download."""
+    root = Path(root)
+    advice = "the synthetic set needs a data.root of its own (default data/synthetic); nothing was deleted"
+    kitti = kitti_mark(root)
+    if kitti is not None:
+        raise DataError(f"{root}: holds KITTI's download ({kitti.relative_to(root)}): {advice}")
+    if root.exists() and not root.is_dir():
+        raise DataError(f"{root}: is a file, not a folder: {advice}")
+    if not root.is_dir() or synthetic_mark(root) is not None:
+        return
+    entries = sorted(p.name for p in root.iterdir())
+    if entries:
+        found = f"no {SUMMARY}; e.g. {entries[0]}"
+        raise DataError(f"{root}: holds files the synthetic renderer did not write ({found}): {advice}")
+
+
+def check_kitti_root(root: Path) -> None:
+    """Refuse (DataError, one line naming ``root``) to put KITTI into the synthetic set's tree."""
+    root = Path(root)
+    mark = synthetic_mark(root)
+    if mark is not None:
+        raise DataError(
+            f"{root}: holds the synthetic set ({mark.name}): KITTI needs a data.root of its own "
+            "(e.g. data/kitti); nothing was written"
+        )

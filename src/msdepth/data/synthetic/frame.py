@@ -1,0 +1,138 @@
+"""Rendering one stereo frame with its ground truth: disparity, occlusion, objects, ROI boxes."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..kitti import CLASS_BITS, KITTI_BASELINE
+from .raycast import Camera, camera, project, trace
+from .scene import Scene
+from .shading import shade_view
+from .street import build_scene
+from .velodyne_sim import Scan, scan_rng, simulate
+
+TRAIN, EVAL = (
+    0,
+    1,
+)  # seed-stream tags (render_frame's split): training and evaluation frames never share a seed
+_NOC_TOLERANCE = 0.5  # px; left/right disparity agreement for a pixel to count as non-occluded
+
+
+@dataclass
+class Frame:
+    """One rendered stereo frame with its ground truth (left view unless stated)."""
+
+    left: np.ndarray  # uint8 RGB (H, W, 3)
+    right: np.ndarray
+    disp: np.ndarray  # float32 px, 0 = sky (no surface)
+    disp_right: np.ndarray  # right-view disparity, used for the occlusion mask
+    noc: np.ndarray  # bool: valid and visible in the right view
+    obj_map: np.ndarray  # uint8 car instance ids, 0 = background
+    class_map: np.ndarray  # uint8 bits of kitti.CLASS_BITS: the exact pixels of every ROI class
+    rois: list[tuple[str, int, int, int, int]]  # (class, x0, y0, x1, y1), x1/y1 exclusive
+    rotation: np.ndarray  # world-from-camera rotation (world: x right, y down, z forward)
+    cam_height: float  # m above the ground plane y = cam_height
+    focal: float  # px; principal point at the image centre, baseline KITTI_BASELINE
+    scan: Scan | None = None  # the simulated Velodyne's, when rendered with lidar=True
+
+
+def frame_rng(seed: int, split: int, index: int) -> np.random.Generator:
+    """The generator of one frame: independent streams for every (seed, split, index)."""
+    return np.random.default_rng([seed, split, index])
+
+
+def non_occluded(disp: np.ndarray, disp_right: np.ndarray, tolerance: float = _NOC_TOLERANCE) -> np.ndarray:
+    """Pixels with a left disparity whose match ``x - d`` lies in the right image and shows the same surface.
+
+    The right view's disparity at the (sub-pixel) match, bracketed by its two neighbours, must
+    agree with the left one; an occluder in front would have a larger disparity there.
+    """
+    h, w = disp.shape
+    xr = np.arange(w, dtype=np.float32)[None, :] - disp
+    inside = (disp > 0) & (xr >= 0) & (xr <= w - 1)
+    x0 = np.clip(np.floor(xr), 0, w - 1).astype(np.int64)
+    x1 = np.minimum(x0 + 1, w - 1)
+    rows = np.arange(h)[:, None]
+    r0, r1 = disp_right[rows, x0], disp_right[rows, x1]
+    lo, hi = np.minimum(r0, r1) - tolerance, np.maximum(r0, r1) + tolerance
+    return inside & (disp >= lo) & (disp <= hi)
+
+
+def _rois(scene: Scene, cam: Camera, face: np.ndarray) -> list[tuple[str, int, int, int, int]]:
+    """Boxes of the scene's ROIs in the left view, dropping tiny and mostly hidden ones."""
+    boxes = []
+    origin = np.zeros(3)
+    for roi in scene.rois:
+        u, v, z = project(roi.corners, scene.rot, origin, cam)
+        if (z <= 0.1).any():
+            continue
+        # Pixel j covers [j - 0.5, j + 0.5): the box spans every pixel the projection touches.
+        x0, x1 = max(int(np.floor(u.min() + 0.5)), 0), min(int(np.floor(u.max() + 0.5)) + 1, cam.width)
+        y0, y1 = max(int(np.floor(v.min() + 0.5)), 0), min(int(np.floor(v.max() + 0.5)) + 1, cam.height)
+        if x1 - x0 < 6 or y1 - y0 < 6:
+            continue
+        if np.isin(face[y0:y1, x0:x1], roi.faces).mean() < 0.5:
+            continue
+        boxes.append((roi.cls, x0, y0, x1, y1))
+    return boxes
+
+
+def _class_map(scene: Scene, face: np.ndarray) -> np.ndarray:
+    """Per pixel of the left view, the bits of the ROI classes whose faces it shows."""
+    out = np.zeros(face.shape, np.uint8)
+    for cls, bit in CLASS_BITS.items():
+        faces = [roi.faces for roi in scene.rois if roi.cls == cls]
+        if faces:
+            out[np.isin(face, np.concatenate(faces))] |= np.uint8(bit)
+    return out
+
+
+def render_frame(seed: int, split: int, index: int, height: int, width: int, lidar: bool = False) -> Frame:
+    """Render frame ``index`` of ``split`` (0 = training, 1 = evaluation) deterministically.
+
+    ``lidar``: also scan the scene with the simulated Velodyne (``Frame.scan``); the scan has its
+    own generator, so everything else is the same either way.
+    """
+    rng = frame_rng(seed, split, index)
+    scene = build_scene(rng)
+    cam = camera(height, width, scene.rot)
+    f = cam.f
+    views, depths, faces = [], [], []
+    for offset in (0.0, KITTI_BASELINE):
+        origin = scene.rot @ np.array([offset, 0.0, 0.0])
+        depth, face = trace(scene, cam, origin)
+        views.append(shade_view(scene, cam, origin, depth, face))
+        depths.append(depth)
+        faces.append(face)
+    images = []
+    for view in views:  # a little sensor noise and exposure mismatch per view
+        gain = rng.uniform(0.985, 1.015)
+        noisy = view * gain + rng.standard_normal(view.shape, dtype=np.float32) * np.float32(0.008)
+        images.append((np.clip(noisy, 0, 1) * 255 + 0.5).astype(np.uint8))
+    with np.errstate(divide="ignore"):
+        disp, disp_right = (
+            np.where(np.isfinite(z), f * KITTI_BASELINE / z, 0).astype(np.float32) for z in depths
+        )
+    inst = scene.arrays["inst"][np.maximum(faces[0], 0)] * (faces[0] >= 0)
+    present = np.unique(inst[inst > 0])
+    lookup = np.zeros(int(inst.max()) + 1, np.uint8)
+    lookup[present] = np.arange(1, present.size + 1)  # renumber visible cars 1..n
+    scan = None
+    if lidar:
+        scan = simulate(scene, f, width, scan_rng(seed, split, index))
+    return Frame(
+        left=images[0],
+        right=images[1],
+        disp=disp,
+        disp_right=disp_right,
+        noc=non_occluded(disp, disp_right),
+        obj_map=lookup[inst],
+        class_map=_class_map(scene, faces[0]),
+        rois=_rois(scene, cam, faces[0]),
+        rotation=scene.rot,
+        cam_height=scene.cam_height,
+        focal=f,
+        scan=scan,
+    )
