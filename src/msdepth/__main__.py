@@ -1,4 +1,5 @@
-"""Command line: ``msdepth predict``, ``export-onnx`` and ``export-folder`` (also ``python -m msdepth``)."""
+"""Command line: ``msdepth predict``, ``optimum``, ``export-onnx`` and ``export-folder`` (also
+``python -m msdepth``)."""
 
 from __future__ import annotations
 
@@ -7,6 +8,7 @@ import sys
 from typing import Sequence
 
 from .errors import MsdepthError
+from .optimum_cli import add_parser as add_optimum_parser
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -97,6 +99,7 @@ def _parser() -> argparse.ArgumentParser:
     f.add_argument("--from", dest="source", required=True, help="KITTI-format tree, e.g. data/kitti")
     f.add_argument("--to", dest="out", required=True, help="folder to write (must not exist or be empty)")
     f.set_defaults(run=_export_folder)
+    add_optimum_parser(sub)
     return parser
 
 
