@@ -7,7 +7,6 @@ import dataclasses
 import cv2
 import numpy as np
 import pytest
-import torch
 
 from msdepth.__main__ import main
 from msdepth.config import Params, apply_overrides, params_from_dict
