@@ -207,8 +207,8 @@ class OptimumConfig:
     width: int = 0
     # Its own weight, not loss.smoothness_weight: a network regularises implicitly, a per-pixel
     # map does not. Results are reported at every weight of smoothness_sweep (a decade or more).
-    smoothness_weight: float = 1.0
-    smoothness_sweep: tuple[float, ...] = (0.3, 1.0, 3.0)
+    smoothness_weight: float = 10.0
+    smoothness_sweep: tuple[float, ...] = (3.0, 10.0, 30.0)
     batch_size: int = 4  # pairs optimised together (independent: each pair's gradient is its own)
 
     def validate(self, key: str, params: Params) -> None:
