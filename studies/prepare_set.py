@@ -20,22 +20,9 @@ import yaml
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "src"))
 
+from msdepth.config import apply_overrides as apply  # noqa: E402,F401  (learning.py imports it from here)
 from msdepth.config import params_from_dict  # noqa: E402
 from msdepth.errors import MsdepthError  # noqa: E402
-
-
-def apply(raw: dict, assignments: list[str]) -> dict:
-    """``raw`` with each ``a.b.c=value`` (a YAML value) set, creating sections as needed."""
-    for item in assignments:
-        key, sep, value = item.partition("=")
-        if not sep or not key:
-            raise ValueError(f"--set: expected KEY=VALUE, got {item!r}")
-        node = raw
-        *parents, last = key.split(".")
-        for part in parents:
-            node = node.setdefault(part, {})
-        node[last] = yaml.safe_load(value)
-    return raw
 
 
 def prepare(out: Path, assignments: list[str]) -> None:

@@ -298,3 +298,13 @@ def test_objects_gpu_script_runs_tiny_on_the_cpu_without_matplotlib_or_dvclive(t
     assert "ROI abs_rel per class" in proc.stdout and "| constant |" in proc.stdout
     assert (tmp_path / "out" / "ssim_seed0.json").is_file()
     assert "no curves.png" in proc.stderr and not (tmp_path / "out" / "curves.png").exists()
+
+
+def test_optimum_benchmark_prints_seconds_per_pair_side_by_side() -> None:
+    out = _run(
+        "optimum.py", "--sizes", "32x96", "48x128", "--iterations", "2", "--repeats", "1", "--threads", "1"
+    )
+    for size in ("32 x 96", "48 x 128"):
+        section = out.split(f"{size}: seconds per pair")[1].split("seconds per pair")[0]
+        for name in ("SSIM k3", "MS-SSIM k3", "MS-SSIM k11"):
+            assert f"| {name} |" in section

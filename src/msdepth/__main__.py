@@ -1,4 +1,5 @@
-"""Command line: ``msdepth predict``, ``export-onnx`` and ``export-folder`` (also ``python -m msdepth``)."""
+"""Command line: ``msdepth predict``, ``optimum``, ``export-onnx`` and ``export-folder`` (also
+``python -m msdepth``)."""
 
 from __future__ import annotations
 
@@ -7,6 +8,7 @@ import sys
 from typing import Callable, Sequence
 
 from .errors import MsdepthError
+from .optimum_cli import optimum_command
 
 # A subcommand is a function that adds its parser with ``add_parser`` (the subparsers' own method:
 # name, help, description) and sets ``run``, the function that runs it; _COMMANDS lists them in
@@ -124,6 +126,7 @@ _COMMANDS: tuple[Callable[[AddParser], None], ...] = (
     _predict_command,
     _export_onnx_command,
     _export_folder_command,
+    optimum_command,
 )
 
 

@@ -10,7 +10,7 @@ import typing
 import urllib.parse
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal, get_args, get_origin
+from typing import Any, Literal, Sequence, get_args, get_origin
 
 from .checks import check, shown
 from .errors import ConfigError
@@ -370,6 +370,46 @@ class CompareConfig:
 
 
 @dataclass(frozen=True)
+class OptimumConfig:
+    """The losses' own optimum (:mod:`msdepth.optimum`): per stereo pair, the disparity maps that
+    minimise a variant's training objective, optimised directly (no network; docs/optimum.md)."""
+
+    levels: int = 3  # coarse-to-fine levels, each half the size of the next (fewer if the image is small)
+    iterations: int = 100  # Adam steps per level: the stopping rule (docs/optimum.md, measured)
+    learning_rate: float = 0.05  # Adam's, on the logit of disparity / 0.3 (the network heads' range)
+    init_disparity: float = 0.04  # the constant start, fraction of the width
+    height: int = 0  # working size; 0 = data.synthetic's render size (the CLI: the image's own)
+    width: int = 0
+    # Its own weight, not loss.smoothness_weight: a network regularises implicitly, a per-pixel
+    # map does not. Results are reported at every weight of smoothness_sweep (a decade or more).
+    smoothness_weight: float = 10.0
+    smoothness_sweep: tuple[float, ...] = (3.0, 10.0, 30.0)
+    batch_size: int = 4  # pairs optimised together (independent: each pair's gradient is its own)
+
+    def validate(self, key: str, params: Params) -> None:
+        """Range checks of the ``key`` section; a ConfigError names the key."""
+        check(self.levels >= 1, f"{key}.levels", f"must be >= 1, got {self.levels}")
+        check(self.iterations >= 1, f"{key}.iterations", f"must be >= 1, got {self.iterations}")
+        check(self.learning_rate > 0, f"{key}.learning_rate", f"must be > 0, got {self.learning_rate}")
+        check(
+            0 < self.init_disparity < 0.3,
+            f"{key}.init_disparity",
+            f"must be in (0, 0.3) (the heads' range), got {self.init_disparity}",
+        )
+        check(self.batch_size >= 1, f"{key}.batch_size", f"must be >= 1, got {self.batch_size}")
+        check(self.smoothness_weight >= 0, f"{key}.smoothness_weight", "must be >= 0")
+        sweep = self.smoothness_sweep
+        check(
+            min(sweep) > 0 and max(sweep) >= 10 * min(sweep) and self.smoothness_weight in sweep,
+            f"{key}.smoothness_sweep",
+            f"must be positive, span at least a decade and hold smoothness_weight, got {list(sweep)}",
+        )
+        for name in ("height", "width"):
+            size = getattr(self, name)
+            check(size == 0 or size >= 24, f"{key}.{name}", f"must be 0 (default) or >= 24, got {size}")
+
+
+@dataclass(frozen=True)
 class Params:
     data: DataConfig = field(default_factory=DataConfig)
     model: ModelConfig = field(default_factory=ModelConfig)
@@ -380,6 +420,7 @@ class Params:
     variants: tuple[str, ...] = ("ssim", "msssim")
     eval: EvalConfig = field(default_factory=EvalConfig)
     compare: CompareConfig = field(default_factory=CompareConfig)
+    optimum: OptimumConfig = field(default_factory=OptimumConfig)
     # The params section of every registered variant, by name (top-level sections in
     # params.yaml, e.g. ``ssim:``; not a key of its own).
     appearance: dict[str, Any] = field(default_factory=_registered_sections, metadata={"yaml": False})
@@ -503,6 +544,7 @@ def validate(p: Params) -> Params:
         p.appearance[name].validate(name, p)
     p.eval.validate("eval", p)
     p.compare.validate("compare", p)
+    p.optimum.validate("optimum", p)
     return p
 
 
@@ -514,6 +556,26 @@ def params_from_dict(raw: dict) -> Params:
     sections = {name: _convert(raw.get(name, {}), config, name) for name, config in registered.items()}
     params = _build(Params, {k: v for k, v in raw.items() if k not in registered}, "")
     return validate(dataclasses.replace(params, appearance=sections))
+
+
+def apply_overrides(raw: dict, assignments: Sequence[str]) -> dict:
+    """``raw`` (a parsed params.yaml) with each ``a.b.c=value`` (a YAML value) set, creating
+    sections as needed: ``--set`` of ``msdepth optimum`` and of the studies' scripts."""
+    for item in assignments:
+        key, sep, value = item.partition("=")
+        if not sep or not key:
+            raise ConfigError(f"--set: expected KEY=VALUE, got {item!r}")
+        node = raw
+        *parents, last = key.split(".")
+        for part in parents:
+            node = node.setdefault(part, {})
+            if not isinstance(node, dict):
+                raise ConfigError(f"--set {item}: {part} is not a section")
+        try:
+            node[last] = parse(value)
+        except ConfigError as exc:
+            raise ConfigError(f"--set {item}: {exc}") from None
+    return raw
 
 
 MAX_PARAMS_BYTES = 1 << 20  # params.yaml is about 10 KB; a file this large is not one

@@ -1,8 +1,8 @@
 """Monodepth's self-supervised training loss, with a registered appearance term (SSIM, MS-SSIM, ...).
 
 Functional core: :func:`ssim`, :func:`ms_ssim`, :func:`appearance_loss`, :func:`smoothness_loss`,
-:func:`lr_consistency_loss` and :func:`scale_pyramid` are plain functions on tensors. SSIM and
-MS-SSIM run on the fast kernels of :mod:`msdepth._ssim_kernels` by default, or with
+:func:`lr_consistency_loss`, :func:`reconstruct` and :func:`scale_pyramid` are plain functions on
+tensors. SSIM and MS-SSIM run on the fast kernels of :mod:`msdepth._ssim_kernels` by default, or with
 ``implementation="reference"`` on the written-out autograd formula here
 (:func:`reference_ssim_terms`), which the fast kernels are tested against. Modules hold state:
 :class:`LearnedLevelWeights` (trainable MS-SSIM level weights), :class:`AppearanceTerm` (the base
@@ -363,6 +363,19 @@ def lr_consistency_loss(
     return (disp_left - right_to_left).abs().mean() + (disp_right - left_to_right).abs().mean()
 
 
+def reconstruct(
+    left: Tensor, right: Tensor, disp_left: Tensor, disp_right: Tensor, padding_mode: PaddingMode = "border"
+) -> Tensor:
+    """Both views rebuilt from the other, as one (2B, C, H, W) batch (left then right): the left
+    from the right with ``-disp_left``, the right from the left with ``+disp_right``.
+
+    What the appearance term compares with ``torch.cat((left, right))`` at every scale of
+    :class:`MonodepthLoss`; also the cost curves' reconstruction (:mod:`msdepth.optimum`).
+    """
+    sources, shifts = torch.cat((right, left)), torch.cat((-disp_left, disp_right))
+    return warp(sources, shifts, padding_mode)
+
+
 def scale_pyramid(image: Tensor, num_scales: int = 4) -> list[Tensor]:
     """``[image, image/2, ..., image/2**(num_scales-1)]`` by area (average) downsampling.
 
@@ -447,9 +460,7 @@ class MonodepthLoss(nn.Module):
                 )
             left_s, right_s = target[:batch], target[batch:]
             disp_left, disp_right = disp[:, :1], disp[:, 1:]
-            # Left from right with -d_left, right from left with +d_right.
-            sources, shifts = torch.cat((right_s, left_s)), torch.cat((-disp_left, disp_right))
-            estimates.append(warp(sources, shifts, cfg.padding_mode))
+            estimates.append(reconstruct(left_s, right_s, disp_left, disp_right, cfg.padding_mode))
             smooth_s = smoothness_loss(disp_left, left_s) + smoothness_loss(disp_right, right_s)
             smoothness = smoothness + smooth_s / 2**s
             lr = lr + lr_consistency_loss(disp_left, disp_right, cfg.padding_mode)

@@ -1,0 +1,122 @@
+"""The losses' own optimum on rendered evaluation frames, at several smoothness weights.
+
+Renders evaluation frames of the synthetic set (``data.synthetic``, exact GT: disp_occ within
+``gt_max_depth``), runs the optimum (:mod:`msdepth.optimum`) per variant and weight, and scores
+it with the evaluation's suites (cap 80 m): full-frame abs_rel and a1, ROI abs_rel per class
+(boxes) and over the classes' exact pixels (masks), beside an oracle constant (each frame's
+median GT disparity). Prints a markdown table; ``--trace`` also prints the mean loss per level
+at steps 25, 50, 100, ... (the stopping rule's measurement)::
+
+    python studies/optimum_sweep.py --frames 8 --variants ssim msssim:3 --weights 0.3 1 3
+    python studies/optimum_sweep.py --frames 4 --variants ssim msssim:3 --weights 1 \\
+        --set optimum.iterations=200 --trace
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import yaml
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "src"))
+
+from msdepth.config import apply_overrides, params_from_dict  # noqa: E402
+from msdepth.data.kitti import KITTI_BASELINE  # noqa: E402
+from msdepth.data.synthetic import render_frame, within_range  # noqa: E402
+from msdepth.evaluate import Frame, depth_maps, evaluate_full, evaluate_roi  # noqa: E402
+
+CAP = "cap80"
+ROI_KEYS = ("image", "class", "x0", "y0", "x1", "y1")
+
+
+def rendered(params, count: int) -> tuple[list, list[Frame], pd.DataFrame]:
+    """Evaluation frames 0..count-1: their (left, right) pairs, GT frames and ROI boxes."""
+    s = params.data.synthetic
+    pairs, frames, rois = [], [], []
+    for i in range(count):
+        f = render_frame(s.seed, 1, i, s.height, s.width)
+        name = f"{i:06d}_10"
+        gt = within_range(f.disp, f.focal, s.gt_max_depth)
+        pairs.append((f.left, f.right))
+        frames.append(Frame.from_disparity(name, gt, f.focal, KITTI_BASELINE, class_map=f.class_map))
+        rois += [dict(zip(ROI_KEYS, (name, *roi), strict=True)) for roi in f.rois]
+    return pairs, frames, pd.DataFrame(rois)
+
+
+def scores(disps: list[np.ndarray], frames: list[Frame], rois: pd.DataFrame, params) -> dict:
+    """Full-frame abs_rel/a1 and per-class ROI abs_rel (boxes, masks) at cap 80 m."""
+    pred = depth_maps(np.stack(disps), frames)
+    full, _ = evaluate_full(pred, frames, params.eval)
+    roi, _ = evaluate_roi(pred, frames, rois, params.eval)
+    out = {"abs_rel": full[CAP]["abs_rel"], "a1": full[CAP]["a1"]}
+    for cls, m in roi[CAP]["by_class"].items():
+        out[f"box {cls}"] = m["abs_rel"]
+    for cls, m in roi.get("masks", {}).get(CAP, {}).get("by_class", {}).items():
+        out[f"mask {cls}"] = m["abs_rel"]
+    return out
+
+
+def variant_params(base: dict, spec: str):
+    """``name`` or ``msssim:K`` (MS-SSIM with kernel K) -> (label, name, params)."""
+    name, _, kernel = spec.partition(":")
+    raw = json.loads(json.dumps(base))
+    if kernel:
+        raw.setdefault(name, {})["kernel_size"] = int(kernel)
+    return spec, name, params_from_dict(raw)
+
+
+def main(argv: list[str] | None = None) -> int:
+    from msdepth.optimum import objective, optimise, optimum_disparities
+
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--frames", type=int, default=8)
+    ap.add_argument("--variants", nargs="+", default=["ssim", "msssim:3"])
+    ap.add_argument("--weights", nargs="+", type=float, default=None, help="default: the sweep")
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE")
+    ap.add_argument("--trace", action="store_true", help="print the mean loss per level at steps 25, 50, ...")
+    args = ap.parse_args(argv)
+    base = apply_overrides(yaml.safe_load((ROOT / "params.yaml").read_text()), args.set)
+    params = params_from_dict(base)
+    pairs, frames, rois = rendered(params, args.frames)
+    weights = args.weights or list(params.optimum.smoothness_sweep)
+    # The oracle constant: median GT disparity, as a fraction of the width (depth_maps' input).
+    constant = [
+        np.full(f.shape, np.median(f.focal * f.baseline / f.gt_depth[f.valid]) / f.shape[1], np.float32)
+        for f in frames
+    ]
+    rows = [{"run": "oracle constant", "weight": "", **scores(constant, frames, rois, params)}]
+    for spec in args.variants:
+        label, name, p = variant_params(base, spec)
+        for w in weights:
+            start = time.perf_counter()
+            disps = optimum_disparities(pairs, p, name, w, progress=False)
+            seconds = (time.perf_counter() - start) / len(pairs)
+            row = {"run": label, "weight": w, "s/pair": round(seconds, 2)}
+            rows.append({**row, **scores(disps, frames, rois, p)})
+            print(json.dumps(rows[-1]), file=sys.stderr)
+        if args.trace:
+            import torch
+
+            from msdepth.data.pairs import to_tensor
+
+            trace: list = []
+            left = torch.stack([to_tensor(a) for a, _ in pairs])
+            right = torch.stack([to_tensor(b) for _, b in pairs])
+            optimise(left, right, objective(p, name), p.optimum, trace)
+            marks = [n for n in (25, 50, 100, 200, 400, 800) if n <= p.optimum.iterations]
+            for level, steps in enumerate(trace):
+                losses = ", ".join(f"{n}: {steps[n - 1] / len(pairs):.5f}" for n in marks)
+                print(f"{label} level {level}: {losses}")
+    print(pd.DataFrame(rows).to_markdown(index=False, floatfmt=".3f"))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,75 @@
+"""Score depth maps (``*_depth.npy`` of ``msdepth predict`` or ``msdepth optimum``) against one
+KITTI Velodyne scan projected into the left camera, the Eigen-style raw-LiDAR GT.
+
+The projection is the evaluation's (:func:`msdepth.data.kitti.lidar_depth_map`); the metrics are
+Monodepth's (:func:`msdepth.metrics.compute_errors`) on GT in (1e-3, cap) m with predictions
+clamped to that range, as the Eigen evaluation does. With an object-benchmark ``calib.txt``
+(``P2``, ``R0_rect``, ``Tr_velo_to_cam``)::
+
+    S=../shared/real-samples/kitti-object-pair
+    msdepth optimum $S/left.png $S/right.png --variant ssim --out /tmp/opt/ssim \\
+        --focal 721.5377 --baseline 0.5327
+    python studies/score_lidar.py --scan $S/lidar.bin --calib $S/calib.txt /tmp/opt/*/left_depth.npy
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "src"))
+
+from msdepth.data.kitti import lidar_depth_map, read_calib, read_velodyne  # noqa: E402
+from msdepth.depth import clamp_depth  # noqa: E402
+from msdepth.metrics import compute_errors  # noqa: E402
+
+MIN_DEPTH = 1e-3
+
+
+def lidar_gt(scan: Path, calib: Path, shape: tuple[int, int]) -> np.ndarray:
+    """The scan's depth (m, 0 = none) in the left colour camera (``P2``) at ``shape``."""
+    c = read_calib(calib)
+    return lidar_depth_map(
+        read_velodyne(scan),
+        c["Tr_velo_to_cam"].reshape(3, 4),
+        c["R0_rect"].reshape(3, 3),
+        c["P2"].reshape(3, 4),
+        shape,
+    )
+
+
+def score(depth: np.ndarray, gt: np.ndarray, cap: float) -> dict[str, float]:
+    """Monodepth's metrics over the GT pixels in (1e-3, cap) m. A depth of 0 is read as beyond
+    the writer's ``max_depth`` (80 m; the optimum's disparities are never 0), so as the cap."""
+    valid = (gt > MIN_DEPTH) & (gt < cap)
+    pred = np.where(depth[valid] > 0, depth[valid], cap)
+    return compute_errors(gt[valid], clamp_depth(pred, MIN_DEPTH, cap))
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("depths", nargs="+", type=Path, help="*_depth.npy files (m) at the image's resolution")
+    ap.add_argument("--scan", type=Path, required=True)
+    ap.add_argument("--calib", type=Path, required=True)
+    ap.add_argument("--cap", type=float, default=80.0)
+    args = ap.parse_args(argv)
+    print("| depth map | GT points | abs_rel | rmse | a1 |\n|---|---|---|---|---|")
+    first = np.load(args.depths[0])
+    gt = lidar_gt(args.scan, args.calib, first.shape)
+    oracle = np.full(first.shape, np.median(gt[(gt > MIN_DEPTH) & (gt < args.cap)]), np.float32)
+    m = score(oracle, gt, args.cap)
+    print(f"| oracle constant (median GT depth) | | {m['abs_rel']:.3f} | {m['rmse']:.2f} | {m['a1']:.3f} |")
+    for path in args.depths:
+        depth = np.load(path)
+        gt = lidar_gt(args.scan, args.calib, depth.shape)
+        m = score(depth, gt, args.cap)
+        points = int(((gt > MIN_DEPTH) & (gt < args.cap)).sum())
+        print(f"| {path} | {points} | {m['abs_rel']:.3f} | {m['rmse']:.2f} | {m['a1']:.3f} |")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

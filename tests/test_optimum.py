@@ -1,0 +1,265 @@
+"""The losses' own optimum (msdepth.optimum) and ``msdepth optimum``, on known answers at tiny sizes."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import cv2
+import numpy as np
+import pytest
+
+from msdepth.__main__ import main
+from msdepth.config import Params, apply_overrides, params_from_dict
+from msdepth.data.pairs import to_tensor
+from msdepth.data.synthetic import render_frame
+from msdepth.errors import ConfigError
+from msdepth.io import write_png
+from msdepth.metrics import compute_errors
+from msdepth.optimum import (
+    COST_SCALES,
+    basin,
+    class_summary,
+    cost_curve,
+    curve_minimum,
+    level_sizes,
+    objective,
+    optimise,
+    optimum_disparities,
+)
+from msdepth.predict import default_focal
+
+VARIANTS = ("ssim", "msssim", "mix")
+H, W, SHIFT = 48, 160, 12  # the plane: a 12 px disparity, 0.075 of the width (the start is 0.04)
+
+
+def texture(height: int, width: int, seed: int = 0) -> np.ndarray:
+    """A Lambertian textured plane's image: smooth blobs (coarse levels) plus fine grain (uint8 RGB)."""
+    rng = np.random.default_rng(seed)
+    coarse = cv2.resize(
+        rng.random((height // 8, width // 8, 3)), (width, height), interpolation=cv2.INTER_CUBIC
+    )
+    fine = cv2.GaussianBlur(rng.random((height, width, 3)), (0, 0), 1.0)
+    return (np.clip(0.6 * coarse + 0.8 * (fine - 0.5) + 0.2, 0, 1) * 255).astype(np.uint8)
+
+
+def plane_pair(shift: int = SHIFT) -> tuple[np.ndarray, np.ndarray]:
+    """A fronto-parallel plane at disparity ``shift`` px: left(x) = right(x - shift), both views."""
+    scene = texture(H, W + shift)
+    return scene[:, :W], scene[:, shift:]
+
+
+def small(params: Params, **optimum) -> Params:
+    return dataclasses.replace(params, optimum=dataclasses.replace(params.optimum, **optimum))
+
+
+@pytest.mark.parametrize("variant", VARIANTS)
+def test_a_textured_plane_s_constant_disparity_is_recovered_within_2_percent(variant: str) -> None:
+    params = small(Params(), levels=2, iterations=30)
+    (disp,) = optimum_disparities([plane_pair()], params, variant, progress=False)
+    # Columns left of the shift see nothing of theirs in the right view (the border is replicated).
+    interior = disp[4:-4, SHIFT + 4 : -4] * W
+    assert np.median(interior) == pytest.approx(SHIFT, rel=0.02)
+    assert np.mean(interior) == pytest.approx(SHIFT, rel=0.03)  # a few pixels of the blobs' flanks lag
+
+
+def test_on_a_rendered_pair_the_optimum_is_far_below_the_constant() -> None:
+    frame = render_frame(2017, 1, 0, 64, 192)
+    params = small(Params(), levels=2, iterations=60)
+    (disp,) = optimum_disparities([(frame.left, frame.right)], params, "ssim", progress=False)
+    valid = frame.disp > 0
+    gt = frame.focal * 0.54 / frame.disp[valid]
+    optimum = frame.focal * 0.54 / (disp[valid] * 192)
+    constant = np.full_like(gt, frame.focal * 0.54 / np.median(frame.disp[valid]))
+    ours, theirs = compute_errors(gt, optimum)["abs_rel"], compute_errors(gt, constant)["abs_rel"]
+    assert ours < 0.5 * theirs, (ours, theirs)
+
+
+def test_the_result_is_deterministic_and_each_pair_s_own() -> None:
+    params = small(Params(), levels=2, iterations=10)
+    pair = plane_pair()
+    other = plane_pair(5)
+    first = optimum_disparities([pair], params, "msssim", progress=False)[0]
+    again = optimum_disparities([pair], params, "msssim", progress=False)[0]
+    assert first.tobytes() == again.tobytes()
+    batched = optimum_disparities([other, pair], small(params, batch_size=2), "msssim", progress=False)[1]
+    np.testing.assert_allclose(batched, first, atol=1e-5)  # its batch mate does not move it
+
+
+def test_only_the_ms_ssim_optimum_depends_on_msssim_kernel_size() -> None:
+    base = small(Params(), levels=1, iterations=5)
+    k7 = dataclasses.replace(
+        base, appearance={**base.appearance, "msssim": dataclasses.replace(base.msssim, kernel_size=7)}
+    )
+    pair = [plane_pair()]
+    for variant, changes in (("ssim", False), ("msssim", True)):
+        a = optimum_disparities(pair, base, variant, progress=False)[0]
+        b = optimum_disparities(pair, k7, variant, progress=False)[0]
+        assert (a.tobytes() != b.tobytes()) is changes, variant
+
+
+def test_the_optimum_minimises_the_objective_with_its_own_smoothness_weight() -> None:
+    params = Params()
+    criterion = objective(params, "ssim", 2.5)
+    assert criterion.loss_cfg.smoothness_weight == 2.5 and criterion.loss_cfg.alpha == params.loss.alpha
+    assert objective(params, "ssim").loss_cfg.smoothness_weight == params.optimum.smoothness_weight
+    assert objective(params, "mix") is not None  # a registered variant that is not trained
+    assert not any(p.requires_grad for p in objective(params, "msssim").parameters())
+    with pytest.raises(ConfigError, match="unknown variant 'nope'"):
+        objective(params, "nope")
+
+
+def test_the_loss_falls_at_every_level() -> None:
+    left, right = (to_tensor(x)[None] for x in plane_pair())
+    trace: list[list[float]] = []
+    optimise(
+        left, right, objective(Params(), "ssim"), small(Params(), levels=2, iterations=20).optimum, trace
+    )
+    assert len(trace) == 2 and all(steps[-1] < steps[0] for steps in trace)
+
+
+def test_level_sizes_halve_down_to_24_px() -> None:
+    assert level_sizes(125, 414, 3) == [(31, 103), (62, 207), (125, 414)]
+    assert level_sizes(48, 160, 4) == [(24, 80), (48, 160)]
+    assert level_sizes(20, 40, 3) == [(20, 40)]  # a small image keeps its own size
+
+
+@pytest.mark.parametrize("variant", VARIANTS)
+def test_a_lambertian_plane_s_cost_curve_is_lowest_at_s_1(variant: str) -> None:
+    left, right = (to_tensor(x) for x in plane_pair())
+    gt = np.full((H, W), float(SHIFT), np.float32)
+    costs = cost_curve(left, right, gt, (60, 12, 100, 36), objective(Params(), variant))
+    assert curve_minimum(COST_SCALES, costs) == pytest.approx(1.0)
+    low, high = basin(COST_SCALES, costs)
+    assert 0.8 < low <= 1 <= high < 1.25  # a textured box: a narrow basin around the truth
+
+
+def test_basin_and_class_summary_on_known_curves() -> None:
+    scales = np.geomspace(0.5, 2, 9)  # 0.5, 0.59, 0.71, 0.84, 1, 1.19, 1.41, 1.68, 2
+    costs = np.abs(np.log(scales / 1.19))
+    assert curve_minimum(scales, costs) == pytest.approx(scales[5])
+    assert basin(scales, costs) == (pytest.approx(scales[5]), pytest.approx(scales[5]))
+    flat = np.array([1.0, 1.0, 0.0, 0.0, 0.0, 1.0, 1.0, 1.0, 1.0])
+    assert basin(scales, flat) == (pytest.approx(scales[2]), pytest.approx(scales[4]))
+    summary = class_summary({"car": [flat, flat + 1]}, scales)
+    assert summary["car"]["rois"] == 2 and summary["car"]["s_min"] == pytest.approx(scales[2])
+    assert summary["car"]["basin_ratio"] == pytest.approx(scales[4] / scales[2])
+
+
+def test_the_optimum_section_is_checked() -> None:
+    with pytest.raises(ConfigError, match="optimum.smoothness_sweep"):
+        params_from_dict({"optimum": {"smoothness_sweep": [0.5, 1.0, 2.0]}})  # less than a decade
+    with pytest.raises(ConfigError, match="optimum.smoothness_sweep"):
+        params_from_dict({"optimum": {"smoothness_weight": 2.0}})  # not among the reported weights
+    with pytest.raises(ConfigError, match="optimum.levels"):
+        params_from_dict({"optimum": {"levels": 0}})
+    raw = apply_overrides({}, ["optimum.iterations=7", "msssim.kernel_size=5"])
+    assert raw == {"optimum": {"iterations": 7}, "msssim": {"kernel_size": 5}}
+    with pytest.raises(ConfigError, match="KEY=VALUE"):
+        apply_overrides({}, ["optimum.iterations"])
+
+
+# ----------------------------------------------------------------------------- the CLI
+
+FAST = ["--set", "optimum.iterations=3", "--set", "optimum.levels=1", "--quiet"]
+
+
+def cli(*args) -> int:
+    return main(["optimum", *map(str, args), *FAST])
+
+
+def test_cli_writes_predict_s_outputs_at_the_left_image_s_resolution(tmp_path) -> None:
+    left, right = plane_pair()
+    write_png(tmp_path / "l.png", left)
+    write_png(tmp_path / "r.png", right)
+    out = tmp_path / "out"
+    assert (
+        cli(
+            tmp_path / "l.png",
+            tmp_path / "r.png",
+            "--variant",
+            "ssim",
+            "--out",
+            out,
+            "--height",
+            24,
+            "--width",
+            80,
+        )
+        == 0
+    )
+    disp = np.load(out / "l_disp.npy")
+    assert disp.dtype == np.float32 and disp.shape == (H, W)
+    depth = np.load(out / "l_depth.npy")
+    np.testing.assert_allclose(depth, default_focal(W) * 0.54 / disp, rtol=1e-5)
+    assert cv2.imread(str(out / "l_disp.png")).shape == (H, W, 3)
+    assert (
+        cli(
+            tmp_path / "l.png",
+            tmp_path / "r.png",
+            "--variant",
+            "ssim",
+            "--out",
+            tmp_path / "o2",
+            "--focal",
+            100,
+            "--baseline",
+            0.5,
+        )
+        == 0
+    )
+    np.testing.assert_allclose(
+        np.load(tmp_path / "o2" / "l_depth.npy") * np.load(tmp_path / "o2" / "l_disp.npy"), 50, rtol=1e-5
+    )
+
+
+def test_cli_on_folders_names_each_bad_pair_and_does_the_others(tmp_path, capsys) -> None:
+    left, right = plane_pair()
+    for name in ("a", "b", "c", "d"):
+        write_png(tmp_path / "L" / f"{name}.png", left)
+    write_png(tmp_path / "R" / "a.png", right)
+    write_png(tmp_path / "R" / "b.png", right[:, :-8])  # another size
+    (tmp_path / "R" / "c.png").write_text("not an image")
+    # d.png has no right image
+    out = tmp_path / "out"
+    assert (
+        main(
+            [
+                "optimum",
+                str(tmp_path / "L"),
+                str(tmp_path / "R"),
+                "--variant",
+                "msssim",
+                "--out",
+                str(out),
+                *FAST,
+            ]
+        )
+        == 1
+    )
+    errors = [line for line in capsys.readouterr().err.splitlines() if line.startswith("error:")]
+    assert len(errors) == 3
+    for name in ("b.png", "c.png", "d.png"):
+        assert sum(name in line for line in errors) == 1, (name, errors)
+    assert sorted(p.name for p in out.iterdir()) == ["a_depth.npy", "a_disp.npy", "a_disp.png"]
+
+
+def test_cli_refuses_bad_arguments_in_one_line(tmp_path, capsys) -> None:
+    assert cli(tmp_path / "none.png", tmp_path / "r.png", "--variant", "ssim", "--out", tmp_path) == 1
+    assert "none.png: no such file" in capsys.readouterr().err
+    write_png(tmp_path / "l.png", plane_pair()[0])
+    assert cli(tmp_path / "l.png", tmp_path / "l.png", "--variant", "nope", "--out", tmp_path) == 1
+    assert "unknown variant 'nope'" in capsys.readouterr().err
+    assert (
+        cli(tmp_path / "l.png", tmp_path / "l.png", "--variant", "ssim", "--out", tmp_path, "--height", 24)
+        == 1
+    )
+    assert "height and width" in capsys.readouterr().err
+    assert not list(tmp_path.glob("*.npy"))
+
+
+def test_cli_reads_the_params_file_and_its_overrides(tmp_path) -> None:
+    (tmp_path / "p.yaml").write_text("optimum:\n  levels: 0\n")
+    write_png(tmp_path / "l.png", plane_pair()[0])
+    args = [tmp_path / "l.png", tmp_path / "l.png", "--variant", "ssim", "--out", tmp_path]
+    assert main(["optimum", *map(str, args), "--params", str(tmp_path / "p.yaml")]) == 1  # levels 0
+    assert cli(*args, "--params", tmp_path / "p.yaml") == 0  # FAST's optimum.levels=1 wins
