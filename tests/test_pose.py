@@ -12,6 +12,7 @@ from msdepth.errors import MsdepthError
 from msdepth.geometry import transformation_from_parameters
 from msdepth.pose import PoseDecoder, PoseNet, relative_pose
 from msdepth.resnet import CHANNELS, ResNetEncoder, load_pretrained
+from msdepth.resnet_depth import ResNetDepth
 
 # torchvision's resnet18 has 11,689,512 parameters, of which its classifier fc holds 512·1000 + 1000.
 RESNET18_WITHOUT_FC = 11_689_512 - 513_000
@@ -158,3 +159,56 @@ def test_posenet_shapes_and_near_identity_start() -> None:
     assert axis_angle.abs().max() < 0.1 and translation.abs().max() < 0.1
     with pytest.raises(ValueError, match="two \\(B, 3, H, W\\) frames"):
         net(_frames(1), _frames(1, b=1))
+
+
+# ----------------------------------------------------------------------------- depth decoder
+
+
+def md2_depth_decoder_forward(convs: dict, input_features: list) -> dict:
+    """Monodepth2's ``DepthDecoder.forward`` (use_skips, scales 0..3), transcribed."""
+    outputs = {}
+    x = input_features[-1]
+    for i in range(4, -1, -1):
+        x = convs[("upconv", i, 0)](x)
+        x = [torch.nn.functional.interpolate(x, scale_factor=2, mode="nearest")]
+        if i > 0:
+            x += [input_features[i - 1]]
+        x = torch.cat(x, 1)
+        x = convs[("upconv", i, 1)](x)
+        if i in range(4):
+            outputs[("disp", i)] = torch.sigmoid(convs[("dispconv", i)](x))
+    return outputs
+
+
+def test_depth_decoder_matches_monodepth2() -> None:
+    torch.manual_seed(13)
+    net = ResNetDepth()
+    image = _frames(14, h=64, w=96)
+    features = net.encoder(image)
+    convs = {("dispconv", s): net.decoder.dispconvs[s] for s in range(4)}
+    for i in range(5):
+        convs[("upconv", i, 0)], convs[("upconv", i, 1)] = net.decoder.upconvs0[i], net.decoder.upconvs1[i]
+    ref = md2_depth_decoder_forward(convs, features)
+    ours = net(image)
+    assert [tuple(d.shape) for d in ours] == [(2, 1, 64 >> s, 96 >> s) for s in range(4)]
+    for s in range(4):
+        assert torch.equal(ours[s], ref[("disp", s)])
+    # Monodepth2's channel counts: 3,152,724 decoder parameters beside ResNet-18's encoder.
+    assert sum(p.numel() for p in net.decoder.parameters()) == DECODER_PARAMETERS
+    with pytest.raises(ValueError, match="multiples of 32"):
+        net(_frames(1, h=48, w=96))
+
+
+def _decoder_parameters() -> int:
+    """Monodepth2's decoder, counted by hand: 3x3 convs (+ bias) of each block."""
+    enc, dec = (64, 64, 128, 256, 512), (16, 32, 64, 128, 256)
+    total = 0
+    for i in range(5):
+        c_in = enc[-1] if i == 4 else dec[i + 1]
+        total += 9 * c_in * dec[i] + dec[i]
+        c_in = dec[i] + (enc[i - 1] if i > 0 else 0)
+        total += 9 * c_in * dec[i] + dec[i]
+    return total + sum(9 * dec[s] + 1 for s in range(4))
+
+
+DECODER_PARAMETERS = _decoder_parameters()
