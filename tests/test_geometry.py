@@ -13,6 +13,7 @@ from msdepth.geometry import (
     project,
     reproject,
     rotation_from_axis_angle,
+    stereo_pose,
     transformation_from_parameters,
     translation_matrix,
 )
@@ -239,3 +240,15 @@ def test_bad_shapes_are_refused() -> None:
             torch.eye(4)[None],
             torch.eye(4)[None],
         )
+
+
+@pytest.mark.parametrize("side", ["l", "r"])
+def test_stereo_pose_reprojects_as_monodepths_stereo_warp(side: str) -> None:
+    # Monodepth reconstructs the left view with warp(right, -d_left), the right with warp(left, +d_right).
+    h, w = 8, 24
+    partner, depth, k = _random(1, 3, h, w, seed=15), 2 + 20 * _random(1, 1, h, w, seed=16), _k(1, h, w)
+    out = reproject(partner, depth, k, torch.linalg.inv(k), stereo_pose(side, 1, 0.54, torch.float64))
+    disp = k[0, 0, 0] * 0.54 / depth / w
+    assert torch.allclose(out, warp(partner, -disp if side == "l" else disp), rtol=0, atol=1e-5)
+    with pytest.raises(ValueError, match="side"):
+        stereo_pose("s", 1)

@@ -195,8 +195,9 @@ def test_depth_decoder_matches_monodepth2() -> None:
         assert torch.equal(ours[s], ref[("disp", s)])
     # Monodepth2's channel counts: 3,152,724 decoder parameters beside ResNet-18's encoder.
     assert sum(p.numel() for p in net.decoder.parameters()) == DECODER_PARAMETERS
-    with pytest.raises(ValueError, match="multiples of 32"):
-        net(_frames(1, h=48, w=96))
+    for h, w in ((48, 96), (32, 96)):
+        with pytest.raises(ValueError, match="multiples of 32 and >= 64"):
+            net(_frames(1, h=h, w=w))
 
 
 def _decoder_parameters() -> int:

@@ -83,6 +83,16 @@ def transformation_from_parameters(axis_angle: Tensor, translation: Tensor, inve
     return rotation.transpose(1, 2) @ translation_matrix(-translation)
 
 
+def stereo_pose(side: str, batch: int, baseline: float = 0.1, dtype: torch.dtype = torch.float32) -> Tensor:
+    """(batch, 4, 4) pose from a target camera to its stereo partner, as Monodepth2's ``stereo_T``:
+    an x-translation of ``-baseline`` for a left target (``side == "l"``), ``+baseline`` for a right
+    one (Monodepth2's 0.1 stands in for KITTI's 0.54 m: it fixes the scale of the depth)."""
+    if side not in ("l", "r"):
+        raise ValueError(f"stereo_pose: side must be 'l' or 'r', got {side!r}")
+    x = -baseline if side == "l" else baseline
+    return translation_matrix(torch.tensor([[x, 0.0, 0.0]], dtype=dtype).expand(batch, 3))
+
+
 def intrinsics_matrix(
     fx: float, fy: float, cx: float, cy: float, batch: int = 1, dtype: torch.dtype = torch.float32
 ) -> Tensor:

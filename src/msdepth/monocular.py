@@ -27,8 +27,9 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from .geometry import MAX_DEPTH, MIN_DEPTH, disp_to_depth, reproject
+from .geometry import MAX_DEPTH, MIN_DEPTH, disp_to_depth, reproject, stereo_pose
 from .losses import AppearanceTerm, scale_pyramid, smoothness_loss, ssim
+from .pose import PoseNet, relative_pose
 from .warp import PaddingMode
 
 IDENTITY_TIE_BREAK = 1e-5
@@ -154,3 +155,25 @@ class MonocularLoss(nn.Module):
         smoothness = smoothness / n
         total = appearance + self.smoothness_weight * smoothness
         return {"total": total, "appearance": appearance, "smoothness": smoothness, "automask": masked / n}
+
+
+def monocular_losses(
+    depth_net: nn.Module,
+    pose_net: PoseNet,
+    criterion: MonocularLoss,
+    target: Tensor,
+    neighbours: dict[int, Tensor],
+    k: Tensor,
+    partner: Tensor | None = None,
+    side: str = "l",
+) -> dict[str, Tensor]:
+    """One batch of Monodepth2's M (``partner`` None) or MS training: the target's disparities
+    (``depth_net``: image -> sigmoid disparities, finest first), the pose of every neighbour (by
+    frame offset) from ``pose_net``, and in MS the stereo partner with :func:`stereo_pose`."""
+    disps = depth_net(target)
+    sources = list(neighbours.values())
+    poses = [relative_pose(pose_net, target, source, offset) for offset, source in neighbours.items()]
+    if partner is not None:
+        sources.append(partner)
+        poses.append(stereo_pose(side, target.shape[0], dtype=target.dtype).to(target.device))
+    return criterion(disps, target, sources, poses, k, torch.linalg.inv(k))

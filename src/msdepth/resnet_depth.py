@@ -57,7 +57,8 @@ class DepthDecoder(nn.Module):
 
 class ResNetDepth(nn.Module):
     """Monodepth2's depth network: one image -> 4 sigmoid disparity maps, finest first. The input
-    sides must be multiples of 32 (the encoder's five halvings are undone exactly)."""
+    sides must be multiples of 32 (the encoder's five halvings are undone exactly) and at least 64
+    (the reflection padding of the 1/32 features needs 2 px)."""
 
     def __init__(self) -> None:
         super().__init__()
@@ -66,8 +67,9 @@ class ResNetDepth(nn.Module):
 
     def forward(self, image: Tensor) -> list[Tensor]:
         """(B, 3, H, W) in [0, 1] -> disparities at 1/1 .. 1/8."""
-        if image.dim() != 4 or image.shape[-2] % 32 or image.shape[-1] % 32:
+        if image.dim() != 4 or any(side % 32 or side < 64 for side in image.shape[-2:]):
             raise ValueError(
-                f"ResNetDepth: input must be (B, 3, H, W), H and W multiples of 32, got {tuple(image.shape)}"
+                "ResNetDepth: input must be (B, 3, H, W), H and W multiples of 32 and >= 64, "
+                f"got {tuple(image.shape)}"
             )
         return self.decoder(self.encoder(image))
