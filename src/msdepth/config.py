@@ -253,6 +253,11 @@ class TrainConfig:
     launcher: Literal["local", "torchrun"] = _speed_only("local")
     nproc: int = 1
     dist_timeout_s: float = _speed_only(600.0)  # a collective waiting longer (a dead rank) is an error
+    # stereo = Monodepth (left-right pairs); mono / mono_stereo = Monodepth2's M / MS
+    # (msdepth.monocular), which need frame sequences the data stage does not write yet: refused.
+    mode: Literal["stereo", "mono", "mono_stereo"] = _added_later("stereo")
+    # Monodepth2's source frames of the monocular modes, as offsets from the target frame.
+    source_frames: tuple[int, ...] = _added_later((-1, 1))
 
     def validate(self, key: str, params: Params) -> None:
         """Range checks of the ``key`` section; a ConfigError names the key."""
@@ -269,6 +274,23 @@ class TrainConfig:
         check(timeout > 0, f"{key}.dist_timeout_s", "must be > 0")
         check(
             timeout <= MAX_DIST_TIMEOUT_S, f"{key}.dist_timeout_s", f"must be <= {MAX_DIST_TIMEOUT_S:g} (s)"
+        )
+        frames = list(self.source_frames)
+        check(
+            0 not in frames and len(set(frames)) == len(frames),
+            f"{key}.source_frames",
+            f"must be distinct non-zero offsets from the target frame, got {shown(frames)}",
+        )
+        check(
+            self.mode != "stereo" or frames == [-1, 1],
+            f"{key}.source_frames",
+            f"applies to train.mode mono and mono_stereo only; keep [-1, 1] in stereo, got {shown(frames)}",
+        )
+        check(
+            self.mode == "stereo",
+            f"{key}.mode",
+            f"{shown(self.mode)} needs monocular frame sequences, which no data source writes yet; "
+            "only 'stereo' trains",
         )
         seeds = list(self.seeds)
         in_range = all(0 <= seed <= SEED_MAX for seed in seeds)

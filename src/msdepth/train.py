@@ -144,7 +144,7 @@ def fingerprint(params: Params, variant: str, num_pairs: int, seed: int) -> str:
         "seed": seed,
         "data": [params.data.height, params.data.width, num_pairs],
         "model": asdict(params.model),
-        "train": {k: v for k, v in asdict(params.train).items() if k not in ignored},
+        "train": {k: v for k, v in fingerprint_fields(params.train).items() if k not in ignored},
         "loss": fingerprint_fields(params.loss),
         "appearance": appearance,
         appearance: asdict(params.appearance[appearance]),

@@ -1,0 +1,32 @@
+"""train.mode and train.source_frames: stereo by default, the monocular modes refused until wired."""
+
+from __future__ import annotations
+
+import pytest
+
+from msdepth.config import TrainConfig, fingerprint_fields, params_from_dict
+from msdepth.errors import ConfigError
+
+
+def test_stereo_is_the_default_and_leaves_the_fingerprint_alone() -> None:
+    train = params_from_dict({}).train
+    assert train.mode == "stereo" and train.source_frames == (-1, 1)
+    # Added after checkpoints existed: at their defaults they are not hashed.
+    assert not {"mode", "source_frames"} & set(fingerprint_fields(TrainConfig()))
+    assert params_from_dict({"train": {"mode": "stereo", "source_frames": [-1, 1]}}).train == train
+
+
+@pytest.mark.parametrize(
+    ("train", "message"),
+    [
+        ({"mode": "mono"}, "train.mode: 'mono' needs monocular frame sequences"),
+        ({"mode": "mono_stereo"}, "train.mode: 'mono_stereo' needs monocular frame sequences"),
+        ({"mode": "stereo_mono"}, "train.mode: 'stereo_mono' is not one of"),
+        ({"source_frames": [-1, 0, 1]}, "train.source_frames: must be distinct non-zero offsets"),
+        ({"source_frames": [1, 1]}, "train.source_frames: must be distinct non-zero offsets"),
+        ({"source_frames": [-2, 2]}, "train.source_frames: applies to train.mode mono and mono_stereo only"),
+    ],
+)
+def test_bad_values_are_one_config_error(train: dict, message: str) -> None:
+    with pytest.raises(ConfigError, match=message.replace("(", r"\(").replace(")", r"\)")):
+        params_from_dict({"train": train})
