@@ -18,7 +18,14 @@ BANNED = re.compile(r"\bsessions?\b|this machine", re.IGNORECASE)
 def relative_links(path: Path) -> list[str]:
     """Targets of the links in a markdown file that point into the repository."""
     targets = LINK.findall(path.read_text(encoding="utf-8"))
-    return [t for t in targets if not re.match(r"[a-z][a-z0-9+.-]*:|#", t)]
+    return [t for t in targets if not re.match(r"[a-z][a-z0-9+.-]*:", t)]
+
+
+def anchors(path: Path) -> set[str]:
+    """GitHub's anchors for the headings of a markdown file (outside code blocks)."""
+    text = re.sub(r"```.*?```", "", path.read_text(encoding="utf-8"), flags=re.DOTALL)
+    headings = re.findall(r"^#+ (.+)$", text, re.MULTILINE)
+    return {re.sub(r"[^\w\- ]", "", h.strip().lower()).replace(" ", "-") for h in headings}
 
 
 def fenced_commands(text: str) -> list[str]:
@@ -37,10 +44,11 @@ def test_readme_is_short() -> None:
 def test_relative_links_exist(path: Path) -> None:
     missing = []
     for target in relative_links(path):
-        file = target.split("#", 1)[0]
-        if not (path.parent / file).exists():
+        file, _, anchor = target.partition("#")
+        dest = path.parent / file if file else path
+        if not dest.exists() or (anchor and dest.suffix == ".md" and anchor not in anchors(dest)):
             missing.append(target)
-    assert not missing, f"{path.relative_to(ROOT)} links to missing files: {missing}"
+    assert not missing, f"{path.relative_to(ROOT)} links to missing files or headings: {missing}"
 
 
 def test_readme_quick_start_matches_ci() -> None:
