@@ -1,0 +1,76 @@
+"""The README and docs/: short, linked, and saying what CI runs (issue 29)."""
+
+import re
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+README = ROOT / "README.md"
+DOCS = sorted((ROOT / "docs").glob("*.md")) + [ROOT / "benchmarks" / "README.md"]
+README_MAX_LINES = 200
+# Markdown links and images: [text](target) and ![alt](target).
+LINK = re.compile(r"!?\[[^\]]*\]\(([^)\s]+)\)")
+# Words that speak of how a text was measured rather than of the project.
+BANNED = re.compile(r"\bsessions?\b|this machine", re.IGNORECASE)
+
+
+def relative_links(path: Path) -> list[str]:
+    """Targets of the links in a markdown file that point into the repository."""
+    targets = LINK.findall(path.read_text(encoding="utf-8"))
+    return [t for t in targets if not re.match(r"[a-z][a-z0-9+.-]*:", t)]
+
+
+def anchors(path: Path) -> set[str]:
+    """GitHub's anchors for the headings of a markdown file (outside code blocks)."""
+    text = re.sub(r"```.*?```", "", path.read_text(encoding="utf-8"), flags=re.DOTALL)
+    headings = re.findall(r"^#+ (.+)$", text, re.MULTILINE)
+    return {re.sub(r"[^\w\- ]", "", h.strip().lower()).replace(" ", "-") for h in headings}
+
+
+def fenced_commands(text: str) -> list[str]:
+    """The non-comment lines of the ```bash blocks in a markdown text."""
+    blocks = re.findall(r"```bash\n(.*?)```", text, re.DOTALL)
+    lines = (line.strip() for block in blocks for line in block.splitlines())
+    return [line for line in lines if line and not line.startswith("#")]
+
+
+def test_readme_is_short() -> None:
+    lines = README.read_text(encoding="utf-8").count("\n")
+    assert lines <= README_MAX_LINES, f"README.md has {lines} lines (at most {README_MAX_LINES})"
+
+
+@pytest.mark.parametrize("path", [README, *DOCS], ids=lambda p: str(p.relative_to(ROOT)))
+def test_relative_links_exist(path: Path) -> None:
+    missing = []
+    for target in relative_links(path):
+        file, _, anchor = target.partition("#")
+        dest = path.parent / file if file else path
+        if not dest.exists() or (anchor and dest.suffix == ".md" and anchor not in anchors(dest)):
+            missing.append(target)
+    assert not missing, f"{path.relative_to(ROOT)} links to missing files or headings: {missing}"
+
+
+def test_readme_quick_start_matches_ci() -> None:
+    """Command 1 installs as .ci/run does, and command 2 is .ci/run's test command."""
+    commands = fenced_commands(README.read_text(encoding="utf-8"))
+    install, tests = commands[0], commands[1]
+    ci = (ROOT / ".ci" / "run").read_text(encoding="utf-8")
+    ci_steps = [line.strip() for line in ci.splitlines() if not line.strip().startswith("#")]
+    assert install == (
+        "python3 -m venv .venv && . .venv/bin/activate && pip install torch==2.13.0 && "
+        'pip install -e ".[test]" && dvc repro'
+    )
+    assert "python3 -m venv .venv" in ci_steps
+    assert ". .venv/bin/activate" in ci_steps
+    assert "python -m pip install -q torch==2.13.0" in ci_steps
+    assert 'python -m pip install -q -e ".[test]"' in ci_steps
+    assert tests == "python -m pytest -q"
+    assert tests in ci_steps
+
+
+@pytest.mark.parametrize("path", [README, *DOCS], ids=lambda p: str(p.relative_to(ROOT)))
+def test_no_talk_of_sessions(path: Path) -> None:
+    text = path.read_text(encoding="utf-8")
+    hits = [line for line in text.splitlines() if BANNED.search(line)]
+    assert not hits, f"{path.relative_to(ROOT)}: {hits}"
