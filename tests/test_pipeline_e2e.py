@@ -195,7 +195,7 @@ def test_killed_repro_reruns_to_identical_results(repo: Path, tmp_path: Path):
 
 
 def test_experiment_then_the_way_back_and_applying_it(repo: Path, tmp_path: Path):
-    """README "Experiments": after `dvc exp run` the workspace holds the experiment; `git checkout
+    """docs/user-guide.md "Experiments": after `dvc exp run` the workspace holds the experiment; `git checkout
     HEAD -- . && dvc checkout` returns to the committed results, `dvc exp apply` brings it back."""
     work = tmp_path / "exp"
     shutil.copytree(repo, work, symlinks=True)
@@ -328,7 +328,7 @@ def test_more_seeds_train_only_the_new_runs_and_widen_the_comparison(repo: Path)
 
 
 def test_a_new_variant_in_variants_trains_only_its_runs_and_joins_the_comparison(repo: Path):
-    """README "Loss variants": listing a registered variant (Zhao et al.'s mix) in `variants` is
+    """docs/design.md "Loss variants": listing a registered variant (Zhao et al.'s mix) in `variants` is
     all `dvc repro` needs; the runs that exist stand, the new one is evaluated and compared."""
     params = yaml.safe_load((repo / "params.yaml").read_text())
     params["variants"] = ["ssim", "msssim", "mix"]

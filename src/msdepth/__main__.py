@@ -114,7 +114,7 @@ def _export_folder_command(add_parser: AddParser) -> None:
         help="write a stereo folder (data.source: folder) from the synthetic set",
         description="Write the KITTI-format tree FROM (e.g. the synthetic set in data/synthetic) as a stereo "
         "folder for data.source: folder: left/ and right/ (training and evaluation images), camera.yaml, "
-        "eval.txt and the evaluation GT as PFM disparity in gt/. See README 'Train and evaluate on your "
+        "eval.txt and the evaluation GT as PFM disparity in gt/. See docs/user-guide.md 'Train and evaluate on your "
         "own stereo camera'.",
     )
     f.add_argument("--from", dest="source", required=True, help="KITTI-format tree, e.g. data/synthetic")

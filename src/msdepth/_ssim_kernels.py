@@ -6,7 +6,7 @@ gradients) with less memory traffic: fused window moments with a hand-written ba
 (:class:`_Halve`) and a scheduler that batches same-sized MS-SSIM levels of a scale pyramid
 (:func:`ms_ssim_levels`). :mod:`msdepth.losses` holds the plain autograd formula they are tested
 against (``implementation="reference"``); the measurements behind each choice are in
-``benchmarks/loss.py`` and the README's "Speed" section.
+``benchmarks/loss.py`` and benchmarks/README.md.
 """
 
 from __future__ import annotations

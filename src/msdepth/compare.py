@@ -520,7 +520,7 @@ def _statistics_lines(c: Comparison) -> list[str]:
             f"resampling images (ROIs){' and seeds' if several else ''}. With {seeds} "
             f"seed{'s' if several else ''} per variant the intervals cover the choice of images "
             f"{'and barely any' if several else 'only, not'} training noise, so no difference is "
-            f"marked (that takes at least {MIN_SEEDS_FOR_MARKS} seeds, see the README)."
+            f"marked (that takes at least {MIN_SEEDS_FOR_MARKS} seeds, see docs/user-guide.md)."
         )
     s = c.statistics
     return [

@@ -115,7 +115,7 @@ class MonodepthVGG(nn.Module):
 
         A network that starts at 0.15 (sigmoid(0)) of the width predicts ~30 px at 192 px
         and can stall in the smoothness minimum; starting near typical disparities lets
-        small, short runs learn (see README).
+        small, short runs learn (see docs/design.md).
         """
         bias = math.log(disparity / (MAX_DISPARITY - disparity))  # logit(disparity / 0.3)
         for i, head in enumerate(self.heads):

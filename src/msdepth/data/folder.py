@@ -229,7 +229,7 @@ def check_folder(paths: FolderLayout) -> dict:
     if not paths.root.is_dir():
         raise DataError(
             f"{paths.root}: no such folder (data.root, with data.source folder: the stereo folder; "
-            "see README 'Train and evaluate on your own stereo camera')"
+            "see docs/user-guide.md 'Train and evaluate on your own stereo camera')"
         )
     problems, report = [], {}
     for what, check in (

@@ -1,6 +1,6 @@
 """``msdepth export-folder``: a stereo folder (:mod:`msdepth.data.folder`) from a KITTI-format tree.
 
-For the README's walk-through: the synthetic set as "your own stereo camera", with PFM GT.
+For the walk-through in docs/user-guide.md: the synthetic set as "your own stereo camera", with PFM GT.
 """
 
 from __future__ import annotations
