@@ -1,0 +1,32 @@
+"""Stage ``cost_curves@<variant>``: the variant's appearance cost of every ROI with dense GT as
+the box's disparity is scaled by s (GT outside), and per class the s of the lowest mean cost and
+its basin (metrics/cost_curves/<variant>.json; headline in metrics/headline/cost_curves/)."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+from msdepth.config import Params
+from msdepth.data import kitti
+from msdepth.data.index import read_eval_index
+from msdepth.io import write_json
+from msdepth.optimum_eval import cost_summary, roi_cost_curves
+from msdepth.pipeline import COST_CURVES, EVAL_FRAMES, ROIS, VariantArg, run_stage
+
+
+def cost_curves(params: Params, variant: VariantArg) -> None:
+    """Cost curves of every dense-GT ROI, summarised per class."""
+    import torch
+
+    torch.set_num_threads(params.optimum.threads)
+    curves = roi_cost_curves(
+        params, params.variant(variant), read_eval_index(EVAL_FRAMES), kitti.read_rois(ROIS)
+    )
+    summary, headline = cost_summary(curves)
+    write_json(COST_CURVES / f"{variant}.json", summary)
+    write_json(Path("metrics/headline/cost_curves") / f"{variant}.json", headline)
+
+
+if __name__ == "__main__":
+    sys.exit(run_stage(cost_curves, *sys.argv[1:]))
