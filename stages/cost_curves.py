@@ -1,11 +1,11 @@
 """Stage ``cost_curves@<variant>``: the variant's appearance cost of every ROI with dense GT as
 the box's disparity is scaled by s (GT outside), and per class the s of the lowest mean cost and
-its basin (metrics/cost_curves/<variant>.json; headline in metrics/headline/cost_curves/)."""
+its basin (metrics/cost_curves/<variant>.json; not a DVC metric: a column per class and number
+would make ``dvc metrics show`` unreadable)."""
 
 from __future__ import annotations
 
 import sys
-from pathlib import Path
 
 from msdepth.config import Params
 from msdepth.data import kitti
@@ -23,9 +23,7 @@ def cost_curves(params: Params, variant: VariantArg) -> None:
     curves = roi_cost_curves(
         params, params.variant(variant), read_eval_index(EVAL_FRAMES), kitti.read_rois(ROIS)
     )
-    summary, headline = cost_summary(curves)
-    write_json(COST_CURVES / f"{variant}.json", summary)
-    write_json(Path("metrics/headline/cost_curves") / f"{variant}.json", headline)
+    write_json(COST_CURVES / f"{variant}.json", cost_summary(curves))
 
 
 if __name__ == "__main__":

@@ -5,6 +5,7 @@ with dense GT. The stages ``optimum`` and ``cost_curves`` (stages/*.py) call the
 from __future__ import annotations
 
 from collections.abc import Sequence
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -96,9 +97,9 @@ def roi_cost_curves(params: Params, variant: str, index: pd.DataFrame, rois: pd.
     return curves
 
 
-def cost_summary(curves: dict[str, list[np.ndarray]]) -> tuple[dict, dict]:
-    """``(summary, headline)`` of a variant's cost curves: the summary holds the grid, each class's
-    mean curve and :func:`msdepth.optimum.class_summary`; the headline its s_min and basin_ratio."""
+def cost_summary(curves: dict[str, list[np.ndarray]]) -> dict:
+    """A variant's cost curves summarised: the s grid, each class's mean curve and
+    :func:`msdepth.optimum.class_summary` (s_min, basin, basin_ratio)."""
     from .optimum import COST_SCALES, class_summary
 
     classes = class_summary(curves)
@@ -109,5 +110,25 @@ def cost_summary(curves: dict[str, list[np.ndarray]]) -> tuple[dict, dict]:
             c: [float(v) for v in np.mean(np.stack(r), axis=0)] for c, r in sorted(curves.items())
         },
     }
-    headline = {f"{c}_{k}": v[k] for c, v in classes.items() for k in ("s_min", "basin_ratio")}
-    return summary, headline
+    return summary
+
+
+def optimum_runs(params: Params, metrics_dir: Path) -> dict[str, str]:
+    """``{label: run}`` of the optimum runs the optimum stages wrote below ``metrics_dir/full``, for
+    every variant and weight of ``optimum.smoothness_sweep`` (label ``optimum <variant> w<weight>``).
+    Found by value: dvc.yaml writes a weight as params.yaml spells it (``10`` or ``10.0``)."""
+    from .errors import DataError
+
+    out = {}
+    for variant in params.variants:
+        found = {}
+        for path in (Path(metrics_dir) / "full" / OPTIMUM / variant).glob("w*.json"):
+            try:
+                found[float(path.stem[1:])] = path.stem[1:]
+            except ValueError:
+                continue
+        for weight in params.optimum.smoothness_sweep:
+            if weight not in found:
+                raise DataError(f"{metrics_dir}/full/{OPTIMUM}/{variant}: no optimum at weight {weight:g}")
+            out[f"{OPTIMUM} {variant} w{weight:g}"] = optimum_run(variant, found[weight])
+    return out
