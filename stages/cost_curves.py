@@ -11,17 +11,20 @@ from msdepth.config import Params
 from msdepth.data import kitti
 from msdepth.data.index import read_eval_index
 from msdepth.io import write_json
-from msdepth.optimum_eval import cost_summary, roi_cost_curves
+from msdepth.optimum_eval import cost_summary, first_frames, roi_cost_curves
 from msdepth.pipeline import COST_CURVES, EVAL_FRAMES, ROIS, VariantArg, run_stage
 
 
 def cost_curves(params: Params, variant: VariantArg) -> None:
-    """Cost curves of every dense-GT ROI, summarised per class."""
+    """Cost curves of every dense-GT ROI of the first optimum.cost_frames frames, per class."""
     import torch
 
     torch.set_num_threads(params.optimum.threads)
     curves = roi_cost_curves(
-        params, params.variant(variant), read_eval_index(EVAL_FRAMES), kitti.read_rois(ROIS)
+        params,
+        params.variant(variant),
+        first_frames(read_eval_index(EVAL_FRAMES), params.optimum.cost_frames),
+        kitti.read_rois(ROIS),
     )
     write_json(COST_CURVES / f"{variant}.json", cost_summary(curves))
 

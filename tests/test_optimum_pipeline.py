@@ -15,7 +15,14 @@ from msdepth.config import params_from_dict
 from msdepth.errors import ConfigError, DataError
 from msdepth.figures import cost_curve_figure, read_cost_curves
 from msdepth.optimum import COST_SCALES
-from msdepth.optimum_eval import checked_weight, cost_summary, optimum_run, optimum_runs, sweep_frames
+from msdepth.optimum_eval import (
+    checked_weight,
+    cost_summary,
+    first_frames,
+    optimum_run,
+    optimum_runs,
+    sweep_frames,
+)
 
 METRICS = {"abs_rel": 0.2, "sq_rel": 0.2, "rmse": 0.2, "rmse_log": 0.2, "a1": 0.8, "a2": 0.8, "a3": 0.8}
 
@@ -106,7 +113,11 @@ def test_weights_frames_and_run_names(tmp_path: Path):
         checked_weight(params, "ten")
     index = pd.DataFrame({"frame": [f"{i:06d}_10" for i in range(12)]})
     assert len(sweep_frames(params, index, 10.0)) == 12  # the default weight: every frame
-    assert list(sweep_frames(params, index, 3.0)["frame"]) == list(index["frame"][:8])
+    assert list(sweep_frames(params, index, 3.0)["frame"]) == list(index["frame"][:4])
+    assert len(first_frames(index, 0)) == 12 and list(first_frames(index, 2)["frame"]) == [
+        "000000_10",
+        "000001_10",
+    ]
     for variant, weight in (
         ("ssim", "3.0"),
         ("ssim", "10"),

@@ -37,10 +37,14 @@ def checked_weight(params: Params, weight: str) -> float:
 def sweep_frames(params: Params, index: pd.DataFrame, weight: float) -> pd.DataFrame:
     """The evaluation frames optimised at ``weight``: all of them at ``optimum.smoothness_weight``,
     the first ``optimum.sweep_frames`` (0 = all) at the sweep's other weights, to bound the time."""
-    n = params.optimum.sweep_frames
-    if weight == params.optimum.smoothness_weight or n <= 0:
+    if weight == params.optimum.smoothness_weight:
         return index
-    return index.iloc[:n].reset_index(drop=True)
+    return first_frames(index, params.optimum.sweep_frames)
+
+
+def first_frames(index: pd.DataFrame, n: int) -> pd.DataFrame:
+    """The first ``n`` rows of an evaluation index (0 = all)."""
+    return index if n <= 0 else index.iloc[:n].reset_index(drop=True)
 
 
 def frame_disparities(params: Params, variant: str, weight: float, index: pd.DataFrame) -> np.ndarray:
