@@ -151,3 +151,20 @@ def test_cost_summary_and_its_figure(tmp_path: Path):
     assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     with pytest.raises(DataError, match="msssim.json: cannot read the cost curves"):
         read_cost_curves(tmp_path, ["msssim"])
+
+
+def test_the_optimum_stage_lists_every_optimum_key_it_reads_and_no_training_weight():
+    """Changing any optimiser key re-runs the optimum; cost_frames (the cost curves') and
+    loss.smoothness_weight (replaced by the optimum's own) do not."""
+    import dataclasses
+
+    import yaml
+
+    from msdepth.config import OptimumConfig
+
+    stages = yaml.safe_load((Path(__file__).resolve().parents[1] / "dvc.yaml").read_text())["stages"]
+    listed = set(stages["optimum"]["params"])
+    expected = {f"optimum.{f.name}" for f in dataclasses.fields(OptimumConfig)} - {"optimum.cost_frames"}
+    assert {p for p in listed if p.startswith("optimum")} == expected
+    assert "loss" not in listed and "loss.smoothness_weight" not in listed and "${item.variant}" in listed
+    assert "optimum.cost_frames" in stages["cost_curves"]["params"]
