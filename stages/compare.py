@@ -16,12 +16,14 @@ from msdepth.compare import (
     image_dependence,
     load_suite_metrics,
     load_unit_tables,
+    optimum_data,
     paired_statistics,
     seed_spread,
 )
 from msdepth.config import Params
 from msdepth.evaluate import no_rois
 from msdepth.io import write_json, write_text
+from msdepth.optimum_eval import optimum_runs
 from msdepth.pipeline import SETS_METRICS, SUITE_NAMES, run_stage, variant_runs
 from msdepth.suites import headline
 
@@ -60,6 +62,7 @@ def compare(params: Params) -> None:
         dependence,
         groups,
         missing_baselines=missing,
+        optimum=optimum_section(params, groups, compared),
     )
     means = mean_headline(suites, groups)
     for name in params.eval.extra_sets:
@@ -71,6 +74,22 @@ def compare(params: Params) -> None:
     write_json(Path("metrics") / "compare.json", result)
     write_text(Path("metrics") / "compare.md", md)
     write_json(Path("metrics") / "headline" / "mean.json", means)
+
+
+def optimum_section(params: Params, groups: dict[str, list[str]], compared: Sequence[str]) -> dict:
+    """The optimum runs' numbers and, at the default weight (every frame), their paired differences
+    to the reference variant over images and ROIs (the sweep's other weights see a subset)."""
+    runs = optimum_runs(params, Path("metrics"))
+    suites = load_suite_metrics("metrics", list(runs.values()), compared)
+    default = {
+        k: [r] for k, r in runs.items() if k.rsplit(" w", 1)[1] == f"{params.optimum.smoothness_weight:g}"
+    }
+    reference = {params.compare.reference: groups[params.compare.reference]}
+    tables = load_unit_tables(
+        "metrics", [*reference[params.compare.reference], *(r[0] for r in default.values())], compared
+    )
+    stats = paired_statistics(tables, {**reference, **default}, params.compare, params.eval.caps[:1])
+    return optimum_data(suites, runs, stats, f"cap{params.eval.caps[0]:g}")
 
 
 def mean_headline(suites: dict, groups: dict[str, list[str]]) -> dict:

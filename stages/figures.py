@@ -7,14 +7,14 @@ import sys
 from pathlib import Path
 
 from msdepth.config import Params
-from msdepth.pipeline import run_stage, variant_runs
+from msdepth.pipeline import COST_CURVES, run_stage, variant_runs
 
 log = logging.getLogger("msdepth")
 
 
 def figures(params: Params) -> None:
     """The dissertation's figures (disparities, ROI depth and gradients, curves, error scatter)."""
-    from msdepth.figures import make_figures
+    from msdepth.figures import cost_curve_figure, make_figures, read_cost_curves
 
     # The first seed's run of each variant: the figures show predictions, not an average of
     # them; the training curves show every seed's.
@@ -24,6 +24,12 @@ def figures(params: Params) -> None:
         Path("plots") / "figures",
         eval_cfg=params.eval,
         curves=groups,
+    )
+    # The cost_curves stage's summaries: the losses' own preference per ROI class.
+    paths.append(
+        cost_curve_figure(
+            read_cost_curves(COST_CURVES, params.variants), Path("plots/figures/cost_curves.png")
+        )
     )
     log.info("figures: %s", ", ".join(p.name for p in paths))
 

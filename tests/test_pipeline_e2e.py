@@ -29,7 +29,9 @@ TINY = {
     "model": {"width_multiplier": 0.0625},
     "train": {"epochs": 2, "batch_size": 4, "seeds": [0]},
     "msssim": {"levels": 3},
+    "optimum": {"iterations": 3, "levels": 1, "sweep_frames": 2},
 }
+OPTIMUM_RUNS = [f"optimum/{v}/w{w}" for v in ("ssim", "msssim") for w in ("3.0", "10.0", "30.0")]
 
 
 def _merge(base: dict, patch: dict) -> dict:
@@ -110,8 +112,10 @@ def test_repro_writes_every_suite_and_the_comparison(repo: Path):
     timing = json.loads((repo / "logs" / "train" / "ssim" / "seed0.json").read_text())
     assert "seconds" not in summary and "resumed_from_epoch" not in summary and summary["steps"] == 8
     assert timing["seconds"] > 0 and timing["resumed_from_epoch"] == 0
+    _check_optimum(repo, md, compare)
     figures = sorted(p.name for p in (repo / "plots" / "figures").iterdir())
     assert figures == [
+        "cost_curves.png",
         "disparity.png",
         "error_scatter.png",
         "roi_depth.png",
@@ -123,6 +127,31 @@ def test_repro_writes_every_suite_and_the_comparison(repo: Path):
     page = (repo / "plots_html" / "index.html").read_text()
     assert "http://" not in page and "https://" not in page and page.count("<img") == len(figures)
     assert _run([sys.executable, "-m", "dvc", "status", "--quiet"], repo) == ""
+
+
+def _check_optimum(repo: Path, md: str, compare: dict) -> None:
+    """The optimum stages: every variant and weight scored by every suite (the default weight on
+    every frame, the others on optimum.sweep_frames), the compare section and the cost curves."""
+    for run in OPTIMUM_RUNS:
+        for suite in ("full", "roi", "gradients"):
+            assert (repo / "metrics" / suite / f"{run}.csv").stat().st_size > 0, (suite, run)
+        full = json.loads((repo / "metrics" / "full" / f"{run}.json").read_text())
+        assert full["images"] == (3 if run.endswith("w10.0") else 2) and 0 < full["cap80"]["abs_rel"] < 10
+        assert (repo / "outputs" / run / "depth.npz").is_file()
+    section = md[md.index("# The losses' own optimum (no network)") :]
+    assert "| optimum msssim w30 | 2 |" in section and "| optimum ssim w10 | 3 |" in section
+    assert "interval covers the choice of images" in section and "ROI abs rel per class" in section
+    diff = compare["optimum"]["differences"]
+    assert (
+        set(diff) == {"optimum ssim w10", "optimum msssim w10"}
+        and diff["optimum ssim w10"]["full"]["abs_rel"]["n"] == 3
+    )
+    for variant in ("ssim", "msssim"):
+        curves = json.loads((repo / "metrics" / "cost_curves" / f"{variant}.json").read_text())
+        assert len(curves["scales"]) == 25 and curves["classes"], variant
+        for cls, summary in curves["classes"].items():
+            assert summary["basin_low"] <= summary["s_min"] <= summary["basin_high"], cls
+            assert len(curves["mean_curves"][cls]) == 25
 
 
 def test_push_and_pull_through_a_local_dvc_remote(repo: Path, tmp_path: Path):
@@ -228,7 +257,7 @@ def test_dvc_metrics_show_lists_the_headline_numbers_and_fits_a_terminal(repo: P
     files = {path for rev in shown.values() for path in rev.get("data", {})}
     assert files == {f"metrics/headline/{suite}/{run}.json" for suite in ("full", "roi") for run in RUNS} | {
         f"metrics/headline/sets/eigen/full/{run}.json" for run in RUNS
-    }
+    } | {f"metrics/headline/{suite}/{run}.json" for suite in ("full", "roi") for run in OPTIMUM_RUNS}
     table = _run([sys.executable, "-m", "dvc", "metrics", "show"], repo)
     assert max(map(len, table.splitlines())) <= 160, table
     mean = json.loads((repo / "metrics" / "headline" / "mean.json").read_text())

@@ -375,6 +375,7 @@ JSON_FIELDS = (
     "seed_spread",
     "rois_skipped",
     "roi_masks",
+    "optimum",
 )
 
 
@@ -401,6 +402,7 @@ class Comparison:
     rois_skipped: str | None = None  # why (NO_ROIS's text) when the ROI suites were skipped
     roi_masks: dict | None = None  # {capN: {run: exact-mask summary}} for the caps every run has
     mask_counts: dict[str, int] | None = None  # the ROIs with exact masks and those excluded
+    optimum: dict | None = None  # :func:`optimum_data`: the losses' own optimum, no network
 
     @property
     def runs(self) -> list[str]:
@@ -460,6 +462,7 @@ def comparison_data(
     dependence: dict[str, dict] | None = None,
     groups: dict[str, Sequence[str]] | None = None,
     missing_baselines: dict[str, str] | None = None,
+    optimum: dict | None = None,
 ) -> Comparison:
     """The :class:`Comparison` of :func:`build_comparison`'s arguments."""
     runs = [*variants, *baselines]
@@ -481,6 +484,7 @@ def comparison_data(
         rois_skipped=suites["roi"][runs[0]][NO_ROIS] if skipped else None,
         roi_masks=masks,
         mask_counts=counts,
+        optimum=optimum,
     )
 
 
@@ -682,12 +686,121 @@ def _cap_lines(c: Comparison) -> list[str]:
 
 
 # compare.md's sections in order; each renders a Comparison as Markdown lines (none if absent).
+# ----------------------------------------------------------------------------- the losses' optimum
+
+OPTIMUM_TITLE = "The losses' own optimum (no network)"
+OPTIMUM_METRICS = ("abs_rel", "a1")
+
+
+def _optimum_row(full: dict, roi: dict | None, cap: str) -> dict:
+    """One run's numbers in the optimum section: full-image, ROI (overall and per class), masks."""
+    row = {"images": full.get("images"), **{m: full[cap][m] for m in OPTIMUM_METRICS}}
+    if roi is not None and cap in roi:
+        row["roi_abs_rel"] = roi[cap]["overall"]["abs_rel"]
+        row["by_class"] = {k: v["abs_rel"] for k, v in roi[cap]["by_class"].items()}
+        if cap in roi.get("masks", {}):
+            row["mask_abs_rel"] = roi["masks"][cap]["overall"]["abs_rel"]
+            row["mask_by_class"] = {k: v["abs_rel"] for k, v in roi["masks"][cap]["by_class"].items()}
+    return row
+
+
+def optimum_data(
+    suites: dict[str, dict[str, dict]], runs: dict[str, str], stats: dict | None, cap: str
+) -> dict:
+    """The section's data: per optimum label (``runs``: label -> run, e.g. ``"optimum ssim w10"``)
+    its numbers at ``cap`` (:func:`_optimum_row`), and the differences to the reference that
+    ``stats`` (:func:`paired_statistics` over groups that hold these labels) has for them."""
+    roi = suites.get("roi", {})
+    rows = {label: _optimum_row(suites["full"][run], roi.get(run), cap) for label, run in runs.items()}
+    differences: dict = {}
+    for suite in ("full", "roi"):
+        for label, block in ((stats or {}).get(suite, {}).get(cap) or {}).items():
+            if label in runs:
+                differences.setdefault(label, {})[suite] = {m: block[m] for m in OPTIMUM_METRICS}
+    return {
+        "cap": cap,
+        "reference": (stats or {}).get("reference"),
+        "runs": rows,
+        "differences": differences,
+    }
+
+
+def _diff_cell(d: dict | None) -> str:
+    if d is None:
+        return ""
+    star = " *" if d["excludes_zero"] else ""
+    return f"{d['mean']:+.3f} [{d['low']:+.3f}, {d['high']:+.3f}]{star}"
+
+
+def _optimum_side_rows(c: Comparison, cap: str) -> dict[str, dict]:
+    """The trained runs (mean over seeds) and the baselines, as optimum rows at ``cap``."""
+    out = {}
+    for r in c.runs:
+        roi = {cap: c.roi[cap][r]} if cap in c.roi else None
+        if roi is not None and c.roi_masks and cap in c.roi_masks:
+            roi["masks"] = {cap: c.roi_masks[cap][r]}
+        out[c.label(r)] = _optimum_row({cap: c.full[cap][r]}, roi, cap)
+    return out
+
+
+def _optimum_lines(c: Comparison) -> list[str]:
+    """The optimum of every variant and weight beside the trained runs and the baselines, its
+    differences to the reference with intervals, and its ROI abs_rel per class."""
+    if c.optimum is None:
+        return []
+    o, cap = c.optimum, c.optimum["cap"]
+    rows = {**_optimum_side_rows(c, cap), **o["runs"]}
+    cols = ["abs_rel", "a1", "roi_abs_rel", "mask_abs_rel"]
+    main = [[name, str(r.get("images") or ""), *[_fmt(r.get(k)) for k in cols]] for name, r in rows.items()]
+    classes = sorted({k for r in rows.values() for k in r.get("by_class", {})})
+    per_class = [
+        [
+            name,
+            *[_fmt(r.get("by_class", {}).get(k)) for k in classes],
+            *[_fmt(r.get("mask_by_class", {}).get(k)) for k in classes],
+        ]
+        for name, r in rows.items()
+    ]
+    lines = [
+        f"# {OPTIMUM_TITLE}",
+        "",
+        "Per stereo pair, the disparity that minimises each variant's own training objective, optimised "
+        "directly with both views (docs/optimum.md), scored with the same suites. The weight is the "
+        f"optimum's own smoothness weight; images: the frames it was run on. Cap {cap[3:]} m.",
+        "",
+        _table(["run", "images", "abs_rel", "a1", "ROI abs_rel", "mask abs_rel"], main),
+        "",
+    ]
+    if o["differences"]:
+        diff = [
+            [label, *[_diff_cell(d.get(s, {}).get(m)) for s in ("full", "roi") for m in OPTIMUM_METRICS]]
+            for label, d in o["differences"].items()
+        ]
+        lines += [
+            f"Differences to {o['reference']} (mean over its seeds), paired bootstrap over images "
+            "(ROIs for the ROI columns); `*`: the interval excludes 0. The optimum has no training "
+            "seed, so its interval covers the choice of images (and the reference's seeds) only.",
+            "",
+            _table(["run", "Δ abs_rel", "Δ a1", "Δ ROI abs_rel", "Δ ROI a1"], diff),
+            "",
+        ]
+    if classes:
+        lines += [
+            f"## {OPTIMUM_TITLE}: ROI abs rel per class, cap {cap[3:]} m",
+            "",
+            _table(["run", *classes, *[f"{k} (mask)" for k in classes]], per_class),
+            "",
+        ]
+    return lines
+
+
 SECTIONS: tuple[Callable[[Comparison], list[str]], ...] = (
     _header_lines,
     _statistics_lines,
     _dependence_lines,
     _rois_skipped_lines,
     _cap_lines,
+    _optimum_lines,
 )
 
 
@@ -706,6 +819,7 @@ def build_comparison(
     dependence: dict[str, dict] | None = None,
     groups: dict[str, Sequence[str]] | None = None,
     missing_baselines: dict[str, str] | None = None,
+    optimum: dict | None = None,
 ) -> tuple[dict, str]:
     """The comparison as JSON-ready dict and as Markdown (best variant per column in bold).
 
@@ -721,6 +835,6 @@ def build_comparison(
     tables are replaced by one line, :data:`ROIS_SKIPPED`.
     """
     comparison = comparison_data(
-        suites, variants, baselines, stats, spread, seeds, dependence, groups, missing_baselines
+        suites, variants, baselines, stats, spread, seeds, dependence, groups, missing_baselines, optimum
     )
     return comparison.as_json(), render_comparison(comparison)

@@ -407,6 +407,12 @@ class OptimumConfig:
     smoothness_weight: float = 10.0
     smoothness_sweep: tuple[float, ...] = (3.0, 10.0, 30.0)
     batch_size: int = 4  # pairs optimised together (independent: each pair's gradient is its own)
+    # The pipeline's optimum stages (docs/optimum-pipeline.md): the sweep's weights other than
+    # smoothness_weight see only the first sweep_frames evaluation frames (0 = all), the cost
+    # curves the ROIs of the first cost_frames; torch threads.
+    sweep_frames: int = 4
+    cost_frames: int = 8
+    threads: int = 2
 
     def validate(self, key: str, params: Params) -> None:
         """Range checks of the ``key`` section; a ConfigError names the key."""
@@ -420,6 +426,9 @@ class OptimumConfig:
         )
         check(self.batch_size >= 1, f"{key}.batch_size", f"must be >= 1, got {self.batch_size}")
         check(self.smoothness_weight >= 0, f"{key}.smoothness_weight", "must be >= 0")
+        check(self.sweep_frames >= 0, f"{key}.sweep_frames", f"must be >= 0, got {self.sweep_frames}")
+        check(self.cost_frames >= 0, f"{key}.cost_frames", f"must be >= 0, got {self.cost_frames}")
+        check(self.threads >= 1, f"{key}.threads", f"must be >= 1, got {self.threads}")
         sweep = self.smoothness_sweep
         check(
             min(sweep) > 0 and max(sweep) >= 10 * min(sweep) and self.smoothness_weight in sweep,

@@ -33,6 +33,7 @@ returns those numbers for checking.
 from __future__ import annotations
 
 import dataclasses
+import json
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Mapping, Sequence
@@ -548,3 +549,42 @@ def make_figures(
     if len(inp.variants) > 1:
         written.append(_scatter_figure(inp.runs, metrics, cap, out_dir / "error_scatter.png"))
     return written
+
+
+def read_cost_curves(directory: Path, variants: Sequence[str]) -> dict[str, dict]:
+    """``{variant: its cost_curves stage summary}`` from ``directory/<variant>.json``; a DataError
+    names a missing or unreadable file."""
+    out = {}
+    for v in variants:
+        path = Path(directory) / f"{v}.json"
+        try:
+            out[v] = json.loads(path.read_text())
+        except (OSError, ValueError) as exc:
+            raise DataError(f"{path}: cannot read the cost curves of {v!r} ({exc})") from None
+    return out
+
+
+def cost_curve_figure(summaries: Mapping[str, dict], path: Path) -> Path:
+    """``cost_curves.png``: one panel per ROI class, one line per variant (its mean cost over the
+    class's boxes against s, log axis), s = 1 (the GT) marked, each variant's minimum dotted."""
+    classes = sorted({c for s in summaries.values() for c in s.get("mean_curves", {})})
+    fig = _new_figure(3.2 * max(len(classes), 1), 3.0)
+    if not classes:
+        ax = fig.add_subplot(1, 1, 1)
+        ax.text(0.5, 0.5, "no ROI with dense GT", ha="center", va="center")
+        _off(ax)
+        return _save(fig, path)
+    axes = fig.subplots(1, len(classes), squeeze=False)[0]
+    for ax, cls in zip(axes, classes, strict=True):
+        for variant, summary in summaries.items():
+            if cls not in summary.get("mean_curves", {}):
+                continue
+            (line,) = ax.plot(summary["scales"], summary["mean_curves"][cls], label=variant)
+            ax.axvline(summary["classes"][cls]["s_min"], color=line.get_color(), linestyle=":")
+        ax.axvline(1.0, color="k", linewidth=0.8, label="GT (s = 1)")
+        rois = max(s["classes"][cls]["rois"] for s in summaries.values() if cls in s.get("classes", {}))
+        ax.set(xscale="log", title=f"{cls} ({rois} ROIs)", xlabel="s (box disparity = GT × s)")
+        ax.set_xticks([0.5, 1.0, 2.0], ["0.5", "1", "2"])
+    axes[0].set_ylabel("mean appearance cost")
+    axes[0].legend(fontsize="small")
+    return _save(fig, path)

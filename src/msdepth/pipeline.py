@@ -36,6 +36,7 @@ PAIR_CACHE = Path("data/cache/train_pairs.npy")
 CACHED_PAIRS = Path("data/cache/train_pairs.txt")
 CACHE_REPORT = Path("data/cache/report.json")
 SUITE_NAMES = ("full", "roi", "gradients")
+COST_CURVES = Path("metrics/cost_curves")  # <variant>.json: the cost_curves stage's, drawn by figures
 
 # The command-line arguments of the per-run stages (see stage_parser).
 VariantArg = Annotated[str, "a loss variant listed in params.yaml's variants (e.g. ssim, msssim)"]
