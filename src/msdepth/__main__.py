@@ -114,8 +114,8 @@ def _export_folder_command(add_parser: AddParser) -> None:
         help="write a stereo folder (data.source: folder) from the synthetic set",
         description="Write the KITTI-format tree FROM (e.g. the synthetic set in data/synthetic) as a stereo "
         "folder for data.source: folder: left/ and right/ (training and evaluation images), camera.yaml, "
-        "eval.txt and the evaluation GT as PFM disparity in gt/. See docs/user-guide.md 'Train and evaluate on your "
-        "own stereo camera'.",
+        "eval.txt and the evaluation GT as PFM disparity in gt/. See docs/user-guide.md 'Train and evaluate "
+        "on your own stereo camera'.",
     )
     f.add_argument("--from", dest="source", required=True, help="KITTI-format tree, e.g. data/synthetic")
     f.add_argument("--to", dest="out", required=True, help="folder to write (must not exist or be empty)")
