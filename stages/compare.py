@@ -23,7 +23,7 @@ from msdepth.compare import (
 from msdepth.config import Params
 from msdepth.evaluate import no_rois
 from msdepth.io import write_json, write_text
-from msdepth.optimum_eval import optimum_runs
+from msdepth.optimum_eval import OPTIMUM, optimum_runs
 from msdepth.pipeline import SETS_METRICS, SUITE_NAMES, run_stage, variant_runs
 from msdepth.suites import headline
 
@@ -76,9 +76,15 @@ def compare(params: Params) -> None:
     write_json(Path("metrics") / "headline" / "mean.json", means)
 
 
-def optimum_section(params: Params, groups: dict[str, list[str]], compared: Sequence[str]) -> dict:
+def optimum_section(params: Params, groups: dict[str, list[str]], compared: Sequence[str]) -> dict | None:
     """The optimum runs' numbers and, at the default weight (every frame), their paired differences
-    to the reference variant over images and ROIs (the sweep's other weights see a subset)."""
+    to the reference variant over images and ROIs (the sweep's other weights see a subset).
+
+    None, and no section, where no optimum stage has written anything (the stages run alone, as the
+    tests do); once any has, every variant and weight must be there (a DataError names the first
+    missing)."""
+    if not (Path("metrics") / "full" / OPTIMUM).is_dir():
+        return None
     runs = optimum_runs(params, Path("metrics"))
     suites = load_suite_metrics("metrics", list(runs.values()), compared)
     default = {
