@@ -32,7 +32,14 @@ SYN = SyntheticConfig(seed=4, drives=2, train_pairs=12, eval_frames=3, height=48
 REAL = Path(__file__).resolve().parents[2] / "shared" / "real-samples" / "kitti-object-pair"
 # What KITTI's archives never hold: the synthetic set's own files.
 SYNTHETIC_ONLY = ("disp_02", "class_map", "rois.csv", "synthetic.json", "train_files.txt", "test_files.txt")
-FIGURES = ["disparity.png", "error_scatter.png", "roi_depth.png", "roi_gradients.png", "training_curves.png"]
+FIGURES = [
+    "cost_curves.png",
+    "disparity.png",
+    "error_scatter.png",
+    "roi_depth.png",
+    "roi_gradients.png",
+    "training_curves.png",
+]
 
 
 def _zip_tree(zip_path: Path, root: Path, members: list[Path]) -> None:
