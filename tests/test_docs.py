@@ -59,12 +59,12 @@ def test_readme_quick_start_matches_ci() -> None:
     ci_steps = [line.strip() for line in ci.splitlines() if not line.strip().startswith("#")]
     assert install == (
         "python3 -m venv .venv && . .venv/bin/activate && pip install torch==2.13.0 && "
-        'pip install -e ".[test]" && dvc repro'
+        'pip install -c constraints.txt -e ".[test]" && dvc repro'
     )
     assert "python3 -m venv .venv" in ci_steps
     assert ". .venv/bin/activate" in ci_steps
     assert "python -m pip install -q torch==2.13.0" in ci_steps
-    assert 'python -m pip install -q -e ".[test]"' in ci_steps
+    assert 'python -m pip install -q -c constraints.txt -e ".[test]"' in ci_steps
     assert tests == "python -m pytest -q"
     assert tests in ci_steps
 
@@ -74,3 +74,21 @@ def test_no_talk_of_sessions(path: Path) -> None:
     text = path.read_text(encoding="utf-8")
     hits = [line for line in text.splitlines() if BANNED.search(line)]
     assert not hits, f"{path.relative_to(ROOT)}: {hits}"
+
+
+def test_constraints_pin_every_dependency() -> None:
+    """constraints.txt pins each pyproject dependency (and test extra) to a version in its range."""
+    tomllib = pytest.importorskip("tomllib")
+    from packaging.requirements import Requirement
+
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text(encoding="utf-8"))["project"]
+    wanted = [Requirement(r) for r in project["dependencies"] + project["optional-dependencies"]["test"]]
+    pins = {}
+    for line in (ROOT / "constraints.txt").read_text(encoding="utf-8").splitlines():
+        if line and not line.startswith("#"):
+            name, _, version = line.partition("==")
+            pins[name.lower().replace("_", "-")] = version
+    for req in wanted:
+        version = pins.get(req.name.lower().replace("_", "-"))
+        assert version is not None, f"constraints.txt does not pin {req.name}"
+        assert req.specifier.contains(version, prereleases=True), f"{req.name}=={version} is outside {req}"
