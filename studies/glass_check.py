@@ -54,7 +54,7 @@ def compare(args: argparse.Namespace, s: dict) -> None:
             t[0] += int((a[key] != b[key]).sum())  # geometry and GT: must not change at all
         for key, mask in zip(("left", "right"), masks, strict=True):
             diff = (a[key] != b[key]).any(axis=2)
-            t[1:] += [int((diff & ~mask).sum()), int((~mask).sum()), int((diff & mask).sum()), int(mask.sum()), 1]
+            t[1:] += [(diff & ~mask).sum(), (~mask).sum(), (diff & mask).sum(), mask.sum(), 1]
     for split, t in totals.items():
         name = "eval" if split == EVAL else "train"
         print(
