@@ -14,7 +14,7 @@ log = logging.getLogger("msdepth")
 
 def figures(params: Params) -> None:
     """The dissertation's figures (disparities, ROI depth and gradients, curves, error scatter)."""
-    from msdepth.figures import cost_curve_figure, make_figures, read_cost_curves
+    from msdepth.figures import COST_CURVES_FIGURE, cost_curve_figure, make_figures, read_cost_curves
 
     # The first seed's run of each variant: the figures show predictions, not an average of
     # them; the training curves show every seed's.
@@ -28,7 +28,7 @@ def figures(params: Params) -> None:
     # The cost_curves stage's summaries: the losses' own preference per ROI class.
     paths.append(
         cost_curve_figure(
-            read_cost_curves(COST_CURVES, params.variants), Path("plots/figures/cost_curves.png")
+            read_cost_curves(COST_CURVES, params.variants), Path("plots/figures") / COST_CURVES_FIGURE
         )
     )
     log.info("figures: %s", ", ".join(p.name for p in paths))

@@ -27,19 +27,12 @@ from test_pipeline_e2e import _project, _run
 from msdepth.config import SyntheticConfig
 from msdepth.data import synthetic
 from msdepth.data.download import KITTI_BASE_URL
+from msdepth.figures import STAGE_FIGURES
 
 SYN = SyntheticConfig(seed=4, drives=2, train_pairs=12, eval_frames=3, height=48, width=160)
 REAL = Path(__file__).resolve().parents[2] / "shared" / "real-samples" / "kitti-object-pair"
 # What KITTI's archives never hold: the synthetic set's own files.
 SYNTHETIC_ONLY = ("disp_02", "class_map", "rois.csv", "synthetic.json", "train_files.txt", "test_files.txt")
-FIGURES = [
-    "cost_curves.png",
-    "disparity.png",
-    "error_scatter.png",
-    "roi_depth.png",
-    "roi_gradients.png",
-    "training_curves.png",
-]
 
 
 def _zip_tree(zip_path: Path, root: Path, members: list[Path]) -> None:
@@ -133,7 +126,7 @@ def _check_run(work: Path, archives: int) -> str:
     md = (work / "metrics" / "compare.md").read_text()
     assert "Baselines (image-blind, from training GT): constant, prior." in md and "Missing" not in md
     assert "| prior |" in md and "| constant |" in md
-    assert sorted(p.name for p in (work / "plots" / "figures").iterdir()) == FIGURES
+    assert sorted(p.name for p in (work / "plots" / "figures").iterdir()) == sorted(STAGE_FIGURES)
     assert _run([sys.executable, "-m", "dvc", "status", "--quiet"], work) == ""
     return md
 

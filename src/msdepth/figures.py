@@ -61,6 +61,9 @@ REFERENCE = "ssim"
 MIN_VALID_FRACTION = 0.5  # an example ROI needs at least this much valid GT to be worth showing
 LOSS_TERMS = ("total", "appearance")
 FIGURES = ("disparity.png", "roi_depth.png", "roi_gradients.png", "training_curves.png", "error_scatter.png")
+ROI_FIGURES = ("roi_depth.png", "roi_gradients.png")  # drawn only where there are ROIs
+COST_CURVES_FIGURE = "cost_curves.png"  # drawn by cost_curve_figure
+STAGE_FIGURES = (*FIGURES, COST_CURVES_FIGURE)  # everything the figures stage writes to plots/figures
 
 
 @dataclass
