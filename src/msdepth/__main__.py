@@ -7,6 +7,7 @@ import argparse
 import sys
 from typing import Callable, Sequence
 
+from .cli_options import camera_options
 from .errors import MsdepthError
 from .optimum_cli import optimum_command
 
@@ -35,7 +36,7 @@ def _predict_command(add_parser: AddParser) -> None:
         action="store_false",
         help="skip Monodepth's flip post-processing (twice as fast, slightly worse near edges)",
     )
-    _camera_options(p)
+    camera_options(p)
     _output_options(p)
     p.add_argument("--device", choices=("auto", "cpu", "cuda"), help="default: auto (CUDA if available)")
     p.add_argument("--batch-size", type=int, help="frames per network batch (default: 8)")
@@ -46,23 +47,6 @@ def _predict_command(add_parser: AddParser) -> None:
     )
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(run=_predict)
-
-
-def _camera_options(p: argparse.ArgumentParser) -> None:
-    """predict's camera: focal length, baseline and principal point."""
-    p.add_argument(
-        "--focal",
-        type=float,
-        help="focal length in px at the input image's resolution (default: KITTI's for that width: "
-        "721.5377 px at 1242, scaled with the width)",
-    )
-    p.add_argument("--baseline", type=float, help="stereo baseline in m (default: 0.54, KITTI's)")
-    p.add_argument(
-        "--cx", type=float, help="principal point x in px for the point cloud (default: image centre)"
-    )
-    p.add_argument(
-        "--cy", type=float, help="principal point y in px for the point cloud (default: image centre)"
-    )
 
 
 def _output_options(p: argparse.ArgumentParser) -> None:

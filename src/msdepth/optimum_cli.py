@@ -15,6 +15,7 @@ from typing import Callable
 
 import yaml
 
+from .cli_options import camera_options
 from .config import Params, apply_overrides, params_from_dict
 from .errors import ConfigError, DataError, MsdepthError
 
@@ -43,8 +44,7 @@ def optimum_command(add_parser: Callable[..., argparse.ArgumentParser]) -> None:
         metavar="KEY=VALUE",
         help="a params override, e.g. msssim.kernel_size=7",
     )
-    o.add_argument("--focal", type=float, help="focal length in px at LEFT's resolution (default: KITTI's)")
-    o.add_argument("--baseline", type=float, help="stereo baseline in m (default: 0.54, KITTI's)")
+    camera_options(o, principal_point=False)
     o.add_argument("--height", type=int, help="working height (default: optimum.height, else the image's)")
     o.add_argument("--width", type=int, help="working width (default: optimum.width, else the image's)")
     o.add_argument("--quiet", action="store_true", help="no progress bar")
