@@ -3,13 +3,16 @@ benchmark would only be found when a GPU session needs it."""
 
 from __future__ import annotations
 
+import json
 import os
 import shutil
 import subprocess
 import sys
 from pathlib import Path
 
+import pandas as pd
 import pytest
+import yaml
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -308,3 +311,52 @@ def test_optimum_benchmark_prints_seconds_per_pair_side_by_side() -> None:
         section = out.split(f"{size}: seconds per pair")[1].split("seconds per pair")[0]
         for name in ("SSIM k3", "MS-SSIM k3", "MS-SSIM k11"):
             assert f"| {name} |" in section
+
+
+def _optimum_commit(repo: Path, kernel: int, offset: float) -> None:
+    """Commit params.yaml and optimum metrics in which msssim's abs_rel is ssim's plus ``offset``."""
+    params = {"msssim": {"kernel_size": kernel, "levels": 4}, "optimum": {"smoothness_weight": 10.0}}
+    params["optimum"]["smoothness_sweep"] = [10.0]
+    (repo / "params.yaml").write_text(yaml.safe_dump(params))
+    frames = [f"{i:06d}_10" for i in range(6)]
+    for variant, shift in (("ssim", 0.0), ("msssim", offset)):
+        full = pd.DataFrame(
+            {"frame": frames, "cap": 80, "abs_rel": [0.2 + 0.01 * i + shift for i in range(6)]}
+        )
+        full["a1"] = 0.5
+        roi = pd.DataFrame(
+            {
+                "roi": range(8),
+                "image": frames[0],
+                "class": ["car", "windshield", "glass", "sign"] * 2,
+                "cap": 80,
+            }
+        )
+        roi["cap"] = 80
+        roi["abs_rel"] = [0.3 + 0.02 * i + shift for i in range(8)]
+        for suite, table in (("full", full), ("roi", roi)):
+            out = repo / "metrics" / suite / "optimum" / variant
+            out.mkdir(parents=True, exist_ok=True)
+            table.to_csv(out / "w10.0.csv", index=False)
+        masks = {"cap80": {"overall": {"abs_rel": 0.25 + shift}}}
+        (repo / "metrics" / "roi" / "optimum" / variant / "w10.0.json").write_text(
+            json.dumps({"masks": masks})
+        )
+    subprocess.run(["git", "add", "-A"], cwd=repo, check=True)
+    subprocess.run(
+        ["git", "-c", "user.email=t@t", "-c", "user.name=t", "commit", "-qm", "k"], cwd=repo, check=True
+    )
+
+
+def test_optimum_kernels_pairs_each_kernel_with_the_first_refs_ssim(tmp_path: Path) -> None:
+    """studies/optimum_kernels.py: a kernel whose optimum is 0.05 better on every frame and ROI
+    reads -0.050 with a zero-width interval; one 0.02 worse, +0.020; the reference is ref 1's ssim."""
+    subprocess.run(["git", "init", "-q"], cwd=tmp_path, check=True)
+    _optimum_commit(tmp_path, 3, -0.05)
+    _optimum_commit(tmp_path, 7, 0.02)
+    out = _study("optimum_kernels.py", "HEAD~1", "HEAD", cwd=tmp_path)
+    assert "| ssim w10.0 | 6 | 0.2250 | 0.5000 | 0.3700 |" in out
+    assert "| msssim k3 L4 w10.0 | -0.050 [-0.050, -0.050] * | -0.050 [-0.050, -0.050] * |" in out
+    assert "| msssim k7 L4 w10.0 | +0.020 [+0.020, +0.020] * |" in out
+    # box abs_rel per class: car ROIs 0 and 4 (0.30, 0.38) + 0.02, windshield 1 and 5, ...
+    assert "| msssim k7 L4 w10.0 | 6 | 0.2450 | 0.5000 | 0.3900 | 0.3600 | 0.3800 | 0.4000 | 0.4200 |" in out
