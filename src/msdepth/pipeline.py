@@ -131,6 +131,9 @@ def stage_parser(fn: Callable[..., None]) -> argparse.ArgumentParser:
 def run_stage(fn: Callable[..., None], *args: str, params_path: str | os.PathLike = "params.yaml") -> int:
     """Parse a stage's arguments, load params, run the stage, report errors as one line.
 
+    Before the stage runs, the temp files that a stage killed mid-write left under
+    :data:`STAGE_OUTPUT_ROOTS` are removed (only names of :func:`msdepth.io.atomic_path`'s form).
+
     Returns the exit code: 0 (also for ``--help``, which runs nothing), 1 for the project's errors,
     2 for a usage error.
     """
