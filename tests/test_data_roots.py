@@ -23,6 +23,7 @@ from msdepth.config import SyntheticConfig, params_from_dict
 from msdepth.data import roots
 from msdepth.data.synthetic import generate
 from msdepth.errors import DataError
+from msdepth.io import TEMP_MARK
 
 prepare_data = stage("prepare_data").prepare_data
 
@@ -113,10 +114,10 @@ def test_renderer_removes_the_temp_files_a_killed_render_left(tmp_path: Path) ->
     names = [p.name for p in root.iterdir() if p.is_file()] + [roots.RENDERING]
     temps = []
     for name in names:  # as io.atomic_path names them (mkstemp)
-        fd, tmp = tempfile.mkstemp(prefix=f".{name}.", suffix=Path(name).suffix, dir=root)
+        fd, tmp = tempfile.mkstemp(prefix=f".{name}{TEMP_MARK}", suffix=Path(name).suffix, dir=root)
         os.close(fd)
         temps.append(Path(tmp))
-    (root / "raw" / DRIVE / ".0000000001.png.k1ll3d_9.png").write_bytes(b"half a frame")
+    (root / "raw" / DRIVE / f".0000000001.png{TEMP_MARK}k1ll3d_9.png").write_bytes(b"half a frame")
     (root / ".rois.csv.keep-me").write_text("a user's file")
     generate(TINY, root, progress=False, workers=1)
     assert not [t for t in temps if t.exists()]

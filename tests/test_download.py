@@ -30,6 +30,7 @@ import numpy as np
 import pytest
 from conftest import stage
 
+from msdepth import io as dl_io
 from msdepth.data import download as dl
 from msdepth.errors import DataError
 
@@ -1403,3 +1404,20 @@ def test_same_day_archives_finishing_together_both_land(tmp_path: Path, monkeypa
         "2011_09_26_drive_0002_sync",
     ]
     assert sorted(p.name for p in raw.iterdir()) == [".d1.zip.complete", ".d2.zip.complete", "2011_09_26"]
+
+
+def test_the_temps_of_a_run_killed_writing_the_manifest_or_a_marker_are_removed(
+    server: _Server, tmp_path: Path
+) -> None:
+    # Issue 27, item 12: a run killed (kill -9) inside the manifest's or a marker's atomic write
+    # left its temp (".manifest.json.msdepth-tmp-<random>.json") for good.
+    _serve_drive(server)
+    zips, raw = tmp_path / "zips", tmp_path / "raw"
+    writers = [dl_io.atomic_path(zips / dl.MANIFEST_NAME), dl_io.atomic_path(raw / f".{DRIVE}.complete")]
+    temps = [writer.__enter__() for writer in writers]  # entered and never left (kept referenced)
+    users = [zips / ".manifest.json.k1ll3d_9.json", raw / f"..{DRIVE}.complete.msdepth-tmp-k1ll3d_9.bak"]
+    for path in users:
+        path.write_text("a user's file")
+    report = dl.fetch_all(server.base_url, [f"raw_data/{DRIVE}"], zips, raw, FAST)
+    assert report["fetched"] == report["extracted"] == [DRIVE]
+    assert [t.exists() for t in temps] == [False, False] and all(p.exists() for p in users)

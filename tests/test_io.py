@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import json
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -150,10 +152,59 @@ def test_atomic_temps_finds_only_what_a_killed_writer_left(tmp_path: Path) -> No
         "m.json.abcd1234.json",
         ".other.json.abcd1234.json",
         ".m.json.abcd123.json",
+        ".m.json.abcd1234.json",  # the form before the msdepth-tmp mark: a user's name could have it
+        ".m.json.msdepth-tmp-abcd1234.json.bak",
     ]
     for name in lookalikes:
         (tmp_path / name).write_text("a user's file")
-    assert tmp.name.startswith(".m.json.") and tmp.suffix == ".json"
+    assert tmp.name.startswith(".m.json.msdepth-tmp-") and tmp.suffix == ".json"
     assert io.atomic_temps(path) == [tmp]
     assert io.atomic_temps(tmp_path / "absent" / "m.json") == []
     tmp.unlink()
+
+
+# A writer killed with SIGKILL inside atomic_path, after writing half its data.
+KILLED_WRITER = """
+import os, signal, sys
+from msdepth import io
+with io.atomic_path(sys.argv[1]) as tmp:
+    tmp.write_bytes(b"half a point cloud")
+    os.kill(os.getpid(), signal.SIGKILL)
+"""
+
+# Names like a temp's that the project never writes: each must survive the clean-up.
+LOOKALIKES = [
+    ".0016.ply.aizb060n.ply",  # the form before the msdepth-tmp mark (issue #27, item 12)
+    ".0016.ply.msdepth-tmp-aizb060n.ply.bak",
+    ".0016.ply.msdepth-tmp-AIZB060N.ply",
+    ".0016.ply.msdepth-tmp-aizb06.ply",
+    "0016.ply.msdepth-tmp-aizb060n.ply",
+    ".msdepth-tmp-aizb060n.ply",
+]
+
+
+def test_the_temp_of_a_writer_killed_mid_write_is_removed_and_nothing_else(tmp_path: Path) -> None:
+    # Item 12: `kill -9` left .0016.ply.aizb060n.ply behind for good.
+    out = tmp_path / "out" / "sub"
+    out.mkdir(parents=True)
+    proc = subprocess.run([sys.executable, "-c", KILLED_WRITER, str(out / "0016.ply")], check=False)
+    assert proc.returncode == -9
+    (temp,) = out.iterdir()
+    assert temp.name.startswith(".0016.ply.msdepth-tmp-") and temp.read_bytes() == b"half a point cloud"
+    for name in LOOKALIKES:
+        (out / name).write_text("a user's file")
+    (out / ".link.ply.msdepth-tmp-aizb060n.ply").symlink_to(out / LOOKALIKES[0])
+    assert io.remove_stale_temps(tmp_path / "out") == [temp]
+    assert sorted(p.name for p in out.iterdir()) == sorted(
+        LOOKALIKES + [".link.ply.msdepth-tmp-aizb060n.ply"]
+    )
+    assert io.remove_stale_temps(tmp_path / "absent") == []
+
+
+def test_only_the_temps_of_the_callers_outputs_are_removed(tmp_path: Path) -> None:
+    killed = [io.atomic_path(tmp_path / name) for name in ("a.npy", "b.npy")]
+    for writer in killed:
+        writer.__enter__()  # entered and never left (kept referenced: collected, it would clean up)
+    (a_temp,), (b_temp,) = tmp_path.glob(".a.npy.*"), tmp_path.glob(".b.npy.*")
+    assert io.remove_stale_temps(tmp_path, lambda final: final == tmp_path / "a.npy") == [a_temp]
+    assert list(tmp_path.iterdir()) == [b_temp]

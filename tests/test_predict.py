@@ -13,6 +13,7 @@ from msdepth.__main__ import main
 from msdepth.data.kitti import KITTI_BASELINE, WIDTH_TO_FOCAL
 from msdepth.data.pairs import resize, to_tensor
 from msdepth.infer import post_process_disparity
+from msdepth.io import atomic_path
 from msdepth.model import MonodepthVGG
 from msdepth.predict import PredictReport, input_frames
 
@@ -360,6 +361,17 @@ def test_python_dash_m(tiny, tmp_path):
     )
     assert result.returncode == 0, result.stderr
     assert (tmp_path / "out" / "a_disp.png").exists() and (tmp_path / "out" / "a_depth.png").exists()
+
+
+def test_onnx_export_removes_the_temp_a_killed_export_left(tiny, tmp_path):
+    # Issue 27, item 12: an export killed mid-write (kill -9) left its temp beside --out for good.
+    out = tmp_path / "model.onnx"
+    writer = atomic_path(out, suffix=".onnx")  # kept referenced: collected, it would clean up
+    killed = writer.__enter__()
+    user = tmp_path / ".model.onnx.k1ll3d_9.onnx"  # not the project's temp form
+    user.write_text("a user's file")
+    main(["export-onnx", "--model", str(tiny[0]), "--out", str(out)])  # 1 where onnx is not installed
+    assert not killed.exists() and user.exists()
 
 
 def test_onnx_export_matches_pytorch(tiny, tmp_path):

@@ -12,6 +12,7 @@ import pytest
 import torch
 
 from msdepth.__main__ import main
+from msdepth.io import atomic_path
 from msdepth.model import MonodepthVGG
 
 NET_H, NET_W = 32, 96
@@ -63,6 +64,30 @@ def test_output_folder_inside_the_input_is_skipped_on_the_next_run(
     assert {p.name: p.read_bytes() for p in out.iterdir()} == first
     assert sorted(first) == [".msdepth-predict", "scene_depth.png", "scene_disp.npy", "scene_disp.png"]
     assert "wrote the outputs of 1 of 1 frame(s)" in capsys.readouterr().err
+
+
+def test_the_next_run_removes_the_temp_a_killed_run_left_and_nothing_else(tiny: Path, tmp_path: Path) -> None:
+    # Item 12: a run killed mid-write (kill -9) left .0016.ply.aizb060n.ply in --out for good.
+    _image(tmp_path / "in" / "sub" / "0016.png", 1)
+    out = tmp_path / "out"
+    assert run(tmp_path / "in", "--model", tiny, "--out", out, "--ply", "binary") == 0
+    first = {p: p.read_bytes() for p in out.rglob("*") if p.is_file()}
+    # As a run killed while writing the point cloud leaves it (its name listed in the manifest).
+    writer = atomic_path(out / "sub" / "0016.ply", suffix=".ply")  # kept referenced: collected, it cleans up
+    killed = writer.__enter__()
+    killed.write_bytes(b"ply\nhalf a point cloud")
+    users = [
+        out / "sub" / name for name in (".0016.ply.aizb060n.ply", ".0016.ply.msdepth-tmp-aizb060n.ply.bak")
+    ]
+    users.append(out / "sub" / ".mine.ply.msdepth-tmp-aizb060n.ply")  # not an output predict listed
+    for path in users:
+        path.write_text("a user's file")
+    assert run(tmp_path / "in", "--model", tiny, "--out", out, "--ply", "binary") == 0
+    assert not killed.exists()
+    assert {p: p.read_bytes() for p in out.rglob("*") if p.is_file()} == {
+        **first,
+        **{p: b"a user's file" for p in users},
+    }
 
 
 def test_a_file_predict_did_not_write_is_never_replaced(tiny: Path, tmp_path: Path, capsys) -> None:

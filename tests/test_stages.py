@@ -119,3 +119,29 @@ def test_validate_params_rejects_a_bad_value_or_unknown_key_in_one_line(
     written = CHECKED.read_bytes()
     (tmp_path / "params.yaml").write_text("msssim: {kernel_size: 7}\ntrain: {seeds: [4]}\n")
     assert run_stage(validate_params) == 0 and CHECKED.read_bytes() == written  # whatever the params
+
+
+def test_a_stage_first_removes_the_temps_a_killed_stage_left_in_the_output_folders(
+    tmp_path: Path, monkeypatch
+) -> None:
+    # Item 12: a stage killed mid-write (kill -9) left e.g. models/<run>/.model.pt.<random>.pt for good.
+    from msdepth.pipeline import run_stage
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "params.yaml").write_bytes((ROOT / "params.yaml").read_bytes())
+    stale = [
+        "models/ssim/seed0/.model.pt.msdepth-tmp-k1ll3d_9.pt",
+        "checkpoints/ssim/seed0/.checkpoint.pt.msdepth-tmp-abcd1234.pt",
+        "metrics/full/ssim/.seed0.json.msdepth-tmp-abcd1234.json",
+        "data/cache/.train_pairs.npy.msdepth-tmp-abcd1234.npy",
+    ]
+    kept = [
+        "models/ssim/seed0/.model.pt.k1ll3d_9.pt",  # a name without the mark: not the project's
+        "metrics/full/ssim/.seed0.json.msdepth-tmp-abcd1234.json.orig",
+        "data/kitti/.x.png.msdepth-tmp-abcd1234.png",  # the data roots are the renderer's and downloader's
+    ]
+    for name in stale + kept:
+        (tmp_path / name).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / name).write_text("x")
+    assert run_stage(stage("validate_params").validate_params) == 0
+    assert [name for name in stale + kept if (tmp_path / name).exists()] == kept

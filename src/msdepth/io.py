@@ -14,7 +14,7 @@ import struct
 import tempfile
 import zlib
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any, Callable, Iterator
 
 import numpy as np
 
@@ -42,7 +42,7 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(
-        prefix=f".{path.name}.", suffix=path.suffix if suffix is None else suffix, dir=path.parent
+        prefix=f".{path.name}{TEMP_MARK}", suffix=path.suffix if suffix is None else suffix, dir=path.parent
     )
     os.close(fd)
     # mkstemp creates 0600; give the output the permissions a plain open() would.
@@ -56,23 +56,47 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[
             tmp_path.unlink()
 
 
-# mkstemp's names: prefix, then 8 characters of this alphabet, then suffix (tempfile's
-# _RandomNameSequence); atomic_path's prefix is ".<final name>.".
+# atomic_path's temp names are ".<final name>.msdepth-tmp-<8 random characters><suffix>" (mkstemp's
+# prefix, then 8 characters of tempfile's _RandomNameSequence alphabet, then the suffix): a form no
+# user file has, so a stale temp is known by its name alone and only the project's own are removed.
+TEMP_MARK = ".msdepth-tmp-"
 _TEMP_RANDOM = "[a-z0-9_]{8}"
+_ANY_TEMP = re.compile(r"\.(?P<final>.+)" + re.escape(TEMP_MARK) + _TEMP_RANDOM + r"(\.[A-Za-z0-9]+)?")
 
 
 def atomic_temps(path: str | os.PathLike, suffix: str | None = None) -> list[Path]:
     """The temp files that :func:`atomic_path` for ``path`` (with the same ``suffix``) left beside it:
-    a writer killed before its rename (``kill -9``) leaves ``.<name>.<8 random characters><suffix>``.
+    a writer killed before its rename (``kill -9``) leaves ``.<name>.msdepth-tmp-<8 random chars><suffix>``.
 
     Only names of exactly that form count, so a caller that removes them removes nothing else.
     """
     path = Path(path)
     tail = path.suffix if suffix is None else suffix
-    pattern = re.compile(re.escape(f".{path.name}.") + _TEMP_RANDOM + re.escape(tail))
+    pattern = re.compile(re.escape(f".{path.name}{TEMP_MARK}") + _TEMP_RANDOM + re.escape(tail))
     if not path.parent.is_dir():
         return []
     return sorted(p for p in path.parent.iterdir() if pattern.fullmatch(p.name) and p.is_file())
+
+
+def remove_stale_temps(folder: str | os.PathLike, ours: Callable[[Path], bool] | None = None) -> list[Path]:
+    """Remove the temp files that writers killed before their rename (``kill -9``) left in ``folder``
+    and below, and return them (sorted); a missing folder has none.
+
+    Only regular files named as :func:`atomic_path` names its temps count (never a symlink or a
+    folder), and with ``ours`` only those whose final path it accepts, so nothing the project did
+    not write is removed. Call it when no writer is writing there: a live temp has the same name.
+    """
+    stale = []
+    for parent, dirs, files in os.walk(folder):
+        dirs.sort()
+        for name in sorted(files):
+            match = _ANY_TEMP.fullmatch(name)
+            if match and (ours is None or ours(Path(parent, match["final"]))):
+                stale.append(Path(parent, name))
+    stale = [p for p in stale if p.is_file() and not p.is_symlink()]
+    for p in stale:
+        p.unlink(missing_ok=True)
+    return stale
 
 
 def write_json(path: str | os.PathLike, data: Any) -> None:

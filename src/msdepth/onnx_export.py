@@ -24,7 +24,7 @@ import torch
 from torch import Tensor, nn
 
 from .errors import MsdepthError
-from .io import atomic_path
+from .io import atomic_path, atomic_temps
 from .model import MonodepthVGG
 from .predict import load_trained
 
@@ -61,6 +61,8 @@ def export_onnx(
     also the fixed input size when ``dynamic`` is False; ``opset`` defaults to DEFAULT_OPSET.
     Returns the model's metadata, also stored in the ONNX file as ``msdepth.*`` properties.
     """
+    for stale in atomic_temps(out_path, suffix=".onnx"):  # left by an export killed mid-write
+        stale.unlink()
     if importlib.util.find_spec("onnx") is None:
         raise MsdepthError("ONNX export needs the 'onnx' package: pip install 'msdepth[onnx]'")
     import onnx

@@ -3,7 +3,8 @@
 The stages themselves are the scripts ``stages/<name>.py`` that dvc.yaml runs: each parses its
 arguments with :func:`run_stage` and calls the logic in the package. No module of the package
 imports a stage script. This module imports only the config and the errors (no numpy, no
-torch): every stage imports it, so whatever it imports is every stage's dependency.
+torch) at its top, and :mod:`msdepth.io` in :func:`run_stage`: every stage imports it, so whatever
+it imports is every stage's dependency.
 """
 
 from __future__ import annotations
@@ -37,6 +38,18 @@ CACHED_PAIRS = Path("data/cache/train_pairs.txt")
 CACHE_REPORT = Path("data/cache/report.json")
 SUITE_NAMES = ("full", "roi", "gradients")
 COST_CURVES = Path("metrics/cost_curves")  # <variant>.json: the cost_curves stage's, drawn by figures
+# The folders that only the stages write: a stage removes the temp files that a stage killed
+# mid-write (kill -9) left there before it runs. The data roots are not walked (a KITTI tree is
+# 175 GB); the renderer and the downloader remove their own temps there.
+STAGE_OUTPUT_ROOTS = (
+    INDEX_DIR,
+    PAIR_CACHE.parent,
+    Path("models"),
+    Path("checkpoints"),
+    Path("outputs"),
+    Path("metrics"),
+    Path("plots"),
+)
 
 # The command-line arguments of the per-run stages (see stage_parser).
 VariantArg = Annotated[str, "a loss variant listed in params.yaml's variants (e.g. ssim, msssim)"]
@@ -118,6 +131,9 @@ def stage_parser(fn: Callable[..., None]) -> argparse.ArgumentParser:
 def run_stage(fn: Callable[..., None], *args: str, params_path: str | os.PathLike = "params.yaml") -> int:
     """Parse a stage's arguments, load params, run the stage, report errors as one line.
 
+    Before the stage runs, the temp files that a stage killed mid-write left under
+    :data:`STAGE_OUTPUT_ROOTS` are removed (only names of :func:`msdepth.io.atomic_path`'s form).
+
     Returns the exit code: 0 (also for ``--help``, which runs nothing), 1 for the project's errors,
     2 for a usage error.
     """
@@ -128,6 +144,11 @@ def run_stage(fn: Callable[..., None], *args: str, params_path: str | os.PathLik
         return int(exc.code or 0)
     parameters = list(inspect.signature(fn).parameters.values())[1:]
     positional = [parsed.pop(p.name) for p in parameters if p.kind is not inspect.Parameter.KEYWORD_ONLY]
+    if "LOCAL_RANK" not in os.environ:  # torchrun's ranks start after their launcher did this
+        from .io import remove_stale_temps
+
+        for root in STAGE_OUTPUT_ROOTS:
+            remove_stale_temps(root)
     started = time.perf_counter()
     try:
         fn(load_params(params_path), *positional, **parsed)

@@ -40,7 +40,7 @@ from .data.synthetic import focal_for_width
 from .depth import disparity_to_depth, pixel_disparity
 from .errors import DataError, MsdepthError
 from .infer import network_disparity
-from .io import atomic_path, save_npy, write_png
+from .io import atomic_path, remove_stale_temps, save_npy, write_png
 from .model import MonodepthVGG, load_model
 from .train import resolve_device
 
@@ -286,6 +286,8 @@ class OutputGuard:
         self.protected = {p.resolve(): p for p in protected}
         lines = self.manifest.read_text(errors="replace").splitlines() if self.manifest.is_file() else []
         self.ours = set(lines)
+        # A run killed mid-write left the temp of an output it had listed: remove those only.
+        remove_stale_temps(out_dir, lambda final: final.relative_to(out_dir).as_posix() in self.ours)
 
     def claim(self, paths: list[Path]) -> None:
         """Check that every path may be written, and list the new ones in the manifest first (so a

@@ -59,7 +59,7 @@ from typing import Any
 from tqdm import tqdm
 
 from ..errors import DataError
-from ..io import write_json
+from ..io import atomic_temps, write_json
 
 # The host every entry of the shipped list starts with; entries are kept relative to it so that a
 # mirror (or a test server) can be used by passing another base URL to fetch_all.
@@ -1110,6 +1110,10 @@ def fetch(planned: Plan, options: FetchOptions = FetchOptions()) -> dict[str, An
     if to_download:  # a complete tree needs no network: probe only when something must be fetched
         _probe(planned.urls[to_download[0]], options)
     planned.download_dir.mkdir(parents=True, exist_ok=True)
+    # A run killed while writing the manifest or a marker left its temp; no thread writes yet.
+    for path in [planned.download_dir / MANIFEST_NAME, *map(planned.marker, planned.urls)]:
+        for tmp in atomic_temps(path):
+            tmp.unlink()
     run = _Fetching(planned, options, Manifest(planned.download_dir / MANIFEST_NAME))
     unreachable: list[NetworkUnreachable] = []
     with tqdm(
