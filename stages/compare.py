@@ -12,6 +12,7 @@ from msdepth.baselines import BASELINES, skipped_reason
 from msdepth.compare import (
     build_comparison,
     build_set_section,
+    comparison_data,
     group_metrics,
     image_dependence,
     load_suite_metrics,
@@ -52,7 +53,7 @@ def compare(params: Params) -> None:
     stats = paired_statistics({s: tables[s] for s in compared}, groups, params.compare, params.eval.caps)
     caps = [f"cap{c:g}" for c in params.eval.caps]
     dependence = image_dependence(suites, tables, groups, "prior", params.eval.caps[0])
-    result, md = build_comparison(
+    comparison = comparison_data(
         group_metrics(suites, groups),
         list(params.variants),
         built,
@@ -64,6 +65,7 @@ def compare(params: Params) -> None:
         missing_baselines=missing,
         optimum=optimum_section(params, groups, compared),
     )
+    result, md = build_comparison(comparison)
     means = mean_headline(suites, groups)
     for name in params.eval.extra_sets:
         result.setdefault("sets", {})[name], section = compare_set(params, name)

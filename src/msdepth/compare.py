@@ -464,7 +464,19 @@ def comparison_data(
     missing_baselines: dict[str, str] | None = None,
     optimum: dict | None = None,
 ) -> Comparison:
-    """The :class:`Comparison` of :func:`build_comparison`'s arguments."""
+    """What ``compare.md`` shows, as a :class:`Comparison` (best variant per column in bold).
+
+    ``suites`` holds each variant's metrics averaged over its ``seeds`` (:func:`group_metrics`).
+    With ``stats`` (from :func:`paired_statistics`), each full-image and ROI table is followed
+    by the differences to the reference variant with their bootstrap intervals; with ``spread``
+    (:func:`seed_spread`) and more than one seed, by each variant's mean ± sd over seeds. With
+    ``dependence`` (:func:`image_dependence`, per run) and ``groups`` (variant -> its runs), a
+    section says for every run whether it uses the image, and image-blind runs are flagged in
+    the tables. ``missing_baselines`` (baseline -> why it could not be built, e.g. no training
+    GT) are named under the header, so that a table without them is not mistaken for complete.
+    Without ROIs (every ROI summary is :data:`msdepth.evaluate.NO_ROIS`'s) the ROI and gradient
+    tables are replaced by one line, :data:`ROIS_SKIPPED`.
+    """
     runs = [*variants, *baselines]
     caps = [k for k in suites["full"][runs[0]] if k.startswith("cap")]
     skipped = all(NO_ROIS in suites["roi"][r] for r in runs)
@@ -809,32 +821,6 @@ def render_comparison(comparison: Comparison) -> str:
     return "\n".join(line for section in SECTIONS for line in section(comparison)) + "\n"
 
 
-def build_comparison(
-    suites: dict[str, dict[str, dict]],
-    variants: Sequence[str],
-    baselines: Sequence[str],
-    stats: dict | None = None,
-    spread: dict | None = None,
-    seeds: Sequence[int] = (0,),
-    dependence: dict[str, dict] | None = None,
-    groups: dict[str, Sequence[str]] | None = None,
-    missing_baselines: dict[str, str] | None = None,
-    optimum: dict | None = None,
-) -> tuple[dict, str]:
-    """The comparison as JSON-ready dict and as Markdown (best variant per column in bold).
-
-    ``suites`` holds each variant's metrics averaged over its ``seeds`` (:func:`group_metrics`).
-    With ``stats`` (from :func:`paired_statistics`), each full-image and ROI table is followed
-    by the differences to the reference variant with their bootstrap intervals; with ``spread``
-    (:func:`seed_spread`) and more than one seed, by each variant's mean ± sd over seeds. With
-    ``dependence`` (:func:`image_dependence`, per run) and ``groups`` (variant -> its runs), a
-    section says for every run whether it uses the image, and image-blind runs are flagged in
-    the tables. ``missing_baselines`` (baseline -> why it could not be built, e.g. no training
-    GT) are named under the header, so that a table without them is not mistaken for complete.
-    Without ROIs (every ROI summary is :data:`msdepth.evaluate.NO_ROIS`'s) the ROI and gradient
-    tables are replaced by one line, :data:`ROIS_SKIPPED`.
-    """
-    comparison = comparison_data(
-        suites, variants, baselines, stats, spread, seeds, dependence, groups, missing_baselines, optimum
-    )
+def build_comparison(comparison: Comparison) -> tuple[dict, str]:
+    """``comparison`` (:func:`comparison_data`) as ``compare.json``'s dict and ``compare.md``'s text."""
     return comparison.as_json(), render_comparison(comparison)
