@@ -102,3 +102,18 @@ def test_an_image_blind_run_keeps_its_settings_in_the_label():
         _suites({"msssim": 0.2}), ["msssim"], [], dependence=dependence, settings=settings
     )
     assert comparison.label("msssim") == "msssim (levels=3) (image-blind)"
+
+
+def test_every_table_with_rois_names_the_changed_kernel():
+    """The ROI, per-class and gradient tables too: no row is left called plain ``msssim``."""
+    suites = _suites({"ssim": 0.3, "msssim": 0.2})
+    for run, v in (("ssim", 0.3), ("msssim", 0.2)):
+        m = dict.fromkeys(METRICS, v)
+        suites["roi"][run] = {"cap80": {"overall": {**m, "count": 1}, "by_class": {"car": {**m, "count": 1}}}}
+        g = {"pred_sobel_x": v, "pred_sobel_y": v, "pred_laplacian": v, "count": 1}
+        dense = {"overall": {"count": 0}, "by_class": {}}
+        suites["gradients"][run] = {"cap80": {"overall": g, "by_class": {}, "dense_gt": dense}}
+    settings = {"msssim": {**DEFAULT_MSSSIM, "kernel_size": 7}}
+    _, md = build_comparison(comparison_data(suites, ["ssim", "msssim"], [], settings=settings))
+    rows = [line.split(" |")[0] for line in md.splitlines() if line.startswith("| msssim")]
+    assert rows == ["| msssim (k=7)"] * 4  # full image, ROI, ROI per class, gradients

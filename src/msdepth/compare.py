@@ -725,7 +725,7 @@ def _gradient_lines(c: Comparison, cap: str) -> list[str]:
     header = ["run", *[f"pred {g}" for g in GRADIENTS], *[f"|pred−GT| {g}" for g in GRADIENTS]]
     rows = [
         [
-            r,
+            c.settings_label(r),
             *[_fmt(grad[r]["overall"][f"pred_{g}"]) for g in GRADIENTS],
             *[_fmt(grad[r]["dense_gt"]["overall"].get(f"error_{g}")) for g in GRADIENTS],
         ]
