@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import sys
 from pathlib import Path
-from typing import Sequence
+from typing import Callable, Sequence
 
 import numpy as np
 
@@ -12,6 +12,7 @@ from msdepth.baselines import BASELINES, skipped_reason
 from msdepth.compare import (
     build_comparison,
     build_set_section,
+    comparison_data,
     group_metrics,
     image_dependence,
     load_suite_metrics,
@@ -19,6 +20,7 @@ from msdepth.compare import (
     optimum_data,
     paired_statistics,
     seed_spread,
+    variant_settings,
 )
 from msdepth.config import Params
 from msdepth.evaluate import no_rois
@@ -52,7 +54,7 @@ def compare(params: Params) -> None:
     stats = paired_statistics({s: tables[s] for s in compared}, groups, params.compare, params.eval.caps)
     caps = [f"cap{c:g}" for c in params.eval.caps]
     dependence = image_dependence(suites, tables, groups, "prior", params.eval.caps[0])
-    result, md = build_comparison(
+    comparison = comparison_data(
         group_metrics(suites, groups),
         list(params.variants),
         built,
@@ -63,10 +65,14 @@ def compare(params: Params) -> None:
         groups,
         missing_baselines=missing,
         optimum=optimum_section(params, groups, compared),
+        settings=variant_settings(params),
     )
+    result, md = build_comparison(comparison)
     means = mean_headline(suites, groups)
+    for variant, settings in variant_settings(params).items():
+        means[variant]["settings"] = settings  # what the numbers were trained with
     for name in params.eval.extra_sets:
-        result.setdefault("sets", {})[name], section = compare_set(params, name)
+        result.setdefault("sets", {})[name], section = compare_set(params, name, comparison.settings_label)
         md += "\n" + section
         for group, block in result["sets"][name]["full"][caps[0]].items():
             if group in means:
@@ -116,9 +122,10 @@ def mean_headline(suites: dict, groups: dict[str, list[str]]) -> dict:
     return out
 
 
-def compare_set(params: Params, name: str) -> tuple[dict, str]:
+def compare_set(params: Params, name: str, label: Callable[[str], str] = str) -> tuple[dict, str]:
     """An extra evaluation set's full-image comparison (``metrics/sets/<set>/full/``): the same
-    groups, reference, bootstrap and seed spread as KITTI 2015's full-image tables."""
+    groups, reference, bootstrap and seed spread as KITTI 2015's full-image tables; ``label``
+    names a run's row."""
     root = SETS_METRICS / name
     missing, built, groups, runs = run_groups(params, root, ["full"])
     suites = load_suite_metrics(root, runs, ["full"])
@@ -133,6 +140,7 @@ def compare_set(params: Params, name: str) -> tuple[dict, str]:
         seed_spread(suites, groups, caps),
         params.train.seeds,
         missing_baselines=missing,
+        label=label,
     )
 
 

@@ -5,7 +5,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from msdepth.compare import build_comparison
+from msdepth.compare import build_comparison, comparison_data
 from msdepth.config import EvalConfig
 from msdepth.evaluate import Frame, depth_maps, evaluate_full, evaluate_gradients, evaluate_roi
 
@@ -156,7 +156,7 @@ def test_compare_table_marks_best_variant():
         "roi": {r: roi(v) for r, v in runs.items()},
         "gradients": {r: grad(v) for r, v in runs.items()},
     }
-    result, md = build_comparison(suites, ["ssim", "msssim"], ["prior"])
+    result, md = build_comparison(comparison_data(suites, ["ssim", "msssim"], ["prior"]))
     assert "| msssim | **0.2000** |" in md  # best variant in bold; baselines never are
     assert result["full"]["cap80"]["prior"]["abs_rel"] == 0.1
 
@@ -247,7 +247,7 @@ def test_compare_shows_the_exact_mask_tables():
         "roi": {r: roi(v) for r, v in runs.items()},
         "gradients": {r: grad for r in runs},
     }
-    result, md = build_comparison(suites, ["ssim", "msssim"], [])
+    result, md = build_comparison(comparison_data(suites, ["ssim", "msssim"], []))
     assert "### ROI, exact masks, cap 80 m" in md and "| msssim | 0.1000 | 0.2000 | 0.8000 | 0.1000 |" in md
     assert result["roi_masks"]["cap80"]["ssim"]["overall"]["abs_rel"] == 0.3
 
@@ -267,13 +267,13 @@ def test_compare_names_missing_baselines_with_their_reasons():
         "gradients": {r: grad for r in ("ssim", "constant")},
     }
     missing = {"prior": "no metrics/full/prior.json"}
-    result, md = build_comparison(suites, ["ssim"], ["constant"], missing_baselines=missing)
+    result, md = build_comparison(comparison_data(suites, ["ssim"], ["constant"], missing_baselines=missing))
     assert "Missing baselines (not built): prior: no metrics/full/prior.json." in md
     assert result["missing_baselines"] == missing and result["baselines"] == ["constant"]
     two = {"constant": "no training GT", "prior": "no metrics/full/prior.json"}
-    _, md = build_comparison(suites, ["ssim"], [], missing_baselines=two)
+    _, md = build_comparison(comparison_data(suites, ["ssim"], [], missing_baselines=two))
     assert "Missing baselines (not built): constant: no training GT; prior: no metrics/full/prior.json." in md
-    _, md = build_comparison(suites, ["ssim"], ["constant"])
+    _, md = build_comparison(comparison_data(suites, ["ssim"], ["constant"]))
     assert "Missing" not in md
 
 
@@ -299,5 +299,7 @@ def test_compare_says_when_image_dependence_cannot_be_measured():
         }
     }
     suites = {"full": suites["full"], "roi": {"ssim": roi}, "gradients": {"ssim": grad}}
-    _, md = build_comparison(suites, ["ssim"], [], dependence=dependence, groups={"ssim": ["ssim"]})
+    _, md = build_comparison(
+        comparison_data(suites, ["ssim"], [], dependence=dependence, groups={"ssim": ["ssim"]})
+    )
     assert "| ssim | – | – | not measured: too few evaluation frames with GT at the same pixels, " in md

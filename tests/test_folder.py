@@ -257,13 +257,13 @@ def test_zero_rois_give_an_explicit_summary_and_a_header_only_table(suite, tmp_p
 
 
 def test_compare_without_rois_says_the_roi_suites_were_skipped():
-    from msdepth.compare import ROIS_SKIPPED, build_comparison
+    from msdepth.compare import ROIS_SKIPPED, build_comparison, comparison_data
     from msdepth.metrics import METRICS
 
     full = {"cap80": dict.fromkeys(METRICS, 0.5), "images": 2, "excluded_images": 0}
     none = {"rois": 0, NO_ROIS: "no ROIs"}
     suites = {"full": {"ssim": full}, "roi": {"ssim": none}, "gradients": {"ssim": none}}
-    result, md = build_comparison(suites, ["ssim"], [])
+    result, md = build_comparison(comparison_data(suites, ["ssim"], []))
     assert ROIS_SKIPPED in md and "## ROI" not in md and "Gradient" not in md
     assert "## Full image, cap 80 m" in md and result["roi"] == {} and result["rois_skipped"] == "no ROIs"
 

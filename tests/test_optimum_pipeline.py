@@ -10,7 +10,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from msdepth.compare import build_comparison, optimum_data
+from msdepth.compare import build_comparison, comparison_data, optimum_data
 from msdepth.config import params_from_dict
 from msdepth.errors import ConfigError, DataError
 from msdepth.figures import cost_curve_figure, read_cost_curves
@@ -85,7 +85,9 @@ def _trained_suites() -> dict:
 
 def test_the_optimum_section_shows_optimum_trained_runs_and_baselines_side_by_side():
     data = optimum_data(OPT_SUITES, RUNS, STATS, "cap80")
-    result, md = build_comparison(_trained_suites(), ["ssim", "msssim"], ["prior"], optimum=data)
+    result, md = build_comparison(
+        comparison_data(_trained_suites(), ["ssim", "msssim"], ["prior"], optimum=data)
+    )
     section = md[md.index("# The losses' own optimum (no network)") :]
     assert "| ssim |  | 0.3000 | 0.7000 | 0.3500 | 0.3300 |" in section
     assert "| prior |  | 0.5000 | 0.5000 | 0.5000 | 0.5000 |" in section
@@ -100,7 +102,7 @@ def test_the_optimum_section_shows_optimum_trained_runs_and_baselines_side_by_si
 
 
 def test_no_optimum_no_section():
-    _, md = build_comparison(_trained_suites(), ["ssim", "msssim"], ["prior"])
+    _, md = build_comparison(comparison_data(_trained_suites(), ["ssim", "msssim"], ["prior"]))
     assert "own optimum" not in md
 
 

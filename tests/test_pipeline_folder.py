@@ -59,7 +59,7 @@ def test_repro_on_an_exported_folder(folder_repo: Path):
     assert "no ROIs: ROI suites skipped" in md and "## ROI" not in md and "| ssim" in md
     assert "data.source folder" in md  # the baselines' reason
     mean = json.loads((repo / "metrics" / "headline" / "mean.json").read_text())
-    assert set(mean) == {"ssim", "msssim"} and set(mean["ssim"]) == {"abs_rel"}
+    assert set(mean) == {"ssim", "msssim"} and set(mean["ssim"]) == {"abs_rel", "settings"}
     figures = sorted(p.name for p in (repo / "plots" / "figures").iterdir())
     assert figures == sorted(set(STAGE_FIGURES) - set(ROI_FIGURES))  # no ROIs, no ROI figures
     shown = json.loads(_run([sys.executable, "-m", "dvc", "metrics", "show", "--json"], repo))

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 from dataclasses import dataclass
@@ -11,11 +12,12 @@ from typing import Callable, Sequence
 import numpy as np
 import pandas as pd
 
-from .config import CompareConfig
+from .config import CompareConfig, Params
 from .errors import DataError
 from .evaluate import GRADIENTS, NO_ROIS
 from .metrics import HIGHER_IS_BETTER, METRICS
 from .stats import paired_table, seed_bootstrap
+from .variants import configs as variant_configs
 
 SUITES = ("full", "roi", "gradients")
 ROIS_SKIPPED = "no ROIs: ROI suites skipped"  # compare.md's line when the ROI index is empty
@@ -195,7 +197,7 @@ def marks_allowed(difference: dict, baseline: bool) -> bool:
     return min(seeds) >= MIN_SEEDS_FOR_MARKS
 
 
-def _ci_rows(block: dict, baselines: Sequence[str]) -> list[list[str]]:
+def _ci_rows(block: dict, baselines: Sequence[str], label: Callable[[str], str] = str) -> list[list[str]]:
     """One row per run: ``mean [low, high]`` per metric, ``*`` where the interval excludes 0 and
     covers seed-to-seed variation (:func:`marks_allowed`)."""
     rows = []
@@ -205,7 +207,7 @@ def _ci_rows(block: dict, baselines: Sequence[str]) -> list[list[str]]:
             d = metrics[m]
             mark = d["excludes_zero"] and marks_allowed(d, run in baselines)
             cells.append(f"{d['mean']:+.4f} [{d['low']:+.4f}, {d['high']:+.4f}]{' *' if mark else ''}")
-        rows.append([run, *cells])
+        rows.append([label(run), *cells])
     return rows
 
 
@@ -281,22 +283,26 @@ def _metric_rows(
     return rows
 
 
-def _ci_lines(stats: dict, suite: str, cap: str, unit: str, baselines: Sequence[str]) -> list[str]:
+def _ci_lines(
+    stats: dict, suite: str, cap: str, unit: str, baselines: Sequence[str], label: Callable[[str], str] = str
+) -> list[str]:
     """Every run minus the reference with its interval (:func:`_ci_rows`), as Markdown lines."""
     block = stats[suite][cap]
     n = next(iter(next(iter(block.values())).values()))["n"] if block else 0
     return [
         f"Difference to {stats['reference']} ({n} paired {unit}):",
         "",
-        _table(["run", *METRICS], _ci_rows(block, baselines)),
+        _table(["run", *METRICS], _ci_rows(block, baselines, label)),
         "",
     ]
 
 
-def _spread_lines(block: dict, variants: Sequence[str], seeds: int) -> list[str]:
+def _spread_lines(
+    block: dict, variants: Sequence[str], seeds: int, label: Callable[[str], str] = str
+) -> list[str]:
     """The mean ± sd over seeds of each variant's per-run mean, as Markdown lines."""
     rows = [
-        [v, *[f"{d[m]['mean']:.4f} ± {d[m]['sd']:.4f}" for m in METRICS]]
+        [label(v), *[f"{d[m]['mean']:.4f} ± {d[m]['sd']:.4f}" for m in METRICS]]
         for v, d in block.items()
         if v in variants
     ]
@@ -324,9 +330,11 @@ def build_set_section(
     spread: dict,
     seeds: Sequence[int],
     missing_baselines: dict[str, str] | None = None,
+    label: Callable[[str], str] = str,
 ) -> tuple[dict, str]:
     """An extra set's full-image tables for ``compare.md`` (per cap: the metrics, the differences
-    to the reference with their intervals, the seed spread), and the same as a dict.
+    to the reference with their intervals, the seed spread), and the same as a dict. ``label``
+    names a run's row (:meth:`Comparison.settings_label`).
 
     ``suites`` is ``{"full": {group: metrics averaged over its runs}}`` of that set,
     ``stats``/``spread`` from :func:`paired_statistics`/:func:`seed_spread` on its tables.
@@ -352,13 +360,38 @@ def build_set_section(
         md += [
             f"## {name}: full image, cap {cap[3:]} m",
             "",
-            _table(["run", *METRICS], _metric_rows(block, runs, variants)),
+            _table(["run", *METRICS], _metric_rows(block, runs, variants, label)),
             "",
         ]
-        md += _ci_lines(stats, "full", cap, "images", baselines)
+        md += _ci_lines(stats, "full", cap, "images", baselines, label)
         if len(seeds) > 1:
-            md += _spread_lines(spread["full"][cap], variants, len(seeds))
+            md += _spread_lines(spread["full"][cap], variants, len(seeds), label)
     return result, "\n".join(md) + "\n"
+
+
+# Short names of variant settings in compare.md ("msssim (k=7)"); other keys keep their own name.
+SETTING_NAMES = {"kernel_size": "k"}
+
+
+def variant_settings(params: Params) -> dict[str, dict]:
+    """Each compared variant's params section (``params.<variant>``) as a dict: what its runs were
+    trained with, for ``compare.json`` and ``headline/mean.json``."""
+    return {v: dataclasses.asdict(getattr(params, v)) for v in params.variants}
+
+
+def changed_settings(variant: str, settings: dict) -> dict:
+    """The entries of ``settings`` (variant ``variant``'s section) that differ from its config's
+    defaults (:mod:`msdepth.variants`)."""
+    defaults = dataclasses.asdict(variant_configs()[variant]())
+    return {k: v for k, v in settings.items() if k not in defaults or defaults[k] != v}
+
+
+def settings_text(settings: dict) -> str:
+    """``settings`` as compare.md writes them: ``k=7, levels=3, weights=wang``."""
+    return ", ".join(
+        f"{SETTING_NAMES.get(k, k)}={v:g}" if isinstance(v, float) else f"{SETTING_NAMES.get(k, k)}={v}"
+        for k, v in settings.items()
+    )
 
 
 # compare.json's keys in order; the optional ones (None in :class:`Comparison`) are left out.
@@ -366,6 +399,7 @@ JSON_FIELDS = (
     "variants",
     "baselines",
     "seeds",
+    "settings",
     "full",
     "roi",
     "gradients",
@@ -403,6 +437,7 @@ class Comparison:
     roi_masks: dict | None = None  # {capN: {run: exact-mask summary}} for the caps every run has
     mask_counts: dict[str, int] | None = None  # the ROIs with exact masks and those excluded
     optimum: dict | None = None  # :func:`optimum_data`: the losses' own optimum, no network
+    settings: dict[str, dict] | None = None  # :func:`variant_settings`: each variant's params section
 
     @property
     def runs(self) -> list[str]:
@@ -418,17 +453,24 @@ class Comparison:
         """``compare.json``'s content."""
         return {k: getattr(self, k) for k in JSON_FIELDS if getattr(self, k) is not None}
 
+    def settings_label(self, group: str) -> str:
+        """``group``'s name with the settings in which its variant differs from the defaults
+        (:func:`changed_settings`), e.g. ``msssim (k=7)``."""
+        changed = changed_settings(group, self.settings[group]) if group in (self.settings or {}) else {}
+        return f"{group} ({settings_text(changed)})" if changed else group
+
     def label(self, group: str) -> str:
-        """``group``'s name in the metric tables, flagging its image-blind runs."""
+        """``group``'s name in the metric tables (:meth:`settings_label`), flagging its image-blind runs."""
+        name = self.settings_label(group)
         dependence = self.image_dependence or {}
         runs = self.groups.get(group, [group])
         blind = sum(1 for r in runs if dependence.get(r, {}).get("image_blind"))
         if not blind or group in self.baselines:
-            return group
+            return name
         return (
-            f"{group} (image-blind)"
+            f"{name} (image-blind)"
             if blind == len(runs)
-            else f"{group} ({blind} of {len(runs)} runs image-blind)"
+            else f"{name} ({blind} of {len(runs)} runs image-blind)"
         )
 
 
@@ -463,8 +505,23 @@ def comparison_data(
     groups: dict[str, Sequence[str]] | None = None,
     missing_baselines: dict[str, str] | None = None,
     optimum: dict | None = None,
+    settings: dict[str, dict] | None = None,
 ) -> Comparison:
-    """The :class:`Comparison` of :func:`build_comparison`'s arguments."""
+    """What ``compare.md`` shows, as a :class:`Comparison` (best variant per column in bold).
+
+    ``suites`` holds each variant's metrics averaged over its ``seeds`` (:func:`group_metrics`).
+    With ``stats`` (from :func:`paired_statistics`), each full-image and ROI table is followed
+    by the differences to the reference variant with their bootstrap intervals; with ``spread``
+    (:func:`seed_spread`) and more than one seed, by each variant's mean ± sd over seeds. With
+    ``dependence`` (:func:`image_dependence`, per run) and ``groups`` (variant -> its runs), a
+    section says for every run whether it uses the image, and image-blind runs are flagged in
+    the tables. ``missing_baselines`` (baseline -> why it could not be built, e.g. no training
+    GT) are named under the header, so that a table without them is not mistaken for complete.
+    Without ROIs (every ROI summary is :data:`msdepth.evaluate.NO_ROIS`'s) the ROI and gradient
+    tables are replaced by one line, :data:`ROIS_SKIPPED`. With ``settings``
+    (:func:`variant_settings`) the header states every variant's, and a row names its variant's
+    settings that differ from the defaults.
+    """
     runs = [*variants, *baselines]
     caps = [k for k in suites["full"][runs[0]] if k.startswith("cap")]
     skipped = all(NO_ROIS in suites["roi"][r] for r in runs)
@@ -485,7 +542,16 @@ def comparison_data(
         roi_masks=masks,
         mask_counts=counts,
         optimum=optimum,
+        settings=settings,
     )
+
+
+def _settings_lines(c: Comparison) -> list[str]:
+    """One line stating each variant's settings (none without them)."""
+    if not c.settings:
+        return []
+    stated = "; ".join(f"{v} {settings_text(c.settings[v])}" for v in c.variants if v in c.settings)
+    return [f"Settings: {stated} (a row names where its variant differs from the defaults)."]
 
 
 def _header_lines(c: Comparison) -> list[str]:
@@ -503,6 +569,7 @@ def _header_lines(c: Comparison) -> list[str]:
         f"Variants: {', '.join(c.variants)}. "
         f"Baselines (image-blind, from training GT): {', '.join(c.baselines) or 'none'}.",
         *_missing_lines(c.missing_baselines),
+        *_settings_lines(c),
         trained,
         "Errors: lower is better; a1–a3: higher is better. Best variant per column in **bold**.",
         "",
@@ -579,9 +646,13 @@ def _rois_skipped_lines(c: Comparison) -> list[str]:
 
 def _noise_lines(c: Comparison, suite: str, cap: str, unit: str) -> list[str]:
     """The differences to the reference (with ``stats``) and the seed spread (with several seeds)."""
-    lines = [] if c.statistics is None else _ci_lines(c.statistics, suite, cap, unit, c.baselines)
+    lines = (
+        []
+        if c.statistics is None
+        else _ci_lines(c.statistics, suite, cap, unit, c.baselines, c.settings_label)
+    )
     if c.seed_spread is not None and len(c.seeds) > 1:
-        lines += _spread_lines(c.seed_spread[suite][cap], c.variants, len(c.seeds))
+        lines += _spread_lines(c.seed_spread[suite][cap], c.variants, len(c.seeds), c.settings_label)
     return lines
 
 
@@ -654,7 +725,7 @@ def _gradient_lines(c: Comparison, cap: str) -> list[str]:
     header = ["run", *[f"pred {g}" for g in GRADIENTS], *[f"|pred−GT| {g}" for g in GRADIENTS]]
     rows = [
         [
-            r,
+            c.settings_label(r),
             *[_fmt(grad[r]["overall"][f"pred_{g}"]) for g in GRADIENTS],
             *[_fmt(grad[r]["dense_gt"]["overall"].get(f"error_{g}")) for g in GRADIENTS],
         ]
@@ -809,32 +880,6 @@ def render_comparison(comparison: Comparison) -> str:
     return "\n".join(line for section in SECTIONS for line in section(comparison)) + "\n"
 
 
-def build_comparison(
-    suites: dict[str, dict[str, dict]],
-    variants: Sequence[str],
-    baselines: Sequence[str],
-    stats: dict | None = None,
-    spread: dict | None = None,
-    seeds: Sequence[int] = (0,),
-    dependence: dict[str, dict] | None = None,
-    groups: dict[str, Sequence[str]] | None = None,
-    missing_baselines: dict[str, str] | None = None,
-    optimum: dict | None = None,
-) -> tuple[dict, str]:
-    """The comparison as JSON-ready dict and as Markdown (best variant per column in bold).
-
-    ``suites`` holds each variant's metrics averaged over its ``seeds`` (:func:`group_metrics`).
-    With ``stats`` (from :func:`paired_statistics`), each full-image and ROI table is followed
-    by the differences to the reference variant with their bootstrap intervals; with ``spread``
-    (:func:`seed_spread`) and more than one seed, by each variant's mean ± sd over seeds. With
-    ``dependence`` (:func:`image_dependence`, per run) and ``groups`` (variant -> its runs), a
-    section says for every run whether it uses the image, and image-blind runs are flagged in
-    the tables. ``missing_baselines`` (baseline -> why it could not be built, e.g. no training
-    GT) are named under the header, so that a table without them is not mistaken for complete.
-    Without ROIs (every ROI summary is :data:`msdepth.evaluate.NO_ROIS`'s) the ROI and gradient
-    tables are replaced by one line, :data:`ROIS_SKIPPED`.
-    """
-    comparison = comparison_data(
-        suites, variants, baselines, stats, spread, seeds, dependence, groups, missing_baselines, optimum
-    )
+def build_comparison(comparison: Comparison) -> tuple[dict, str]:
+    """``comparison`` (:func:`comparison_data`) as ``compare.json``'s dict and ``compare.md``'s text."""
     return comparison.as_json(), render_comparison(comparison)
