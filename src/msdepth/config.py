@@ -53,9 +53,17 @@ class SyntheticConfig:
     # Evaluation GT beyond this depth is left invalid (0), as KITTI's LiDAR-based GT has no
     # points past its range (~80 m); 0 keeps every rendered surface.
     gt_max_depth: float = 80.0
+    # > 0: each drive's training frames are sequences of this many frames, each one static scene
+    # seen by a rig moving forward (Monodepth2's monocular training); 0 = independent frames.
+    sequence_length: int = _added_later(0)
 
     def validate(self, key: str, params: Params) -> None:
         """Range checks of the ``key`` section; a ConfigError names the key."""
+        check(
+            self.sequence_length == 0 or self.sequence_length >= 3,
+            f"{key}.sequence_length",
+            f"must be 0 (none) or >= 3 (a frame with neighbours on both sides), got {self.sequence_length}",
+        )
         for name in ("drives", "train_pairs", "eval_frames"):
             check(getattr(self, name) >= 1, f"{key}.{name}", "must be >= 1")
         check(0 <= self.seed <= SEED_MAX, f"{key}.seed", f"must be in 0..{SEED_MAX}, got {self.seed}")
