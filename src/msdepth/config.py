@@ -262,7 +262,7 @@ class TrainConfig:
     nproc: int = 1
     dist_timeout_s: float = _speed_only(600.0)  # a collective waiting longer (a dead rank) is an error
     # stereo = Monodepth (left-right pairs); mono / mono_stereo = Monodepth2's M / MS
-    # (msdepth.monocular), which need frame sequences the data stage does not write yet: refused.
+    # (msdepth.monocular), which need frame sequences: data.synthetic.sequence_length > 0.
     mode: Literal["stereo", "mono", "mono_stereo"] = _added_later("stereo")
     # Monodepth2's source frames of the monocular modes, as offsets from the target frame.
     source_frames: tuple[int, ...] = _added_later((-1, 1))
@@ -294,11 +294,12 @@ class TrainConfig:
             f"{key}.source_frames",
             f"applies to train.mode mono and mono_stereo only; keep [-1, 1] in stereo, got {shown(frames)}",
         )
+        sequences = params.data.source == "synthetic" and params.data.synthetic.sequence_length > 0
         check(
-            self.mode == "stereo",
+            self.mode == "stereo" or sequences,
             f"{key}.mode",
-            f"{shown(self.mode)} needs monocular frame sequences, which no data source writes yet; "
-            "only 'stereo' trains",
+            f"{shown(self.mode)} needs monocular frame sequences, which only data.source synthetic "
+            "writes, with data.synthetic.sequence_length >= 3; only 'stereo' trains here",
         )
         seeds = list(self.seeds)
         in_range = all(0 <= seed <= SEED_MAX for seed in seeds)
