@@ -11,7 +11,8 @@ import torch
 from msdepth import geometry
 from msdepth.config import ConfigError, SyntheticConfig
 from msdepth.data import kitti, sequences, synthetic
-from msdepth.data.synthetic.kitti_tree import MONO_SPLIT, POSES
+from msdepth.data.layout import MONO_SPLIT
+from msdepth.data.synthetic.kitti_tree import POSES
 
 # Two drives of 4 frames: one sequence of 3 and one of 1 frame each; frame 1 of each has both neighbours.
 CFG = SyntheticConfig(seed=5, drives=2, train_pairs=8, eval_frames=1, height=64, width=192, sequence_length=3)

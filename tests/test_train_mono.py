@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -10,8 +11,8 @@ import torch
 
 from msdepth.config import SyntheticConfig, params_from_dict
 from msdepth.data import sequences, synthetic
-from msdepth.data.synthetic.kitti_tree import MONO_SPLIT
-from msdepth.errors import MsdepthError
+from msdepth.data.layout import MONO_SPLIT, layout
+from msdepth.errors import DataError, MsdepthError
 from msdepth.train import load_model, train_variant
 
 H, W = 64, 192  # the pose network's ResNet-18 needs sides of 64 px or more
@@ -97,3 +98,14 @@ def test_same_params_same_bytes(raw: Path, tmp_path: Path) -> None:
 def test_mono_without_sequences_is_one_error(tmp_path: Path) -> None:
     with pytest.raises(MsdepthError, match="train.mode mono trains on frame sequences"):
         train_variant(_params("mono"), "ssim", [], tmp_path / "m.pt", tmp_path / "ck.pt", progress=False)
+
+
+def test_the_layout_names_the_rendered_split(raw: Path, tmp_path: Path) -> None:
+    """What the train stage reads in the monocular modes: the split below data.root, its frames."""
+    params = _params("mono_stereo")
+    paths = layout(dataclasses.replace(params, data=dataclasses.replace(params.data, root=str(raw))))
+    assert paths.mono_split == raw / MONO_SPLIT
+    samples = sequences.training_sequences(paths.mono_split, paths.raw_root, (-1, 1), stereo=True)
+    assert samples == _samples(raw, True)
+    with pytest.raises(DataError, match=r"no usable frame .*\(0 missing, 8 without a neighbour\)"):
+        sequences.training_sequences(paths.mono_split, paths.raw_root, (-3, 3), stereo=False)

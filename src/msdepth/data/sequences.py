@@ -103,6 +103,20 @@ def index_sequences(
     return index
 
 
+def training_sequences(
+    split: Path, raw_root: Path, offsets: Sequence[int], stereo: bool
+) -> list[SequenceSample]:
+    """The usable samples of the split file ``split`` below ``raw_root`` (:func:`index_sequences`);
+    a DataError names the split when none is usable."""
+    index = index_sequences(raw_root, read_mono_split(split), offsets, stereo)
+    if not index.samples:
+        raise DataError(
+            f"{split}: no usable frame below {raw_root} ({index.missing_frame} missing, "
+            f"{index.missing_neighbour} without a neighbour{' or stereo partner' if stereo else ''})"
+        )
+    return index.samples
+
+
 def sample_side(sample: SequenceSample) -> str:
     """``l`` or ``r``: the camera of the sample's target frame (``.../image_02/data/N.png`` is ``l``)."""
     return "l" if sample.target.parent.parent.name == CAMERAS["l"] else "r"

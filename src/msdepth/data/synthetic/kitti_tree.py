@@ -23,6 +23,7 @@ from ..kitti import (
     write_split,
     write_velodyne,
 )
+from ..layout import MONO_SPLIT
 from ..roots import RENDERING, SUMMARY, check_synthetic_root
 from .frame import EVAL, SEQUENCE_STEP, TRAIN, Frame, render_frame, sequence_frame, sequence_pose
 from .raycast import focal_for_width
@@ -37,7 +38,6 @@ EVAL_GT_OCC = "disp_occ_0"
 EVAL_GT_NOC = "disp_noc_0"
 # With data.synthetic.sequence_length: Monodepth2's split of the frames with both neighbours
 # (``drive frame side``, msdepth.data.sequences), and each drive's camera 02 poses.
-MONO_SPLIT = "train_mono_files.txt"
 POSES = "poses.txt"
 
 
