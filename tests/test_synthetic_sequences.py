@@ -12,6 +12,7 @@ from msdepth import geometry
 from msdepth.config import ConfigError, SyntheticConfig
 from msdepth.data import kitti, sequences, synthetic
 from msdepth.data.layout import MONO_SPLIT
+from msdepth.data.pairs import sample_generator
 from msdepth.data.synthetic.kitti_tree import POSES
 
 # Two drives of 4 frames: one sequence of 3 and one of 1 frame each; frame 1 of each has both neighbours.
@@ -99,3 +100,35 @@ def test_default_renders_no_sequences(tmp_path: Path) -> None:
     summary = synthetic.generate(cfg, tmp_path, progress=False, workers=1, lidar=False)
     assert "sequence_length" not in summary["config"]
     assert not (tmp_path / MONO_SPLIT).exists() and not list(tmp_path.rglob(POSES))
+
+
+def test_intrinsics_from_the_raw_calibration(root: Path) -> None:
+    """The rendered calib (MATLAB principal point) gives the renderer's camera, scaled with the
+    pixel centres when the frames are resized."""
+    calib = root / "raw" / synthetic.DATES[0] / "calib_cam_to_cam.txt"
+    f, h, w = synthetic.focal_for_width(CFG.width), CFG.height, CFG.width
+    np.testing.assert_allclose(
+        sequences.raw_intrinsics(calib, h, w)[:3, :3], [[f, 0, (w - 1) / 2], [0, f, (h - 1) / 2], [0, 0, 1]]
+    )
+    half = sequences.raw_intrinsics(calib, h // 2, w // 2)
+    np.testing.assert_allclose(
+        half[[0, 1, 0, 1], [0, 1, 2, 2]], [f / 2, f / 2, (w / 2 - 1) / 2, (h / 2 - 1) / 2]
+    )
+
+
+def test_a_mirrored_sample_swaps_the_partner_side(root: Path) -> None:
+    """Augmentation that mirrors the frames mirrors the principal point and puts the stereo
+    partner on the other side; without augmentation a left target's partner is on the right."""
+    samples = sequences.index_sequences(
+        root / "raw", sequences.read_mono_split(root / MONO_SPLIT), stereo=True
+    )
+    plain = sequences.SequenceFrames(samples.samples, (-1, 1), 32, 96, stereo=True)
+    augmented = sequences.SequenceFrames(samples.samples, (-1, 1), 32, 96, stereo=True, augment=True, seed=1)
+    draws = [torch.rand(2, generator=sample_generator(1, 0, i)) for i in range(len(samples.samples))]
+    i = next(i for i, u in enumerate(draws) if u[0] < 0.5 and u[1] >= 0.5)  # mirrored, colours kept
+    a, b = plain[i], augmented[i]
+    assert b["right"] == 1 - a["right"]
+    assert b["k"][0, 2] == pytest.approx(95 - a["k"][0, 2].item())
+    for key in ("target", "sources", "partner"):
+        assert torch.equal(b[key], torch.flip(a[key], dims=[-1]))
+    assert a["sources"].shape == (2, 3, 32, 96) and plain[0]["right"] == 0  # split: l before r
