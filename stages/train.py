@@ -8,7 +8,9 @@ import sys
 from pathlib import Path
 
 from msdepth.config import Params
+from msdepth.data.layout import layout
 from msdepth.data.pairs import load_pair_cache, load_pair_list
+from msdepth.data.sequences import training_sequences
 from msdepth.errors import MsdepthError
 from msdepth.pipeline import (
     CACHED_PAIRS,
@@ -52,6 +54,13 @@ def train(params: Params, variant: VariantArg, seed: SeedArg) -> None:
         return
     pairs = load_pair_list(CACHED_PAIRS)  # the pairs the cache holds, in its order
     images = load_pair_cache(PAIR_CACHE, len(pairs), params.data.height, params.data.width)
+    sequences = None
+    if t.mode != "stereo":  # Monodepth2's M / MS: the frames of the rendered sequences
+        paths = layout(params)
+        if paths.mono_split is None:  # the config accepts the modes only with rendered sequences
+            raise MsdepthError(f"train.mode {t.mode}: data.source {params.data.source} has no sequences")
+        stereo = t.mode == "mono_stereo"
+        sequences = training_sequences(paths.mono_split, paths.raw_root, t.source_frames, stereo)
     result = train_variant(
         params,
         variant,
@@ -63,6 +72,7 @@ def train(params: Params, variant: VariantArg, seed: SeedArg) -> None:
         seed=params.seed(seed),
         summary_path=Path("metrics") / "train" / f"{run}.json",
         timing_path=Path("logs") / "train" / f"{run}.json",
+        sequences=sequences,
     )
     resumed = f", resumed from epoch {result.resumed_from_epoch}" if result.resumed_from_epoch else ""
     log.info(

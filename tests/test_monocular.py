@@ -9,12 +9,13 @@ import torch
 
 from msdepth.appearance import build_appearance, terms
 from msdepth.config import params_from_dict
-from msdepth.geometry import intrinsics_matrix, translation_matrix
+from msdepth.geometry import intrinsics_matrix, stereo_pose, translation_matrix
 from msdepth.monocular import (
     IDENTITY_TIE_BREAK,
     MonocularLoss,
     minimum_reprojection,
     monocular_losses,
+    partner_pose,
     reprojection_error,
 )
 from msdepth.pose import PoseNet
@@ -206,3 +207,12 @@ def test_a_few_steps_of_m_and_ms_training_lower_the_loss(stereo: bool) -> None:
         totals.append(run)
     assert totals[0] == totals[1]
     assert totals[0][-1] < totals[0][0], totals[0]
+
+
+def test_partner_pose_per_target_side() -> None:
+    """A batch of left and right targets: each partner's pose is stereo_pose of its own side."""
+    target = torch.zeros(3, 3, 8, 8)
+    poses = partner_pose(torch.tensor([0, 1, 0]), target)
+    assert poses[:, 0, 3].tolist() == pytest.approx([-0.1, 0.1, -0.1])
+    assert torch.equal(poses[1], stereo_pose("r", 1)[0]) and torch.equal(poses[0], stereo_pose("l", 1)[0])
+    assert torch.equal(partner_pose("r", target), stereo_pose("r", 3))

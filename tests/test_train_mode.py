@@ -1,4 +1,4 @@
-"""train.mode and train.source_frames: stereo by default, the monocular modes refused until wired."""
+"""train.mode and train.source_frames: stereo by default, the monocular modes only with frame sequences."""
 
 from __future__ import annotations
 
@@ -30,3 +30,12 @@ def test_stereo_is_the_default_and_leaves_the_fingerprint_alone() -> None:
 def test_bad_values_are_one_config_error(train: dict, message: str) -> None:
     with pytest.raises(ConfigError, match=message.replace("(", r"\(").replace(")", r"\)")):
         params_from_dict({"train": train})
+
+
+@pytest.mark.parametrize("mode", ["mono", "mono_stereo"])
+def test_monocular_modes_need_rendered_sequences(mode: str) -> None:
+    sequences = {"synthetic": {"sequence_length": 3}}
+    train = params_from_dict({"data": sequences, "train": {"mode": mode, "source_frames": [-1, 1]}}).train
+    assert train.mode == mode
+    with pytest.raises(ConfigError, match="data.synthetic.sequence_length >= 3"):
+        params_from_dict({"data": {**sequences, "source": "kitti"}, "train": {"mode": mode}})

@@ -53,9 +53,17 @@ class SyntheticConfig:
     # Evaluation GT beyond this depth is left invalid (0), as KITTI's LiDAR-based GT has no
     # points past its range (~80 m); 0 keeps every rendered surface.
     gt_max_depth: float = 80.0
+    # > 0: each drive's training frames are sequences of this many frames, each one static scene
+    # seen by a rig moving forward (Monodepth2's monocular training); 0 = independent frames.
+    sequence_length: int = _added_later(0)
 
     def validate(self, key: str, params: Params) -> None:
         """Range checks of the ``key`` section; a ConfigError names the key."""
+        check(
+            self.sequence_length == 0 or self.sequence_length >= 3,
+            f"{key}.sequence_length",
+            f"must be 0 (none) or >= 3 (a frame with neighbours on both sides), got {self.sequence_length}",
+        )
         for name in ("drives", "train_pairs", "eval_frames"):
             check(getattr(self, name) >= 1, f"{key}.{name}", "must be >= 1")
         check(0 <= self.seed <= SEED_MAX, f"{key}.seed", f"must be in 0..{SEED_MAX}, got {self.seed}")
@@ -254,7 +262,7 @@ class TrainConfig:
     nproc: int = 1
     dist_timeout_s: float = _speed_only(600.0)  # a collective waiting longer (a dead rank) is an error
     # stereo = Monodepth (left-right pairs); mono / mono_stereo = Monodepth2's M / MS
-    # (msdepth.monocular), which need frame sequences the data stage does not write yet: refused.
+    # (msdepth.monocular), which need frame sequences: data.synthetic.sequence_length > 0.
     mode: Literal["stereo", "mono", "mono_stereo"] = _added_later("stereo")
     # Monodepth2's source frames of the monocular modes, as offsets from the target frame.
     source_frames: tuple[int, ...] = _added_later((-1, 1))
@@ -286,11 +294,12 @@ class TrainConfig:
             f"{key}.source_frames",
             f"applies to train.mode mono and mono_stereo only; keep [-1, 1] in stereo, got {shown(frames)}",
         )
+        sequences = params.data.source == "synthetic" and params.data.synthetic.sequence_length > 0
         check(
-            self.mode == "stereo",
+            self.mode == "stereo" or sequences,
             f"{key}.mode",
-            f"{shown(self.mode)} needs monocular frame sequences, which no data source writes yet; "
-            "only 'stereo' trains",
+            f"{shown(self.mode)} needs monocular frame sequences, which only data.source synthetic "
+            "writes, with data.synthetic.sequence_length >= 3; only 'stereo' trains here",
         )
         seeds = list(self.seeds)
         in_range = all(0 <= seed <= SEED_MAX for seed in seeds)

@@ -165,15 +165,25 @@ def monocular_losses(
     neighbours: dict[int, Tensor],
     k: Tensor,
     partner: Tensor | None = None,
-    side: str = "l",
+    side: str | Tensor = "l",
 ) -> dict[str, Tensor]:
     """One batch of Monodepth2's M (``partner`` None) or MS training: the target's disparities
     (``depth_net``: image -> sigmoid disparities, finest first), the pose of every neighbour (by
-    frame offset) from ``pose_net``, and in MS the stereo partner with :func:`stereo_pose`."""
+    frame offset) from ``pose_net``, and in MS the stereo partner with :func:`partner_pose`."""
     disps = depth_net(target)
     sources = list(neighbours.values())
     poses = [relative_pose(pose_net, target, source, offset) for offset, source in neighbours.items()]
     if partner is not None:
         sources.append(partner)
-        poses.append(stereo_pose(side, target.shape[0], dtype=target.dtype).to(target.device))
+        poses.append(partner_pose(side, target))
     return criterion(disps, target, sources, poses, k, torch.linalg.inv(k))
+
+
+def partner_pose(side: str | Tensor, target: Tensor) -> Tensor:
+    """(B, 4, 4) :func:`stereo_pose` of every target of the batch ``target``: ``side`` is ``l`` or
+    ``r`` for all, or per target a (B,) tensor, non-zero for a right camera's frame."""
+    batch = target.shape[0]
+    if isinstance(side, str):
+        return stereo_pose(side, batch, dtype=target.dtype).to(target.device)
+    left, right = (stereo_pose(s, batch, dtype=target.dtype).to(target.device) for s in ("l", "r"))
+    return torch.where(side.to(target.device).view(-1, 1, 1) != 0, right, left)

@@ -15,7 +15,7 @@ import random
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Callable
+from typing import Callable, Sequence
 
 import numpy as np
 import torch
@@ -27,16 +27,20 @@ from . import distributed
 from .appearance import build_appearance
 from .config import Params, fingerprint_fields, speed_only_train_keys
 from .data.pairs import StereoPairs
+from .data.sequences import SequenceFrames, SequenceSample
 from .distributed import Context, GlobalBatchSampler
 from .errors import MsdepthError
 from .io import write_json
 from .losses import MonodepthLoss
-from .model import MonodepthVGG, load_model, save_model  # noqa: F401 - load_model: imported from here too
+from .model import MAX_DISPARITY, MonodepthVGG, load_model, save_model  # noqa: F401 - load_model: imported from here too
+from .monocular import MonocularLoss, monocular_losses
+from .pose import PoseNet
 from .serialization import load_weights_file, save_weights_file
 
 log = logging.getLogger(__name__)
 
 LOSS_KEYS = ("total", "appearance", "smoothness", "lr_consistency")
+MONO_LOSS_KEYS = ("total", "appearance", "smoothness", "automask")  # train.mode mono and mono_stereo
 
 
 class TrainingError(MsdepthError):
@@ -86,6 +90,12 @@ def build_loss(params: Params, variant: str) -> MonodepthLoss:
     return MonodepthLoss(params.loss, build_appearance(params, variant))
 
 
+def build_monocular_loss(params: Params, variant: str) -> MonocularLoss:
+    """Monodepth2's loss (train.mode mono and mono_stereo) with ``variant``'s appearance term and
+    Monodepth2's own smoothness weight (1e-3, not loss.smoothness_weight: another normalisation)."""
+    return MonocularLoss(build_appearance(params, variant), padding_mode=params.loss.padding_mode)
+
+
 def learning_rate(base: float, step: int, total_steps: int) -> float:
     """Monodepth's piecewise-constant schedule: lr, lr/2 after 3/5 of the steps, lr/4 after 4/5."""
     boundaries = (int(3 / 5 * total_steps), int(4 / 5 * total_steps))
@@ -112,6 +122,11 @@ TRAINING_MODULES = (
     "warp.py",
     "serialization.py",
     "data/pairs.py",
+    "monocular.py",
+    "pose.py",
+    "geometry.py",
+    "resnet.py",
+    "data/sequences.py",
 )
 
 
@@ -201,15 +216,20 @@ class _Run:
     seed: int
     ctx: Context
     device: torch.device
-    dataset: StereoPairs
+    dataset: StereoPairs | SequenceFrames
     model: MonodepthVGG  # what is saved
     network: Callable[[torch.Tensor], list[torch.Tensor]]  # model, in DDP and/or compiled: what a step calls
-    criterion: MonodepthLoss
+    criterion: MonodepthLoss | MonocularLoss
     optimizer: torch.optim.Optimizer
     memory_format: torch.memory_format
     global_batch: int
     total_steps: int
     fingerprint: str
+    # train.mode mono / mono_stereo: the pose network (in the checkpoint, not the model file) and
+    # what a step calls (in DDP); None in stereo.
+    pose_net: PoseNet | None = None
+    pose_network: Callable[[torch.Tensor, torch.Tensor], tuple[torch.Tensor, torch.Tensor]] | None = None
+    loss_keys: tuple[str, ...] = LOSS_KEYS
     # Progress: from the checkpoint when resumed, then advanced by every epoch.
     start_epoch: int = 0
     step: int = 0
@@ -230,9 +250,12 @@ def train_variant(
     summary_path: str | os.PathLike | None = None,
     timing_path: str | os.PathLike | None = None,
     on_epoch: Callable[[int, MonodepthVGG, dict[str, float]], None] | None = None,
+    sequences: Sequence[SequenceSample] | None = None,
 ) -> TrainResult:
     """Train ``variant`` with training seed ``seed`` (default: the first of ``train.seeds``) on
-    ``pairs``; write the final weights to ``model_path``.
+    ``pairs``; write the final weights to ``model_path``. With ``train.mode`` mono or mono_stereo
+    it trains Monodepth2's way on ``sequences`` instead (``pairs`` unused; the pose network is
+    kept in the checkpoint, the model file holds the depth network as in stereo).
 
     ``cache`` holds the pairs already resized (:func:`msdepth.data.pairs.build_pair_cache`);
     without it every sample is decoded and resized from ``pairs``.
@@ -245,7 +268,7 @@ def train_variant(
     ``on_epoch(epoch, model, mean_losses)`` is called after each epoch trained in this call
     (epochs count from 1), e.g. to evaluate the network as it learns.
     """
-    run = _set_up(params, variant, pairs, params.train.seeds[0] if seed is None else seed, cache)
+    run = _set_up(params, variant, pairs, params.train.seeds[0] if seed is None else seed, cache, sequences)
     checkpoint_path = Path(checkpoint_path)
     _resume(run, checkpoint_path)
     live = _open_live(run, live_dir)
@@ -255,7 +278,7 @@ def train_variant(
         means = _train_epoch(run, epoch, progress)
         run.history.append({"epoch": epoch + 1, "step": run.step, **means})
         if live is not None:
-            _log_epoch(live, run.history[-1], params.train.learning_rate, run.total_steps)
+            _log_epoch(live, run.history[-1], params.train.learning_rate, run.total_steps, run.loss_keys)
         if run.ctx.main:
             _save_epoch_checkpoint(
                 run, checkpoint_path, epoch + 1, run.seconds_before + time.perf_counter() - started
@@ -269,7 +292,12 @@ def train_variant(
 
 
 def _set_up(
-    params: Params, variant: str, pairs: list[tuple[Path, Path]], seed: int, cache: np.ndarray | None
+    params: Params,
+    variant: str,
+    pairs: list[tuple[Path, Path]],
+    seed: int,
+    cache: np.ndarray | None,
+    sequences: Sequence[SequenceSample] | None = None,
 ) -> _Run:
     """Seed, threads, process group, data, network, loss and optimiser of a run from scratch."""
     train_cfg = params.train
@@ -277,17 +305,17 @@ def _set_up(
     seed_everything(seed)  # the same seed on every rank: identical initial weights
     ctx, device = distributed.setup(resolve_device(train_cfg.device), train_cfg.dist_timeout_s)
     configure_cudnn(train_cfg.cudnn_benchmark, device)
-    dataset = StereoPairs(
-        pairs, params.data.height, params.data.width, augment=train_cfg.augment, seed=seed, cache=cache
-    )
+    dataset = _dataset(params, pairs, seed, cache, sequences)
     model = build_model(params).to(device)
     memory_format = torch.channels_last if train_cfg.channels_last else torch.contiguous_format
     model = model.to(memory_format=memory_format)
     # DDP and the compiled wrapper share the parameters of `model`, which is what is saved.
     network = DistributedDataParallel(model) if ctx.world > 1 else model
     network = torch.compile(network) if train_cfg.compile else network
-    criterion = build_loss(params, variant).to(device)
-    trainable = list(model.parameters()) + list(criterion.parameters())
+    mono = train_cfg.mode != "stereo"
+    criterion = (build_monocular_loss if mono else build_loss)(params, variant).to(device)
+    pose_net = PoseNet().to(device) if mono else None  # after the loss: stereo's draws are unchanged
+    trainable = [*model.parameters(), *criterion.parameters(), *(pose_net.parameters() if pose_net else ())]
     optimizer = torch.optim.Adam(trainable, lr=train_cfg.learning_rate)
     global_batch = train_cfg.batch_size * ctx.world
     steps_per_epoch = len(dataset) // global_batch if len(dataset) >= global_batch else 1
@@ -313,8 +341,28 @@ def _set_up(
         memory_format=memory_format,
         global_batch=global_batch,
         total_steps=steps_per_epoch * train_cfg.epochs,
-        fingerprint=fingerprint(params, variant, len(pairs), seed),
+        fingerprint=fingerprint(params, variant, len(dataset), seed),
+        pose_net=pose_net,
+        pose_network=DistributedDataParallel(pose_net) if pose_net and ctx.world > 1 else pose_net,
+        loss_keys=MONO_LOSS_KEYS if mono else LOSS_KEYS,
     )
+
+
+def _dataset(
+    params: Params,
+    pairs: list[tuple[Path, Path]],
+    seed: int,
+    cache: np.ndarray | None,
+    sequences: Sequence[SequenceSample] | None,
+) -> StereoPairs | SequenceFrames:
+    """The training samples of ``params.train.mode``: stereo pairs, or frame sequences."""
+    t, h, w = params.train, params.data.height, params.data.width
+    if t.mode == "stereo":
+        return StereoPairs(pairs, h, w, augment=t.augment, seed=seed, cache=cache)
+    if sequences is None:
+        raise MsdepthError(f"train.mode {t.mode} trains on frame sequences, and none were given")
+    stereo = t.mode == "mono_stereo"
+    return SequenceFrames(sequences, t.source_frames, h, w, stereo=stereo, augment=t.augment, seed=seed)
 
 
 def _resume(run: _Run, checkpoint_path: Path) -> None:
@@ -328,6 +376,8 @@ def _resume(run: _Run, checkpoint_path: Path) -> None:
     run.model.load_state_dict(state["model"])
     run.criterion.load_state_dict(state["criterion"])
     run.optimizer.load_state_dict(state["optimizer"])
+    if run.pose_net is not None:
+        run.pose_net.load_state_dict(state["pose"])
     torch.set_rng_state(state["torch_rng"])
     run.start_epoch, run.step, run.history = state["epoch"], state["step"], state["history"]
     run.seconds_before = state.get("seconds", 0.0)
@@ -346,7 +396,7 @@ def _open_live(run: _Run, live_dir: str | os.PathLike | None):
     live = Live(str(live_dir), resume=False, save_dvc_exp=False, dvcyaml=False)
     live.step = 0
     for entry in run.history:
-        _log_epoch(live, entry, run.params.train.learning_rate, run.total_steps)
+        _log_epoch(live, entry, run.params.train.learning_rate, run.total_steps, run.loss_keys)
     return live
 
 
@@ -354,7 +404,7 @@ def _train_epoch(run: _Run, epoch: int, progress: bool) -> dict[str, float]:
     """One epoch (0-based) of optimiser steps; returns its mean losses, averaged over ranks."""
     train_cfg, dataset = run.params.train, run.dataset
     run.model.train()
-    sums = dict.fromkeys(LOSS_KEYS, 0.0)
+    sums = dict.fromkeys(run.loss_keys, 0.0)
     batches = 0
     unread: list[tuple[int, torch.Tensor, torch.Tensor]] = []  # (step, batch indices, loss values)
     sync_every = host_sync_interval(train_cfg.sync_every, run.device)
@@ -367,10 +417,8 @@ def _train_epoch(run: _Run, epoch: int, progress: bool) -> dict[str, float]:
     for batch in bar:
         for group in run.optimizer.param_groups:
             group["lr"] = learning_rate(train_cfg.learning_rate, run.step, run.total_steps)
-        left = batch["left"].to(run.device, non_blocking=True)
-        right = batch["right"].to(run.device, non_blocking=True)
-        losses = forward_and_loss(run.network, run.criterion, left, right, train_cfg.amp, run.memory_format)
-        unread.append((run.step, batch["index"], torch.stack([losses[k].detach() for k in LOSS_KEYS])))
+        losses = _batch_losses(run, batch)
+        unread.append((run.step, batch["index"], torch.stack([losses[k].detach() for k in run.loss_keys])))
         if len(unread) >= sync_every:  # before this step's update: with 1, a NaN never reaches the weights
             batches += _read_losses(unread, sums, dataset, run.variant, epoch)
             bar.set_postfix(loss=f"{sums['total'] / batches:.4f}")
@@ -385,20 +433,20 @@ def _train_epoch(run: _Run, epoch: int, progress: bool) -> dict[str, float]:
 
 def _save_epoch_checkpoint(run: _Run, path: Path, epoch: int, seconds: float) -> None:
     """The resume state after ``epoch`` (1-based) epochs, ``seconds`` of training in all."""
-    save_checkpoint(
-        path,
-        {
-            "fingerprint": run.fingerprint,
-            "epoch": epoch,
-            "step": run.step,
-            "history": run.history,
-            "model": run.model.state_dict(),
-            "criterion": run.criterion.state_dict(),
-            "optimizer": run.optimizer.state_dict(),
-            "torch_rng": torch.get_rng_state(),
-            "seconds": seconds,
-        },
-    )
+    state = {
+        "fingerprint": run.fingerprint,
+        "epoch": epoch,
+        "step": run.step,
+        "history": run.history,
+        "model": run.model.state_dict(),
+        "criterion": run.criterion.state_dict(),
+        "optimizer": run.optimizer.state_dict(),
+        "torch_rng": torch.get_rng_state(),
+        "seconds": seconds,
+    }
+    if run.pose_net is not None:
+        state["pose"] = run.pose_net.state_dict()
+    save_checkpoint(path, state)
 
 
 def _finish(
@@ -411,10 +459,11 @@ def _finish(
 ) -> TrainResult:
     """Check the replicas agree, save the model, leave the process group, write the summary files."""
     seconds = run.seconds_before + this_run
-    distributed.check_replicas([run.model, run.criterion], run.ctx)
+    distributed.check_replicas([run.model, run.criterion, *([run.pose_net] if run.pose_net else [])], run.ctx)
     if run.ctx.main:
         save_model(model_path, run.model, run.criterion, run.params, run.variant, run.seed)
     run.network = run.model  # drop the DDP wrapper: it holds the process group, which teardown() frees
+    run.pose_network = run.pose_net
     distributed.teardown()
     final = run.history[-1] if run.history else {}
     result = TrainResult(
@@ -424,7 +473,7 @@ def _finish(
         seconds=seconds,
         seconds_this_run=this_run,
         examples_per_second=run.step * run.global_batch / seconds if seconds > 0 and run.step else math.nan,
-        final_losses={k: final.get(k, math.nan) for k in LOSS_KEYS},
+        final_losses={k: final.get(k, math.nan) for k in run.loss_keys},
     )
     if run.ctx.main:
         record = asdict(result)
@@ -455,7 +504,7 @@ def host_sync_interval(sync_every: int, device: torch.device) -> int:
 def _read_losses(
     unread: list[tuple[int, torch.Tensor, torch.Tensor]],
     sums: dict[str, float],
-    dataset: StereoPairs,
+    dataset: StereoPairs | SequenceFrames,
     variant: str,
     epoch: int,
 ) -> int:
@@ -467,16 +516,40 @@ def _read_losses(
     rows = torch.stack([values for _, _, values in unread]).cpu().tolist()
     for (step, index, _), row in zip(unread, rows, strict=True):
         if not math.isfinite(row[0]):
-            names = [str(dataset.pairs[int(i)][0]) for i in index]
+            names = [dataset.name(int(i)) for i in index]
             raise TrainingError(
                 f"{variant}: non-finite loss {row[0]} at step {step} (epoch {epoch + 1}); batch: {names}. "
                 "No checkpoint was written for this epoch."
             )
-        for k, value in zip(LOSS_KEYS, row, strict=True):
+        for k, value in zip(sums, row, strict=True):  # sums: the run's loss keys, in their order
             sums[k] += value
     count = len(unread)
     unread.clear()
     return count
+
+
+def _batch_losses(run: _Run, batch: dict) -> dict[str, torch.Tensor]:
+    """The loss terms of one batch: Monodepth's stereo loss, or with a pose network Monodepth2's."""
+    amp, device = run.params.train.amp, run.device
+    if run.pose_network is None:
+        left = batch["left"].to(device, non_blocking=True)
+        right = batch["right"].to(device, non_blocking=True)
+        return forward_and_loss(run.network, run.criterion, left, right, amp, run.memory_format)
+
+    def depth(image: torch.Tensor) -> list[torch.Tensor]:
+        # The left-view channel of every scale as Monodepth2's sigmoid disparity in [0, 1].
+        with torch.autocast(image.device.type, dtype=torch.bfloat16, enabled=amp == "bf16"):
+            disps = run.network(image.contiguous(memory_format=run.memory_format))
+        return [d[:, :1].float() / MAX_DISPARITY for d in disps]
+
+    target = batch["target"].to(device, non_blocking=True)
+    sources = batch["sources"].to(device, non_blocking=True)
+    neighbours = {o: sources[:, j] for j, o in enumerate(run.params.train.source_frames)}
+    partner = batch["partner"].to(device, non_blocking=True) if "partner" in batch else None
+    k = batch["k"].to(device, non_blocking=True)
+    return monocular_losses(
+        depth, run.pose_network, run.criterion, target, neighbours, k, partner, batch["right"]
+    )
 
 
 def forward_and_loss(
@@ -494,9 +567,12 @@ def forward_and_loss(
     return criterion([d.float() for d in disps], left, right)
 
 
-def _log_epoch(live, entry: dict, base_lr: float, total_steps: int) -> None:
-    """One epoch's mean losses (a ``history`` entry) and the learning rate of its last step to dvclive."""
-    for k in LOSS_KEYS:
+def _log_epoch(
+    live, entry: dict, base_lr: float, total_steps: int, keys: tuple[str, ...] = LOSS_KEYS
+) -> None:
+    """One epoch's mean losses (a ``history`` entry, ``keys``) and the learning rate of its last
+    step to dvclive."""
+    for k in keys:
         live.log_metric(f"train/{k}", entry[k])
     live.log_metric("train/learning_rate", learning_rate(base_lr, entry["step"] - 1, total_steps))
     live.next_step()

@@ -11,6 +11,8 @@ from pathlib import Path
 
 from ..config import Params
 
+MONO_SPLIT = "train_mono_files.txt"  # below a synthetic root
+
 
 @dataclass(frozen=True)
 class Layout:
@@ -30,6 +32,9 @@ class Layout:
     eigen_split: Path
     eigen_benchmark_split: Path
     depth_annotated: Path
+    # Monodepth2's split of frames with both neighbours (msdepth.data.sequences), for train.mode
+    # mono and mono_stereo; the synthetic set writes it with data.synthetic.sequence_length.
+    mono_split: Path | None = None
 
 
 @dataclass(frozen=True)
@@ -77,6 +82,7 @@ def layout(params: Params) -> Layout:
             root / "eigen_test_files.txt",
             root / "eigen_benchmark_test_files.txt",
             root / "depth_annotated",
+            root / MONO_SPLIT,
         )
     k = params.data.kitti
     return Layout(

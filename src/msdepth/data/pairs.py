@@ -79,12 +79,17 @@ def augment(
     if u[0] < 0.5:
         left, right = torch.flip(right, dims=[-1]), torch.flip(left, dims=[-1])
     if u[1] < 0.5:
-        gamma = 0.8 + 0.4 * torch.rand(1, generator=gen)
-        brightness = 0.5 + 1.5 * torch.rand(1, generator=gen)
-        colour = (0.8 + 0.4 * torch.rand(3, 1, 1, generator=gen)) * brightness
-        left = (left**gamma * colour).clamp_(0, 1)
-        right = (right**gamma * colour).clamp_(0, 1)
+        left, right = colour_jitter([left, right], gen)
     return left, right
+
+
+def colour_jitter(images: list[torch.Tensor], gen: torch.Generator) -> list[torch.Tensor]:
+    """Monodepth's colour change, the same for every image: gamma U(0.8, 1.2), brightness x
+    U(0.5, 2.0), per-channel colour x U(0.8, 1.2), then clipped to [0, 1]."""
+    gamma = 0.8 + 0.4 * torch.rand(1, generator=gen)
+    brightness = 0.5 + 1.5 * torch.rand(1, generator=gen)
+    colour = (0.8 + 0.4 * torch.rand(3, 1, 1, generator=gen)) * brightness
+    return [(image**gamma * colour).clamp_(0, 1) for image in images]
 
 
 def check_same_size(
@@ -211,6 +216,10 @@ class StereoPairs(Dataset):
     def __len__(self) -> int:
         return len(self.pairs)
 
+    def name(self, i: int) -> str:
+        """The file that names sample ``i`` in error messages: its left image."""
+        return str(self.pairs[i][0])
+
     def __getitem__(self, i: int) -> dict:
         if self.cache is not None:
             left_img, right_img = self.cache[i, 0], self.cache[i, 1]
@@ -218,7 +227,13 @@ class StereoPairs(Dataset):
             left_img, right_img = read_resized_pair(*self.pairs[i], self.height, self.width)
         left, right = to_tensor(left_img), to_tensor(right_img)
         if self.augment:
-            seed = int(np.random.SeedSequence([self.seed, self.epoch, i]).generate_state(1)[0])
-            gen = torch.Generator().manual_seed(seed)
-            left, right = augment(left, right, gen)
+            left, right = augment(left, right, sample_generator(self.seed, self.epoch, i))
         return {"left": left, "right": right, "index": i}
+
+
+def sample_generator(seed: int, epoch: int, index: int) -> torch.Generator:
+    """The augmentation generator of sample ``index`` in ``epoch``: the same whatever the number of
+    loader workers, and in a resumed run."""
+    return torch.Generator().manual_seed(
+        int(np.random.SeedSequence([seed, epoch, index]).generate_state(1)[0])
+    )

@@ -13,10 +13,10 @@ from .shading import shade_view
 from .street import build_scene
 from .velodyne_sim import Scan, scan_rng, simulate
 
-TRAIN, EVAL = (
-    0,
-    1,
-)  # seed-stream tags (render_frame's split): training and evaluation frames never share a seed
+# Seed-stream tags (render_frame's split): training frames, evaluation frames and training
+# sequences (one scene per sequence, sequence_frame) never share a seed.
+TRAIN, EVAL, SEQUENCE = 0, 1, 2
+SEQUENCE_STEP = 0.8  # m the rig moves forward between frames of a sequence (KITTI: ~1 m at 10 Hz)
 _NOC_TOLERANCE = 0.5  # px; left/right disparity agreement for a pixel to count as non-occluded
 
 
@@ -60,10 +60,12 @@ def non_occluded(disp: np.ndarray, disp_right: np.ndarray, tolerance: float = _N
     return inside & (disp >= lo) & (disp <= hi)
 
 
-def _rois(scene: Scene, cam: Camera, face: np.ndarray) -> list[tuple[str, int, int, int, int]]:
-    """Boxes of the scene's ROIs in the left view, dropping tiny and mostly hidden ones."""
+def _rois(
+    scene: Scene, cam: Camera, face: np.ndarray, origin: np.ndarray
+) -> list[tuple[str, int, int, int, int]]:
+    """Boxes of the scene's ROIs in the left view (camera at ``origin``), dropping tiny and mostly
+    hidden ones."""
     boxes = []
-    origin = np.zeros(3)
     for roi in scene.rois:
         u, v, z = project(roi.corners, scene.rot, origin, cam)
         if (z <= 0.1).any():
@@ -97,11 +99,40 @@ def render_frame(seed: int, split: int, index: int, height: int, width: int, lid
     """
     rng = frame_rng(seed, split, index)
     scene = build_scene(rng)
+    frame = view_scene(scene, height, width, 0.0, rng)
+    if lidar:
+        frame.scan = simulate(scene, frame.focal, width, scan_rng(seed, split, index))
+    return frame
+
+
+def sequence_frame(
+    seed: int, run: tuple[int, int], position: int, height: int, width: int, step: float = SEQUENCE_STEP
+) -> Frame:
+    """Frame ``position`` (0, 1, ...) of the training sequence ``run`` (drive, sequence in the
+    drive): one static scene, the rig moved ``position * step`` metres along its optical axis, its
+    own sensor noise per frame (:func:`sequence_pose` is the left camera's pose)."""
+    scene = build_scene(np.random.default_rng([seed, SEQUENCE, *run]))
+    noise = np.random.default_rng([seed, SEQUENCE, *run, position + 1])  # + 1: never the scene's seed
+    return view_scene(scene, height, width, position * step, noise)
+
+
+def sequence_pose(rotation: np.ndarray, forward: float) -> np.ndarray:
+    """The (4, 4) camera-to-world pose of the left camera ``forward`` metres along its optical axis
+    (world of the scene: x right, y down, z forward; the first frame's camera at the origin)."""
+    pose = np.eye(4)
+    pose[:3, :3] = rotation
+    pose[:3, 3] = rotation @ np.array([0.0, 0.0, forward])
+    return pose
+
+
+def view_scene(scene: Scene, height: int, width: int, forward: float, rng: np.random.Generator) -> Frame:
+    """The stereo frame of ``scene`` seen by the rig ``forward`` metres along its optical axis,
+    sensor noise drawn from ``rng``; no LiDAR scan."""
     cam = camera(height, width, scene.rot)
     f = cam.f
     views, depths, faces = [], [], []
     for offset in (0.0, KITTI_BASELINE):
-        origin = scene.rot @ np.array([offset, 0.0, 0.0])
+        origin = scene.rot @ np.array([offset, 0.0, forward])
         depth, face = trace(scene, cam, origin)
         views.append(shade_view(scene, cam, origin, depth, face))
         depths.append(depth)
@@ -119,9 +150,6 @@ def render_frame(seed: int, split: int, index: int, height: int, width: int, lid
     present = np.unique(inst[inst > 0])
     lookup = np.zeros(int(inst.max()) + 1, np.uint8)
     lookup[present] = np.arange(1, present.size + 1)  # renumber visible cars 1..n
-    scan = None
-    if lidar:
-        scan = simulate(scene, f, width, scan_rng(seed, split, index))
     return Frame(
         left=images[0],
         right=images[1],
@@ -130,11 +158,10 @@ def render_frame(seed: int, split: int, index: int, height: int, width: int, lid
         noc=non_occluded(disp, disp_right),
         obj_map=lookup[inst],
         class_map=_class_map(scene, faces[0]),
-        rois=_rois(scene, cam, faces[0]),
+        rois=_rois(scene, cam, faces[0], scene.rot @ np.array([0.0, 0.0, forward])),
         rotation=scene.rot,
         cam_height=scene.cam_height,
         focal=f,
-        scan=scan,
     )
 
 

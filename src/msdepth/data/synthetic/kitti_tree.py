@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import dataclasses
 import multiprocessing
 import os
 import shutil
@@ -13,7 +12,7 @@ from typing import Any, Callable, Iterable
 import numpy as np
 import pandas as pd
 
-from ...config import SyntheticConfig
+from ...config import SyntheticConfig, fingerprint_fields
 from ...io import atomic_path, atomic_temps, write_json, write_png, write_text
 from ..kitti import (
     KITTI_BASELINE,
@@ -24,8 +23,9 @@ from ..kitti import (
     write_split,
     write_velodyne,
 )
+from ..layout import MONO_SPLIT
 from ..roots import RENDERING, SUMMARY, check_synthetic_root
-from .frame import EVAL, TRAIN, render_frame
+from .frame import EVAL, SEQUENCE_STEP, TRAIN, Frame, render_frame, sequence_frame, sequence_pose
 from .raycast import focal_for_width
 from .velodyne_sim import calib_velo_to_cam_text
 
@@ -36,6 +36,9 @@ EVAL_DATE, EVAL_DRIVE = DATES[0], 9000
 EIGEN_TEST_FILES = "eigen_test_files.txt"
 EVAL_GT_OCC = "disp_occ_0"
 EVAL_GT_NOC = "disp_noc_0"
+# With data.synthetic.sequence_length: Monodepth2's split of the frames with both neighbours
+# (``drive frame side``, msdepth.data.sequences), and each drive's camera 02 poses.
+POSES = "poses.txt"
 
 
 def calib_text(height: int, width: int, raw: bool = False) -> str:
@@ -71,17 +74,34 @@ def calib_text(height: int, width: int, raw: bool = False) -> str:
     return text
 
 
-def train_drive(cfg: SyntheticConfig, index: int) -> tuple[str, int]:
-    """``(drive folder relative to raw/, frame number)`` of training pair ``index``."""
+def drive_position(cfg: SyntheticConfig, index: int) -> tuple[int, int]:
+    """``(drive index from 0, frame number in the drive)`` of training pair ``index``."""
     drive = index * cfg.drives // cfg.train_pairs
     first = -(-drive * cfg.train_pairs // cfg.drives)  # first index mapped to this drive
+    return drive, index - first
+
+
+def train_drive(cfg: SyntheticConfig, index: int) -> tuple[str, int]:
+    """``(drive folder relative to raw/, frame number)`` of training pair ``index``."""
+    drive, number = drive_position(cfg, index)
     date = DATES[drive % len(DATES)]
-    return f"{date}/{date}_drive_{drive + 1:04d}_sync", index - first
+    return f"{date}/{date}_drive_{drive + 1:04d}_sync", number
 
 
-def _write_train(job: tuple[SyntheticConfig, str, int]) -> tuple[str, str]:
+def _train_frame(cfg: SyntheticConfig, index: int) -> Frame:
+    """Training pair ``index``: an independent frame, or with ``sequence_length`` frame
+    ``number % sequence_length`` of its drive's sequence ``number // sequence_length``."""
+    if not cfg.sequence_length:
+        return render_frame(cfg.seed, TRAIN, index, cfg.height, cfg.width)
+    drive, number = drive_position(cfg, index)
+    run, position = (drive, number // cfg.sequence_length), number % cfg.sequence_length
+    return sequence_frame(cfg.seed, run, position, cfg.height, cfg.width)
+
+
+def _write_train(job: tuple[SyntheticConfig, str, int]) -> tuple[str, str, np.ndarray]:
+    """Write training pair ``index``; returns its two paths and its scene's camera rotation."""
     cfg, root, index = job
-    frame = render_frame(cfg.seed, TRAIN, index, cfg.height, cfg.width)
+    frame = _train_frame(cfg, index)
     drive, number = train_drive(cfg, index)
     name = f"{number:010d}.png"
     raw = Path(root) / "raw"
@@ -89,7 +109,7 @@ def _write_train(job: tuple[SyntheticConfig, str, int]) -> tuple[str, str]:
     write_png(raw / left, frame.left)
     write_png(raw / right, frame.right)
     write_disparity(raw / drive / "disp_02" / "data" / name, frame.disp)
-    return left, right
+    return left, right, frame.rotation
 
 
 def within_range(disp: np.ndarray, focal: float, max_depth: float) -> np.ndarray:
@@ -204,13 +224,14 @@ def _clear(root: Path) -> None:
     A killed render's temp files go too: in raw/ and kitti2015/ with them, at the root by name."""
     check_synthetic_root(root)
     write_text(root / RENDERING, "a synthetic render is under way or was interrupted\n")
-    for name in (SUMMARY, RENDERING, "train_files.txt", "rois.csv", EIGEN_TEST_FILES):
+    for name in (SUMMARY, RENDERING, "train_files.txt", "rois.csv", EIGEN_TEST_FILES, MONO_SPLIT):
         for tmp in atomic_temps(root / name):  # left by a render killed mid-write
             tmp.unlink()
     for sub in ("raw", "kitti2015"):
         if (root / sub).exists():
             shutil.rmtree(root / sub)
     (root / EIGEN_TEST_FILES).unlink(missing_ok=True)
+    (root / MONO_SPLIT).unlink(missing_ok=True)
 
 
 def _write_calibration(cfg: SyntheticConfig, root: Path, lidar: bool) -> None:
@@ -234,9 +255,11 @@ def _render(
     with tqdm(
         total=cfg.train_pairs + cfg.eval_frames, desc="synthetic", unit="frame", disable=not progress
     ) as bar:
-        pairs = _run(_write_train, [(cfg, key, i) for i in range(cfg.train_pairs)], workers, bar)
+        trains = _run(_write_train, [(cfg, key, i) for i in range(cfg.train_pairs)], workers, bar)
         evals = _run(_write_eval, [(cfg, key, i, lidar) for i in range(cfg.eval_frames)], workers, bar)
-    return pairs, evals
+    if cfg.sequence_length:
+        _write_sequences(cfg, root, [rotation for _, _, rotation in trains])
+    return [(left, right) for left, right, _ in trains], evals
 
 
 def _write_lists(
@@ -264,7 +287,7 @@ def _write_lists(
             ],
         )
     return {
-        "config": dataclasses.asdict(cfg),
+        "config": fingerprint_fields(cfg),  # sequence_length only when set: old summaries stay
         "focal_px": focal_for_width(cfg.width),
         "baseline_m": KITTI_BASELINE,
         "train_pairs": len(pairs),
@@ -272,3 +295,23 @@ def _write_lists(
         "drives": len({train_drive(cfg, i)[0] for i in range(cfg.train_pairs)}),
         "rois": {c: int((rois["class"] == c).sum()) for c in ("car", "windshield", "glass", "sign")},
     }
+
+
+def _write_sequences(cfg: SyntheticConfig, root: Path, rotations: list[np.ndarray]) -> None:
+    """Each drive's camera 02 poses (:data:`POSES`: KITTI odometry's format, a 3x4 camera-to-world
+    matrix per frame, row-major; each sequence in its own scene's world, ``rotations[i]`` the
+    scene's of training pair ``i``) and :data:`MONO_SPLIT`: both sides of every frame with a
+    neighbour on each side in its sequence."""
+    frames = [train_drive(cfg, i) for i in range(cfg.train_pairs)]
+    present = set(frames)
+    poses: dict[str, list[str]] = {}
+    lines = []
+    for (drive, number), rotation in zip(frames, rotations, strict=True):
+        position = number % cfg.sequence_length
+        pose = sequence_pose(rotation, position * SEQUENCE_STEP)
+        poses.setdefault(drive, []).append(" ".join(f"{v:.12e}" for v in pose[:3].ravel()) + "\n")
+        if 0 < position < cfg.sequence_length - 1 and (drive, number + 1) in present:
+            lines += [f"{drive} {number} l\n", f"{drive} {number} r\n"]
+    for drive, rows in poses.items():
+        write_text(root / "raw" / drive / POSES, "".join(rows))
+    write_text(root / MONO_SPLIT, "".join(lines))
