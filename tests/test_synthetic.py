@@ -237,8 +237,10 @@ def test_glass_breaks_the_photometric_assumption(root: Path) -> None:
         road.append(err[valid & bottom & ~cars & ~shiny])
     glass_err, road_err, body_err = (np.concatenate(e).mean() for e in (glass, road, body))
     assert np.concatenate(glass).size > 500
-    assert glass_err > 2.0 * road_err
-    assert glass_err > 1.5 * body_err
+    # Dielectric glass (F0 ~ 0.04, docs/glass.md) at seed 11: 0.0174 against road 0.0110 and car
+    # body 0.0134 (the former metal-like F0 0.2-0.5 gave more than twice the road's).
+    assert glass_err > 1.4 * road_err
+    assert glass_err > 1.2 * body_err
 
 
 def test_layout_varies_across_frames(root: Path) -> None:

@@ -27,7 +27,7 @@ projection, first hits), :mod:`.shading` (a material's look, a table from materi
 truth) and :mod:`.kitti_tree` (writing the KITTI layout; :func:`generate`).
 """
 
-from .frame import EVAL, TRAIN, Frame, frame_rng, non_occluded, render_frame
+from .frame import EVAL, TRAIN, Frame, frame_rng, glass_pixels, non_occluded, render_frame
 from .kitti_tree import (
     DATES,
     EIGEN_TEST_FILES,
@@ -58,6 +58,7 @@ __all__ = [
     "focal_for_width",
     "frame_rng",
     "generate",
+    "glass_pixels",
     "non_occluded",
     "render_frame",
     "train_drive",

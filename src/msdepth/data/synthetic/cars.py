@@ -6,7 +6,7 @@ from typing import Any
 
 import numpy as np
 
-from .scene import GLASS, PAINT, TYRE, Roi, Scene, box_planes, place, yaw_matrix
+from .scene import GLASS, GLASS_IOR, PAINT, TYRE, Roi, Scene, box_planes, place, yaw_matrix
 
 _CAR_COLOURS = [
     (0.85, 0.85, 0.85),
@@ -66,7 +66,8 @@ def _add_car(
     rot = yaw_matrix(yaw)
     paint = np.array(_CAR_COLOURS[int(rng.integers(len(_CAR_COLOURS)))]) * u(0.85, 1.1)
     tint = np.array([0.03, 0.035, 0.04]) * u(0.7, 2.0)
-    glass_prm = (u(0.25, 0.5), u(0.8, 1.6))  # (Fresnel F0 of tinted glass, interior depth m)
+    # (index of refraction, interior depth m); one draw each, as many as ever (docs/glass.md)
+    glass_prm = (u(*GLASS_IOR), u(0.8, 1.6))
     clear, top = u(0.22, 0.3), u(0.85, 1.05)
     roof = top + u(0.42, 0.58)
     half_l = length / 2

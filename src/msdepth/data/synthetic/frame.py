@@ -8,7 +8,7 @@ import numpy as np
 
 from ..kitti import CLASS_BITS, KITTI_BASELINE
 from .raycast import Camera, camera, project, trace
-from .scene import Scene
+from .scene import GLASS, Scene
 from .shading import shade_view
 from .street import build_scene
 from .velodyne_sim import Scan, scan_rng, simulate
@@ -163,3 +163,15 @@ def view_scene(scene: Scene, height: int, width: int, forward: float, rng: np.ra
         cam_height=scene.cam_height,
         focal=f,
     )
+
+
+def glass_pixels(seed: int, split: int, index: int, height: int, width: int) -> tuple[np.ndarray, np.ndarray]:
+    """Boolean (H, W) masks of the pixels whose first surface is glass, in the left and right view
+    of frame ``index`` of ``split``: the only pixels the glass model may change (docs/glass.md)."""
+    scene = build_scene(frame_rng(seed, split, index))
+    cam = camera(height, width, scene.rot)
+    masks = []
+    for offset in (0.0, KITTI_BASELINE):
+        _, face = trace(scene, cam, scene.rot @ np.array([offset, 0.0, 0.0]))
+        masks.append((face >= 0) & (scene.arrays["mat"][np.maximum(face, 0)] == GLASS))
+    return masks[0], masks[1]

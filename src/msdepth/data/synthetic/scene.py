@@ -15,6 +15,15 @@ import numpy as np
 # Material ids.
 ROAD, WALL, FOLIAGE, PAINT, GLASS, TYRE, POLE, SIGN, METAL = range(9)
 
+# Index of refraction of glass (car glass and shop windows), drawn uniformly per pane: laminated
+# windshields' PVB interlayer n ~ 1.48 to soda-lime float glass n_D ~ 1.52-1.53 (docs/glass.md).
+GLASS_IOR = (1.48, 1.53)
+
+
+def fresnel_f0(ior: np.ndarray | float) -> np.ndarray | float:
+    """Normal-incidence reflectance of an uncoated dielectric in air: ((n - 1) / (n + 1))**2."""
+    return ((ior - 1) / (ior + 1)) ** 2
+
 
 @dataclass
 class Roi:

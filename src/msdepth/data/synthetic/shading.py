@@ -8,7 +8,7 @@ from typing import Callable
 import numpy as np
 
 from .raycast import Camera
-from .scene import FOLIAGE, GLASS, METAL, PAINT, POLE, ROAD, SIGN, TYRE, WALL, Scene
+from .scene import FOLIAGE, GLASS, METAL, PAINT, POLE, ROAD, SIGN, TYRE, WALL, Scene, fresnel_f0
 
 # A fixed tile of value noise, sampled with world/surface coordinates (plus a per-frame shift) so
 # that both views see the same texture. Its own fixed seed keeps it independent of the frame RNG.
@@ -225,8 +225,11 @@ def _shade_sign(scene: Scene, h: _Surface) -> _Look:
 
 
 def _shade_glass(scene: Scene, h: _Surface) -> _Look:
-    """Tinted glass: a dark interior behind it, mixed (Fresnel) with the reflected environment."""
-    fres, env = _reflection(scene, h, h["prm"][:, 0])
+    """Tinted glass: a dark interior behind it, mixed (Fresnel) with the reflected environment.
+
+    ``prm[0]`` is the pane's index of refraction; Schlick's F0 is the dielectric's (~0.04).
+    """
+    fres, env = _reflection(scene, h, fresnel_f0(h["prm"][:, 0]))
     # The interior sits behind the glass: sample it further along the ray.
     q = h["P"] + h["d"] * h["prm"][:, 1:2]
     inside = _fbm(q[:, 0] * 1.7 + q[:, 1] * 1.1, q[:, 2] * 1.7 - q[:, 1] * 0.9, h["fp"], 1.5, 3)

@@ -14,6 +14,7 @@ from .cars import add_cars
 from .scene import (
     FOLIAGE,
     GLASS,
+    GLASS_IOR,
     METAL,
     POLE,
     ROAD,
@@ -163,7 +164,7 @@ def _add_facades(
             top, bottom = cam_h - u(2.2, 2.8), cam_h - u(0.3, 0.6)
             xs = sorted((s * (d - 0.04), s * d))
             tint = hsv(u(0, 1), u(0.1, 0.5), u(0.1, 0.35))
-            glass = dict(material=GLASS, origin=ground, colour=tint, params=(u(0.2, 0.45), u(1.5, 4.0)))
+            glass = dict(material=GLASS, origin=ground, colour=tint, params=(u(*GLASS_IOR), u(1.5, 4.0)))
             ids = box((xs[0], top, z0), (xs[1], bottom, z1), lambda n: glass)  # noqa: B023 - box() calls it at once
             front = ids[0] if s > 0 else ids[1]  # the face looking at the street
             x = s * (d - 0.04)
