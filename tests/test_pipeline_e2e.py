@@ -405,22 +405,7 @@ def test_train_stage_tracks_every_train_key_but_the_seeds():
         if isinstance(p, str) and p.startswith("train.")
     }
     expected = {f"train.{f.name}" for f in dataclasses.fields(TrainConfig)} - {"train.seeds"}
-    # Keys validation refuses away from their default (the monocular modes, not wired to a data
-    # source yet) cannot change a run, so they are listed when they can.
-    assert listed == expected - set(NOT_YET_TRAINED)
-
-
-NOT_YET_TRAINED = {"train.mode": "mono", "train.source_frames": [-2, 1]}  # value refused
-
-
-def test_keys_not_yet_trained_are_refused_away_from_their_default():
-    from msdepth.config import params_from_dict
-    from msdepth.errors import ConfigError
-
-    for key, value in NOT_YET_TRAINED.items():
-        section, name = key.split(".")
-        with pytest.raises(ConfigError, match=f"{key}: "):
-            params_from_dict({section: {name: value}})
+    assert listed == expected
 
 
 def test_torchrun_launcher_from_dvc_repro(repo: Path):

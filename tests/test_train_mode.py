@@ -19,8 +19,14 @@ def test_stereo_is_the_default_and_leaves_the_fingerprint_alone() -> None:
 @pytest.mark.parametrize(
     ("train", "message"),
     [
-        ({"mode": "mono"}, "train.mode: 'mono' needs monocular frame sequences"),
-        ({"mode": "mono_stereo"}, "train.mode: 'mono_stereo' needs monocular frame sequences"),
+        (
+            {"mode": "mono"},
+            "train.mode: 'mono' trains on frame sequences: set data.synthetic.seq",
+        ),
+        (
+            {"mode": "mono_stereo"},
+            "train.mode: 'mono_stereo' trains on frame sequences: set data",
+        ),
         ({"mode": "stereo_mono"}, "train.mode: 'stereo_mono' is not one of"),
         ({"source_frames": [-1, 0, 1]}, "train.source_frames: must be distinct non-zero offsets"),
         ({"source_frames": [1, 1]}, "train.source_frames: must be distinct non-zero offsets"),

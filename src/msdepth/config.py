@@ -298,8 +298,9 @@ class TrainConfig:
         check(
             self.mode == "stereo" or sequences,
             f"{key}.mode",
-            f"{shown(self.mode)} needs monocular frame sequences, which only data.source synthetic "
-            "writes, with data.synthetic.sequence_length >= 3; only 'stereo' trains here",
+            f"{shown(self.mode)} trains on frame sequences: set data.synthetic.sequence_length >= 3 "
+            f"(data.source synthetic renders them; here data.source is {params.data.source} and "
+            f"sequence_length {params.data.synthetic.sequence_length}), or train.mode stereo",
         )
         seeds = list(self.seeds)
         in_range = all(0 <= seed <= SEED_MAX for seed in seeds)
