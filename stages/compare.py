@@ -16,7 +16,9 @@ from msdepth.compare import (
     group_metrics,
     image_dependence,
     load_suite_metrics,
+    load_training_summaries,
     load_unit_tables,
+    monocular_data,
     optimum_data,
     paired_statistics,
     seed_spread,
@@ -66,6 +68,7 @@ def compare(params: Params) -> None:
         missing_baselines=missing,
         optimum=optimum_section(params, groups, compared),
         settings=variant_settings(params),
+        monocular=monocular_data(suites["full"], load_training_summaries("metrics", runs), groups, caps[0]),
     )
     result, md = build_comparison(comparison)
     means = mean_headline(suites, groups)

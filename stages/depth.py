@@ -23,13 +23,14 @@ from msdepth.pipeline import (
 
 
 def depth(params: Params, variant: VariantArg, seed: SeedArg) -> None:
-    """Disparities (fraction of width) -> metric depth at each frame's GT resolution."""
+    """Disparities (fraction of width) -> depth at each frame's GT resolution: metric, or a
+    monocular run's (train.mode mono | mono_stereo) up to scale."""
     run = checked_run(params, variant, seed)
     path = disparities_path(run)
     if not path.exists():
         raise DataError(f"{path}: no disparities for run {run!r}")
     frames = load_frames(read_eval_index(EVAL_FRAMES))
-    save_npz(depth_path(run), **depth_maps(np.load(path), frames))
+    save_npz(depth_path(run), **depth_maps(np.load(path), frames, monocular=params.train.monocular))
 
 
 if __name__ == "__main__":

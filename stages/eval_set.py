@@ -40,7 +40,7 @@ def eval_set(params: Params, set_name: SetArg, variant: VariantArg, seed: SeedAr
     disp = predict_disparities(
         model, [Path(p) for p in index["left"]], meta["height"], meta["width"], params.eval.post_process
     )
-    score_set(params, name, run, depth_maps(disp, frames), frames)
+    score_set(params, name, run, depth_maps(disp, frames, monocular=params.train.monocular), frames)
 
 
 if __name__ == "__main__":

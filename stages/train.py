@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import logging
 import os
 import sys
@@ -12,6 +13,7 @@ from msdepth.data.layout import layout
 from msdepth.data.pairs import load_pair_cache, load_pair_list
 from msdepth.data.sequences import training_sequences
 from msdepth.errors import MsdepthError
+from msdepth.io import write_json
 from msdepth.pipeline import (
     CACHED_PAIRS,
     PAIR_CACHE,
@@ -74,6 +76,8 @@ def train(params: Params, variant: VariantArg, seed: SeedArg) -> None:
         timing_path=Path("logs") / "train" / f"{run}.json",
         sequences=sequences,
     )
+    if sequences is not None and int(os.environ.get("RANK", "0")) == 0:
+        add_pose_metrics(params, run, Path("metrics") / "train" / f"{run}.json")
     resumed = f", resumed from epoch {result.resumed_from_epoch}" if result.resumed_from_epoch else ""
     log.info(
         "train %s: %d steps%s; %.0f s of training, %.0f s in this run (%.1f examples/s)",
@@ -83,6 +87,30 @@ def train(params: Params, variant: VariantArg, seed: SeedArg) -> None:
         result.seconds,
         result.seconds_this_run,
         result.examples_per_second,
+    )
+
+
+def add_pose_metrics(params: Params, run: str, summary_path: Path) -> None:
+    """A monocular run's pose ATE on the rendered sequences (msdepth.pose_eval), added to its
+    training summary as ``pose``."""
+    from msdepth.pose_eval import sequence_ates
+    from msdepth.train import trained_pose_net
+
+    net = trained_pose_net(params, checkpoint_path(run))
+    pose = sequence_ates(
+        net,
+        layout(params).raw_root,
+        params.data.synthetic.sequence_length,
+        params.data.height,
+        params.data.width,
+    )
+    write_json(summary_path, {**json.loads(summary_path.read_text()), "pose": pose})
+    log.info(
+        "train %s: pose ATE %.4f ± %.4f over %d snippets",
+        run,
+        pose["ate_mean"],
+        pose["ate_std"],
+        pose["snippets"],
     )
 
 

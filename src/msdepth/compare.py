@@ -52,6 +52,13 @@ def load_suite_metrics(
     return _load_runs(metrics_dir, suites, runs, ".json", lambda p: json.loads(p.read_text()), "metrics")
 
 
+def load_training_summaries(metrics_dir: str | os.PathLike, runs: Sequence[str]) -> dict[str, dict]:
+    """``{run: its training summary}`` (``metrics_dir/train/<run>.json``) of the runs that have one
+    (the baselines were not trained)."""
+    paths = {r: Path(metrics_dir) / "train" / f"{r}.json" for r in runs}
+    return {r: json.loads(p.read_text()) for r, p in paths.items() if p.is_file()}
+
+
 # Per-unit tables of the suites that are compared statistically, and the column pairing units.
 UNIT_KEYS = {"full": ["frame"], "roi": ["roi"]}
 
@@ -410,6 +417,7 @@ JSON_FIELDS = (
     "rois_skipped",
     "roi_masks",
     "optimum",
+    "monocular",
 )
 
 
@@ -438,6 +446,7 @@ class Comparison:
     mask_counts: dict[str, int] | None = None  # the ROIs with exact masks and those excluded
     optimum: dict | None = None  # :func:`optimum_data`: the losses' own optimum, no network
     settings: dict[str, dict] | None = None  # :func:`variant_settings`: each variant's params section
+    monocular: dict[str, dict] | None = None  # :func:`monocular_data`: scale ratios and pose ATE
 
     @property
     def runs(self) -> list[str]:
@@ -506,6 +515,7 @@ def comparison_data(
     missing_baselines: dict[str, str] | None = None,
     optimum: dict | None = None,
     settings: dict[str, dict] | None = None,
+    monocular: dict[str, dict] | None = None,
 ) -> Comparison:
     """What ``compare.md`` shows, as a :class:`Comparison` (best variant per column in bold).
 
@@ -543,6 +553,7 @@ def comparison_data(
         mask_counts=counts,
         optimum=optimum,
         settings=settings,
+        monocular=monocular,
     )
 
 
@@ -633,6 +644,59 @@ def _dependence_lines(c: Comparison) -> list[str]:
         "its numbers say nothing about its loss.",
         "",
         _table(["run", "variation", "corr. with prior", "verdict"], rows),
+        "",
+    ]
+
+
+def monocular_data(
+    full: dict[str, dict], training: dict[str, dict], groups: dict[str, Sequence[str]], cap: str
+) -> dict[str, dict] | None:
+    """Per variant whose runs were trained monocularly (their full-image summaries carry
+    ``median_scaling``): the per-image scale ratios' median and spread (std / median) at ``cap``
+    and, from the training summaries (``training``: run -> ``metrics/train/<run>.json``), the pose
+    ATE on the training sequences, each the mean over the group's runs. None when no run is."""
+    out = {}
+    for group, runs in groups.items():
+        scaling = [full[r][cap].get("median_scaling") for r in runs if r in full]
+        if not scaling or any(s is None for s in scaling):
+            continue
+        entry = {
+            "runs": len(runs),
+            "scale_ratio": float(np.mean([s["ratio_median"] for s in scaling])),
+            "scale_spread": float(np.mean([s["ratio_std_over_median"] for s in scaling])),
+        }
+        poses = [training.get(r, {}).get("pose") for r in runs]
+        if all(p is not None for p in poses):
+            entry["pose_ate"] = float(np.mean([p["ate_mean"] for p in poses]))
+            entry["pose_ate_std"] = float(np.mean([p["ate_std"] for p in poses]))
+        out[group] = entry
+    return out or None
+
+
+def _monocular_lines(c: Comparison) -> list[str]:
+    """The monocular runs' median-scaling ratios and pose ATE (none for stereo runs)."""
+    if not c.monocular:
+        return []
+    rows = [
+        [
+            c.settings_label(g),
+            _fmt(m["scale_ratio"]),
+            _fmt(m["scale_spread"]),
+            _fmt(m.get("pose_ate")),
+            _fmt(m.get("pose_ate_std")),
+        ]
+        for g, m in c.monocular.items()
+    ]
+    return [
+        "## Monocular training: scale and pose",
+        "",
+        "Trained with train.mode mono or mono_stereo (Monodepth2's M, MS): depth is known up to scale, "
+        "so every prediction is median-scaled per image (median GT / median prediction) before every "
+        "suite. Ratio: the median of the per-image ratios; spread: their std / median (0 for a "
+        "consistent scale). Pose ATE: Monodepth2's over 5-frame snippets of the training sequences "
+        "(scale-aligned, in metres), mean and std over snippets. Means over each variant's seeds.",
+        "",
+        _table(["run", "scale ratio", "ratio spread", "pose ATE", "ATE std"], rows),
         "",
     ]
 
@@ -869,6 +933,7 @@ SECTIONS: tuple[Callable[[Comparison], list[str]], ...] = (
     _header_lines,
     _statistics_lines,
     _dependence_lines,
+    _monocular_lines,
     _rois_skipped_lines,
     _cap_lines,
     _optimum_lines,

@@ -267,6 +267,11 @@ class TrainConfig:
     # Monodepth2's source frames of the monocular modes, as offsets from the target frame.
     source_frames: tuple[int, ...] = _added_later((-1, 1))
 
+    @property
+    def monocular(self) -> bool:
+        """Whether the runs are Monodepth2's M or MS: their depth is up to scale, evaluated median-scaled."""
+        return self.mode != "stereo"
+
     def validate(self, key: str, params: Params) -> None:
         """Range checks of the ``key`` section; a ConfigError names the key."""
         check(self.epochs >= 1, f"{key}.epochs", "must be >= 1")

@@ -106,14 +106,29 @@ def load_frames(index: pd.DataFrame) -> list[Frame]:
     return frames
 
 
-def depth_maps(disparities: np.ndarray, frames: list[Frame]) -> dict[str, np.ndarray]:
-    """Network disparities (N, h, w; fraction of width) -> depth (m) at each frame's GT size."""
+def depth_maps(
+    disparities: np.ndarray, frames: list[Frame], monocular: bool = False
+) -> dict[str, np.ndarray]:
+    """Network disparities (N, h, w; fraction of width) -> depth (m) at each frame's GT size.
+
+    ``monocular`` (a model trained with train.mode mono or mono_stereo): the disparity, resized,
+    is read as training reads it, Monodepth2's sigmoid disparity (divided by the heads' maximum),
+    and turned into Monodepth2's depth (:func:`msdepth.geometry.disp_to_depth`), up to scale:
+    such depth is evaluated median-scaled.
+    """
     if len(disparities) != len(frames):
         raise DataError(f"{len(disparities)} predicted disparities for {len(frames)} evaluation frames")
     out = {}
     for disp, frame in zip(disparities, frames, strict=True):
         h, w = frame.shape
-        out[frame.name] = disparity_to_depth(pixel_disparity(disp, h, w), frame.focal, frame.baseline)
+        if monocular:
+            from .geometry import disp_to_depth  # torch: only for monocular models
+            from .model import MAX_DISPARITY
+
+            sigmoid = pixel_disparity(disp, h, w) / (w * MAX_DISPARITY)
+            out[frame.name] = disp_to_depth(sigmoid.astype(np.float32))[1].astype(np.float32)
+        else:
+            out[frame.name] = disparity_to_depth(pixel_disparity(disp, h, w), frame.focal, frame.baseline)
     return out
 
 
@@ -130,10 +145,7 @@ def _metrics_in(
     cropped to ``box``). ``scale``: the prediction is median-scaled first (per image, as
     Monodepth2's monocular evaluation) and the ratio returned as ``ratio``."""
     gt = frame.gt_depth if box is None else frame.gt_depth[box]
-    if cfg.mask_gt_beyond_cap:
-        mask = mask & (gt <= cap)
-    if frame.gt_in_range:
-        mask = mask & (gt > cfg.min_depth) & (gt < cap)
+    mask = _evaluated(frame, gt, mask, cap, cfg)
     if not mask.any():
         return None
     gt, pred = gt[mask], pred[mask]
@@ -142,6 +154,34 @@ def _metrics_in(
         pred, ratio = median_scale(gt, pred)
     metrics = compute_errors(gt, clamp_depth(pred, cfg.min_depth, cap))
     return metrics if ratio is None else {**metrics, "ratio": ratio}
+
+
+def _evaluated(frame: Frame, gt: np.ndarray, mask: np.ndarray, cap: float, cfg: EvalConfig) -> np.ndarray:
+    """``mask`` less the GT pixels that the evaluation at ``cap`` leaves out (``gt``: the frame's
+    GT, cropped as ``mask``)."""
+    if cfg.mask_gt_beyond_cap:
+        mask = mask & (gt <= cap)
+    if frame.gt_in_range:
+        mask = mask & (gt > cfg.min_depth) & (gt < cap)
+    return mask
+
+
+def median_scaled_maps(
+    pred: dict[str, np.ndarray], frames: list[Frame], cfg: EvalConfig
+) -> tuple[dict[str, np.ndarray], dict[str, float]]:
+    """Every frame's prediction median-scaled (:func:`msdepth.metrics.median_scale`) over the pixels
+    the full-image suite evaluates at the first cap, and the ratios by frame: what a monocular
+    (up-to-scale) model's ROI suites and image dependence see. A frame without evaluated GT keeps
+    its prediction and gets no ratio."""
+    scaled, ratios = {}, {}
+    for f in frames:
+        mask = _evaluated(f, f.gt_depth, f.valid, cfg.caps[0], cfg)
+        if mask.any():
+            ratios[f.name] = median_scale(f.gt_depth[mask], pred[f.name][mask])[1]
+            scaled[f.name] = pred[f.name] * np.float32(ratios[f.name])
+        else:
+            scaled[f.name] = pred[f.name]
+    return scaled, ratios
 
 
 def _mean(rows: list[dict], keys: tuple[str, ...]) -> dict[str, float]:
@@ -178,7 +218,9 @@ def evaluate_full(
         rows += per_cap
     summary["images"] = len(frames)
     summary["excluded_images"] = len(frames) - len(rows) // len(cfg.caps)
-    summary["image_dependence"] = image_dependence(pred, frames, cfg.caps[0])
+    # Up-to-scale predictions are compared across images once each is median-scaled.
+    varied = median_scaled_maps(pred, frames, cfg)[0] if median_scaling else pred
+    summary["image_dependence"] = image_dependence(varied, frames, cfg.caps[0])
     return summary, pd.DataFrame(rows)
 
 

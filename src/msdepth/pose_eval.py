@@ -12,11 +12,15 @@ camera-to-world matrix per frame, row-major, one line each (the synthetic sequen
 from __future__ import annotations
 
 import os
-from typing import Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 
 from .errors import DataError
+
+if TYPE_CHECKING:
+    from .pose import PoseNet
 
 TRACK_LENGTH = 5  # Monodepth2's snippet length
 
@@ -82,3 +86,50 @@ def snippet_ates(
         snippet = slice(i, i + track_length - 1)
         ates.append(compute_ate(dump_xyz(gt_local[snippet]), dump_xyz(predicted[snippet])))
     return np.array(ates)
+
+
+def sequence_ates(
+    net: PoseNet,
+    raw_root: str | os.PathLike,
+    sequence_length: int,
+    height: int,
+    width: int,
+    track_length: int = TRACK_LENGTH,
+) -> dict:
+    """Monodepth2's pose evaluation of ``net`` on the rendered sequences below ``raw_root``.
+
+    Every drive with a ``poses.txt`` (the synthetic set's, ``data.synthetic.sequence_length``
+    frames per sequence, the last one maybe shorter) is cut into its sequences; each sequence's
+    camera-02 frames, resized to ``height`` x ``width`` as training sees them, give the relative
+    poses of consecutive frames (:func:`msdepth.pose.relative_pose`, offset +1), scored against the
+    exact poses with :func:`snippet_ates`. Returns the snippets' mean and std ATE and their count.
+    """
+    import torch
+
+    from .data.kitti import read_image
+    from .data.pairs import resize, to_tensor
+    from .data.sequences import frame_path
+    from .pose import relative_pose
+
+    raw_root = Path(raw_root)
+    files = sorted(raw_root.glob("*/*/poses.txt"))
+    if not files or sequence_length < 2:
+        raise DataError(f"{raw_root}: no rendered sequences (poses.txt) to evaluate poses on")
+    device = next(net.parameters()).device
+    ates = []
+    net.eval()
+    for file in files:
+        drive, truth = file.parent.relative_to(raw_root).as_posix(), read_poses(file)
+        for start in range(0, len(truth) - 1, sequence_length):
+            span = range(start, min(start + sequence_length, len(truth)))
+            if len(span) < 2:
+                continue
+            paths = [frame_path(raw_root, drive, n, "l") for n in span]
+            if any(p is None for p in paths):
+                raise DataError(f"{file}: a frame of its sequence at {start} is missing")
+            frames = torch.stack([to_tensor(resize(read_image(p), height, width)) for p in paths]).to(device)
+            with torch.no_grad():
+                predicted = relative_pose(net, frames[:-1], frames[1:], 1).cpu().double().numpy()
+            ates.append(snippet_ates(predicted, truth[span.start : span.stop], track_length))
+    values = np.concatenate(ates)
+    return {"ate_mean": float(values.mean()), "ate_std": float(values.std()), "snippets": int(values.size)}

@@ -7,7 +7,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from .config import Params
-from .evaluate import evaluate_full, evaluate_gradients, evaluate_roi, no_rois
+from .evaluate import evaluate_full, evaluate_gradients, evaluate_roi, median_scaled_maps, no_rois
 from .io import atomic_path, write_json
 from .pipeline import SETS_METRICS
 
@@ -29,6 +29,8 @@ def headline(suite: str, summary: dict) -> dict[str, float] | None:
         out = {"abs_rel": m["abs_rel"], "rmse": m["rmse"], "a1": m["a1"]}
         if "image_dependence" in summary:
             out["variation"] = summary["image_dependence"]["variation_ratio"]
+        if "median_scaling" in m:  # a monocular run's depth, median-scaled per image
+            out["scale_ratio"] = m["median_scaling"]["ratio_median"]
         return out
     if suite == "roi":
         m = summary[cap]["overall"]
@@ -59,15 +61,26 @@ def write_suite(
 
 
 def run_suite(params: Params, suite: str, run: str, pred: dict, frames, boxes) -> None:  # noqa: ANN001
-    """Evaluate ``pred`` (frame -> depth map) with one suite and write its files as run ``run``."""
-    fn = SUITES[suite]
-    summary, table = (
-        fn(pred, frames, params.eval) if suite == "full" else fn(pred, frames, boxes, params.eval)
-    )
+    """Evaluate ``pred`` (frame -> depth map) with one suite and write its files as run ``run``.
+
+    A monocular run's (train.mode mono | mono_stereo) up-to-scale depth is median-scaled per
+    image: by the full-image suite, which reports the ratios, and before the ROI suites.
+    """
+    fn, scaled = SUITES[suite], params.train.monocular
+    if suite == "full":
+        summary, table = fn(pred, frames, params.eval, median_scaling=scaled)
+    else:
+        pred = median_scaled_maps(pred, frames, params.eval)[0] if scaled else pred
+        summary, table = fn(pred, frames, boxes, params.eval)
     write_suite(suite, run, summary, table)
+
+
+def median_scaling(params: Params) -> bool:
+    """Whether the extra sets median-scale: ``eval.median_scaling``, or a monocular run's depth."""
+    return params.eval.median_scaling or params.train.monocular
 
 
 def score_set(params: Params, name: str, run: str, pred: dict, frames) -> None:  # noqa: ANN001 - Frames
     """The full-image suite of ``pred`` on extra set ``name``, written below ``metrics/sets/<set>/``."""
-    summary, table = evaluate_full(pred, frames, params.eval, median_scaling=params.eval.median_scaling)
+    summary, table = evaluate_full(pred, frames, params.eval, median_scaling=median_scaling(params))
     write_suite("full", run, summary, table, root=SETS_METRICS / name, headline_root=f"sets/{name}")

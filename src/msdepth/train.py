@@ -96,6 +96,22 @@ def build_monocular_loss(params: Params, variant: str) -> MonocularLoss:
     return MonocularLoss(build_appearance(params, variant), padding_mode=params.loss.padding_mode)
 
 
+def build_pose_net(params: Params) -> PoseNet:
+    """The pose network of the monocular modes (Monodepth2's separate ResNet-18 pose network)."""
+    return PoseNet()
+
+
+def trained_pose_net(params: Params, checkpoint_path: str | os.PathLike) -> PoseNet:
+    """The pose network of a monocular run's last checkpoint (the model file holds only the depth
+    network), on the CPU, in eval mode; a TrainingError names a checkpoint without one."""
+    state = load_checkpoint(Path(checkpoint_path), torch.device("cpu"))
+    if "pose" not in state:
+        raise TrainingError(f"{checkpoint_path}: no pose network (not a train.mode mono | mono_stereo run)")
+    net = build_pose_net(params)
+    net.load_state_dict(state["pose"])
+    return net.eval()
+
+
 def learning_rate(base: float, step: int, total_steps: int) -> float:
     """Monodepth's piecewise-constant schedule: lr, lr/2 after 3/5 of the steps, lr/4 after 4/5."""
     boundaries = (int(3 / 5 * total_steps), int(4 / 5 * total_steps))
@@ -314,7 +330,9 @@ def _set_up(
     network = torch.compile(network) if train_cfg.compile else network
     mono = train_cfg.mode != "stereo"
     criterion = (build_monocular_loss if mono else build_loss)(params, variant).to(device)
-    pose_net = PoseNet().to(device) if mono else None  # after the loss: stereo's draws are unchanged
+    pose_net = (
+        build_pose_net(params).to(device) if mono else None
+    )  # after the loss: stereo's draws are unchanged
     trainable = [*model.parameters(), *criterion.parameters(), *(pose_net.parameters() if pose_net else ())]
     optimizer = torch.optim.Adam(trainable, lr=train_cfg.learning_rate)
     global_batch = train_cfg.batch_size * ctx.world
