@@ -213,3 +213,24 @@ def _decoder_parameters() -> int:
 
 
 DECODER_PARAMETERS = _decoder_parameters()
+
+
+def test_pose_network_width() -> None:
+    # 1.0 is Monodepth2's: torchvision's resnet18 without fc (11,176,512 parameters), conv1 taking
+    # 6 channels (+64·3·7·7), and its PoseDecoder (squeeze 512->256, two 3x3 256->256, 256->12).
+    full = PoseNet(1.0)
+    decoder = (512 * 256 + 256) + 2 * (256 * 256 * 9 + 256) + (256 * 12 + 12)
+    assert sum(p.numel() for p in full.parameters()) == 11_176_512 + 64 * 3 * 7 * 7 + decoder
+    narrow = PoseNet(0.25)
+    assert narrow.encoder.channels == (16, 16, 32, 64, 128) and narrow.decoder.squeeze.out_channels == 64
+    frames = torch.rand(2, 3, 64, 96)
+    assert [t.shape for t in narrow(frames, frames)] == [(2, 3), (2, 3)]
+
+
+def test_pose_width_is_a_checked_param_left_out_of_old_fingerprints() -> None:
+    from msdepth.config import ConfigError, ModelConfig, fingerprint_fields, params_from_dict
+
+    assert params_from_dict({}).model.pose_width_multiplier == 0.25
+    assert "pose_width_multiplier" not in fingerprint_fields(ModelConfig())
+    with pytest.raises(ConfigError, match="model.pose_width_multiplier: must be <= 4.0"):
+        params_from_dict({"model": {"pose_width_multiplier": 8}})

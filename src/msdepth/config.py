@@ -217,16 +217,22 @@ class ModelConfig:
     norm: Literal["none", "group"] = "group"
     # independent = the dissertation's heads; residual = each finer scale corrects the coarser one
     heads: Literal["independent", "residual"] = "residual"
+    # The pose network's width (train.mode mono | mono_stereo); 1.0 = Monodepth2's ResNet-18.
+    pose_width_multiplier: float = _added_later(0.25)
 
     def validate(self, key: str, params: Params) -> None:
         """Range checks of the ``key`` section; a ConfigError names the key."""
-        multiplier = self.width_multiplier
-        check(multiplier > 0, f"{key}.width_multiplier", "must be > 0")
-        check(
-            multiplier <= MAX_WIDTH_MULTIPLIER,
-            f"{key}.width_multiplier",
-            f"must be <= {MAX_WIDTH_MULTIPLIER} (1.0 = the dissertation's network), got {multiplier}",
-        )
+        for name, full in (
+            ("width_multiplier", "the dissertation's"),
+            ("pose_width_multiplier", "Monodepth2's"),
+        ):
+            multiplier = getattr(self, name)
+            check(multiplier > 0, f"{key}.{name}", "must be > 0")
+            check(
+                multiplier <= MAX_WIDTH_MULTIPLIER,
+                f"{key}.{name}",
+                f"must be <= {MAX_WIDTH_MULTIPLIER} (1.0 = {full} network), got {multiplier}",
+            )
         check(
             0 < self.init_disparity < 0.3,
             f"{key}.init_disparity",

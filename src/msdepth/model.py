@@ -54,7 +54,8 @@ def _conv(in_ch: int, out_ch: int, kernel: int, stride: int = 1, norm: Norm = "n
     )
 
 
-def _ch(channels: int, multiplier: float) -> int:
+def scaled_channels(channels: int, multiplier: float) -> int:
+    """A layer's channel count at a width multiplier: rounded, at least 1."""
     return max(1, int(round(channels * multiplier)))
 
 
@@ -85,8 +86,8 @@ class MonodepthVGG(nn.Module):
         if heads not in HEADS:
             raise ValueError(f"MonodepthVGG: heads must be one of {HEADS}, got {heads!r}")
         self.norm, self.residual = norm, heads == "residual"
-        enc = [(k, _ch(c, width_multiplier)) for k, c in ENCODER]
-        dec = [_ch(c, width_multiplier) for c in DECODER]
+        enc = [(k, scaled_channels(c, width_multiplier)) for k, c in ENCODER]
+        dec = [scaled_channels(c, width_multiplier) for c in DECODER]
         self.encoder = nn.ModuleList()
         in_ch = 3
         for kernel, ch in enc:

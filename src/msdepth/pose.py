@@ -13,21 +13,25 @@ import torch
 from torch import Tensor, nn
 
 from .geometry import transformation_from_parameters
+from .model import scaled_channels
 from .resnet import CHANNELS, ResNetEncoder
 
 POSE_SCALE = 0.01
+DECODER_HIDDEN = 256  # Monodepth2's PoseDecoder channels
 
 
 class PoseDecoder(nn.Module):
     """Last encoder feature -> per frame ``(axis_angle, translation)``, each (B, frames, 3)."""
 
-    def __init__(self, in_channels: int = CHANNELS[-1], frames: int = 2) -> None:
+    def __init__(
+        self, in_channels: int = CHANNELS[-1], frames: int = 2, hidden: int = DECODER_HIDDEN
+    ) -> None:
         super().__init__()
         self.frames = frames
-        self.squeeze = nn.Conv2d(in_channels, 256, 1)
-        self.pose0 = nn.Conv2d(256, 256, 3, 1, 1)
-        self.pose1 = nn.Conv2d(256, 256, 3, 1, 1)
-        self.pose2 = nn.Conv2d(256, 6 * frames, 1)
+        self.squeeze = nn.Conv2d(in_channels, hidden, 1)
+        self.pose0 = nn.Conv2d(hidden, hidden, 3, 1, 1)
+        self.pose1 = nn.Conv2d(hidden, hidden, 3, 1, 1)
+        self.pose2 = nn.Conv2d(hidden, 6 * frames, 1)
         self.relu = nn.ReLU()
 
     def forward(self, feature: Tensor) -> tuple[Tensor, Tensor]:
@@ -39,12 +43,17 @@ class PoseDecoder(nn.Module):
 
 
 class PoseNet(nn.Module):
-    """Monodepth2's ``separate_resnet`` pose network: two frames stacked -> their relative pose."""
+    """Monodepth2's ``separate_resnet`` pose network: two frames stacked -> their relative pose.
 
-    def __init__(self) -> None:
+    ``width_multiplier`` scales every channel count of the encoder and of the decoder's hidden
+    layers (``model.pose_width_multiplier``); 1.0 is Monodepth2's network.
+    """
+
+    def __init__(self, width_multiplier: float = 1.0) -> None:
         super().__init__()
-        self.encoder = ResNetEncoder(input_images=2)
-        self.decoder = PoseDecoder(frames=2)
+        self.encoder = ResNetEncoder(input_images=2, width_multiplier=width_multiplier)
+        hidden = scaled_channels(DECODER_HIDDEN, width_multiplier)
+        self.decoder = PoseDecoder(self.encoder.channels[-1], frames=2, hidden=hidden)
 
     def forward(self, first: Tensor, second: Tensor) -> tuple[Tensor, Tensor]:
         """(B, 3, H, W) frames in temporal order -> the first predicted frame's ``(axis_angle,

@@ -15,6 +15,7 @@ import torch
 from torch import Tensor, nn
 
 from .errors import MsdepthError
+from .model import scaled_channels
 from .serialization import load_weights_file
 
 CHANNELS = (64, 64, 128, 256, 512)  # the five feature maps, at 1/2, 1/4, 1/8, 1/16, 1/32
@@ -44,19 +45,23 @@ class BasicBlock(nn.Module):
 
 
 class ResNetEncoder(nn.Module):
-    """ResNet-18 without its classifier; ``forward`` returns the five feature maps of :data:`CHANNELS`."""
+    """ResNet-18 without its classifier; ``forward`` returns the five feature maps of :data:`CHANNELS`
+    (``width_multiplier`` scales every channel count, as ``model.width_multiplier`` the VGG
+    network's; 1.0 = ResNet-18, the only width a torchvision state dict fits)."""
 
-    def __init__(self, input_images: int = 1) -> None:
+    def __init__(self, input_images: int = 1, width_multiplier: float = 1.0) -> None:
         super().__init__()
         if input_images < 1:
             raise ValueError(f"ResNetEncoder: input_images must be >= 1, got {input_images}")
         self.input_images = input_images
-        self.conv1 = nn.Conv2d(3 * input_images, 64, 7, 2, 3, bias=False)
-        self.bn1 = nn.BatchNorm2d(64)
+        self.channels = tuple(scaled_channels(c, width_multiplier) for c in CHANNELS)
+        stem = self.channels[0]
+        self.conv1 = nn.Conv2d(3 * input_images, stem, 7, 2, 3, bias=False)
+        self.bn1 = nn.BatchNorm2d(stem)
         self.relu = nn.ReLU(inplace=True)
         self.maxpool = nn.MaxPool2d(3, 2, 1)
-        widths = CHANNELS[1:]
-        for i, (in_ch, out_ch) in enumerate(zip((64, *widths[:-1]), widths, strict=True)):
+        widths = self.channels[1:]
+        for i, (in_ch, out_ch) in enumerate(zip((stem, *widths[:-1]), widths, strict=True)):
             stride = 1 if i == 0 else 2
             self.add_module(
                 f"layer{i + 1}", nn.Sequential(BasicBlock(in_ch, out_ch, stride), BasicBlock(out_ch, out_ch))

@@ -98,7 +98,7 @@ def build_monocular_loss(params: Params, variant: str) -> MonocularLoss:
 
 def build_pose_net(params: Params) -> PoseNet:
     """The pose network of the monocular modes (Monodepth2's separate ResNet-18 pose network)."""
-    return PoseNet()
+    return PoseNet(params.model.pose_width_multiplier)
 
 
 def trained_pose_net(params: Params, checkpoint_path: str | os.PathLike) -> PoseNet:
@@ -174,7 +174,7 @@ def fingerprint(params: Params, variant: str, num_pairs: int, seed: int) -> str:
         "code": code_digest(),
         "seed": seed,
         "data": [params.data.height, params.data.width, num_pairs],
-        "model": asdict(params.model),
+        "model": fingerprint_fields(params.model),
         "train": {k: v for k, v in fingerprint_fields(params.train).items() if k not in ignored},
         "loss": fingerprint_fields(params.loss),
         "appearance": appearance,
