@@ -1,0 +1,237 @@
+"""Monodepth2's monocular (M) and mono+stereo (MS) training beside stereo, with SSIM and MS-SSIM.
+
+Issue 30's closing study. From a project checkout whose workspace holds the stereo results of
+its params (``dvc repro`` or ``dvc pull`` done, ``params.yaml`` and ``dvc.lock`` unchanged), it
+snapshots the stereo runs, then runs one experiment per monocular mode::
+
+    dvc exp run -n mono-study-<mode> -S train.mode=<mode> -S data.synthetic.sequence_length=<L> [-S ...]
+
+(every variant and seed of ``params.yaml``: by default ssim and msssim k = 3, seeds 0, 1, 2),
+snapshots each (metrics, the evaluation disparities, the training timings of ``logs/train/``)
+under ``--out``/runs/<mode>/, puts the workspace back to the stereo results (``git checkout
+params.yaml dvc.lock``, ``dvc checkout``) and writes ``--out``/table.md and
+``--out``/disparities.png::
+
+    python studies/monocular.py                                   # the study (hours: see table.md)
+    python studies/monocular.py --modes mono --set train.epochs=1 # any -S of every experiment
+
+A mode already snapshotted under ``--out`` is not run again (delete its folder to rerun it).
+table.md: per mode and variant, mean ± sd over seeds of full-frame abs_rel (median-scaled for
+M and MS), ROI abs_rel per class, the image-dependence measure (variation; the per-pixel prior's
+is 0) and its correlation with the prior, the pose ATE, and the training time per run against
+stereo's.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import yaml
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "src"))
+
+from msdepth.compare import image_dependence, load_suite_metrics, load_unit_tables  # noqa: E402
+
+MODES = ("mono", "mono_stereo")
+CLASSES = ("car", "windshield", "glass", "sign")
+SNAPSHOT = ("metrics/full", "metrics/roi", "metrics/train", "metrics/compare.md")
+
+
+def sh(cmd: list[str], cwd: Path) -> str:
+    """Run ``cmd`` in ``cwd``; its stdout, or exit with its error."""
+    proc = subprocess.run(cmd, cwd=cwd, capture_output=True, text=True)
+    if proc.returncode:
+        raise SystemExit(f"error: {' '.join(cmd)} failed:\n{proc.stdout[-2000:]}\n{proc.stderr[-3000:]}")
+    return proc.stdout
+
+
+def runs_of(params: dict) -> list[str]:
+    """Every variant's run of every seed (the pipeline's ``<variant>/seed<seed>``)."""
+    return [f"{v}/seed{s}" for v in params["variants"] for s in params["train"]["seeds"]]
+
+
+def snapshot(repo: Path, dest: Path, runs: list[str]) -> None:
+    """Copy the workspace's metrics, each run's evaluation disparities and training timing to ``dest``."""
+    tmp = dest.with_name(dest.name + ".tmp")
+    shutil.rmtree(tmp, ignore_errors=True)
+    for rel in SNAPSHOT:
+        src = repo / rel
+        if src.is_dir():
+            shutil.copytree(src, tmp / rel)
+        elif src.is_file():
+            (tmp / rel).parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy(src, tmp / rel)
+    for run in runs:
+        for rel in (f"outputs/{run}/disparities.npy", f"logs/train/{run}.json"):
+            if (repo / rel).is_file():
+                (tmp / rel).parent.mkdir(parents=True, exist_ok=True)
+                shutil.copy(repo / rel, tmp / rel)
+    shutil.copy(repo / "params.yaml", tmp / "params.yaml")
+    tmp.rename(dest)  # a complete snapshot or none
+
+
+def run_mode(repo: Path, mode: str, length: int, sets: list[str], dest: Path, runs: list[str]) -> None:
+    """One experiment of ``mode``, snapshotted to ``dest``, then the workspace's stereo results back."""
+    overrides = ["-S", f"train.mode={mode}", "-S", f"data.synthetic.sequence_length={length}"]
+    for assignment in sets:
+        overrides += ["-S", assignment]
+    print(f"dvc exp run {mode} ...", flush=True)
+    try:
+        sh(
+            [sys.executable, "-m", "dvc", "exp", "run", "--quiet", "-n", f"mono-study-{mode}", *overrides],
+            repo,
+        )
+        snapshot(repo, dest, runs)
+    finally:
+        sh(["git", "checkout", "--", "params.yaml", "dvc.lock"], repo)
+        sh([sys.executable, "-m", "dvc", "checkout", "--quiet"], repo)
+
+
+def _mean_sd(values: list[float]) -> str:
+    values = [v for v in values if v is not None and np.isfinite(v)]
+    if not values:
+        return "–"
+    sd = f" ± {np.std(values, ddof=1):.4f}" if len(values) > 1 else ""
+    return f"{np.mean(values):.4f}{sd}"
+
+
+def mode_rows(snap: Path, mode: str, params: dict, cap: float) -> tuple[list[list[str]], dict[str, float]]:
+    """One table row per variant of the snapshot ``snap``, and each variant's mean training seconds."""
+    runs = runs_of(params)
+    groups = {v: [r for r in runs if r.startswith(f"{v}/")] for v in params["variants"]}
+    key = f"cap{cap:g}"
+    suites = load_suite_metrics(snap / "metrics", [*runs, "prior"], ("full", "roi"))
+    tables = load_unit_tables(snap / "metrics", [*runs, "prior"], ("full",))
+    dependence = image_dependence(suites, tables, {**groups, "prior": ["prior"]}, "prior", cap)
+    rows, seconds = [], {}
+    for variant, members in groups.items():
+        full = [suites["full"][r][key] for r in members]
+        roi = [suites["roi"][r][key]["by_class"] for r in members]
+        train = [_json(snap / "metrics" / "train" / f"{r}.json") for r in members]
+        timing = [_json(snap / "logs" / "train" / f"{r}.json").get("seconds") for r in members]
+        seconds[variant] = float(np.mean([t for t in timing if t])) if any(timing) else float("nan")
+        rows.append(
+            [
+                mode,
+                variant,
+                _mean_sd([m["abs_rel"] for m in full]),
+                *[_mean_sd([c.get(cls, {}).get("abs_rel") for c in roi]) for cls in CLASSES],
+                _mean_sd([dependence[r]["variation_ratio"] for r in members]),
+                _mean_sd([dependence[r]["prior_correlation"] for r in members]),
+                _mean_sd([m.get("median_scaling", {}).get("ratio_median") for m in full]),
+                _mean_sd([t.get("pose", {}).get("ate_mean") for t in train]),
+                f"{seconds[variant]:.0f}",
+            ]
+        )
+    return rows, seconds
+
+
+def _json(path: Path) -> dict:
+    return json.loads(path.read_text()) if path.is_file() else {}
+
+
+def table(out: Path, modes: list[str], params: dict, cap: float) -> str:
+    """table.md's text from the snapshots under ``out``."""
+    header = ["mode", "variant", "abs_rel", *[f"ROI {c}" for c in CLASSES], "variation", "corr. prior"]
+    header += ["scale ratio", "pose ATE (m)", "train s/run", "time / stereo"]
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    stereo_seconds: dict[str, float] = {}
+    for mode in ["stereo", *modes]:
+        rows, seconds = mode_rows(out / "runs" / mode, mode, params, cap)
+        if mode == "stereo":
+            stereo_seconds = seconds
+        for row in rows:
+            ratio = seconds[row[1]] / stereo_seconds.get(row[1], float("nan"))
+            lines.append("| " + " | ".join([*row, f"{ratio:.2f}x" if np.isfinite(ratio) else "–"]) + " |")
+    prior = _json(out / "runs" / "stereo" / "metrics" / "full" / "prior.json").get(f"cap{cap:g}", {})
+    seeds = params["train"]["seeds"]
+    return "\n".join(
+        [
+            f"# Monocular (M), mono+stereo (MS) and stereo training, cap {cap:g} m",
+            "",
+            f"Mean ± sd over seeds {seeds}. abs_rel: full frame, median-scaled per image for mono and "
+            "mono_stereo (scale ratio: the median of the per-image ratios median GT / median prediction). "
+            "ROI: abs_rel per class. Variation: how much the prediction changes between images as a "
+            "fraction of the GT's (the per-pixel prior's is 0; below 0.25 a run is image-blind); corr. "
+            "prior: of the run's per-image abs_rel with the prior's. Pose ATE: Monodepth2's over "
+            "5-frame snippets of the training sequences. Train s/run: logs/train/<run>.json "
+            "(the machine's, not comparable across machines). Per-pixel prior's abs_rel: "
+            f"{prior.get('abs_rel', float('nan')):.4f}.",
+            "",
+            *lines,
+            "",
+        ]
+    )
+
+
+def figure(out: Path, repo: Path, modes: list[str], params: dict, frames: int = 3) -> None:
+    """disparities.png: per evaluation frame, the image and seed 0's disparity of each mode and variant."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from msdepth.data.kitti import read_image
+
+    index = pd.read_csv(repo / "data" / "index" / "eval_frames.csv")
+    seed = params["train"]["seeds"][0]
+    columns = [(m, v) for m in ["stereo", *modes] for v in params["variants"]]
+    fig, axes = plt.subplots(frames, len(columns) + 1, figsize=(2.4 * (len(columns) + 1), 0.9 * frames + 0.4))
+    axes = np.atleast_2d(axes)
+    for i in range(frames):
+        axes[i, 0].imshow(read_image(repo / index["left"][i]))
+        axes[i, 0].set_title("image" if i == 0 else "", fontsize=7)
+        for j, (mode, variant) in enumerate(columns, 1):
+            disp = np.load(out / "runs" / mode / "outputs" / variant / f"seed{seed}" / "disparities.npy")[i]
+            axes[i, j].imshow(disp, cmap="magma", vmax=np.percentile(disp, 95))  # Monodepth2's display
+            axes[i, j].set_title(f"{mode} {variant}" if i == 0 else "", fontsize=7)
+    for ax in axes.ravel():
+        ax.axis("off")
+    fig.tight_layout()
+    fig.savefig(out / "disparities.png", dpi=110)
+    plt.close(fig)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--repo", type=Path, default=ROOT, help="the project checkout (default: this one)")
+    ap.add_argument("--out", type=Path, default=None, help="default: <repo>/studies/results/monocular")
+    ap.add_argument("--modes", nargs="+", choices=MODES, default=list(MODES))
+    ap.add_argument("--sequence-length", type=int, default=5, help="data.synthetic.sequence_length")
+    ap.add_argument(
+        "--set", action="append", default=[], metavar="KEY=VALUE", help="one more -S of every experiment"
+    )
+    ap.add_argument("--cap", type=float, default=80.0)
+    args = ap.parse_args(argv)
+    repo = args.repo.resolve()
+    out = (args.out or repo / "studies" / "results" / "monocular").resolve()
+    if sh(["git", "status", "--porcelain", "--", "params.yaml", "dvc.lock"], repo).strip():
+        raise SystemExit(
+            f"error: {repo}: params.yaml or dvc.lock has uncommitted changes; commit or stash them"
+        )
+    params = yaml.safe_load((repo / "params.yaml").read_text())
+    if params["train"].get("mode", "stereo") != "stereo":
+        raise SystemExit(f"error: {repo}/params.yaml: train.mode must be stereo (the study's baseline)")
+    (out / "runs").mkdir(parents=True, exist_ok=True)
+    if not (out / "runs" / "stereo").is_dir():
+        snapshot(repo, out / "runs" / "stereo", runs_of(params))
+    for mode in args.modes:
+        if not (out / "runs" / mode).is_dir():
+            run_mode(repo, mode, args.sequence_length, args.set, out / "runs" / mode, runs_of(params))
+    used = yaml.safe_load((out / "runs" / args.modes[0] / "params.yaml").read_text())
+    (out / "table.md").write_text(table(out, args.modes, used, args.cap))
+    figure(out, repo, args.modes, used)
+    print((out / "table.md").read_text())
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,111 @@
+"""End to end: `dvc exp run -S train.mode=mono -S data.synthetic.sequence_length=3` of the real
+dvc.yaml in a tiny copy of the project: sequences rendered, every variant trained monocularly,
+evaluated median-scaled, its pose ATE written."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import yaml
+
+ROOT = Path(__file__).resolve().parents[1]
+
+# The pose network's ResNet needs sides of 64 px or more; the rest as small as the stages allow.
+TINY = {
+    "data": {
+        "height": 64,
+        "width": 192,
+        "synthetic": {"drives": 2, "train_pairs": 12, "eval_frames": 3, "height": 64, "width": 192},
+    },
+    "model": {"width_multiplier": 0.0625, "pose_width_multiplier": 0.0625},
+    "train": {"epochs": 1, "batch_size": 4, "seeds": [0]},
+    "msssim": {"levels": 3},
+}
+MONO = ["-S", "train.mode=mono", "-S", "data.synthetic.sequence_length=3"]
+# The stages of a monocular run, up to its suites (compare also waits for the optimum stages, which
+# do not depend on the mode; its monocular table is tested in test_mono_eval.py).
+TARGETS = ["eval_full", "eval_roi"]
+
+
+def _merge(base: dict, patch: dict) -> dict:
+    for k, v in patch.items():
+        base[k] = _merge(base.get(k, {}), v) if isinstance(v, dict) else v
+    return base
+
+
+def _dvc(args: list[str], cwd: Path, ok: bool = True) -> subprocess.CompletedProcess:
+    # Stages call `python`: make it this interpreter, importing the copied sources.
+    env = dict(
+        os.environ,
+        PATH=f"{Path(sys.executable).parent}{os.pathsep}{os.environ.get('PATH', '')}",
+        PYTHONPATH=str(cwd / "src"),
+    )
+    proc = subprocess.run(
+        [sys.executable, "-m", "dvc", *args], cwd=cwd, capture_output=True, text=True, env=env
+    )
+    if ok:
+        assert proc.returncode == 0, (
+            f"dvc {' '.join(args)} failed:\n{proc.stdout[-3000:]}\n{proc.stderr[-3000:]}"
+        )
+    return proc
+
+
+@pytest.fixture(scope="module")
+def repo(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    if shutil.which("dvc") is None and not (Path(sys.executable).parent / "dvc").exists():
+        pytest.skip("dvc is not installed")
+    work = tmp_path_factory.mktemp("mono")
+    for name in ("dvc.yaml", "stages", "src", "data_lists", ".dvc", ".dvcignore", ".gitignore"):
+        src = ROOT / name
+        if src.is_dir():
+            shutil.copytree(src, work / name, ignore=shutil.ignore_patterns("__pycache__", "tmp", "cache"))
+        else:
+            shutil.copy(src, work / name)
+    params = _merge(yaml.safe_load((ROOT / "params.yaml").read_text()), TINY)
+    (work / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
+    for cmd in (
+        ["init", "-q"],
+        ["add", "-A"],
+        ["-c", "user.email=t@t", "-c", "user.name=t", "commit", "-qm", "init"],
+    ):
+        subprocess.run(["git", *cmd], cwd=work, check=True, capture_output=True)
+    return work
+
+
+def test_mono_without_sequences_stops_at_validation_in_one_line(repo: Path) -> None:
+    proc = _dvc(["exp", "run", "--quiet", "-S", "train.mode=mono"], repo, ok=False)
+    errors = [
+        line for line in (proc.stdout + proc.stderr).splitlines() if line.startswith("error: params.yaml")
+    ]
+    assert proc.returncode != 0 and len(errors) == 1, proc.stderr[-2000:]
+    assert (
+        "train.mode: 'mono' trains on frame sequences: set data.synthetic.sequence_length >= 3" in errors[0]
+    )
+    assert not (repo / "data" / "synthetic").exists()  # nothing after validate_params ran
+    subprocess.run(["git", "checkout", "params.yaml"], cwd=repo, check=True)
+
+
+def test_exp_run_trains_and_evaluates_every_variant_monocularly(repo: Path) -> None:
+    _dvc(["exp", "run", "--quiet", "-n", "mono", *MONO, *TARGETS], repo)
+    raw = repo / "data" / "synthetic"
+    assert (raw / "train_mono_files.txt").stat().st_size > 0 and list(raw.glob("raw/*/*/poses.txt"))
+    for variant in ("ssim", "msssim"):
+        full = json.loads((repo / "metrics" / "full" / variant / "seed0.json").read_text())
+        scaling = full["cap80"]["median_scaling"]
+        assert scaling["ratio_median"] > 0 and scaling["ratio_std_over_median"] >= 0
+        # Median-scaled: the predictions' median is the GT's, so abs_rel stays far from a metric miss.
+        assert 0 < full["cap80"]["abs_rel"] < 1
+        roi = json.loads((repo / "metrics" / "roi" / variant / "seed0.json").read_text())
+        assert 0 < roi["cap80"]["overall"]["abs_rel"] < 1
+        pose = json.loads((repo / "metrics" / "train" / variant / "seed0.json").read_text())["pose"]
+        # 2 drives x 6 frames: two 3-frame sequences each, 2 snippets per sequence.
+        assert pose["snippets"] == 8 and pose["ate_mean"] >= 0
+        headline = json.loads((repo / "metrics" / "headline" / "full" / variant / "seed0.json").read_text())
+        assert headline["scale_ratio"] == pytest.approx(scaling["ratio_median"])
+    assert "mono" in _dvc(["exp", "show", "--md"], repo).stdout
