@@ -22,7 +22,7 @@ from msdepth.pipeline import (
     model_path,
     run_stage,
 )
-from msdepth.suites import score_set
+from msdepth.suites import median_scaling, score_set
 
 
 def eval_set(params: Params, set_name: SetArg, variant: VariantArg, seed: SeedArg) -> None:
@@ -40,7 +40,8 @@ def eval_set(params: Params, set_name: SetArg, variant: VariantArg, seed: SeedAr
     disp = predict_disparities(
         model, [Path(p) for p in index["left"]], meta["height"], meta["width"], params.eval.post_process
     )
-    score_set(params, name, run, depth_maps(disp, frames, monocular=params.train.monocular), frames)
+    pred = depth_maps(disp, frames, monocular=params.train.monocular)
+    score_set(params, name, run, pred, frames, scaled=median_scaling(params))
 
 
 if __name__ == "__main__":

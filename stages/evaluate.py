@@ -35,7 +35,8 @@ def evaluate(
     run = checked_run(params, variant, seed)
     frames = load_frames(read_eval_index(EVAL_FRAMES))
     boxes = kitti.read_rois(ROIS) if suite != "full" else None
-    run_suite(params, suite, run, read_depth_maps(depth_path(run)), frames, boxes)
+    pred = read_depth_maps(depth_path(run))
+    run_suite(params, suite, run, pred, frames, boxes, scaled=params.train.monocular)
 
 
 if __name__ == "__main__":

@@ -9,8 +9,10 @@ snapshots the stereo runs, then runs one experiment per monocular mode::
 (every variant and seed of ``params.yaml``: by default ssim and msssim k = 3, seeds 0, 1, 2),
 snapshots each (metrics, the evaluation disparities, the training timings of ``logs/train/``)
 under ``--out``/runs/<mode>/, puts the workspace back to the stereo results (``git checkout
-params.yaml dvc.lock``, ``dvc checkout``) and writes ``--out``/table.md and
-``--out``/disparities.png::
+params.yaml dvc.lock metrics plots``, which must be unchanged at the start, and ``dvc checkout``)
+and writes ``--out``/table.md and ``--out``/disparities.png. The data root then holds the
+rendered sequences: the next ``dvc repro`` renders the stereo set again (the same bytes), and
+nothing after it re-runs::
 
     python studies/monocular.py                                   # the study (hours: see table.md)
     python studies/monocular.py --modes mono --set train.epochs=1 # any -S of every experiment
@@ -43,6 +45,8 @@ from msdepth.compare import image_dependence, load_suite_metrics, load_unit_tabl
 MODES = ("mono", "mono_stereo")
 CLASSES = ("car", "windshield", "glass", "sign")
 SNAPSHOT = ("metrics/full", "metrics/roi", "metrics/train", "metrics/compare.md")
+# What an experiment rewrites in the workspace that git holds: checked clean first, restored after.
+RESTORED = ("params.yaml", "dvc.lock", "metrics", "plots")
 
 
 def sh(cmd: list[str], cwd: Path) -> str:
@@ -91,7 +95,7 @@ def run_mode(repo: Path, mode: str, length: int, sets: list[str], dest: Path, ru
         )
         snapshot(repo, dest, runs)
     finally:
-        sh(["git", "checkout", "--", "params.yaml", "dvc.lock"], repo)
+        sh(["git", "checkout", "--", *RESTORED], repo)
         sh([sys.executable, "-m", "dvc", "checkout", "--quiet"], repo)
 
 
@@ -213,10 +217,8 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     repo = args.repo.resolve()
     out = (args.out or repo / "studies" / "results" / "monocular").resolve()
-    if sh(["git", "status", "--porcelain", "--", "params.yaml", "dvc.lock"], repo).strip():
-        raise SystemExit(
-            f"error: {repo}: params.yaml or dvc.lock has uncommitted changes; commit or stash them"
-        )
+    if sh(["git", "status", "--porcelain", "--", *RESTORED], repo).strip():
+        raise SystemExit(f"error: {repo}: uncommitted changes in {', '.join(RESTORED)}; commit them first")
     params = yaml.safe_load((repo / "params.yaml").read_text())
     if params["train"].get("mode", "stereo") != "stereo":
         raise SystemExit(f"error: {repo}/params.yaml: train.mode must be stereo (the study's baseline)")

@@ -134,3 +134,23 @@ def test_pose_ate_is_zero_for_the_true_motion_at_any_scale(rendered: Path) -> No
 def test_pose_ate_without_sequences_is_one_error(tmp_path: Path) -> None:
     with pytest.raises(DataError, match="no rendered sequences"):
         sequence_ates(_ConstantPose((0.0, 0.0, 1.0)), tmp_path, 3, 32, 96)
+
+
+def test_only_a_monocular_run_is_median_scaled_not_the_baselines_or_the_optimum(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import json
+
+    from msdepth.suites import run_suite
+
+    monkeypatch.chdir(tmp_path)  # run_suite writes below metrics/
+    params = params_from_dict({"data": {"synthetic": {"sequence_length": 3}}, "train": {"mode": "mono"}})
+    frames = _frames()
+    pred = {f.name: f.gt_depth * 1.25 for f in frames}  # GT < 60 m: below the cap
+    run_suite(params, "full", "prior", pred, frames, None)  # as the baselines and optimum stages call it
+    metric = json.loads((tmp_path / "metrics" / "full" / "prior.json").read_text())
+    assert "median_scaling" not in metric["cap80"] and metric["cap80"]["abs_rel"] == pytest.approx(0.25)
+    run_suite(params, "full", "ssim/seed0", pred, frames, None, scaled=True)  # as eval_full calls it
+    scaled = json.loads((tmp_path / "metrics" / "full" / "ssim" / "seed0.json").read_text())
+    assert scaled["cap80"]["median_scaling"]["ratio_median"] == pytest.approx(0.8)
+    assert scaled["cap80"]["abs_rel"] == pytest.approx(0, abs=1e-6)

@@ -60,13 +60,16 @@ def write_suite(
         table.to_csv(tmp, index=False, float_format="%.6g")
 
 
-def run_suite(params: Params, suite: str, run: str, pred: dict, frames, boxes) -> None:  # noqa: ANN001
+def run_suite(  # noqa: ANN001 - frames, boxes
+    params: Params, suite: str, run: str, pred: dict, frames, boxes, *, scaled: bool = False
+) -> None:
     """Evaluate ``pred`` (frame -> depth map) with one suite and write its files as run ``run``.
 
-    A monocular run's (train.mode mono | mono_stereo) up-to-scale depth is median-scaled per
-    image: by the full-image suite, which reports the ratios, and before the ROI suites.
+    ``scaled``: ``pred`` is up to scale (a train.mode mono | mono_stereo run's), median-scaled per
+    image: by the full-image suite, which reports the ratios, and before the ROI suites. The
+    baselines and the optimum are metric, whatever train.mode.
     """
-    fn, scaled = SUITES[suite], params.train.monocular
+    fn = SUITES[suite]
     if suite == "full":
         summary, table = fn(pred, frames, params.eval, median_scaling=scaled)
     else:
@@ -76,11 +79,15 @@ def run_suite(params: Params, suite: str, run: str, pred: dict, frames, boxes) -
 
 
 def median_scaling(params: Params) -> bool:
-    """Whether the extra sets median-scale: ``eval.median_scaling``, or a monocular run's depth."""
+    """Whether a trained run's extra sets median-scale: ``eval.median_scaling``, or a monocular run."""
     return params.eval.median_scaling or params.train.monocular
 
 
-def score_set(params: Params, name: str, run: str, pred: dict, frames) -> None:  # noqa: ANN001 - Frames
-    """The full-image suite of ``pred`` on extra set ``name``, written below ``metrics/sets/<set>/``."""
-    summary, table = evaluate_full(pred, frames, params.eval, median_scaling=median_scaling(params))
+def score_set(  # noqa: ANN001 - frames
+    params: Params, name: str, run: str, pred: dict, frames, *, scaled: bool | None = None
+) -> None:
+    """The full-image suite of ``pred`` on extra set ``name``, written below ``metrics/sets/<set>/``;
+    median-scaled when ``scaled`` (default: ``eval.median_scaling``)."""
+    scaled = params.eval.median_scaling if scaled is None else scaled
+    summary, table = evaluate_full(pred, frames, params.eval, median_scaling=scaled)
     write_suite("full", run, summary, table, root=SETS_METRICS / name, headline_root=f"sets/{name}")
