@@ -88,6 +88,7 @@ def run_mode(repo: Path, mode: str, length: int, sets: list[str], dest: Path, ru
     for assignment in sets:
         overrides += ["-S", assignment]
     print(f"dvc exp run {mode} ...", flush=True)
+    before = files_under(repo, RESTORED[2:])
     try:
         sh(
             [sys.executable, "-m", "dvc", "exp", "run", "--quiet", "-n", f"mono-study-{mode}", *overrides],
@@ -96,7 +97,14 @@ def run_mode(repo: Path, mode: str, length: int, sets: list[str], dest: Path, ru
         snapshot(repo, dest, runs)
     finally:
         sh(["git", "checkout", "--", *RESTORED], repo)
+        for path in files_under(repo, RESTORED[2:]) - before:  # e.g. dvclive's automask.tsv of M runs
+            path.unlink()
         sh([sys.executable, "-m", "dvc", "checkout", "--quiet"], repo)
+
+
+def files_under(repo: Path, folders: tuple[str, ...]) -> set[Path]:
+    """Every file below ``folders`` of ``repo``."""
+    return {p for f in folders for p in (repo / f).rglob("*") if p.is_file()}
 
 
 def _mean_sd(values: list[float]) -> str:
