@@ -169,6 +169,17 @@ def test_settings_that_differ_from_the_defaults_name_the_row(tmp_path: Path):
     assert "| MS-SSIM (k=7, levels=3) |" in table and "| SSIM |" in table
 
 
+def test_image_blind_runs_are_flagged(tmp_path: Path):
+    data = copy.deepcopy(COMPARISON)
+    data["image_dependence"]["msssim/seed0"].update(variation_ratio=0.1, image_blind=True)
+    data["image_dependence"]["msssim/seed1"] = {"variation_ratio": 0.5, "image_blind": False}
+    r = load_results(_project(tmp_path, data))
+    assert "| MS-SSIM (k=3) (1 of 2 runs image-blind) |" in headline_table(r)
+    assert "msssim/seed0 is image-blind (variation below 0.25 of the GT's)" in " ".join(
+        results_page(r).split()
+    )
+
+
 def test_without_rois_or_extra_sets_their_parts_are_left_out(tmp_path: Path):
     data = copy.deepcopy(COMPARISON)
     for key in ("roi", "roi_masks"):

@@ -14,7 +14,7 @@ import argparse
 import json
 import sys
 from pathlib import Path
-from typing import Sequence
+from typing import Any, Sequence
 
 from .compare import MIN_SEEDS_FOR_MARKS, SET_TITLES, changed_settings, marks_allowed, settings_text
 from .errors import DataError, MsdepthError
@@ -65,9 +65,9 @@ class Results:
         self.cap: str = next(iter(self.get("full")))
         self.reference: str | None = (data.get("statistics") or {}).get("reference")
 
-    def get(self, *keys: str, default: object = KeyError) -> object:
+    def get(self, *keys: str, default: Any = KeyError) -> Any:
         """``data[k1][k2]...``; ``default`` where a key is missing, else a DataError."""
-        node: object = self.data
+        node: Any = self.data
         for k in keys:
             if not isinstance(node, dict) or k not in node:
                 if default is KeyError:
@@ -91,25 +91,35 @@ class Results:
             shown = dict(settings)
         named = {k: settings[k] for k in ALWAYS_NAMED.get(run, ()) if k in settings}
         shown = {**named, **{k: v for k, v in shown.items() if k not in named}}
-        return f"{NAMES.get(run, run)} ({settings_text(shown)})" if shown else NAMES.get(run, run)
+        name = f"{NAMES.get(run, run)} ({settings_text(shown)})" if shown else NAMES.get(run, run)
+        return name + self._blind_note(run)
+
+    def _blind_note(self, variant: str) -> str:
+        """`` (image-blind)`` or `` (1 of 3 runs image-blind)`` where compare.md flags its runs."""
+        deps = self.get("image_dependence", default={}) or {}
+        runs = [d for k, d in deps.items() if k.split("/")[0] == variant]
+        blind = sum(1 for d in runs if d.get("image_blind"))
+        if not blind:
+            return ""
+        return " (image-blind)" if blind == len(runs) else f" ({blind} of {len(runs)} runs image-blind)"
 
     def difference(
         self, suite: str, run: str, metric: str = "abs_rel", cap: str | None = None
     ) -> dict | None:
         """``run − reference`` on ``suite`` (a PairedDifference dict), None without statistics."""
-        return self.get("statistics", suite, cap or self.cap, run, metric, default=None)  # type: ignore[return-value]
+        return self.get("statistics", suite, cap or self.cap, run, metric, default=None)
 
     def marked(self, d: dict, run: str) -> bool:
         """Whether compare.md marks ``d`` (``*``): the interval excludes 0 and covers training noise."""
         return bool(d["excludes_zero"]) and marks_allowed(d, run in self.baselines)
 
     def frames(self) -> int | None:
-        d = next(iter(self.get("statistics", "full", self.cap, default={}).values()), None)  # type: ignore[union-attr]
+        d = next(iter(self.get("statistics", "full", self.cap, default={}).values()), None)
         return None if d is None else int(d["abs_rel"]["n"])
 
     def rois(self) -> dict[str, dict]:
         """Per run its ROI block (``overall``, ``by_class``) at the headline cap; {} without ROIs."""
-        return self.get("roi", self.cap, default={})  # type: ignore[return-value]
+        return self.get("roi", self.cap, default={})
 
     def classes(self) -> list[str]:
         rois = self.rois()
@@ -160,7 +170,7 @@ def _best_variant(r: Results, metric: str) -> str | None:
         return None
     values = {v: r.get("full", r.cap, v, metric) for v in r.variants}
     pick = max if metric in HIGHER_IS_BETTER else min
-    return pick(values, key=values.get)  # type: ignore[arg-type]
+    return pick(values, key=values.get)
 
 
 def _roi_cells(r: Results, run: str, classes: Sequence[str]) -> list[str]:
@@ -170,7 +180,7 @@ def _roi_cells(r: Results, run: str, classes: Sequence[str]) -> list[str]:
     by_class = block.get("by_class", {})
     return [
         _spread_cell(r, "roi", run, block["overall"]["abs_rel"]),
-        "–" if masks is None else _num(masks, 3),  # type: ignore[arg-type]
+        "–" if masks is None else _num(masks, 3),
         *("–" if c not in by_class else _num(by_class[c]["abs_rel"], 3) for c in classes),
     ]
 
@@ -189,7 +199,7 @@ def headline_table(r: Results) -> str:
         full = r.get("full", r.cap, run)
         cells = []
         for metric, _, decimals in FULL_COLUMNS:
-            value = full[metric]  # type: ignore[index]
+            value = full[metric]
             text = _spread_cell(r, "full", run, value) if metric == "abs_rel" else _num(value, decimals)
             cells.append(f"**{text}**" if best[metric] == run else text)
         if r.rois():
@@ -214,7 +224,7 @@ def headline_caption(r: Results) -> str:
 
 
 def _confidence(r: Results) -> str:
-    return f"{round(float(r.get('statistics', 'confidence', default=0.95)) * 100):g} %"  # type: ignore[arg-type]
+    return f"{round(float(r.get('statistics', 'confidence', default=0.95)) * 100):g} %"
 
 
 def _over(r: Results, d: dict, run: str) -> str:
@@ -235,7 +245,8 @@ def _than(r: Results, run: str, d: dict, metric: str = "abs_rel") -> str:
 def difference_clause(r: Results, suite: str, run: str) -> str:
     """One run's difference to the reference with its interval, and whether compare.md marks it."""
     d = r.difference(suite, run)
-    assert d is not None
+    if d is None:
+        raise DataError(f"{r.source}: no statistics.{suite}.{r.cap}.{run}.abs_rel (re-run the compare stage)")
     text = (
         f"{_than(r, run, d)}, with a {_confidence(r)} interval of the difference of {_interval(d)} "
         f"{_over(r, d, run)}"
@@ -261,7 +272,7 @@ def verdict(r: Results) -> str:
     others = _compared(r)
     if not others:
         return "**No comparison**: one variant, or no paired statistics in `metrics/compare.json`."
-    marked = any(r.marked(r.difference("full", v), v) for v in others)  # type: ignore[arg-type]
+    marked = any(r.marked(r.difference("full", v), v) for v in others)
     lead = "**Verdict**" if marked else "**No verdict yet**"
     text = f"{lead}: " + "; ".join(difference_clause(r, "full", v) for v in others) + "."
     if r.rois():
@@ -279,7 +290,7 @@ def class_standing(r: Results) -> dict[str, tuple[str, float, float, float]]:
         }
         trained = [rois[v]["by_class"][c]["abs_rel"] for v in r.variants if c in rois[v].get("by_class", {})]
         if blind and trained:
-            best = min(blind, key=blind.get)  # type: ignore[arg-type]
+            best = min(blind, key=blind.get)
             out[c] = (best, blind[best], min(trained), max(trained))
     return out
 
@@ -431,7 +442,7 @@ def _dependence_text(r: Results) -> str:
     from .compare import IMAGE_BLIND_BELOW
 
     deps = r.get("image_dependence", default={}) or {}
-    trained = {run: d for run, d in deps.items() if run not in r.baselines}  # type: ignore[union-attr]
+    trained = {run: d for run, d in deps.items() if run not in r.baselines}
     ratios = [d["variation_ratio"] for d in trained.values() if d.get("variation_ratio") is not None]
     blind = [run for run, d in trained.items() if d.get("image_blind")]
     if not ratios:
@@ -515,7 +526,7 @@ def set_section(r: Results, name: str, block: dict) -> str:
     """An extra evaluation set's paragraph: its abs_rel per run, the differences, rmse and a1."""
     s = _set_results(r, name, block)
     full = s.get("full", s.cap)
-    variants = [f"{s.label(v)} {_spread_cell(s, 'full', v, full[v]['abs_rel'])}" for v in s.variants]  # type: ignore[index]
+    variants = [f"{s.label(v)} {_spread_cell(s, 'full', v, full[v]['abs_rel'])}" for v in s.variants]
     text = (
         f"{SET_TITLES.get(name, name)}, `metrics/sets/{name}/`: {s.get('images', default='–')} images, GT "
         "within (min_depth, cap), Monodepth2's protocol without median scaling. "
@@ -524,10 +535,10 @@ def set_section(r: Results, name: str, block: dict) -> str:
     text += "".join(f"; {difference_clause(s, 'full', v)}" for v in _compared(s))
     if len(s.variants) > 1:
         text += (
-            f"; rmse {_join([_num(full[v]['rmse'], 2) for v in s.variants])} m and a1 "  # type: ignore[index]
-            f"{_join([_num(full[v]['a1'], 3) for v in s.variants])} (in that order)"  # type: ignore[index]
+            f"; rmse {_join([_num(full[v]['rmse'], 2) for v in s.variants])} m and a1 "
+            f"{_join([_num(full[v]['a1'], 3) for v in s.variants])} (in that order)"
         )
-    text += "".join(f"; the {PROSE_NAMES.get(b, b)} {_num(full[b]['abs_rel'], 3)}" for b in s.baselines)  # type: ignore[index]
+    text += "".join(f"; the {PROSE_NAMES.get(b, b)} {_num(full[b]['abs_rel'], 3)}" for b in s.baselines)
     heading = "## The Eigen split" if name == "eigen" else f"## The {name} set"
     return "\n\n".join([heading, wrap(text + "."), wrap(SET_NOTE)])
 
@@ -544,7 +555,7 @@ def results_page(r: Results) -> str:
     """``docs/results.md``: the default run, how to read it, the studies, the extra sets, figures."""
     sets = r.get("sets", default={}) or {}
     parts = [INTRO, default_run_section(r), reading_section(r), STUDIES]
-    parts += [set_section(r, name, block) for name, block in sets.items()]  # type: ignore[union-attr]
+    parts += [set_section(r, name, block) for name, block in sets.items()]
     return "\n\n".join([*parts, FIGURES]) + "\n"
 
 
