@@ -145,7 +145,7 @@ def test_a_marked_difference_is_a_verdict_an_unmarked_one_is_not(tmp_path: Path)
     block = readme_block(r)
     assert block.startswith(BEGIN + "\n") and block.endswith("\n" + END)
     text = " ".join(block.split())
-    assert "**Verdict**: MS-SSIM (k=3)'s abs_rel is 0.020 lower than SSIM's" in text
+    assert "**Verdict**: MS-SSIM (k=3) has an abs_rel 0.020 lower than SSIM's" in text
     assert "[−0.030, −0.010] over images and seeds, which excludes 0 (marked `*`" in text
     assert "the constant on glass" in text and "car" not in text.split("On the ROIs")[1]
     assert "KITTI 2015 layout, cap 80 m, 10 frames, 7 ROIs; variants: mean ± sd over 3 seeds" in text

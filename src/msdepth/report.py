@@ -234,12 +234,12 @@ def _over(r: Results, d: dict, run: str) -> str:
 
 
 def _than(r: Results, run: str, d: dict, metric: str = "abs_rel") -> str:
-    """``MS-SSIM's abs_rel is 0.005 lower than SSIM's`` from ``d`` (run − reference)."""
+    """``MS-SSIM (k=3) has an abs_rel 0.005 lower than SSIM's`` from ``d`` (run − reference)."""
     subject, other = r.label(run), r.label(r.reference or "")
     if round(abs(d["mean"]), 3) == 0:
-        return f"{subject}'s {metric} equals {other}'s to 3 decimals"
+        return f"{subject} and {other} have the same {metric} to 3 decimals"
     way = "lower" if d["mean"] < 0 else "higher"
-    return f"{subject}'s {metric} is {_num(abs(d['mean']), 3)} {way} than {other}'s"
+    return f"{subject} has an {metric} {_num(abs(d['mean']), 3)} {way} than {other}'s"
 
 
 def difference_clause(r: Results, suite: str, run: str) -> str:
