@@ -447,7 +447,8 @@ def _dependence_text(r: Results) -> str:
     blind = [run for run, d in trained.items() if d.get("image_blind")]
     if not ratios:
         return "How much each run's predictions follow the image was not measured (too few frames)."
-    span = f"{min(ratios):.2f}" if len(ratios) == 1 else f"{min(ratios):.2f}–{max(ratios):.2f}"
+    low, high = f"{min(ratios):.2f}", f"{max(ratios):.2f}"
+    span = low if low == high else f"{low}–{high}"
     if not blind:
         return (
             f"Every trained run follows the image (variation {span} of the GT's from image to image; "
