@@ -360,3 +360,50 @@ def test_optimum_kernels_pairs_each_kernel_with_the_first_refs_ssim(tmp_path: Pa
     assert "| msssim k7 L4 w10.0 | +0.020 [+0.020, +0.020] * |" in out
     # box abs_rel per class: car ROIs 0 and 4 (0.30, 0.38) + 0.02, windshield 1 and 5, ...
     assert "| msssim k7 L4 w10.0 | 6 | 0.2450 | 0.5000 | 0.3900 | 0.3600 | 0.3800 | 0.4000 | 0.4200 |" in out
+
+
+def _glass_commit(repo: Path, windshield: float) -> None:
+    """Commit optimum and trained metrics (2 seeds) in which windshield ROIs read 0.5 + ``windshield``."""
+    params = {"msssim": {"kernel_size": 3, "levels": 4}, "optimum": {"smoothness_weight": 10.0}}
+    params["optimum"]["smoothness_sweep"] = [10.0]
+    (repo / "params.yaml").write_text(yaml.safe_dump(params))
+    frames = [f"{i:06d}_10" for i in range(4)]
+    full = pd.DataFrame({"frame": frames, "cap": 80, "abs_rel": [0.2, 0.3, 0.2, 0.3], "a1": 0.5})
+    classes = ["car", "windshield", "glass", "sign"] * 2
+    roi = pd.DataFrame({"roi": range(8), "image": frames[0], "class": classes, "cap": 80})
+    roi["abs_rel"] = [0.5 + (windshield if c == "windshield" else 0.0) for c in classes]
+    masks = json.dumps({"masks": {"cap80": {"overall": {"abs_rel": 0.4}}}})
+    stems = [f"optimum/{v}/w10.0" for v in ("ssim", "msssim")] + [f"ssim/seed{s}" for s in (0, 1)]
+    for stem in stems:
+        for suite, table in (("full", full), ("roi", roi)):
+            (repo / "metrics" / suite / stem).parent.mkdir(parents=True, exist_ok=True)
+            table.to_csv(repo / "metrics" / suite / f"{stem}.csv", index=False)
+        (repo / "metrics" / "roi" / f"{stem}.json").write_text(masks)
+    (repo / "metrics" / "compare.json").write_text(json.dumps({"variants": ["ssim"], "seeds": [0, 1]}))
+    subprocess.run(["git", "add", "-A"], cwd=repo, check=True)
+    subprocess.run(
+        ["git", "-c", "user.email=t@t", "-c", "user.name=t", "commit", "-qm", "g"], cwd=repo, check=True
+    )
+
+
+def test_glass_before_after_pairs_frames_rois_and_seeds(tmp_path: Path) -> None:
+    """studies/glass_before_after.py: windshield ROIs 0.40 lower after, nothing else changed: the
+    windshield column reads -0.400 exactly, every other column 0, for the optimum and the networks."""
+    subprocess.run(["git", "init", "-q"], cwd=tmp_path, check=True)
+    _glass_commit(tmp_path, 0.5)
+    _glass_commit(tmp_path, 0.1)
+    out = _study("glass_before_after.py", "HEAD~1", "HEAD", cwd=tmp_path)
+    zero, drop = "+0.000 [+0.000, +0.000]", "-0.400 [-0.400, -0.400] *"
+    # ROI mean: (6 x 0.5 + 2 x windshield) / 8 = 0.625 before, 0.525 after
+    for label in ("optimum ssim w10.0", "optimum msssim w10.0", "ssim (seeds)"):
+        (row,) = [line for line in out.splitlines() if line.startswith(f"| {label} | ")]
+        cells = row.strip("| ").split(" | ")
+        assert cells[1::2] == [zero, zero, zero] and cells[4] == drop and cells[2].startswith("-0.100 [")
+        assert (
+            f"| {label} before | 4 | 0.2500 | 0.5000 | 0.6250 | 0.5000 | 1.0000 | 0.5000 | 0.5000 | 0.4000 |"
+            in out
+        )
+        assert (
+            f"| {label} after | 4 | 0.2500 | 0.5000 | 0.5250 | 0.5000 | 0.6000 | 0.5000 | 0.5000 | 0.4000 |"
+            in out
+        )

@@ -163,6 +163,28 @@ def test_atomic_temps_finds_only_what_a_killed_writer_left(tmp_path: Path) -> No
     tmp.unlink()
 
 
+@pytest.mark.parametrize(
+    ("name", "suffix"),
+    [
+        ("m.json", None),
+        ("noext", None),
+        ("a.b-c", None),
+        ("x.tar.gz", None),
+        ("w name.png", None),
+        ("d.bin", ".npy"),
+    ],
+)
+def test_both_finders_know_every_temp_atomic_path_makes(
+    tmp_path: Path, name: str, suffix: str | None
+) -> None:
+    # atomic_temps (one output's) and remove_stale_temps (a folder's) read the same name form.
+    killed = io.atomic_path(tmp_path / name, suffix=suffix)  # entered and never left
+    tmp = killed.__enter__()
+    (tmp_path / ".other.json.msdepth-tmp-abcd1234.json").write_text("another output's temp")
+    assert io.atomic_temps(tmp_path / name, suffix=suffix) == [tmp]
+    assert tmp in io.remove_stale_temps(tmp_path) and not tmp.exists()
+
+
 # A writer killed with SIGKILL inside atomic_path, after writing half its data.
 KILLED_WRITER = """
 import os, signal, sys

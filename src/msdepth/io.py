@@ -61,7 +61,8 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[
 # user file has, so a stale temp is known by its name alone and only the project's own are removed.
 TEMP_MARK = ".msdepth-tmp-"
 _TEMP_RANDOM = "[a-z0-9_]{8}"
-_ANY_TEMP = re.compile(r"\.(?P<final>.+)" + re.escape(TEMP_MARK) + _TEMP_RANDOM + r"(\.[A-Za-z0-9]+)?")
+# The suffix is a Path.suffix (one dot, no other) or empty.
+_ANY_TEMP = re.compile(r"\.(?P<final>.+)" + re.escape(TEMP_MARK) + _TEMP_RANDOM + r"(?P<suffix>\.[^.]+)?")
 
 
 def atomic_temps(path: str | os.PathLike, suffix: str | None = None) -> list[Path]:
@@ -72,10 +73,14 @@ def atomic_temps(path: str | os.PathLike, suffix: str | None = None) -> list[Pat
     """
     path = Path(path)
     tail = path.suffix if suffix is None else suffix
-    pattern = re.compile(re.escape(f".{path.name}{TEMP_MARK}") + _TEMP_RANDOM + re.escape(tail))
     if not path.parent.is_dir():
         return []
-    return sorted(p for p in path.parent.iterdir() if pattern.fullmatch(p.name) and p.is_file())
+    found = []
+    for p in path.parent.iterdir():
+        match = _ANY_TEMP.fullmatch(p.name)
+        if match and match["final"] == path.name and (match["suffix"] or "") == tail and p.is_file():
+            found.append(p)
+    return sorted(found)
 
 
 def remove_stale_temps(folder: str | os.PathLike, ours: Callable[[Path], bool] | None = None) -> list[Path]:

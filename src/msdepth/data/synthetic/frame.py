@@ -121,8 +121,14 @@ def sequence_pose(rotation: np.ndarray, forward: float) -> np.ndarray:
     (world of the scene: x right, y down, z forward; the first frame's camera at the origin)."""
     pose = np.eye(4)
     pose[:3, :3] = rotation
-    pose[:3, 3] = rotation @ np.array([0.0, 0.0, forward])
+    pose[:3, 3] = camera_origin(rotation, 0.0, forward)
     return pose
+
+
+def camera_origin(rotation: np.ndarray, offset: float, forward: float) -> np.ndarray:
+    """The centre of the rig's camera ``offset`` metres right of the left one (0: the left camera,
+    the baseline: the right), the rig ``forward`` metres along its optical axis, in world coordinates."""
+    return rotation @ np.array([offset, 0.0, forward])
 
 
 def view_scene(scene: Scene, height: int, width: int, forward: float, rng: np.random.Generator) -> Frame:
@@ -132,7 +138,7 @@ def view_scene(scene: Scene, height: int, width: int, forward: float, rng: np.ra
     f = cam.f
     views, depths, faces = [], [], []
     for offset in (0.0, KITTI_BASELINE):
-        origin = scene.rot @ np.array([offset, 0.0, forward])
+        origin = camera_origin(scene.rot, offset, forward)
         depth, face = trace(scene, cam, origin)
         views.append(shade_view(scene, cam, origin, depth, face))
         depths.append(depth)

@@ -1,0 +1,116 @@
+"""docs/example/ (the predict example of docs/user-guide.md): `python -m msdepth.example` regenerates
+it from the trained models, and the committed images are the committed models' (issue 29 item 3)."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+import torch
+import yaml
+
+from msdepth.__main__ import main as msdepth_main
+from msdepth.data.imagefile import png_size
+from msdepth.example import FRAME, MANIFEST, OUT, disparity_name, main, md5, stale_example
+from msdepth.model import MonodepthVGG
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_the_committed_example_is_drawn_by_the_committed_models():
+    """Fails when dvc.lock's models change (a retrained default run) until the example is redrawn,
+    or when an image is not the size the command wrote."""
+    problems = stale_example(ROOT)
+    assert not problems, "\n".join(problems) + "\nrun `python -m msdepth.example` after `dvc repro`"
+
+
+def _tiny_model(path: Path, seed: int) -> None:
+    torch.manual_seed(seed)
+    state = {
+        "model": MonodepthVGG(0.0625).eval().state_dict(),
+        "criterion": {},
+        "width_multiplier": 0.0625,
+        "height": 32,
+        "width": 96,
+        "variant": "tiny",
+    }
+    path.parent.mkdir(parents=True, exist_ok=True)
+    torch.save(state, path)
+
+
+@pytest.fixture
+def project(tmp_path: Path) -> Path:
+    """The committed params, a rendered frame 000003_10 (48 x 128) and two tiny models."""
+    shutil.copy(ROOT / "params.yaml", tmp_path / "params.yaml")
+    root = yaml.safe_load((ROOT / "params.yaml").read_text())["data"]["root"]
+    frame = tmp_path / root / "kitti2015" / "training" / "image_2" / f"{FRAME}.png"
+    frame.parent.mkdir(parents=True)
+    small = np.random.default_rng(0).integers(0, 256, (6, 16, 3), dtype=np.uint8)
+    assert cv2.imwrite(str(frame), cv2.resize(small, (128, 48), interpolation=cv2.INTER_LINEAR))
+    for i, variant in enumerate(("ssim", "msssim")):
+        _tiny_model(tmp_path / "models" / variant / "seed0" / "model.pt", i)
+    return tmp_path
+
+
+def _lock(root: Path, manifest: dict) -> None:
+    """A dvc.lock recording the models' md5s, as `dvc repro` would."""
+    stages = {
+        f"train@{v}-0": {"outs": [{"path": image["model"], "hash": "md5", "md5": image["model_md5"]}]}
+        for v, image in manifest["images"].items()
+    }
+    (root / "dvc.lock").write_text(yaml.safe_dump({"schema": "2.0", "stages": stages}))
+
+
+def test_the_command_draws_each_variant_as_predict_does(project: Path, tmp_path_factory):
+    assert main(["--root", str(project)]) == 0
+    out = project / OUT
+    frame = project / "data" / "synthetic" / "kitti2015" / "training" / "image_2" / f"{FRAME}.png"
+    assert (out / f"{FRAME}.png").read_bytes() == frame.read_bytes()
+    manifest = json.loads((out / MANIFEST).read_text())
+    assert sorted(p.name for p in out.iterdir()) == sorted(
+        [f"{FRAME}.png", MANIFEST, disparity_name("ssim"), disparity_name("msssim")]
+    )
+    for variant in ("ssim", "msssim"):
+        image = manifest["images"][variant]
+        model = project / "models" / variant / "seed0" / "model.pt"
+        assert image["model"] == f"models/{variant}/seed0/model.pt" and image["model_md5"] == md5(model)
+        # the same bytes as `msdepth predict --colorbar` writes
+        alone = tmp_path_factory.mktemp("alone")
+        args = [str(frame), "--model", str(model), "--out", str(alone), "--colorbar", "--quiet"]
+        assert msdepth_main(["predict", *args, "--depth-format", "none", "--device", "cpu"]) == 0
+        drawn = (out / image["file"]).read_bytes()
+        assert drawn == (alone / f"{FRAME}_disp.png").read_bytes()
+        width, height = png_size(drawn)
+        assert (image["width"], image["height"]) == (width, height) and height == 48 and width > 128
+    _lock(project, manifest)
+    assert stale_example(project) == []
+
+
+def test_a_retrained_model_or_a_resized_image_is_found(project: Path):
+    assert main(["--root", str(project)]) == 0
+    manifest = json.loads((project / OUT / MANIFEST).read_text())
+    _lock(project, manifest)
+    _tiny_model(project / "models" / "msssim" / "seed0" / "model.pt", 7)  # retrained
+    manifest["images"]["msssim"]["model_md5"] = md5(project / "models" / "msssim" / "seed0" / "model.pt")
+    _lock(project, manifest)
+    problems = stale_example(project)
+    assert len(problems) == 1 and problems[0].startswith(
+        f"{project / OUT / disparity_name('msssim')}: drawn by"
+    )
+    shutil.copy(project / OUT / f"{FRAME}.png", project / OUT / disparity_name("ssim"))  # another size
+    assert any("not the" in p and disparity_name("ssim") in p for p in stale_example(project))
+
+
+def test_missing_models_are_one_line(project: Path, capsys):
+    (project / "models" / "msssim" / "seed0" / "model.pt").unlink()
+    assert main(["--root", str(project)]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [
+        f"error: {project / 'models/msssim/seed0/model.pt'}: missing; the example is drawn from the "
+        "trained models: run `dvc repro` first"
+    ]
+    assert not (project / OUT).exists()

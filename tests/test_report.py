@@ -1,0 +1,256 @@
+"""docs/results.md and the README's headline are what the committed metrics give (issue 29 item 3),
+and the report writes every number and verdict from the data (known answers on a small comparison)."""
+
+from __future__ import annotations
+
+import copy
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from msdepth.errors import DataError
+from msdepth.report import (
+    BEGIN,
+    END,
+    headline_table,
+    load_results,
+    main,
+    readme_block,
+    rendered,
+    replace_block,
+    results_page,
+    stale,
+    write_report,
+)
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_readme_block_and_results_page_are_what_the_committed_metrics_give():
+    """Editing a number of docs/results.md or of the README's block, or committing new metrics
+    without `dvc repro report`, fails here."""
+    differ = stale(ROOT)
+    assert not differ, f"{[str(p.relative_to(ROOT)) for p in differ]}: run `python -m msdepth.report`"
+
+
+def _diff(mean: float, low: float, high: float, seeds: int = 3, n: int = 10) -> dict:
+    return {
+        "mean": mean,
+        "low": low,
+        "high": high,
+        "n": n,
+        "seeds": seeds,
+        "reference_seeds": seeds,
+        "excludes_zero": low > 0 or high < 0,
+    }
+
+
+def _full(abs_rel: float, rmse: float, a1: float) -> dict:
+    return {"abs_rel": abs_rel, "sq_rel": 2 * abs_rel, "rmse": rmse, "a1": a1}
+
+
+def _roi(abs_rel: float, car: float, glass: float) -> dict:
+    return {
+        "overall": {"abs_rel": abs_rel, "count": 7},
+        "by_class": {"car": {"abs_rel": car}, "glass": {"abs_rel": glass}},
+    }
+
+
+# A comparison with known numbers: MS-SSIM 0.020 ahead of SSIM, interval [-0.030, -0.010] (marked
+# over 3 seeds); the constant wins on glass, every variant on cars.
+COMPARISON = {
+    "variants": ["ssim", "msssim"],
+    "baselines": ["constant", "prior"],
+    "seeds": [0, 1, 2],
+    "settings": {
+        "ssim": {"kernel_size": 3, "padding": "valid"},
+        "msssim": {"kernel_size": 3, "levels": 4, "weights": "wang"},
+    },
+    "full": {
+        "cap80": {
+            "ssim": _full(0.2, 7.0, 0.8),
+            "msssim": _full(0.18, 7.5, 0.81),
+            "constant": _full(0.5, 15.0, 0.2),
+            "prior": _full(0.3, 10.0, 0.5),
+        }
+    },
+    "roi": {
+        "cap80": {
+            "ssim": _roi(0.6, 0.45, 0.5),
+            "msssim": _roi(0.55, 0.4, 0.55),
+            "constant": _roi(0.45, 0.6, 0.3),
+            "prior": _roi(0.7, 0.65, 0.6),
+        }
+    },
+    "statistics": {
+        "reference": "ssim",
+        "confidence": 0.95,
+        "bootstrap_samples": 100,
+        "full": {
+            "cap80": {
+                "msssim": {"abs_rel": _diff(-0.02, -0.03, -0.01)},
+                "constant": {"abs_rel": _diff(0.3, 0.25, 0.35)},
+                "prior": {"abs_rel": _diff(0.1, 0.05, 0.15)},
+            }
+        },
+        "roi": {"cap80": {"msssim": {"abs_rel": _diff(-0.05, -0.1, 0.01)}}},
+    },
+    "seed_spread": {
+        "full": {"cap80": {"ssim": {"abs_rel": {"mean": 0.2, "sd": 0.004}}}},
+        "roi": {"cap80": {"ssim": {"abs_rel": {"mean": 0.6, "sd": 0.02}}}},
+    },
+    "roi_masks": {"cap80": {"ssim": {"overall": {"abs_rel": 0.61}}}},
+    "image_dependence": {
+        "ssim/seed0": {"variation_ratio": 0.6, "image_blind": False},
+        "msssim/seed0": {"variation_ratio": 0.7, "image_blind": False},
+        "constant": {"variation_ratio": 0.0, "image_blind": True},
+    },
+}
+
+
+def _project(tmp_path: Path, data: dict, readme: str | None = None) -> Path:
+    (tmp_path / "metrics" / "train" / "ssim").mkdir(parents=True)
+    (tmp_path / "metrics" / "compare.json").write_text(json.dumps(data))
+    for seed in data["seeds"]:
+        (tmp_path / "metrics" / "train" / "ssim" / f"seed{seed}.json").write_text(
+            '{"steps": 1200, "epochs": 8}'
+        )
+    if readme is not None:
+        (tmp_path / "README.md").write_text(readme)
+    return tmp_path
+
+
+def test_headline_table_known_answers(tmp_path: Path):
+    r = load_results(_project(tmp_path, COMPARISON))
+    lines = headline_table(r).splitlines()
+    assert lines[0] == (
+        "| run | abs_rel | sq_rel | rmse (m) | a1 | ROI abs_rel | exact masks | glass | car |"
+    )  # classes: glass-like first
+    # mean ± sd over seeds where the spread is known; the best variant per full-image column bold
+    assert (
+        lines[2]
+        == "| SSIM | 0.200 ± 0.004 | 0.40 | **7.00** | 0.800 | 0.600 ± 0.020 | 0.610 | 0.500 | 0.450 |"
+    )
+    assert (
+        lines[3] == "| MS-SSIM (k=3) | **0.180** | **0.36** | 7.50 | **0.810** | 0.550 | – | 0.550 | 0.400 |"
+    )
+    assert lines[4].startswith("| constant (image-blind) | 0.500 | 1.00 | 15.00 | 0.200 | 0.450 |")
+
+
+def test_a_marked_difference_is_a_verdict_an_unmarked_one_is_not(tmp_path: Path):
+    r = load_results(_project(tmp_path, COMPARISON))
+    block = readme_block(r)
+    assert block.startswith(BEGIN + "\n") and block.endswith("\n" + END)
+    text = " ".join(block.split())
+    assert "**Verdict**: MS-SSIM (k=3) has an abs_rel 0.020 lower than SSIM's" in text
+    assert "[−0.030, −0.010] over images and seeds, which excludes 0 (marked `*`" in text
+    assert "the constant on glass" in text and "car" not in text.split("On the ROIs")[1]
+    assert "KITTI 2015 layout, cap 80 m, 10 frames, 7 ROIs; variants: mean ± sd over 3 seeds" in text
+
+
+def test_with_one_seed_nothing_is_marked(tmp_path: Path):
+    data = copy.deepcopy(COMPARISON)
+    data["seeds"] = [0]
+    for block in data["statistics"]["full"]["cap80"].values():
+        block["abs_rel"]["seeds"] = block["abs_rel"]["reference_seeds"] = 1
+    text = " ".join(readme_block(load_results(_project(tmp_path, data))).split())
+    assert "**No verdict yet**" in text and "**Verdict**" not in text
+    assert "[−0.030, −0.010] over images, which excludes 0 but does not cover training noise" in text
+    assert "variants: one run each (seed 0)" in text
+
+
+def test_settings_that_differ_from_the_defaults_name_the_row(tmp_path: Path):
+    data = copy.deepcopy(COMPARISON)
+    data["settings"]["msssim"].update(kernel_size=7, levels=3)
+    table = headline_table(load_results(_project(tmp_path, data)))
+    assert "| MS-SSIM (k=7, levels=3) |" in table and "| SSIM |" in table
+
+
+def test_image_blind_runs_are_flagged(tmp_path: Path):
+    data = copy.deepcopy(COMPARISON)
+    data["image_dependence"]["msssim/seed0"].update(variation_ratio=0.1, image_blind=True)
+    data["image_dependence"]["msssim/seed1"] = {"variation_ratio": 0.5, "image_blind": False}
+    r = load_results(_project(tmp_path, data))
+    assert "| MS-SSIM (k=3) (1 of 2 runs image-blind) |" in headline_table(r)
+    assert "msssim/seed0 is image-blind (variation below 0.25 of the GT's)" in " ".join(
+        results_page(r).split()
+    )
+
+
+def test_without_rois_or_extra_sets_their_parts_are_left_out(tmp_path: Path):
+    data = copy.deepcopy(COMPARISON)
+    for key in ("roi", "roi_masks"):
+        del data[key]
+    del data["statistics"]["roi"]
+    r = load_results(_project(tmp_path, data))
+    assert headline_table(r).splitlines()[0] == "| run | abs_rel | sq_rel | rmse (m) | a1 |"
+    page = results_page(r)
+    assert "on the ROIs" not in page and "Per ROI class" not in page
+    assert "## The Eigen split" not in page
+
+
+def test_results_page_known_answers(tmp_path: Path):
+    data = copy.deepcopy(COMPARISON)
+    data["sets"] = {"eigen": copy.deepcopy({k: data[k] for k in ("full", "statistics", "seed_spread")})}
+    data["sets"]["eigen"]["images"] = 10
+    page = " ".join(results_page(load_results(_project(tmp_path, data))).split())
+    assert "3 training runs per variant (seeds 0, 1, 2), each 1,200 steps over 8 epochs" in page
+    assert "Every trained run follows the image (variation 0.60–0.70 of the GT's" in page
+    assert (
+        "the constant +0.300 [+0.250, +0.350] and the per-pixel prior +0.100 [+0.050, +0.150], so SSIM beats"
+        in page
+    )
+    assert "glass 0.500–0.550 against the constant's 0.300" in page
+    assert "Every variant is ahead on car. Every variant is behind on glass." in page
+    assert "## The Eigen split" in page and "10 images" in page
+
+
+def test_replace_block_keeps_the_rest_and_needs_both_markers(tmp_path: Path):
+    text = f"# title\n\n{BEGIN}\nold\n{END}\n\n## next\n"
+    assert (
+        replace_block(text, f"{BEGIN}\nnew\n{END}", Path("README.md"))
+        == f"# title\n\n{BEGIN}\nnew\n{END}\n\n## next\n"
+    )
+    for broken in ("# no block\n", f"{END}\n{BEGIN}\n", f"{BEGIN}\n{BEGIN}\n{END}\n"):
+        with pytest.raises(DataError, match=r"^README\.md: needs one generated block"):
+            replace_block(broken, "x", Path("README.md"))
+
+
+def test_write_then_check_and_a_hand_edit_is_found(tmp_path: Path, capsys):
+    root = _project(tmp_path, COMPARISON, readme=f"# title\n\n{BEGIN}\n{END}\n\nhand-written\n")
+    assert main(["--root", str(root), "--check"]) == 1
+    assert write_report(root) == [root / "docs" / "results.md", root / "README.md"]
+    assert main(["--root", str(root), "--check"]) == 0
+    assert write_report(root) == []  # unchanged files are left alone
+    readme = (root / "README.md").read_text()
+    assert readme.endswith(f"{END}\n\nhand-written\n") and "| SSIM | 0.200 ± 0.004 |" in readme
+    (root / "README.md").write_text(readme.replace("0.200 ± 0.004", "0.199 ± 0.004"))
+    capsys.readouterr()
+    assert main(["--root", str(root), "--check"]) == 1
+    assert "README.md: not what the metrics give" in capsys.readouterr().err
+
+
+def test_a_project_without_readme_gets_only_the_results_page(tmp_path: Path):
+    root = _project(tmp_path, COMPARISON)
+    assert list(rendered(root)) == [root / "docs" / "results.md"]
+
+
+def test_missing_or_broken_metrics_are_one_line(tmp_path: Path):
+    env_root = str(ROOT / "src")
+    proc = subprocess.run(
+        [sys.executable, "-m", "msdepth.report", "--root", str(tmp_path)],
+        capture_output=True,
+        text=True,
+        env={"PYTHONPATH": env_root, "PATH": ""},
+    )
+    assert proc.returncode == 1
+    assert proc.stderr.strip().splitlines() == [
+        f"error: {tmp_path / 'metrics' / 'compare.json'}: missing; run `dvc repro compare` first"
+    ]
+    data = copy.deepcopy(COMPARISON)
+    del data["full"]
+    with pytest.raises(DataError, match=r"compare\.json: no full \(re-run the compare stage\)"):
+        load_results(_project(tmp_path, data))
