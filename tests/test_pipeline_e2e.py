@@ -239,6 +239,7 @@ MSSSIM_STAGES = {
     *(f"optimum@msssim-{w}" for w in SWEEP),
     "cost_curves@msssim",
     "compare",
+    "report",
     "figures",
 }
 
