@@ -123,12 +123,15 @@ SET_SPLITS = {"eigen": "eigen_split", "eigen_benchmark": "eigen_benchmark_split"
 
 
 def needed_splits(params: Params) -> dict[str, Path]:
-    """The split lists whose drives KITTI's download must fetch: the training split and the list
-    of each set of eval.extra_sets (KITTI 2015, always evaluated, is an archive of its own)."""
+    """The split lists whose drives KITTI's download must fetch: the training split, the list of
+    each set of eval.extra_sets (KITTI 2015, always evaluated, is an archive of its own) and, for
+    train.mode mono | mono_stereo, the monocular split (data.kitti.mono_split)."""
     paths = layout(params)
     splits = {"the train split": paths.train_split}
     for name in params.eval.extra_sets:
         splits[name] = getattr(paths, SET_SPLITS[name])
+    if params.train.monocular and paths.mono_split is not None:
+        splits["the monocular split"] = paths.mono_split
     return splits
 
 

@@ -91,27 +91,32 @@ def train(params: Params, variant: VariantArg, seed: SeedArg) -> None:
 
 
 def add_pose_metrics(params: Params, run: str, summary_path: Path) -> None:
-    """A monocular run's pose ATE on the rendered sequences (msdepth.pose_eval), added to its
-    training summary as ``pose``."""
-    from msdepth.pose_eval import sequence_ates
+    """A monocular run's pose ATE (msdepth.pose_eval), added to its training summary as ``pose``:
+    on the rendered sequences, or on the KITTI odometry sequences that are on disk (each one's also
+    under ``pose.sequences``; none is fetched, so with none there the summary has no ``pose``)."""
+    from msdepth.pose_eval import odometry_ates, sequence_ates
     from msdepth.train import trained_pose_net
 
     net = trained_pose_net(params, checkpoint_path(run))
-    pose = sequence_ates(
-        net,
-        layout(params).raw_root,
-        params.data.synthetic.sequence_length,
-        params.data.height,
-        params.data.width,
-    )
+    paths, h, w = layout(params), params.data.height, params.data.width
+    if params.data.source == "kitti":
+        assert paths.odometry is not None  # the KITTI layout always names it
+        pose = odometry_ates(net, paths.odometry, params.data.kitti.odometry_sequences, h, w)
+        if not pose:
+            log.info("train %s: no KITTI odometry poses below %s: pose not evaluated", run, paths.odometry)
+            return
+    else:
+        pose = sequence_ates(net, paths.raw_root, params.data.synthetic.sequence_length, h, w)
     write_json(summary_path, {**json.loads(summary_path.read_text()), "pose": pose})
-    log.info(
-        "train %s: pose ATE %.4f ± %.4f over %d snippets",
-        run,
-        pose["ate_mean"],
-        pose["ate_std"],
-        pose["snippets"],
-    )
+    for name, values in {"": pose, **pose.get("sequences", {})}.items():
+        log.info(
+            "train %s: pose ATE%s %.4f ± %.4f over %d snippets",
+            run,
+            f" of sequence {name}" if name else "",
+            values["ate_mean"],
+            values["ate_std"],
+            values["snippets"],
+        )
 
 
 if __name__ == "__main__":

@@ -31,6 +31,7 @@ import pytest
 from conftest import stage
 
 from msdepth import io as dl_io
+from msdepth.config import params_from_dict
 from msdepth.data import download as dl
 from msdepth.errors import DataError
 
@@ -430,6 +431,21 @@ def test_the_shipped_splits_need_46_of_the_61_drives() -> None:
     bench = dl.select_needed(names, {"eigen_benchmark": lists / "eigen_benchmark_test_files.txt"})
     eigen = dl.select_needed(names, {"eigen": lists / "eigen_test_files.txt"})
     assert bench.archives == eigen.archives and bench.drives == 28
+    # Monodepth2's eigen_zhou split (train.mode mono | mono_stereo) names 32 drives, 15 of them
+    # in neither list: with it every drive of the archive list is fetched.
+    zhou = {**default, "the monocular split": lists / "eigen_zhou_train_files.txt"}
+    assert dl.select_needed(names, zhou).drives == 61
+    assert dl.select_needed(names, {"m": lists / "eigen_zhou_train_files.txt"}).drives == 32
+
+
+def test_the_monocular_modes_fetch_the_monocular_splits_drives(monkeypatch: pytest.MonkeyPatch) -> None:
+    needed_splits = stage("prepare_data").needed_splits
+    monkeypatch.chdir(SHIPPED_LIST.parents[1])
+    stereo = params_from_dict({"data": {"source": "kitti"}})
+    assert "the monocular split" not in needed_splits(stereo)
+    for mode in ("mono", "mono_stereo"):
+        mono = params_from_dict({"data": {"source": "kitti"}, "train": {"mode": mode}})
+        assert needed_splits(mono)["the monocular split"] == Path("data_lists/eigen_zhou_train_files.txt")
 
 
 def test_a_split_naming_drives_not_in_the_archive_list_is_one_line(tmp_path: Path) -> None:

@@ -15,7 +15,8 @@ from msdepth.config import EvalConfig, SyntheticConfig, params_from_dict
 from msdepth.data import synthetic
 from msdepth.errors import DataError
 from msdepth.evaluate import Frame, depth_maps, evaluate_full, median_scaled_maps
-from msdepth.pose_eval import sequence_ates
+from msdepth.io import write_png
+from msdepth.pose_eval import odometry_ates, sequence_ates
 from msdepth.suites import median_scaling
 
 CFG = EvalConfig(caps=(80.0,))
@@ -134,6 +135,65 @@ def test_pose_ate_is_zero_for_the_true_motion_at_any_scale(rendered: Path) -> No
 def test_pose_ate_without_sequences_is_one_error(tmp_path: Path) -> None:
     with pytest.raises(DataError, match="no rendered sequences"):
         sequence_ates(_ConstantPose((0.0, 0.0, 1.0)), tmp_path, 3, 32, 96)
+
+
+class _BrightnessPose(nn.Module):
+    """A pose network whose forward translation is the brightness change between its two frames."""
+
+    def forward(self, first: torch.Tensor, second: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        step = (second - first).mean(dim=(1, 2, 3))
+        return torch.zeros(first.shape[0], 3), torch.stack([0 * step, 0 * step, step], dim=1)
+
+
+def _odometry(root: Path, sequence: str, frames: int, step: float = 0.8) -> None:
+    """KITTI odometry's layout: ``frames`` images of sequence ``sequence`` (brightness rising frame
+    by frame) and its poses, the camera moving ``step`` m forward per frame."""
+    rng = np.random.default_rng(int(sequence))
+    for n in range(frames):
+        image = np.clip(rng.integers(0, 60, (24, 80, 3)) + 10 * n, 0, 255).astype(np.uint8)
+        write_png(root / "sequences" / sequence / "image_2" / f"{n:06d}.png", image)
+    poses = np.tile(np.eye(4)[:3].reshape(1, 12), (frames, 1))
+    poses[:, 11] = step * np.arange(frames)
+    (root / "poses").mkdir(parents=True, exist_ok=True)
+    np.savetxt(root / "poses" / f"{sequence}.txt", poses, fmt="%.6e")
+
+
+def test_pose_ate_on_kitti_odometry_per_sequence_and_pooled(tmp_path: Path) -> None:
+    _odometry(tmp_path, "09", 7)
+    assert odometry_ates(_ConstantPose((0.0, 0.0, -1.6)), tmp_path, ["10"], 24, 80) == {}  # absent
+    exact = odometry_ates(_ConstantPose((0.0, 0.0, -1.6)), tmp_path, ["09", "10"], 24, 80)
+    assert exact["snippets"] == 6 and exact["ate_mean"] == pytest.approx(0, abs=1e-6)
+    assert list(exact["sequences"]) == ["09"]
+    # Standing still: a snippet of F frames errs by sqrt(sum_k (0.8 k)^2) / F, k < F; snippets
+    # start at frames 0..5 of 7, so they have 5, 5, 5, 4, 3 and 2 frames.
+    still = odometry_ates(_ConstantPose((0.0, 0.0, 0.0)), tmp_path, ["09"], 24, 80)
+    per_length = {f: np.sqrt(sum((0.8 * k) ** 2 for k in range(f))) / f for f in (2, 3, 4, 5)}
+    expected = [per_length[f] for f in (5, 5, 5, 4, 3, 2)]
+    assert still["ate_mean"] == pytest.approx(np.mean(expected), rel=1e-6)
+    assert still["sequences"]["09"] == {k: still[k] for k in ("ate_mean", "ate_std", "snippets")}
+
+
+def test_pose_ate_on_odometry_pools_sequences_and_reads_in_chunks(tmp_path: Path) -> None:
+    from msdepth.pose_eval import trajectory_ates
+
+    _odometry(tmp_path, "09", 7)
+    _odometry(tmp_path, "10", 4, step=0.5)
+    both = odometry_ates(_BrightnessPose(), tmp_path, ["09", "10"], 24, 80)
+    assert both["snippets"] == 6 + 3 and set(both["sequences"]) == {"09", "10"}
+    paths = sorted((tmp_path / "sequences" / "09" / "image_2").glob("*.png"))
+    truth = np.stack([np.eye(4)] * 7)
+    truth[:, 2, 3] = 0.8 * np.arange(7)
+    whole = trajectory_ates(_BrightnessPose(), paths, truth, 24, 80, chunk=64)
+    for chunk in (1, 2, 3):  # the pair that straddles two chunks is predicted once, as in one pass
+        assert np.array_equal(trajectory_ates(_BrightnessPose(), paths, truth, 24, 80, chunk=chunk), whole)
+    assert both["sequences"]["09"]["ate_mean"] == pytest.approx(float(whole.mean()), rel=1e-12)
+
+
+def test_odometry_with_a_frame_missing_is_one_error_naming_it(tmp_path: Path) -> None:
+    _odometry(tmp_path, "09", 5)
+    (tmp_path / "sequences" / "09" / "image_2" / "000003.png").unlink()
+    with pytest.raises(DataError, match=r"09\.txt: 5 poses, but 1 of their frames .* \(first: 000003\.png\)"):
+        odometry_ates(_ConstantPose((0.0, 0.0, 1.0)), tmp_path, ["09"], 24, 80)
 
 
 def test_only_a_monocular_run_is_median_scaled_not_the_baselines_or_the_optimum(

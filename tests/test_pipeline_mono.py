@@ -85,7 +85,8 @@ def test_mono_without_sequences_stops_at_validation_in_one_line(repo: Path) -> N
     ]
     assert proc.returncode != 0 and len(errors) == 1, proc.stderr[-2000:]
     assert (
-        "train.mode: 'mono' trains on frame sequences: set data.synthetic.sequence_length >= 3" in errors[0]
+        "train.mode: 'mono' trains on frame sequences: KITTI's raw drives (data.source kitti) or "
+        "rendered ones (data.source synthetic with data.synthetic.sequence_length >= 3" in errors[0]
     )
     assert not (repo / "data" / "synthetic").exists()  # nothing after validate_params ran
     subprocess.run(["git", "checkout", "params.yaml"], cwd=repo, check=True)

@@ -100,6 +100,13 @@ class KittiConfig:
     depth_annotated: str = "depth_annotated"  # below data.root: data_depth_annotated.zip's train/ and val/
     # KITTI's annotated depth (~14 GB), fetched only for eval.extra_sets' eigen_benchmark
     depth_annotated_archive: str = "data_depth_annotated.zip"
+    # train.mode mono | mono_stereo: Monodepth2's eigen_zhou split of raw frames (``drive frame
+    # side``), whose drives are fetched too; and KITTI odometry (data_odometry_color.zip's
+    # sequences/<NN>/image_2 with data_odometry_poses.zip's poses/<NN>.txt, below data.root, not
+    # fetched) for the pose ATE on the sequences named, when they are there.
+    mono_split: str = _added_later("data_lists/eigen_zhou_train_files.txt")
+    odometry: str = _added_later("odometry")
+    odometry_sequences: tuple[str, ...] = _added_later(("09", "10"))
     rois_csv: str = ""  # hand-drawn boxes (image, class, x0, y0, x1, y1) added to the obj_map cars
     roi_min_size: int = 16  # px, both sides of an automatic car box
     roi_min_valid: float = 0.3  # fraction of an automatic car box with valid GT
@@ -118,6 +125,11 @@ class KittiConfig:
             self.drives is None or not self.drive_count,
             f"{key}.drive_count",
             "give either drives or drive_count, not both",
+        )
+        check(
+            all(s.isdigit() for s in self.odometry_sequences),
+            f"{key}.odometry_sequences",
+            f"must be KITTI odometry sequence numbers like '09', got {shown(list(self.odometry_sequences))}",
         )
         scheme = urllib.parse.urlsplit(self.base_url).scheme.lower()
         refused = (
@@ -305,13 +317,14 @@ class TrainConfig:
             f"{key}.source_frames",
             f"applies to train.mode mono and mono_stereo only; keep [-1, 1] in stereo, got {shown(frames)}",
         )
-        sequences = params.data.source == "synthetic" and params.data.synthetic.sequence_length > 0
+        rendered = params.data.source == "synthetic" and params.data.synthetic.sequence_length > 0
         check(
-            self.mode == "stereo" or sequences,
+            self.mode == "stereo" or rendered or params.data.source == "kitti",
             f"{key}.mode",
-            f"{shown(self.mode)} trains on frame sequences: set data.synthetic.sequence_length >= 3 "
-            f"(data.source synthetic renders them; here data.source is {params.data.source} and "
-            f"sequence_length {params.data.synthetic.sequence_length}), or train.mode stereo",
+            f"{shown(self.mode)} trains on frame sequences: KITTI's raw drives (data.source kitti) or "
+            f"rendered ones (data.source synthetic with data.synthetic.sequence_length >= 3; here "
+            f"data.source is {params.data.source} and sequence_length "
+            f"{params.data.synthetic.sequence_length}), or set train.mode stereo",
         )
         seeds = list(self.seeds)
         in_range = all(0 <= seed <= SEED_MAX for seed in seeds)

@@ -88,6 +88,41 @@ def snippet_ates(
     return np.array(ates)
 
 
+def trajectory_ates(
+    net: PoseNet,
+    paths: Sequence[Path],
+    truth: np.ndarray,
+    height: int,
+    width: int,
+    track_length: int = TRACK_LENGTH,
+    chunk: int = 64,
+) -> np.ndarray:
+    """:func:`snippet_ates` of ``net``'s relative poses between consecutive frames of ``paths``
+    (resized to ``height`` x ``width`` as training sees them) against the camera-to-world poses
+    ``truth`` of the same frames; ``chunk`` frames are decoded at a time."""
+    import torch
+
+    from .data.kitti import read_image
+    from .data.pairs import resize, to_tensor
+    from .pose import relative_pose
+
+    weight = next(net.parameters(), None)
+    device = weight.device if weight is not None else torch.device("cpu")
+    net.eval()
+    predicted = []
+    for start in range(0, len(paths) - 1, chunk):
+        span = paths[start : start + chunk + 1]  # one frame of overlap: the next chunk's first pair
+        frames = torch.stack([to_tensor(resize(read_image(p), height, width)) for p in span]).to(device)
+        with torch.no_grad():
+            predicted.append(relative_pose(net, frames[:-1], frames[1:], 1).cpu().double().numpy())
+    return snippet_ates(np.concatenate(predicted), truth, track_length)
+
+
+def summary(ates: np.ndarray) -> dict:
+    """The snippets' mean and std ATE and their count."""
+    return {"ate_mean": float(ates.mean()), "ate_std": float(ates.std()), "snippets": int(ates.size)}
+
+
 def sequence_ates(
     net: PoseNet,
     raw_root: str | os.PathLike,
@@ -100,24 +135,16 @@ def sequence_ates(
 
     Every drive with a ``poses.txt`` (the synthetic set's, ``data.synthetic.sequence_length``
     frames per sequence, the last one maybe shorter) is cut into its sequences; each sequence's
-    camera-02 frames, resized to ``height`` x ``width`` as training sees them, give the relative
-    poses of consecutive frames (:func:`msdepth.pose.relative_pose`, offset +1), scored against the
-    exact poses with :func:`snippet_ates`. Returns the snippets' mean and std ATE and their count.
+    camera-02 frames give the relative poses of consecutive frames, scored against the exact poses
+    (:func:`trajectory_ates`). Returns the snippets' :func:`summary`.
     """
-    import torch
-
-    from .data.kitti import read_image
-    from .data.pairs import resize, to_tensor
     from .data.sequences import frame_path
-    from .pose import relative_pose
 
     raw_root = Path(raw_root)
     files = sorted(raw_root.glob("*/*/poses.txt"))
     if not files or sequence_length < 2:
         raise DataError(f"{raw_root}: no rendered sequences (poses.txt) to evaluate poses on")
-    device = next(net.parameters()).device
     ates = []
-    net.eval()
     for file in files:
         drive, truth = file.parent.relative_to(raw_root).as_posix(), read_poses(file)
         for start in range(0, len(truth) - 1, sequence_length):
@@ -127,9 +154,40 @@ def sequence_ates(
             paths = [frame_path(raw_root, drive, n, "l") for n in span]
             if any(p is None for p in paths):
                 raise DataError(f"{file}: a frame of its sequence at {start} is missing")
-            frames = torch.stack([to_tensor(resize(read_image(p), height, width)) for p in paths]).to(device)
-            with torch.no_grad():
-                predicted = relative_pose(net, frames[:-1], frames[1:], 1).cpu().double().numpy()
-            ates.append(snippet_ates(predicted, truth[span.start : span.stop], track_length))
-    values = np.concatenate(ates)
-    return {"ate_mean": float(values.mean()), "ate_std": float(values.std()), "snippets": int(values.size)}
+            truth_span = truth[span.start : span.stop]
+            ates.append(trajectory_ates(net, paths, truth_span, height, width, track_length))  # type: ignore[arg-type]
+    return summary(np.concatenate(ates))
+
+
+def odometry_ates(
+    net: PoseNet,
+    root: str | os.PathLike,
+    sequences: Sequence[str],
+    height: int,
+    width: int,
+    track_length: int = TRACK_LENGTH,
+) -> dict:
+    """Monodepth2's pose evaluation on KITTI odometry: for each of ``sequences`` present below
+    ``root`` (``poses/<NN>.txt`` and ``sequences/<NN>/image_2/<frame:06d>.png``, or ``.jpg``), the
+    ATE of every 5-frame snippet over all its frames. Returns the :func:`summary` of every
+    snippet of the sequences present, with each one's under ``sequences`` (``{}`` when none is);
+    a sequence whose poses and images disagree is a DataError."""
+    from .data.kitti import resolve_image
+
+    root, found = Path(root), {}
+    ates = []
+    for seq in sequences:
+        poses = root / "poses" / f"{seq}.txt"
+        if not poses.is_file():
+            continue
+        truth = read_poses(poses)
+        paths = [resolve_image(root, f"sequences/{seq}/image_2/{n:06d}.png") for n in range(len(truth))]
+        missing = [n for n, p in enumerate(paths) if p is None]
+        if missing:
+            raise DataError(
+                f"{poses}: {len(truth)} poses, but {len(missing)} of their frames are not in "
+                f"{root / 'sequences' / seq / 'image_2'} (first: {missing[0]:06d}.png)"
+            )
+        ates.append(trajectory_ates(net, paths, truth, height, width, track_length))  # type: ignore[arg-type]
+        found[seq] = summary(ates[-1])
+    return {**summary(np.concatenate(ates)), "sequences": found} if found else {}

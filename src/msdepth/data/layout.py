@@ -33,8 +33,10 @@ class Layout:
     eigen_benchmark_split: Path
     depth_annotated: Path
     # Monodepth2's split of frames with both neighbours (msdepth.data.sequences), for train.mode
-    # mono and mono_stereo; the synthetic set writes it with data.synthetic.sequence_length.
+    # mono and mono_stereo: KITTI's eigen_zhou list, or the synthetic set's (sequence_length > 0).
     mono_split: Path | None = None
+    # KITTI odometry (sequences/<NN>/image_2, poses/<NN>.txt) for the monocular runs' pose ATE.
+    odometry: Path | None = None
 
 
 @dataclass(frozen=True)
@@ -94,4 +96,6 @@ def layout(params: Params) -> Layout:
         Path(k.eigen_split),
         Path(k.eigen_benchmark_split),
         root / k.depth_annotated,
+        Path(k.mono_split),
+        root / k.odometry,
     )
