@@ -168,6 +168,33 @@ def test_kitti_source_runs_every_stage(mirror, tmp_path: Path) -> None:
     rois = (work / "data" / "index" / "rois.csv").read_text().splitlines()
     assert len(rois) > 1 and all(",car," in line for line in rois[1:])  # cars from obj_map
     assert (work / "data" / "index" / "rois.png").stat().st_size > 1000
+    _check_monocular(work, lists)
+
+
+def _check_monocular(work: Path, lists: Path) -> None:
+    """`dvc exp run -S train.mode=mono` on the fetched drives: a Monodepth2 split of the listed
+    frames (those without both neighbours skipped), and pose ATE on an odometry-shaped copy of
+    one drive's frames placed below data.root (``odometry/``), as a user unpacks KITTI's."""
+    frames = sorted(
+        (line.split()[0].split("/image_02/")[0], int(Path(line.split()[0]).stem))
+        for line in (lists / "train.txt").read_text().splitlines()
+    )
+    (lists / "mono.txt").write_text("".join(f"{d} {n} l\n" for d, n in frames))
+    drive, _ = frames[0]
+    odometry = work / "data" / "kitti" / "odometry"
+    shots = sorted((work / "data" / "kitti" / "raw" / drive / "image_02" / "data").glob("*.png"))
+    for n, shot in enumerate(shots):
+        (odometry / "sequences" / "09" / "image_2").mkdir(parents=True, exist_ok=True)
+        (odometry / "sequences" / "09" / "image_2" / f"{n:06d}.png").write_bytes(shot.read_bytes())
+    poses = [f"1 0 0 0 0 1 0 0 0 0 1 {0.8 * n:g}\n" for n in range(len(shots))]
+    (odometry / "poses").mkdir()
+    (odometry / "poses" / "09.txt").write_text("".join(poses))
+    mono = ["-S", "train.mode=mono", "-S", f"data.kitti.mono_split={lists / 'mono.txt'}"]
+    _run([sys.executable, "-m", "dvc", "exp", "run", "--quiet", *mono], work)
+    summary = json.loads((work / "metrics" / "train" / "ssim" / "seed0.json").read_text())
+    assert summary["pose"]["snippets"] == len(shots) - 1 and list(summary["pose"]["sequences"]) == ["09"]
+    full = json.loads((work / "metrics" / "full" / "ssim" / "seed0.json").read_text())
+    assert "median_scaling" in full["cap80"]  # up to scale: evaluated median-scaled, as Monodepth2
 
 
 # Hand-drawn boxes on the real left image (the rear window of the dark hatchback, the side
