@@ -77,7 +77,8 @@ def _trained_suites() -> dict:
     }
     runs = {"ssim": (0.3, 0.35, 0.33), "msssim": (0.25, 0.3, 0.28), "prior": (0.5, 0.5, 0.5)}
     return {
-        "full": {r: {"cap80": {**METRICS, "abs_rel": v[0], "a1": 1 - v[0]}} for r, v in runs.items()},
+        "full": {r: {"images": 5, "cap80": {**METRICS, "abs_rel": v[0], "a1": 1 - v[0]}}
+                 for r, v in runs.items()},
         "roi": {r: _roi(v[1], v[1], v[2]) for r, v in runs.items()},
         "gradients": {r: grad for r in runs},
     }  # fmt: skip
@@ -89,8 +90,9 @@ def test_the_optimum_section_shows_optimum_trained_runs_and_baselines_side_by_si
         comparison_data(_trained_suites(), ["ssim", "msssim"], ["prior"], optimum=data)
     )
     section = md[md.index("# The losses' own optimum (no network)") :]
-    assert "| ssim |  | 0.3000 | 0.7000 | 0.3500 | 0.3300 |" in section
-    assert "| prior |  | 0.5000 | 0.5000 | 0.5000 | 0.5000 |" in section
+    # The trained runs and the baselines were scored on every frame: their count stands beside them.
+    assert "| ssim | 5 | 0.3000 | 0.7000 | 0.3500 | 0.3300 |" in section
+    assert "| prior | 5 | 0.5000 | 0.5000 | 0.5000 | 0.5000 |" in section
     assert "| optimum ssim w10 | 3 | 0.1000 | 0.9000 | 0.1200 | 0.0900 |" in section
     assert "| optimum ssim w3 | 2 | 0.1500 |" in section
     # * only where the interval excludes 0; the optimum has no seed: the interval covers the images.

@@ -144,6 +144,7 @@ def _check_optimum(repo: Path, md: str, compare: dict) -> None:
         assert (repo / "outputs" / run / "depth.npz").is_file()
     section = md[md.index("# The losses' own optimum (no network)") :]
     assert "| optimum msssim w1 | 2 |" in section and "| optimum ssim w10 | 3 |" in section
+    assert "| ssim | 3 |" in section and "| prior | 3 |" in section  # the trained runs: every frame
     assert "interval covers the choice of images" in section and "ROI abs rel per class" in section
     diff = compare["optimum"]["differences"]
     assert (

@@ -447,6 +447,7 @@ class Comparison:
     optimum: dict | None = None  # :func:`optimum_data`: the losses' own optimum, no network
     settings: dict[str, dict] | None = None  # :func:`variant_settings`: each variant's params section
     monocular: dict[str, dict] | None = None  # :func:`monocular_data`: scale ratios and pose ATE
+    images: dict[str, int] | None = None  # per run, the images its full-image suite scored
 
     @property
     def runs(self) -> list[str]:
@@ -554,6 +555,7 @@ def comparison_data(
         optimum=optimum,
         settings=settings,
         monocular=monocular,
+        images={r: suites["full"][r]["images"] for r in runs if "images" in suites["full"][r]},
     )
 
 
@@ -874,7 +876,7 @@ def _optimum_side_rows(c: Comparison, cap: str) -> dict[str, dict]:
         roi = {cap: c.roi[cap][r]} if cap in c.roi else None
         if roi is not None and c.roi_masks and cap in c.roi_masks:
             roi["masks"] = {cap: c.roi_masks[cap][r]}
-        out[c.label(r)] = _optimum_row({cap: c.full[cap][r]}, roi, cap)
+        out[c.label(r)] = _optimum_row({cap: c.full[cap][r], "images": (c.images or {}).get(r)}, roi, cap)
     return out
 
 
@@ -901,7 +903,7 @@ def _optimum_lines(c: Comparison) -> list[str]:
         "",
         "Per stereo pair, the disparity that minimises each variant's own training objective, optimised "
         "directly with both views (docs/optimum.md), scored with the same suites. The weight is the "
-        f"optimum's own smoothness weight; images: the frames it was run on. Cap {cap[3:]} m.",
+        f"optimum's own smoothness weight; images: the frames each row was scored on. Cap {cap[3:]} m.",
         "",
         _table(["run", "images", "abs_rel", "a1", "ROI abs_rel", "mask abs_rel"], main),
         "",
