@@ -46,7 +46,8 @@ MODES = ("mono", "mono_stereo")
 CLASSES = ("car", "windshield", "glass", "sign")
 SNAPSHOT = ("metrics/full", "metrics/roi", "metrics/train", "metrics/compare.md")
 # What an experiment rewrites in the workspace that git holds: checked clean first, restored after.
-RESTORED = ("params.yaml", "dvc.lock", "metrics", "plots")
+# (The report stage rewrites README.md's results block and docs/results.md.)
+RESTORED = ("params.yaml", "dvc.lock", "metrics", "plots", "README.md", "docs/results.md")
 
 
 def sh(cmd: list[str], cwd: Path) -> str:
@@ -146,12 +147,46 @@ def mode_rows(snap: Path, mode: str, params: dict, cap: float) -> tuple[list[lis
     return rows, seconds
 
 
+def scaled_stereo_rows(repo: Path, params: dict, cap: float) -> list[list[str]]:
+    """Per variant, the stereo runs of ``repo``'s workspace median-scaled per image as the
+    monocular runs are: the same per-image GT scale, so the modes compare on shape alone."""
+    import os
+
+    from msdepth.config import load_params
+    from msdepth.data import kitti
+    from msdepth.data.index import read_eval_index
+    from msdepth.evaluate import evaluate_full, evaluate_roi, load_frames, median_scaled_maps, read_depth_maps
+    from msdepth.pipeline import EVAL_FRAMES, ROIS, depth_path
+
+    here, key, rows = Path.cwd(), f"cap{cap:g}", []
+    os.chdir(repo)  # the index names its files relative to the project
+    try:
+        cfg = load_params("params.yaml").eval
+        frames, boxes = load_frames(read_eval_index(EVAL_FRAMES)), kitti.read_rois(ROIS)
+        for variant in params["variants"]:
+            full, roi = [], []
+            for run in [r for r in runs_of(params) if r.startswith(f"{variant}/")]:
+                pred = read_depth_maps(depth_path(run))
+                full.append(evaluate_full(pred, frames, cfg, median_scaling=True)[0][key])
+                roi.append(evaluate_roi(median_scaled_maps(pred, frames, cfg)[0], frames, boxes, cfg)[0][key])
+            by_class = [r["by_class"] for r in roi]
+            rows.append(
+                ["stereo, median-scaled", variant, _mean_sd([m["abs_rel"] for m in full])]
+                + [_mean_sd([c.get(cls, {}).get("abs_rel") for c in by_class]) for cls in CLASSES]
+                + ["–", "–", _mean_sd([m["median_scaling"]["ratio_median"] for m in full]), "–", "–", "–"]
+            )
+    finally:
+        os.chdir(here)
+    return rows
+
+
 def _json(path: Path) -> dict:
     return json.loads(path.read_text()) if path.is_file() else {}
 
 
-def table(out: Path, modes: list[str], params: dict, cap: float) -> str:
-    """table.md's text from the snapshots under ``out``."""
+def table(out: Path, modes: list[str], params: dict, cap: float, repo: Path | None = None) -> str:
+    """table.md's text from the snapshots under ``out``; with ``repo`` (its workspace holding the
+    stereo runs), their median-scaled rows too (:func:`scaled_stereo_rows`)."""
     header = ["mode", "variant", "abs_rel", *[f"ROI {c}" for c in CLASSES], "variation", "corr. prior"]
     header += ["scale ratio", "pose ATE (m)", "train s/run", "time / stereo"]
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
@@ -163,6 +198,8 @@ def table(out: Path, modes: list[str], params: dict, cap: float) -> str:
         for row in rows:
             ratio = seconds[row[1]] / stereo_seconds.get(row[1], float("nan"))
             lines.append("| " + " | ".join([*row, f"{ratio:.2f}x" if np.isfinite(ratio) else "–"]) + " |")
+        if mode == "stereo" and repo is not None:
+            lines += ["| " + " | ".join(row) + " |" for row in scaled_stereo_rows(repo, params, cap)]
     prior = _json(out / "runs" / "stereo" / "metrics" / "full" / "prior.json").get(f"cap{cap:g}", {})
     seeds = params["train"]["seeds"]
     return "\n".join(
@@ -174,8 +211,11 @@ def table(out: Path, modes: list[str], params: dict, cap: float) -> str:
             "ROI: abs_rel per class. Variation: how much the prediction changes between images as a "
             "fraction of the GT's (the per-pixel prior's is 0; below 0.25 a run is image-blind); corr. "
             "prior: of the run's per-image abs_rel with the prior's. Pose ATE: Monodepth2's over "
-            "5-frame snippets of the training sequences. Train s/run: logs/train/<run>.json "
-            "(the machine's, not comparable across machines). Per-pixel prior's abs_rel: "
+            "5-frame snippets of the training sequences. Stereo, median-scaled: the stereo runs "
+            "scored as the monocular ones are (per-image GT scale), to compare the modes on shape. "
+            "Train s/run: logs/train/<run>.json, as each run happened (the load of the machine "
+            "may differ between runs: `benchmarks/mode_step.py` measures the modes side by side). "
+            "Per-pixel prior's abs_rel: "
             f"{prior.get('abs_rel', float('nan')):.4f}.",
             "",
             *lines,
@@ -237,7 +277,7 @@ def main(argv: list[str] | None = None) -> int:
         if not (out / "runs" / mode).is_dir():
             run_mode(repo, mode, args.sequence_length, args.set, out / "runs" / mode, runs_of(params))
     used = yaml.safe_load((out / "runs" / args.modes[0] / "params.yaml").read_text())
-    (out / "table.md").write_text(table(out, args.modes, used, args.cap))
+    (out / "table.md").write_text(table(out, args.modes, used, args.cap, repo))
     figure(out, repo, args.modes, used)
     print((out / "table.md").read_text())
     return 0

@@ -407,3 +407,26 @@ def test_glass_before_after_pairs_frames_rois_and_seeds(tmp_path: Path) -> None:
             f"| {label} after | 4 | 0.2500 | 0.5000 | 0.5250 | 0.5000 | 0.6000 | 0.5000 | 0.5000 | 0.4000 |"
             in out
         )
+
+
+def test_monocular_study_scores_stereo_runs_median_scaled(study_set: Path, tmp_path: Path, monkeypatch):
+    """studies/monocular.py's stereo rows median-scaled as the monocular runs are: a run at twice
+    the GT and one at half of it both score 0 after scaling, with scale ratios 0.5 and 2."""
+    from msdepth.data.index import read_eval_index
+    from msdepth.evaluate import load_frames
+    from msdepth.io import save_npz
+
+    shutil.copytree(study_set, tmp_path, dirs_exist_ok=True)
+    monkeypatch.chdir(tmp_path)
+    frames = load_frames(read_eval_index(Path("data/index/eval_frames.csv")))
+    for run, factor in (("ssim/seed0", 2.0), ("msssim/seed0", 0.5)):
+        save_npz(tmp_path / "outputs" / run / "depth.npz", **{f.name: factor * f.gt_depth for f in frames})
+    monkeypatch.chdir(ROOT)  # the study moves into the project and back
+    monkeypatch.syspath_prepend(str(ROOT / "studies"))
+    import monocular
+
+    params = {"variants": ["ssim", "msssim"], "train": {"seeds": [0]}}
+    rows = monocular.scaled_stereo_rows(tmp_path, params, 80)
+    assert [r[:3] for r in rows] == [["stereo, median-scaled", v, "0.0000"] for v in ("ssim", "msssim")]
+    assert [r[9] for r in rows] == ["0.5000", "2.0000"] and Path.cwd() == ROOT
+    assert all(cell in ("0.0000", "–") for r in rows for cell in r[3:7])  # every ROI class exact too
