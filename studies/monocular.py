@@ -116,21 +116,21 @@ def _mean_sd(values: list[float]) -> str:
     return f"{np.mean(values):.4f}{sd}"
 
 
-def mode_rows(snap: Path, mode: str, params: dict, cap: float) -> tuple[list[list[str]], dict[str, float]]:
-    """One table row per variant of the snapshot ``snap``, and each variant's mean training seconds."""
+def mode_rows(snap: Path, mode: str, params: dict, cap: float) -> list[list[str]]:
+    """One table row per variant of the snapshot ``snap`` (the last: its mean training seconds)."""
     runs = runs_of(params)
     groups = {v: [r for r in runs if r.startswith(f"{v}/")] for v in params["variants"]}
     key = f"cap{cap:g}"
     suites = load_suite_metrics(snap / "metrics", [*runs, "prior"], ("full", "roi"))
     tables = load_unit_tables(snap / "metrics", [*runs, "prior"], ("full",))
     dependence = image_dependence(suites, tables, {**groups, "prior": ["prior"]}, "prior", cap)
-    rows, seconds = [], {}
+    rows = []
     for variant, members in groups.items():
         full = [suites["full"][r][key] for r in members]
         roi = [suites["roi"][r][key]["by_class"] for r in members]
         train = [_json(snap / "metrics" / "train" / f"{r}.json") for r in members]
         timing = [_json(snap / "logs" / "train" / f"{r}.json").get("seconds") for r in members]
-        seconds[variant] = float(np.mean([t for t in timing if t])) if any(timing) else float("nan")
+        seconds = float(np.mean([t for t in timing if t])) if any(timing) else float("nan")
         rows.append(
             [
                 mode,
@@ -141,10 +141,10 @@ def mode_rows(snap: Path, mode: str, params: dict, cap: float) -> tuple[list[lis
                 _mean_sd([dependence[r]["prior_correlation"] for r in members]),
                 _mean_sd([m.get("median_scaling", {}).get("ratio_median") for m in full]),
                 _mean_sd([t.get("pose", {}).get("ate_mean") for t in train]),
-                f"{seconds[variant]:.0f}",
+                f"{seconds:.0f}",
             ]
         )
-    return rows, seconds
+    return rows
 
 
 def scaled_stereo_rows(repo: Path, params: dict, cap: float) -> list[list[str]]:
@@ -188,18 +188,13 @@ def table(out: Path, modes: list[str], params: dict, cap: float, repo: Path | No
     """table.md's text from the snapshots under ``out``; with ``repo`` (its workspace holding the
     stereo runs), their median-scaled rows too (:func:`scaled_stereo_rows`)."""
     header = ["mode", "variant", "abs_rel", *[f"ROI {c}" for c in CLASSES], "variation", "corr. prior"]
-    header += ["scale ratio", "pose ATE (m)", "train s/run", "time / stereo"]
+    header += ["scale ratio", "pose ATE (m)", "train s/run"]
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-    stereo_seconds: dict[str, float] = {}
     for mode in ["stereo", *modes]:
-        rows, seconds = mode_rows(out / "runs" / mode, mode, params, cap)
-        if mode == "stereo":
-            stereo_seconds = seconds
-        for row in rows:
-            ratio = seconds[row[1]] / stereo_seconds.get(row[1], float("nan"))
-            lines.append("| " + " | ".join([*row, f"{ratio:.2f}x" if np.isfinite(ratio) else "–"]) + " |")
+        rows = mode_rows(out / "runs" / mode, mode, params, cap)
+        lines += ["| " + " | ".join(row) + " |" for row in rows]
         if mode == "stereo" and repo is not None:
-            lines += ["| " + " | ".join(row) + " |" for row in scaled_stereo_rows(repo, params, cap)]
+            lines += ["| " + " | ".join(row[:-1]) + " |" for row in scaled_stereo_rows(repo, params, cap)]
     prior = _json(out / "runs" / "stereo" / "metrics" / "full" / "prior.json").get(f"cap{cap:g}", {})
     seeds = params["train"]["seeds"]
     return "\n".join(
@@ -213,8 +208,9 @@ def table(out: Path, modes: list[str], params: dict, cap: float, repo: Path | No
             "prior: of the run's per-image abs_rel with the prior's. Pose ATE: Monodepth2's over "
             "5-frame snippets of the training sequences. Stereo, median-scaled: the stereo runs "
             "scored as the monocular ones are (per-image GT scale), to compare the modes on shape. "
-            "Train s/run: logs/train/<run>.json, as each run happened (the load of the machine "
-            "may differ between runs: `benchmarks/mode_step.py` measures the modes side by side). "
+            "Train s/run: logs/train/<run>.json, as each run happened; the load of the machine "
+            "may differ between runs, so compare modes' speed with `benchmarks/mode_step.py`, which "
+            "measures them side by side. "
             "Per-pixel prior's abs_rel: "
             f"{prior.get('abs_rel', float('nan')):.4f}.",
             "",
