@@ -149,7 +149,8 @@ def mode_rows(snap: Path, mode: str, params: dict, cap: float) -> list[list[str]
 
 def scaled_stereo_rows(repo: Path, params: dict, cap: float) -> list[list[str]]:
     """Per variant, the stereo runs of ``repo``'s workspace median-scaled per image as the
-    monocular runs are: the same per-image GT scale, so the modes compare on shape alone."""
+    monocular runs are: the same per-image GT scale, so the modes compare on shape alone. The
+    rows have :func:`table`'s columns (those a snapshot gives, such as pose, are ``–``)."""
     import os
 
     from msdepth.config import load_params
@@ -173,7 +174,7 @@ def scaled_stereo_rows(repo: Path, params: dict, cap: float) -> list[list[str]]:
             rows.append(
                 ["stereo, median-scaled", variant, _mean_sd([m["abs_rel"] for m in full])]
                 + [_mean_sd([c.get(cls, {}).get("abs_rel") for c in by_class]) for cls in CLASSES]
-                + ["–", "–", _mean_sd([m["median_scaling"]["ratio_median"] for m in full]), "–", "–", "–"]
+                + ["–", "–", _mean_sd([m["median_scaling"]["ratio_median"] for m in full]), "–", "–"]
             )
     finally:
         os.chdir(here)
@@ -194,7 +195,7 @@ def table(out: Path, modes: list[str], params: dict, cap: float, repo: Path | No
         rows = mode_rows(out / "runs" / mode, mode, params, cap)
         lines += ["| " + " | ".join(row) + " |" for row in rows]
         if mode == "stereo" and repo is not None:
-            lines += ["| " + " | ".join(row[:-1]) + " |" for row in scaled_stereo_rows(repo, params, cap)]
+            lines += ["| " + " | ".join(row) + " |" for row in scaled_stereo_rows(repo, params, cap)]
     prior = _json(out / "runs" / "stereo" / "metrics" / "full" / "prior.json").get(f"cap{cap:g}", {})
     seeds = params["train"]["seeds"]
     return "\n".join(

@@ -429,4 +429,5 @@ def test_monocular_study_scores_stereo_runs_median_scaled(study_set: Path, tmp_p
     rows = monocular.scaled_stereo_rows(tmp_path, params, 80)
     assert [r[:3] for r in rows] == [["stereo, median-scaled", v, "0.0000"] for v in ("ssim", "msssim")]
     assert [r[9] for r in rows] == ["0.5000", "2.0000"] and Path.cwd() == ROOT
+    assert {len(r) for r in rows} == {12}  # table.md's columns
     assert all(cell in ("0.0000", "–") for r in rows for cell in r[3:7])  # every ROI class exact too
