@@ -116,7 +116,8 @@ def test_a_multiplier_that_disagrees_with_the_weights_names_the_shapes(tmp_path:
         load_model(path)
     message = str(err.value)
     assert "\n" not in message
-    assert message.startswith(f"{path}: its weights do not fit a width_multiplier=3.0 network: shape of ")
+    expected = f"{path}: its weights do not fit a vgg network of width_multiplier=3.0: shape of "
+    assert message.startswith(expected)
     assert "encoder.0.1.0.weight (2, 2, 7, 7) (expected (96, 96, 7, 7)) and 57 more" in message
 
 

@@ -13,6 +13,7 @@ import torch
 
 import msdepth.train as train_mod
 from msdepth.config import Params, params_from_dict
+from msdepth.model import MonodepthVGG
 from msdepth.train import TrainingError, load_model, train_variant
 
 H, W = 32, 64
@@ -234,7 +235,7 @@ def test_compile_switch_compiles_the_network_and_saves_its_weights(
 
     monkeypatch.setattr(torch, "compile", fake_compile)
     _train(_params(epochs=1, compile=True), pairs, tmp_path)
-    assert len(compiled) == 1 and isinstance(compiled[0], train_mod.MonodepthVGG)
+    assert len(compiled) == 1 and isinstance(compiled[0], MonodepthVGG)
     saved = _weights(tmp_path / "model.pt")
     for name, value in compiled[0].state_dict().items():
         assert torch.equal(saved[name], value)

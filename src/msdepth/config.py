@@ -231,9 +231,52 @@ class ModelConfig:
     heads: Literal["independent", "residual"] = "residual"
     # The pose network's width (train.mode mono | mono_stereo); 1.0 = Monodepth2's ResNet-18.
     pose_width_multiplier: float = _added_later(0.25)
+    # The depth network: vgg = the dissertation's (Monodepth's); resnet18 = Monodepth2's.
+    architecture: Literal["vgg", "resnet18"] = _added_later("vgg")
+    # "" = from scratch; or a torchvision resnet18 state dict a user downloaded, for every ResNet
+    # encoder of the run (resnet18's depth encoder, the monocular modes' pose encoder).
+    pretrained: str = _added_later("")
 
     def validate(self, key: str, params: Params) -> None:
         """Range checks of the ``key`` section; a ConfigError names the key."""
+        self._validate_widths(key)
+        check(
+            0 < self.init_disparity < 0.3,
+            f"{key}.init_disparity",
+            "must be in (0, 0.3) (heads output 0.3*sigmoid)",
+        )
+        if self.architecture == "resnet18":
+            for side in ("height", "width"):
+                value = getattr(params.data, side)
+                check(
+                    value % 32 == 0 and value >= 64,
+                    f"data.{side}",
+                    f"model.architecture resnet18 needs a multiple of 32, at least 64, got {value}",
+                )
+        if self.pretrained:
+            self._validate_pretrained(key, params)
+
+    def _validate_pretrained(self, key: str, params: Params) -> None:
+        """``pretrained`` names a file, and every ResNet encoder it loads into has ResNet-18's width."""
+        encoders = [("width_multiplier", self.architecture == "resnet18")]
+        encoders.append(("pose_width_multiplier", params.train.mode != "stereo"))
+        check(
+            any(used for _, used in encoders),
+            f"{key}.pretrained",
+            "the run has no ResNet encoder to load it into (model.architecture resnet18 or train.mode "
+            'mono | mono_stereo); set it to ""',
+        )
+        for name, used in encoders:
+            value = getattr(self, name)
+            check(
+                not used or value == 1.0,
+                f"{key}.{name}",
+                f"must be 1.0 with model.pretrained (a torchvision ResNet-18's width), got {value}",
+            )
+        check(Path(self.pretrained).is_file(), f"{key}.pretrained", f"no such file: {self.pretrained}")
+
+    def _validate_widths(self, key: str) -> None:
+        """Both width multipliers in (0, MAX_WIDTH_MULTIPLIER]."""
         for name, full in (
             ("width_multiplier", "the dissertation's"),
             ("pose_width_multiplier", "Monodepth2's"),
@@ -245,11 +288,6 @@ class ModelConfig:
                 f"{key}.{name}",
                 f"must be <= {MAX_WIDTH_MULTIPLIER} (1.0 = {full} network), got {multiplier}",
             )
-        check(
-            0 < self.init_disparity < 0.3,
-            f"{key}.init_disparity",
-            "must be in (0, 0.3) (heads output 0.3*sigmoid)",
-        )
 
 
 @dataclass(frozen=True)

@@ -11,7 +11,7 @@ from tqdm import tqdm
 
 from .data import kitti
 from .data.pairs import resize, to_tensor
-from .model import MonodepthVGG
+from .model import DepthNetwork
 
 
 def post_process_disparity(
@@ -37,7 +37,7 @@ def post_process_disparity(
 
 @torch.no_grad()
 def predict_disparities(
-    model: MonodepthVGG,
+    model: DepthNetwork,
     images: Sequence[Path],
     height: int,
     width: int,
@@ -61,7 +61,7 @@ def predict_disparities(
 
 
 @torch.no_grad()
-def network_disparity(model: MonodepthVGG, batch: torch.Tensor, post_process: bool = True) -> np.ndarray:
+def network_disparity(model: DepthNetwork, batch: torch.Tensor, post_process: bool = True) -> np.ndarray:
     """Left disparity (fraction of width) of a (B, 3, h, w) batch at the network size, (B, h, w).
 
     With ``post_process``, the batch and its mirror image go through the network together and

@@ -17,6 +17,8 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from .errors import MsdepthError
+from .network_common import MAX_DISPARITY, scaled_channels
+from .resnet_depth import ResNetMonodepth
 from .serialization import load_weights_file, save_weights_file
 
 if TYPE_CHECKING:
@@ -27,7 +29,6 @@ if TYPE_CHECKING:
 ENCODER = ((7, 32), (5, 64), (3, 128), (3, 256), (3, 512), (3, 512), (3, 512))
 # Output channels of upconv7..upconv1 (the iconv after each has the same width).
 DECODER = (512, 512, 256, 128, 64, 32, 16)
-MAX_DISPARITY = 0.3  # heads output 0.3 * sigmoid, a fraction of the width
 
 Norm = Literal["none", "group"]
 NORMS = ("none", "group")
@@ -52,11 +53,6 @@ def _conv(in_ch: int, out_ch: int, kernel: int, stride: int = 1, norm: Norm = "n
         nn.GroupNorm(group_count(out_ch), out_ch),
         nn.ELU(inplace=True),
     )
-
-
-def scaled_channels(channels: int, multiplier: float) -> int:
-    """A layer's channel count at a width multiplier: rounded, at least 1."""
-    return max(1, int(round(channels * multiplier)))
 
 
 class MonodepthVGG(nn.Module):
@@ -151,6 +147,24 @@ class MonodepthVGG(nn.Module):
         return disps[::-1]
 
 
+ARCHITECTURES = ("vgg", "resnet18")
+DepthNetwork = MonodepthVGG | ResNetMonodepth  # both: image -> 4 maps (B, 2, h, w), finest first
+
+
+def depth_network(
+    architecture: str,
+    width_multiplier: float,
+    norm: Norm = "none",
+    heads: Heads = "independent",
+    init_disparity: float | None = None,
+) -> DepthNetwork:
+    """The depth network of ``model.architecture``: vgg (``norm``, ``heads`` and ``init_disparity``
+    are its options) or resnet18 (Monodepth2's, with its own initialisation)."""
+    if architecture == "resnet18":
+        return ResNetMonodepth(width_multiplier)
+    return MonodepthVGG(width_multiplier, init_disparity=init_disparity, norm=norm, heads=heads)
+
+
 def count_parameters(model: nn.Module) -> int:
     """Number of trainable parameters."""
     return sum(p.numel() for p in model.parameters() if p.requires_grad)
@@ -161,7 +175,7 @@ def count_parameters(model: nn.Module) -> int:
 
 def save_model(
     path: str | os.PathLike,
-    model: MonodepthVGG,
+    model: DepthNetwork,
     criterion: nn.Module,
     params: Params,
     variant: str,
@@ -180,11 +194,16 @@ def save_model(
         "variant": variant,
         "seed": seed,
     }
+    if params.model.architecture != "vgg":  # a VGG model's file keeps the bytes it had before
+        state["architecture"] = params.model.architecture
     save_weights_file(path, state)
 
 
 # What save_model writes: a file with any other top-level key was not written by msdepth.
-MODEL_KEYS = ("model", "criterion", "width_multiplier", "norm", "heads", "height", "width", "variant", "seed")
+MODEL_KEYS = (
+    *("model", "criterion", "width_multiplier", "norm", "heads", "height", "width", "variant", "seed"),
+    "architecture",
+)
 MAX_INPUT_SIDE = 4096  # px; a model file's height and width (20000 x 20000 took 4.8 GB to run)
 MAX_WIDTH_MULTIPLIER = 16.0
 
@@ -217,6 +236,12 @@ def _metadata_problem(state: dict) -> str | None:
             return f"{key} must be a multiple of 8 from 32 to {MAX_INPUT_SIDE} px, got {value!r}"
     if norm not in NORMS or heads not in HEADS:
         return f"norm must be one of {NORMS} and heads one of {HEADS}, got {norm!r} and {heads!r}"
+    architecture = state.get("architecture", "vgg")
+    if architecture not in ARCHITECTURES:
+        return f"architecture must be one of {ARCHITECTURES}, got {architecture!r}"
+    sides = (state["height"], state["width"])
+    if architecture == "resnet18" and any(side % 32 or side < 64 for side in sides):
+        return f"a resnet18 network needs sides that are multiples of 32, at least 64, got {sides}"
     weights = state["model"]
     if not isinstance(weights, dict) or not all(isinstance(v, Tensor) for v in weights.values()):
         return "its 'model' entry is not a state dict of tensors"
@@ -240,7 +265,7 @@ def _state_dict_problem(model: nn.Module, weights: dict) -> str | None:
     return "; ".join(parts) or None
 
 
-def load_model(path: str | os.PathLike, device: str | torch.device = "cpu") -> tuple[MonodepthVGG, dict]:
+def load_model(path: str | os.PathLike, device: str | torch.device = "cpu") -> tuple[DepthNetwork, dict]:
     """Rebuild the network saved by :func:`save_model`; returns (model in eval mode, metadata).
 
     The file is read weights-only (:func:`msdepth.serialization.load_weights_file`): one that
@@ -255,16 +280,21 @@ def load_model(path: str | os.PathLike, device: str | torch.device = "cpu") -> t
     problem = _metadata_problem(state)
     if problem:
         raise MsdepthError(f"{path}: not a model file written by msdepth ({problem})")
-    # Files written before the norm and heads options hold the dissertation's network.
-    options = {"norm": state.get("norm", "none"), "heads": state.get("heads", "independent")}
+    # Files written before the norm, heads and architecture options hold the dissertation's network.
+    options = {
+        "architecture": state.get("architecture", "vgg"),
+        "width_multiplier": state["width_multiplier"],
+        "norm": state.get("norm", "none"),
+        "heads": state.get("heads", "independent"),
+    }
     with torch.device("meta"):
-        problem = _state_dict_problem(MonodepthVGG(state["width_multiplier"], **options), state["model"])
+        problem = _state_dict_problem(depth_network(**options), state["model"])
     if problem:
         raise MsdepthError(
-            f"{path}: its weights do not fit a width_multiplier={state['width_multiplier']} network: "
-            f"{problem}"
+            f"{path}: its weights do not fit a {options['architecture']} network of width_multiplier="
+            f"{state['width_multiplier']}: {problem}"
         )
-    model = MonodepthVGG(state["width_multiplier"], **options)
+    model = depth_network(**options)
     model.load_state_dict(state["model"])
     meta = {k: v for k, v in state.items() if k not in ("model", "criterion")}
     return model.to(device).eval(), meta

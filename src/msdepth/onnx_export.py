@@ -25,7 +25,7 @@ from torch import Tensor, nn
 
 from .errors import MsdepthError
 from .io import atomic_path, atomic_temps
-from .model import MonodepthVGG
+from .model import DepthNetwork
 from .predict import load_trained
 
 INPUT_NAME = "image"
@@ -39,7 +39,7 @@ OPSET_RANGE = (11, 20)
 class FinestDisparity(nn.Module):
     """The network's finest-scale output only, (B, 2, H, W)."""
 
-    def __init__(self, model: MonodepthVGG) -> None:
+    def __init__(self, model: DepthNetwork) -> None:
         super().__init__()
         self.model = model
 

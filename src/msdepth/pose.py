@@ -13,7 +13,7 @@ import torch
 from torch import Tensor, nn
 
 from .geometry import transformation_from_parameters
-from .model import scaled_channels
+from .network_common import scaled_channels
 from .resnet import CHANNELS, ResNetEncoder
 
 POSE_SCALE = 0.01

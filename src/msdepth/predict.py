@@ -41,7 +41,7 @@ from .depth import disparity_to_depth, pixel_disparity
 from .errors import DataError, MsdepthError
 from .infer import network_disparity
 from .io import atomic_path, remove_stale_temps, save_npy, write_png
-from .model import MonodepthVGG, load_model
+from .model import DepthNetwork, load_model
 from .train import resolve_device
 
 IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp", ".ppm")
@@ -128,7 +128,7 @@ class _Frame:
         return error if error.startswith(str(self.source)) else f"{self.label}: {error}"
 
 
-def load_trained(path: str | os.PathLike, device: str | torch.device = "cpu") -> tuple[MonodepthVGG, dict]:
+def load_trained(path: str | os.PathLike, device: str | torch.device = "cpu") -> tuple[DepthNetwork, dict]:
     """:func:`msdepth.model.load_model`, with any failure turned into one MsdepthError naming the file."""
     try:
         return load_model(path, device)
@@ -418,7 +418,7 @@ def _check_out_dir(input_path: Path, out_dir: Path) -> None:
 
 
 def _network_batch(
-    model: MonodepthVGG,
+    model: DepthNetwork,
     images: list[np.ndarray],
     size: tuple[int, int],
     device: torch.device,
@@ -435,6 +435,15 @@ def _network_batch(
         if "can't allocate memory" not in str(exc):
             raise
         return [None] * len(images)
+
+
+def _check_network_size(model_path: str | os.PathLike, meta: dict, height: int, width: int) -> None:
+    """One MsdepthError naming the model when its network cannot run at ``height`` x ``width``."""
+    if meta.get("architecture") == "resnet18" and any(side % 32 or side < 64 for side in (height, width)):
+        raise MsdepthError(
+            f"{model_path}: a resnet18 model runs at sides that are multiples of 32, at least 64, "
+            f"got {height} x {width} (--height, --width)"
+        )
 
 
 def predict(
@@ -458,6 +467,7 @@ def predict(
     device = resolve_device(options.device)
     model, meta = load_trained(model_path, device)
     height, width = options.height or int(meta["height"]), options.width or int(meta["width"])
+    _check_network_size(model_path, meta, height, width)
     guard = OutputGuard(out_dir, [Path(model_path)] + ([] if input_path.is_dir() else [input_path]))
 
     def fail(frame: _Frame, error: str) -> None:

@@ -15,7 +15,7 @@ import torch
 from torch import Tensor, nn
 
 from .errors import MsdepthError
-from .model import scaled_channels
+from .network_common import scaled_channels
 from .serialization import load_weights_file
 
 CHANNELS = (64, 64, 128, 256, 512)  # the five feature maps, at 1/2, 1/4, 1/8, 1/16, 1/32

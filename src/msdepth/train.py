@@ -32,9 +32,17 @@ from .distributed import Context, GlobalBatchSampler
 from .errors import MsdepthError
 from .io import write_json
 from .losses import MonodepthLoss
-from .model import MAX_DISPARITY, MonodepthVGG, load_model, save_model  # noqa: F401 - load_model: imported from here too
+from .model import (  # noqa: F401 - load_model: imported from here too
+    MAX_DISPARITY,
+    DepthNetwork,
+    depth_network,
+    load_model,
+    save_model,
+)
 from .monocular import MonocularLoss, monocular_losses
 from .pose import PoseNet
+from .resnet import load_pretrained
+from .resnet_depth import ResNetMonodepth
 from .serialization import load_weights_file, save_weights_file
 
 log = logging.getLogger(__name__)
@@ -79,10 +87,14 @@ def resolve_device(name: str) -> torch.device:
     return torch.device(name)
 
 
-def build_model(params: Params) -> MonodepthVGG:
-    """The depth network of ``params.model``, heads initialised for training."""
+def build_model(params: Params) -> DepthNetwork:
+    """The depth network of ``params.model`` initialised for training: the VGG heads at
+    ``init_disparity``, a resnet18 encoder from ``model.pretrained`` when one is given."""
     m = params.model
-    return MonodepthVGG(m.width_multiplier, init_disparity=m.init_disparity, norm=m.norm, heads=m.heads)
+    model = depth_network(m.architecture, m.width_multiplier, m.norm, m.heads, m.init_disparity)
+    if m.pretrained and isinstance(model, ResNetMonodepth):
+        load_pretrained(model.encoder, m.pretrained)
+    return model
 
 
 def build_loss(params: Params, variant: str) -> MonodepthLoss:
@@ -97,8 +109,12 @@ def build_monocular_loss(params: Params, variant: str) -> MonocularLoss:
 
 
 def build_pose_net(params: Params) -> PoseNet:
-    """The pose network of the monocular modes (Monodepth2's separate ResNet-18 pose network)."""
-    return PoseNet(params.model.pose_width_multiplier)
+    """The pose network of the monocular modes (Monodepth2's separate ResNet-18 pose network), its
+    encoder from ``model.pretrained`` when one is given."""
+    net = PoseNet(params.model.pose_width_multiplier)
+    if params.model.pretrained:
+        load_pretrained(net.encoder, params.model.pretrained)
+    return net
 
 
 def trained_pose_net(params: Params, checkpoint_path: str | os.PathLike) -> PoseNet:
@@ -107,7 +123,7 @@ def trained_pose_net(params: Params, checkpoint_path: str | os.PathLike) -> Pose
     state = load_checkpoint(Path(checkpoint_path), torch.device("cpu"))
     if "pose" not in state:
         raise TrainingError(f"{checkpoint_path}: no pose network (not a train.mode mono | mono_stereo run)")
-    net = build_pose_net(params)
+    net = PoseNet(params.model.pose_width_multiplier)  # not build_pose_net: no pretrained file to read
     net.load_state_dict(state["pose"])
     return net.eval()
 
@@ -233,7 +249,7 @@ class _Run:
     ctx: Context
     device: torch.device
     dataset: StereoPairs | SequenceFrames
-    model: MonodepthVGG  # what is saved
+    model: DepthNetwork  # what is saved
     network: Callable[[torch.Tensor], list[torch.Tensor]]  # model, in DDP and/or compiled: what a step calls
     criterion: MonodepthLoss | MonocularLoss
     optimizer: torch.optim.Optimizer
@@ -265,7 +281,7 @@ def train_variant(
     seed: int | None = None,
     summary_path: str | os.PathLike | None = None,
     timing_path: str | os.PathLike | None = None,
-    on_epoch: Callable[[int, MonodepthVGG, dict[str, float]], None] | None = None,
+    on_epoch: Callable[[int, DepthNetwork, dict[str, float]], None] | None = None,
     sequences: Sequence[SequenceSample] | None = None,
 ) -> TrainResult:
     """Train ``variant`` with training seed ``seed`` (default: the first of ``train.seeds``) on
