@@ -17,7 +17,7 @@ from pathlib import Path
 import torch
 from torch.utils.data import DataLoader
 
-from msdepth.config import load_params
+from msdepth.config.params import load_params
 from msdepth.data.pairs import StereoPairs, load_pair_list
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -9,7 +9,7 @@ ours MS-SSIM in pytorch-msssim's configuration (gaussian 11, sigma 1.5, 5 levels
 pytorch-msssim's ``ms_ssim`` itself, and torchmetrics' MS-SSIM when it is installed. The last
 two columns of the issue's target compare the like-for-like pair.
 
-Measurements behind the design of ``msdepth._ssim_kernels`` (2 CPU threads):
+Measurements behind the design of ``msdepth.losses.ssim_kernels`` (2 CPU threads):
 
 - Window sums. Box: separable sums of shifted views, built by doubling, beat a separable
   depthwise ``conv2d``, a k x k depthwise ``conv2d`` and ``avg_pool2d`` for every k in 3..11, at
@@ -33,7 +33,7 @@ import sys
 import torch
 from _timing import compare, device_from, table
 
-from msdepth.losses import appearance_loss, ms_ssim, ssim
+from msdepth.losses.monodepth import appearance_loss, ms_ssim, ssim
 
 ALPHA = 0.85
 

@@ -7,7 +7,7 @@
 Same depth network, same random batch, candidates interleaved (benchmarks/_timing.py); prints the
 time per step and its ratio to the stereo step. A monocular step runs the depth network on the
 target, the pose network on each (target, source) pair and the reprojection loss over the
-sources (:func:`msdepth.monocular.monocular_losses`, as training calls it), then backward and Adam.
+sources (:func:`msdepth.losses.monocular.monocular_losses`, as training calls it), then backward and Adam.
 """
 
 from __future__ import annotations
@@ -20,10 +20,11 @@ from typing import Callable
 import torch
 from _timing import compare, device_from, table
 
-from msdepth.config import Params, load_params
-from msdepth.model import MAX_DISPARITY
-from msdepth.monocular import monocular_losses
-from msdepth.train import build_loss, build_model, build_monocular_loss, build_pose_net, forward_and_loss
+from msdepth.config.params import Params, load_params
+from msdepth.losses.monocular import build_monocular_loss, monocular_losses
+from msdepth.losses.objective import build_loss
+from msdepth.networks.common import MAX_DISPARITY
+from msdepth.training.train import build_model, build_pose_net, forward_and_loss
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -53,7 +54,7 @@ def _params(args: argparse.Namespace) -> Params:
 
 
 def stereo_step(params: Params, variant: str, device: torch.device, batch: dict) -> Callable[[], None]:
-    """The stereo training step (msdepth.train.forward_and_loss)."""
+    """The stereo training step (msdepth.training.train.forward_and_loss)."""
     model, criterion = build_model(params).to(device), build_loss(params, variant).to(device)
     optimizer = torch.optim.Adam([*model.parameters(), *criterion.parameters()], lr=1e-6)
 

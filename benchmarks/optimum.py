@@ -1,4 +1,4 @@
-"""Seconds per stereo pair of the losses' own optimum (msdepth.optimum), variants side by side.
+"""Seconds per stereo pair of the losses' own optimum (msdepth.optimum.solver), variants side by side.
 
     python benchmarks/optimum.py                       # 125 x 414 and 375 x 1242, params.yaml's optimum
     python benchmarks/optimum.py --sizes 125x414 --iterations 50 --batch 4 --repeats 5
@@ -22,8 +22,8 @@ from _timing import compare, table
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "src"))
 
-from msdepth.config import load_params  # noqa: E402
-from msdepth.optimum import objective, optimise  # noqa: E402
+from msdepth.config.params import load_params  # noqa: E402
+from msdepth.optimum.solver import objective, optimise  # noqa: E402
 
 CANDIDATES = {"SSIM k3": ("ssim", 3), "MS-SSIM k3": ("msssim", 3), "MS-SSIM k11": ("msssim", 11)}
 

@@ -20,7 +20,7 @@ from pathlib import Path
 import torch
 from _timing import compare, table
 
-from msdepth.config import load_params
+from msdepth.config.params import load_params
 from msdepth.data import synthetic
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -4,13 +4,13 @@
     python benchmarks/train_loop.py --device cuda --width-multiplier 1 --height 256 --width 512 \\
         --pairs 800 --workers 8 --amp bf16 --channels-last
 
-Each candidate is a complete run of ``msdepth.train.train_variant`` (from scratch, ``--epochs``
+Each candidate is a complete run of ``msdepth.training.train.train_variant`` (from scratch, ``--epochs``
 epochs, its per-epoch checkpoint and final model written to a temporary folder) on ``--pairs``
 random stereo pairs held in memory in the pair cache's uint8 layout, so no dataset is needed.
 Candidates: each variant with the loss read on the host every step (``train.sync_every: 1``)
 and every ``--sync`` steps (what ``sync_every: 0`` picks on a GPU); runs are interleaved. On
 the CPU the two should match; on a GPU the difference is what per-step reads cost
-(:func:`msdepth.train.host_sync_interval`). Wall time includes building the model and the
+(:func:`msdepth.training.train.host_sync_interval`). Wall time includes building the model and the
 loader's start-up, so use a few epochs; the step alone is ``train_step.py``.
 """
 
@@ -26,8 +26,8 @@ import numpy as np
 import torch
 from _timing import compare, device_from, table
 
-from msdepth.config import Params, load_params
-from msdepth.train import host_sync_interval, train_variant
+from msdepth.config.params import Params, load_params
+from msdepth.training.train import host_sync_interval, train_variant
 
 
 def _parser() -> argparse.ArgumentParser:

@@ -11,7 +11,7 @@
 Same model weights, same batch, candidates interleaved; prints time per step and the ratio to
 the SSIM step (the issue's target: MS-SSIM / SSIM <= 1.10 for every kernel size), images/s,
 and on CUDA each candidate's peak GPU memory. The step is the training loop's own
-(:func:`msdepth.train.forward_and_loss`: network in autocast when asked, loss in fp32).
+(:func:`msdepth.training.train.forward_and_loss`: network in autocast when asked, loss in fp32).
 ``--profile N`` then runs N more steps of each under the profiler and adds, on CUDA, the GPU's
 busy time per step (the sum of its kernels' and copies' durations), that time as a share of
 the timed step, and the kernels per step: far below 100 % means the GPU waits for the host,
@@ -29,11 +29,11 @@ from typing import Callable
 import torch
 from _timing import Timings, compare, device_from, sync, table
 
-from msdepth.appearance import build_appearance
-from msdepth.config import Params, load_params
-from msdepth.losses import MonodepthLoss
-from msdepth.model import MonodepthVGG
-from msdepth.train import configure_cudnn, forward_and_loss
+from msdepth.config.params import Params, load_params
+from msdepth.losses.appearance import build_appearance
+from msdepth.losses.monodepth import MonodepthLoss
+from msdepth.networks.model import MonodepthVGG
+from msdepth.training.train import configure_cudnn, forward_and_loss
 
 
 def _parser() -> argparse.ArgumentParser:

@@ -6,13 +6,13 @@ import logging
 import sys
 from pathlib import Path
 
-from msdepth import baselines as baselines_mod
-from msdepth.config import Params
+from msdepth.config.params import Params
 from msdepth.data import kitti
 from msdepth.data.index import read_eval_index
-from msdepth.evaluate import depth_maps, load_frames
-from msdepth.pipeline import EVAL_FRAMES, ROIS, SUITE_NAMES, run_stage
-from msdepth.suites import run_suite
+from msdepth.evaluation import baselines as baselines_mod
+from msdepth.evaluation.results import run_suite
+from msdepth.evaluation.suites import depth_maps, load_frames
+from msdepth.pipeline.paths import EVAL_FRAMES, ROIS, SUITE_NAMES, run_stage
 
 log = logging.getLogger("msdepth")
 

@@ -4,12 +4,12 @@ from __future__ import annotations
 
 import sys
 
-from msdepth import baselines as baselines_mod
-from msdepth.config import Params
+from msdepth.config.params import Params
 from msdepth.data.index import read_eval_index, set_index_path
-from msdepth.evaluate import depth_maps, load_frames
-from msdepth.pipeline import INDEX_DIR, SETS_METRICS, SetArg, checked_set, run_stage
-from msdepth.suites import score_set
+from msdepth.evaluation import baselines as baselines_mod
+from msdepth.evaluation.results import score_set
+from msdepth.evaluation.suites import depth_maps, load_frames
+from msdepth.pipeline.paths import INDEX_DIR, SETS_METRICS, SetArg, checked_set, run_stage
 
 
 def baselines_set(params: Params, set_name: SetArg) -> None:

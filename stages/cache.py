@@ -5,11 +5,11 @@ from __future__ import annotations
 import logging
 import sys
 
-from msdepth.config import Params
+from msdepth.config.params import Params
 from msdepth.data import kitti
 from msdepth.data.pairs import build_pair_cache, load_pair_list
 from msdepth.io import write_json
-from msdepth.pipeline import CACHE_REPORT, CACHED_PAIRS, PAIR_CACHE, TRAIN_PAIRS, run_stage
+from msdepth.pipeline.paths import CACHE_REPORT, CACHED_PAIRS, PAIR_CACHE, TRAIN_PAIRS, run_stage
 
 log = logging.getLogger("msdepth")
 

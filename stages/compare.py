@@ -8,8 +8,14 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from msdepth.baselines import BASELINES, skipped_reason
-from msdepth.compare import (
+from msdepth.config.params import Params
+from msdepth.evaluation.baselines import BASELINES, skipped_reason
+from msdepth.evaluation.results import headline
+from msdepth.evaluation.suites import no_rois
+from msdepth.io import write_json, write_text
+from msdepth.optimum.frames import OPTIMUM, optimum_runs
+from msdepth.pipeline.paths import SETS_METRICS, SUITE_NAMES, run_stage, variant_runs
+from msdepth.reporting.compare import (
     build_comparison,
     build_set_section,
     comparison_data,
@@ -24,12 +30,6 @@ from msdepth.compare import (
     seed_spread,
     variant_settings,
 )
-from msdepth.config import Params
-from msdepth.evaluate import no_rois
-from msdepth.io import write_json, write_text
-from msdepth.optimum_eval import OPTIMUM, optimum_runs
-from msdepth.pipeline import SETS_METRICS, SUITE_NAMES, run_stage, variant_runs
-from msdepth.suites import headline
 
 
 def run_groups(

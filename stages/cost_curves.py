@@ -7,12 +7,12 @@ from __future__ import annotations
 
 import sys
 
-from msdepth.config import Params
+from msdepth.config.params import Params
 from msdepth.data import kitti
 from msdepth.data.index import read_eval_index
 from msdepth.io import write_json
-from msdepth.optimum_eval import cost_summary, first_frames, roi_cost_curves
-from msdepth.pipeline import COST_CURVES, EVAL_FRAMES, ROIS, VariantArg, run_stage
+from msdepth.optimum.frames import cost_summary, first_frames, roi_cost_curves
+from msdepth.pipeline.paths import COST_CURVES, EVAL_FRAMES, ROIS, VariantArg, run_stage
 
 
 def cost_curves(params: Params, variant: VariantArg) -> None:

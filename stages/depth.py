@@ -6,12 +6,12 @@ import sys
 
 import numpy as np
 
-from msdepth.config import Params
+from msdepth.config.params import Params
 from msdepth.data.index import read_eval_index
 from msdepth.errors import DataError
-from msdepth.evaluate import depth_maps, load_frames
+from msdepth.evaluation.suites import depth_maps, load_frames
 from msdepth.io import save_npz
-from msdepth.pipeline import (
+from msdepth.pipeline.paths import (
     EVAL_FRAMES,
     SeedArg,
     VariantArg,

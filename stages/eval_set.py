@@ -9,10 +9,11 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from msdepth.config import Params
+from msdepth.config.params import Params
 from msdepth.data.index import read_eval_index, set_index_path
-from msdepth.evaluate import depth_maps, load_frames
-from msdepth.pipeline import (
+from msdepth.evaluation.results import median_scaling, score_set
+from msdepth.evaluation.suites import depth_maps, load_frames
+from msdepth.pipeline.paths import (
     INDEX_DIR,
     SeedArg,
     SetArg,
@@ -22,15 +23,14 @@ from msdepth.pipeline import (
     model_path,
     run_stage,
 )
-from msdepth.suites import median_scaling, score_set
 
 
 def eval_set(params: Params, set_name: SetArg, variant: VariantArg, seed: SeedArg) -> None:
     """Predict one run's depth on an extra evaluation set and score it with the full-image suite."""
     import torch
 
-    from msdepth.infer import predict_disparities
-    from msdepth.train import load_model
+    from msdepth.evaluation.infer import predict_disparities
+    from msdepth.training.train import load_model
 
     name, run = checked_set(params, set_name), checked_run(params, variant, seed)
     torch.set_num_threads(params.train.threads)

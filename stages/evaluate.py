@@ -5,12 +5,13 @@ from __future__ import annotations
 import sys
 from typing import Annotated
 
-from msdepth.config import Params
+from msdepth.config.params import Params
 from msdepth.data import kitti
 from msdepth.data.index import read_eval_index
 from msdepth.errors import ConfigError
-from msdepth.evaluate import load_frames, read_depth_maps
-from msdepth.pipeline import (
+from msdepth.evaluation.results import SUITES, run_suite
+from msdepth.evaluation.suites import load_frames, read_depth_maps
+from msdepth.pipeline.paths import (
     EVAL_FRAMES,
     ROIS,
     SUITE_NAMES,
@@ -20,7 +21,6 @@ from msdepth.pipeline import (
     depth_path,
     run_stage,
 )
-from msdepth.suites import SUITES, run_suite
 
 
 def evaluate(

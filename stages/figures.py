@@ -6,15 +6,20 @@ import logging
 import sys
 from pathlib import Path
 
-from msdepth.config import Params
-from msdepth.pipeline import COST_CURVES, run_stage, variant_runs
+from msdepth.config.params import Params
+from msdepth.pipeline.paths import COST_CURVES, run_stage, variant_runs
 
 log = logging.getLogger("msdepth")
 
 
 def figures(params: Params) -> None:
     """The dissertation's figures (disparities, ROI depth and gradients, curves, error scatter)."""
-    from msdepth.figures import COST_CURVES_FIGURE, cost_curve_figure, make_figures, read_cost_curves
+    from msdepth.reporting.figures import (
+        COST_CURVES_FIGURE,
+        cost_curve_figure,
+        make_figures,
+        read_cost_curves,
+    )
 
     # The first seed's run of each variant: the figures show predictions, not an average of
     # them; the training curves show every seed's.

@@ -8,12 +8,12 @@ import sys
 
 import pandas as pd
 
-from msdepth.config import Params
+from msdepth.config.params import Params
 from msdepth.data.eval_sets import build_set_index
 from msdepth.data.index import EVAL_COLUMNS, build_indexes, write_indexes
 from msdepth.data.layout import folder_layout
 from msdepth.data.pairs import PairIndex
-from msdepth.pipeline import INDEX_DIR, run_stage
+from msdepth.pipeline.paths import INDEX_DIR, run_stage
 
 log = logging.getLogger("msdepth")
 

@@ -5,10 +5,10 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from msdepth.config import Params
+from msdepth.config.params import Params
 from msdepth.data.index import read_eval_index
 from msdepth.io import save_npy
-from msdepth.pipeline import (
+from msdepth.pipeline.paths import (
     EVAL_FRAMES,
     SeedArg,
     VariantArg,
@@ -23,8 +23,8 @@ def infer(params: Params, variant: VariantArg, seed: SeedArg) -> None:
     """Left disparities of every evaluation frame, at the network's input size."""
     import torch
 
-    from msdepth.infer import predict_disparities
-    from msdepth.train import load_model
+    from msdepth.evaluation.infer import predict_disparities
+    from msdepth.training.train import load_model
 
     run = checked_run(params, variant, seed)
     torch.set_num_threads(params.train.threads)

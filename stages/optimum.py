@@ -7,13 +7,14 @@ from __future__ import annotations
 import sys
 from typing import Annotated
 
-from msdepth.config import Params
+from msdepth.config.params import Params
 from msdepth.data import kitti
 from msdepth.data.index import read_eval_index
-from msdepth.evaluate import depth_maps, load_frames
+from msdepth.evaluation.results import run_suite
+from msdepth.evaluation.suites import depth_maps, load_frames
 from msdepth.io import save_npy, save_npz
-from msdepth.optimum_eval import boxes_of, checked_weight, frame_disparities, optimum_run, sweep_frames
-from msdepth.pipeline import (
+from msdepth.optimum.frames import boxes_of, checked_weight, frame_disparities, optimum_run, sweep_frames
+from msdepth.pipeline.paths import (
     EVAL_FRAMES,
     ROIS,
     SUITE_NAMES,
@@ -22,7 +23,6 @@ from msdepth.pipeline import (
     disparities_path,
     run_stage,
 )
-from msdepth.suites import run_suite
 
 
 def optimum(

@@ -7,10 +7,10 @@ import sys
 from pathlib import Path
 from typing import Annotated
 
-from msdepth.config import Params
+from msdepth.config.params import Params
 from msdepth.data.layout import folder_layout, layout
 from msdepth.data.roots import check_kitti_root, check_synthetic_root
-from msdepth.pipeline import run_stage
+from msdepth.pipeline.paths import run_stage
 
 log = logging.getLogger("msdepth")
 

@@ -6,9 +6,9 @@ import logging
 import sys
 from pathlib import Path
 
-from msdepth.config import Params
-from msdepth.pipeline import run_stage
-from msdepth.report import write_report
+from msdepth.config.params import Params
+from msdepth.pipeline.paths import run_stage
+from msdepth.reporting.report import write_report
 
 log = logging.getLogger("msdepth")
 

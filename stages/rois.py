@@ -6,12 +6,12 @@ import logging
 import sys
 from pathlib import Path
 
-from msdepth.config import Params
+from msdepth.config.params import Params
 from msdepth.data import kitti
 from msdepth.data.index import read_eval_index
 from msdepth.data.layout import folder_layout, layout
 from msdepth.errors import DataError
-from msdepth.pipeline import EVAL_FRAMES, ROI_SHEET, ROIS, run_stage
+from msdepth.pipeline.paths import EVAL_FRAMES, ROI_SHEET, ROIS, run_stage
 
 log = logging.getLogger("msdepth")
 

@@ -8,13 +8,13 @@ import os
 import sys
 from pathlib import Path
 
-from msdepth.config import Params
+from msdepth.config.params import Params
 from msdepth.data.layout import layout
 from msdepth.data.pairs import load_pair_cache, load_pair_list
 from msdepth.data.sequences import training_sequences
 from msdepth.errors import MsdepthError
 from msdepth.io import write_json
-from msdepth.pipeline import (
+from msdepth.pipeline.paths import (
     CACHED_PAIRS,
     PAIR_CACHE,
     SeedArg,
@@ -30,7 +30,7 @@ log = logging.getLogger("msdepth")
 
 def train(params: Params, variant: VariantArg, seed: SeedArg) -> None:
     """Train one loss variant with one seed; write its model, training summary and dvclive curves."""
-    from msdepth.train import train_variant
+    from msdepth.training.train import train_variant
 
     run = checked_run(params, variant, seed)
     t = params.train
@@ -91,11 +91,11 @@ def train(params: Params, variant: VariantArg, seed: SeedArg) -> None:
 
 
 def add_pose_metrics(params: Params, run: str, summary_path: Path) -> None:
-    """A monocular run's pose ATE (msdepth.pose_eval), added to its training summary as ``pose``:
+    """A monocular run's pose ATE (msdepth.evaluation.pose), added to its training summary as ``pose``:
     on the rendered sequences, or on the KITTI odometry sequences that are on disk (each one's also
     under ``pose.sequences``; none is fetched, so with none there the summary has no ``pose``)."""
-    from msdepth.pose_eval import odometry_ates, sequence_ates
-    from msdepth.train import trained_pose_net
+    from msdepth.evaluation.pose import odometry_ates, sequence_ates
+    from msdepth.training.train import trained_pose_net
 
     net = trained_pose_net(params, checkpoint_path(run))
     paths, h, w = layout(params), params.data.height, params.data.width

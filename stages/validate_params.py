@@ -10,13 +10,13 @@ from __future__ import annotations
 
 import sys
 
-from msdepth.config import Params
-from msdepth.pipeline import CHECKED, run_stage
+from msdepth.config.params import Params
+from msdepth.pipeline.paths import CHECKED, run_stage
 
 # The same bytes whatever the params: the stages after this one then re-run only for the params
 # keys (and code) they list themselves, never because this file changed.
 CHECKED_TEXT = (
-    "params.yaml passed msdepth.config.load_params (types, ranges, no unknown keys).\n"
+    "params.yaml passed msdepth.config.params.load_params (types, ranges, no unknown keys).\n"
     "This file's content never changes: the stages that depend on it re-run for their own params.\n"
 )
 
@@ -24,7 +24,7 @@ CHECKED_TEXT = (
 def validate_params(params: Params) -> None:
     """Validate params.yaml (types, ranges, unknown keys) and write data/params_checked.txt.
 
-    The checks are msdepth.config.load_params's, done on loading: an error is one line naming
+    The checks are msdepth.config.params.load_params's, done on loading: an error is one line naming
     the key, and then nothing is written.
     """
     if not CHECKED.is_file() or CHECKED.read_text() != CHECKED_TEXT:

@@ -1,4 +1,4 @@
-"""Where each loss wants each ROI class: cost curves (msdepth.optimum.cost_curve) on rendered frames.
+"""Where each loss wants each ROI class: cost curves (msdepth.optimum.solver.cost_curve) on rendered frames.
 
 For every ROI box of evaluation frames 0..N-1 of the synthetic set, the variant's appearance cost
 of the whole left view with the box's disparity at GT x s (s from 0.5 to 2) and the GT elsewhere;
@@ -22,13 +22,13 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))  # optimum_sweep, besid
 
 from optimum_sweep import ROOT, variant_params  # noqa: E402
 
-from msdepth.config import apply_overrides, params_from_dict  # noqa: E402
+from msdepth.config.params import apply_overrides, params_from_dict  # noqa: E402
 from msdepth.data.pairs import to_tensor  # noqa: E402
 from msdepth.data.synthetic import render_frame  # noqa: E402
 
 
 def main(argv: list[str] | None = None) -> int:
-    from msdepth.optimum import class_summary, cost_curve, objective
+    from msdepth.optimum.solver import class_summary, cost_curve, objective
 
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--frames", type=int, default=4)

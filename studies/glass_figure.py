@@ -1,7 +1,7 @@
 """A windshield before and after the dielectric glass model: image, GT and the loss's optimum.
 
 Reads two dumps of ``studies/glass_check.py`` (old and new renderer), picks the evaluation frame
-with the most windshield pixels, runs the optimum (:mod:`msdepth.optimum`, SSIM, smoothness 10)
+with the most windshield pixels, runs the optimum (:mod:`msdepth.optimum.solver`, SSIM, smoothness 10)
 on both, crops around the windshield and writes a figure and the windshield's abs_rel::
 
     python studies/glass_figure.py /tmp/before /tmp/after studies/results/glass/windshield.png
@@ -23,9 +23,9 @@ import yaml  # noqa: E402
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "src"))
 
-from msdepth.config import params_from_dict  # noqa: E402
+from msdepth.config.params import params_from_dict  # noqa: E402
 from msdepth.data.kitti import CLASS_BITS  # noqa: E402
-from msdepth.optimum import optimum_disparities  # noqa: E402
+from msdepth.optimum.solver import optimum_disparities  # noqa: E402
 
 
 def main() -> None:

@@ -1,9 +1,9 @@
 """Does every run learn from the image? Train variants x seeds, evaluate each, print the spread.
 
 Issue 17's instrument: for each loss variant (SSIM, MS-SSIM at several kernel sizes) and seed,
-train with the pipeline's own code (``msdepth.train.train_variant`` on the cached pairs), predict
+train with the pipeline's own code (``msdepth.training.train.train_variant`` on the cached pairs), predict
 the evaluation frames and report full-image and ROI abs_rel (cap 80), the run's image
-dependence (``msdepth.evaluate.image_dependence``), whether its loss fell within the first
+dependence (``msdepth.evaluation.suites.image_dependence``), whether its loss fell within the first
 epoch, and the per-pixel prior's abs_rel beside it. Runs are independent processes
 (``--jobs``); finished runs are kept in ``--out`` and not trained again (resumable).
 
@@ -37,13 +37,13 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))  # prepare_set, beside 
 
 from prepare_set import apply  # noqa: E402
 
-from msdepth import baselines  # noqa: E402
-from msdepth.config import Params, params_from_dict  # noqa: E402
+from msdepth.config.params import Params, params_from_dict  # noqa: E402
 from msdepth.data import kitti  # noqa: E402
 from msdepth.data.index import read_eval_index  # noqa: E402
 from msdepth.data.pairs import build_pair_cache, load_pair_cache, load_pair_list  # noqa: E402
 from msdepth.errors import DataError  # noqa: E402
-from msdepth.evaluate import depth_maps, evaluate_full, evaluate_roi, image_dependence, load_frames  # noqa: E402
+from msdepth.evaluation import baselines  # noqa: E402
+from msdepth.evaluation.suites import depth_maps, evaluate_full, evaluate_roi, image_dependence, load_frames  # noqa: E402
 
 INDEX = Path("data/index")
 
@@ -103,7 +103,7 @@ def _roi_cap80(roi: dict) -> dict:
 
 def _epoch_recorder(params: Params, ev: EvalSet, history: list[dict]) -> Callable:
     """``train_variant``'s ``on_epoch``: evaluates the model after every epoch into ``history``."""
-    from msdepth.infer import predict_disparities
+    from msdepth.evaluation.infer import predict_disparities
 
     def on_epoch(epoch: int, model, means: dict) -> None:
         # Plain predictions (no flip post-processing) after every epoch: the learning curve in abs_rel.
@@ -130,8 +130,8 @@ def _final_depth(model_path: Path, params: Params, ev: EvalSet, threads: int) ->
     """The trained model's depth maps of the evaluation frames, as the pipeline predicts them."""
     import torch
 
-    from msdepth.infer import predict_disparities
-    from msdepth.train import load_model
+    from msdepth.evaluation.infer import predict_disparities
+    from msdepth.training.train import load_model
 
     torch.set_num_threads(threads)
     model, meta = load_model(model_path)
@@ -143,7 +143,7 @@ def _final_depth(model_path: Path, params: Params, ev: EvalSet, threads: int) ->
 
 def run_one(base: dict, spec: str, seed: int, out: str, threads: int) -> dict:
     """Train and evaluate one (variant spec, seed); the result is also written to ``out``."""
-    from msdepth.train import train_variant
+    from msdepth.training.train import train_variant
 
     out_dir = Path(out)
     name = f"{spec.replace(':', '_k')}_seed{seed}"

@@ -40,7 +40,7 @@ import yaml
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "src"))
 
-from msdepth.compare import image_dependence, load_suite_metrics, load_unit_tables  # noqa: E402
+from msdepth.reporting.compare import image_dependence, load_suite_metrics, load_unit_tables  # noqa: E402
 
 MODES = ("mono", "mono_stereo")
 CLASSES = ("car", "windshield", "glass", "sign")
@@ -153,11 +153,17 @@ def scaled_stereo_rows(repo: Path, params: dict, cap: float) -> list[list[str]]:
     rows have :func:`table`'s columns (those a snapshot gives, such as pose, are ``–``)."""
     import os
 
-    from msdepth.config import load_params
+    from msdepth.config.params import load_params
     from msdepth.data import kitti
     from msdepth.data.index import read_eval_index
-    from msdepth.evaluate import evaluate_full, evaluate_roi, load_frames, median_scaled_maps, read_depth_maps
-    from msdepth.pipeline import EVAL_FRAMES, ROIS, depth_path
+    from msdepth.evaluation.suites import (
+        evaluate_full,
+        evaluate_roi,
+        load_frames,
+        median_scaled_maps,
+        read_depth_maps,
+    )
+    from msdepth.pipeline.paths import EVAL_FRAMES, ROIS, depth_path
 
     here, key, rows = Path.cwd(), f"cap{cap:g}", []
     os.chdir(repo)  # the index names its files relative to the project

@@ -26,7 +26,7 @@ import yaml
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "src"))
 
-from msdepth.stats import paired_bootstrap, paired_table  # noqa: E402
+from msdepth.reporting.stats import paired_bootstrap, paired_table  # noqa: E402
 
 CAP = 80
 CLASSES = ("car", "windshield", "glass", "sign")

@@ -1,7 +1,7 @@
 """The losses' own optimum on rendered evaluation frames, at several smoothness weights.
 
 Renders evaluation frames of the synthetic set (``data.synthetic``, exact GT: disp_occ within
-``gt_max_depth``), runs the optimum (:mod:`msdepth.optimum`) per variant and weight, and scores
+``gt_max_depth``), runs the optimum (:mod:`msdepth.optimum.solver`) per variant and weight, and scores
 it with the evaluation's suites (cap 80 m): full-frame abs_rel and a1, ROI abs_rel per class
 (boxes) and over the classes' exact pixels (masks), beside an oracle constant (each frame's
 median GT disparity). Prints a markdown table; ``--trace`` also prints the mean loss per level
@@ -27,10 +27,10 @@ import yaml
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "src"))
 
-from msdepth.config import apply_overrides, params_from_dict  # noqa: E402
+from msdepth.config.params import apply_overrides, params_from_dict  # noqa: E402
 from msdepth.data.kitti import KITTI_BASELINE  # noqa: E402
 from msdepth.data.synthetic import render_frame, within_range  # noqa: E402
-from msdepth.evaluate import Frame, depth_maps, evaluate_full, evaluate_roi  # noqa: E402
+from msdepth.evaluation.suites import Frame, depth_maps, evaluate_full, evaluate_roi  # noqa: E402
 
 CAP = "cap80"
 ROI_KEYS = ("image", "class", "x0", "y0", "x1", "y1")
@@ -73,7 +73,7 @@ def variant_params(base: dict, spec: str):
 
 
 def main(argv: list[str] | None = None) -> int:
-    from msdepth.optimum import objective, optimise, optimum_disparities
+    from msdepth.optimum.solver import objective, optimise, optimum_disparities
 
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--frames", type=int, default=8)

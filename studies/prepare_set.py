@@ -20,8 +20,8 @@ import yaml
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "src"))
 
-from msdepth.config import apply_overrides as apply  # noqa: E402,F401  (learning.py imports it from here)
-from msdepth.config import params_from_dict  # noqa: E402
+from msdepth.config.params import apply_overrides as apply  # noqa: E402,F401  (learning.py imports it from here)
+from msdepth.config.params import params_from_dict  # noqa: E402
 from msdepth.errors import MsdepthError  # noqa: E402
 
 

@@ -3,7 +3,7 @@
 Issue 17's goal 3 asks the networks to beat the image-blind constant on every ROI class. This
 study says why they do not: for every ROI (box) of the evaluation frames it takes the median
 predicted depth of a run (``outputs/<run>/depth.npz``, from ``dvc repro``), the median of the
-image-blind per-pixel prior's depth (:func:`msdepth.baselines.baseline_disparities`) and the
+image-blind per-pixel prior's depth (:func:`msdepth.evaluation.baselines.baseline_disparities`) and the
 median GT depth, over the box's valid GT pixels (cap 80 m), and reports per class and box size
 at the network's input: the median ratio prediction / GT (> 1: too far), the prior's ratio, and
 the correlation over boxes of log(prediction / GT) with log(prior / GT). A correlation near 1
@@ -25,12 +25,12 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "src"))
 
-from msdepth import baselines  # noqa: E402
-from msdepth.config import load_params  # noqa: E402
+from msdepth.config.params import load_params  # noqa: E402
 from msdepth.data import kitti  # noqa: E402
 from msdepth.data.index import read_eval_index  # noqa: E402
 from msdepth.data.pairs import load_pair_list  # noqa: E402
-from msdepth.evaluate import depth_maps, load_frames, read_depth_maps  # noqa: E402
+from msdepth.evaluation import baselines  # noqa: E402
+from msdepth.evaluation.suites import depth_maps, load_frames, read_depth_maps  # noqa: E402
 
 INDEX = Path("data/index")
 CAP = 80.0

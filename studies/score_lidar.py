@@ -2,7 +2,7 @@
 KITTI Velodyne scan projected into the left camera, the Eigen-style raw-LiDAR GT.
 
 The projection is the evaluation's (:func:`msdepth.data.kitti.lidar_depth_map`); the metrics are
-Monodepth's (:func:`msdepth.metrics.compute_errors`) on GT in (1e-3, cap) m with predictions
+Monodepth's (:func:`msdepth.evaluation.metrics.compute_errors`) on GT in (1e-3, cap) m with predictions
 clamped to that range, as the Eigen evaluation does. With an object-benchmark ``calib.txt``
 (``P2``, ``R0_rect``, ``Tr_velo_to_cam``)::
 
@@ -23,8 +23,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "src"))
 
 from msdepth.data.kitti import lidar_depth_map, read_calib, read_velodyne  # noqa: E402
-from msdepth.depth import clamp_depth  # noqa: E402
-from msdepth.metrics import compute_errors  # noqa: E402
+from msdepth.evaluation.metrics import compute_errors  # noqa: E402
+from msdepth.geometry.depth import clamp_depth  # noqa: E402
 
 MIN_DEPTH = 1e-3
 

@@ -24,7 +24,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "src"))
 from msdepth.data.index import read_eval_index  # noqa: E402
 from msdepth.data.kitti import read_image  # noqa: E402
 from msdepth.errors import DataError  # noqa: E402
-from msdepth.evaluate import load_frames  # noqa: E402
+from msdepth.evaluation.suites import load_frames  # noqa: E402
 
 INDEX = Path("data/index")
 
@@ -36,8 +36,8 @@ def figure(models: dict[str, Path], names: list[str], out: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from msdepth.infer import predict_disparities
-    from msdepth.train import load_model
+    from msdepth.evaluation.infer import predict_disparities
+    from msdepth.training.train import load_model
 
     index = read_eval_index(INDEX / "eval_frames.csv")
     by_name = {f.name: (f, Path(left)) for f, left in zip(load_frames(index), index["left"], strict=True)}

@@ -12,15 +12,15 @@ import torch
 from torch import nn
 
 from msdepth.__main__ import main
-from msdepth.config import params_from_dict
+from msdepth.config.params import params_from_dict
 from msdepth.data import sequences, synthetic
 from msdepth.data.layout import MONO_SPLIT
 from msdepth.errors import ConfigError, MsdepthError
-from msdepth.model import MonodepthVGG, depth_network, save_model
-from msdepth.resnet import ResNetEncoder
-from msdepth.resnet_depth import ResNetDepth, ResNetMonodepth
-from msdepth.serialization import load_weights_file
-from msdepth.train import build_model, build_pose_net, load_model, train_variant
+from msdepth.networks.model import MonodepthVGG, depth_network, save_model
+from msdepth.networks.resnet import ResNetEncoder
+from msdepth.networks.resnet_depth import ResNetDepth, ResNetMonodepth
+from msdepth.networks.serialization import load_weights_file
+from msdepth.training.train import build_model, build_pose_net, load_model, train_variant
 
 H, W = 64, 192  # ResNet-18 needs sides that are multiples of 32, at least 64
 RENDER = {"seed": 5, "drives": 1, "train_pairs": 6, "eval_frames": 1, "height": H, "width": W}

@@ -14,10 +14,11 @@ import pandas as pd
 import pytest
 from conftest import stage
 
-from msdepth import baselines, pipeline
-from msdepth.config import SyntheticConfig, params_from_dict
+from msdepth.config.params import SyntheticConfig, params_from_dict
 from msdepth.data import kitti, synthetic
-from msdepth.suites import SUITES
+from msdepth.evaluation import baselines
+from msdepth.evaluation.results import SUITES
+from msdepth.pipeline import paths as pipeline
 
 SYN = SyntheticConfig(seed=5, drives=2, train_pairs=6, eval_frames=3, height=48, width=160)
 

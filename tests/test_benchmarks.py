@@ -243,7 +243,7 @@ def test_roi_error_study_known_answers(study_set: Path, tmp_path: Path, monkeypa
     import numpy as np
 
     from msdepth.data.index import read_eval_index
-    from msdepth.evaluate import load_frames
+    from msdepth.evaluation.suites import load_frames
     from msdepth.io import save_npz
 
     shutil.copytree(study_set, tmp_path, dirs_exist_ok=True)
@@ -413,7 +413,7 @@ def test_monocular_study_scores_stereo_runs_median_scaled(study_set: Path, tmp_p
     """studies/monocular.py's stereo rows median-scaled as the monocular runs are: a run at twice
     the GT and one at half of it both score 0 after scaling, with scale ratios 0.5 and 2."""
     from msdepth.data.index import read_eval_index
-    from msdepth.evaluate import load_frames
+    from msdepth.evaluation.suites import load_frames
     from msdepth.io import save_npz
 
     shutil.copytree(study_set, tmp_path, dirs_exist_ok=True)

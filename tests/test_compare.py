@@ -3,16 +3,16 @@ from the defaults, so that an experiment's tables say what it changed."""
 
 from __future__ import annotations
 
-from msdepth.compare import (
+from msdepth.config.params import params_from_dict
+from msdepth.evaluation.metrics import METRICS
+from msdepth.evaluation.suites import NO_ROIS
+from msdepth.reporting.compare import (
     build_comparison,
     changed_settings,
     comparison_data,
     settings_text,
     variant_settings,
 )
-from msdepth.config import params_from_dict
-from msdepth.evaluate import NO_ROIS
-from msdepth.metrics import METRICS
 
 DEFAULT_MSSSIM = {"kernel_size": 3, "levels": 4, "weights": "wang"}
 

@@ -12,8 +12,8 @@ from pathlib import Path
 import pytest
 from test_stages import _run as run_script
 
-from msdepth.checks import SHOWN_CHARS, shown
-from msdepth.config import MAX_PARAMS_BYTES, load_params, params_from_dict
+from msdepth.config.checks import SHOWN_CHARS, shown
+from msdepth.config.params import MAX_PARAMS_BYTES, load_params, params_from_dict
 from msdepth.errors import ConfigError
 
 
@@ -78,7 +78,7 @@ def test_hostile_params_are_one_line_naming_the_key_at_validate_params(
 ):
     from conftest import stage
 
-    from msdepth.pipeline import run_stage
+    from msdepth.pipeline.paths import run_stage
 
     validate_params = stage("validate_params").validate_params
 
@@ -106,7 +106,7 @@ def test_an_alias_bomb_is_refused_in_bounded_memory(tmp_path: Path):
     (tmp_path / "params.yaml").write_text(alias_bomb(8))
     (tmp_path / "child.py").write_text(
         "import resource\nresource.setrlimit(resource.RLIMIT_AS, (400 << 20, 400 << 20))\n"
-        "from msdepth.config import load_params\nfrom msdepth.errors import ConfigError\n"
+        "from msdepth.config.params import load_params\nfrom msdepth.errors import ConfigError\n"
         "try:\n    load_params('params.yaml')\nexcept ConfigError as exc:\n    print(exc)\n"
     )
     proc = run_script(str(tmp_path / "child.py"), cwd=tmp_path)  # an absolute path stays itself
@@ -138,9 +138,9 @@ def test_the_new_ranges_accept_their_bounds():
 
 
 def test_a_variant_named_like_a_params_section_is_refused(monkeypatch):
-    """msdepth.variants.register no longer imports the config (that made a cycle): config checks."""
-    from msdepth import config
-    from msdepth.variants.ssim import SSIMConfig
+    """msdepth.config.variants.register no longer imports the config (that made a cycle): config checks."""
+    from msdepth.config import params as config
+    from msdepth.config.variants.ssim import SSIMConfig
 
     monkeypatch.setattr(config, "variant_configs", lambda: {"ssim": SSIMConfig, "train": SSIMConfig})
     with pytest.raises(ValueError, match=r"variant\(s\) \['train'\]: the name of a params section"):

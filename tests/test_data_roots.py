@@ -19,7 +19,7 @@ from pathlib import Path
 import pytest
 from conftest import stage
 
-from msdepth.config import SyntheticConfig, params_from_dict
+from msdepth.config.params import SyntheticConfig, params_from_dict
 from msdepth.data import roots
 from msdepth.data.synthetic import generate
 from msdepth.errors import DataError

@@ -13,7 +13,7 @@ import torch
 from test_train import _params, _train, _weights
 from torch.utils.data import DataLoader
 
-from msdepth.distributed import Context, GlobalBatchSampler
+from msdepth.training.distributed import Context, GlobalBatchSampler
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -48,7 +48,7 @@ CHILD = textwrap.dedent("""
     import sys
     from pathlib import Path
     sys.path.insert(0, {tests!r})
-    from msdepth.train import train_variant
+    from msdepth.training.train import train_variant
     from test_train import _params
     pairs = [tuple(Path(p) for p in line.split()) for line in Path({pair_file!r}).read_text().splitlines()]
     out = Path({out!r})
@@ -93,7 +93,7 @@ CRASH = textwrap.dedent("""
     import os, sys
     from pathlib import Path
     sys.path.insert(0, {tests!r})
-    import msdepth.train as train_mod
+    import msdepth.training.train as train_mod
     from test_train import _params
     if os.environ["RANK"] == "1":
         real = train_mod.MonodepthLoss.forward

@@ -31,7 +31,7 @@ import pytest
 from conftest import stage
 
 from msdepth import io as dl_io
-from msdepth.config import params_from_dict
+from msdepth.config.params import params_from_dict
 from msdepth.data import download as dl
 from msdepth.errors import DataError
 
@@ -274,7 +274,7 @@ def test_plain_http_is_refused_without_allow_http(server: _Server, tmp_path: Pat
 
 
 def test_base_url_scheme_is_checked_with_the_config(tmp_path: Path) -> None:
-    from msdepth.config import params_from_dict
+    from msdepth.config.params import params_from_dict
     from msdepth.errors import ConfigError
 
     def kitti(**keys):

@@ -14,13 +14,13 @@ import numpy as np
 import pytest
 from test_kitti_lidar import P2, _random_cloud, _write_raw_calib
 
-from msdepth.config import EvalConfig, params_from_dict
+from msdepth.config.params import EvalConfig, params_from_dict
 from msdepth.data import eval_sets, kitti
 from msdepth.data.ground_truth import read_gt_depth
 from msdepth.errors import ConfigError, DataError
-from msdepth.evaluate import Frame, depth_maps, evaluate_full, load_frames
+from msdepth.evaluation.metrics import compute_errors, garg_crop_mask, median_scale
+from msdepth.evaluation.suites import Frame, depth_maps, evaluate_full, load_frames
 from msdepth.io import write_png
-from msdepth.metrics import compute_errors, garg_crop_mask, median_scale
 
 FOCAL, BASELINE = 721.5377, 0.54
 
@@ -244,7 +244,9 @@ def test_compare_section_of_an_extra_set(tmp_path: Path, monkeypatch: pytest.Mon
     intervals, mean ± sd over seeds; metrics written by the suite and read back from disk."""
     import pandas as pd
 
-    from msdepth.compare import (
+    from msdepth.config.params import CompareConfig
+    from msdepth.evaluation.results import write_suite
+    from msdepth.reporting.compare import (
         build_set_section,
         group_metrics,
         load_suite_metrics,
@@ -252,8 +254,6 @@ def test_compare_section_of_an_extra_set(tmp_path: Path, monkeypatch: pytest.Mon
         paired_statistics,
         seed_spread,
     )
-    from msdepth.config import CompareConfig
-    from msdepth.suites import write_suite
 
     monkeypatch.chdir(tmp_path)  # write_suite puts the headline files below ./metrics
     gts, disps = _sparse_scene(2, n=4, shape=(60, 200))
@@ -294,7 +294,7 @@ def test_compare_section_of_an_extra_set(tmp_path: Path, monkeypatch: pytest.Mon
 
 
 def test_a_set_stage_for_an_unconfigured_set_names_the_configured_ones() -> None:
-    from msdepth.pipeline import checked_set
+    from msdepth.pipeline.paths import checked_set
 
     params = params_from_dict({"eval": {"extra_sets": ["eigen"]}})
     assert checked_set(params, "eigen") == "eigen"

@@ -5,9 +5,9 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from msdepth.compare import build_comparison, comparison_data
-from msdepth.config import EvalConfig
-from msdepth.evaluate import Frame, depth_maps, evaluate_full, evaluate_gradients, evaluate_roi
+from msdepth.config.params import EvalConfig
+from msdepth.evaluation.suites import Frame, depth_maps, evaluate_full, evaluate_gradients, evaluate_roi
+from msdepth.reporting.compare import build_comparison, comparison_data
 
 FOCAL, BASELINE = 721.5377, 0.54
 
@@ -169,7 +169,7 @@ def _frames_with_depth(depths):
 
 
 def test_image_dependence_tells_a_prior_from_a_network_that_follows_the_scene():
-    from msdepth.evaluate import image_dependence
+    from msdepth.evaluation.suites import image_dependence
 
     rng = np.random.default_rng(0)
     depths = [rng.uniform(5, 60, (30, 90)).astype(np.float32) for _ in range(6)]
@@ -280,8 +280,8 @@ def test_compare_names_missing_baselines_with_their_reasons():
 def test_compare_says_when_image_dependence_cannot_be_measured():
     """One evaluation frame (or GT never at the same pixels in 3): the ratio is NaN, which must
     read as "not measured", not as "follows the image"."""
-    from msdepth.compare import image_dependence as compare_dependence
-    from msdepth.evaluate import image_dependence
+    from msdepth.evaluation.suites import image_dependence
+    from msdepth.reporting.compare import image_dependence as compare_dependence
 
     frame = _frames_with_depth([np.full((10, 20), 20.0, dtype=np.float32)])
     measured = image_dependence({frame[0].name: frame[0].gt_depth}, frame, 80.0)

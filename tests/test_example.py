@@ -1,4 +1,4 @@
-"""docs/example/ (the predict example of docs/user-guide.md): `python -m msdepth.example` regenerates
+"""docs/example/ (the predict example of docs/user-guide.md): `python -m msdepth.cli.example` regenerates
 it from the trained models, and the committed images are the committed models' (issue 29 item 3)."""
 
 from __future__ import annotations
@@ -14,9 +14,9 @@ import torch
 import yaml
 
 from msdepth.__main__ import main as msdepth_main
+from msdepth.cli.example import FRAME, MANIFEST, OUT, disparity_name, main, md5, stale_example
 from msdepth.data.imagefile import png_size
-from msdepth.example import FRAME, MANIFEST, OUT, disparity_name, main, md5, stale_example
-from msdepth.model import MonodepthVGG
+from msdepth.networks.model import MonodepthVGG
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -25,7 +25,7 @@ def test_the_committed_example_is_drawn_by_the_committed_models():
     """Fails when dvc.lock's models change (a retrained default run) until the example is redrawn,
     or when an image is not the size the command wrote."""
     problems = stale_example(ROOT)
-    assert not problems, "\n".join(problems) + "\nrun `python -m msdepth.example` after `dvc repro`"
+    assert not problems, "\n".join(problems) + "\nrun `python -m msdepth.cli.example` after `dvc repro`"
 
 
 def _tiny_model(path: Path, seed: int) -> None:

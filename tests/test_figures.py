@@ -10,13 +10,13 @@ import pandas as pd
 import pytest
 from conftest import stage
 
-from msdepth import pipeline
-from msdepth.config import params_from_dict
+from msdepth.config.params import params_from_dict
 from msdepth.data import kitti
 from msdepth.data.synthetic import generate
 from msdepth.errors import DataError
-from msdepth.figures import FIGURES, make_figures, roi_examples
-from msdepth.suites import SUITES
+from msdepth.evaluation.results import SUITES
+from msdepth.pipeline import paths as pipeline
+from msdepth.reporting.figures import FIGURES, make_figures, roi_examples
 
 VARIANTS = ["ssim", "msssim"]
 RUNS = {v: f"{v}/seed0" for v in VARIANTS}  # label -> run, as the figures stage passes them
@@ -170,7 +170,7 @@ def test_missing_depth_maps_is_a_data_error_naming_them(tree: Path, tmp_path: Pa
 
 
 def test_training_curves_draw_every_seed_and_name_a_missing_one(tree: Path, tmp_path: Path, monkeypatch):
-    import msdepth.figures as figures_mod
+    import msdepth.reporting.figures as figures_mod
 
     plots = tmp_path / "plots"
     shutil.copytree(tree / "plots/train", plots)

@@ -12,12 +12,12 @@ import pandas as pd
 import pytest
 from conftest import stage
 
-from msdepth.config import ConfigError, params_from_dict
+from msdepth.config.params import ConfigError, params_from_dict
 from msdepth.data import folder, kitti
 from msdepth.data.layout import folder_layout
 from msdepth.data.pfm import read_pfm, write_pfm
 from msdepth.errors import DataError
-from msdepth.evaluate import NO_ROIS, Frame, evaluate_gradients, evaluate_roi, load_frames
+from msdepth.evaluation.suites import NO_ROIS, Frame, evaluate_gradients, evaluate_roi, load_frames
 from msdepth.io import write_png
 
 # --------------------------------------------------------------------------- PFM, hand-built
@@ -243,8 +243,8 @@ def _no_rois() -> pd.DataFrame:
 
 @pytest.mark.parametrize("suite", [evaluate_roi, evaluate_gradients])
 def test_zero_rois_give_an_explicit_summary_and_a_header_only_table(suite, tmp_path: Path):
-    from msdepth.config import EvalConfig
-    from msdepth.suites import headline
+    from msdepth.config.params import EvalConfig
+    from msdepth.evaluation.results import headline
 
     frame = Frame("f", np.full((4, 6), 10.0, np.float32), 100.0, 0.5)
     summary, table = suite({"f": np.full((4, 6), 9.0, np.float32)}, [frame], _no_rois(), EvalConfig())
@@ -257,8 +257,8 @@ def test_zero_rois_give_an_explicit_summary_and_a_header_only_table(suite, tmp_p
 
 
 def test_compare_without_rois_says_the_roi_suites_were_skipped():
-    from msdepth.compare import ROIS_SKIPPED, build_comparison, comparison_data
-    from msdepth.metrics import METRICS
+    from msdepth.evaluation.metrics import METRICS
+    from msdepth.reporting.compare import ROIS_SKIPPED, build_comparison, comparison_data
 
     full = {"cap80": dict.fromkeys(METRICS, 0.5), "images": 2, "excluded_images": 0}
     none = {"rois": 0, NO_ROIS: "no ROIs"}
@@ -269,7 +269,7 @@ def test_compare_without_rois_says_the_roi_suites_were_skipped():
 
 
 def test_mean_headline_without_rois_has_no_roi_number():
-    from msdepth.metrics import METRICS
+    from msdepth.evaluation.metrics import METRICS
 
     mean_headline = stage("compare").mean_headline
 

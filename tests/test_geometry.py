@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from msdepth.geometry import (
+from msdepth.geometry.camera import (
     backproject,
     disp_to_depth,
     intrinsics_matrix,
@@ -17,7 +17,7 @@ from msdepth.geometry import (
     transformation_from_parameters,
     translation_matrix,
 )
-from msdepth.warp import warp
+from msdepth.geometry.warp import warp
 
 # ----------------------------------------------------------------------------- Monodepth2, transcribed
 # Written out from nianticlabs/monodepth2 layers.py (element by element, as there), the reference

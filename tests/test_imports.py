@@ -1,13 +1,18 @@
 """The ``msdepth`` package's import graph: no cycle, and no module reaching into another's private names.
 
 The graph is static (``ast``), with the same reading of imports as dvc.yaml's code deps
-(:func:`msdepth.dvcyaml.imported_modules`): every ``import`` statement, including those inside
+(:func:`msdepth.pipeline.dvcyaml.imported_modules`): every ``import`` statement, including those inside
 functions, and a registry package's imports of its own modules by name; ``if TYPE_CHECKING:``
 blocks never run and are left out. An import of a module's own enclosing package is left out too:
 Python runs a package's ``__init__`` before any of its modules, whether or not the module names it,
 so that edge is always there and only its reverse (a package importing its modules) is a choice.
 
-Run ``python tests/test_imports.py`` to print the cycles and private-name imports it finds.
+The packages are layered (:data:`LAYERS`, drawn in docs/design.md): a module may import its own
+package and the packages of lower layers, never a package of its own layer or a higher one, so
+that e.g. the optimum cannot reach training code and a network cannot reach a loss.
+
+Run ``python tests/test_imports.py`` to print the modules per package, the imports between
+packages, and any cycle, upward import or private-name import it finds.
 """
 
 from __future__ import annotations
@@ -18,7 +23,7 @@ from pathlib import Path
 
 import pytest
 
-from msdepth.dvcyaml import PACKAGE, imported_modules, module_file
+from msdepth.pipeline.dvcyaml import PACKAGE, imported_modules, module_file
 
 ROOT = Path(__file__).resolve().parents[1]
 SRC = ROOT / "src"
@@ -122,6 +127,61 @@ def private_imports(src: Path, package: str = PACKAGE) -> list[str]:
     return sorted(set(found))
 
 
+# Lowest first. A top-level module counts as its own package (``errors``, ``io``, ``__main__``).
+LAYERS = (
+    ("errors",),  # the one-line errors every entry point prints
+    ("io",),  # the hardened file reader and the output policy
+    ("config",),  # the typed params and each loss variant's settings (no torch)
+    ("geometry", "pipeline"),  # warping, cameras, disparity <-> depth; the pipeline's paths
+    ("data",),  # KITTI and the synthetic set: reading, rendering, indexes, ROIs
+    ("networks",),  # the depth and pose networks and their files
+    ("losses",),  # appearance terms, Monodepth's and Monodepth2's objectives
+    ("training", "evaluation"),  # training a network; inference, suites, metrics, baselines
+    ("optimum",),  # the losses' own optimum, scored as a run
+    ("reporting",),  # comparison, the results page, the figures
+    ("cli",),  # the msdepth command's subcommands
+    ("__main__",),  # the msdepth command
+)
+RANK = {package: rank for rank, layer in enumerate(LAYERS) for package in layer}
+
+
+def package_of(module: str) -> str:
+    """The first-level package (or top-level module) of ``module``: ``msdepth.a.b`` -> ``a``."""
+    return module.split(".")[1] if "." in module else ""
+
+
+def package_graph(graph: dict[str, set[str]]) -> dict[tuple[str, str], int]:
+    """``{(importing package, imported package): number of module imports}``, across packages."""
+    edges: dict[tuple[str, str], int] = {}
+    for module, imported in graph.items():
+        for other in imported:
+            a, b = package_of(module), package_of(other)
+            if a and b and a != b:
+                edges[a, b] = edges.get((a, b), 0) + 1
+    return edges
+
+
+def upward_imports(graph: dict[str, set[str]], rank: dict[str, int] = RANK) -> list[str]:
+    """``module -> module`` for each import of a package in the importer's layer or a higher one."""
+    return sorted(
+        f"{m} -> {o}"
+        for m, imported in graph.items()
+        for o in imported
+        if package_of(m) and package_of(o) and package_of(m) != package_of(o)
+        if rank[package_of(o)] >= rank[package_of(m)]
+    )
+
+
+def test_every_package_has_a_layer():
+    packages = {package_of(m) for m in modules(SRC)} - {""}
+    assert packages == set(RANK), f"not in LAYERS: {packages - set(RANK)}; gone: {set(RANK) - packages}"
+
+
+def test_no_package_imports_its_own_layer_or_a_higher_one():
+    found = upward_imports(import_graph(SRC))
+    assert found == [], "imports that go up (or sideways) in LAYERS:\n" + "\n".join(found)
+
+
 def test_no_import_cycle_in_src():
     found = cycles(import_graph(SRC))
     assert found == [], "import cycles: " + "; ".join(" <-> ".join(c) for c in found)
@@ -156,6 +216,12 @@ def toy(tmp_path: Path) -> Path:
 
 def test_the_checks_find_what_they_should_on_a_toy_package(toy: Path):
     assert cycles(import_graph(toy)) == [["msdepth.a", "msdepth.b"]]
+    graph = import_graph(toy)
+    # pkg.mod imports the top-level package (its own enclosing one: not counted); d imports b and c.
+    assert package_graph(graph) == {("c", "b"): 1, ("d", "b"): 1, ("d", "c"): 1, ("a", "b"): 1, ("b", "a"): 1}
+    rank = {"a": 0, "b": 1, "c": 2, "d": 3, "pkg": 4}
+    assert upward_imports(graph, rank) == ["msdepth.a -> msdepth.b"]
+    assert upward_imports(graph, {**rank, "c": 1}) == ["msdepth.a -> msdepth.b", "msdepth.c -> msdepth.b"]
     assert private_imports(toy) == [
         "msdepth.c: from msdepth.b import _hidden",
         "msdepth.d: bee._peek (of msdepth.b)",
@@ -163,7 +229,17 @@ def test_the_checks_find_what_they_should_on_a_toy_package(toy: Path):
 
 
 if __name__ == "__main__":
-    for cycle in cycles(import_graph(SRC)):
+    found, graph = modules(SRC), import_graph(SRC)
+    for layer in LAYERS:
+        for package in layer:
+            names = sorted(m for m in found if package_of(m) == package)
+            lines = sum(len(found[m].read_text().splitlines()) for m in names)
+            print(f"layer {RANK[package]} {package}: {len(names)} modules, {lines} lines")
+    for (a, b), count in sorted(package_graph(graph).items(), key=lambda e: (-RANK[e[0][0]], e[0])):
+        print(f"{a} -> {b} ({count} imports)")
+    for line in upward_imports(graph):
+        print("upward:", line)
+    for cycle in cycles(graph):
         print("cycle:", " <-> ".join(cycle))
     for line in private_imports(SRC):
         print("private name:", line)

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from msdepth.config import params_from_dict
+from msdepth.config.params import params_from_dict
 from msdepth.data import kitti, synthetic
 from msdepth.data.index import build_indexes, read_eval_index
 from msdepth.errors import DataError

@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 import torch
 
-from msdepth.config import ConfigError, Params, load_params, params_from_dict
-from msdepth.infer import post_process_disparity
-from msdepth.model import MonodepthVGG, count_parameters
+from msdepth.config.params import ConfigError, Params, load_params, params_from_dict
+from msdepth.evaluation.infer import post_process_disparity
+from msdepth.networks.model import MonodepthVGG, count_parameters
 
 
 def monodepth_post_process(disp: np.ndarray) -> np.ndarray:
@@ -158,7 +158,8 @@ def test_group_norm_network_treats_each_image_on_its_own():
 
 
 def test_saved_model_rebuilds_its_architecture(tmp_path):
-    from msdepth.train import build_loss, build_model, load_model, save_model
+    from msdepth.losses.objective import build_loss
+    from msdepth.training.train import build_model, load_model, save_model
 
     raw = {"model": {"width_multiplier": 0.125, "norm": "group", "heads": "residual"}}
     params = params_from_dict(raw)

@@ -22,7 +22,7 @@ CHILD = textwrap.dedent("""
     from pathlib import Path
     import torch
     sys.path.insert(0, {tests!r})
-    import msdepth.train as train_mod
+    import msdepth.training.train as train_mod
     from test_train import _params
     pairs = [tuple(Path(p) for p in line.split()) for line in Path({pair_file!r}).read_text().splitlines()]
     pause_at, mode = int(os.environ["PAUSE_AT"]), os.environ["MODE"]

@@ -16,7 +16,7 @@ import torch
 
 from msdepth.data import kitti
 from msdepth.errors import DataError
-from msdepth.warp import warp
+from msdepth.geometry.warp import warp
 
 SHARED = Path(__file__).resolve().parents[2] / "shared"
 REAL = SHARED / "real-samples" / "kitti-object-pair"

@@ -24,10 +24,10 @@ import kitti_mirror
 import pytest
 from test_pipeline_e2e import _project, _run
 
-from msdepth.config import SyntheticConfig
+from msdepth.config.params import SyntheticConfig
 from msdepth.data import synthetic
 from msdepth.data.download import KITTI_BASE_URL
-from msdepth.figures import STAGE_FIGURES
+from msdepth.reporting.figures import STAGE_FIGURES
 
 SYN = SyntheticConfig(seed=4, drives=2, train_pairs=12, eval_frames=3, height=48, width=160)
 REAL = Path(__file__).resolve().parents[2] / "shared" / "real-samples" / "kitti-object-pair"

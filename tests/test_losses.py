@@ -13,11 +13,14 @@ import pytest
 import torch
 import torch.nn.functional as F
 
-from msdepth import _ssim_kernels as kernels
-from msdepth.appearance import terms
-from msdepth.appearance.msssim import msssim_similarity
-from msdepth.config import LossConfig
-from msdepth.losses import (
+from msdepth.config.params import LossConfig
+from msdepth.config.variants import configs
+from msdepth.config.variants.msssim import MSSSIMConfig
+from msdepth.config.variants.ssim import SSIMConfig
+from msdepth.losses import ssim_kernels as kernels
+from msdepth.losses.appearance import terms
+from msdepth.losses.appearance.msssim import msssim_similarity
+from msdepth.losses.monodepth import (
     C1,
     C2,
     WANG_WEIGHTS,
@@ -34,9 +37,6 @@ from msdepth.losses import (
     smoothness_loss,
     ssim,
 )
-from msdepth.variants import configs
-from msdepth.variants.msssim import MSSSIMConfig
-from msdepth.variants.ssim import SSIMConfig
 
 _ssim_terms = kernels.ssim_terms
 
@@ -605,8 +605,8 @@ def _loss(appearance: str = "ssim", weights: str = "wang", **loss_kwargs: object
 
 
 def test_every_variant_has_one_term_built_from_its_config() -> None:
-    """The two registries (configs in msdepth.variants, terms in msdepth.appearance) name the same
-    variants, and each term takes its own variant's config class (and keeps it)."""
+    """The two registries (configs in msdepth.config.variants, terms in msdepth.losses.appearance) name the
+    same variants, and each term takes its own variant's config class (and keeps it)."""
     assert list(terms()) == list(configs()) and len(terms()) >= 3
     for name, term in terms().items():
         config = configs()[name]
@@ -616,13 +616,13 @@ def test_every_variant_has_one_term_built_from_its_config() -> None:
 
 
 def test_registry_refuses_a_second_class_under_a_name_and_finds_the_package_modules() -> None:
-    from msdepth.variants._registry import Registry
+    from msdepth.config.variants._registry import Registry
 
     class A: ...
 
     class B: ...
 
-    registry = Registry("msdepth.variants", "variant")
+    registry = Registry("msdepth.config.variants", "variant")
     assert set(registry.entries()) == set()  # the package's modules were imported before: no re-registration
     registry.add("x", A)
     registry.add("x", A)  # the same class again (a module imported twice) is fine
@@ -630,7 +630,7 @@ def test_registry_refuses_a_second_class_under_a_name_and_finds_the_package_modu
         registry.add("x", B)
     assert dict(registry.entries()) == {"x": A}
     # A fresh process: the first lookup imports every variant module, which registers itself.
-    code = "from msdepth.variants import configs; print(' '.join(configs()))"
+    code = "from msdepth.config.variants import configs; print(' '.join(configs()))"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert {"ssim", "msssim", "mix"} <= set(out.split())
 

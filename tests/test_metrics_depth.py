@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from msdepth.depth import clamp_depth, disparity_to_depth, pixel_disparity
-from msdepth.metrics import METRICS, compute_errors
+from msdepth.evaluation.metrics import METRICS, compute_errors
+from msdepth.geometry.depth import clamp_depth, disparity_to_depth, pixel_disparity
 
 
 def test_compute_errors_hand_computed():

@@ -8,14 +8,14 @@ import numpy as np
 import pytest
 import torch
 
-from msdepth.appearance import build_appearance, terms
-from msdepth.appearance.mix import MixAppearance, gaussian_l1
-from msdepth.config import LossConfig, params_from_dict
+from msdepth.config.params import LossConfig, params_from_dict
+from msdepth.config.variants import configs
+from msdepth.config.variants.mix import MixConfig
 from msdepth.errors import ConfigError
-from msdepth.losses import MonodepthLoss, ms_ssim, reference_ssim_terms
-from msdepth.train import load_model, train_variant
-from msdepth.variants import configs
-from msdepth.variants.mix import MixConfig
+from msdepth.losses.appearance import build_appearance, terms
+from msdepth.losses.appearance.mix import MixAppearance, gaussian_l1
+from msdepth.losses.monodepth import MonodepthLoss, ms_ssim, reference_ssim_terms
+from msdepth.training.train import load_model, train_variant
 
 
 def _rand(*shape: int, seed: int = 0) -> torch.Tensor:

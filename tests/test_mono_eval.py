@@ -10,14 +10,14 @@ import pytest
 import torch
 from torch import nn
 
-from msdepth.compare import comparison_data, monocular_data, render_comparison
-from msdepth.config import EvalConfig, SyntheticConfig, params_from_dict
+from msdepth.config.params import EvalConfig, SyntheticConfig, params_from_dict
 from msdepth.data import synthetic
 from msdepth.errors import DataError
-from msdepth.evaluate import Frame, depth_maps, evaluate_full, median_scaled_maps
+from msdepth.evaluation.pose import odometry_ates, sequence_ates
+from msdepth.evaluation.results import median_scaling
+from msdepth.evaluation.suites import Frame, depth_maps, evaluate_full, median_scaled_maps
 from msdepth.io import write_png
-from msdepth.pose_eval import odometry_ates, sequence_ates
-from msdepth.suites import median_scaling
+from msdepth.reporting.compare import comparison_data, monocular_data, render_comparison
 
 CFG = EvalConfig(caps=(80.0,))
 
@@ -174,7 +174,7 @@ def test_pose_ate_on_kitti_odometry_per_sequence_and_pooled(tmp_path: Path) -> N
 
 
 def test_pose_ate_on_odometry_pools_sequences_and_reads_in_chunks(tmp_path: Path) -> None:
-    from msdepth.pose_eval import trajectory_ates
+    from msdepth.evaluation.pose import trajectory_ates
 
     _odometry(tmp_path, "09", 7)
     _odometry(tmp_path, "10", 4, step=0.5)
@@ -201,7 +201,7 @@ def test_only_a_monocular_run_is_median_scaled_not_the_baselines_or_the_optimum(
 ) -> None:
     import json
 
-    from msdepth.suites import run_suite
+    from msdepth.evaluation.results import run_suite
 
     monkeypatch.chdir(tmp_path)  # run_suite writes below metrics/
     params = params_from_dict({"data": {"synthetic": {"sequence_length": 3}}, "train": {"mode": "mono"}})

@@ -7,10 +7,10 @@ import math
 import pytest
 import torch
 
-from msdepth.appearance import build_appearance, terms
-from msdepth.config import params_from_dict
-from msdepth.geometry import intrinsics_matrix, stereo_pose, translation_matrix
-from msdepth.monocular import (
+from msdepth.config.params import params_from_dict
+from msdepth.geometry.camera import intrinsics_matrix, stereo_pose, translation_matrix
+from msdepth.losses.appearance import build_appearance, terms
+from msdepth.losses.monocular import (
     IDENTITY_TIE_BREAK,
     MonocularLoss,
     minimum_reprojection,
@@ -18,8 +18,8 @@ from msdepth.monocular import (
     partner_pose,
     reprojection_error,
 )
-from msdepth.pose import PoseNet
-from msdepth.resnet_depth import ResNetDepth
+from msdepth.networks.pose import PoseNet
+from msdepth.networks.resnet_depth import ResNetDepth
 
 H, W = 32, 48
 
@@ -39,7 +39,7 @@ def _k(batch: int = 1, h: int = H, w: int = W) -> torch.Tensor:
 
 
 def _sigmoid_for_depth(depth: float, like: torch.Tensor) -> torch.Tensor:
-    """The network output that :func:`msdepth.geometry.disp_to_depth` turns into ``depth``."""
+    """The network output that :func:`msdepth.geometry.camera.disp_to_depth` turns into ``depth``."""
     return torch.full_like(like, (1 / depth - 0.01) / (10 - 0.01))
 
 

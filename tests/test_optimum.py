@@ -1,4 +1,5 @@
-"""The losses' own optimum (msdepth.optimum) and ``msdepth optimum``, on known answers at tiny sizes."""
+"""The losses' own optimum (msdepth.optimum.solver) and ``msdepth optimum``, on known answers at tiny
+sizes."""
 
 from __future__ import annotations
 
@@ -9,13 +10,14 @@ import numpy as np
 import pytest
 
 from msdepth.__main__ import main
-from msdepth.config import Params, apply_overrides, params_from_dict
+from msdepth.cli.predict import default_focal
+from msdepth.config.params import Params, apply_overrides, params_from_dict
 from msdepth.data.pairs import to_tensor
 from msdepth.data.synthetic import render_frame
 from msdepth.errors import ConfigError
+from msdepth.evaluation.metrics import compute_errors
 from msdepth.io import write_png
-from msdepth.metrics import compute_errors
-from msdepth.optimum import (
+from msdepth.optimum.solver import (
     COST_SCALES,
     basin,
     class_summary,
@@ -26,7 +28,6 @@ from msdepth.optimum import (
     optimise,
     optimum_disparities,
 )
-from msdepth.predict import default_focal
 
 VARIANTS = ("ssim", "msssim", "mix")
 H, W, SHIFT = 48, 160, 12  # the plane: a 12 px disparity, 0.075 of the width (the start is 0.04)

@@ -10,12 +10,9 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from msdepth.compare import build_comparison, comparison_data, optimum_data
-from msdepth.config import params_from_dict
+from msdepth.config.params import params_from_dict
 from msdepth.errors import ConfigError, DataError
-from msdepth.figures import cost_curve_figure, read_cost_curves
-from msdepth.optimum import COST_SCALES
-from msdepth.optimum_eval import (
+from msdepth.optimum.frames import (
     checked_weight,
     cost_summary,
     first_frames,
@@ -23,6 +20,9 @@ from msdepth.optimum_eval import (
     optimum_runs,
     sweep_frames,
 )
+from msdepth.optimum.solver import COST_SCALES
+from msdepth.reporting.compare import build_comparison, comparison_data, optimum_data
+from msdepth.reporting.figures import cost_curve_figure, read_cost_curves
 
 METRICS = {"abs_rel": 0.2, "sq_rel": 0.2, "rmse": 0.2, "rmse_log": 0.2, "a1": 0.8, "a2": 0.8, "a3": 0.8}
 
@@ -164,7 +164,7 @@ def test_the_optimum_stage_lists_every_optimum_key_it_reads_and_no_training_weig
 
     import yaml
 
-    from msdepth.config import OptimumConfig
+    from msdepth.config.params import OptimumConfig
 
     stages = yaml.safe_load((Path(__file__).resolve().parents[1] / "dvc.yaml").read_text())["stages"]
     listed = set(stages["optimum"]["params"])

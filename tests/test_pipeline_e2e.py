@@ -19,7 +19,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from msdepth.figures import STAGE_FIGURES
+from msdepth.reporting.figures import STAGE_FIGURES
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -423,7 +423,7 @@ def test_train_stage_tracks_every_train_key_but_the_seeds():
     runs); a new TrainConfig field must be listed there too, or changing it would not retrain."""
     import dataclasses
 
-    from msdepth.config import TrainConfig
+    from msdepth.config.params import TrainConfig
 
     listed = {
         p

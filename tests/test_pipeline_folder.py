@@ -12,7 +12,7 @@ import pytest
 import yaml
 from test_pipeline_e2e import _project, _run
 
-from msdepth.figures import ROI_FIGURES, STAGE_FIGURES
+from msdepth.reporting.figures import ROI_FIGURES, STAGE_FIGURES
 
 
 @pytest.fixture(scope="module")

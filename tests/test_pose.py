@@ -9,10 +9,10 @@ import torch
 from torch import nn
 
 from msdepth.errors import MsdepthError
-from msdepth.geometry import transformation_from_parameters
-from msdepth.pose import PoseDecoder, PoseNet, relative_pose
-from msdepth.resnet import CHANNELS, ResNetEncoder, load_pretrained
-from msdepth.resnet_depth import ResNetDepth
+from msdepth.geometry.camera import transformation_from_parameters
+from msdepth.networks.pose import PoseDecoder, PoseNet, relative_pose
+from msdepth.networks.resnet import CHANNELS, ResNetEncoder, load_pretrained
+from msdepth.networks.resnet_depth import ResNetDepth
 
 # torchvision's resnet18 has 11,689,512 parameters, of which its classifier fc holds 512·1000 + 1000.
 RESNET18_WITHOUT_FC = 11_689_512 - 513_000
@@ -228,7 +228,7 @@ def test_pose_network_width() -> None:
 
 
 def test_pose_width_is_a_checked_param_left_out_of_old_fingerprints() -> None:
-    from msdepth.config import ConfigError, ModelConfig, fingerprint_fields, params_from_dict
+    from msdepth.config.params import ConfigError, ModelConfig, fingerprint_fields, params_from_dict
 
     assert params_from_dict({}).model.pose_width_multiplier == 0.25
     assert "pose_width_multiplier" not in fingerprint_fields(ModelConfig())

@@ -9,8 +9,8 @@ import pytest
 import torch
 
 from msdepth.errors import DataError
-from msdepth.geometry import transformation_from_parameters
-from msdepth.pose_eval import compute_ate, dump_xyz, local_poses, read_poses, snippet_ates
+from msdepth.evaluation.pose import compute_ate, dump_xyz, local_poses, read_poses, snippet_ates
+from msdepth.geometry.camera import transformation_from_parameters
 
 
 def _trajectory(n: int = 8) -> np.ndarray:

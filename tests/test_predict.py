@@ -10,12 +10,12 @@ import pytest
 import torch
 
 from msdepth.__main__ import main
+from msdepth.cli.predict import PredictReport, input_frames
 from msdepth.data.kitti import KITTI_BASELINE, WIDTH_TO_FOCAL
 from msdepth.data.pairs import resize, to_tensor
-from msdepth.infer import post_process_disparity
+from msdepth.evaluation.infer import post_process_disparity
 from msdepth.io import atomic_path
-from msdepth.model import MonodepthVGG
-from msdepth.predict import PredictReport, input_frames
+from msdepth.networks.model import MonodepthVGG
 
 NET_H, NET_W = 32, 96  # the tiny model's "training" size
 IMG_H, IMG_W = 48, 128  # inputs differ from it, so resizing back is exercised
@@ -57,7 +57,7 @@ def run(*args: str | Path) -> int:
 
 
 def expected_disparity(model: MonodepthVGG, rgb: np.ndarray, post_process: bool = True) -> np.ndarray:
-    """Disparity in px at the image's resolution, computed independently of msdepth.predict."""
+    """Disparity in px at the image's resolution, computed independently of msdepth.cli.predict."""
     x = to_tensor(resize(rgb, NET_H, NET_W))[None]
     with torch.no_grad():
         d = model(x)[0][0, 0].numpy()

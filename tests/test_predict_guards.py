@@ -13,7 +13,7 @@ import torch
 
 from msdepth.__main__ import main
 from msdepth.io import atomic_path
-from msdepth.model import MonodepthVGG
+from msdepth.networks.model import MonodepthVGG
 
 NET_H, NET_W = 32, 96
 
@@ -172,7 +172,7 @@ def test_running_out_of_memory_fails_the_batch_not_the_run(
     tiny: Path, tmp_path: Path, capsys, monkeypatch, error: Exception
 ) -> None:
     # Item 4: a MemoryError escaped the per-frame handler and ended the run with a traceback.
-    import msdepth.predict as predict_module
+    import msdepth.cli.predict as predict_module
 
     real = predict_module.network_disparity
     calls = []

@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 
 from msdepth.errors import DataError
-from msdepth.report import (
+from msdepth.reporting.report import (
     BEGIN,
     END,
     headline_table,
@@ -33,7 +33,9 @@ def test_readme_block_and_results_page_are_what_the_committed_metrics_give():
     """Editing a number of docs/results.md or of the README's block, or committing new metrics
     without `dvc repro report`, fails here."""
     differ = stale(ROOT)
-    assert not differ, f"{[str(p.relative_to(ROOT)) for p in differ]}: run `python -m msdepth.report`"
+    assert not differ, (
+        f"{[str(p.relative_to(ROOT)) for p in differ]}: run `python -m msdepth.reporting.report`"
+    )
 
 
 def _diff(mean: float, low: float, high: float, seeds: int = 3, n: int = 10) -> dict:
@@ -241,7 +243,7 @@ def test_a_project_without_readme_gets_only_the_results_page(tmp_path: Path):
 def test_missing_or_broken_metrics_are_one_line(tmp_path: Path):
     env_root = str(ROOT / "src")
     proc = subprocess.run(
-        [sys.executable, "-m", "msdepth.report", "--root", str(tmp_path)],
+        [sys.executable, "-m", "msdepth.reporting.report", "--root", str(tmp_path)],
         capture_output=True,
         text=True,
         env={"PYTHONPATH": env_root, "PATH": ""},

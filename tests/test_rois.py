@@ -10,7 +10,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from msdepth.config import SyntheticConfig
+from msdepth.config.params import SyntheticConfig
 from msdepth.data import kitti, synthetic
 from msdepth.data.index import build_eval_index
 from msdepth.data.rois import (

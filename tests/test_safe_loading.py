@@ -21,13 +21,13 @@ import pytest
 import torch
 from conftest import PAIR_H, PAIR_W, stage
 
-from msdepth.config import params_from_dict
+from msdepth.config.params import params_from_dict
 from msdepth.errors import MsdepthError
 from msdepth.io import write_png
-from msdepth.model import MonodepthVGG
-from msdepth.pipeline import run_stage
-from msdepth.serialization import load_weights_file
-from msdepth.train import TrainingError, load_model, train_variant
+from msdepth.networks.model import MonodepthVGG
+from msdepth.networks.serialization import load_weights_file
+from msdepth.pipeline.paths import run_stage
+from msdepth.training.train import TrainingError, load_model, train_variant
 
 ROOT = Path(__file__).resolve().parents[1]
 H, W = PAIR_H, PAIR_W  # the size of conftest.py's training pairs

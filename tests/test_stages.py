@@ -51,7 +51,7 @@ def test_help_from_the_command_line(tmp_path: Path):
 
 
 def test_usage_errors_exit_2_before_reading_params(tmp_path: Path, monkeypatch, capsys):
-    from msdepth.pipeline import run_stage
+    from msdepth.pipeline.paths import run_stage
 
     figures, train = stage("figures").figures, stage("train").train
 
@@ -75,8 +75,8 @@ def test_reading_params_imports_neither_torch_nor_numpy(tmp_path: Path):
     """Every stage reads its params: the loss variants' configs come without their terms."""
     (tmp_path / "params.yaml").write_text("variants: [ssim, msssim, mix]\n")
     code = (
-        "import sys; from msdepth.pipeline import load_params; p = load_params('params.yaml'); "
-        "heavy = [m for m in ('torch', 'numpy', 'msdepth.appearance') if m in sys.modules]; "
+        "import sys; from msdepth.pipeline.paths import load_params; p = load_params('params.yaml'); "
+        "heavy = [m for m in ('torch', 'numpy', 'msdepth.losses.appearance') if m in sys.modules]; "
         "print(sorted(p.appearance), heavy)"
     )
     env = dict(os.environ, PYTHONPATH=str(ROOT / "src"))
@@ -105,7 +105,7 @@ def test_reading_params_imports_neither_torch_nor_numpy(tmp_path: Path):
 def test_validate_params_rejects_a_bad_value_or_unknown_key_in_one_line(
     tmp_path: Path, monkeypatch, capsys, params: str, message: str
 ):
-    from msdepth.pipeline import run_stage
+    from msdepth.pipeline.paths import run_stage
 
     CHECKED, validate_params = stage("validate_params").CHECKED, stage("validate_params").validate_params
 
@@ -125,7 +125,7 @@ def test_a_stage_first_removes_the_temps_a_killed_stage_left_in_the_output_folde
     tmp_path: Path, monkeypatch
 ) -> None:
     # Item 12: a stage killed mid-write (kill -9) left e.g. models/<run>/.model.pt.<random>.pt for good.
-    from msdepth.pipeline import run_stage
+    from msdepth.pipeline.paths import run_stage
 
     monkeypatch.chdir(tmp_path)
     (tmp_path / "params.yaml").write_bytes((ROOT / "params.yaml").read_bytes())

@@ -8,7 +8,10 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from msdepth.compare import (
+from msdepth.config.params import CompareConfig
+from msdepth.errors import DataError
+from msdepth.evaluation.metrics import METRICS
+from msdepth.reporting.compare import (
     build_comparison,
     comparison_data,
     image_dependence,
@@ -16,10 +19,7 @@ from msdepth.compare import (
     paired_statistics,
     seed_spread,
 )
-from msdepth.config import CompareConfig
-from msdepth.errors import DataError
-from msdepth.metrics import METRICS
-from msdepth.stats import paired_bootstrap, paired_table, seed_bootstrap
+from msdepth.reporting.stats import paired_bootstrap, paired_table, seed_bootstrap
 
 
 def test_constant_difference_has_a_zero_width_interval() -> None:

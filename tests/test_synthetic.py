@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from msdepth.config import SyntheticConfig
+from msdepth.config.params import SyntheticConfig
 from msdepth.data import kitti, synthetic
 
 # Small but big enough that cars, glass and signs leave boxes of >= 6x6 px.
@@ -275,7 +275,7 @@ def test_class_map_holds_the_exact_pixels_of_every_roi_class(root: Path) -> None
 
 def test_class_map_is_indexed_and_read_with_the_frames(root: Path) -> None:
     from msdepth.data.index import build_eval_index
-    from msdepth.evaluate import load_frames
+    from msdepth.evaluation.suites import load_frames
 
     index = build_eval_index(root / "kitti2015", root / "kitti2015" / "test_files.txt", "disp_noc_0")
     assert all(Path(p).name.endswith(".png") and "class_map" in p for p in index["class_map"])

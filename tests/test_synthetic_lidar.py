@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from msdepth.config import SyntheticConfig
+from msdepth.config.params import SyntheticConfig
 from msdepth.data import kitti, synthetic
 from msdepth.data.index import velodyne_path
 from msdepth.data.synthetic import velodyne_sim

@@ -8,12 +8,12 @@ import numpy as np
 import pytest
 import torch
 
-from msdepth import geometry
-from msdepth.config import ConfigError, SyntheticConfig
+from msdepth.config.params import ConfigError, SyntheticConfig
 from msdepth.data import kitti, sequences, synthetic
 from msdepth.data.layout import MONO_SPLIT
 from msdepth.data.pairs import sample_generator
 from msdepth.data.synthetic.kitti_tree import POSES
+from msdepth.geometry import camera as geometry
 
 # Two drives of 4 frames: one sequence of 3 and one of 1 frame each; frame 1 of each has both neighbours.
 CFG = SyntheticConfig(seed=5, drives=2, train_pairs=8, eval_frames=1, height=64, width=192, sequence_length=3)
@@ -89,7 +89,7 @@ def test_exact_depth_and_pose_reproject_onto_the_next_frame(root: Path) -> None:
 
 @pytest.mark.parametrize("length", [1, 2, -1])
 def test_sequence_length_needs_neighbours(length: int) -> None:
-    from msdepth.config import Params
+    from msdepth.config.params import Params
 
     with pytest.raises(ConfigError, match="sequence_length"):
         SyntheticConfig(sequence_length=length).validate("data.synthetic", Params())

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from msdepth.config import TrainConfig, fingerprint_fields, params_from_dict
+from msdepth.config.params import TrainConfig, fingerprint_fields, params_from_dict
 from msdepth.errors import ConfigError
 
 

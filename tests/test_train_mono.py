@@ -9,11 +9,11 @@ from pathlib import Path
 import pytest
 import torch
 
-from msdepth.config import SyntheticConfig, params_from_dict
+from msdepth.config.params import SyntheticConfig, params_from_dict
 from msdepth.data import sequences, synthetic
 from msdepth.data.layout import MONO_SPLIT, layout
 from msdepth.errors import DataError, MsdepthError
-from msdepth.train import load_model, train_variant
+from msdepth.training.train import load_model, train_variant
 
 H, W = 64, 192  # the pose network's ResNet-18 needs sides of 64 px or more
 RENDER = {"seed": 3, "drives": 1, "train_pairs": 6, "eval_frames": 1, "height": 64, "width": 192}

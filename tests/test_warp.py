@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import torch
 
-from msdepth.warp import warp
+from msdepth.geometry.warp import warp
 
 SHARED = Path(__file__).resolve().parents[2] / "shared"
 KITTI_PAIR = SHARED / "real-samples" / "kitti-object-pair"
@@ -118,7 +118,7 @@ def test_non_finite_disparity_neither_crashes_nor_spreads() -> None:
     subprocess, because grid_sample's CPU backward segfaults on such coordinates unguarded."""
     script = """
 import torch
-from msdepth.warp import warp
+from msdepth.geometry.warp import warp
 image = torch.rand(2, 3, 8, 16, requires_grad=True)
 disp = torch.full((2, 1, 8, 16), float("nan"))
 disp[0, 0, :3], disp[0, 0, 3:6], disp[1, 0, :3], disp[1, 0, 3:6] = float("inf"), -float("inf"), 1e30, 0.05

@@ -7,9 +7,9 @@ import argparse
 import sys
 from typing import Callable, Sequence
 
-from .cli_options import camera_options
-from .errors import MsdepthError
-from .optimum_cli import optimum_command
+from msdepth.cli.optimum import optimum_command
+from msdepth.cli.options import camera_options
+from msdepth.errors import MsdepthError
 
 # A subcommand is a function that adds its parser with ``add_parser`` (the subparsers' own method:
 # name, help, description) and sets ``run``, the function that runs it; _COMMANDS lists them in
@@ -123,7 +123,7 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def _predict(args: argparse.Namespace) -> int:
-    from .predict import PredictOptions, predict
+    from msdepth.cli.predict import PredictOptions, predict
 
     names = (
         "height",
@@ -157,7 +157,7 @@ def _predict(args: argparse.Namespace) -> int:
 
 
 def _export_onnx(args: argparse.Namespace) -> int:
-    from .onnx_export import export_onnx
+    from msdepth.cli.onnx_export import export_onnx
 
     export_onnx(args.model, args.out, args.height, args.width, args.opset, dynamic=not args.static)
     print(f"wrote {args.out}", file=sys.stderr)
@@ -165,7 +165,7 @@ def _export_onnx(args: argparse.Namespace) -> int:
 
 
 def _export_folder(args: argparse.Namespace) -> int:
-    from .data.folder_export import export_folder
+    from msdepth.data.folder_export import export_folder
 
     report = export_folder(args.source, args.out)
     print(

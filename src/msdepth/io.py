@@ -18,7 +18,7 @@ from typing import Any, Callable, Iterator
 
 import numpy as np
 
-from .errors import DataError
+from msdepth.errors import DataError
 
 
 def _file_mode() -> int:

@@ -58,8 +58,8 @@ from typing import Any
 
 from tqdm import tqdm
 
-from ..errors import DataError
-from ..io import atomic_temps, write_json
+from msdepth.errors import DataError
+from msdepth.io import atomic_temps, write_json
 
 # The host every entry of the shipped list starts with; entries are kept relative to it so that a
 # mirror (or a test server) can be used by passing another base URL to fetch_all.

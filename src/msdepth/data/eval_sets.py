@@ -5,9 +5,9 @@
 - ``eigen_benchmark``: its 652 frames with KITTI's improved, accumulated GT (Uhrig et al. 2017,
   ``data_depth_annotated.zip``).
 
-Both are evaluated inside Garg's crop with GT in (min_depth, cap) (:mod:`msdepth.evaluate`). Each
+Both are evaluated inside Garg's crop with GT in (min_depth, cap) (:mod:`msdepth.evaluation.suites`). Each
 builder returns rows of :data:`msdepth.data.index.EVAL_COLUMNS`, so the suites read every set the
-same way (:func:`msdepth.evaluate.load_frames`).
+same way (:func:`msdepth.evaluation.suites.load_frames`).
 """
 
 from __future__ import annotations
@@ -17,12 +17,12 @@ from typing import Callable
 
 import pandas as pd
 
-from ..config import Params
-from ..errors import DataError
-from . import kitti
-from .index import EVAL_COLUMNS, velodyne_path
-from .layout import layout
-from .pairs import check_same_size
+from msdepth.config.params import Params
+from msdepth.data import kitti
+from msdepth.data.index import EVAL_COLUMNS, velodyne_path
+from msdepth.data.layout import layout
+from msdepth.data.pairs import check_same_size
+from msdepth.errors import DataError
 
 CROP = "garg"
 

@@ -41,11 +41,11 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from ..errors import DataError
-from ..io import write_text
-from . import kitti
-from .ground_truth import read_gt_depth
-from .layout import FolderLayout
+from msdepth.data import kitti
+from msdepth.data.ground_truth import read_gt_depth
+from msdepth.data.layout import FolderLayout
+from msdepth.errors import DataError
+from msdepth.io import write_text
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
 CAMERA_KEYS = ("focal_px", "width_px", "baseline_m")

@@ -11,13 +11,13 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import DataError
-from ..io import write_text
-from . import kitti
-from .folder import Camera, write_camera
-from .index import build_eval_index
-from .pairs import index_pairs
-from .pfm import write_pfm
+from msdepth.data import kitti
+from msdepth.data.folder import Camera, write_camera
+from msdepth.data.index import build_eval_index
+from msdepth.data.pairs import index_pairs
+from msdepth.data.pfm import write_pfm
+from msdepth.errors import DataError
+from msdepth.io import write_text
 
 
 def export_folder(source_root: str | os.PathLike, out: str | os.PathLike) -> dict:

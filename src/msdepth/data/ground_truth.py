@@ -13,10 +13,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ..depth import disparity_to_depth
-from ..errors import DataError
-from . import kitti
-from .pfm import read_pfm
+from msdepth.data import kitti
+from msdepth.data.pfm import read_pfm
+from msdepth.errors import DataError
+from msdepth.geometry.depth import disparity_to_depth
 
 # The index's ``gt_kind`` column: what its ``gt`` file holds.
 GT_KINDS = {

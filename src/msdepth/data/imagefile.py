@@ -25,7 +25,7 @@ from typing import Iterator
 import cv2
 import numpy as np
 
-from ..errors import DataError
+from msdepth.errors import DataError
 
 # 120 million pixels: a 108-megapixel phone photo (12,000 x 9,000) fits; decoding one costs
 # about 2 GB at peak. Raise it with read_image(max_pixels=...) or `msdepth predict --max-megapixels`.

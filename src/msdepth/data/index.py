@@ -15,12 +15,12 @@ from pathlib import Path
 
 import pandas as pd
 
-from ..config import Params
-from ..errors import DataError
-from ..io import atomic_path, write_json
-from . import kitti
-from .layout import Layout, layout  # noqa: F401 - re-exported: msdepth.data.index.layout
-from .pairs import PairIndex, check_same_size, index_pairs
+from msdepth.config.params import Params
+from msdepth.data import kitti
+from msdepth.data.layout import Layout, layout  # noqa: F401 - re-exported: msdepth.data.index.layout
+from msdepth.data.pairs import PairIndex, check_same_size, index_pairs
+from msdepth.errors import DataError
+from msdepth.io import atomic_path, write_json
 
 # One evaluation index format for every set (msdepth.data.eval_sets): ``gt`` is a file of kind
 # ``gt_kind`` (msdepth.data.ground_truth.GT_KINDS), ``calib`` the raw day folder of a Velodyne

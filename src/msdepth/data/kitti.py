@@ -16,10 +16,10 @@ import cv2
 import numpy as np
 import pandas as pd
 
-from ..errors import DataError
-from ..io import atomic_path, write_png, write_text
-from . import imagefile
-from .imagefile import MAX_IMAGE_PIXELS
+from msdepth.data import imagefile
+from msdepth.data.imagefile import MAX_IMAGE_PIXELS
+from msdepth.errors import DataError
+from msdepth.io import atomic_path, write_png, write_text
 
 # Monodepth's width -> focal table (px) for the four KITTI raw image widths, and its baseline (m).
 WIDTH_TO_FOCAL: dict[int, float] = {1242: 721.5377, 1241: 718.856, 1224: 707.0493, 1238: 718.3351}

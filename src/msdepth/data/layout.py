@@ -9,7 +9,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-from ..config import Params
+from msdepth.config.params import Params
 
 MONO_SPLIT = "train_mono_files.txt"  # below a synthetic root
 

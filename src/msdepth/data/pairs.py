@@ -15,9 +15,9 @@ import numpy as np
 import torch
 from torch.utils.data import Dataset
 
-from ..errors import DataError
-from ..io import atomic_path
-from . import kitti
+from msdepth.data import kitti
+from msdepth.errors import DataError
+from msdepth.io import atomic_path
 
 
 @dataclass(frozen=True)

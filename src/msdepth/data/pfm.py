@@ -18,8 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import DataError
-from ..io import atomic_path
+from msdepth.errors import DataError
+from msdepth.io import atomic_path
 
 # Three whitespace-separated header fields after the magic; exactly one whitespace byte ends the
 # scale, then the samples start (a binary sample may itself look like whitespace). The header is

@@ -19,9 +19,9 @@ import cv2
 import numpy as np
 import pandas as pd
 
-from ..errors import DataError
-from ..io import write_png
-from . import kitti
+from msdepth.data import kitti
+from msdepth.errors import DataError
+from msdepth.io import write_png
 
 log = logging.getLogger(__name__)
 

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from ..errors import DataError
+from msdepth.errors import DataError
 
 SUMMARY = "synthetic.json"
 # Written first by the renderer and removed after SUMMARY: a tree whose render was interrupted is

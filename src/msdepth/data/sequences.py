@@ -18,9 +18,9 @@ import numpy as np
 import torch
 from torch.utils.data import Dataset
 
-from ..errors import DataError
-from .kitti import list_lines, read_calib, read_image, resolve_image
-from .pairs import check_same_size, colour_jitter, resize, sample_generator, to_tensor
+from msdepth.data.kitti import list_lines, read_calib, read_image, resolve_image
+from msdepth.data.pairs import check_same_size, colour_jitter, resize, sample_generator, to_tensor
+from msdepth.errors import DataError
 
 CAMERAS = {"l": "image_02", "r": "image_03"}
 OTHER_SIDE = {"l": "r", "r": "l"}

@@ -27,8 +27,16 @@ projection, first hits), :mod:`.shading` (a material's look, a table from materi
 truth) and :mod:`.kitti_tree` (writing the KITTI layout; :func:`generate`).
 """
 
-from .frame import EVAL, TRAIN, Frame, frame_rng, glass_pixels, non_occluded, render_frame
-from .kitti_tree import (
+from msdepth.data.synthetic.frame import (
+    EVAL,
+    TRAIN,
+    Frame,
+    frame_rng,
+    glass_pixels,
+    non_occluded,
+    render_frame,
+)
+from msdepth.data.synthetic.kitti_tree import (
     DATES,
     EIGEN_TEST_FILES,
     EVAL_DATE,
@@ -41,7 +49,7 @@ from .kitti_tree import (
     train_drive,
     within_range,
 )
-from .raycast import focal_for_width
+from msdepth.data.synthetic.raycast import focal_for_width
 
 __all__ = [
     "DATES",

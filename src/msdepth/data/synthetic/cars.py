@@ -6,7 +6,17 @@ from typing import Any
 
 import numpy as np
 
-from .scene import GLASS, GLASS_IOR, PAINT, TYRE, Roi, Scene, box_planes, place, yaw_matrix
+from msdepth.data.synthetic.scene import (
+    GLASS,
+    GLASS_IOR,
+    PAINT,
+    TYRE,
+    Roi,
+    Scene,
+    box_planes,
+    place,
+    yaw_matrix,
+)
 
 _CAR_COLOURS = [
     (0.85, 0.85, 0.85),

@@ -6,12 +6,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..kitti import CLASS_BITS, KITTI_BASELINE
-from .raycast import Camera, camera, project, trace
-from .scene import GLASS, Scene
-from .shading import shade_view
-from .street import build_scene
-from .velodyne_sim import Scan, scan_rng, simulate
+from msdepth.data.kitti import CLASS_BITS, KITTI_BASELINE
+from msdepth.data.synthetic.raycast import Camera, camera, project, trace
+from msdepth.data.synthetic.scene import GLASS, Scene
+from msdepth.data.synthetic.shading import shade_view
+from msdepth.data.synthetic.street import build_scene
+from msdepth.data.synthetic.velodyne_sim import Scan, scan_rng, simulate
 
 # Seed-stream tags (render_frame's split): training frames, evaluation frames and training
 # sequences (one scene per sequence, sequence_frame) never share a seed.

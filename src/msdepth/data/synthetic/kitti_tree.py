@@ -12,9 +12,8 @@ from typing import Any, Callable, Iterable
 import numpy as np
 import pandas as pd
 
-from ...config import SyntheticConfig, fingerprint_fields
-from ...io import atomic_path, atomic_temps, write_json, write_png, write_text
-from ..kitti import (
+from msdepth.config.params import SyntheticConfig, fingerprint_fields
+from msdepth.data.kitti import (
     KITTI_BASELINE,
     read_raw_calib,
     velodyne_depth,
@@ -23,11 +22,20 @@ from ..kitti import (
     write_split,
     write_velodyne,
 )
-from ..layout import MONO_SPLIT
-from ..roots import RENDERING, SUMMARY, check_synthetic_root
-from .frame import EVAL, SEQUENCE_STEP, TRAIN, Frame, render_frame, sequence_frame, sequence_pose
-from .raycast import focal_for_width
-from .velodyne_sim import calib_velo_to_cam_text
+from msdepth.data.layout import MONO_SPLIT
+from msdepth.data.roots import RENDERING, SUMMARY, check_synthetic_root
+from msdepth.data.synthetic.frame import (
+    EVAL,
+    SEQUENCE_STEP,
+    TRAIN,
+    Frame,
+    render_frame,
+    sequence_frame,
+    sequence_pose,
+)
+from msdepth.data.synthetic.raycast import focal_for_width
+from msdepth.data.synthetic.velodyne_sim import calib_velo_to_cam_text
+from msdepth.io import atomic_path, atomic_temps, write_json, write_png, write_text
 
 DATES = ("2011_09_26", "2011_09_28", "2011_09_29", "2011_09_30", "2011_10_03")
 # The raw drive holding the evaluation frames with their LiDAR scans: training drives are numbered

@@ -7,8 +7,20 @@ from typing import Callable
 
 import numpy as np
 
-from .raycast import Camera
-from .scene import FOLIAGE, GLASS, METAL, PAINT, POLE, ROAD, SIGN, TYRE, WALL, Scene, fresnel_f0
+from msdepth.data.synthetic.raycast import Camera
+from msdepth.data.synthetic.scene import (
+    FOLIAGE,
+    GLASS,
+    METAL,
+    PAINT,
+    POLE,
+    ROAD,
+    SIGN,
+    TYRE,
+    WALL,
+    Scene,
+    fresnel_f0,
+)
 
 # A fixed tile of value noise, sampled with world/surface coordinates (plus a per-frame shift) so
 # that both views see the same texture. Its own fixed seed keeps it independent of the frame RNG.

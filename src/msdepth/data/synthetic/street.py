@@ -10,8 +10,8 @@ from typing import Any, Callable
 
 import numpy as np
 
-from .cars import add_cars
-from .scene import (
+from msdepth.data.synthetic.cars import add_cars
+from msdepth.data.synthetic.scene import (
     FOLIAGE,
     GLASS,
     GLASS_IOR,

@@ -32,8 +32,20 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .raycast import first_hits
-from .scene import FOLIAGE, GLASS, METAL, PAINT, POLE, ROAD, SIGN, TYRE, WALL, Prim, Scene
+from msdepth.data.synthetic.raycast import first_hits
+from msdepth.data.synthetic.scene import (
+    FOLIAGE,
+    GLASS,
+    METAL,
+    PAINT,
+    POLE,
+    ROAD,
+    SIGN,
+    TYRE,
+    WALL,
+    Prim,
+    Scene,
+)
 
 # The Velodyne HDL-64E: 64 beams evenly spread over +2.0 .. -24.8 degrees of elevation, one
 # firing every 0.09 degrees of azimuth (10 Hz), returns up to ~120 m.

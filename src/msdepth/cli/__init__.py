@@ -1,0 +1,1 @@
+"""The ``msdepth`` command's subcommands: predict, optimum, export-onnx, export-folder, example."""

@@ -1,0 +1,164 @@
+"""The predict example of docs/user-guide.md, regenerated from the committed models.
+
+``python -m msdepth.cli.example`` (after ``dvc repro``, or ``dvc pull`` of the models) copies
+evaluation frame :data:`FRAME` of the data tree to ``docs/example/`` and writes beside it the
+disparity that each variant's first-seed model predicts for it, as ``msdepth predict --colorbar``
+draws it (``<frame>_disp_<variant>.png``). ``docs/example/example.json`` records which model
+(path and md5, the hash ``dvc.lock`` gives it) made each image and its size, so that
+tests/test_example.py can tell, without the models, whether the committed images are the
+committed models' (the images are not a pipeline output: their text labels are drawn by OpenCV,
+whose pixels change between releases, and a fresh clone must stay clean).
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import os
+import shutil
+import sys
+import tempfile
+from pathlib import Path
+
+import yaml
+
+from msdepth.config.params import Params, load_params
+from msdepth.data.imagefile import png_size
+from msdepth.data.kitti import kitti2015_paths
+from msdepth.data.layout import layout
+from msdepth.errors import DataError, MsdepthError
+from msdepth.io import atomic_path, write_json
+from msdepth.pipeline.paths import model_path, run_name
+
+COMMAND = "python -m msdepth.cli.example"
+FRAME = "000003_10"
+OUT = Path("docs/example")
+MANIFEST = "example.json"
+
+
+def disparity_name(variant: str) -> str:
+    """The example image of ``variant``'s model."""
+    return f"{FRAME}_disp_{variant}.png"
+
+
+def md5(path: Path) -> str:
+    """The file's md5, as DVC records it in dvc.lock."""
+    digest = hashlib.md5()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def example_models(params: Params, root: Path) -> dict[str, Path]:
+    """Each variant's first-seed model under ``root``; DataError naming the first one missing."""
+    models = {v: root / model_path(run_name(v, params.train.seeds[0])) for v in params.variants}
+    for path in models.values():
+        if not path.is_file():
+            raise DataError(
+                f"{path}: missing; the example is drawn from the trained models: run `dvc repro` first"
+            )
+    return models
+
+
+def example_frame(params: Params, root: Path) -> Path:
+    """The left image of :data:`FRAME` in the data tree (KITTI 2015 layout)."""
+    if params.data.source == "folder":
+        raise DataError(
+            "params.yaml: data.source folder: the example is a KITTI 2015 frame (synthetic or kitti)"
+        )
+    frame = kitti2015_paths(root / layout(params).kitti2015_root, FRAME)["left"]
+    if not frame.is_file():
+        raise DataError(f"{frame}: missing; run `dvc repro prepare_data` first")
+    return frame
+
+
+def make_example(params: Params, root: Path = Path("."), out: Path | None = None) -> dict:
+    """Write the example into ``out`` (default ``root/docs/example``): the frame, each variant's
+    disparity and the manifest; return the manifest. Every file is written whole (temp, rename)."""
+    from msdepth.cli.predict import PredictOptions, predict
+
+    out = root / OUT if out is None else out
+    frame, models = example_frame(params, root), example_models(params, root)
+    options = PredictOptions(
+        disp_format="png", depth_format="none", colorbar=True, device="cpu", progress=False
+    )
+    manifest: dict = {"command": COMMAND, "frame": FRAME, "input": f"{FRAME}.png", "images": {}}
+    out.mkdir(parents=True, exist_ok=True)
+    with atomic_path(out / f"{FRAME}.png") as tmp:
+        shutil.copyfile(frame, tmp)
+    for variant, model in models.items():
+        with tempfile.TemporaryDirectory(dir=out) as work:
+            report = predict(frame, model, work, options)
+            if report.failed:
+                raise DataError(f"{frame}: {report.failed[0][1]}")
+            written = Path(work) / f"{FRAME}_disp.png"
+            width, height = png_size(written.read_bytes())
+            os.replace(written, out / disparity_name(variant))
+        manifest["images"][variant] = {
+            "file": disparity_name(variant),
+            "model": model.relative_to(root).as_posix(),
+            "model_md5": md5(model),
+            "width": width,
+            "height": height,
+        }
+    write_json(out / MANIFEST, manifest)
+    return manifest
+
+
+def locked_md5(lock: Path, path: str) -> str | None:
+    """The md5 that ``dvc.lock`` records for the output ``path`` (None if it lists no such output)."""
+    try:
+        stages = (yaml.safe_load(lock.read_text(encoding="utf-8")) or {}).get("stages", {})
+    except (OSError, yaml.YAMLError) as exc:
+        raise DataError(f"{lock}: not readable ({exc})") from None
+    for stage in stages.values():
+        for entry in stage.get("outs", []):
+            if entry.get("path") == path:
+                return entry.get("md5")
+    return None
+
+
+def stale_example(root: Path = Path("."), out: Path | None = None) -> list[str]:
+    """Why the committed example is not the committed models' (empty if it is): per image, a model
+    hash other than dvc.lock's or a size other than the manifest's."""
+    out = root / OUT if out is None else out
+    try:
+        manifest = json.loads((out / MANIFEST).read_text(encoding="utf-8"))
+    except (OSError, json.JSONDecodeError) as exc:
+        return [f"{out / MANIFEST}: not readable ({exc})"]
+    problems = []
+    for image in manifest["images"].values():
+        path = out / image["file"]
+        locked = locked_md5(root / "dvc.lock", image["model"])
+        if locked != image["model_md5"]:
+            problems.append(
+                f"{path}: drawn by {image['model']} md5 {image['model_md5']}, dvc.lock has {locked}"
+            )
+        if not path.is_file() or png_size(path.read_bytes()) != (image["width"], image["height"]):
+            problems.append(f"{path}: not the {image['width']} x {image['height']} image the command wrote")
+    return problems
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Regenerate docs/example/ from the trained models (exit 1, one line, on an error)."""
+    ap = argparse.ArgumentParser(
+        prog=COMMAND, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    ap.add_argument(
+        "--root", type=Path, default=Path("."), help="the project folder (params.yaml, models/, data/)"
+    )
+    args = ap.parse_args(argv)
+    try:
+        manifest = make_example(load_params(args.root / "params.yaml"), args.root)
+    except (MsdepthError, OSError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
+    for image in manifest["images"].values():
+        print(f"{OUT / image['file']}: {image['width']} x {image['height']} from {image['model']}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

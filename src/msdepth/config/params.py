@@ -1,0 +1,713 @@
+"""One typed configuration, built from ``params.yaml`` and validated before any work starts."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+import types
+import typing
+import urllib.parse
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal, Sequence, get_args, get_origin
+
+from msdepth.config.checks import check, shown
+from msdepth.config.params_yaml import parse
+from msdepth.config.variants import (
+    configs as variant_configs,  # light: the loss variants' configs, not their terms
+)
+from msdepth.errors import ConfigError
+
+# The ranges of the checks below that bound a value only so that it cannot fail later.
+SEED_MAX = 2**32 - 1  # numpy's legacy seeding (np.random.seed) takes seeds below 2^32
+MAX_SIZE = 4096  # px, network input and render size (KITTI: 375 x 1242)
+MAX_WIDTH_MULTIPLIER = 4.0  # 1.0 = the dissertation's ~31 M parameters; 4.0 about 16 times that
+MAX_DIST_TIMEOUT_S = 86_400.0  # a day; Python's timedelta (torch.distributed) overflows far above
+
+
+def _speed_only(default: Any) -> Any:
+    """A TrainConfig field that only changes speed (see :func:`speed_only_train_keys`)."""
+    return field(default=default, metadata={"speed_only": True})
+
+
+def _list_may_be_empty(default: tuple) -> Any:
+    """A tuple field whose YAML list may be empty (every other list must name something)."""
+    return field(default=default, metadata={"may_be_empty": True})
+
+
+def _added_later(default: Any) -> Any:
+    """A field added after checkpoints existed: at its default it is left out of the training
+    fingerprint (:func:`fingerprint_fields`), so those checkpoints keep theirs."""
+    return field(default=default, metadata={"fingerprint_omits_default": True})
+
+
+@dataclass(frozen=True)
+class SyntheticConfig:
+    """The generated KITTI-format stereo set."""
+
+    seed: int = 2017
+    drives: int = 12
+    train_pairs: int = 1200
+    eval_frames: int = 40
+    height: int = 125
+    width: int = 414
+    # Evaluation GT beyond this depth is left invalid (0), as KITTI's LiDAR-based GT has no
+    # points past its range (~80 m); 0 keeps every rendered surface.
+    gt_max_depth: float = 80.0
+    # > 0: each drive's training frames are sequences of this many frames, each one static scene
+    # seen by a rig moving forward (Monodepth2's monocular training); 0 = independent frames.
+    sequence_length: int = _added_later(0)
+
+    def validate(self, key: str, params: Params) -> None:
+        """Range checks of the ``key`` section; a ConfigError names the key."""
+        check(
+            self.sequence_length == 0 or self.sequence_length >= 3,
+            f"{key}.sequence_length",
+            f"must be 0 (none) or >= 3 (a frame with neighbours on both sides), got {self.sequence_length}",
+        )
+        for name in ("drives", "train_pairs", "eval_frames"):
+            check(getattr(self, name) >= 1, f"{key}.{name}", "must be >= 1")
+        check(0 <= self.seed <= SEED_MAX, f"{key}.seed", f"must be in 0..{SEED_MAX}, got {self.seed}")
+        check(self.drives <= self.train_pairs, f"{key}.drives", "must not exceed train_pairs")
+        check(self.height >= 32 and self.width >= 64, f"{key}.height", "render size must be at least 32 x 64")
+        for name in ("height", "width"):
+            size = getattr(self, name)
+            check(size <= MAX_SIZE, f"{key}.{name}", f"must be <= {MAX_SIZE} (px), got {size}")
+        check(
+            self.gt_max_depth >= 0,
+            f"{key}.gt_max_depth",
+            f"must be >= 0 (0 = no limit), got {self.gt_max_depth}",
+        )
+
+
+@dataclass(frozen=True)
+class KittiConfig:
+    """Real KITTI: where to fetch it, what to fetch, which splits and ROIs to use."""
+
+    base_url: str = "https://s3.eu-central-1.amazonaws.com/avg-kitti/"
+    allow_http: bool = False  # plain http only for a mirror you trust: anyone on the path can swap archives
+    # The drives fetched are those the train split and eval.extra_sets' lists name; these restrict further.
+    drives: tuple[str, ...] | None = None  # None = every needed drive; or those of the list that are needed
+    drive_count: int = 0  # > 0: only the first N needed drives (to start small)
+    jobs: int = 4  # parallel connections
+    jpeg: bool = False  # convert extracted PNGs to JPEG (quality 92), as Monodepth did
+    download_dir: str = "data/downloads"
+    archive_list: str = "data_lists/kitti_archives_to_download.txt"
+    scene_flow_archive: str = "data_scene_flow.zip"  # KITTI 2015 (evaluation frames and GT)
+    train_split: str = "data_lists/kitti_train_files.txt"
+    eval_split: str = "data_lists/kitti_stereo_2015_test_files.txt"
+    eigen_split: str = "data_lists/eigen_test_files.txt"  # 697 frames, raw-LiDAR GT
+    eigen_benchmark_split: str = "data_lists/eigen_benchmark_test_files.txt"  # 652, annotated depth GT
+    depth_annotated: str = "depth_annotated"  # below data.root: data_depth_annotated.zip's train/ and val/
+    # KITTI's annotated depth (~14 GB), fetched only for eval.extra_sets' eigen_benchmark
+    depth_annotated_archive: str = "data_depth_annotated.zip"
+    # train.mode mono | mono_stereo: Monodepth2's eigen_zhou split of raw frames (``drive frame
+    # side``), whose drives are fetched too; and KITTI odometry (data_odometry_color.zip's
+    # sequences/<NN>/image_2 with data_odometry_poses.zip's poses/<NN>.txt, below data.root, not
+    # fetched) for the pose ATE on the sequences named, when they are there.
+    mono_split: str = _added_later("data_lists/eigen_zhou_train_files.txt")
+    odometry: str = _added_later("odometry")
+    odometry_sequences: tuple[str, ...] = _added_later(("09", "10"))
+    rois_csv: str = ""  # hand-drawn boxes (image, class, x0, y0, x1, y1) added to the obj_map cars
+    roi_min_size: int = 16  # px, both sides of an automatic car box
+    roi_min_valid: float = 0.3  # fraction of an automatic car box with valid GT
+
+    def validate(self, key: str, params: Params) -> None:
+        """Range checks of the ``key`` section; a ConfigError names the key."""
+        check(self.drive_count >= 0, f"{key}.drive_count", f"must be >= 0 (0 = all), got {self.drive_count}")
+        check(self.jobs >= 1, f"{key}.jobs", f"must be >= 1, got {self.jobs}")
+        check(self.roi_min_size >= 1, f"{key}.roi_min_size", f"must be >= 1, got {self.roi_min_size}")
+        check(
+            0 <= self.roi_min_valid <= 1,
+            f"{key}.roi_min_valid",
+            f"must be in [0, 1], got {self.roi_min_valid}",
+        )
+        check(
+            self.drives is None or not self.drive_count,
+            f"{key}.drive_count",
+            "give either drives or drive_count, not both",
+        )
+        check(
+            all(s.isdigit() for s in self.odometry_sequences),
+            f"{key}.odometry_sequences",
+            f"must be KITTI odometry sequence numbers like '09', got {shown(list(self.odometry_sequences))}",
+        )
+        scheme = urllib.parse.urlsplit(self.base_url).scheme.lower()
+        refused = (
+            f"plain http is refused unless {key}.allow_http is true (a mirror you trust), "
+            f"got {shown(self.base_url)}"
+            if scheme == "http"
+            else f"must be an https URL, got {shown(self.base_url)}"
+        )
+        check(scheme == "https" or (scheme == "http" and self.allow_http), f"{key}.base_url", refused)
+
+
+@dataclass(frozen=True)
+class FolderConfig:
+    """Any rectified stereo set in one folder (msdepth.data.folder): paths relative to it."""
+
+    # "" = data.root. The pipeline tracks the data as ${data.root} (dvc.yaml), so the folder must
+    # be data.root: any other value is refused by validate() with that hint.
+    root: str = ""
+    left: str = "left"  # left images ...
+    right: str = "right"  # ... and right images of the same file names
+    pairs: str = ""  # "" = pair the two folders; else a file of "left right" relative paths
+    camera: str = "camera.yaml"  # focal_px at width_px, baseline_m
+    eval_list: str = "eval.txt"  # "left right [gt]" per evaluation frame; never trained on
+    npy_is_disparity: bool = False  # .npy GT holds disparity in px (else depth in m)
+    rois_csv: str = ""  # boxes on the evaluation frames, the format of data.kitti.rois_csv
+
+    def validate(self, key: str, params: Params) -> None:
+        """``data.source: folder``: the folder's keys, and what the folder cannot provide."""
+        root = shown(self.root)
+        suggested = root[1:-1] if root[0] == root[-1] else root  # without the quotes, unless elided
+        check(
+            self.root in ("", params.data.root),
+            f"{key}.root",
+            f"must be empty (= data.root) or data.root itself, got {root}: the pipeline tracks the data "
+            f"as data.root (dvc.yaml), so set data.root: {suggested} instead",
+        )
+        if not self.pairs:
+            for name in ("left", "right"):
+                check(
+                    bool(getattr(self, name)),
+                    f"{key}.{name}",
+                    f"must name a folder when {key}.pairs is empty",
+                )
+            check(
+                self.left != self.right, f"{key}.right", f"must differ from {key}.left ({shown(self.left)})"
+            )
+        check(
+            bool(self.camera), f"{key}.camera", "must name the camera file (focal_px, width_px, baseline_m)"
+        )
+        check(
+            bool(self.eval_list),
+            f"{key}.eval_list",
+            "must name the evaluation list ('left right [gt]' lines)",
+        )
+        check(
+            not params.eval.extra_sets,
+            "eval.extra_sets",
+            f"{list(params.eval.extra_sets)} need KITTI raw data, which data.source folder has not: "
+            "set eval.extra_sets: []",
+        )
+
+
+@dataclass(frozen=True)
+class DataConfig:
+    source: Literal["synthetic", "kitti", "folder"] = "synthetic"
+    # Each source its own tree (msdepth.data.roots): data/synthetic here; KITTI: data/kitti.
+    root: str = "data/synthetic"
+    height: int = 64
+    width: int = 192
+    gt: Literal["disp_noc_0", "disp_occ_0"] = "disp_noc_0"
+    synthetic: SyntheticConfig = field(default_factory=SyntheticConfig)
+    kitti: KittiConfig = field(default_factory=KittiConfig)
+    folder: FolderConfig = field(default_factory=FolderConfig)
+
+    def validate(self, key: str, params: Params) -> None:
+        """Range checks of the ``key`` section and its subsections; a ConfigError names the key."""
+        # Multiples of 8 keep the 4 output scales (1, 1/2, 1/4, 1/8) exact halvings.
+        for name in ("height", "width"):
+            size = getattr(self, name)
+            check(
+                size >= 32 and size % 8 == 0,
+                f"{key}.{name}",
+                f"must be a multiple of 8 and >= 32, got {size}",
+            )
+            check(size <= MAX_SIZE, f"{key}.{name}", f"must be <= {MAX_SIZE} (px), got {size}")
+        self.synthetic.validate(f"{key}.synthetic", params)
+        self.kitti.validate(f"{key}.kitti", params)
+        if self.source == "folder":
+            self.folder.validate(f"{key}.folder", params)
+
+
+@dataclass(frozen=True)
+class ModelConfig:
+    width_multiplier: float = 0.25
+    init_disparity: float = 0.04
+    # none = the dissertation's conv + ELU network; group = a GroupNorm after every convolution
+    norm: Literal["none", "group"] = "group"
+    # independent = the dissertation's heads; residual = each finer scale corrects the coarser one
+    heads: Literal["independent", "residual"] = "residual"
+    # The pose network's width (train.mode mono | mono_stereo); 1.0 = Monodepth2's ResNet-18.
+    pose_width_multiplier: float = _added_later(0.25)
+    # The depth network: vgg = the dissertation's (Monodepth's); resnet18 = Monodepth2's.
+    architecture: Literal["vgg", "resnet18"] = _added_later("vgg")
+    # "" = from scratch; or a torchvision resnet18 state dict a user downloaded, for every ResNet
+    # encoder of the run (resnet18's depth encoder, the monocular modes' pose encoder).
+    pretrained: str = _added_later("")
+
+    def validate(self, key: str, params: Params) -> None:
+        """Range checks of the ``key`` section; a ConfigError names the key."""
+        self._validate_widths(key)
+        check(
+            0 < self.init_disparity < 0.3,
+            f"{key}.init_disparity",
+            "must be in (0, 0.3) (heads output 0.3*sigmoid)",
+        )
+        if self.architecture == "resnet18":
+            for side in ("height", "width"):
+                value = getattr(params.data, side)
+                check(
+                    value % 32 == 0 and value >= 64,
+                    f"data.{side}",
+                    f"model.architecture resnet18 needs a multiple of 32, at least 64, got {value}",
+                )
+        if self.pretrained:
+            self._validate_pretrained(key, params)
+
+    def _validate_pretrained(self, key: str, params: Params) -> None:
+        """``pretrained`` names a file, and every ResNet encoder it loads into has ResNet-18's width."""
+        encoders = [("width_multiplier", self.architecture == "resnet18")]
+        encoders.append(("pose_width_multiplier", params.train.mode != "stereo"))
+        check(
+            any(used for _, used in encoders),
+            f"{key}.pretrained",
+            "the run has no ResNet encoder to load it into (model.architecture resnet18 or train.mode "
+            'mono | mono_stereo); set it to ""',
+        )
+        for name, used in encoders:
+            value = getattr(self, name)
+            check(
+                not used or value == 1.0,
+                f"{key}.{name}",
+                f"must be 1.0 with model.pretrained (a torchvision ResNet-18's width), got {value}",
+            )
+        check(Path(self.pretrained).is_file(), f"{key}.pretrained", f"no such file: {self.pretrained}")
+
+    def _validate_widths(self, key: str) -> None:
+        """Both width multipliers in (0, MAX_WIDTH_MULTIPLIER]."""
+        for name, full in (
+            ("width_multiplier", "the dissertation's"),
+            ("pose_width_multiplier", "Monodepth2's"),
+        ):
+            multiplier = getattr(self, name)
+            check(multiplier > 0, f"{key}.{name}", "must be > 0")
+            check(
+                multiplier <= MAX_WIDTH_MULTIPLIER,
+                f"{key}.{name}",
+                f"must be <= {MAX_WIDTH_MULTIPLIER} (1.0 = {full} network), got {multiplier}",
+            )
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    # One training run per variant and seed; each seed seeds init, shuffling and augmentation.
+    seeds: tuple[int, ...] = (0, 1, 2)
+    epochs: int = 8
+    batch_size: int = 8
+    learning_rate: float = 1e-4
+    num_workers: int = _speed_only(0)
+    augment: bool = True
+    device: Literal["cpu", "cuda", "auto"] = _speed_only("cpu")
+    threads: int = _speed_only(2)
+    # Speed switches for a GPU (all off on the CPU default). The loss is always computed in fp32;
+    # amp changes the network's arithmetic, so it is not speed-only.
+    amp: Literal["none", "bf16"] = "none"
+    channels_last: bool = _speed_only(False)
+    compile: bool = _speed_only(False)
+    # cuDNN picks its convolution algorithms by timing them (fixed input size: once per shape).
+    # CUDA only; GPU runs are not bit-repeatable anyway (grid_sample's backward adds atomically).
+    cudnn_benchmark: bool = _speed_only(True)
+    # Steps between reads of the loss on the host (non-finite check, progress bar, epoch means);
+    # 0 = automatic: every step on the CPU, every 50 on a GPU, whose queue each read drains.
+    sync_every: int = _speed_only(0)
+    # Data parallel: `torchrun` runs nproc processes (batch_size is per process, so nproc
+    # changes the global batch and is not speed-only).
+    launcher: Literal["local", "torchrun"] = _speed_only("local")
+    nproc: int = 1
+    dist_timeout_s: float = _speed_only(600.0)  # a collective waiting longer (a dead rank) is an error
+    # stereo = Monodepth (left-right pairs); mono / mono_stereo = Monodepth2's M / MS
+    # (msdepth.losses.monocular), which need frame sequences: data.synthetic.sequence_length > 0.
+    mode: Literal["stereo", "mono", "mono_stereo"] = _added_later("stereo")
+    # Monodepth2's source frames of the monocular modes, as offsets from the target frame.
+    source_frames: tuple[int, ...] = _added_later((-1, 1))
+
+    @property
+    def monocular(self) -> bool:
+        """Whether the runs are Monodepth2's M or MS: their depth is up to scale, evaluated median-scaled."""
+        return self.mode != "stereo"
+
+    def validate(self, key: str, params: Params) -> None:
+        """Range checks of the ``key`` section; a ConfigError names the key."""
+        check(self.epochs >= 1, f"{key}.epochs", "must be >= 1")
+        check(self.batch_size >= 1, f"{key}.batch_size", "must be >= 1")
+        check(self.learning_rate > 0, f"{key}.learning_rate", f"must be > 0, got {self.learning_rate}")
+        check(self.num_workers >= 0, f"{key}.num_workers", "must be >= 0")
+        check(self.threads >= 1, f"{key}.threads", "must be >= 1")
+        check(self.nproc >= 1, f"{key}.nproc", f"must be >= 1, got {self.nproc}")
+        check(
+            self.sync_every >= 0, f"{key}.sync_every", f"must be >= 0 (0 = automatic), got {self.sync_every}"
+        )
+        timeout = self.dist_timeout_s
+        check(timeout > 0, f"{key}.dist_timeout_s", "must be > 0")
+        check(
+            timeout <= MAX_DIST_TIMEOUT_S, f"{key}.dist_timeout_s", f"must be <= {MAX_DIST_TIMEOUT_S:g} (s)"
+        )
+        frames = list(self.source_frames)
+        check(
+            0 not in frames and len(set(frames)) == len(frames),
+            f"{key}.source_frames",
+            f"must be distinct non-zero offsets from the target frame, got {shown(frames)}",
+        )
+        check(
+            self.mode != "stereo" or frames == [-1, 1],
+            f"{key}.source_frames",
+            f"applies to train.mode mono and mono_stereo only; keep [-1, 1] in stereo, got {shown(frames)}",
+        )
+        rendered = params.data.source == "synthetic" and params.data.synthetic.sequence_length > 0
+        check(
+            self.mode == "stereo" or rendered or params.data.source == "kitti",
+            f"{key}.mode",
+            f"{shown(self.mode)} trains on frame sequences: KITTI's raw drives (data.source kitti) or "
+            f"rendered ones (data.source synthetic with data.synthetic.sequence_length >= 3; here "
+            f"data.source is {params.data.source} and sequence_length "
+            f"{params.data.synthetic.sequence_length}), or set train.mode stereo",
+        )
+        seeds = list(self.seeds)
+        in_range = all(0 <= seed <= SEED_MAX for seed in seeds)
+        check(in_range, f"{key}.seeds", f"must be in 0..{SEED_MAX}, got {shown(seeds)}")
+        check(len(set(seeds)) == len(seeds), f"{key}.seeds", f"must not repeat a seed, got {shown(seeds)}")
+
+
+def speed_only_train_keys() -> tuple[str, ...]:
+    """The ``train.*`` keys that change how fast a run goes, never what it computes: a
+    checkpoint stays valid when they change (the training fingerprint leaves them out)."""
+    return tuple(f.name for f in dataclasses.fields(TrainConfig) if f.metadata.get("speed_only"))
+
+
+def fingerprint_fields(cfg: Any) -> dict[str, Any]:
+    """``dataclasses.asdict(cfg)`` without the fields marked :func:`_added_later` that are at their
+    default: what the training fingerprint hashes of a config section."""
+    values = dataclasses.asdict(cfg)
+    for f in dataclasses.fields(cfg):
+        if f.metadata.get("fingerprint_omits_default") and values[f.name] == f.default:
+            del values[f.name]
+    return values
+
+
+@dataclass(frozen=True)
+class LossConfig:
+    alpha: float = 0.85  # appearance = alpha*(1-S)/2 + (1-alpha)*L1 of the SSIM-type terms
+    smoothness_weight: float = 0.1
+    lr_weight: float = 1.0
+    padding_mode: Literal["border", "zeros"] = "border"
+    # SSIM/MS-SSIM arithmetic: fast = msdepth.losses.ssim_kernels, reference = the written-out autograd
+    # formula (same values up to rounding; a fallback, and what the fast kernels are tested against).
+    kernels: Literal["fast", "reference"] = _added_later("fast")
+
+    def validate(self, key: str, params: Params) -> None:
+        """Range checks of the ``key`` section; a ConfigError names the key."""
+        check(0 <= self.alpha <= 1, f"{key}.alpha", "must be in [0, 1]")
+        check(self.smoothness_weight >= 0, f"{key}.smoothness_weight", "must be >= 0")
+        check(self.lr_weight >= 0, f"{key}.lr_weight", "must be >= 0")
+
+
+def _variant_configs() -> dict[str, type]:
+    """Every registered loss variant's config class by name (:mod:`msdepth.config.variants`); a variant
+    named like a section of :class:`Params` is a programming error."""
+    registered = dict(variant_configs())
+    clash = sorted(set(registered) & {f.name for f in dataclasses.fields(Params)})
+    if clash:
+        raise ValueError(f"variant(s) {clash}: the name of a params section that is not a variant")
+    return registered
+
+
+def _registered_sections() -> dict[str, Any]:
+    """Default config of every registered loss variant (:mod:`msdepth.config.variants`)."""
+    return {name: config() for name, config in _variant_configs().items()}
+
+
+@dataclass(frozen=True)
+class EvalConfig:
+    caps: tuple[float, ...] = (80.0, 50.0)
+    min_depth: float = 1e-3
+    mask_gt_beyond_cap: bool = False
+    post_process: bool = True
+    dense_gt_fraction: float = 0.9
+    # Evaluated beside KITTI 2015 (which always runs: the dissertation's tables and the ROI
+    # suites), full-image suite only, each under metrics/sets/<set>/ (msdepth.data.eval_sets).
+    extra_sets: tuple[Literal["eigen", "eigen_benchmark"], ...] = _list_may_be_empty(("eigen",))
+    median_scaling: bool = False  # per-image median scaling of the extra sets (Monodepth2's mono evaluation)
+
+    def validate(self, key: str, params: Params) -> None:
+        """Range checks of the ``key`` section; a ConfigError names the key."""
+        check(
+            all(c > self.min_depth for c in self.caps),
+            f"{key}.caps",
+            f"every cap must exceed {key}.min_depth",
+        )
+        check(self.min_depth > 0, f"{key}.min_depth", "must be > 0")
+        check(0 < self.dense_gt_fraction <= 1, f"{key}.dense_gt_fraction", "must be in (0, 1]")
+        sets = list(self.extra_sets)
+        check(len(set(sets)) == len(sets), f"{key}.extra_sets", f"must not repeat a set, got {shown(sets)}")
+
+
+@dataclass(frozen=True)
+class CompareConfig:
+    reference: str = "ssim"  # every other run is compared with this variant
+    bootstrap_samples: int = 10_000
+    confidence: float = 0.95
+    seed: int = 0
+
+    def validate(self, key: str, params: Params) -> None:
+        """Range checks of the ``key`` section; a ConfigError names the key."""
+        check(
+            self.reference in params.variants,
+            f"{key}.reference",
+            f"{shown(self.reference)} is not a variant; configured: {list(params.variants)}",
+        )
+        samples = self.bootstrap_samples
+        check(samples >= 100, f"{key}.bootstrap_samples", f"must be >= 100, got {samples}")
+        check(0 < self.confidence < 1, f"{key}.confidence", f"must be in (0, 1), got {self.confidence}")
+        check(0 <= self.seed <= SEED_MAX, f"{key}.seed", f"must be in 0..{SEED_MAX}, got {self.seed}")
+
+
+@dataclass(frozen=True)
+class OptimumConfig:
+    """The losses' own optimum (:mod:`msdepth.optimum.solver`): per stereo pair, the disparity maps that
+    minimise a variant's training objective, optimised directly (no network; docs/optimum.md)."""
+
+    levels: int = 3  # coarse-to-fine levels, each half the size of the next (fewer if the image is small)
+    iterations: int = 100  # Adam steps per level: the stopping rule (docs/optimum.md, measured)
+    learning_rate: float = 0.05  # Adam's, on the logit of disparity / 0.3 (the network heads' range)
+    init_disparity: float = 0.04  # the constant start, fraction of the width
+    height: int = 0  # working size; 0 = data.synthetic's render size (the CLI: the image's own)
+    width: int = 0
+    # Its own weight, not loss.smoothness_weight: a network regularises implicitly, a per-pixel
+    # map does not. Results are reported at every weight of smoothness_sweep (a decade or more).
+    smoothness_weight: float = 10.0
+    smoothness_sweep: tuple[float, ...] = (3.0, 10.0, 30.0)
+    batch_size: int = 4  # pairs optimised together (independent: each pair's gradient is its own)
+    # The pipeline's optimum stages (docs/optimum-pipeline.md): the sweep's weights other than
+    # smoothness_weight see only the first sweep_frames evaluation frames (0 = all), the cost
+    # curves the ROIs of the first cost_frames; torch threads.
+    sweep_frames: int = 4
+    cost_frames: int = 8
+    threads: int = 2
+
+    def validate(self, key: str, params: Params) -> None:
+        """Range checks of the ``key`` section; a ConfigError names the key."""
+        check(self.levels >= 1, f"{key}.levels", f"must be >= 1, got {self.levels}")
+        check(self.iterations >= 1, f"{key}.iterations", f"must be >= 1, got {self.iterations}")
+        check(self.learning_rate > 0, f"{key}.learning_rate", f"must be > 0, got {self.learning_rate}")
+        check(
+            0 < self.init_disparity < 0.3,
+            f"{key}.init_disparity",
+            f"must be in (0, 0.3) (the heads' range), got {self.init_disparity}",
+        )
+        check(self.batch_size >= 1, f"{key}.batch_size", f"must be >= 1, got {self.batch_size}")
+        check(self.smoothness_weight >= 0, f"{key}.smoothness_weight", "must be >= 0")
+        check(self.sweep_frames >= 0, f"{key}.sweep_frames", f"must be >= 0, got {self.sweep_frames}")
+        check(self.cost_frames >= 0, f"{key}.cost_frames", f"must be >= 0, got {self.cost_frames}")
+        check(self.threads >= 1, f"{key}.threads", f"must be >= 1, got {self.threads}")
+        sweep = self.smoothness_sweep
+        check(
+            min(sweep) > 0 and max(sweep) >= 10 * min(sweep) and self.smoothness_weight in sweep,
+            f"{key}.smoothness_sweep",
+            f"must be positive, span at least a decade and hold smoothness_weight, got {list(sweep)}",
+        )
+        for name in ("height", "width"):
+            size = getattr(self, name)
+            check(size == 0 or size >= 24, f"{key}.{name}", f"must be 0 (default) or >= 24, got {size}")
+
+
+@dataclass(frozen=True)
+class Params:
+    data: DataConfig = field(default_factory=DataConfig)
+    model: ModelConfig = field(default_factory=ModelConfig)
+    train: TrainConfig = field(default_factory=TrainConfig)
+    loss: LossConfig = field(default_factory=LossConfig)
+    # A loss variant is named after its params section, so that DVC can track exactly that
+    # section per stage; each registered variant (msdepth.config.variants) has one.
+    variants: tuple[str, ...] = ("ssim", "msssim")
+    eval: EvalConfig = field(default_factory=EvalConfig)
+    compare: CompareConfig = field(default_factory=CompareConfig)
+    optimum: OptimumConfig = field(default_factory=OptimumConfig)
+    # The params section of every registered variant, by name (top-level sections in
+    # params.yaml, e.g. ``ssim:``; not a key of its own).
+    appearance: dict[str, Any] = field(default_factory=_registered_sections, metadata={"yaml": False})
+
+    def __getattr__(self, name: str) -> Any:
+        # ``params.ssim``: a variant's section reads like the other sections.
+        sections = self.__dict__.get("appearance", {})
+        if not name.startswith("_") and name in sections:
+            return sections[name]
+        raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
+
+    def variant(self, name: str) -> str:
+        """The variant called ``name``, or a ConfigError listing the configured ones."""
+        if name not in self.variants:
+            raise ConfigError(f"variants: unknown variant {shown(name)}; configured: {list(self.variants)}")
+        return name
+
+    def seed(self, value: str | int) -> int:
+        """The training seed ``value`` (e.g. a stage's argument), or a ConfigError if not in train.seeds."""
+        try:
+            seed = int(value)
+        except ValueError:
+            raise ConfigError(f"train.seeds: {shown(value)} is not an integer seed") from None
+        if seed not in self.train.seeds:
+            raise ConfigError(
+                f"train.seeds: seed {seed} is not listed; configured: {shown(list(self.train.seeds))}"
+            )
+        return seed
+
+
+def _convert(value: Any, tp: Any, key: str) -> Any:
+    """Convert a YAML value to type ``tp`` or raise a ConfigError naming ``key``."""
+    origin = get_origin(tp)
+    if dataclasses.is_dataclass(tp):
+        if not isinstance(value, dict):
+            raise ConfigError(f"{key}: expected a mapping, got {type(value).__name__}")
+        return _build(tp, value, key)
+    if origin is Literal:
+        if value not in get_args(tp):
+            raise ConfigError(f"{key}: {shown(value)} is not one of {list(get_args(tp))}")
+        return value
+    if origin is tuple:
+        (inner, _) = get_args(tp)
+        if not isinstance(value, (list, tuple)) or not value:
+            raise ConfigError(f"{key}: expected a non-empty list, got {shown(value)}")
+        return tuple(_convert(v, inner, f"{key}[{i}]") for i, v in enumerate(value))
+    if origin is dict:
+        _, inner = get_args(tp)
+        if not isinstance(value, dict) or not value:
+            raise ConfigError(f"{key}: expected a non-empty mapping, got {shown(value)}")
+        return {str(k): _convert(v, inner, f"{key}.{k}") for k, v in value.items()}
+    if origin in (typing.Union, types.UnionType):
+        if value is None and type(None) in get_args(tp):
+            return None
+        (inner,) = [a for a in get_args(tp) if a is not type(None)]
+        return _convert(value, inner, key)
+    return _convert_scalar(value, tp, key)
+
+
+# Every integer parameter fits a signed 64-bit integer (numpy, torch); every float one is finite.
+INT_RANGE = (-(2**63), 2**63 - 1)
+
+
+def _convert_scalar(value: Any, tp: Any, key: str) -> Any:
+    """Check a YAML scalar against ``tp`` (bool, int, float or str); a ConfigError names ``key``."""
+    if tp is bool:
+        if not isinstance(value, bool):
+            raise ConfigError(f"{key}: expected true/false, got {shown(value)}")
+        return value
+    if tp in (int, float):
+        number = isinstance(value, int) or (tp is float and isinstance(value, float))
+        if isinstance(value, bool) or not number:
+            raise ConfigError(
+                f"{key}: expected {'an integer' if tp is int else 'a number'}, got {shown(value)}"
+            )
+        if isinstance(value, int) and not INT_RANGE[0] <= value <= INT_RANGE[1]:
+            raise ConfigError(f"{key}: {shown(value)} is out of range (a 64-bit integer)")
+        if tp is float and not math.isfinite(value):
+            raise ConfigError(f"{key}: expected a finite number, got {value}")
+        return float(value) if tp is float else value
+    if tp is str:
+        if not isinstance(value, str):
+            raise ConfigError(f"{key}: expected a string, got {shown(value)}")
+        return value
+    raise TypeError(f"unsupported config type {tp} at {key}")  # programming error
+
+
+def _build(cls: type, raw: dict, prefix: str) -> Any:
+    hints = typing.get_type_hints(cls)
+    names = {f.name for f in dataclasses.fields(cls) if f.metadata.get("yaml", True)}
+    for name in raw:  # YAML reads an unquoted 1, ~ or true as a number, null or boolean
+        check(isinstance(name, str), prefix or "top level", f"key {shown(name)} is not a parameter name")
+    unknown = set(raw) - names
+    if unknown:
+        where = f"{prefix}." if prefix else ""
+        raise ConfigError(f"unknown parameter(s) {shown(sorted(where + u for u in unknown))}")
+    empty_ok = {f.name for f in dataclasses.fields(cls) if f.metadata.get("may_be_empty")}
+    kwargs = {
+        name: ()
+        if name in empty_ok and raw[name] == []
+        else _convert(raw[name], hints[name], f"{prefix}.{name}" if prefix else name)
+        for name in names
+        if name in raw
+    }
+    return cls(**kwargs)
+
+
+def validate(p: Params) -> Params:
+    """Range checks that types alone cannot express, section by section; raises ConfigError naming the key."""
+    for i, name in enumerate(p.variants):
+        check(name in p.appearance, f"variants[{i}]", f"{shown(name)} is not one of {list(p.appearance)}")
+    p.data.validate("data", p)
+    p.model.validate("model", p)
+    p.train.validate("train", p)
+    variants = list(p.variants)
+    check(len(set(variants)) == len(variants), "variants", f"must not repeat a variant, got {variants}")
+    p.loss.validate("loss", p)
+    # Each trained variant's config checks its own section (types and unknown keys are checked for
+    # every section; the range checks of a section no run uses, e.g. against the image size, wait).
+    for name in p.variants:
+        p.appearance[name].validate(name, p)
+    p.eval.validate("eval", p)
+    p.compare.validate("compare", p)
+    p.optimum.validate("optimum", p)
+    return p
+
+
+def params_from_dict(raw: dict) -> Params:
+    """Build and validate :class:`Params` from a parsed params.yaml mapping."""
+    if not isinstance(raw, dict):
+        raise ConfigError("params: expected a mapping at the top level")
+    registered = _variant_configs()
+    sections = {name: _convert(raw.get(name, {}), config, name) for name, config in registered.items()}
+    params = _build(Params, {k: v for k, v in raw.items() if k not in registered}, "")
+    return validate(dataclasses.replace(params, appearance=sections))
+
+
+def apply_overrides(raw: dict, assignments: Sequence[str]) -> dict:
+    """``raw`` (a parsed params.yaml) with each ``a.b.c=value`` (a YAML value) set, creating
+    sections as needed: ``--set`` of ``msdepth optimum`` and of the studies' scripts."""
+    for item in assignments:
+        key, sep, value = item.partition("=")
+        if not sep or not key:
+            raise ConfigError(f"--set: expected KEY=VALUE, got {item!r}")
+        node = raw
+        *parents, last = key.split(".")
+        for part in parents:
+            node = node.setdefault(part, {})
+            if not isinstance(node, dict):
+                raise ConfigError(f"--set {item}: {part} is not a section")
+        try:
+            node[last] = parse(value)
+        except ConfigError as exc:
+            raise ConfigError(f"--set {item}: {exc}") from None
+    return raw
+
+
+MAX_PARAMS_BYTES = 1 << 20  # params.yaml is about 10 KB; a file this large is not one
+
+
+def load_params(path: str | os.PathLike = "params.yaml") -> Params:
+    """Read ``params.yaml`` into a validated :class:`Params` (one ConfigError naming the key)."""
+    path = Path(path)
+    try:
+        with path.open("rb") as file:
+            data = file.read(MAX_PARAMS_BYTES + 1)
+    except FileNotFoundError:
+        raise ConfigError(f"{path}: no such params file") from None
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot read: {exc.strerror or exc}") from None
+    try:
+        check(
+            len(data) <= MAX_PARAMS_BYTES,
+            "file",
+            f"larger than {MAX_PARAMS_BYTES >> 20} MiB: not a params file",
+        )
+        try:
+            text = data.decode("utf-8")
+        except UnicodeDecodeError as exc:
+            line = data.count(b"\n", 0, exc.start) + 1
+            raise ConfigError(f"not UTF-8 text (byte 0x{data[exc.start]:02x} on line {line})") from None
+        raw = parse(text)
+        return params_from_dict({} if raw is None else raw)
+    except ConfigError as exc:
+        raise ConfigError(f"{path}: {exc}") from None

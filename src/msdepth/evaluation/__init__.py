@@ -1,0 +1,1 @@
+"""Inference, depth, the evaluation suites and metrics, baselines, pose evaluation."""

@@ -1,0 +1,1 @@
+"""Geometry shared by losses, networks and evaluation: warping, cameras, disparity and depth."""

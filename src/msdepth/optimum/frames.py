@@ -1,0 +1,138 @@
+"""The losses' own optimum (:mod:`msdepth.optimum.solver`) on the pipeline's evaluation frames, scored
+with the same depth conversion and suites as a trained run, and the cost curves of every ROI
+with dense GT. The stages ``optimum`` and ``cost_curves`` (stages/*.py) call these."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from msdepth.config.params import Params
+from msdepth.errors import ConfigError
+
+OPTIMUM = "optimum"  # run names: optimum/<variant>/w<weight>, below outputs/ and metrics/<suite>/
+
+
+def optimum_run(variant: str, weight: str) -> str:
+    """The optimum's run of one variant and smoothness weight, named like a trained run's
+    ``<variant>/seed<seed>``: ``optimum/<variant>/w<weight>`` (``weight`` as dvc.yaml writes it)."""
+    return f"{OPTIMUM}/{variant}/w{weight}"
+
+
+def checked_weight(params: Params, weight: str) -> float:
+    """``weight`` as a float, a ConfigError unless it is one of ``optimum.smoothness_sweep``."""
+    try:
+        value = float(weight)
+    except ValueError:
+        raise ConfigError(f"smoothness weight {weight!r} is not a number") from None
+    if value not in params.optimum.smoothness_sweep:
+        sweep = list(params.optimum.smoothness_sweep)
+        raise ConfigError(f"smoothness weight {weight} is not in optimum.smoothness_sweep {sweep}")
+    return value
+
+
+def sweep_frames(params: Params, index: pd.DataFrame, weight: float) -> pd.DataFrame:
+    """The evaluation frames optimised at ``weight``: all of them at ``optimum.smoothness_weight``,
+    the first ``optimum.sweep_frames`` (0 = all) at the sweep's other weights, to bound the time."""
+    if weight == params.optimum.smoothness_weight:
+        return index
+    return first_frames(index, params.optimum.sweep_frames)
+
+
+def first_frames(index: pd.DataFrame, n: int) -> pd.DataFrame:
+    """The first ``n`` rows of an evaluation index (0 = all)."""
+    return index if n <= 0 else index.iloc[:n].reset_index(drop=True)
+
+
+def frame_disparities(params: Params, variant: str, weight: float, index: pd.DataFrame) -> np.ndarray:
+    """The left optimum disparity (N, h, w; fraction of width, as the infer stage writes a
+    network's) of every row ``(left, right)`` of an evaluation index, at the working size."""
+    from msdepth.data.kitti import read_image
+    from msdepth.optimum.solver import optimum_disparities
+
+    pairs = [(read_image(lp), read_image(rp)) for lp, rp in zip(index["left"], index["right"], strict=True)]
+    shapes = {p[0].shape for p in pairs}
+    if len(shapes) > 1 and not (params.optimum.height and params.optimum.width):
+        raise ConfigError(
+            f"evaluation frames of {len(shapes)} sizes: set optimum.height/width to optimise them at one"
+        )
+    return np.stack(optimum_disparities(pairs, params, variant, weight))
+
+
+def boxes_of(rois: pd.DataFrame, names: Sequence[str]) -> pd.DataFrame:
+    """The ROIs of the frames ``names`` (a sweep's subset of the evaluation frames)."""
+    return rois[rois["image"].isin(set(names))].reset_index(drop=True)
+
+
+def gt_disparity_px(frame) -> np.ndarray:  # noqa: ANN001 - an evaluate.Frame
+    """A frame's GT as disparity in px (0 where there is no GT, read by the cost curve as infinitely far)."""
+    depth = frame.gt_depth
+    return np.where(depth > 0, frame.focal * frame.baseline / np.maximum(depth, 1e-6), 0.0).astype(np.float32)
+
+
+def roi_cost_curves(params: Params, variant: str, index: pd.DataFrame, rois: pd.DataFrame) -> dict:
+    """Per ROI class, the cost curve (:func:`msdepth.optimum.solver.cost_curve`) of every ROI whose GT is
+    dense (valid fraction >= ``eval.dense_gt_fraction``), on the whole frame at the GT's size."""
+    from msdepth.data.kitti import read_image
+    from msdepth.data.pairs import to_tensor
+    from msdepth.errors import DataError
+    from msdepth.evaluation.suites import load_frames
+    from msdepth.optimum.solver import cost_curve, objective
+
+    criterion = objective(params, variant)
+    curves: dict[str, list[np.ndarray]] = {}
+    for row, frame in zip(index.itertuples(), load_frames(index), strict=True):
+        boxes = rois[rois["image"] == frame.name]
+        if boxes.empty:
+            continue
+        left, right = read_image(row.left), read_image(row.right)
+        if left.shape[:2] != frame.shape or right.shape != left.shape:
+            raise DataError(f"{row.left}: image {left.shape[:2]} does not match its GT {frame.shape}")
+        gt = gt_disparity_px(frame)
+        for b in boxes.to_dict("records"):
+            box = (int(b["x0"]), int(b["y0"]), int(b["x1"]), int(b["y1"]))
+            if frame.valid[box[1] : box[3], box[0] : box[2]].mean() < params.eval.dense_gt_fraction:
+                continue
+            curve = cost_curve(to_tensor(left), to_tensor(right), gt, box, criterion)
+            curves.setdefault(b["class"], []).append(curve)
+    return curves
+
+
+def cost_summary(curves: dict[str, list[np.ndarray]]) -> dict:
+    """A variant's cost curves summarised: the s grid, each class's mean curve and
+    :func:`msdepth.optimum.solver.class_summary` (s_min, basin, basin_ratio)."""
+    from msdepth.optimum.solver import COST_SCALES, class_summary
+
+    classes = class_summary(curves)
+    summary = {
+        "scales": [float(s) for s in COST_SCALES],
+        "classes": classes,
+        "mean_curves": {
+            c: [float(v) for v in np.mean(np.stack(r), axis=0)] for c, r in sorted(curves.items())
+        },
+    }
+    return summary
+
+
+def optimum_runs(params: Params, metrics_dir: Path) -> dict[str, str]:
+    """``{label: run}`` of the optimum runs the optimum stages wrote below ``metrics_dir/full``, for
+    every variant and weight of ``optimum.smoothness_sweep`` (label ``optimum <variant> w<weight>``).
+    Found by value: dvc.yaml writes a weight as params.yaml spells it (``10`` or ``10.0``)."""
+    from msdepth.errors import DataError
+
+    out = {}
+    for variant in params.variants:
+        found = {}
+        for path in (Path(metrics_dir) / "full" / OPTIMUM / variant).glob("w*.json"):
+            try:
+                found[float(path.stem[1:])] = path.stem[1:]
+            except ValueError:
+                continue
+        for weight in params.optimum.smoothness_sweep:
+            if weight not in found:
+                raise DataError(f"{metrics_dir}/full/{OPTIMUM}/{variant}: no optimum at weight {weight:g}")
+            out[f"{OPTIMUM} {variant} w{weight:g}"] = optimum_run(variant, found[weight])
+    return out

@@ -1,0 +1,1 @@
+"""The DVC pipeline's paths and stage plumbing, and dvc.yaml's generated parts."""

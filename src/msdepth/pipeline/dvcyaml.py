@@ -1,0 +1,314 @@
+"""dvc.yaml's generated parts: ``python -m msdepth.pipeline.dvcyaml`` writes them (``--check`` compares).
+
+Two parts of dvc.yaml are written from the code, so that each is defined once:
+
+- every stage's code deps, from its script's imports;
+- every path that ends in ``# = EXPR``, from :mod:`msdepth.pipeline.paths`'s definition of that file
+  (EXPR: one of its names, e.g. ``EVAL_FRAMES``, or a call of one of its path functions on
+  ``RUN``, a matrix stage's run as dvc.yaml spells it: ``model_path(RUN)``).
+
+A stage's code is its script (``python stages/<x>.py`` in ``cmd``) and the transitive closure of
+the ``msdepth`` modules it imports, found statically with ``ast`` (every ``import`` statement,
+including those inside functions, and the ``__init__.py`` of every package on the way). A source
+file missing from a stage's deps lets ``dvc repro`` serve results of old code; a listed file the
+stage does not import re-runs it for nothing.
+
+In dvc.yaml a stage's code deps are the entries under ``stages/`` and ``src/`` at the head of its
+``deps`` list (a package folder whose every module the stage imports is listed as the folder).
+The command rewrites those lines and the tagged paths, nothing else: comments, order and every
+other key keep their bytes (pyyaml would drop the comments, so the file is edited as text). A
+stage without ``deps`` gets the list after its ``cmd`` line.
+"""
+
+from __future__ import annotations
+
+import argparse
+import ast
+import re
+import sys
+from pathlib import Path
+
+import yaml
+
+from msdepth.errors import DataError, MsdepthError
+
+PACKAGE = "msdepth"
+CODE_PREFIXES = ("stages/", "src/")
+COMMAND = "python -m msdepth.pipeline.dvcyaml"
+
+
+def module_file(name: str, src: Path) -> Path | None:
+    """The file of module ``name`` (``a.b`` -> ``src/a/b.py`` or ``src/a/b/__init__.py``), if any."""
+    base = src.joinpath(*name.split("."))
+    for path in (base.with_suffix(".py"), base / "__init__.py"):
+        if path.is_file():
+            return path
+    return None
+
+
+def _skipped_nodes(tree: ast.AST) -> set[int]:
+    """The ids of the nodes inside ``if TYPE_CHECKING:`` blocks, which never run."""
+    return {
+        id(n)
+        for block in ast.walk(tree)
+        if isinstance(block, ast.If) and "TYPE_CHECKING" in ast.unparse(block.test)
+        for stmt in block.body
+        for n in ast.walk(stmt)
+    }
+
+
+def imported_modules(path: Path, module: str | None, src: Path, package: str = PACKAGE) -> set[str]:
+    """The ``package`` modules that the file ``path`` (module ``module``; None for a script) imports.
+
+    ``from X import y`` counts ``X`` and, when ``y`` is a submodule, ``X.y`` too; relative imports
+    are resolved against the module's package.
+    """
+    is_package = path.name == "__init__.py"
+    found: set[str] = set()
+    text = path.read_text()
+    tree = ast.parse(text, filename=str(path))
+    skipped = _skipped_nodes(tree)
+    registry = r"\b(pkgutil\.iter_modules|importlib\.import_module)\(|\bRegistry\(__name__\b"
+    if is_package and re.search(registry, text):
+        # A package that imports its own modules by name (a registry, msdepth.config.variants._registry's
+        # Registry): count them all.
+        found.update(f"{module}.{p.stem}" for p in path.parent.glob("*.py") if p.name != "__init__.py")
+    for node in ast.walk(tree):
+        if id(node) in skipped:
+            continue
+        if isinstance(node, ast.Import):
+            found.update(a.name for a in node.names)
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                if module is None:
+                    raise DataError(f"{path}: a relative import in a script")
+                parts = module.split(".") if is_package else module.split(".")[:-1]
+                parts = parts[: len(parts) - (node.level - 1)]
+                base = ".".join(parts + ([node.module] if node.module else []))
+            else:
+                base = node.module or ""
+            found.add(base)
+            found.update(f"{base}.{a.name}" for a in node.names if module_file(f"{base}.{a.name}", src))
+    return {m for m in found if m == package or m.startswith(package + ".")}
+
+
+def import_closure(script: Path, src: Path, package: str = PACKAGE) -> set[Path]:
+    """Every source file that running ``script`` executes from ``package``: the modules it imports,
+    theirs in turn, and each one's parent packages' ``__init__.py``."""
+    files: set[Path] = set()
+    todo: list[tuple[Path, str | None]] = [(script, None)]
+    while todo:
+        path, module = todo.pop()
+        for name in imported_modules(path, module, src, package):
+            parts = name.split(".")
+            for i in range(1, len(parts) + 1):  # importing a.b.c runs a/__init__ and a/b/__init__ first
+                sub = ".".join(parts[:i])
+                file = module_file(sub, src)
+                if file is None:
+                    raise DataError(f"{path}: imports {sub}, which has no file under {src}")
+                if file not in files:
+                    files.add(file)
+                    todo.append((file, sub))
+    return files
+
+
+def stage_scripts(dvc_yaml: dict) -> dict[str, str]:
+    """``{stage name: its script}`` for every stage; each stage's cmd must run ``python stages/<x>.py``."""
+    scripts = {}
+    for name, stage in dvc_yaml["stages"].items():
+        match = re.match(r"python (stages/\S+\.py)\b", str(stage.get("cmd", "")))
+        if not match:
+            raise DataError(f"dvc.yaml: stage {name}: cmd {stage.get('cmd')!r} does not run a stage script")
+        scripts[name] = match.group(1)
+    return scripts
+
+
+def code_deps(root: Path, script: str, package: str = PACKAGE) -> list[str]:
+    """A stage's code deps: its script, then the files it imports (sorted, relative to ``root``),
+    a folder below the package standing for its files when the stage imports every one of them."""
+    src = root / "src"
+    files = import_closure(root / script, src, package)
+    folders = sorted(
+        {d for f in files for d in f.parents if src / package in d.parents}, key=lambda d: len(d.parts)
+    )
+    entries: set[Path] = set()
+    covered: set[Path] = set()
+    for folder in folders:
+        modules = {p for p in folder.rglob("*.py") if "__pycache__" not in p.parts}
+        if folder not in covered and modules <= files:
+            entries.add(folder)
+            covered |= modules | {d for m in modules for d in m.parents if folder in d.parents}
+    entries |= files - covered
+    return [script] + sorted(p.relative_to(root).as_posix() for p in entries)
+
+
+def _stage_block(lines: list[str], name: str) -> tuple[int, int, str]:
+    """(first line, end line, indent of its keys) of stage ``name`` under the top-level ``stages:``."""
+    top = lines.index("stages:\n") if "stages:\n" in lines else None
+    if top is None:
+        raise DataError("dvc.yaml: no top-level 'stages:' line")
+    keys = [x for x in lines[top + 1 :] if x.strip() and not x.lstrip().startswith("#")]
+    pad = " " * (_indent(keys[0]) if keys else 2)
+    starts = [
+        i for i in range(top + 1, len(lines)) if re.match(rf"{pad}{re.escape(name)}:\s*(#.*)?$", lines[i])
+    ]
+    if not starts:
+        raise DataError(f"dvc.yaml: no line '{name}:' under stages:")
+    start = starts[0]
+    indent = len(lines[start]) - len(lines[start].lstrip())
+    end = start + 1
+    while end < len(lines) and (
+        not lines[end].strip() or lines[end].lstrip().startswith("#") or _indent(lines[end]) > indent
+    ):
+        end += 1
+    while end > start + 1 and (not lines[end - 1].strip() or lines[end - 1].lstrip().startswith("#")):
+        end -= 1  # comments and blank lines before the next stage belong to it
+    key_indent = next((_indent(x) for x in lines[start + 1 : end] if x.strip()), indent + 2)
+    return start, end, " " * key_indent
+
+
+def _indent(line: str) -> int:
+    return len(line) - len(line.lstrip())
+
+
+def _item(line: str) -> str | None:
+    """The value of a YAML list item line (``- value  # comment``), else None."""
+    match = re.match(r"\s*- ([^#\s]+)", line)
+    return match.group(1).rstrip(":") if match else None
+
+
+def _rewrite_stage(lines: list[str], name: str, deps: list[str]) -> list[str]:
+    """``lines`` with the head of stage ``name``'s deps list replaced by ``deps``."""
+    start, end, key = _stage_block(lines, name)
+    deps_at = next((i for i in range(start + 1, end) if re.match(rf"{key}deps:\s*(#.*)?$", lines[i])), None)
+    if deps_at is None:  # a new stage: its deps list goes after its cmd line
+        cmd_at = next(
+            (i for i in range(start + 1, end) if lines[i].startswith(f"{key}cmd: python stages/")), None
+        )
+        if cmd_at is None:
+            raise DataError(f"dvc.yaml: stage {name}: no one-line 'cmd: python stages/...' to put deps after")
+        return (
+            lines[: cmd_at + 1] + [f"{key}deps:\n"] + [f"{key}  - {d}\n" for d in deps] + lines[cmd_at + 1 :]
+        )
+    first = last = deps_at + 1
+    item_indent = " " * _indent(lines[first]) if first < end and _item(lines[first]) else f"{key}  "
+    while last < end and (value := _item(lines[last])) is not None and value.startswith(CODE_PREFIXES):
+        last += 1
+    rest = last
+    while rest < end and _indent(lines[rest]) >= len(item_indent) and lines[rest].strip():
+        value = _item(lines[rest])
+        if value is not None and value.startswith(CODE_PREFIXES):
+            raise DataError(
+                f"dvc.yaml: stage {name}: code dep {value} follows other deps: "
+                "list the code deps (stages/, src/) first"
+            )
+        rest += 1
+    return lines[:first] + [f"{item_indent}- {d}\n" for d in deps] + lines[last:]
+
+
+TAGGED = re.compile(r"^(\s*- )(\S+?)(:?)(\s+# = )(.+?)\s*$")
+
+
+def tagged_path(expr: str) -> str:
+    """The path that a dvc.yaml line's ``# = EXPR`` names: EXPR is a public name of
+    :mod:`msdepth.pipeline.paths`, a call of one of its functions on ``RUN`` (a matrix stage's run, as
+    dvc.yaml spells it) or on strings, or either joined with ``/`` to a string."""
+    from msdepth.pipeline import paths as pipeline
+
+    run = pipeline.run_name("${item.variant}", "${item.seed}")  # type: ignore[arg-type]
+
+    def value(node: ast.expr) -> object:
+        if isinstance(node, ast.Constant) and isinstance(node.value, str):
+            return node.value
+        if isinstance(node, ast.Name) and node.id == "RUN":
+            return run
+        if isinstance(node, ast.Name) and not node.id.startswith("_") and hasattr(pipeline, node.id):
+            return getattr(pipeline, node.id)
+        if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and not node.keywords:
+            return value(node.func)(*[value(a) for a in node.args])  # type: ignore[operator]
+        if isinstance(node, ast.BinOp) and isinstance(node.op, ast.Div):
+            return Path(value(node.left)) / value(node.right)  # type: ignore[arg-type,operator]
+        raise DataError(f"{ast.unparse(node)!r} is not a name or path function of msdepth.pipeline.paths")
+
+    try:
+        result = value(ast.parse(expr, mode="eval").body)
+    except (SyntaxError, TypeError) as exc:
+        raise DataError(f"{expr!r}: {exc}") from None
+    if not isinstance(result, (str, Path)):
+        raise DataError(f"{expr!r} is not a path")
+    return Path(result).as_posix()
+
+
+def _rewrite_tagged(lines: list[str]) -> list[str]:
+    """``lines`` with the path of every line that ends in ``# = EXPR`` written from EXPR."""
+    out = []
+    for number, line in enumerate(lines, 1):
+        match = TAGGED.match(line)
+        if match:
+            try:
+                path = tagged_path(match.group(5))
+            except DataError as exc:
+                raise DataError(f"dvc.yaml, line {number}: {exc}") from None
+            line = f"{match.group(1)}{path}{match.group(3)}{match.group(4)}{match.group(5)}\n"
+        out.append(line)
+    return out
+
+
+def generate(root: Path) -> str:
+    """dvc.yaml under ``root`` with every stage's code deps written from its imports and every
+    tagged path from its definition in :mod:`msdepth.pipeline.paths`."""
+    path = root / "dvc.yaml"
+    text = path.read_text()
+    try:
+        dvc_yaml = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        raise DataError(f"{path}: not valid YAML: {str(exc).splitlines()[0]}") from None
+    lines = text.splitlines(keepends=True)
+    for name, script in stage_scripts(dvc_yaml).items():
+        lines = _rewrite_stage(lines, name, code_deps(root, script))
+    return "".join(_rewrite_tagged(lines))
+
+
+def changed_stages(old: str, new: str) -> list[str]:
+    """The stages that differ between two versions of dvc.yaml."""
+    before, after = yaml.safe_load(old)["stages"], yaml.safe_load(new)["stages"]
+    return [n for n in after if before.get(n) != after[n]]
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Write (or with ``--check`` only compare) dvc.yaml's generated parts; the exit code is 1 on a
+    difference under ``--check`` or an error."""
+    ap = argparse.ArgumentParser(
+        prog=COMMAND, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    ap.add_argument(
+        "--root", type=Path, default=Path("."), help="the project folder (holding dvc.yaml, stages/, src/)"
+    )
+    ap.add_argument("--check", action="store_true", help="write nothing; exit 1 if dvc.yaml differs")
+    args = ap.parse_args(argv)
+    path = args.root / "dvc.yaml"
+    try:
+        old, new = path.read_text(), generate(args.root)
+    except (MsdepthError, OSError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
+    stages = changed_stages(old, new) if old != new else []
+    if args.check:
+        if old != new:
+            print(
+                f"{path}: generated parts out of date ({', '.join(stages) or 'layout'}): run `{COMMAND}`",
+                file=sys.stderr,
+            )
+            return 1
+        print(f"{path}: generated parts up to date")
+        return 0
+    if old != new:
+        from msdepth.io import write_text
+
+        write_text(path, new)
+    print(f"{path}: generated parts {'rewritten for ' + ', '.join(stages) if old != new else 'up to date'}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,164 @@
+"""What every stage shares: :func:`run_stage`, run names and the pipeline's fixed paths.
+
+The stages themselves are the scripts ``stages/<name>.py`` that dvc.yaml runs: each parses its
+arguments with :func:`run_stage` and calls the logic in the package. No module of the package
+imports a stage script. This module imports only the config and the errors (no numpy, no
+torch) at its top, and :mod:`msdepth.io` in :func:`run_stage`: every stage imports it, so whatever
+it imports is every stage's dependency.
+"""
+
+from __future__ import annotations
+
+import argparse
+import inspect
+import logging
+import os
+import sys
+import time
+import typing
+from pathlib import Path
+from typing import Annotated, Callable
+
+from msdepth.config.params import Params, load_params
+from msdepth.errors import ConfigError, MsdepthError
+
+log = logging.getLogger("msdepth")
+
+# The pipeline's files that its stages pass to each other, defined here only: dvc.yaml's lines
+# that name them end in `# = NAME` (or `# = model_path(RUN)`), and `python -m msdepth.pipeline.dvcyaml`
+# writes their paths from these definitions.
+CHECKED = Path("data/params_checked.txt")
+INDEX_DIR = Path("data/index")
+TRAIN_PAIRS = INDEX_DIR / "train_pairs.txt"
+EVAL_FRAMES = INDEX_DIR / "eval_frames.csv"
+ROIS = INDEX_DIR / "rois.csv"
+ROI_SHEET = INDEX_DIR / "rois.png"
+PAIR_CACHE = Path("data/cache/train_pairs.npy")
+CACHED_PAIRS = Path("data/cache/train_pairs.txt")
+CACHE_REPORT = Path("data/cache/report.json")
+SUITE_NAMES = ("full", "roi", "gradients")
+COST_CURVES = Path("metrics/cost_curves")  # <variant>.json: the cost_curves stage's, drawn by figures
+# The folders that only the stages write: a stage removes the temp files that a stage killed
+# mid-write (kill -9) left there before it runs. The data roots are not walked (a KITTI tree is
+# 175 GB); the renderer and the downloader remove their own temps there.
+STAGE_OUTPUT_ROOTS = (
+    INDEX_DIR,
+    PAIR_CACHE.parent,
+    Path("models"),
+    Path("checkpoints"),
+    Path("outputs"),
+    Path("metrics"),
+    Path("plots"),
+)
+
+# The command-line arguments of the per-run stages (see stage_parser).
+VariantArg = Annotated[str, "a loss variant listed in params.yaml's variants (e.g. ssim, msssim)"]
+SeedArg = Annotated[str, "a training seed listed in train.seeds"]
+
+
+def run_name(variant: str, seed: int) -> str:
+    """One training run: ``<variant>/seed<seed>``, also its path below models/, outputs/, metrics/<suite>/."""
+    return f"{variant}/seed{seed}"
+
+
+def checked_run(params: Params, variant: str, seed: str) -> str:
+    """The run of a stage's ``VARIANT SEED`` arguments, a ConfigError if either is not configured."""
+    return run_name(params.variant(variant), params.seed(seed))
+
+
+def variant_runs(params: Params) -> dict[str, list[str]]:
+    """``{variant: [its run of every seed in train.seeds]}``."""
+    return {v: [run_name(v, s) for s in params.train.seeds] for v in params.variants}
+
+
+SetArg = Annotated[str, "an evaluation set listed in eval.extra_sets (e.g. eigen)"]
+SETS_METRICS = Path("metrics/sets")  # metrics/sets/<set>/full/<run>.json; headline in metrics/headline/sets/
+
+
+def checked_set(params: Params, name: str) -> str:
+    """``name`` if it is in ``eval.extra_sets``, else a ConfigError naming them."""
+    if name not in params.eval.extra_sets:
+        raise ConfigError(f"evaluation set {name!r} is not in eval.extra_sets {list(params.eval.extra_sets)}")
+    return name
+
+
+def model_path(run: str) -> Path:
+    return Path("models") / run / "model.pt"
+
+
+def checkpoint_path(run: str) -> Path:
+    return Path("checkpoints") / run / "checkpoint.pt"
+
+
+def run_dir(run: str) -> Path:
+    return Path("outputs") / run
+
+
+def disparities_path(run: str) -> Path:
+    """A run's disparities of the evaluation frames (the infer stage's output)."""
+    return run_dir(run) / "disparities.npy"
+
+
+def depth_path(run: str) -> Path:
+    """A run's metric depth maps at GT resolution (the depth stage's output)."""
+    return run_dir(run) / "depth.npz"
+
+
+def stage_parser(fn: Callable[..., None]) -> argparse.ArgumentParser:
+    """The command line of stage function ``fn(params, ...)``, built from its signature.
+
+    Positional parameters after ``params`` become positional arguments (``VARIANT``); keyword-only
+    booleans become flags (``dry_run`` -> ``--dry-run``). Help texts come from
+    ``Annotated[str, "help"]`` annotations, the description from the docstring.
+    """
+    hints = typing.get_type_hints(fn, include_extras=True)
+    parser = argparse.ArgumentParser(
+        prog=f"stages/{Path(inspect.getfile(fn)).name}",
+        description=inspect.getdoc(fn),
+        epilog="Reads params.yaml in the working directory; run by `dvc repro` (see dvc.yaml).",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    for name, param in list(inspect.signature(fn).parameters.items())[1:]:
+        extras = typing.get_args(hints.get(name))
+        help_text = extras[1] if len(extras) > 1 else None
+        if param.kind is inspect.Parameter.KEYWORD_ONLY:
+            parser.add_argument(f"--{name.replace('_', '-')}", action="store_true", dest=name, help=help_text)
+        else:
+            parser.add_argument(name, metavar=name.upper(), help=help_text)
+    return parser
+
+
+def run_stage(fn: Callable[..., None], *args: str, params_path: str | os.PathLike = "params.yaml") -> int:
+    """Parse a stage's arguments, load params, run the stage, report errors as one line.
+
+    Before the stage runs, the temp files that a stage killed mid-write left under
+    :data:`STAGE_OUTPUT_ROOTS` are removed (only names of :func:`msdepth.io.atomic_path`'s form).
+
+    Returns the exit code: 0 (also for ``--help``, which runs nothing), 1 for the project's errors,
+    2 for a usage error.
+    """
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)s", stream=sys.stderr)
+    try:
+        parsed = vars(stage_parser(fn).parse_args(args))
+    except SystemExit as exc:  # --help (0) or a usage error (2), already printed by argparse
+        return int(exc.code or 0)
+    parameters = list(inspect.signature(fn).parameters.values())[1:]
+    positional = [parsed.pop(p.name) for p in parameters if p.kind is not inspect.Parameter.KEYWORD_ONLY]
+    if "LOCAL_RANK" not in os.environ:  # torchrun's ranks start after their launcher did this
+        from msdepth.io import remove_stale_temps
+
+        for root in STAGE_OUTPUT_ROOTS:
+            remove_stale_temps(root)
+    started = time.perf_counter()
+    try:
+        fn(load_params(params_path), *positional, **parsed)
+    except MsdepthError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
+    log.info(
+        "%s%s done in %.1f s",
+        fn.__name__,
+        f" {' '.join(args)}" if args else "",
+        time.perf_counter() - started,
+    )
+    return 0

@@ -1,0 +1,1 @@
+"""Comparison between variants (bootstrap intervals), the results page and the figures."""

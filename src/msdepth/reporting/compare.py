@@ -1,0 +1,952 @@
+"""Side-by-side comparison of every run (loss variants and baselines) over the three suites."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable, Sequence
+
+import numpy as np
+import pandas as pd
+
+from msdepth.config.params import CompareConfig, Params
+from msdepth.config.variants import configs as variant_configs
+from msdepth.errors import DataError
+from msdepth.evaluation.metrics import HIGHER_IS_BETTER, METRICS
+from msdepth.evaluation.suites import GRADIENTS, NO_ROIS
+from msdepth.reporting.stats import paired_table, seed_bootstrap
+
+SUITES = ("full", "roi", "gradients")
+ROIS_SKIPPED = "no ROIs: ROI suites skipped"  # compare.md's line when the ROI index is empty
+# A difference is marked only when its interval covers training noise: at least this many seeds
+# of every trained run it involves (with fewer, the seed draws cannot show seed-to-seed spread).
+MIN_SEEDS_FOR_MARKS = 3
+# A run whose predictions vary across images less than this fraction of the GT's variation is
+# called image-blind (a constant or the per-pixel prior score exactly 0; networks that follow
+# the scene ~1).
+IMAGE_BLIND_BELOW = 0.25
+
+
+def _load_runs(
+    metrics_dir: str | os.PathLike, suites: Sequence[str], runs: Sequence[str], suffix: str, read, what: str
+) -> dict:
+    """``{suite: {run: read(metrics_dir/<suite>/<run><suffix>)}}``, naming any missing file."""
+    out: dict[str, dict] = {}
+    for suite in suites:
+        out[suite] = {}
+        for run in runs:
+            path = Path(metrics_dir) / suite / f"{run}{suffix}"
+            if not path.exists():
+                raise DataError(f"{path}: missing {what} of run {run!r} (suite {suite})")
+            out[suite][run] = read(path)
+    return out
+
+
+def load_suite_metrics(
+    metrics_dir: str | os.PathLike, runs: Sequence[str], suites: Sequence[str] = SUITES
+) -> dict[str, dict[str, dict]]:
+    """``{suite: {run: metrics}}`` from ``metrics_dir/<suite>/<run>.json``."""
+    return _load_runs(metrics_dir, suites, runs, ".json", lambda p: json.loads(p.read_text()), "metrics")
+
+
+def load_training_summaries(metrics_dir: str | os.PathLike, runs: Sequence[str]) -> dict[str, dict]:
+    """``{run: its training summary}`` (``metrics_dir/train/<run>.json``) of the runs that have one
+    (the baselines were not trained)."""
+    paths = {r: Path(metrics_dir) / "train" / f"{r}.json" for r in runs}
+    return {r: json.loads(p.read_text()) for r, p in paths.items() if p.is_file()}
+
+
+# Per-unit tables of the suites that are compared statistically, and the column pairing units.
+UNIT_KEYS = {"full": ["frame"], "roi": ["roi"]}
+
+
+def load_unit_tables(
+    metrics_dir: str | os.PathLike, runs: Sequence[str], suites: Sequence[str] = tuple(UNIT_KEYS)
+) -> dict[str, dict[str, pd.DataFrame]]:
+    """``{suite: {run: per-image or per-ROI table}}`` from ``metrics_dir/<suite>/<run>.csv``."""
+    return _load_runs(
+        metrics_dir,
+        suites,
+        runs,
+        ".csv",
+        lambda p: pd.read_csv(p, dtype={"frame": str, "image": str}),
+        "per-unit metrics",
+    )
+
+
+def _unit_matrix(
+    tables: dict[str, pd.DataFrame],
+    runs: Sequence[str],
+    anchor: pd.DataFrame,
+    keys: list[str],
+    metric: str,
+    what: str,
+) -> np.ndarray:
+    """(runs, units): ``metric`` of every run, its units aligned on ``keys`` to ``anchor``'s order."""
+    return np.stack([paired_table(anchor, tables[r], keys, metric, f"{what} ({r})")[1] for r in runs])
+
+
+def paired_statistics(
+    tables: dict[str, dict[str, pd.DataFrame]],
+    groups: dict[str, Sequence[str]],
+    cfg: CompareConfig,
+    caps: Sequence[float],
+) -> dict:
+    """``{suite: {capN: {group: {metric: PairedDifference dict}}}}`` of every group against ``cfg.reference``.
+
+    ``groups`` maps a variant to its runs (one per seed) and a baseline to its one run; the
+    reference's runs and each group's runs enter :func:`msdepth.reporting.stats.seed_bootstrap` as rows.
+    ``tables`` holds the suites to compare (from :func:`load_unit_tables`).
+    """
+    stats: dict = {
+        "reference": cfg.reference,
+        "confidence": cfg.confidence,
+        "bootstrap_samples": cfg.bootstrap_samples,
+    }
+    for suite in tables:
+        keys = UNIT_KEYS[suite]
+        stats[suite] = {}
+        by_cap = {cap: {run: t[t["cap"] == cap] for run, t in tables[suite].items()} for cap in caps}
+        for cap, cap_tables in by_cap.items():
+            anchor = cap_tables[groups[cfg.reference][0]]
+            reference = {
+                metric: _unit_matrix(
+                    cap_tables,
+                    groups[cfg.reference],
+                    anchor,
+                    keys,
+                    metric,
+                    f"{suite} {cfg.reference}, cap {cap:g}",
+                )
+                for metric in METRICS
+            }
+            block: dict = {}
+            for name, runs in groups.items():
+                if name == cfg.reference:
+                    continue
+                what = f"{suite} {name} vs {cfg.reference}, cap {cap:g}"
+                block[name] = {
+                    metric: seed_bootstrap(
+                        _unit_matrix(cap_tables, runs, anchor, keys, metric, what),
+                        reference[metric],
+                        cfg.bootstrap_samples,
+                        cfg.confidence,
+                        cfg.seed,
+                    ).as_dict()
+                    for metric in METRICS
+                }
+            stats[suite][f"cap{cap:g}"] = block
+    return stats
+
+
+def mean_over_runs(trees: Sequence[dict]) -> dict:
+    """The runs' metric JSONs (same layout) averaged leaf by leaf; counts and labels must agree."""
+    first = trees[0]
+    if isinstance(first, dict):
+        keys = set(first)
+        if any(set(t) != keys for t in trees):
+            raise DataError(f"cannot average runs whose metrics have different entries: {sorted(keys)}")
+        return {k: mean_over_runs([t[k] for t in trees]) for k in first}
+    if first is None or isinstance(first, (str, bool)) or (isinstance(first, int) and len(set(trees)) == 1):
+        if len(set(map(repr, trees))) != 1:
+            raise DataError(
+                f"runs disagree on a value that cannot be averaged: {sorted(set(map(repr, trees)))}"
+            )
+        return first
+    return float(np.mean(trees))
+
+
+def group_metrics(
+    suites: dict[str, dict[str, dict]], groups: dict[str, Sequence[str]]
+) -> dict[str, dict[str, dict]]:
+    """``{suite: {group: metrics averaged over the group's runs}}``."""
+    return {
+        suite: {g: mean_over_runs([runs_metrics[r] for r in runs]) for g, runs in groups.items()}
+        for suite, runs_metrics in suites.items()
+    }
+
+
+def seed_spread(
+    suites: dict[str, dict[str, dict]], groups: dict[str, Sequence[str]], caps: Sequence[str]
+) -> dict:
+    """``{suite: {capN: {variant: {metric: {mean, sd, runs}}}}}``: each run's mean metric over its
+    seeds (full image and all ROIs, those of the two in ``suites``); ``sd`` is the sample standard
+    deviation (None for one seed)."""
+    out: dict = {}
+    picks = {"full": lambda m, cap: m[cap], "roi": lambda m, cap: m[cap]["overall"]}
+    for suite, pick in picks.items():
+        if suite not in suites:
+            continue
+        out[suite] = {}
+        for cap in caps:
+            out[suite][cap] = {}
+            for g, runs in groups.items():
+                values = {metric: [pick(suites[suite][r], cap)[metric] for r in runs] for metric in METRICS}
+                out[suite][cap][g] = {
+                    metric: {
+                        "mean": float(np.mean(v)),
+                        "sd": float(np.std(v, ddof=1)) if len(v) > 1 else None,
+                        "runs": dict(zip(runs, map(float, v), strict=True)),
+                    }
+                    for metric, v in values.items()
+                }
+    return out
+
+
+def marks_allowed(difference: dict, baseline: bool) -> bool:
+    """Whether ``difference`` (a PairedDifference dict) may be marked: its interval covers the
+    training noise of every trained run in it (a baseline is deterministic: only the reference's
+    seeds count)."""
+    seeds = [difference["reference_seeds"]] + ([] if baseline else [difference["seeds"]])
+    return min(seeds) >= MIN_SEEDS_FOR_MARKS
+
+
+def _ci_rows(block: dict, baselines: Sequence[str], label: Callable[[str], str] = str) -> list[list[str]]:
+    """One row per run: ``mean [low, high]`` per metric, ``*`` where the interval excludes 0 and
+    covers seed-to-seed variation (:func:`marks_allowed`)."""
+    rows = []
+    for run, metrics in block.items():
+        cells = []
+        for m in METRICS:
+            d = metrics[m]
+            mark = d["excludes_zero"] and marks_allowed(d, run in baselines)
+            cells.append(f"{d['mean']:+.4f} [{d['low']:+.4f}, {d['high']:+.4f}]{' *' if mark else ''}")
+        rows.append([label(run), *cells])
+    return rows
+
+
+def image_dependence(
+    suites: dict[str, dict[str, dict]],
+    tables: dict[str, dict[str, pd.DataFrame]],
+    groups: dict[str, Sequence[str]],
+    prior: str,
+    cap: float,
+) -> dict[str, dict]:
+    """Per run: its ``variation_ratio`` (from the full-image suite), the correlation of its
+    per-image abs_rel with the image-blind ``prior``'s, and ``image_blind`` (ratio below
+    :data:`IMAGE_BLIND_BELOW`). A network whose per-image errors track the prior's and whose
+    predictions barely change between images has learned the average scene, not depth."""
+    full = {r: t[t["cap"] == cap] for r, t in tables["full"].items()}
+    out: dict = {}
+    for runs in groups.values():
+        for run in runs:
+            ratio = suites["full"][run].get("image_dependence", {}).get("variation_ratio")
+            if ratio is not None and not np.isfinite(ratio):
+                ratio = None  # NaN: no pixel has GT in enough frames (e.g. fewer than 3 frames)
+            corr = None
+            if prior in full and run != prior:
+                errors, prior_errors = paired_table(
+                    full[run], full[prior], ["frame"], "abs_rel", f"full {run} vs {prior}"
+                )
+                if len(errors) > 2 and np.std(errors) > 0 and np.std(prior_errors) > 0:
+                    corr = float(np.corrcoef(errors, prior_errors)[0, 1])
+            out[run] = {
+                "variation_ratio": ratio,
+                "prior_correlation": corr,
+                "image_blind": ratio is not None and bool(ratio < IMAGE_BLIND_BELOW),
+            }
+    return out
+
+
+def _fmt(v: float | None) -> str:
+    return "–" if v is None else f"{v:.4f}"
+
+
+def _table(header: Sequence[str], rows: list[list[str]]) -> str:
+    lines = ["| " + " | ".join(header) + " |", "|" + "|".join("---" for _ in header) + "|"]
+    lines += ["| " + " | ".join(r) + " |" for r in rows]
+    return "\n".join(lines)
+
+
+def _best(values: dict[str, float], metric: str) -> str | None:
+    if not values:
+        return None
+    pick = max if metric in HIGHER_IS_BETTER else min
+    return pick(values, key=values.get)
+
+
+def _missing_lines(missing: dict[str, str] | None) -> list[str]:
+    """The header line naming the baselines that could not be built and why (none if all were)."""
+    if not missing:
+        return []
+    reasons = set(missing.values())
+    if len(reasons) == 1:
+        return [f"Missing baselines (not built): {', '.join(missing)}: {reasons.pop()}."]
+    return [f"Missing baselines (not built): {'; '.join(f'{b}: {r}' for b, r in missing.items())}."]
+
+
+def _metric_rows(
+    block: dict[str, dict], runs: Sequence[str], variants: Sequence[str], label: Callable[[str], str] = str
+) -> list[list[str]]:
+    """One table row per run, the best variant per metric in bold."""
+    best = {m: _best({v: block[v][m] for v in variants}, m) for m in METRICS}
+    rows = []
+    for r in runs:
+        cells = [f"**{_fmt(block[r][m])}**" if best[m] == r else _fmt(block[r][m]) for m in METRICS]
+        rows.append([label(r), *cells])
+    return rows
+
+
+def _ci_lines(
+    stats: dict, suite: str, cap: str, unit: str, baselines: Sequence[str], label: Callable[[str], str] = str
+) -> list[str]:
+    """Every run minus the reference with its interval (:func:`_ci_rows`), as Markdown lines."""
+    block = stats[suite][cap]
+    n = next(iter(next(iter(block.values())).values()))["n"] if block else 0
+    return [
+        f"Difference to {stats['reference']} ({n} paired {unit}):",
+        "",
+        _table(["run", *METRICS], _ci_rows(block, baselines, label)),
+        "",
+    ]
+
+
+def _spread_lines(
+    block: dict, variants: Sequence[str], seeds: int, label: Callable[[str], str] = str
+) -> list[str]:
+    """The mean ± sd over seeds of each variant's per-run mean, as Markdown lines."""
+    rows = [
+        [label(v), *[f"{d[m]['mean']:.4f} ± {d[m]['sd']:.4f}" for m in METRICS]]
+        for v, d in block.items()
+        if v in variants
+    ]
+    return [
+        f"Seed-to-seed spread (mean ± sd over {seeds} seeds of the per-run mean):",
+        "",
+        _table(["variant", *METRICS], rows),
+        "",
+    ]
+
+
+# The extra evaluation sets' names in compare.md (msdepth.data.eval_sets).
+SET_TITLES = {
+    "eigen": "Eigen split (raw LiDAR GT, Garg crop)",
+    "eigen_benchmark": "Eigen benchmark split (KITTI's annotated depth GT, Garg crop)",
+}
+
+
+def build_set_section(
+    name: str,
+    suites: dict[str, dict[str, dict]],
+    variants: Sequence[str],
+    baselines: Sequence[str],
+    stats: dict,
+    spread: dict,
+    seeds: Sequence[int],
+    missing_baselines: dict[str, str] | None = None,
+    label: Callable[[str], str] = str,
+) -> tuple[dict, str]:
+    """An extra set's full-image tables for ``compare.md`` (per cap: the metrics, the differences
+    to the reference with their intervals, the seed spread), and the same as a dict. ``label``
+    names a run's row (:meth:`Comparison.settings_label`).
+
+    ``suites`` is ``{"full": {group: metrics averaged over its runs}}`` of that set,
+    ``stats``/``spread`` from :func:`paired_statistics`/:func:`seed_spread` on its tables.
+    """
+    runs = [*variants, *baselines]
+    caps = [k for k in suites["full"][runs[0]] if k.startswith("cap")]
+    images = suites["full"][runs[0]]["images"]
+    md = [f"# {SET_TITLES.get(name, name)}", "", *_missing_lines(missing_baselines)]
+    result: dict = {"full": {}, "statistics": stats, "seed_spread": spread, "images": images}
+    scaling = suites["full"][runs[0]][caps[0]].get("median_scaling")
+    md += [
+        f"{images} images; GT in (min_depth, cap) inside Garg's crop, the 7 metrics per image, then "
+        + (
+            "averaged; every prediction median-scaled per image (eval.median_scaling)."
+            if scaling
+            else "averaged; metric depth, no median scaling."
+        ),
+        "",
+    ]
+    for cap in caps:
+        block = {r: suites["full"][r][cap] for r in runs}
+        result["full"][cap] = block
+        md += [
+            f"## {name}: full image, cap {cap[3:]} m",
+            "",
+            _table(["run", *METRICS], _metric_rows(block, runs, variants, label)),
+            "",
+        ]
+        md += _ci_lines(stats, "full", cap, "images", baselines, label)
+        if len(seeds) > 1:
+            md += _spread_lines(spread["full"][cap], variants, len(seeds), label)
+    return result, "\n".join(md) + "\n"
+
+
+# Short names of variant settings in compare.md ("msssim (k=7)"); other keys keep their own name.
+SETTING_NAMES = {"kernel_size": "k"}
+
+
+def variant_settings(params: Params) -> dict[str, dict]:
+    """Each compared variant's params section (``params.<variant>``) as a dict: what its runs were
+    trained with, for ``compare.json`` and ``headline/mean.json``."""
+    return {v: dataclasses.asdict(getattr(params, v)) for v in params.variants}
+
+
+def changed_settings(variant: str, settings: dict) -> dict:
+    """The entries of ``settings`` (variant ``variant``'s section) that differ from its config's
+    defaults (:mod:`msdepth.config.variants`)."""
+    defaults = dataclasses.asdict(variant_configs()[variant]())
+    return {k: v for k, v in settings.items() if k not in defaults or defaults[k] != v}
+
+
+def settings_text(settings: dict) -> str:
+    """``settings`` as compare.md writes them: ``k=7, levels=3, weights=wang``."""
+    return ", ".join(
+        f"{SETTING_NAMES.get(k, k)}={v:g}" if isinstance(v, float) else f"{SETTING_NAMES.get(k, k)}={v}"
+        for k, v in settings.items()
+    )
+
+
+# compare.json's keys in order; the optional ones (None in :class:`Comparison`) are left out.
+JSON_FIELDS = (
+    "variants",
+    "baselines",
+    "seeds",
+    "settings",
+    "full",
+    "roi",
+    "gradients",
+    "missing_baselines",
+    "statistics",
+    "image_dependence",
+    "seed_spread",
+    "rois_skipped",
+    "roi_masks",
+    "optimum",
+    "monocular",
+)
+
+
+@dataclass(frozen=True)
+class Comparison:
+    """What ``compare.md`` shows, as data: :meth:`as_json` is ``compare.json``.
+
+    A section is a field filled by :func:`comparison_data` (named in :data:`JSON_FIELDS` if
+    ``compare.json`` carries it) and a renderer in :data:`SECTIONS`, or in :data:`CAP_SECTIONS`
+    for a table per cap.
+    """
+
+    variants: list[str]
+    baselines: list[str]
+    seeds: list[int]
+    full: dict  # {capN: {run: metrics}}
+    roi: dict  # {capN: {run: ROI summary}}; empty without ROIs
+    gradients: dict  # {capN: {run: gradient summary}}; empty without ROIs
+    groups: dict[str, Sequence[str]]  # variant -> its runs (one per seed); not in compare.json
+    missing_baselines: dict[str, str] | None = None
+    statistics: dict | None = None
+    image_dependence: dict[str, dict] | None = None
+    seed_spread: dict | None = None
+    rois_skipped: str | None = None  # why (NO_ROIS's text) when the ROI suites were skipped
+    roi_masks: dict | None = None  # {capN: {run: exact-mask summary}} for the caps every run has
+    mask_counts: dict[str, int] | None = None  # the ROIs with exact masks and those excluded
+    optimum: dict | None = None  # :func:`optimum_data`: the losses' own optimum, no network
+    settings: dict[str, dict] | None = None  # :func:`variant_settings`: each variant's params section
+    monocular: dict[str, dict] | None = None  # :func:`monocular_data`: scale ratios and pose ATE
+    images: dict[str, int] | None = None  # per run, the images its full-image suite scored
+
+    @property
+    def runs(self) -> list[str]:
+        """The variants, then the baselines."""
+        return [*self.variants, *self.baselines]
+
+    @property
+    def caps(self) -> list[str]:
+        """The caps' keys (``capN``), in the metrics' order."""
+        return list(self.full)
+
+    def as_json(self) -> dict:
+        """``compare.json``'s content."""
+        return {k: getattr(self, k) for k in JSON_FIELDS if getattr(self, k) is not None}
+
+    def settings_label(self, group: str) -> str:
+        """``group``'s name with the settings in which its variant differs from the defaults
+        (:func:`changed_settings`), e.g. ``msssim (k=7)``."""
+        changed = changed_settings(group, self.settings[group]) if group in (self.settings or {}) else {}
+        return f"{group} ({settings_text(changed)})" if changed else group
+
+    def label(self, group: str) -> str:
+        """``group``'s name in the metric tables (:meth:`settings_label`), flagging its image-blind runs."""
+        name = self.settings_label(group)
+        dependence = self.image_dependence or {}
+        runs = self.groups.get(group, [group])
+        blind = sum(1 for r in runs if dependence.get(r, {}).get("image_blind"))
+        if not blind or group in self.baselines:
+            return name
+        return (
+            f"{name} (image-blind)"
+            if blind == len(runs)
+            else f"{name} ({blind} of {len(runs)} runs image-blind)"
+        )
+
+
+def _by_cap(suite: dict[str, dict], runs: Sequence[str], caps: Sequence[str]) -> dict:
+    """``{capN: {run: suite[run][capN]}}``."""
+    return {cap: {r: suite[r][cap] for r in runs} for cap in caps}
+
+
+def _roi_masks(
+    roi: dict[str, dict], runs: Sequence[str], caps: Sequence[str]
+) -> tuple[dict | None, dict | None]:
+    """The exact-mask summaries per cap that every run has, and the first run's ROI counts."""
+    masks = {
+        cap: {r: roi[r]["masks"][cap] for r in runs}
+        for cap in caps
+        if all(cap in roi[r].get("masks", {}) for r in runs)
+    }
+    if not masks:
+        return None, None
+    first = roi[runs[0]]["masks"]
+    return masks, {"rois": first["rois"], "excluded_rois": first["excluded_rois"]}
+
+
+def comparison_data(
+    suites: dict[str, dict[str, dict]],
+    variants: Sequence[str],
+    baselines: Sequence[str],
+    stats: dict | None = None,
+    spread: dict | None = None,
+    seeds: Sequence[int] = (0,),
+    dependence: dict[str, dict] | None = None,
+    groups: dict[str, Sequence[str]] | None = None,
+    missing_baselines: dict[str, str] | None = None,
+    optimum: dict | None = None,
+    settings: dict[str, dict] | None = None,
+    monocular: dict[str, dict] | None = None,
+) -> Comparison:
+    """What ``compare.md`` shows, as a :class:`Comparison` (best variant per column in bold).
+
+    ``suites`` holds each variant's metrics averaged over its ``seeds`` (:func:`group_metrics`).
+    With ``stats`` (from :func:`paired_statistics`), each full-image and ROI table is followed
+    by the differences to the reference variant with their bootstrap intervals; with ``spread``
+    (:func:`seed_spread`) and more than one seed, by each variant's mean ± sd over seeds. With
+    ``dependence`` (:func:`image_dependence`, per run) and ``groups`` (variant -> its runs), a
+    section says for every run whether it uses the image, and image-blind runs are flagged in
+    the tables. ``missing_baselines`` (baseline -> why it could not be built, e.g. no training
+    GT) are named under the header, so that a table without them is not mistaken for complete.
+    Without ROIs (every ROI summary is :data:`msdepth.evaluation.suites.NO_ROIS`'s) the ROI and gradient
+    tables are replaced by one line, :data:`ROIS_SKIPPED`. With ``settings``
+    (:func:`variant_settings`) the header states every variant's, and a row names its variant's
+    settings that differ from the defaults.
+    """
+    runs = [*variants, *baselines]
+    caps = [k for k in suites["full"][runs[0]] if k.startswith("cap")]
+    skipped = all(NO_ROIS in suites["roi"][r] for r in runs)
+    masks, counts = (None, None) if skipped else _roi_masks(suites["roi"], runs, caps)
+    return Comparison(
+        variants=list(variants),
+        baselines=list(baselines),
+        seeds=list(seeds),
+        full=_by_cap(suites["full"], runs, caps),
+        roi={} if skipped else _by_cap(suites["roi"], runs, caps),
+        gradients={} if skipped else _by_cap(suites["gradients"], runs, caps),
+        groups=groups or {r: [r] for r in runs},
+        missing_baselines=dict(missing_baselines) if missing_baselines else None,
+        statistics=stats,
+        image_dependence=dependence,
+        seed_spread=spread,
+        rois_skipped=suites["roi"][runs[0]][NO_ROIS] if skipped else None,
+        roi_masks=masks,
+        mask_counts=counts,
+        optimum=optimum,
+        settings=settings,
+        monocular=monocular,
+        images={r: suites["full"][r]["images"] for r in runs if "images" in suites["full"][r]},
+    )
+
+
+def _settings_lines(c: Comparison) -> list[str]:
+    """One line stating each variant's settings (none without them)."""
+    if not c.settings:
+        return []
+    stated = "; ".join(f"{v} {settings_text(c.settings[v])}" for v in c.variants if v in c.settings)
+    return [f"Settings: {stated} (a row names where its variant differs from the defaults)."]
+
+
+def _header_lines(c: Comparison) -> list[str]:
+    """The title, what was compared and how many training runs each variant's numbers average."""
+    if len(c.seeds) > 1:
+        trained = (
+            f"Each variant's numbers are the mean of {len(c.seeds)} training runs "
+            f"(seeds {', '.join(map(str, c.seeds))})."
+        )
+    else:
+        trained = f"One training run per variant (seed {c.seeds[0]})."
+    return [
+        "# Comparison of loss variants",
+        "",
+        f"Variants: {', '.join(c.variants)}. "
+        f"Baselines (image-blind, from training GT): {', '.join(c.baselines) or 'none'}.",
+        *_missing_lines(c.missing_baselines),
+        *_settings_lines(c),
+        trained,
+        "Errors: lower is better; a1–a3: higher is better. Best variant per column in **bold**.",
+        "",
+    ]
+
+
+def _statistics_lines(c: Comparison) -> list[str]:
+    """How the differences' intervals were computed and what they cover."""
+    if c.statistics is None:
+        return []
+    seeds, several = len(c.seeds), len(c.seeds) > 1
+    if seeds >= MIN_SEEDS_FOR_MARKS:
+        covers = (
+            "resampling images (ROIs) and, per variant, seeds: the intervals cover the choice of "
+            "images and training noise. `*`: the interval excludes 0."
+        )
+    else:
+        covers = (
+            f"resampling images (ROIs){' and seeds' if several else ''}. With {seeds} "
+            f"seed{'s' if several else ''} per variant the intervals cover the choice of images "
+            f"{'and barely any' if several else 'only, not'} training noise, so no difference is "
+            f"marked (that takes at least {MIN_SEEDS_FOR_MARKS} seeds, see docs/user-guide.md)."
+        )
+    s = c.statistics
+    return [
+        f"Differences are `run − {s['reference']}` (mean over images or ROIs) with a "
+        f"bootstrap {s['confidence']:.0%} interval ({s['bootstrap_samples']} resamples) {covers}",
+        "",
+    ]
+
+
+def _verdict(dependence: dict) -> str:
+    """Whether a trained run uses the image, from its :func:`image_dependence` entry."""
+    if dependence["variation_ratio"] is None:
+        return (
+            "not measured: too few evaluation frames with GT at the same pixels, "
+            "or metrics from before image_dependence (re-run eval_full)"
+        )
+    if dependence["image_blind"]:
+        return "image-blind: its predictions barely change between images"
+    return "follows the image"
+
+
+def _dependence_lines(c: Comparison) -> list[str]:
+    """Per run: how much its predictions vary between images, and the verdict."""
+    if c.image_dependence is None:
+        return []
+    rows = []
+    for g in c.runs:
+        for r in c.groups.get(g, [g]):
+            d = c.image_dependence[r]
+            verdict = "image-blind by construction" if g in c.baselines else _verdict(d)
+            rows.append([r, _fmt(d["variation_ratio"]), _fmt(d["prior_correlation"]), verdict])
+    return [
+        "## Does each run use the image?",
+        "",
+        "Variation: how much the predicted depth changes from image to image, as a fraction of how "
+        "much the GT does (per pixel, std/mean across frames; 0 for a constant or the prior). "
+        "Correlation: of the run's per-image abs_rel with the per-pixel prior's. A network with "
+        f"variation below {IMAGE_BLIND_BELOW} has learned the average scene, not depth from the image: "
+        "its numbers say nothing about its loss.",
+        "",
+        _table(["run", "variation", "corr. with prior", "verdict"], rows),
+        "",
+    ]
+
+
+def monocular_data(
+    full: dict[str, dict], training: dict[str, dict], groups: dict[str, Sequence[str]], cap: str
+) -> dict[str, dict] | None:
+    """Per variant whose runs were trained monocularly (their full-image summaries carry
+    ``median_scaling``): the per-image scale ratios' median and spread (std / median) at ``cap``
+    and, from the training summaries (``training``: run -> ``metrics/train/<run>.json``), the pose
+    ATE on the training sequences, each the mean over the group's runs. None when no run is."""
+    out = {}
+    for group, runs in groups.items():
+        scaling = [full[r][cap].get("median_scaling") for r in runs if r in full]
+        if not scaling or any(s is None for s in scaling):
+            continue
+        entry = {
+            "runs": len(runs),
+            "scale_ratio": float(np.mean([s["ratio_median"] for s in scaling])),
+            "scale_spread": float(np.mean([s["ratio_std_over_median"] for s in scaling])),
+        }
+        poses = [training.get(r, {}).get("pose") for r in runs]
+        if all(p is not None for p in poses):
+            entry["pose_ate"] = float(np.mean([p["ate_mean"] for p in poses]))
+            entry["pose_ate_std"] = float(np.mean([p["ate_std"] for p in poses]))
+        out[group] = entry
+    return out or None
+
+
+def _monocular_lines(c: Comparison) -> list[str]:
+    """The monocular runs' median-scaling ratios and pose ATE (none for stereo runs)."""
+    if not c.monocular:
+        return []
+    rows = [
+        [
+            c.settings_label(g),
+            _fmt(m["scale_ratio"]),
+            _fmt(m["scale_spread"]),
+            _fmt(m.get("pose_ate")),
+            _fmt(m.get("pose_ate_std")),
+        ]
+        for g, m in c.monocular.items()
+    ]
+    return [
+        "## Monocular training: scale and pose",
+        "",
+        "Trained with train.mode mono or mono_stereo (Monodepth2's M, MS): depth is known up to scale, "
+        "so every prediction is median-scaled per image (median GT / median prediction) before every "
+        "suite. Ratio: the median of the per-image ratios; spread: their std / median (0 for a "
+        "consistent scale). Pose ATE: Monodepth2's over 5-frame snippets of the training sequences "
+        "(scale-aligned, in metres), mean and std over snippets. Means over each variant's seeds.",
+        "",
+        _table(["run", "scale ratio", "ratio spread", "pose ATE", "ATE std"], rows),
+        "",
+    ]
+
+
+def _rois_skipped_lines(c: Comparison) -> list[str]:
+    """The one line that replaces the ROI and gradient tables without ROIs."""
+    if c.rois_skipped is None:
+        return []
+    return [f"{ROIS_SKIPPED}: the ROI index is empty (no boxes to evaluate).", ""]
+
+
+def _noise_lines(c: Comparison, suite: str, cap: str, unit: str) -> list[str]:
+    """The differences to the reference (with ``stats``) and the seed spread (with several seeds)."""
+    lines = (
+        []
+        if c.statistics is None
+        else _ci_lines(c.statistics, suite, cap, unit, c.baselines, c.settings_label)
+    )
+    if c.seed_spread is not None and len(c.seeds) > 1:
+        lines += _spread_lines(c.seed_spread[suite][cap], c.variants, len(c.seeds), c.settings_label)
+    return lines
+
+
+def _full_lines(c: Comparison, cap: str) -> list[str]:
+    """The full-image metrics at ``cap``."""
+    return [
+        f"## Full image, cap {cap[3:]} m",
+        "",
+        _table(["run", *METRICS], _metric_rows(c.full[cap], c.runs, c.variants, c.label)),
+        "",
+        *_noise_lines(c, "full", cap, "images"),
+    ]
+
+
+def _roi_lines(c: Comparison, cap: str) -> list[str]:
+    """The metrics over all ROIs at ``cap``."""
+    if cap not in c.roi:
+        return []
+    roi = {r: c.roi[cap][r]["overall"] for r in c.runs}
+    return [
+        f"## ROI, cap {cap[3:]} m (mean over {roi[c.runs[0]]['count']} ROIs)",
+        "",
+        _table(["run", *METRICS], _metric_rows(roi, c.runs, c.variants, c.label)),
+        "",
+        *_noise_lines(c, "roi", cap, "ROIs"),
+    ]
+
+
+def _roi_class_lines(c: Comparison, cap: str) -> list[str]:
+    """The ROIs' abs_rel per class at ``cap``."""
+    if cap not in c.roi:
+        return []
+    by_class = {r: c.roi[cap][r]["by_class"] for r in c.runs}
+    classes = sorted({k for r in c.runs for k in by_class[r]})
+    rows = [[c.label(r), *[_fmt(by_class[r].get(k, {}).get("abs_rel")) for k in classes]] for r in c.runs]
+    return [f"### ROI abs rel per class, cap {cap[3:]} m", "", _table(["run", *classes], rows), ""]
+
+
+def _roi_mask_lines(c: Comparison, cap: str) -> list[str]:
+    """The ROIs scored on their exact masks at ``cap``, where every run has them."""
+    if c.roi_masks is None or cap not in c.roi_masks:
+        return []
+    masks = c.roi_masks[cap]
+    classes = sorted({k for r in c.runs for k in masks[r]["by_class"]})
+    rows = [
+        [
+            c.label(r),
+            *[_fmt(masks[r]["overall"][m]) for m in ("abs_rel", "rmse", "a1")],
+            *[_fmt(masks[r]["by_class"].get(k, {}).get("abs_rel")) for k in classes],
+        ]
+        for r in c.runs
+    ]
+    return [
+        f"### ROI, exact masks, cap {cap[3:]} m",
+        "",
+        f"Each box's own pixels of its class (the renderer's class map: a car without the road "
+        f"behind it, a windshield without the bonnet); {c.mask_counts['rois']} ROIs, "
+        f"{c.mask_counts['excluded_rois']} without valid GT on their pixels excluded.",
+        "",
+        _table(["run", "abs_rel", "rmse", "a1", *[f"{k} abs_rel" for k in classes]], rows),
+        "",
+    ]
+
+
+def _gradient_lines(c: Comparison, cap: str) -> list[str]:
+    """The depth maps' mean |derivative| on the ROIs at ``cap``, predicted and its error."""
+    if cap not in c.gradients:
+        return []
+    grad = c.gradients[cap]
+    header = ["run", *[f"pred {g}" for g in GRADIENTS], *[f"|pred−GT| {g}" for g in GRADIENTS]]
+    rows = [
+        [
+            c.settings_label(r),
+            *[_fmt(grad[r]["overall"][f"pred_{g}"]) for g in GRADIENTS],
+            *[_fmt(grad[r]["dense_gt"]["overall"].get(f"error_{g}")) for g in GRADIENTS],
+        ]
+        for r in c.runs
+    ]
+    gt_row = grad[c.runs[0]]["dense_gt"]["overall"]
+    rows.append(["GT (dense ROIs)", *[_fmt(gt_row.get(f"gt_{g}")) for g in GRADIENTS], "", "", ""])
+    return [
+        f"## Gradient consistency on ROIs, cap {cap[3:]} m (mean |derivative| of depth, m/px)",
+        "",
+        _table(header, rows),
+        "",
+    ]
+
+
+# The tables repeated per cap, in order (the ROI ones are empty without ROIs).
+CAP_SECTIONS: tuple[Callable[[Comparison, str], list[str]], ...] = (
+    _full_lines,
+    _roi_lines,
+    _roi_class_lines,
+    _roi_mask_lines,
+    _gradient_lines,
+)
+
+
+def _cap_lines(c: Comparison) -> list[str]:
+    """:data:`CAP_SECTIONS` for every cap."""
+    return [line for cap in c.caps for section in CAP_SECTIONS for line in section(c, cap)]
+
+
+# compare.md's sections in order; each renders a Comparison as Markdown lines (none if absent).
+# ----------------------------------------------------------------------------- the losses' optimum
+
+OPTIMUM_TITLE = "The losses' own optimum (no network)"
+OPTIMUM_METRICS = ("abs_rel", "a1")
+
+
+def _optimum_row(full: dict, roi: dict | None, cap: str) -> dict:
+    """One run's numbers in the optimum section: full-image, ROI (overall and per class), masks."""
+    row = {"images": full.get("images"), **{m: full[cap][m] for m in OPTIMUM_METRICS}}
+    if roi is not None and cap in roi:
+        row["roi_abs_rel"] = roi[cap]["overall"]["abs_rel"]
+        row["by_class"] = {k: v["abs_rel"] for k, v in roi[cap]["by_class"].items()}
+        if cap in roi.get("masks", {}):
+            row["mask_abs_rel"] = roi["masks"][cap]["overall"]["abs_rel"]
+            row["mask_by_class"] = {k: v["abs_rel"] for k, v in roi["masks"][cap]["by_class"].items()}
+    return row
+
+
+def optimum_data(
+    suites: dict[str, dict[str, dict]], runs: dict[str, str], stats: dict | None, cap: str
+) -> dict:
+    """The section's data: per optimum label (``runs``: label -> run, e.g. ``"optimum ssim w10"``)
+    its numbers at ``cap`` (:func:`_optimum_row`), and the differences to the reference that
+    ``stats`` (:func:`paired_statistics` over groups that hold these labels) has for them."""
+    roi = suites.get("roi", {})
+    rows = {label: _optimum_row(suites["full"][run], roi.get(run), cap) for label, run in runs.items()}
+    differences: dict = {}
+    for suite in ("full", "roi"):
+        for label, block in ((stats or {}).get(suite, {}).get(cap) or {}).items():
+            if label in runs:
+                differences.setdefault(label, {})[suite] = {m: block[m] for m in OPTIMUM_METRICS}
+    return {
+        "cap": cap,
+        "reference": (stats or {}).get("reference"),
+        "runs": rows,
+        "differences": differences,
+    }
+
+
+def _diff_cell(d: dict | None) -> str:
+    if d is None:
+        return ""
+    star = " *" if d["excludes_zero"] else ""
+    return f"{d['mean']:+.3f} [{d['low']:+.3f}, {d['high']:+.3f}]{star}"
+
+
+def _optimum_side_rows(c: Comparison, cap: str) -> dict[str, dict]:
+    """The trained runs (mean over seeds) and the baselines, as optimum rows at ``cap``."""
+    out = {}
+    for r in c.runs:
+        roi = {cap: c.roi[cap][r]} if cap in c.roi else None
+        if roi is not None and c.roi_masks and cap in c.roi_masks:
+            roi["masks"] = {cap: c.roi_masks[cap][r]}
+        out[c.label(r)] = _optimum_row({cap: c.full[cap][r], "images": (c.images or {}).get(r)}, roi, cap)
+    return out
+
+
+def _optimum_lines(c: Comparison) -> list[str]:
+    """The optimum of every variant and weight beside the trained runs and the baselines, its
+    differences to the reference with intervals, and its ROI abs_rel per class."""
+    if c.optimum is None:
+        return []
+    o, cap = c.optimum, c.optimum["cap"]
+    rows = {**_optimum_side_rows(c, cap), **o["runs"]}
+    cols = ["abs_rel", "a1", "roi_abs_rel", "mask_abs_rel"]
+    main = [[name, str(r.get("images") or ""), *[_fmt(r.get(k)) for k in cols]] for name, r in rows.items()]
+    classes = sorted({k for r in rows.values() for k in r.get("by_class", {})})
+    per_class = [
+        [
+            name,
+            *[_fmt(r.get("by_class", {}).get(k)) for k in classes],
+            *[_fmt(r.get("mask_by_class", {}).get(k)) for k in classes],
+        ]
+        for name, r in rows.items()
+    ]
+    lines = [
+        f"# {OPTIMUM_TITLE}",
+        "",
+        "Per stereo pair, the disparity that minimises each variant's own training objective, optimised "
+        "directly with both views (docs/optimum.md), scored with the same suites. The weight is the "
+        f"optimum's own smoothness weight; images: the frames each row was scored on. Cap {cap[3:]} m.",
+        "",
+        _table(["run", "images", "abs_rel", "a1", "ROI abs_rel", "mask abs_rel"], main),
+        "",
+    ]
+    if o["differences"]:
+        diff = [
+            [label, *[_diff_cell(d.get(s, {}).get(m)) for s in ("full", "roi") for m in OPTIMUM_METRICS]]
+            for label, d in o["differences"].items()
+        ]
+        lines += [
+            f"Differences to {o['reference']} (mean over its seeds), paired bootstrap over images "
+            "(ROIs for the ROI columns); `*`: the interval excludes 0. The optimum has no training "
+            "seed, so its interval covers the choice of images (and the reference's seeds) only.",
+            "",
+            _table(["run", "Δ abs_rel", "Δ a1", "Δ ROI abs_rel", "Δ ROI a1"], diff),
+            "",
+        ]
+    if classes:
+        lines += [
+            f"## {OPTIMUM_TITLE}: ROI abs rel per class, cap {cap[3:]} m",
+            "",
+            _table(["run", *classes, *[f"{k} (mask)" for k in classes]], per_class),
+            "",
+        ]
+    return lines
+
+
+SECTIONS: tuple[Callable[[Comparison], list[str]], ...] = (
+    _header_lines,
+    _statistics_lines,
+    _dependence_lines,
+    _monocular_lines,
+    _rois_skipped_lines,
+    _cap_lines,
+    _optimum_lines,
+)
+
+
+def render_comparison(comparison: Comparison) -> str:
+    """``compare.md``'s text: :data:`SECTIONS` in order."""
+    return "\n".join(line for section in SECTIONS for line in section(comparison)) + "\n"
+
+
+def build_comparison(comparison: Comparison) -> tuple[dict, str]:
+    """``comparison`` (:func:`comparison_data`) as ``compare.json``'s dict and ``compare.md``'s text."""
+    return comparison.as_json(), render_comparison(comparison)

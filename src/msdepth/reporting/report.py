@@ -1,0 +1,642 @@
+"""The results page and the README's headline, written from the committed metrics.
+
+``docs/results.md`` and the block of ``README.md`` between :data:`BEGIN` and :data:`END` are
+rendered from ``metrics/compare.json`` (the compare stage's) and ``metrics/train/`` alone: every
+number in them, and every sentence whose truth depends on a number (which loss is ahead, whether
+the interval marks a verdict, which ROI classes an image-blind baseline still wins), is written
+here from the data, so the text cannot drift from the run it describes. The ``report`` stage writes
+both; ``python -m msdepth.reporting.report --check`` compares them (tests/test_report.py runs it).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+from typing import Any, Sequence
+
+from msdepth.errors import DataError, MsdepthError
+from msdepth.evaluation.metrics import HIGHER_IS_BETTER
+from msdepth.io import write_text
+from msdepth.reporting.compare import (
+    MIN_SEEDS_FOR_MARKS,
+    SET_TITLES,
+    changed_settings,
+    marks_allowed,
+    settings_text,
+)
+
+COMMAND = "python -m msdepth.reporting.report"
+COMPARE_JSON = Path("metrics/compare.json")
+TRAIN_METRICS = Path("metrics/train")
+RESULTS = Path("docs/results.md")
+README = Path("README.md")
+BEGIN = (
+    "<!-- results: written by the report stage from metrics/ (src/msdepth/reporting/report.py); "
+    "do not edit -->"
+)
+END = "<!-- end of results -->"
+
+# How the tables name a run; a variant or baseline not listed keeps its own name.
+NAMES = {"ssim": "SSIM", "msssim": "MS-SSIM", "mix": "MS-SSIM + L1 mix"}
+BASELINE_NAMES = {"constant": "constant (image-blind)", "prior": "per-pixel prior (image-blind)"}
+PROSE_NAMES = {"constant": "constant", "prior": "per-pixel prior"}  # in sentences, which say "image-blind"
+# Settings a variant's label always states (the question is about MS-SSIM's kernel), besides
+# those that differ from the defaults.
+ALWAYS_NAMED = {"msssim": ("kernel_size",)}
+# The ROI classes' column order (the glass-like ones first); other classes follow, sorted.
+CLASS_ORDER = ("windshield", "glass", "sign", "car")
+# The headline's full-image columns: (metric, header, decimals).
+FULL_COLUMNS = (("abs_rel", "abs_rel", 3), ("sq_rel", "sq_rel", 2), ("rmse", "rmse (m)", 2), ("a1", "a1", 3))
+MINUS = "\u2212"
+
+
+def _num(value: float, decimals: int, signed: bool = False) -> str:
+    """``value`` rounded, with a typographic minus (and a plus when ``signed``)."""
+    text = f"{value:+.{decimals}f}" if signed else f"{value:.{decimals}f}"
+    return text.replace("-", MINUS)
+
+
+def _interval(d: dict, decimals: int = 3) -> str:
+    return f"[{_num(d['low'], decimals, True)}, {_num(d['high'], decimals, True)}]"
+
+
+class Results:
+    """``metrics/compare.json`` read once, with the lookups the texts need; a missing key is a
+    DataError naming the file."""
+
+    def __init__(self, data: dict, train: dict[str, dict] | None = None, source: str = str(COMPARE_JSON)):
+        self.data, self.train, self.source = data, train or {}, source
+        self.variants: list[str] = list(self.get("variants"))
+        self.baselines: list[str] = list(self.get("baselines"))
+        self.seeds: list[int] = list(self.get("seeds"))
+        self.cap: str = next(iter(self.get("full")))
+        self.reference: str | None = (data.get("statistics") or {}).get("reference")
+
+    def get(self, *keys: str, default: Any = KeyError) -> Any:
+        """``data[k1][k2]...``; ``default`` where a key is missing, else a DataError."""
+        node: Any = self.data
+        for k in keys:
+            if not isinstance(node, dict) or k not in node:
+                if default is KeyError:
+                    raise DataError(f"{self.source}: no {'.'.join(keys)} (re-run the compare stage)")
+                return default
+            node = node[k]
+        return node
+
+    @property
+    def cap_m(self) -> str:
+        return f"{float(self.cap.removeprefix('cap')):g}"
+
+    def label(self, run: str) -> str:
+        """A run's row name: ``MS-SSIM (k=3)``, ``per-pixel prior (image-blind)``."""
+        if run in self.baselines:
+            return BASELINE_NAMES.get(run, run)
+        settings = self.get("settings", run, default={}) or {}
+        try:
+            shown = changed_settings(run, settings)
+        except KeyError:  # a variant this code does not know: name every setting
+            shown = dict(settings)
+        named = {k: settings[k] for k in ALWAYS_NAMED.get(run, ()) if k in settings}
+        shown = {**named, **{k: v for k, v in shown.items() if k not in named}}
+        name = f"{NAMES.get(run, run)} ({settings_text(shown)})" if shown else NAMES.get(run, run)
+        return name + self._blind_note(run)
+
+    def _blind_note(self, variant: str) -> str:
+        """`` (image-blind)`` or `` (1 of 3 runs image-blind)`` where compare.md flags its runs."""
+        deps = self.get("image_dependence", default={}) or {}
+        runs = [d for k, d in deps.items() if k.split("/")[0] == variant]
+        blind = sum(1 for d in runs if d.get("image_blind"))
+        if not blind:
+            return ""
+        return " (image-blind)" if blind == len(runs) else f" ({blind} of {len(runs)} runs image-blind)"
+
+    def difference(
+        self, suite: str, run: str, metric: str = "abs_rel", cap: str | None = None
+    ) -> dict | None:
+        """``run − reference`` on ``suite`` (a PairedDifference dict), None without statistics."""
+        return self.get("statistics", suite, cap or self.cap, run, metric, default=None)
+
+    def marked(self, d: dict, run: str) -> bool:
+        """Whether compare.md marks ``d`` (``*``): the interval excludes 0 and covers training noise."""
+        return bool(d["excludes_zero"]) and marks_allowed(d, run in self.baselines)
+
+    def frames(self) -> int | None:
+        d = next(iter(self.get("statistics", "full", self.cap, default={}).values()), None)
+        return None if d is None else int(d["abs_rel"]["n"])
+
+    def rois(self) -> dict[str, dict]:
+        """Per run its ROI block (``overall``, ``by_class``) at the headline cap; {} without ROIs."""
+        return self.get("roi", self.cap, default={})
+
+    def classes(self) -> list[str]:
+        rois = self.rois()
+        found = set().union(*(set(r.get("by_class", {})) for r in rois.values())) if rois else set()
+        return [c for c in CLASS_ORDER if c in found] + sorted(found - set(CLASS_ORDER))
+
+
+def load_results(root: Path = Path(".")) -> Results:
+    """The committed metrics under ``root``: ``metrics/compare.json`` and each run's
+    ``metrics/train/<variant>/seed<S>.json``; one DataError line naming a missing or broken file."""
+    path = root / COMPARE_JSON
+    data = _read_json(path, "run `dvc repro compare` first")
+    train = {}
+    for variant in data.get("variants", []):
+        for seed in data.get("seeds", []):
+            file = root / TRAIN_METRICS / variant / f"seed{seed}.json"
+            if file.is_file():
+                train[f"{variant}/seed{seed}"] = _read_json(file, "")
+    return Results(data, train, str(path))
+
+
+def _read_json(path: Path, hint: str) -> dict:
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise DataError(f"{path}: missing{'; ' + hint if hint else ''}") from None
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise DataError(f"{path}: not readable JSON ({exc})") from None
+    if not isinstance(data, dict):
+        raise DataError(f"{path}: expected a JSON object, got {type(data).__name__}")
+    return data
+
+
+# --- the headline table ---------------------------------------------------------------------
+
+
+def _spread_cell(r: Results, suite: str, run: str, value: float) -> str:
+    """``mean ± sd`` over the variant's seeds (the value alone for a baseline or one seed)."""
+    spread = r.get("seed_spread", suite, r.cap, run, "abs_rel", default=None)
+    if run in r.baselines or not isinstance(spread, dict) or spread.get("sd") is None:
+        return _num(value, 3)
+    return f"{_num(spread['mean'], 3)} ± {_num(spread['sd'], 3)}"
+
+
+def _best_variant(r: Results, metric: str) -> str | None:
+    """The variant with the best full-image ``metric`` (None with fewer than two variants)."""
+    if len(r.variants) < 2:
+        return None
+    values = {v: r.get("full", r.cap, v, metric) for v in r.variants}
+    pick = max if metric in HIGHER_IS_BETTER else min
+    return pick(values, key=values.get)
+
+
+def _roi_cells(r: Results, run: str, classes: Sequence[str]) -> list[str]:
+    """ROI abs_rel (mean ± sd for a variant), exact masks, then per class (box) abs_rel."""
+    block = r.rois()[run]
+    masks = r.get("roi_masks", r.cap, run, "overall", "abs_rel", default=None)
+    by_class = block.get("by_class", {})
+    return [
+        _spread_cell(r, "roi", run, block["overall"]["abs_rel"]),
+        "–" if masks is None else _num(masks, 3),
+        *("–" if c not in by_class else _num(by_class[c]["abs_rel"], 3) for c in classes),
+    ]
+
+
+def headline_table(r: Results) -> str:
+    """The README's table: each variant (mean ± sd over seeds) and baseline on the full image and,
+    with ROIs, over the ROIs, their exact masks and per class; best variant per full-image column
+    in bold."""
+    classes = r.classes() if r.rois() else []
+    header = ["run", *(h for _, h, _ in FULL_COLUMNS)]
+    if r.rois():
+        header += ["ROI abs_rel", "exact masks", *classes]
+    best = {m: _best_variant(r, m) for m, _, _ in FULL_COLUMNS}
+    lines = ["| " + " | ".join(header) + " |", "|" + "|".join("---" for _ in header) + "|"]
+    for run in [*r.variants, *r.baselines]:
+        full = r.get("full", r.cap, run)
+        cells = []
+        for metric, _, decimals in FULL_COLUMNS:
+            value = full[metric]
+            text = _spread_cell(r, "full", run, value) if metric == "abs_rel" else _num(value, decimals)
+            cells.append(f"**{text}**" if best[metric] == run else text)
+        if r.rois():
+            cells += _roi_cells(r, run, classes)
+        lines.append("| " + " | ".join([r.label(run), *cells]) + " |")
+    return "\n".join(lines)
+
+
+def headline_caption(r: Results) -> str:
+    """What the table shows: the cap, how many frames and ROIs, how variants are averaged."""
+    parts = [f"KITTI 2015 layout, cap {r.cap_m} m"]
+    if (frames := r.frames()) is not None:
+        parts.append(f"{frames} frames")
+    if r.rois():
+        parts.append(f"{next(iter(r.rois().values()))['overall']['count']} ROIs")
+    n = len(r.seeds)
+    runs = f"variants: mean ± sd over {n} seeds" if n > 1 else f"variants: one run each (seed {r.seeds[0]})"
+    return f"{', '.join(parts)}; {runs}"
+
+
+# --- sentences whose truth depends on the numbers ------------------------------------------------
+
+
+def _confidence(r: Results) -> str:
+    return f"{round(float(r.get('statistics', 'confidence', default=0.95)) * 100):g} %"
+
+
+def _over(r: Results, d: dict, run: str) -> str:
+    """What the interval resamples: images, and seeds where every trained run in it has several."""
+    seeds = [d["reference_seeds"]] + ([] if run in r.baselines else [d["seeds"]])
+    return "over images and seeds" if min(seeds) > 1 else "over images"
+
+
+def _than(r: Results, run: str, d: dict, metric: str = "abs_rel") -> str:
+    """``MS-SSIM (k=3) has an abs_rel 0.005 lower than SSIM's`` from ``d`` (run − reference)."""
+    subject, other = r.label(run), r.label(r.reference or "")
+    if round(abs(d["mean"]), 3) == 0:
+        return f"{subject} and {other} have the same {metric} to 3 decimals"
+    way = "lower" if d["mean"] < 0 else "higher"
+    return f"{subject} has an {metric} {_num(abs(d['mean']), 3)} {way} than {other}'s"
+
+
+def difference_clause(r: Results, suite: str, run: str) -> str:
+    """One run's difference to the reference with its interval, and whether compare.md marks it."""
+    d = r.difference(suite, run)
+    if d is None:
+        raise DataError(f"{r.source}: no statistics.{suite}.{r.cap}.{run}.abs_rel (re-run the compare stage)")
+    text = (
+        f"{_than(r, run, d)}, with a {_confidence(r)} interval of the difference of {_interval(d)} "
+        f"{_over(r, d, run)}"
+    )
+    if r.marked(d, run):
+        return text + ", which excludes 0 (marked `*` in `metrics/compare.md`)"
+    if d["excludes_zero"]:
+        return text + (
+            f", which excludes 0 but does not cover training noise: compare.md marks a difference "
+            f"only over at least {MIN_SEEDS_FOR_MARKS} seeds"
+        )
+    return text + ", which includes 0"
+
+
+def _compared(r: Results) -> list[str]:
+    """The variants with a paired difference to the reference."""
+    return [v for v in r.variants if v != r.reference and r.difference("full", v) is not None]
+
+
+def verdict(r: Results) -> str:
+    """The headline's verdict: per variant, its full-image abs_rel against the reference's, then
+    the ROI classes where an image-blind baseline still beats every variant."""
+    others = _compared(r)
+    if not others:
+        return "**No comparison**: one variant, or no paired statistics in `metrics/compare.json`."
+    marked = any(r.marked(r.difference("full", v), v) for v in others)
+    lead = "**Verdict**" if marked else "**No verdict yet**"
+    text = f"{lead}: " + "; ".join(difference_clause(r, "full", v) for v in others) + "."
+    if r.rois():
+        text += " " + baseline_classes_sentence(r)
+    return text
+
+
+def class_standing(r: Results) -> dict[str, tuple[str, float, float, float]]:
+    """Per ROI class: the best image-blind baseline, its abs_rel, and the variants' lowest and
+    highest abs_rel (box, headline cap)."""
+    rois, out = r.rois(), {}
+    for c in r.classes():
+        blind = {
+            b: rois[b]["by_class"][c]["abs_rel"] for b in r.baselines if c in rois[b].get("by_class", {})
+        }
+        trained = [rois[v]["by_class"][c]["abs_rel"] for v in r.variants if c in rois[v].get("by_class", {})]
+        if blind and trained:
+            best = min(blind, key=blind.get)
+            out[c] = (best, blind[best], min(trained), max(trained))
+    return out
+
+
+def _join(items: Sequence[str]) -> str:
+    return items[0] if len(items) == 1 else f"{', '.join(items[:-1])} and {items[-1]}"
+
+
+def baseline_classes_sentence(r: Results) -> str:
+    """Which ROI classes an image-blind baseline still wins against every variant."""
+    wins: dict[str, list[str]] = {}
+    for c, (baseline, value, low, _) in class_standing(r).items():
+        if value <= low:
+            wins.setdefault(baseline, []).append(c)
+    if not wins:
+        return "On every ROI class some variant beats the image-blind baselines."
+    parts = [f"the {PROSE_NAMES.get(b, b)} on {_join(cs)}" for b, cs in wins.items()]
+    return f"On the ROIs an image-blind baseline still beats every variant: {_join(parts)}."
+
+
+def wrap(text: str, width: int = 100) -> str:
+    """A paragraph wrapped at ``width`` (never inside a word), so diffs stay readable."""
+    import textwrap
+
+    return textwrap.fill(text, width, break_long_words=False, break_on_hyphens=False)
+
+
+def readme_block(r: Results) -> str:
+    """The README's generated block, markers included."""
+    return "\n".join(
+        [
+            BEGIN,
+            wrap(f"The committed run ({headline_caption(r)}; every table in `metrics/compare.md`):"),
+            "",
+            headline_table(r),
+            "",
+            wrap(
+                verdict(r) + " How to read the table, the Eigen split and the studies behind it: "
+                "[docs/results.md](docs/results.md)."
+            ),
+            END,
+        ]
+    )
+
+
+# --- the results page ----------------------------------------------------------------------------
+
+INTRO = """# Results
+
+The committed run, how to read it, and the studies behind it. This page and the README's headline
+are written by the `report` stage (`src/msdepth/reporting/report.py`) from `metrics/compare.json` and
+`metrics/train/`: edit the code, not the page. Every table is in `metrics/compare.md`."""
+
+OBJECTS = """Whether the networks resolve the objects, or place cars and windshields where the image-blind
+prior does, is asked per box by `studies/roi_errors.py` (its table: `studies/results/roi_errors.md`)
+and shown by the disparity maps (`plots/figures/disparity.png`, below). Screens of single runs ask
+what changes that: a 96 × 320 input (`studies/results/input_96x320/`), more epochs, a smaller batch
+and a smaller smoothness weight (`studies/results/screens/`), and the glass model
+([glass.md](glass.md), now the renderer's). Their numbers are in those folders, each made with the
+code and data of its day. Resolving objects needs the full setting
+([scaling up](user-guide.md#scaling-up-to-the-dissertations-setting)), which a 2-core CPU cannot
+train in the default run's time; `studies/objects_gpu.sh` is the prepared run for a machine with a
+GPU (larger render and input, wider network, more epochs; sizes are env vars)."""
+
+CURVES = (
+    "![training curves: each variant and seed, loss and abs_rel per epoch, the prior dashed]"
+    "(../studies/results/grid/curves.png)\n\n"
+    + """The figure above is `studies/results/grid/` (SSIM and MS-SSIM at several kernel sizes and seeds,
+`python studies/learning.py`; what it ran: `overrides.json`): per run, its per-epoch abs_rel and
+image dependence against the prior's line, and its final full and ROI metrics, in `summary.md`."""
+)
+
+STUDIES = """## The studies
+
+The scripts in `studies/` ask what the default run cannot; `studies/results/` holds the runs
+quoted on this page.
+
+- `learning.py`: variants × seeds with overrides: does each run learn, how far apart are seeds
+  (each run's per-epoch abs_rel and image dependence, its final full and ROI metrics beside the
+  prior's).
+- `roi_errors.py`: per ROI class, the runs' errors against the prior's.
+- `side_by_side.py`: several models' disparities side by side.
+- `prepare_set.py`: a study's own project folder at other sizes (params with overrides, render,
+  index, ROIs, cache).
+- `objects_gpu.sh`: the prepared GPU run for resolving objects (larger render and input, wider
+  network, more epochs)."""
+
+FIGURES = """## Figures and `dvc plots`
+
+`dvc plots show` writes `dvc_plots/index.html` with the figures of `plots/figures/`. They are
+declared as image plots, so the page loads nothing from a CDN and displays offline (DVC's
+data-series plots would pull Vega from the internet); `dvc plots diff` shows them per revision or
+experiment side by side. The per-epoch losses behind `training_curves.png` are in
+`plots/train/<variant>/seed<S>/` (dvclive TSV). The figures show the first seed's run of each
+variant.
+
+| ![disparities](../plots/figures/disparity.png) |
+|---|
+| ![ROI depth](../plots/figures/roi_depth.png) |"""
+
+
+def _training_text(r: Results) -> str:
+    """How many runs per variant and how long each trained (from ``metrics/train/``)."""
+    seeds = ", ".join(map(str, r.seeds))
+    s = "s" if len(r.seeds) > 1 else ""
+    text = f"{len(r.seeds)} training run{s} per variant (seed{s} {seeds})"
+    steps = sorted({int(t["steps"]) for t in r.train.values() if "steps" in t})
+    epochs = sorted({int(t["epochs"]) for t in r.train.values() if "epochs" in t})
+    if steps and epochs:
+        span = lambda v: f"{v[0]:,}" if len(v) == 1 else f"{v[0]:,}–{v[-1]:,}"  # noqa: E731
+        text += f", each {span(steps)} steps over {span(epochs)} epochs (`metrics/train/`)"
+    return text
+
+
+def default_run_section(r: Results) -> str:
+    """The setting in a paragraph, then the headline table."""
+    settings = r.get("settings", default={}) or {}
+    stated = "; ".join(
+        f"{r.label(v).split(' (')[0]} {settings_text(settings[v])}" for v in r.variants if v in settings
+    )
+    setting = (
+        "`params.yaml` as committed ([why the default network differs from the dissertation's]"
+        "(design.md#why-the-default-network-differs-from-the-dissertations))"
+        + (f"; the variants' settings: {stated}" if stated else "")
+        + f". {_training_text(r)}. How long it takes and how reproducible it is across CPUs: "
+        "[benchmarks/README.md](../benchmarks/README.md#the-default-run)."
+    )
+    return "\n\n".join(
+        ["## Default run", wrap(setting), wrap(f"The headline ({headline_caption(r)}):"), headline_table(r)]
+    )
+
+
+def _marks_text(r: Results) -> str:
+    """How a verdict is made, and whether the comparison has one."""
+    others = _compared(r)
+    text = (
+        "A difference is a verdict only where `metrics/compare.md` marks it (`*`): its interval, "
+        "resampling images (ROIs) and each variant's seeds, excludes 0, over at least "
+        f"{MIN_SEEDS_FOR_MARKS} seeds per variant, so that it covers the choice of images and training noise."
+    )
+    marked = [v for v in others for s in ("full", "roi") if (d := r.difference(s, v)) and r.marked(d, v)]
+    if not marked:
+        text += " None between the losses is marked here: **no verdict**."
+    return text
+
+
+def _dependence_text(r: Results) -> str:
+    """Whether each trained run follows the image (compare.md's first table)."""
+    from msdepth.reporting.compare import IMAGE_BLIND_BELOW
+
+    deps = r.get("image_dependence", default={}) or {}
+    trained = {run: d for run, d in deps.items() if run not in r.baselines}
+    ratios = [d["variation_ratio"] for d in trained.values() if d.get("variation_ratio") is not None]
+    blind = [run for run, d in trained.items() if d.get("image_blind")]
+    if not ratios:
+        return "How much each run's predictions follow the image was not measured (too few frames)."
+    low, high = f"{min(ratios):.2f}", f"{max(ratios):.2f}"
+    span = low if low == high else f"{low}–{high}"
+    if not blind:
+        return (
+            f"Every trained run follows the image (variation {span} of the GT's from image to image; "
+            "an image-blind baseline scores 0)."
+        )
+    return (
+        f"{_join(blind)} {'is' if len(blind) == 1 else 'are'} image-blind (variation below "
+        f"{IMAGE_BLIND_BELOW} of the GT's): {'its' if len(blind) == 1 else 'their'} numbers say nothing "
+        f"about {'its' if len(blind) == 1 else 'their'} loss. Over all trained runs the variation is {span}."
+    )
+
+
+def _baselines_text(r: Results) -> str:
+    """The reference against each image-blind baseline on the full image."""
+    rows = [(b, d) for b in r.baselines if (d := r.difference("full", b)) is not None]
+    if not rows or r.reference is None:
+        return ""
+    ref = r.label(r.reference)
+    cells = [f"the {PROSE_NAMES.get(b, b)} {_num(d['mean'], 3, True)} {_interval(d)}" for b, d in rows]
+    beaten = [PROSE_NAMES.get(b, b) for b, d in rows if d["mean"] > 0 and r.marked(d, b)]
+    text = f"On the full image, baseline − {ref} in abs_rel ({_confidence(r)} interval): {_join(cells)}"
+    return text + (f", so {ref} beats the {_join(beaten)}." if beaten else ".")
+
+
+def _classes_text(r: Results) -> str:
+    """Per ROI class, the variants against the best image-blind baseline."""
+    standing = class_standing(r)
+    if not standing:
+        return ""
+    cells, ahead, behind = [], [], []
+    for c, (b, value, low, high) in standing.items():
+        span = _num(low, 3) if _num(low, 3) == _num(high, 3) else f"{_num(low, 3)}–{_num(high, 3)}"
+        cells.append(f"{c} {span} against the {PROSE_NAMES.get(b, b)}'s {_num(value, 3)}")
+        (ahead if high < value else behind if low >= value else []).append(c)
+    text = (
+        "Per ROI class (box abs_rel; the variants against the best image-blind baseline): "
+        + "; ".join(cells)
+        + "."
+    )
+    if ahead:
+        text += f" Every variant is ahead on {_join(ahead)}."
+    if behind:
+        text += f" Every variant is behind on {_join(behind)}."
+    return text
+
+
+def reading_section(r: Results) -> str:
+    """ "How to read it": the differences between the losses, whether they are a verdict, whether
+    the runs use the image, and where the image-blind baselines still win."""
+    others = _compared(r)
+    clauses = [f"on the full image {difference_clause(r, 'full', v)}" for v in others]
+    clauses += [f"on the ROIs {difference_clause(r, 'roi', v)}" for v in others if r.difference("roi", v)]
+    first = "How to read it. " + (
+        "; ".join(clauses)[0].upper() + "; ".join(clauses)[1:] + ". " if clauses else ""
+    )
+    paragraphs = [first + _marks_text(r), f"{_dependence_text(r)} {_baselines_text(r)}".strip()]
+    if r.rois():
+        paragraphs.append(_classes_text(r))
+    return "\n\n".join([*(wrap(p) for p in paragraphs if p), OBJECTS, CURVES])
+
+
+def _set_results(r: Results, name: str, block: dict) -> Results:
+    """An extra set's block of compare.json as a :class:`Results` of its own."""
+    groups = next(iter(block.get("full", {}).values()), {})
+    data = {
+        **block,
+        "variants": [v for v in r.variants if v in groups],
+        "baselines": [b for b in r.baselines if b in groups],
+        "seeds": r.seeds,
+        "settings": r.data.get("settings", {}),
+    }
+    return Results(data, source=f"{r.source} (sets.{name})")
+
+
+def set_section(r: Results, name: str, block: dict) -> str:
+    """An extra evaluation set's paragraph: its abs_rel per run, the differences, rmse and a1."""
+    s = _set_results(r, name, block)
+    full = s.get("full", s.cap)
+    variants = [f"{s.label(v)} {_spread_cell(s, 'full', v, full[v]['abs_rel'])}" for v in s.variants]
+    text = (
+        f"{SET_TITLES.get(name, name)}, `metrics/sets/{name}/`: {s.get('images', default='–')} images, GT "
+        "within (min_depth, cap), Monodepth2's protocol without median scaling. "
+        f"At cap {s.cap_m} m, abs_rel {_join(variants)}"
+    )
+    text += "".join(f"; {difference_clause(s, 'full', v)}" for v in _compared(s))
+    if len(s.variants) > 1:
+        text += (
+            f"; rmse {_join([_num(full[v]['rmse'], 2) for v in s.variants])} m and a1 "
+            f"{_join([_num(full[v]['a1'], 3) for v in s.variants])} (in that order)"
+        )
+    text += "".join(f"; the {PROSE_NAMES.get(b, b)} {_num(full[b]['abs_rel'], 3)}" for b in s.baselines)
+    heading = "## The Eigen split" if name == "eigen" else f"## The {name} set"
+    return "\n\n".join([heading, wrap(text + "."), wrap(SET_NOTE)])
+
+
+SET_NOTE = (
+    "Its numbers and the KITTI 2015 layout's score different pixels: Garg's crop drops the upper "
+    "image (far facades and the vanishing road), and LiDAR GT has no returns beyond the scanner's "
+    "range and none on part of the glass "
+    "([the simulated LiDAR on glass](glass.md#the-simulated-lidar-on-glass))."
+)
+
+
+def results_page(r: Results) -> str:
+    """``docs/results.md``: the default run, how to read it, the studies, the extra sets, figures."""
+    sets = r.get("sets", default={}) or {}
+    parts = [INTRO, default_run_section(r), reading_section(r), STUDIES]
+    parts += [set_section(r, name, block) for name, block in sets.items()]
+    return "\n\n".join([*parts, FIGURES]) + "\n"
+
+
+# --- writing and checking ------------------------------------------------------------------------
+
+
+def replace_block(text: str, block: str, path: Path) -> str:
+    """``text`` with the part from :data:`BEGIN` to :data:`END` (inclusive) replaced by ``block``;
+    DataError naming ``path`` unless each marker is there once, in order."""
+    if text.count(BEGIN) != 1 or text.count(END) != 1 or text.index(BEGIN) > text.index(END):
+        raise DataError(
+            f"{path}: needs one generated block, a line {BEGIN!r} and later a line {END!r}, to write the "
+            "headline into"
+        )
+    return text[: text.index(BEGIN)] + block + text[text.index(END) + len(END) :]
+
+
+def rendered(root: Path = Path(".")) -> dict[Path, str]:
+    """What the report writes under ``root``: ``docs/results.md`` and, where ``README.md`` exists
+    (a project copy may have none), the README with its block rewritten."""
+    r = load_results(root)
+    out = {root / RESULTS: results_page(r)}
+    readme = root / README
+    if readme.is_file():
+        out[readme] = replace_block(readme.read_text(encoding="utf-8"), readme_block(r), readme)
+    return out
+
+
+def write_report(root: Path = Path(".")) -> list[Path]:
+    """Write :func:`rendered`'s files (atomically; an unchanged file is left alone); the paths
+    written."""
+    written = []
+    for path, text in rendered(root).items():
+        if not path.is_file() or path.read_text(encoding="utf-8") != text:
+            write_text(path, text)
+            written.append(path)
+    return written
+
+
+def stale(root: Path = Path(".")) -> list[Path]:
+    """The files whose text differs from what the committed metrics give."""
+    return [
+        p for p, text in rendered(root).items() if not p.is_file() or p.read_text(encoding="utf-8") != text
+    ]
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Write (or with ``--check`` only compare) docs/results.md and the README's headline block;
+    exit code 1 on a difference under ``--check`` or an error."""
+    ap = argparse.ArgumentParser(prog=COMMAND, description=__doc__)
+    ap.add_argument("--root", type=Path, default=Path("."), help="the project folder (holding metrics/)")
+    ap.add_argument("--check", action="store_true", help="write nothing; exit 1 if a file differs")
+    args = ap.parse_args(argv)
+    try:
+        if args.check:
+            if differ := stale(args.root):
+                names = ", ".join(str(p) for p in differ)
+                print(
+                    f"{names}: not what the metrics give: run `{COMMAND}` (or `dvc repro report`)",
+                    file=sys.stderr,
+                )
+                return 1
+            print("docs/results.md and the README's headline match the metrics")
+            return 0
+        written = write_report(args.root)
+    except (MsdepthError, OSError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
+    print(f"written: {', '.join(map(str, written))}" if written else "up to date")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

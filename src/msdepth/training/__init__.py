@@ -1,0 +1,1 @@
+"""Training a depth network (one process or several), checkpoints and resume."""
