@@ -18,7 +18,7 @@ from msdepth.data.layout import MONO_SPLIT
 from msdepth.errors import ConfigError, MsdepthError
 from msdepth.networks.model import MonodepthVGG, depth_network, save_model
 from msdepth.networks.resnet import ResNetEncoder
-from msdepth.networks.resnet_depth import ResNetDepth, ResNetMonodepth
+from msdepth.networks.resnet_depth import DepthDecoder, ResNetMonodepth
 from msdepth.networks.serialization import load_weights_file
 from msdepth.training.train import build_model, build_pose_net, load_model, train_variant
 
@@ -48,24 +48,18 @@ def _torchvision_file(tmp_path: Path, seed: int) -> tuple[Path, dict[str, torch.
 
 
 def test_two_channels_of_monodepth2s_network_times_0_3() -> None:
-    """Channel 0 of ResNetMonodepth is 0.3 x ResNetDepth (Monodepth2's DepthDecoder, tested against
-    its transcription in test_pose.py) when its weights are that network's."""
+    """Channel 0 of ResNetMonodepth is 0.3 x Monodepth2's one-channel network (its ResnetEncoder and
+    DepthDecoder, tested against its transcription in test_pose.py) with the same weights."""
     torch.manual_seed(0)
-    single, ours = ResNetDepth().eval(), ResNetMonodepth().eval()
-    theirs = single.state_dict()
-    state = {
-        k: (
-            torch.cat([theirs[k], torch.randn_like(theirs[k])])
-            if k.startswith("decoder.dispconvs")
-            else theirs[k]
-        )
-        for k in ours.state_dict()
-    }
-    ours.load_state_dict(state)
+    ours, decoder = ResNetMonodepth().eval(), DepthDecoder().eval()
+    decoder.load_state_dict(
+        {k: v[:1] if k.startswith("dispconvs") else v for k, v in ours.decoder.state_dict().items()}
+    )
+    single = nn.Sequential(ours.encoder, decoder)
     x = torch.rand(2, 3, H, W)
     with torch.no_grad():
         for scale, (a, b) in enumerate(zip(ours(x), single(x), strict=True)):
-            assert a.shape == (2, 2, H >> scale, W >> scale)
+            assert a.shape == (2, 2, H >> scale, W >> scale) and b.shape == (2, 1, H >> scale, W >> scale)
             torch.testing.assert_close(a[:, :1], 0.3 * b, rtol=0, atol=1e-6)
             assert float(a.min()) > 0 and float(a.max()) < 0.3
 
@@ -76,7 +70,7 @@ def test_width_multiplier_scales_encoder_and_decoder() -> None:
     # Monodepth2's depth network (ResNet-18 without fc + DepthDecoder): 14,329,236 parameters; a
     # second output channel adds one 3x3 filter and bias per scale: (16 + 32 + 64 + 128) * 9 + 4.
     assert full == 14_329_236 + (16 + 32 + 64 + 128) * 9 + 4
-    assert sum(p.numel() for p in ResNetDepth().parameters()) == 14_329_236
+    assert sum(p.numel() for m in (ResNetEncoder(), DepthDecoder()) for p in m.parameters()) == 14_329_236
     assert quarter < full / 10
     with pytest.raises(ValueError, match="multiples of 32"):
         ResNetMonodepth(0.25)(torch.rand(1, 3, 48, W))

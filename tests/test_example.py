@@ -14,11 +14,39 @@ import torch
 import yaml
 
 from msdepth.__main__ import main as msdepth_main
-from msdepth.cli.example import FRAME, MANIFEST, OUT, disparity_name, main, md5, stale_example
+from msdepth.cli.example import FRAME, MANIFEST, OUT, disparity_name, main, md5
 from msdepth.data.imagefile import png_size
 from msdepth.networks.model import MonodepthVGG
 
 ROOT = Path(__file__).resolve().parents[1]
+
+
+def locked_md5(lock: Path, path: str) -> str | None:
+    """The md5 that ``dvc.lock`` records for the output ``path`` (None if it lists no such output)."""
+    stages = (yaml.safe_load(lock.read_text(encoding="utf-8")) or {}).get("stages", {})
+    outs = [entry for stage in stages.values() for entry in stage.get("outs", [])]
+    return next((entry.get("md5") for entry in outs if entry.get("path") == path), None)
+
+
+def stale_example(root: Path) -> list[str]:
+    """Why the example under ``root`` is not the models' that ``root``'s dvc.lock records (empty if it
+    is): per image, a model hash other than dvc.lock's or a size other than the manifest's."""
+    out = root / OUT
+    try:
+        manifest = json.loads((out / MANIFEST).read_text(encoding="utf-8"))
+    except (OSError, json.JSONDecodeError) as exc:
+        return [f"{out / MANIFEST}: not readable ({exc})"]
+    problems = []
+    for image in manifest["images"].values():
+        path = out / image["file"]
+        locked = locked_md5(root / "dvc.lock", image["model"])
+        if locked != image["model_md5"]:
+            problems.append(
+                f"{path}: drawn by {image['model']} md5 {image['model_md5']}, dvc.lock has {locked}"
+            )
+        if not path.is_file() or png_size(path.read_bytes()) != (image["width"], image["height"]):
+            problems.append(f"{path}: not the {image['width']} x {image['height']} image the command wrote")
+    return problems
 
 
 def test_the_committed_example_is_drawn_by_the_committed_models():

@@ -14,11 +14,19 @@ from conftest import stage
 
 from msdepth.config.params import ConfigError, params_from_dict
 from msdepth.data import folder, kitti
+from msdepth.data.ground_truth import read_gt_depth
 from msdepth.data.layout import folder_layout
 from msdepth.data.pfm import read_pfm, write_pfm
 from msdepth.errors import DataError
 from msdepth.evaluation.suites import NO_ROIS, Frame, evaluate_gradients, evaluate_roi, load_frames
 from msdepth.io import write_png
+
+
+def _read_gt(path: Path, *, focal: float, baseline: float, npy_is_disparity: bool = False) -> np.ndarray:
+    """GT depth of a folder's GT file as the evaluation index reads it (folder.eval_rows)."""
+    kind = folder.gt_kind(path, npy_is_disparity=npy_is_disparity)
+    return read_gt_depth(kind, path, focal=focal, baseline=baseline)
+
 
 # --------------------------------------------------------------------------- PFM, hand-built
 
@@ -53,7 +61,7 @@ def test_pfm_colour_is_three_channels(tmp_path: Path):
     np.testing.assert_array_equal(got[0, 1], [4.0, 5.0, 6.0])
     # A colour PFM is no disparity map: the GT reader refuses it, naming the file.
     with pytest.raises(DataError, match=r"c\.pfm: a disparity map must have one channel"):
-        folder.read_ground_truth(path, focal=100.0, baseline=0.5)
+        _read_gt(path, focal=100.0, baseline=0.5)
 
 
 def test_pfm_truncated_or_not_a_pfm_is_an_error_naming_the_file(tmp_path: Path):
@@ -79,7 +87,7 @@ def test_write_pfm_round_trips(tmp_path: Path):
 def test_pfm_ground_truth_invalid_values_are_zero(tmp_path: Path):
     rows = [[10.0, float("inf"), float("nan")], [0.0, -1.0, 20.0]]
     (tmp_path / "g.pfm").write_bytes(_pfm_bytes(b"Pf", rows, little=True))
-    depth = folder.read_ground_truth(tmp_path / "g.pfm", focal=100.0, baseline=0.5)
+    depth = _read_gt(tmp_path / "g.pfm", focal=100.0, baseline=0.5)
     np.testing.assert_allclose(depth, [[5.0, 0, 0], [0, 0, 2.5]])
     assert depth.dtype == np.float32
 
@@ -88,23 +96,21 @@ def test_png_and_npy_ground_truth(tmp_path: Path):
     disp = np.array([[10.0, 0.0], [25.0, 50.0]], np.float32)
     kitti.write_disparity(tmp_path / "g.png", disp)
     np.testing.assert_allclose(
-        folder.read_ground_truth(tmp_path / "g.png", focal=100.0, baseline=0.5), [[5.0, 0], [2.0, 1.0]]
+        _read_gt(tmp_path / "g.png", focal=100.0, baseline=0.5), [[5.0, 0], [2.0, 1.0]]
     )
     np.save(tmp_path / "d.npy", np.array([[3.0, np.inf], [-2.0, 7.5]]))
-    np.testing.assert_allclose(
-        folder.read_ground_truth(tmp_path / "d.npy", focal=100.0, baseline=0.5), [[3.0, 0], [0, 7.5]]
-    )
+    np.testing.assert_allclose(_read_gt(tmp_path / "d.npy", focal=100.0, baseline=0.5), [[3.0, 0], [0, 7.5]])
     np.save(tmp_path / "p.npy", disp)
     np.testing.assert_allclose(
-        folder.read_ground_truth(tmp_path / "p.npy", focal=100.0, baseline=0.5, npy_is_disparity=True),
+        _read_gt(tmp_path / "p.npy", focal=100.0, baseline=0.5, npy_is_disparity=True),
         [[5.0, 0], [2.0, 1.0]],
     )
     np.save(tmp_path / "rgb.npy", np.zeros((2, 2, 3)))
     with pytest.raises(DataError, match=r"rgb\.npy: GT must be a 2-D"):
-        folder.read_ground_truth(tmp_path / "rgb.npy", focal=1.0, baseline=1.0)
+        _read_gt(tmp_path / "rgb.npy", focal=1.0, baseline=1.0)
     (tmp_path / "g.exr").write_bytes(b"x")
     with pytest.raises(DataError, match=r"g\.exr: unknown GT format '\.exr'"):
-        folder.read_ground_truth(tmp_path / "g.exr", focal=1.0, baseline=1.0)
+        _read_gt(tmp_path / "g.exr", focal=1.0, baseline=1.0)
 
 
 # --------------------------------------------------------------------------- camera

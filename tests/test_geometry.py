@@ -9,7 +9,6 @@ import torch
 from msdepth.geometry.camera import (
     backproject,
     disp_to_depth,
-    intrinsics_matrix,
     project,
     reproject,
     rotation_from_axis_angle,
@@ -102,7 +101,9 @@ def _random(*shape: int, seed: int = 0) -> torch.Tensor:
 
 def _k(batch: int, h: int, w: int) -> torch.Tensor:
     # KITTI-like intrinsics at this size (Monodepth2's normalised K: fx = 0.58 W, fy = 1.92 H).
-    return intrinsics_matrix(0.58 * w, 1.92 * h, 0.5 * w, 0.5 * h, batch, torch.float64)
+    k = torch.eye(4, dtype=torch.float64)  # homogeneous (4, 4), Monodepth2's convention
+    k[0, 0], k[1, 1], k[0, 2], k[1, 2] = 0.58 * w, 1.92 * h, 0.5 * w, 0.5 * h
+    return k.expand(batch, 4, 4).clone()
 
 
 # ----------------------------------------------------------------------------- against the transcription

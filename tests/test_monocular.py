@@ -6,9 +6,10 @@ import math
 
 import pytest
 import torch
+from torch import nn
 
 from msdepth.config.params import params_from_dict
-from msdepth.geometry.camera import intrinsics_matrix, stereo_pose, translation_matrix
+from msdepth.geometry.camera import stereo_pose, translation_matrix
 from msdepth.losses.appearance import build_appearance, terms
 from msdepth.losses.monocular import (
     IDENTITY_TIE_BREAK,
@@ -19,7 +20,8 @@ from msdepth.losses.monocular import (
     reprojection_error,
 )
 from msdepth.networks.pose import PoseNet
-from msdepth.networks.resnet_depth import ResNetDepth
+from msdepth.networks.resnet import ResNetEncoder
+from msdepth.networks.resnet_depth import DepthDecoder
 
 H, W = 32, 48
 
@@ -35,7 +37,9 @@ def _term(name: str):
 
 
 def _k(batch: int = 1, h: int = H, w: int = W) -> torch.Tensor:
-    return intrinsics_matrix(0.58 * w, 1.92 * h, 0.5 * w, 0.5 * h, batch, torch.float64)
+    k = torch.eye(4, dtype=torch.float64)  # homogeneous (4, 4), Monodepth2's convention
+    k[0, 0], k[1, 1], k[0, 2], k[1, 2] = 0.58 * w, 1.92 * h, 0.5 * w, 0.5 * h
+    return k.expand(batch, 4, 4).clone()
 
 
 def _sigmoid_for_depth(depth: float, like: torch.Tensor) -> torch.Tensor:
@@ -186,7 +190,8 @@ def test_a_few_steps_of_m_and_ms_training_lower_the_loss(stereo: bool) -> None:
     totals = []
     for _ in range(2):
         torch.manual_seed(0)
-        depth_net, pose_net = ResNetDepth(), PoseNet()
+        # Monodepth2's depth network: one sigmoid disparity per scale.
+        depth_net, pose_net = nn.Sequential(ResNetEncoder(), DepthDecoder()), PoseNet()
         criterion = MonocularLoss(_term("ssim").float())
 
         # Two planes (10 m and 20 m) at 64 x 64 (the ResNet's smallest input).

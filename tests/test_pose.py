@@ -10,9 +10,10 @@ from torch import nn
 
 from msdepth.errors import MsdepthError
 from msdepth.geometry.camera import transformation_from_parameters
+from msdepth.networks.common import MAX_DISPARITY
 from msdepth.networks.pose import PoseDecoder, PoseNet, relative_pose
 from msdepth.networks.resnet import CHANNELS, ResNetEncoder, load_pretrained
-from msdepth.networks.resnet_depth import ResNetDepth
+from msdepth.networks.resnet_depth import DepthDecoder, ResNetMonodepth
 
 # torchvision's resnet18 has 11,689,512 parameters, of which its classifier fc holds 512·1000 + 1000.
 RESNET18_WITHOUT_FC = 11_689_512 - 513_000
@@ -181,8 +182,9 @@ def md2_depth_decoder_forward(convs: dict, input_features: list) -> dict:
 
 
 def test_depth_decoder_matches_monodepth2() -> None:
+    """ResNetMonodepth's maps are 0.3 x Monodepth2's DepthDecoder (two output channels) on its encoder."""
     torch.manual_seed(13)
-    net = ResNetDepth()
+    net = ResNetMonodepth()
     image = _frames(14, h=64, w=96)
     features = net.encoder(image)
     convs = {("dispconv", s): net.decoder.dispconvs[s] for s in range(4)}
@@ -190,11 +192,11 @@ def test_depth_decoder_matches_monodepth2() -> None:
         convs[("upconv", i, 0)], convs[("upconv", i, 1)] = net.decoder.upconvs0[i], net.decoder.upconvs1[i]
     ref = md2_depth_decoder_forward(convs, features)
     ours = net(image)
-    assert [tuple(d.shape) for d in ours] == [(2, 1, 64 >> s, 96 >> s) for s in range(4)]
+    assert [tuple(d.shape) for d in ours] == [(2, 2, 64 >> s, 96 >> s) for s in range(4)]
     for s in range(4):
-        assert torch.equal(ours[s], ref[("disp", s)])
+        assert torch.equal(ours[s], MAX_DISPARITY * ref[("disp", s)])
     # Monodepth2's channel counts: 3,152,724 decoder parameters beside ResNet-18's encoder.
-    assert sum(p.numel() for p in net.decoder.parameters()) == DECODER_PARAMETERS
+    assert sum(p.numel() for p in DepthDecoder().parameters()) == DECODER_PARAMETERS == 3_152_724
     for h, w in ((48, 96), (32, 96)):
         with pytest.raises(ValueError, match="multiples of 32 and >= 64"):
             net(_frames(1, h=h, w=w))

@@ -65,8 +65,9 @@ def test_exact_depth_and_pose_reproject_onto_the_next_frame(root: Path) -> None:
     drive = synthetic.train_drive(CFG, 0)[0]
     poses = _poses(root, drive)
     (target, depth), (source, source_depth) = _frame(root, drive, 1), _frame(root, drive, 0)
-    f, h, w = synthetic.focal_for_width(CFG.width), CFG.height, CFG.width
-    k = geometry.intrinsics_matrix(f, f, (w - 1) / 2, (h - 1) / 2, dtype=torch.float64)
+    h, w = CFG.height, CFG.width
+    calib = (root / "raw" / drive).parent / "calib_cam_to_cam.txt"
+    k = torch.from_numpy(sequences.raw_intrinsics(calib, h, w))[None]  # what training reads, float64
     pose = torch.from_numpy(np.linalg.inv(poses[0]) @ poses[1])[None]  # target camera -> source
     finite = np.isfinite(depth) & (depth < 60)
     z = torch.from_numpy(np.where(finite, depth, 1.0).astype(np.float64))[None, None]

@@ -14,14 +14,11 @@ from __future__ import annotations
 
 import argparse
 import hashlib
-import json
 import os
 import shutil
 import sys
 import tempfile
 from pathlib import Path
-
-import yaml
 
 from msdepth.config.params import Params, load_params
 from msdepth.data.imagefile import png_size
@@ -105,40 +102,6 @@ def make_example(params: Params, root: Path = Path("."), out: Path | None = None
         }
     write_json(out / MANIFEST, manifest)
     return manifest
-
-
-def locked_md5(lock: Path, path: str) -> str | None:
-    """The md5 that ``dvc.lock`` records for the output ``path`` (None if it lists no such output)."""
-    try:
-        stages = (yaml.safe_load(lock.read_text(encoding="utf-8")) or {}).get("stages", {})
-    except (OSError, yaml.YAMLError) as exc:
-        raise DataError(f"{lock}: not readable ({exc})") from None
-    for stage in stages.values():
-        for entry in stage.get("outs", []):
-            if entry.get("path") == path:
-                return entry.get("md5")
-    return None
-
-
-def stale_example(root: Path = Path("."), out: Path | None = None) -> list[str]:
-    """Why the committed example is not the committed models' (empty if it is): per image, a model
-    hash other than dvc.lock's or a size other than the manifest's."""
-    out = root / OUT if out is None else out
-    try:
-        manifest = json.loads((out / MANIFEST).read_text(encoding="utf-8"))
-    except (OSError, json.JSONDecodeError) as exc:
-        return [f"{out / MANIFEST}: not readable ({exc})"]
-    problems = []
-    for image in manifest["images"].values():
-        path = out / image["file"]
-        locked = locked_md5(root / "dvc.lock", image["model"])
-        if locked != image["model_md5"]:
-            problems.append(
-                f"{path}: drawn by {image['model']} md5 {image['model_md5']}, dvc.lock has {locked}"
-            )
-        if not path.is_file() or png_size(path.read_bytes()) != (image["width"], image["height"]):
-            problems.append(f"{path}: not the {image['width']} x {image['height']} image the command wrote")
-    return problems
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -83,8 +83,9 @@ def stereo_pairs(left: Path, right: Path) -> list[tuple[Path, Path, Path]]:
     raise DataError(f"{left} and {right}: give two images or two folders, not one of each")
 
 
-def working_size(args: argparse.Namespace, params: Params) -> tuple[int, int] | None:
-    """``--height``/``--width``, else ``optimum.height``/``width``, else None (the image's own)."""
+def requested_size(args: argparse.Namespace, params: Params) -> tuple[int, int] | None:
+    """The working size asked for, checked: ``--height``/``--width``, else ``optimum.height``/``width``,
+    else None (each image's own; :func:`msdepth.optimum.solver.working_size` resolves it per pair)."""
     height, width = args.height or params.optimum.height, args.width or params.optimum.width
     if bool(height) != bool(width):
         raise ConfigError("optimum: give both a working height and width (--height/--width), or neither")
@@ -101,7 +102,7 @@ def run(args: argparse.Namespace) -> int:
     from msdepth.optimum.solver import objective, optimum_disparities
 
     params = read_params(args.params, args.set)
-    size = working_size(args, params)
+    size = requested_size(args, params)
     objective(params, args.variant)  # an unknown variant fails before any image is read
     given = {k: v for k, v in (("focal", args.focal), ("baseline", args.baseline)) if v is not None}
     options = PredictOptions(disp_format="both", depth_format="npy", progress=False, **given)

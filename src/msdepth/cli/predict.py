@@ -33,6 +33,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
+from msdepth.config.network_sizes import sides_problem
 from msdepth.data import kitti
 from msdepth.data.imagefile import MAX_IMAGE_PIXELS
 from msdepth.data.pairs import resize, to_tensor
@@ -41,8 +42,8 @@ from msdepth.errors import DataError, MsdepthError
 from msdepth.evaluation.infer import network_disparity
 from msdepth.geometry.depth import disparity_to_depth, pixel_disparity
 from msdepth.io import atomic_path, remove_stale_temps, save_npy, write_png
+from msdepth.networks.device import resolve_device
 from msdepth.networks.model import DepthNetwork, load_model
-from msdepth.training.train import resolve_device
 
 IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp", ".ppm")
 VIDEO_EXTENSIONS = (".avi", ".mp4", ".mov", ".mkv", ".webm", ".m4v", ".mpg", ".mpeg", ".wmv")
@@ -440,9 +441,11 @@ def _network_batch(
 
 def _check_network_size(model_path: str | os.PathLike, meta: dict, height: int, width: int) -> None:
     """One MsdepthError naming the model when its network cannot run at ``height`` x ``width``."""
-    if meta.get("architecture") == "resnet18" and any(side % 32 or side < 64 for side in (height, width)):
+    architecture = meta.get("architecture", "vgg")  # files from before the option hold a VGG network
+    rule = sides_problem(architecture, (height, width))
+    if rule is not None:
         raise MsdepthError(
-            f"{model_path}: a resnet18 model runs at sides that are multiples of 32, at least 64, "
+            f"{model_path}: a {architecture} model runs at sides that are {rule}, "
             f"got {height} x {width} (--height, --width)"
         )
 

@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Any, Literal, Sequence, get_args, get_origin
 
 from msdepth.config.checks import check, shown
+from msdepth.config.network_sizes import TRAINING_SIDES, sides_problem
 from msdepth.config.params_yaml import parse
 from msdepth.config.variants import (
     configs as variant_configs,  # light: the loss variants' configs, not their terms
@@ -208,13 +209,13 @@ class DataConfig:
 
     def validate(self, key: str, params: Params) -> None:
         """Range checks of the ``key`` section and its subsections; a ConfigError names the key."""
-        # Multiples of 8 keep the 4 output scales (1, 1/2, 1/4, 1/8) exact halvings.
+        rule = TRAINING_SIDES
         for name in ("height", "width"):
             size = getattr(self, name)
             check(
-                size >= 32 and size % 8 == 0,
+                rule.fits(size),
                 f"{key}.{name}",
-                f"must be a multiple of 8 and >= 32, got {size}",
+                f"must be a multiple of {rule.multiple} and >= {rule.minimum}, got {size}",
             )
             check(size <= MAX_SIZE, f"{key}.{name}", f"must be <= {MAX_SIZE} (px), got {size}")
         self.synthetic.validate(f"{key}.synthetic", params)
@@ -247,13 +248,13 @@ class ModelConfig:
             f"{key}.init_disparity",
             "must be in (0, 0.3) (heads output 0.3*sigmoid)",
         )
-        if self.architecture == "resnet18":
-            for side in ("height", "width"):
-                value = getattr(params.data, side)
-                check(
-                    value % 32 == 0 and value >= 64,
-                    f"data.{side}",
-                    f"model.architecture resnet18 needs a multiple of 32, at least 64, got {value}",
+        for side in ("height", "width"):  # data.validate checked the training rule; a network may be stricter
+            value = getattr(params.data, side)
+            rule = sides_problem(self.architecture, [value])
+            if rule is not None:
+                raise ConfigError(
+                    f"data.{side}: model.architecture {self.architecture} needs a multiple of "
+                    f"{rule.multiple}, at least {rule.minimum}, got {value}"
                 )
         if self.pretrained:
             self._validate_pretrained(key, params)

@@ -114,14 +114,6 @@ def gt_kind(path: str | os.PathLike, *, npy_is_disparity: bool = False) -> str:
     )
 
 
-def read_ground_truth(
-    path: str | os.PathLike, *, focal: float, baseline: float, npy_is_disparity: bool = False
-) -> np.ndarray:
-    """GT depth (m, float32, 0 = invalid) of a GT file in any of the folder's formats (:func:`gt_kind`)."""
-    kind = gt_kind(path, npy_is_disparity=npy_is_disparity)
-    return read_gt_depth(kind, path, focal=focal, baseline=baseline)
-
-
 def read_eval_list(path: str | os.PathLike) -> list[tuple[str, str, str]]:
     """The evaluation list's ``left right [gt]`` lines as (left, right, gt or "")."""
     rows = []
@@ -193,7 +185,7 @@ def eval_rows(
     paths: FolderLayout, camera: Camera | None = None, *, npy_is_disparity: bool = False
 ) -> list[tuple]:
     """One row of :data:`msdepth.data.index.EVAL_COLUMNS` per evaluation frame (the DataFrame:
-    :func:`msdepth.data.index.build_folder_eval_index`): the images, the GT and its kind (by
+    ``folder_eval_index`` in ``stages/index.py``): the images, the GT and its kind (by
     suffix; ``none`` without GT), the camera at the image's width, no crop. Each GT is read once
     here, so a bad file fails the index stage, not the evaluation."""
     camera = camera or read_camera(paths.camera)

@@ -93,16 +93,6 @@ def stereo_pose(side: str, batch: int, baseline: float = 0.1, dtype: torch.dtype
     return translation_matrix(torch.tensor([[x, 0.0, 0.0]], dtype=dtype).expand(batch, 3))
 
 
-def intrinsics_matrix(
-    fx: float, fy: float, cx: float, cy: float, batch: int = 1, dtype: torch.dtype = torch.float32
-) -> Tensor:
-    """(batch, 4, 4) homogeneous intrinsics in pixels."""
-    k = torch.tensor(
-        [[fx, 0.0, cx, 0.0], [0.0, fy, cy, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]], dtype=dtype
-    )
-    return k.expand(batch, 4, 4).clone()
-
-
 def pixel_grid(height: int, width: int, like: Tensor) -> Tensor:
     """(3, H·W) homogeneous pixel coordinates ``(x, y, 1)``, row-major (x fastest)."""
     ys, xs = torch.meshgrid(

@@ -16,6 +16,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
+from msdepth.config.network_sizes import TRAINING_SIDES, sides_problem
 from msdepth.errors import MsdepthError
 from msdepth.networks.common import MAX_DISPARITY, scaled_channels
 from msdepth.networks.resnet_depth import ResNetMonodepth
@@ -165,11 +166,6 @@ def depth_network(
     return MonodepthVGG(width_multiplier, init_disparity=init_disparity, norm=norm, heads=heads)
 
 
-def count_parameters(model: nn.Module) -> int:
-    """Number of trainable parameters."""
-    return sum(p.numel() for p in model.parameters() if p.requires_grad)
-
-
 # ----------------------------------------------------------------------------- files
 
 
@@ -225,23 +221,28 @@ def _metadata_problem(state: dict) -> str | None:
         and 0 < multiplier <= MAX_WIDTH_MULTIPLIER
     ):
         return f"width_multiplier must be a number in (0, {MAX_WIDTH_MULTIPLIER:g}], got {multiplier!r}"
+    rule = TRAINING_SIDES  # a model file's size is its training size
     for key in ("height", "width"):
         value = state[key]
         if not (
             isinstance(value, int)
             and not isinstance(value, bool)
-            and 32 <= value <= MAX_INPUT_SIDE
-            and value % 8 == 0
+            and rule.fits(value)
+            and value <= MAX_INPUT_SIDE
         ):
-            return f"{key} must be a multiple of 8 from 32 to {MAX_INPUT_SIDE} px, got {value!r}"
+            return (
+                f"{key} must be a multiple of {rule.multiple} from {rule.minimum} to {MAX_INPUT_SIDE} px, "
+                f"got {value!r}"
+            )
     if norm not in NORMS or heads not in HEADS:
         return f"norm must be one of {NORMS} and heads one of {HEADS}, got {norm!r} and {heads!r}"
     architecture = state.get("architecture", "vgg")
     if architecture not in ARCHITECTURES:
         return f"architecture must be one of {ARCHITECTURES}, got {architecture!r}"
     sides = (state["height"], state["width"])
-    if architecture == "resnet18" and any(side % 32 or side < 64 for side in sides):
-        return f"a resnet18 network needs sides that are multiples of 32, at least 64, got {sides}"
+    rule = sides_problem(architecture, sides)
+    if rule is not None:
+        return f"a {architecture} network needs sides that are {rule}, got {sides}"
     weights = state["model"]
     if not isinstance(weights, dict) or not all(isinstance(v, Tensor) for v in weights.values()):
         return "its 'model' entry is not a state dict of tensors"

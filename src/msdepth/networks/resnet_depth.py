@@ -18,6 +18,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
+from msdepth.config.network_sizes import NETWORK_SIDES, sides_problem
 from msdepth.networks.common import MAX_DISPARITY, scaled_channels
 from msdepth.networks.resnet import CHANNELS, ResNetEncoder
 
@@ -71,27 +72,14 @@ class DepthDecoder(nn.Module):
         return disps[::-1]
 
 
-class ResNetDepth(nn.Module):
-    """Monodepth2's depth network: one image -> 4 sigmoid disparity maps, finest first. The input
-    sides must be multiples of 32 (the encoder's five halvings are undone exactly) and at least 64
-    (the reflection padding of the 1/32 features needs 2 px)."""
-
-    def __init__(self) -> None:
-        super().__init__()
-        self.encoder = ResNetEncoder()
-        self.decoder = DepthDecoder()
-
-    def forward(self, image: Tensor) -> list[Tensor]:
-        """(B, 3, H, W) in [0, 1] -> disparities at 1/1 .. 1/8."""
-        check_input(image, type(self).__name__)
-        return self.decoder(self.encoder(image))
-
-
 def check_input(image: Tensor, name: str) -> None:
-    """A ValueError unless ``image`` is (B, 3, H, W) with H and W multiples of 32 and >= 64."""
-    if image.dim() != 4 or any(side % 32 or side < 64 for side in image.shape[-2:]):
+    """A ValueError unless ``image`` is (B, 3, H, W) with sides the resnet18 network runs at
+    (:data:`msdepth.config.network_sizes.NETWORK_SIDES`: multiples of 32, at least 64)."""
+    rule = NETWORK_SIDES["resnet18"]
+    if image.dim() != 4 or sides_problem("resnet18", image.shape[-2:]) is not None:
         raise ValueError(
-            f"{name}: input must be (B, 3, H, W), H and W multiples of 32 and >= 64, got {tuple(image.shape)}"
+            f"{name}: input must be (B, 3, H, W), H and W multiples of {rule.multiple} and "
+            f">= {rule.minimum}, got {tuple(image.shape)}"
         )
 
 

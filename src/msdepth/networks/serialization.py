@@ -12,8 +12,8 @@ checked to be what ``torch.save`` writes: a zip from its first byte (torch takes
 to its legacy loader), every record stored uncompressed (so nothing is larger than the file),
 and a pickle that names only the handful of functions a state dict needs (:data:`PICKLE_GLOBALS`).
 
-Part of ``train.TRAINING_MODULES``: :func:`save_weights_file` decides the bytes of the models
-the train stage outputs (and DVC hashes).
+Part of :data:`msdepth.training.train.TRAINING_MODULES`: :func:`save_weights_file` decides the bytes
+of the models the train stage outputs (and DVC hashes).
 """
 
 from __future__ import annotations

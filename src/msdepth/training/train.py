@@ -32,6 +32,7 @@ from msdepth.losses.monocular import MonocularLoss, build_monocular_loss, monocu
 from msdepth.losses.monodepth import MonodepthLoss
 from msdepth.losses.objective import build_loss
 from msdepth.networks.common import MAX_DISPARITY
+from msdepth.networks.device import resolve_device
 from msdepth.networks.model import (  # noqa: F401 - load_model: imported from here too
     DepthNetwork,
     depth_network,
@@ -76,15 +77,6 @@ def seed_everything(seed: int) -> None:
     random.seed(seed)
     np.random.seed(seed)
     torch.manual_seed(seed)
-
-
-def resolve_device(name: str) -> torch.device:
-    """``auto`` picks CUDA when present; asking for CUDA without one is an error."""
-    if name == "auto":
-        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    if name == "cuda" and not torch.cuda.is_available():
-        raise MsdepthError("device cuda requested but torch sees no CUDA device (use cpu or auto)")
-    return torch.device(name)
 
 
 def build_model(params: Params) -> DepthNetwork:
