@@ -193,7 +193,7 @@ def eval_rows(
     paths: FolderLayout, camera: Camera | None = None, *, npy_is_disparity: bool = False
 ) -> list[tuple]:
     """One row of :data:`msdepth.data.index.EVAL_COLUMNS` per evaluation frame (the DataFrame:
-    :func:`msdepth.data.index.build_folder_eval_index`): the images, the GT and its kind (by
+    :func:`msdepth.data.indexing.folder_eval_index`): the images, the GT and its kind (by
     suffix; ``none`` without GT), the camera at the image's width, no crop. Each GT is read once
     here, so a bad file fails the index stage, not the evaluation."""
     camera = camera or read_camera(paths.camera)
