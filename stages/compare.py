@@ -3,44 +3,10 @@
 from __future__ import annotations
 
 import sys
-from pathlib import Path
-from typing import Callable, Sequence
-
-import numpy as np
 
 from msdepth.config.params import Params
-from msdepth.evaluation.baselines import BASELINES, skipped_reason
-from msdepth.evaluation.results import headline
-from msdepth.evaluation.suites import no_rois
-from msdepth.io import write_json, write_text
-from msdepth.optimum.frames import OPTIMUM, optimum_runs
-from msdepth.pipeline.paths import SETS_METRICS, SUITE_NAMES, run_stage, variant_runs
-from msdepth.reporting.compare import (
-    build_comparison,
-    build_set_section,
-    comparison_data,
-    group_metrics,
-    image_dependence,
-    load_suite_metrics,
-    load_training_summaries,
-    load_unit_tables,
-    monocular_data,
-    optimum_data,
-    paired_statistics,
-    seed_spread,
-    variant_settings,
-)
-
-
-def run_groups(
-    params: Params, root: Path, suites: Sequence[str]
-) -> tuple[dict[str, str], tuple[str, ...], dict[str, list[str]], list[str]]:
-    """What is compared below ``root``: the baselines missing (with why), those built, the groups
-    (each variant's runs over the seeds, each built baseline alone) and all their runs."""
-    missing = {b: reason for b in BASELINES if (reason := skipped_reason(root, b, suites)) is not None}
-    built = tuple(b for b in BASELINES if b not in missing)
-    groups = {**variant_runs(params), **{b: [b] for b in built}}
-    return missing, built, groups, [r for group in groups.values() for r in group]
+from msdepth.pipeline.paths import run_stage
+from msdepth.reporting import pipeline_compare
 
 
 def compare(params: Params) -> None:
@@ -48,103 +14,7 @@ def compare(params: Params) -> None:
 
     A baseline the baselines stage could not build is listed as missing, with the reason.
     """
-    missing, built, groups, runs = run_groups(params, Path("metrics"), SUITE_NAMES)
-    suites = load_suite_metrics("metrics", runs)
-    tables = load_unit_tables("metrics", runs)
-    # Without ROIs (an empty ROI index) only the full-image suite has numbers to compare.
-    compared = ("full",) if all(no_rois(suites["roi"][r]) for r in runs) else ("full", "roi")
-    stats = paired_statistics({s: tables[s] for s in compared}, groups, params.compare, params.eval.caps)
-    caps = [f"cap{c:g}" for c in params.eval.caps]
-    dependence = image_dependence(suites, tables, groups, "prior", params.eval.caps[0])
-    comparison = comparison_data(
-        group_metrics(suites, groups),
-        list(params.variants),
-        built,
-        stats,
-        seed_spread({s: suites[s] for s in compared}, groups, caps),
-        params.train.seeds,
-        dependence,
-        groups,
-        missing_baselines=missing,
-        optimum=optimum_section(params, groups, compared),
-        settings=variant_settings(params),
-        monocular=monocular_data(suites["full"], load_training_summaries("metrics", runs), groups, caps[0]),
-    )
-    result, md = build_comparison(comparison)
-    means = mean_headline(suites, groups)
-    for variant, settings in variant_settings(params).items():
-        means[variant]["settings"] = settings  # what the numbers were trained with
-    for name in params.eval.extra_sets:
-        result.setdefault("sets", {})[name], section = compare_set(params, name, comparison.settings_label)
-        md += "\n" + section
-        for group, block in result["sets"][name]["full"][caps[0]].items():
-            if group in means:
-                means[group][f"{name}_abs_rel"] = block["abs_rel"]
-    write_json(Path("metrics") / "compare.json", result)
-    write_text(Path("metrics") / "compare.md", md)
-    write_json(Path("metrics") / "headline" / "mean.json", means)
-
-
-def optimum_section(params: Params, groups: dict[str, list[str]], compared: Sequence[str]) -> dict | None:
-    """The optimum runs' numbers and, at the default weight (every frame), their paired differences
-    to the reference variant over images and ROIs (the sweep's other weights see a subset).
-
-    None, and no section, where no optimum stage has written anything (the stages run alone, as the
-    tests do); once any has, every variant and weight must be there (a DataError names the first
-    missing)."""
-    if not (Path("metrics") / "full" / OPTIMUM).is_dir():
-        return None
-    runs = optimum_runs(params, Path("metrics"))
-    suites = load_suite_metrics("metrics", list(runs.values()), compared)
-    default = {
-        k: [r] for k, r in runs.items() if k.rsplit(" w", 1)[1] == f"{params.optimum.smoothness_weight:g}"
-    }
-    reference = {params.compare.reference: groups[params.compare.reference]}
-    tables = load_unit_tables(
-        "metrics", [*reference[params.compare.reference], *(r[0] for r in default.values())], compared
-    )
-    stats = paired_statistics(tables, {**reference, **default}, params.compare, params.eval.caps[:1])
-    return optimum_data(suites, runs, stats, f"cap{params.eval.caps[0]:g}")
-
-
-def mean_headline(suites: dict, groups: dict[str, list[str]]) -> dict:
-    """Per variant (and baseline) the headline numbers averaged over its runs, with the
-    seed-to-seed sd of abs_rel: the one file to read in ``dvc exp show`` across experiments
-    (the compare stage adds each extra set's mean abs_rel as ``<set>_abs_rel``). Without ROIs
-    there is no ``roi_abs_rel``."""
-    out = {}
-    for group, runs in groups.items():
-        full = [headline("full", suites["full"][r]) for r in runs]
-        roi = [headline("roi", suites["roi"][r]) for r in runs]
-        abs_rel = [h["abs_rel"] for h in full]
-        out[group] = {"abs_rel": float(np.mean(abs_rel))}
-        if all("roi_abs_rel" in h for h in roi):  # absent without ROIs
-            out[group]["roi_abs_rel"] = float(np.mean([h["roi_abs_rel"] for h in roi]))
-        if len(runs) > 1:
-            out[group]["abs_rel_sd"] = float(np.std(abs_rel, ddof=1))
-    return out
-
-
-def compare_set(params: Params, name: str, label: Callable[[str], str] = str) -> tuple[dict, str]:
-    """An extra evaluation set's full-image comparison (``metrics/sets/<set>/full/``): the same
-    groups, reference, bootstrap and seed spread as KITTI 2015's full-image tables; ``label``
-    names a run's row."""
-    root = SETS_METRICS / name
-    missing, built, groups, runs = run_groups(params, root, ["full"])
-    suites = load_suite_metrics(root, runs, ["full"])
-    tables = load_unit_tables(root, runs, ["full"])
-    caps = [f"cap{c:g}" for c in params.eval.caps]
-    return build_set_section(
-        name,
-        group_metrics(suites, groups),
-        list(params.variants),
-        built,
-        paired_statistics(tables, groups, params.compare, params.eval.caps),
-        seed_spread(suites, groups, caps),
-        params.train.seeds,
-        missing_baselines=missing,
-        label=label,
-    )
+    pipeline_compare.compare(params)
 
 
 if __name__ == "__main__":

@@ -8,25 +8,13 @@ from __future__ import annotations
 import sys
 
 from msdepth.config.params import Params
-from msdepth.data import kitti
-from msdepth.data.index import read_eval_index
-from msdepth.io import write_json
-from msdepth.optimum.frames import cost_summary, first_frames, roi_cost_curves
-from msdepth.pipeline.paths import COST_CURVES, EVAL_FRAMES, ROIS, VariantArg, run_stage
+from msdepth.optimum.frames import write_cost_curves
+from msdepth.pipeline.paths import EVAL_FRAMES, ROIS, VariantArg, cost_curves_path, run_stage
 
 
 def cost_curves(params: Params, variant: VariantArg) -> None:
     """Cost curves of every dense-GT ROI of the first optimum.cost_frames frames, per class."""
-    import torch
-
-    torch.set_num_threads(params.optimum.threads)
-    curves = roi_cost_curves(
-        params,
-        params.variant(variant),
-        first_frames(read_eval_index(EVAL_FRAMES), params.optimum.cost_frames),
-        kitti.read_rois(ROIS),
-    )
-    write_json(COST_CURVES / f"{variant}.json", cost_summary(curves))
+    write_cost_curves(params, variant, EVAL_FRAMES, ROIS, cost_curves_path(variant))
 
 
 if __name__ == "__main__":

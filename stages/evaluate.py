@@ -6,11 +6,7 @@ import sys
 from typing import Annotated
 
 from msdepth.config.params import Params
-from msdepth.data import kitti
-from msdepth.data.index import read_eval_index
-from msdepth.errors import ConfigError
-from msdepth.evaluation.results import SUITES, run_suite
-from msdepth.evaluation.suites import load_frames, read_depth_maps
+from msdepth.evaluation.results import checked_suite, score_run
 from msdepth.pipeline.paths import (
     EVAL_FRAMES,
     ROIS,
@@ -30,13 +26,9 @@ def evaluate(
     seed: SeedArg,
 ) -> None:
     """Run one evaluation suite on one run's depth maps."""
-    if suite not in SUITES:
-        raise ConfigError(f"unknown evaluation suite {suite!r}; known: {sorted(SUITES)}")
+    name = checked_suite(suite)
     run = checked_run(params, variant, seed)
-    frames = load_frames(read_eval_index(EVAL_FRAMES))
-    boxes = kitti.read_rois(ROIS) if suite != "full" else None
-    pred = read_depth_maps(depth_path(run))
-    run_suite(params, suite, run, pred, frames, boxes, scaled=params.train.monocular)
+    score_run(params, name, run, depth_path(run), EVAL_FRAMES, ROIS)
 
 
 if __name__ == "__main__":

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import sys
-from pathlib import Path
 
 from msdepth.config.params import Params
 from msdepth.data.index import read_eval_index
@@ -23,16 +22,13 @@ def infer(params: Params, variant: VariantArg, seed: SeedArg) -> None:
     """Left disparities of every evaluation frame, at the network's input size."""
     import torch
 
-    from msdepth.evaluation.infer import predict_disparities
+    from msdepth.evaluation.infer import index_disparities
     from msdepth.training.train import load_model
 
     run = checked_run(params, variant, seed)
     torch.set_num_threads(params.train.threads)
     model, meta = load_model(model_path(run))
-    frames = read_eval_index(EVAL_FRAMES)
-    disp = predict_disparities(
-        model, [Path(p) for p in frames["left"]], meta["height"], meta["width"], params.eval.post_process
-    )
+    disp = index_disparities(model, meta, read_eval_index(EVAL_FRAMES), params.eval.post_process)
     save_npy(disparities_path(run), disp)
 
 

@@ -2,17 +2,12 @@
 
 from __future__ import annotations
 
-import logging
 import sys
-from pathlib import Path
 from typing import Annotated
 
 from msdepth.config.params import Params
-from msdepth.data.layout import folder_layout, layout
-from msdepth.data.roots import check_kitti_root, check_synthetic_root
+from msdepth.data import prepare
 from msdepth.pipeline.paths import run_stage
-
-log = logging.getLogger("msdepth")
 
 
 def prepare_data(
@@ -34,109 +29,7 @@ def prepare_data(
     (data.source: folder) is only checked: one error listing what the layout misses; nothing is
     written.
     """
-    if params.data.source == "folder":
-        _check_folder(params, dry_run)
-    elif params.data.source == "synthetic":
-        _render_synthetic(params, dry_run)
-    else:
-        _fetch_kitti(params, dry_run)
-
-
-def _check_folder(params: Params, dry_run: bool) -> None:
-    """data.source folder: check the stereo folder's layout; nothing is written."""
-    from msdepth.data.folder import check_folder
-
-    report = check_folder(folder_layout(params))
-    if dry_run:
-        print(f"dry run: the stereo folder {params.data.root} is complete: {report}; nothing written")
-        return
-    log.info("stereo folder %s: %s", params.data.root, report)
-
-
-def _render_synthetic(params: Params, dry_run: bool) -> None:
-    """data.source synthetic: render the set under data.root."""
-    s, root = params.data.synthetic, Path(params.data.root)
-    check_synthetic_root(root)  # also in a dry run: it says at once that the render would refuse
-    if dry_run:
-        print(
-            f"dry run: would render the synthetic set under {root}: {s.drives} drive(s), "
-            f"{s.train_pairs} training pairs, {s.eval_frames} evaluation frames at {s.height}x{s.width}; "
-            "nothing written"
-        )
-        return
-    from msdepth.data import synthetic
-
-    log.info("synthetic set: %s", synthetic.generate(s, root))
-
-
-def _fetch_kitti(params: Params, dry_run: bool) -> None:
-    """data.source kitti: fetch what the splits need (resumable); ``dry_run``: sizes only. Never
-    into the synthetic set's tree (DataError)."""
-    from msdepth.data import download
-
-    check_kitti_root(Path(params.data.root))
-    k, paths = params.data.kitti, layout(params)
-    names = download.parse_archive_list(k.archive_list)
-    subset = list(k.drives) if k.drives is not None else (k.drive_count or None)
-    selection = download.select_needed(names, needed_splits(params), subset, archive_list=k.archive_list)
-    options = download.FetchOptions(jobs=k.jobs, dry_run=dry_run, jpeg=k.jpeg, allow_http=k.allow_http)
-    reports = {
-        "raw archives": download.fetch_all(
-            k.base_url,
-            selection.archives,
-            k.download_dir,
-            paths.raw_root,
-            options,
-            label="KITTI raw",
-            header=selection.describe(),
-        ),
-        "KITTI 2015": download.fetch_all(
-            k.base_url,
-            [k.scene_flow_archive],
-            k.download_dir,
-            paths.kitti2015_root,
-            options,
-            label="KITTI 2015",
-        ),
-    }
-    if "eigen_benchmark" in params.eval.extra_sets:  # its GT: KITTI's annotated depth (train/, val/)
-        reports["annotated depth"] = download.fetch_all(
-            k.base_url,
-            [k.depth_annotated_archive],
-            k.download_dir,
-            paths.depth_annotated,
-            options,
-            label="KITTI annotated depth",
-        )
-    if dry_run:
-        print(download.dry_run_total(list(reports.values())))
-        return
-    log.info(
-        "kitti: %s; %s",
-        selection.describe(),
-        "; ".join(f"{what} {_summary(r)}" for what, r in reports.items()),
-    )
-
-
-# The list file of each extra evaluation set (eval.extra_sets), as msdepth.data.eval_sets reads it.
-SET_SPLITS = {"eigen": "eigen_split", "eigen_benchmark": "eigen_benchmark_split"}
-
-
-def needed_splits(params: Params) -> dict[str, Path]:
-    """The split lists whose drives KITTI's download must fetch: the training split, the list of
-    each set of eval.extra_sets (KITTI 2015, always evaluated, is an archive of its own) and, for
-    train.mode mono | mono_stereo, the monocular split (data.kitti.mono_split)."""
-    paths = layout(params)
-    splits = {"the train split": paths.train_split}
-    for name in params.eval.extra_sets:
-        splits[name] = getattr(paths, SET_SPLITS[name])
-    if params.train.monocular and paths.mono_split is not None:
-        splits["the monocular split"] = paths.mono_split
-    return splits
-
-
-def _summary(report: dict) -> str:
-    return ", ".join(f"{k} {len(v) if isinstance(v, (list, dict)) else v}" for k, v in report.items())
+    prepare.prepare_data(params, dry_run)
 
 
 if __name__ == "__main__":

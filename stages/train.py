@@ -2,18 +2,11 @@
 
 from __future__ import annotations
 
-import json
 import logging
-import os
 import sys
-from pathlib import Path
 
 from msdepth.config.params import Params
-from msdepth.data.layout import layout
 from msdepth.data.pairs import load_pair_cache, load_pair_list
-from msdepth.data.sequences import training_sequences
-from msdepth.errors import MsdepthError
-from msdepth.io import write_json
 from msdepth.pipeline.paths import (
     CACHED_PAIRS,
     PAIR_CACHE,
@@ -23,6 +16,9 @@ from msdepth.pipeline.paths import (
     checkpoint_path,
     model_path,
     run_stage,
+    train_plots_dir,
+    train_summary_path,
+    train_timing_path,
 )
 
 log = logging.getLogger("msdepth")
@@ -30,93 +26,35 @@ log = logging.getLogger("msdepth")
 
 def train(params: Params, variant: VariantArg, seed: SeedArg) -> None:
     """Train one loss variant with one seed; write its model, training summary and dvclive curves."""
-    from msdepth.training.train import train_variant
+    from msdepth.evaluation.pose import add_pose_metrics
+    from msdepth.training import distributed
+    from msdepth.training.run import monocular_sequences, result_line
+    from msdepth.training.train import train_variant, trained_pose_net
 
     run = checked_run(params, variant, seed)
-    t = params.train
-    if t.launcher == "torchrun" and "LOCAL_RANK" not in os.environ:
-        # Re-run this stage under torchrun; its ranks come back here with LOCAL_RANK set.
-        import subprocess
-
-        cmd = [
-            sys.executable,
-            "-m",
-            "torch.distributed.run",
-            "--standalone",
-            f"--nproc_per_node={t.nproc}",
-            "stages/train.py",
-            variant,
-            seed,
-        ]
-        log.info("train %s: %s", run, " ".join(cmd))
-        if subprocess.run(cmd).returncode != 0:
-            raise MsdepthError(
-                f"train {run}: torchrun with {t.nproc} processes failed (see the ranks' errors above)"
-            )
+    if distributed.must_relaunch(params.train.launcher):  # its ranks come back here
+        distributed.relaunch("stages/train.py", [variant, seed], params.train.nproc, f"train {run}")
         return
     pairs = load_pair_list(CACHED_PAIRS)  # the pairs the cache holds, in its order
     images = load_pair_cache(PAIR_CACHE, len(pairs), params.data.height, params.data.width)
-    sequences = None
-    if t.mode != "stereo":  # Monodepth2's M / MS: the frames of the rendered sequences
-        paths = layout(params)
-        if paths.mono_split is None:  # the config accepts the modes only with rendered sequences
-            raise MsdepthError(f"train.mode {t.mode}: data.source {params.data.source} has no sequences")
-        stereo = t.mode == "mono_stereo"
-        sequences = training_sequences(paths.mono_split, paths.raw_root, t.source_frames, stereo)
+    sequences = monocular_sequences(params)
     result = train_variant(
         params,
         variant,
         pairs,
         model_path(run),
         checkpoint_path(run),
-        live_dir=Path("plots") / "train" / run,
+        live_dir=train_plots_dir(run),
         cache=images,
         seed=params.seed(seed),
-        summary_path=Path("metrics") / "train" / f"{run}.json",
-        timing_path=Path("logs") / "train" / f"{run}.json",
+        summary_path=train_summary_path(run),
+        timing_path=train_timing_path(run),
         sequences=sequences,
     )
-    if sequences is not None and int(os.environ.get("RANK", "0")) == 0:
-        add_pose_metrics(params, run, Path("metrics") / "train" / f"{run}.json")
-    resumed = f", resumed from epoch {result.resumed_from_epoch}" if result.resumed_from_epoch else ""
-    log.info(
-        "train %s: %d steps%s; %.0f s of training, %.0f s in this run (%.1f examples/s)",
-        run,
-        result.steps,
-        resumed,
-        result.seconds,
-        result.seconds_this_run,
-        result.examples_per_second,
-    )
-
-
-def add_pose_metrics(params: Params, run: str, summary_path: Path) -> None:
-    """A monocular run's pose ATE (msdepth.evaluation.pose), added to its training summary as ``pose``:
-    on the rendered sequences, or on the KITTI odometry sequences that are on disk (each one's also
-    under ``pose.sequences``; none is fetched, so with none there the summary has no ``pose``)."""
-    from msdepth.evaluation.pose import odometry_ates, sequence_ates
-    from msdepth.training.train import trained_pose_net
-
-    net = trained_pose_net(params, checkpoint_path(run))
-    paths, h, w = layout(params), params.data.height, params.data.width
-    if params.data.source == "kitti":
-        assert paths.odometry is not None  # the KITTI layout always names it
-        pose = odometry_ates(net, paths.odometry, params.data.kitti.odometry_sequences, h, w)
-        if not pose:
-            log.info("train %s: no KITTI odometry poses below %s: pose not evaluated", run, paths.odometry)
-            return
-    else:
-        pose = sequence_ates(net, paths.raw_root, params.data.synthetic.sequence_length, h, w)
-    write_json(summary_path, {**json.loads(summary_path.read_text()), "pose": pose})
-    for name, values in {"": pose, **pose.get("sequences", {})}.items():
-        log.info(
-            "train %s: pose ATE%s %.4f ± %.4f over %d snippets",
-            run,
-            f" of sequence {name}" if name else "",
-            values["ate_mean"],
-            values["ate_std"],
-            values["snippets"],
-        )
+    if sequences is not None and distributed.is_main_process():  # a monocular run: its pose net too
+        net = trained_pose_net(params, checkpoint_path(run))
+        add_pose_metrics(params, net, run, train_summary_path(run))
+    log.info("train %s: %s", run, result_line(result))
 
 
 if __name__ == "__main__":

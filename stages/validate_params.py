@@ -11,14 +11,7 @@ from __future__ import annotations
 import sys
 
 from msdepth.config.params import Params
-from msdepth.pipeline.paths import CHECKED, run_stage
-
-# The same bytes whatever the params: the stages after this one then re-run only for the params
-# keys (and code) they list themselves, never because this file changed.
-CHECKED_TEXT = (
-    "params.yaml passed msdepth.config.params.load_params (types, ranges, no unknown keys).\n"
-    "This file's content never changes: the stages that depend on it re-run for their own params.\n"
-)
+from msdepth.pipeline.paths import CHECKED, run_stage, write_checked
 
 
 def validate_params(params: Params) -> None:
@@ -27,9 +20,7 @@ def validate_params(params: Params) -> None:
     The checks are msdepth.config.params.load_params's, done on loading: an error is one line naming
     the key, and then nothing is written.
     """
-    if not CHECKED.is_file() or CHECKED.read_text() != CHECKED_TEXT:
-        CHECKED.parent.mkdir(parents=True, exist_ok=True)
-        CHECKED.write_text(CHECKED_TEXT)
+    write_checked(CHECKED)
 
 
 if __name__ == "__main__":

@@ -28,7 +28,6 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-from conftest import stage
 
 from msdepth import io as dl_io
 from msdepth.config.params import params_from_dict
@@ -439,7 +438,8 @@ def test_the_shipped_splits_need_46_of_the_61_drives() -> None:
 
 
 def test_the_monocular_modes_fetch_the_monocular_splits_drives(monkeypatch: pytest.MonkeyPatch) -> None:
-    needed_splits = stage("prepare_data").needed_splits
+    from msdepth.data.prepare import needed_splits
+
     monkeypatch.chdir(SHIPPED_LIST.parents[1])
     stereo = params_from_dict({"data": {"source": "kitti"}})
     assert "the monocular split" not in needed_splits(stereo)
@@ -1208,8 +1208,7 @@ def test_annotated_depth_archive_unpacks_where_the_benchmark_index_looks(
 
 def test_every_extra_set_has_its_list_for_the_download() -> None:
     from msdepth.data.eval_sets import SETS
-
-    SET_SPLITS = stage("prepare_data").SET_SPLITS
+    from msdepth.data.prepare import SET_SPLITS
 
     assert set(SET_SPLITS) == set(SETS)
 

@@ -144,6 +144,12 @@ def test_tagged_paths_come_from_the_pipeline_module():
     assert tagged_path("EVAL_FRAMES") == "data/index/eval_frames.csv"
     assert tagged_path("model_path(RUN)") == "models/${item.variant}/seed${item.seed}/model.pt"
     assert tagged_path('run_dir("constant") / "x.npy"') == "outputs/constant/x.npy"
+    assert tagged_path("disparities_path(optimum_run(VARIANT, WEIGHT))") == (
+        "outputs/optimum/${item.variant}/w${item.weight}/disparities.npy"
+    )
+    assert tagged_path('suite_path("full", "prior", ".csv", set_metrics_dir(SET))') == (
+        "metrics/sets/${item.set}/full/prior.csv"
+    )
     for bad, message in [
         ("__import__('os')", "is not a name or path function"),
         ("pipeline.log", "is not a name or path function"),
@@ -156,13 +162,19 @@ def test_tagged_paths_come_from_the_pipeline_module():
 
 def test_every_file_the_pipeline_module_defines_is_written_into_dvc_yaml():
     """Each path constant and path function of msdepth.pipeline.paths names a file that dvc.yaml tracks:
-    its copies there are tagged `# = NAME`, so that they are written from the one definition."""
+    its copies there are tagged `# = NAME`, so that they are written from the one definition (every
+    name of a tag counts: ``suite_path("full", RUN, ".csv", set_metrics_dir(SET))`` uses two)."""
     tags = {
-        m.group(5).split("(")[0]
+        node.id
         for line in (ROOT / "dvc.yaml").read_text().splitlines()
         if (m := TAGGED.match(line + "\n"))
+        for node in ast.walk(ast.parse(m.group(5), mode="eval"))
+        if isinstance(node, ast.Name)
     }
-    not_tracked = {"INDEX_DIR", "run_dir", "checkpoint_path"}  # a folder of outs; resume state
+    not_tracked = {  # the folders of outs; resume state; untracked timings; a hand-written file
+        *("INDEX_DIR", "MODELS", "METRICS", "HEADLINE", "SETS_HEADLINE", "PLOTS", "run_dir"),
+        *("CHECKPOINTS", "checkpoint_path", "TRAIN_LOGS", "train_timing_path", "README"),
+    }
     defined = {
         name
         for name, value in vars(pipeline).items()

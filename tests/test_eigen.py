@@ -255,7 +255,7 @@ def test_compare_section_of_an_extra_set(tmp_path: Path, monkeypatch: pytest.Mon
         seed_spread,
     )
 
-    monkeypatch.chdir(tmp_path)  # write_suite puts the headline files below ./metrics
+    monkeypatch.chdir(tmp_path)
     gts, disps = _sparse_scene(2, n=4, shape=(60, 200))
     frames = _eigen_frames(gts)
     groups = {
@@ -271,7 +271,7 @@ def test_compare_section_of_an_extra_set(tmp_path: Path, monkeypatch: pytest.Mon
             for f in frames
         }
         summary, table = evaluate_full(pred, frames, EvalConfig())
-        write_suite("full", run, summary, table, root=tmp_path / "sets", headline_root="x")
+        write_suite("full", run, summary, table, root=tmp_path / "sets", headline_root=tmp_path / "x")
     runs = [r for rs in groups.values() for r in rs]
     suites = load_suite_metrics(tmp_path / "sets", runs, ["full"])
     tables = load_unit_tables(tmp_path / "sets", runs, ["full"])
@@ -290,7 +290,7 @@ def test_compare_section_of_an_extra_set(tmp_path: Path, monkeypatch: pytest.Mon
     assert diff.split("|")[2].strip().endswith("*")  # 3 seeds each, far apart: marked
     assert "Seed-to-seed spread (mean ± sd over 3 seeds" in md
     assert (tmp_path / "sets" / "full" / "prior.csv").is_file()
-    assert (tmp_path / "metrics" / "headline" / "x" / "full" / "prior.json").is_file()
+    assert (tmp_path / "x" / "full" / "prior.json").is_file()
 
 
 def test_a_set_stage_for_an_unconfigured_set_names_the_configured_ones() -> None:

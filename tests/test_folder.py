@@ -10,7 +10,6 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
-from conftest import stage
 
 from msdepth.config.params import ConfigError, params_from_dict
 from msdepth.data import folder, kitti
@@ -179,8 +178,7 @@ def test_a_missing_right_image_is_named(tmp_path: Path):
 
 def test_evaluation_index_rows_kinds_camera_and_no_gt(tmp_path: Path):
     from msdepth.data.index import EVAL_COLUMNS
-
-    folder_eval_index = stage("index").folder_eval_index
+    from msdepth.data.indexing import folder_eval_index
 
     root = _folder(tmp_path / "s")
     frames = folder_eval_index(_params(root))
@@ -199,7 +197,7 @@ def test_evaluation_index_rows_kinds_camera_and_no_gt(tmp_path: Path):
 
 
 def test_folder_indexes_write_the_pipeline_files(tmp_path: Path):
-    folder_indexes = stage("index").folder_indexes
+    from msdepth.data.indexing import folder_indexes
 
     root = _folder(tmp_path / "s")
     report = folder_indexes(_params(root), tmp_path / "index")
@@ -276,8 +274,7 @@ def test_compare_without_rois_says_the_roi_suites_were_skipped():
 
 def test_mean_headline_without_rois_has_no_roi_number():
     from msdepth.evaluation.metrics import METRICS
-
-    mean_headline = stage("compare").mean_headline
+    from msdepth.reporting.pipeline_compare import mean_headline
 
     full = {"cap80": dict.fromkeys(METRICS, 0.5)}
     suites = {"full": {"a/seed0": full}, "roi": {"a/seed0": {"rois": 0, NO_ROIS: "x"}}}

@@ -16,11 +16,11 @@ from msdepth.optimum.frames import (
     checked_weight,
     cost_summary,
     first_frames,
-    optimum_run,
     optimum_runs,
     sweep_frames,
 )
 from msdepth.optimum.solver import COST_SCALES
+from msdepth.pipeline.paths import optimum_run
 from msdepth.reporting.compare import build_comparison, comparison_data, optimum_data
 from msdepth.reporting.figures import cost_curve_figure, read_cost_curves
 

@@ -185,7 +185,7 @@ def eval_rows(
     paths: FolderLayout, camera: Camera | None = None, *, npy_is_disparity: bool = False
 ) -> list[tuple]:
     """One row of :data:`msdepth.data.index.EVAL_COLUMNS` per evaluation frame (the DataFrame:
-    ``folder_eval_index`` in ``stages/index.py``): the images, the GT and its kind (by
+    :func:`msdepth.data.indexing.folder_eval_index`): the images, the GT and its kind (by
     suffix; ``none`` without GT), the camera at the image's width, no crop. Each GT is read once
     here, so a bad file fails the index stage, not the evaluation."""
     camera = camera or read_camera(paths.camera)

@@ -21,6 +21,7 @@ from msdepth.data.layout import Layout, layout  # noqa: F401 - re-exported: msde
 from msdepth.data.pairs import PairIndex, check_same_size, index_pairs
 from msdepth.errors import DataError
 from msdepth.io import atomic_path, write_json
+from msdepth.pipeline.paths import EVAL_FRAMES, INDEX_REPORT, SET_INDEXES, TRAIN_PAIRS
 
 # One evaluation index format for every set (msdepth.data.eval_sets): ``gt`` is a file of kind
 # ``gt_kind`` (msdepth.data.ground_truth.GT_KINDS), ``calib`` the raw day folder of a Velodyne
@@ -100,7 +101,7 @@ def build_indexes(
 ) -> dict:
     """Write ``train_pairs.txt``, ``eval_frames.csv`` (KITTI 2015), ``sets/<set>.csv`` (the extra
     sets' indexes ``extra``, :mod:`msdepth.data.eval_sets`) and ``report.json`` to ``out_dir``.
-    A stereo folder's: ``folder_indexes`` in ``stages/index.py``, through :func:`write_indexes`."""
+    A stereo folder's: :func:`msdepth.data.indexing.folder_indexes`, through :func:`write_indexes`."""
     paths = layout(params)
     pairs = index_pairs(paths.train_split, paths.raw_root)
     frames = build_eval_index(paths.kitti2015_root, paths.eval_split, params.data.gt)
@@ -116,13 +117,14 @@ def write_indexes(
     details: dict | None = None,
 ) -> dict:
     """Write the training pairs, the main evaluation index ``frames``, the extra sets' indexes and
-    ``report.json`` (with ``details``) to ``out_dir``; returns the report."""
+    ``report.json`` (with ``details``) to ``out_dir``; returns the report. The files have the names
+    of the pipeline's (:data:`msdepth.pipeline.paths.INDEX_DIR`), whatever ``out_dir``."""
     out = Path(out_dir)
-    kitti.write_split(out / "train_pairs.txt", [(str(a), str(b)) for a, b in pairs.pairs])
-    write_eval_index(out / "eval_frames.csv", frames)
+    kitti.write_split(out / TRAIN_PAIRS.name, [(str(a), str(b)) for a, b in pairs.pairs])
+    write_eval_index(out / EVAL_FRAMES.name, frames)
     extra = extra or {}
-    (out / "sets").mkdir(parents=True, exist_ok=True)
-    for stale in (out / "sets").glob("*.csv"):
+    (out / SET_INDEXES.name).mkdir(parents=True, exist_ok=True)
+    for stale in (out / SET_INDEXES.name).glob("*.csv"):
         if stale.stem not in extra:
             stale.unlink()
     for name, table in extra.items():
@@ -136,13 +138,13 @@ def write_indexes(
         **(details or {}),
         "extra_sets": {name: len(table) for name, table in extra.items()},
     }
-    write_json(out / "report.json", report)
+    write_json(out / INDEX_REPORT.name, report)
     return report
 
 
 def set_index_path(index_dir: str | os.PathLike, name: str) -> Path:
     """The evaluation index of extra set ``name`` below the index folder."""
-    return Path(index_dir) / "sets" / f"{name}.csv"
+    return Path(index_dir) / SET_INDEXES.name / f"{name}.csv"
 
 
 def write_eval_index(path: Path, frames: pd.DataFrame) -> None:

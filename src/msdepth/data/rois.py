@@ -19,7 +19,9 @@ import cv2
 import numpy as np
 import pandas as pd
 
+from msdepth.config.params import Params
 from msdepth.data import kitti
+from msdepth.data.layout import folder_layout, layout
 from msdepth.errors import DataError
 from msdepth.io import write_png
 
@@ -212,6 +214,46 @@ def extract_rois(
     rois = _merge_rois(auto, user)
     rois.attrs["report"] = _report(frames, without, auto, user, rois)
     return rois
+
+
+def pipeline_rois(params: Params, frames: pd.DataFrame) -> pd.DataFrame:
+    """The ROI boxes of the evaluation frames ``frames`` (the evaluation index): the synthetic set's
+    exact ones, KITTI's obj_map cars plus the user's CSV, or a stereo folder's data.folder.rois_csv.
+    No ROI at all is allowed (warned: the ROI suites then say they were skipped)."""
+    if params.data.source == "folder":  # the user's boxes only: a folder has no obj_map
+        boxes = extract_rois(frames, user_csv=folder_layout(params).rois_csv)
+    elif (source := layout(params).rois) is not None:
+        boxes = kitti.read_rois(source)
+        unknown = sorted(set(boxes["image"]) - set(frames["frame"]))
+        if unknown:
+            raise DataError(f"{source}: boxes name images that are not evaluation frames: {unknown[:10]}")
+    else:  # extract_rois checks the user's boxes against the frames itself
+        k = params.data.kitti
+        boxes = extract_rois(
+            frames,
+            user_csv=Path(k.rois_csv) if k.rois_csv else None,
+            min_size=k.roi_min_size,
+            min_valid=k.roi_min_valid,
+        )
+    if boxes.empty:  # the ROI suites then write an explicit "no ROIs" summary
+        log.warning(
+            "rois: no ROI (%s): the ROI and gradient suites will be skipped",
+            "no data.folder.rois_csv"
+            if params.data.source == "folder"
+            else "no car in any obj_map passed data.kitti.roi_min_size/roi_min_valid, "
+            "and no data.kitti.rois_csv",
+        )
+    return boxes
+
+
+def write_roi_index(params: Params, frames: pd.DataFrame, out: Path, sheet: Path) -> pd.DataFrame:
+    """:func:`pipeline_rois` of ``frames`` written as the ROI index ``out`` and its
+    :func:`contact_sheet` ``sheet``; returns the boxes."""
+    boxes = pipeline_rois(params, frames)
+    kitti.write_rois(out, boxes)
+    contact_sheet(boxes, frames, sheet)
+    log.info("rois: %d boxes, %s", len(boxes), boxes["class"].value_counts().to_dict())
+    return boxes
 
 
 # --------------------------------------------------------------------------------------------

@@ -28,11 +28,22 @@ from typing import Sequence
 import numpy as np
 from tqdm import tqdm
 
+from msdepth.config.params import Params
 from msdepth.data import kitti
-from msdepth.data.index import training_gt_path, velodyne_path
+from msdepth.data.index import read_eval_index, training_gt_path, velodyne_path
 from msdepth.data.pairs import load_pair_list
+from msdepth.evaluation.results import run_suite, score_set
+from msdepth.evaluation.suites import depth_maps, load_frames
 from msdepth.io import write_json, write_text
-from msdepth.pipeline.paths import TRAIN_PAIRS
+from msdepth.pipeline.paths import (
+    HEADLINE,
+    METRICS,
+    SUITE_NAMES,
+    headline_path,
+    set_headline_dir,
+    set_metrics_dir,
+    suite_path,
+)
 
 log = logging.getLogger("msdepth")
 
@@ -42,6 +53,7 @@ BASELINES = ("constant", "prior")
 # spaced subset of the training frames is used.
 GT_MEMORY_BUDGET = 2 * 2**30
 SKIPPED = "skipped"  # key of the metrics JSON a baseline that could not be built leaves behind
+FOLDER_REASON = "data.source folder: the training frames have no GT to build the baselines from"
 
 
 @dataclass
@@ -194,7 +206,7 @@ def baseline_disparities(gt: np.ndarray, num_frames: int) -> dict[str, np.ndarra
 def skipped_reason(metrics_dir: str | Path, run: str, suites: Sequence[str]) -> str | None:
     """Why baseline ``run`` has no metrics (its JSON says ``skipped``, or there is none); None if it has."""
     for suite in suites:
-        path = Path(metrics_dir) / suite / f"{run}.json"
+        path = suite_path(suite, run, ".json", Path(metrics_dir))
         if not path.is_file():
             return f"no {path}"
         data = json.loads(path.read_text())
@@ -203,10 +215,10 @@ def skipped_reason(metrics_dir: str | Path, run: str, suites: Sequence[str]) -> 
     return None
 
 
-def indexed_training_gt() -> TrainingGT:
-    """The GT of the indexed training frames (data/index/train_pairs.txt) that the stages build the
-    baselines from, logged, with a warning per drive without."""
-    pairs = load_pair_list(TRAIN_PAIRS)
+def indexed_training_gt(train_pairs: Path) -> TrainingGT:
+    """The GT of the indexed training frames (the pair list ``train_pairs``, the index stage's)
+    that the stages build the baselines from, logged, with a warning per drive without."""
+    pairs = load_pair_list(train_pairs)
     gt = training_gt([left for left, _ in pairs])
     for drive, count in gt.missing.items():
         log.warning(
@@ -233,13 +245,61 @@ def skip_reason(gt: TrainingGT) -> str:
 
 
 def write_skipped(
-    root: Path, suite: str, run: str, reason: str, headline: bool, headline_root: str = ""
+    root: Path, suite: str, run: str, reason: str, headline: bool, headline_root: Path = HEADLINE
 ) -> None:
     """A skipped baseline's files: ``{"skipped": reason}`` where its metrics would be."""
-    write_json(root / suite / f"{run}.json", {SKIPPED: reason})
-    write_text(root / suite / f"{run}.csv", f"{SKIPPED}\n{reason}\n")
+    write_json(suite_path(suite, run, ".json", root), {SKIPPED: reason})
+    write_text(suite_path(suite, run, ".csv", root), f"{SKIPPED}\n{reason}\n")
     if headline:  # the headline files are declared DVC metrics too
-        write_json(
-            Path("metrics") / "headline" / headline_root / suite / f"{run}.json",
-            {SKIPPED: reason},
-        )
+        write_json(headline_path(suite, run, headline_root), {SKIPPED: reason})
+
+
+def score_baselines(params: Params, train_pairs: Path, eval_index: Path, rois: Path) -> None:
+    """Both baselines, built from the GT of the training frames of ``train_pairs``, through the same
+    depth conversion and every suite as a trained run, on the frames of ``eval_index`` (ROIs
+    ``rois``).
+
+    Drives without GT are named and left out. With no GT at all the baselines are skipped, not
+    failed: each leaves a ``{"skipped": reason}`` JSON (and a one-row CSV) that the comparison
+    reports as missing. A stereo folder (data.source: folder) has no training GT: its baselines
+    are always skipped.
+    """
+    if params.data.source == "folder":
+        reason = FOLDER_REASON
+        log.warning("baselines: %s: %s not built", reason, " and ".join(BASELINES))
+    else:
+        gt = indexed_training_gt(train_pairs)
+        reason = skip_reason(gt) if gt.maps is None else None
+    if reason is not None:
+        for run in BASELINES:
+            for suite in SUITE_NAMES:
+                write_skipped(METRICS, suite, run, reason, headline=suite in ("full", "roi"))
+        return
+    frames = load_frames(read_eval_index(eval_index))
+    boxes = kitti.read_rois(rois)
+    for run, disp in baseline_disparities(gt.maps, len(frames)).items():
+        pred = depth_maps(disp, frames)
+        for suite in SUITE_NAMES:
+            run_suite(params, suite, run, pred, frames, boxes)
+
+
+def score_set_baselines(params: Params, name: str, train_pairs: Path, set_index: Path) -> None:
+    """Both baselines of the GT of the training frames of ``train_pairs`` scored on extra set
+    ``name``'s full images (its index ``set_index``); skipped, with the reason in their JSON, when
+    no training frame has GT."""
+    gt = indexed_training_gt(train_pairs)
+    if gt.maps is None:
+        reason = skip_reason(gt)
+        for run in BASELINES:
+            write_skipped(
+                set_metrics_dir(name),
+                "full",
+                run,
+                reason,
+                headline=True,
+                headline_root=set_headline_dir(name),
+            )
+        return
+    frames = load_frames(read_eval_index(set_index))
+    for run, disp in baseline_disparities(gt.maps, len(frames)).items():
+        score_set(params, name, run, depth_maps(disp, frames), frames)

@@ -6,6 +6,7 @@ from pathlib import Path
 from typing import Sequence
 
 import numpy as np
+import pandas as pd
 import torch
 from tqdm import tqdm
 
@@ -58,6 +59,13 @@ def predict_disparities(
         batch = torch.stack([to_tensor(resize(kitti.read_image(p), height, width)) for p in chunk]).to(device)
         out[start : start + len(chunk)] = network_disparity(model, batch, post_process)
     return out
+
+
+def index_disparities(model: DepthNetwork, meta: dict, index: pd.DataFrame, post_process: bool) -> np.ndarray:
+    """:func:`predict_disparities` of the left image of every frame of an evaluation index, at the
+    network's input size (``meta``: its model file's, :func:`msdepth.networks.model.load_model`)."""
+    lefts = [Path(p) for p in index["left"]]
+    return predict_disparities(model, lefts, meta["height"], meta["width"], post_process)
 
 
 @torch.no_grad()

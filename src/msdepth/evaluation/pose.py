@@ -11,6 +11,8 @@ camera-to-world matrix per frame, row-major, one line each (the synthetic sequen
 
 from __future__ import annotations
 
+import json
+import logging
 import os
 from pathlib import Path
 from typing import TYPE_CHECKING, Sequence
@@ -20,7 +22,10 @@ import numpy as np
 from msdepth.errors import DataError
 
 if TYPE_CHECKING:
+    from msdepth.config.params import Params
     from msdepth.networks.pose import PoseNet
+
+log = logging.getLogger("msdepth")
 
 TRACK_LENGTH = 5  # Monodepth2's snippet length
 
@@ -191,3 +196,32 @@ def odometry_ates(
         ates.append(trajectory_ates(net, paths, truth, height, width, track_length))  # type: ignore[arg-type]
         found[seq] = summary(ates[-1])
     return {**summary(np.concatenate(ates)), "sequences": found} if found else {}
+
+
+def add_pose_metrics(params: Params, net: PoseNet, run: str, summary_path: Path) -> None:
+    """Monocular run ``run``'s pose ATE by its pose network ``net``, added to its training summary
+    ``summary_path`` as ``pose``: on the rendered sequences (:func:`sequence_ates`), or on the KITTI
+    odometry sequences that are on disk (:func:`odometry_ates`, each one's also under
+    ``pose.sequences``; none is fetched, so with none there the summary has no ``pose``)."""
+    from msdepth.data.layout import layout
+    from msdepth.io import write_json
+
+    paths, h, w = layout(params), params.data.height, params.data.width
+    if params.data.source == "kitti":
+        assert paths.odometry is not None  # the KITTI layout always names it
+        pose = odometry_ates(net, paths.odometry, params.data.kitti.odometry_sequences, h, w)
+        if not pose:
+            log.info("train %s: no KITTI odometry poses below %s: pose not evaluated", run, paths.odometry)
+            return
+    else:
+        pose = sequence_ates(net, paths.raw_root, params.data.synthetic.sequence_length, h, w)
+    write_json(summary_path, {**json.loads(summary_path.read_text()), "pose": pose})
+    for name, values in {"": pose, **pose.get("sequences", {})}.items():
+        log.info(
+            "train %s: pose ATE%s %.4f ± %.4f over %d snippets",
+            run,
+            f" of sequence {name}" if name else "",
+            values["ate_mean"],
+            values["ate_std"],
+            values["snippets"],
+        )

@@ -1,21 +1,37 @@
 """The evaluation suites run and written as the pipeline's metric files, shared by the stages
 that score a run or a baseline: :func:`run_suite`, :func:`score_set` and :func:`headline`, the
-few numbers per suite that ``dvc metrics show`` lists (and compare averages)."""
+few numbers per suite that ``dvc metrics show`` lists (and compare averages); and the depth maps
+they score (:func:`write_depth_maps`)."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
+
 from msdepth.config.params import Params
+from msdepth.data import kitti
+from msdepth.data.index import read_eval_index
+from msdepth.errors import ConfigError, DataError
 from msdepth.evaluation.suites import (
+    depth_maps,
     evaluate_full,
     evaluate_gradients,
     evaluate_roi,
+    load_frames,
     median_scaled_maps,
     no_rois,
+    read_depth_maps,
 )
-from msdepth.io import atomic_path, write_json
-from msdepth.pipeline.paths import SETS_METRICS
+from msdepth.io import atomic_path, save_npz, write_json
+from msdepth.pipeline.paths import (
+    HEADLINE,
+    METRICS,
+    headline_path,
+    set_headline_dir,
+    set_metrics_dir,
+    suite_path,
+)
 
 SUITES = {"full": evaluate_full, "roi": evaluate_roi, "gradients": evaluate_gradients}  # SUITE_NAMES' order
 
@@ -52,17 +68,18 @@ def write_suite(
     run: str,
     summary: dict,
     table,  # noqa: ANN001 - a DataFrame
-    root: Path = Path("metrics"),
-    headline_root: str = "",
+    root: Path = METRICS,
+    headline_root: Path = HEADLINE,
 ) -> None:
     """A suite's summary JSON, its headline JSON (full, roi) and its per-unit CSV for one run:
-    ``<root>/<suite>/<run>.json|csv`` and ``metrics/headline/[<headline_root>/]<suite>/<run>.json``
-    (an extra set's: ``metrics/sets/<set>/full/...`` and ``metrics/headline/sets/<set>/full/...``)."""
-    write_json(root / suite / f"{run}.json", summary)
+    :func:`~msdepth.pipeline.paths.suite_path` below ``root`` and
+    :func:`~msdepth.pipeline.paths.headline_path` below ``headline_root`` (an extra set's:
+    ``metrics/sets/<set>/full/...`` and ``metrics/headline/sets/<set>/full/...``)."""
+    write_json(suite_path(suite, run, ".json", root), summary)
     top = headline(suite, summary)
     if top is not None:
-        write_json(Path("metrics") / "headline" / headline_root / suite / f"{run}.json", top)
-    with atomic_path(root / suite / f"{run}.csv") as tmp:
+        write_json(headline_path(suite, run, headline_root), top)
+    with atomic_path(suite_path(suite, run, ".csv", root)) as tmp:
         table.to_csv(tmp, index=False, float_format="%.6g")
 
 
@@ -84,6 +101,33 @@ def run_suite(  # noqa: ANN001 - frames, boxes
     write_suite(suite, run, summary, table)
 
 
+def write_depth_maps(run: str, disparities: Path, eval_index: Path, out: Path, *, monocular: bool) -> None:
+    """Run ``run``'s disparities (the file ``disparities``) as depth maps of the frames of
+    ``eval_index`` at their GT resolution (:func:`~msdepth.evaluation.suites.depth_maps`: metric, or
+    up to scale for a ``monocular`` run), written to ``out``; a DataError without disparities."""
+    if not disparities.exists():
+        raise DataError(f"{disparities}: no disparities for run {run!r}")
+    frames = load_frames(read_eval_index(eval_index))
+    save_npz(out, **depth_maps(np.load(disparities), frames, monocular=monocular))
+
+
+def checked_suite(suite: str) -> str:
+    """``suite`` if it is one of :data:`SUITES`, else a ConfigError naming them."""
+    if suite not in SUITES:
+        raise ConfigError(f"unknown evaluation suite {suite!r}; known: {sorted(SUITES)}")
+    return suite
+
+
+def score_run(params: Params, suite: str, run: str, depth: Path, eval_index: Path, rois: Path) -> None:
+    """:func:`run_suite` on run ``run``'s depth maps (the file ``depth``) of the frames of
+    ``eval_index`` (ROIs ``rois``, read by the ROI suites only); a monocular run's
+    (``train.mode`` mono | mono_stereo) median-scaled."""
+    frames = load_frames(read_eval_index(eval_index))
+    boxes = kitti.read_rois(rois) if suite != "full" else None
+    pred = read_depth_maps(depth)
+    run_suite(params, suite, run, pred, frames, boxes, scaled=params.train.monocular)
+
+
 def median_scaling(params: Params) -> bool:
     """Whether a trained run's extra sets median-scale: ``eval.median_scaling``, or a monocular run."""
     return params.eval.median_scaling or params.train.monocular
@@ -96,4 +140,4 @@ def score_set(  # noqa: ANN001 - frames
     median-scaled when ``scaled`` (default: ``eval.median_scaling``)."""
     scaled = params.eval.median_scaling if scaled is None else scaled
     summary, table = evaluate_full(pred, frames, params.eval, median_scaling=scaled)
-    write_suite("full", run, summary, table, root=SETS_METRICS / name, headline_root=f"sets/{name}")
+    write_suite("full", run, summary, table, root=set_metrics_dir(name), headline_root=set_headline_dir(name))

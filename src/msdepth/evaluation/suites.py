@@ -24,13 +24,14 @@ from msdepth.data.ground_truth import read_gt_depth
 from msdepth.errors import DataError
 from msdepth.evaluation.metrics import METRICS, compute_errors, garg_crop_mask, median_scale
 from msdepth.geometry.depth import clamp_depth, disparity_to_depth, pixel_disparity
+from msdepth.pipeline.paths import ROIS
 
 GRADIENTS = ("sobel_x", "sobel_y", "laplacian")
 # The summary key of an ROI or gradient suite run without any ROI (a folder without
 # data.folder.rois_csv, KITTI without obj_map or CSV): {"rois": 0, NO_ROIS: why}, no caps. Not
 # "skipped": that key marks a baseline that could not be built (msdepth.evaluation.baselines.SKIPPED).
 NO_ROIS = "no_rois"
-NO_ROIS_REASON = "no ROIs: the ROI index (data/index/rois.csv) is empty, so this suite was skipped"
+NO_ROIS_REASON = f"no ROIs: the ROI index ({ROIS.as_posix()}) is empty, so this suite was skipped"
 ROI_COLUMNS = ("roi", "image", "class", "cap", *METRICS)
 GRADIENT_COLUMNS = ("roi", "image", "class", "cap", *(f"pred_{g}" for g in GRADIENTS), "gt_valid_fraction")
 

@@ -12,14 +12,7 @@ import pandas as pd
 
 from msdepth.config.params import Params
 from msdepth.errors import ConfigError
-
-OPTIMUM = "optimum"  # run names: optimum/<variant>/w<weight>, below outputs/ and metrics/<suite>/
-
-
-def optimum_run(variant: str, weight: str) -> str:
-    """The optimum's run of one variant and smoothness weight, named like a trained run's
-    ``<variant>/seed<seed>``: ``optimum/<variant>/w<weight>`` (``weight`` as dvc.yaml writes it)."""
-    return f"{OPTIMUM}/{variant}/w{weight}"
+from msdepth.pipeline.paths import OPTIMUM, optimum_run, suite_dir
 
 
 def checked_weight(params: Params, weight: str) -> float:
@@ -117,6 +110,62 @@ def cost_summary(curves: dict[str, list[np.ndarray]]) -> dict:
     return summary
 
 
+def score_optimum(
+    params: Params,
+    variant: str,
+    weight: float,
+    run: str,
+    eval_index: Path,
+    rois: Path,
+    *,
+    disparities: Path,
+    depth: Path,
+) -> None:
+    """``variant``'s optimum at smoothness ``weight`` on the frames of ``eval_index`` that the weight
+    sees (:func:`sweep_frames`), with ``optimum.threads`` torch threads: its disparities saved to
+    ``disparities``, its depth to ``depth``, and every suite run on it as run ``run`` (ROIs
+    ``rois``), exactly as a trained run's."""
+    import torch
+
+    from msdepth.data import kitti
+    from msdepth.data.index import read_eval_index
+    from msdepth.evaluation.results import run_suite
+    from msdepth.evaluation.suites import depth_maps, load_frames
+    from msdepth.io import save_npy, save_npz
+    from msdepth.pipeline.paths import SUITE_NAMES
+
+    torch.set_num_threads(params.optimum.threads)
+    index = sweep_frames(params, read_eval_index(eval_index), weight)
+    disp = frame_disparities(params, variant, weight, index)
+    save_npy(disparities, disp)
+    frames = load_frames(index)
+    pred = depth_maps(disp, frames)
+    save_npz(depth, **pred)
+    boxes = boxes_of(kitti.read_rois(rois), [f.name for f in frames])
+    for suite in SUITE_NAMES:
+        run_suite(params, suite, run, pred, frames, None if suite == "full" else boxes)
+
+
+def write_cost_curves(params: Params, variant: str, eval_index: Path, rois: Path, out: Path) -> None:
+    """The cost curves of every dense-GT ROI (``rois``) of the first ``optimum.cost_frames`` frames of
+    ``eval_index``, per class, summarised (:func:`cost_summary`) into ``out``; ``optimum.threads``
+    torch threads."""
+    import torch
+
+    from msdepth.data import kitti
+    from msdepth.data.index import read_eval_index
+    from msdepth.io import write_json
+
+    torch.set_num_threads(params.optimum.threads)
+    curves = roi_cost_curves(
+        params,
+        params.variant(variant),
+        first_frames(read_eval_index(eval_index), params.optimum.cost_frames),
+        kitti.read_rois(rois),
+    )
+    write_json(out, cost_summary(curves))
+
+
 def optimum_runs(params: Params, metrics_dir: Path) -> dict[str, str]:
     """``{label: run}`` of the optimum runs the optimum stages wrote below ``metrics_dir/full``, for
     every variant and weight of ``optimum.smoothness_sweep`` (label ``optimum <variant> w<weight>``).
@@ -125,14 +174,14 @@ def optimum_runs(params: Params, metrics_dir: Path) -> dict[str, str]:
 
     out = {}
     for variant in params.variants:
-        found = {}
-        for path in (Path(metrics_dir) / "full" / OPTIMUM / variant).glob("w*.json"):
+        found, folder = {}, suite_dir("full", Path(metrics_dir)) / OPTIMUM / variant
+        for path in folder.glob("w*.json"):
             try:
                 found[float(path.stem[1:])] = path.stem[1:]
             except ValueError:
                 continue
         for weight in params.optimum.smoothness_sweep:
             if weight not in found:
-                raise DataError(f"{metrics_dir}/full/{OPTIMUM}/{variant}: no optimum at weight {weight:g}")
+                raise DataError(f"{folder}: no optimum at weight {weight:g}")
             out[f"{OPTIMUM} {variant} w{weight:g}"] = optimum_run(variant, found[weight])
     return out

@@ -5,7 +5,8 @@ Two parts of dvc.yaml are written from the code, so that each is defined once:
 - every stage's code deps, from its script's imports;
 - every path that ends in ``# = EXPR``, from :mod:`msdepth.pipeline.paths`'s definition of that file
   (EXPR: one of its names, e.g. ``EVAL_FRAMES``, or a call of one of its path functions on
-  ``RUN``, a matrix stage's run as dvc.yaml spells it: ``model_path(RUN)``).
+  ``RUN``, a matrix stage's run as dvc.yaml spells it: ``model_path(RUN)``, or on another matrix
+  item: ``cost_curves_path(VARIANT)``).
 
 A stage's code is its script (``python stages/<x>.py`` in ``cmd``) and the transitive closure of
 the ``msdepth`` modules it imports, found statically with ``ast`` (every ``import`` statement,
@@ -207,21 +208,29 @@ def _rewrite_stage(lines: list[str], name: str, deps: list[str]) -> list[str]:
 
 
 TAGGED = re.compile(r"^(\s*- )(\S+?)(:?)(\s+# = )(.+?)\s*$")
+# The matrix items that a tagged path may use, as dvc.yaml spells them.
+ITEMS = {
+    "VARIANT": "${item.variant}",
+    "SEED": "${item.seed}",
+    "SET": "${item.set}",
+    "WEIGHT": "${item.weight}",
+}
 
 
 def tagged_path(expr: str) -> str:
     """The path that a dvc.yaml line's ``# = EXPR`` names: EXPR is a public name of
-    :mod:`msdepth.pipeline.paths`, a call of one of its functions on ``RUN`` (a matrix stage's run, as
-    dvc.yaml spells it) or on strings, or either joined with ``/`` to a string."""
+    :mod:`msdepth.pipeline.paths`, a call of one of its functions on :data:`ITEMS` (``RUN``: a matrix
+    stage's run, as dvc.yaml spells it; ``VARIANT``, ``SEED``, ``SET``, ``WEIGHT``: a matrix item) or on
+    strings, or either joined with ``/`` to a string."""
     from msdepth.pipeline import paths as pipeline
 
-    run = pipeline.run_name("${item.variant}", "${item.seed}")  # type: ignore[arg-type]
+    items = {**ITEMS, "RUN": pipeline.run_name(ITEMS["VARIANT"], ITEMS["SEED"])}  # type: ignore[arg-type]
 
     def value(node: ast.expr) -> object:
         if isinstance(node, ast.Constant) and isinstance(node.value, str):
             return node.value
-        if isinstance(node, ast.Name) and node.id == "RUN":
-            return run
+        if isinstance(node, ast.Name) and node.id in items:
+            return items[node.id]
         if isinstance(node, ast.Name) and not node.id.startswith("_") and hasattr(pipeline, node.id):
             return getattr(pipeline, node.id)
         if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and not node.keywords:

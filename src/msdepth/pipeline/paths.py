@@ -1,4 +1,4 @@
-"""What every stage shares: :func:`run_stage`, run names and the pipeline's fixed paths.
+"""What every stage shares: :func:`run_stage`, run names and the pipeline's paths, each defined here only.
 
 The stages themselves are the scripts ``stages/<name>.py`` that dvc.yaml runs: each parses its
 arguments with :func:`run_stage` and calls the logic in the package. No module of the package
@@ -31,25 +31,49 @@ CHECKED = Path("data/params_checked.txt")
 INDEX_DIR = Path("data/index")
 TRAIN_PAIRS = INDEX_DIR / "train_pairs.txt"
 EVAL_FRAMES = INDEX_DIR / "eval_frames.csv"
+SET_INDEXES = INDEX_DIR / "sets"  # <set>.csv per eval.extra_sets (msdepth.data.index.set_index_path)
+INDEX_REPORT = INDEX_DIR / "report.json"
 ROIS = INDEX_DIR / "rois.csv"
 ROI_SHEET = INDEX_DIR / "rois.png"
 PAIR_CACHE = Path("data/cache/train_pairs.npy")
 CACHED_PAIRS = Path("data/cache/train_pairs.txt")
 CACHE_REPORT = Path("data/cache/report.json")
 SUITE_NAMES = ("full", "roi", "gradients")
-COST_CURVES = Path("metrics/cost_curves")  # <variant>.json: the cost_curves stage's, drawn by figures
+MODELS = Path("models")
+CHECKPOINTS = Path("checkpoints")
+OUTPUTS = Path("outputs")
+METRICS = Path("metrics")  # <suite>/<run>.json|csv: see suite_path
+HEADLINE = METRICS / "headline"  # the DVC metrics: <suite>/<run>.json, see headline_path
+TRAIN_SUMMARIES = METRICS / "train"  # <run>.json: the train stage's summaries (pose ATE of mono runs)
+COST_CURVES = METRICS / "cost_curves"  # <variant>.json: the cost_curves stage's, drawn by figures
+COMPARE_JSON = METRICS / "compare.json"
+COMPARE_MD = METRICS / "compare.md"
+MEAN_HEADLINE = HEADLINE / "mean.json"  # per variant, the mean over its seeds
+PLOTS = Path("plots")
+TRAIN_PLOTS = PLOTS / "train"  # <run>/: each run's dvclive curves
+FIGURES_DIR = PLOTS / "figures"
+TRAIN_LOGS = Path("logs/train")  # <run>.json: training timings (untracked: they vary between machines)
+RESULTS = Path("docs/results.md")
+README = Path("README.md")  # not a DVC output: the report stage rewrites only its generated block
 # The folders that only the stages write: a stage removes the temp files that a stage killed
 # mid-write (kill -9) left there before it runs. The data roots are not walked (a KITTI tree is
 # 175 GB); the renderer and the downloader remove their own temps there.
-STAGE_OUTPUT_ROOTS = (
-    INDEX_DIR,
-    PAIR_CACHE.parent,
-    Path("models"),
-    Path("checkpoints"),
-    Path("outputs"),
-    Path("metrics"),
-    Path("plots"),
+STAGE_OUTPUT_ROOTS = (INDEX_DIR, PAIR_CACHE.parent, MODELS, CHECKPOINTS, OUTPUTS, METRICS, PLOTS)
+
+# The validate_params stage's CHECKED: the same bytes whatever the params, so the stages after it
+# re-run only for the params keys (and code) they list themselves, never because this file changed.
+CHECKED_TEXT = (
+    "params.yaml passed msdepth.config.params.load_params (types, ranges, no unknown keys).\n"
+    "This file's content never changes: the stages that depend on it re-run for their own params.\n"
 )
+
+
+def write_checked(path: Path = CHECKED) -> None:
+    """Write :data:`CHECKED_TEXT` to ``path`` unless it holds it already (then it is left alone)."""
+    if not path.is_file() or path.read_text() != CHECKED_TEXT:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(CHECKED_TEXT)
+
 
 # The command-line arguments of the per-run stages (see stage_parser).
 VariantArg = Annotated[str, "a loss variant listed in params.yaml's variants (e.g. ssim, msssim)"]
@@ -59,6 +83,15 @@ SeedArg = Annotated[str, "a training seed listed in train.seeds"]
 def run_name(variant: str, seed: int) -> str:
     """One training run: ``<variant>/seed<seed>``, also its path below models/, outputs/, metrics/<suite>/."""
     return f"{variant}/seed{seed}"
+
+
+OPTIMUM = "optimum"  # the optimum's runs: optimum/<variant>/w<weight>, below outputs/ and metrics/<suite>/
+
+
+def optimum_run(variant: str, weight: str) -> str:
+    """The optimum's run of one variant and smoothness weight, named like a trained run's
+    ``<variant>/seed<seed>``: ``optimum/<variant>/w<weight>`` (``weight`` as dvc.yaml writes it)."""
+    return f"{OPTIMUM}/{variant}/w{weight}"
 
 
 def checked_run(params: Params, variant: str, seed: str) -> str:
@@ -72,7 +105,8 @@ def variant_runs(params: Params) -> dict[str, list[str]]:
 
 
 SetArg = Annotated[str, "an evaluation set listed in eval.extra_sets (e.g. eigen)"]
-SETS_METRICS = Path("metrics/sets")  # metrics/sets/<set>/full/<run>.json; headline in metrics/headline/sets/
+SETS_METRICS = METRICS / "sets"  # <set>/full/<run>.json: see set_metrics_dir
+SETS_HEADLINE = HEADLINE / "sets"  # <set>/full/<run>.json: see set_headline_dir
 
 
 def checked_set(params: Params, name: str) -> str:
@@ -83,25 +117,73 @@ def checked_set(params: Params, name: str) -> str:
 
 
 def model_path(run: str) -> Path:
-    return Path("models") / run / "model.pt"
+    """A run's trained model (the train stage's output)."""
+    return MODELS / run / "model.pt"
 
 
 def checkpoint_path(run: str) -> Path:
-    return Path("checkpoints") / run / "checkpoint.pt"
+    """A run's per-epoch checkpoint: resume state, not a DVC output."""
+    return CHECKPOINTS / run / "checkpoint.pt"
 
 
-def run_dir(run: str) -> Path:
-    return Path("outputs") / run
+def run_dir(run: str, root: Path = OUTPUTS) -> Path:
+    """A run's folder of predictions below ``root`` (:data:`OUTPUTS`; another tree's in tests)."""
+    return Path(root) / run
 
 
-def disparities_path(run: str) -> Path:
+def disparities_path(run: str, root: Path = OUTPUTS) -> Path:
     """A run's disparities of the evaluation frames (the infer stage's output)."""
-    return run_dir(run) / "disparities.npy"
+    return run_dir(run, root) / "disparities.npy"
 
 
-def depth_path(run: str) -> Path:
+def depth_path(run: str, root: Path = OUTPUTS) -> Path:
     """A run's metric depth maps at GT resolution (the depth stage's output)."""
-    return run_dir(run) / "depth.npz"
+    return run_dir(run, root) / "depth.npz"
+
+
+def suite_dir(suite: str, root: Path = METRICS) -> Path:
+    """The folder of one suite's files below a metrics tree (:data:`METRICS`, or an extra set's)."""
+    return Path(root) / suite
+
+
+def suite_path(suite: str, run: str, suffix: str = ".json", root: Path = METRICS) -> Path:
+    """A run's file of one suite: its summary (``.json``) or per-unit table (``.csv``)."""
+    return suite_dir(suite, root) / f"{run}{suffix}"
+
+
+def headline_path(suite: str, run: str, root: Path = HEADLINE) -> Path:
+    """A run's headline numbers of one suite, the DVC metric (below :data:`HEADLINE`, or an extra set's)."""
+    return Path(root) / suite / f"{run}.json"
+
+
+def set_metrics_dir(name: str) -> Path:
+    """The metrics tree of extra evaluation set ``name`` (its suite: ``full``)."""
+    return SETS_METRICS / name
+
+
+def set_headline_dir(name: str) -> Path:
+    """The headline tree of extra evaluation set ``name``."""
+    return SETS_HEADLINE / name
+
+
+def train_summary_path(run: str) -> Path:
+    """A run's training summary (steps, final losses; a monocular run's pose ATE)."""
+    return TRAIN_SUMMARIES / f"{run}.json"
+
+
+def train_plots_dir(run: str, root: Path = TRAIN_PLOTS) -> Path:
+    """A run's dvclive folder of per-epoch losses."""
+    return Path(root) / run
+
+
+def train_timing_path(run: str) -> Path:
+    """A run's training timings (seconds, examples/s), kept out of the tracked summary."""
+    return TRAIN_LOGS / f"{run}.json"
+
+
+def cost_curves_path(variant: str, root: Path = COST_CURVES) -> Path:
+    """A variant's cost-curve summary (the cost_curves stage's)."""
+    return Path(root) / f"{variant}.json"
 
 
 def stage_parser(fn: Callable[..., None]) -> argparse.ArgumentParser:

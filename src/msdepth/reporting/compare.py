@@ -17,6 +17,7 @@ from msdepth.config.variants import configs as variant_configs
 from msdepth.errors import DataError
 from msdepth.evaluation.metrics import HIGHER_IS_BETTER, METRICS
 from msdepth.evaluation.suites import GRADIENTS, NO_ROIS
+from msdepth.pipeline.paths import suite_path, train_summary_path
 from msdepth.reporting.stats import paired_table, seed_bootstrap
 
 SUITES = ("full", "roi", "gradients")
@@ -38,7 +39,7 @@ def _load_runs(
     for suite in suites:
         out[suite] = {}
         for run in runs:
-            path = Path(metrics_dir) / suite / f"{run}{suffix}"
+            path = suite_path(suite, run, suffix, Path(metrics_dir))
             if not path.exists():
                 raise DataError(f"{path}: missing {what} of run {run!r} (suite {suite})")
             out[suite][run] = read(path)
@@ -52,10 +53,10 @@ def load_suite_metrics(
     return _load_runs(metrics_dir, suites, runs, ".json", lambda p: json.loads(p.read_text()), "metrics")
 
 
-def load_training_summaries(metrics_dir: str | os.PathLike, runs: Sequence[str]) -> dict[str, dict]:
-    """``{run: its training summary}`` (``metrics_dir/train/<run>.json``) of the runs that have one
-    (the baselines were not trained)."""
-    paths = {r: Path(metrics_dir) / "train" / f"{r}.json" for r in runs}
+def load_training_summaries(runs: Sequence[str], root: str | os.PathLike = ".") -> dict[str, dict]:
+    """``{run: its training summary}`` (:func:`~msdepth.pipeline.paths.train_summary_path` below the
+    project folder ``root``) of the runs that have one (the baselines were not trained)."""
+    paths = {r: Path(root) / train_summary_path(r) for r in runs}
     return {r: json.loads(p.read_text()) for r, p in paths.items() if p.is_file()}
 
 

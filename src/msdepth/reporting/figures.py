@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import logging
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Mapping, Sequence
@@ -48,13 +49,29 @@ from matplotlib.figure import Figure
 from matplotlib.patches import Rectangle
 from matplotlib.ticker import MaxNLocator
 
-from msdepth.config.params import EvalConfig
+from msdepth.config.params import EvalConfig, Params
 from msdepth.data import kitti
 from msdepth.data.index import read_eval_index
 from msdepth.errors import DataError
 from msdepth.evaluation.suites import Frame, evaluate_roi, gradient_maps, load_frames, read_depth_maps
 from msdepth.geometry.depth import clamp_depth, pixel_disparity
 from msdepth.io import atomic_path
+from msdepth.pipeline.paths import (
+    COST_CURVES,
+    EVAL_FRAMES,
+    METRICS,
+    OUTPUTS,
+    ROIS,
+    TRAIN_PLOTS,
+    cost_curves_path,
+    depth_path,
+    disparities_path,
+    suite_path,
+    train_plots_dir,
+    variant_runs,
+)
+
+log = logging.getLogger("msdepth")
 
 DPI = 120
 REFERENCE = "ssim"
@@ -134,7 +151,7 @@ def _load(
     boxes = kitti.read_rois(rois)
     disparities, depth = {}, {}
     for v, run in runs.items():
-        path = Path(outputs) / run / "disparities.npy"
+        path = disparities_path(run, Path(outputs))
         if not path.exists():
             raise DataError(f"{path}: no disparities for run {run!r} (run the infer stage)")
         disp = np.load(path)
@@ -143,7 +160,7 @@ def _load(
                 f"{path}: expected ({len(index)}, h, w) disparities for {eval_index}, got {disp.shape}"
             )
         disparities[v] = disp
-        npz = Path(outputs) / run / "depth.npz"
+        npz = depth_path(run, Path(outputs))
         depth[v] = read_depth_maps(npz)
         missing = sorted(set(index["frame"]) - set(depth[v]))
         if missing:
@@ -297,9 +314,9 @@ def _roi_examples(inp: _Inputs) -> list[RoiExample]:
 def roi_examples(
     variants: list[str],
     *,
-    eval_index: Path = Path("data/index/eval_frames.csv"),
-    rois: Path = Path("data/index/rois.csv"),
-    outputs: Path = Path("outputs"),
+    eval_index: Path = EVAL_FRAMES,
+    rois: Path = ROIS,
+    outputs: Path = OUTPUTS,
     eval_cfg: EvalConfig,
 ) -> list[RoiExample]:
     """The ROIs shown in ``roi_depth.png`` / ``roi_gradients.png`` and the numbers printed on them."""
@@ -424,7 +441,8 @@ def _read_curve(path: Path, name: str) -> pd.DataFrame:
 
 
 def _curve_path(train_plots: Path, run: str, term: str) -> Path:
-    return Path(train_plots) / run / "plots" / "metrics" / "train" / f"{term}.tsv"
+    # dvclive's layout below a run's folder (msdepth.training.train logs the losses as train/<term>)
+    return train_plots_dir(run, Path(train_plots)) / "plots" / "metrics" / "train" / f"{term}.tsv"
 
 
 def _training_figure(runs: dict[str, list[str]], train_plots: Path, path: Path) -> Path:
@@ -464,7 +482,7 @@ def _training_figure(runs: dict[str, list[str]], train_plots: Path, path: Path) 
 
 
 def _read_full(metrics: Path, variant: str, cap: float) -> pd.DataFrame:
-    path = Path(metrics) / "full" / f"{variant}.csv"
+    path = suite_path("full", variant, ".csv", Path(metrics))
     if not path.exists():
         raise DataError(f"{path}: no per-image metrics of run {variant!r} (run the eval_full stage)")
     df = pd.read_csv(path, dtype={"frame": str})
@@ -510,11 +528,11 @@ def make_figures(
     variants: Sequence[str] | Mapping[str, str],
     out_dir: Path,
     *,
-    eval_index: Path = Path("data/index/eval_frames.csv"),
-    rois: Path = Path("data/index/rois.csv"),
-    outputs: Path = Path("outputs"),
-    metrics: Path = Path("metrics"),
-    train_plots: Path = Path("plots/train"),
+    eval_index: Path = EVAL_FRAMES,
+    rois: Path = ROIS,
+    outputs: Path = OUTPUTS,
+    metrics: Path = METRICS,
+    train_plots: Path = TRAIN_PLOTS,
     eval_cfg: EvalConfig,
     frames: int = 3,
     curves: Mapping[str, Sequence[str]] | None = None,
@@ -559,7 +577,7 @@ def read_cost_curves(directory: Path, variants: Sequence[str]) -> dict[str, dict
     names a missing or unreadable file."""
     out = {}
     for v in variants:
-        path = Path(directory) / f"{v}.json"
+        path = cost_curves_path(v, Path(directory))
         try:
             out[v] = json.loads(path.read_text())
         except (OSError, ValueError) as exc:
@@ -591,3 +609,21 @@ def cost_curve_figure(summaries: Mapping[str, dict], path: Path) -> Path:
     axes[0].set_ylabel("mean appearance cost")
     axes[0].legend(fontsize="small")
     return _save(fig, path)
+
+
+def pipeline_figures(params: Params, out_dir: Path, cost_curves: Path = COST_CURVES) -> list[Path]:
+    """The figures stage's figures in ``out_dir``, from the pipeline's outputs; returns their paths.
+
+    :func:`make_figures` of the first seed's run of each variant (the figures show predictions,
+    not an average of them; the training curves show every seed's), and :func:`cost_curve_figure`
+    of the cost_curves stage's summaries below ``cost_curves``: the losses' own preference per
+    ROI class.
+    """
+    groups = variant_runs(params)
+    paths = make_figures(
+        {v: runs[0] for v, runs in groups.items()}, Path(out_dir), eval_cfg=params.eval, curves=groups
+    )
+    summaries = read_cost_curves(cost_curves, params.variants)
+    paths.append(cost_curve_figure(summaries, Path(out_dir) / COST_CURVES_FIGURE))
+    log.info("figures: %s", ", ".join(p.name for p in paths))
+    return paths

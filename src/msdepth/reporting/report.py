@@ -19,6 +19,7 @@ from typing import Any, Sequence
 from msdepth.errors import DataError, MsdepthError
 from msdepth.evaluation.metrics import HIGHER_IS_BETTER
 from msdepth.io import write_text
+from msdepth.pipeline.paths import COMPARE_JSON, README, RESULTS, run_name, train_summary_path
 from msdepth.reporting.compare import (
     MIN_SEEDS_FOR_MARKS,
     SET_TITLES,
@@ -28,10 +29,6 @@ from msdepth.reporting.compare import (
 )
 
 COMMAND = "python -m msdepth.reporting.report"
-COMPARE_JSON = Path("metrics/compare.json")
-TRAIN_METRICS = Path("metrics/train")
-RESULTS = Path("docs/results.md")
-README = Path("README.md")
 BEGIN = (
     "<!-- results: written by the report stage from metrics/ (src/msdepth/reporting/report.py); "
     "do not edit -->"
@@ -144,9 +141,9 @@ def load_results(root: Path = Path(".")) -> Results:
     train = {}
     for variant in data.get("variants", []):
         for seed in data.get("seeds", []):
-            file = root / TRAIN_METRICS / variant / f"seed{seed}.json"
+            file = root / train_summary_path(run_name(variant, seed))
             if file.is_file():
-                train[f"{variant}/seed{seed}"] = _read_json(file, "")
+                train[run_name(variant, seed)] = _read_json(file, "")
     return Results(data, train, str(path))
 
 

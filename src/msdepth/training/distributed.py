@@ -10,9 +10,12 @@ from __future__ import annotations
 
 import datetime
 import gc
+import logging
 import os
+import subprocess
+import sys
 from dataclasses import dataclass
-from typing import Iterator
+from typing import Iterator, Sequence
 
 import torch
 import torch.distributed as dist
@@ -20,6 +23,8 @@ from torch import nn
 from torch.utils.data import Sampler
 
 from msdepth.errors import MsdepthError
+
+log = logging.getLogger("msdepth")
 
 
 @dataclass(frozen=True)
@@ -34,6 +39,34 @@ class Context:
     def main(self) -> bool:
         """Only the main rank writes checkpoints, logs, models and metrics."""
         return self.rank == 0
+
+
+def must_relaunch(launcher: str) -> bool:
+    """Whether this process must re-run its script under ``torchrun`` (``train.launcher``): it is not
+    one of torchrun's ranks, which start with ``LOCAL_RANK`` set."""
+    return launcher == "torchrun" and "LOCAL_RANK" not in os.environ
+
+
+def relaunch(script: str, args: Sequence[str], nproc: int, what: str) -> None:
+    """Run ``script args`` under ``torchrun`` with ``nproc`` processes on this node and wait for them;
+    an MsdepthError naming ``what`` if any fails (their errors are above it)."""
+    cmd = [
+        sys.executable,
+        "-m",
+        "torch.distributed.run",
+        "--standalone",
+        f"--nproc_per_node={nproc}",
+        script,
+        *args,
+    ]
+    log.info("%s: %s", what, " ".join(cmd))
+    if subprocess.run(cmd).returncode != 0:
+        raise MsdepthError(f"{what}: torchrun with {nproc} processes failed (see the ranks' errors above)")
+
+
+def is_main_process() -> bool:
+    """Whether this process is rank 0 of a ``torchrun`` job, or runs alone (before :func:`setup` too)."""
+    return int(os.environ.get("RANK", "0")) == 0
 
 
 def setup(device: torch.device, timeout_s: float) -> tuple[Context, torch.device]:
