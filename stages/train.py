@@ -11,12 +11,13 @@ from pathlib import Path
 from msdepth.config.params import Params
 from msdepth.data.layout import layout
 from msdepth.data.pairs import load_pair_cache, load_pair_list
-from msdepth.data.sequences import training_sequences
+from msdepth.data.sequences import SequenceSample, training_sequences
 from msdepth.errors import MsdepthError
 from msdepth.io import write_json
 from msdepth.pipeline.paths import (
     CACHED_PAIRS,
     PAIR_CACHE,
+    PRETRAINED,
     SeedArg,
     VariantArg,
     checked_run,
@@ -24,6 +25,7 @@ from msdepth.pipeline.paths import (
     model_path,
     run_stage,
 )
+from msdepth.pipeline.pretrained import recorded_sha256
 
 log = logging.getLogger("msdepth")
 
@@ -56,13 +58,7 @@ def train(params: Params, variant: VariantArg, seed: SeedArg) -> None:
         return
     pairs = load_pair_list(CACHED_PAIRS)  # the pairs the cache holds, in its order
     images = load_pair_cache(PAIR_CACHE, len(pairs), params.data.height, params.data.width)
-    sequences = None
-    if t.mode != "stereo":  # Monodepth2's M / MS: the frames of the rendered sequences
-        paths = layout(params)
-        if paths.mono_split is None:  # the config accepts the modes only with rendered sequences
-            raise MsdepthError(f"train.mode {t.mode}: data.source {params.data.source} has no sequences")
-        stereo = t.mode == "mono_stereo"
-        sequences = training_sequences(paths.mono_split, paths.raw_root, t.source_frames, stereo)
+    sequences = mono_sequences(params)
     result = train_variant(
         params,
         variant,
@@ -75,6 +71,8 @@ def train(params: Params, variant: VariantArg, seed: SeedArg) -> None:
         summary_path=Path("metrics") / "train" / f"{run}.json",
         timing_path=Path("logs") / "train" / f"{run}.json",
         sequences=sequences,
+        # The pretrained stage's hash: the fingerprint's, so that a resume never reads the weights.
+        pretrained_sha256=recorded_sha256(params.model.pretrained, PRETRAINED),
     )
     if sequences is not None and int(os.environ.get("RANK", "0")) == 0:
         add_pose_metrics(params, run, Path("metrics") / "train" / f"{run}.json")
@@ -88,6 +86,17 @@ def train(params: Params, variant: VariantArg, seed: SeedArg) -> None:
         result.seconds_this_run,
         result.examples_per_second,
     )
+
+
+def mono_sequences(params: Params) -> list[SequenceSample] | None:
+    """Monodepth2's M / MS training frames: the samples of the rendered sequences (None in stereo)."""
+    t = params.train
+    if t.mode == "stereo":
+        return None
+    paths = layout(params)
+    if paths.mono_split is None:  # the config accepts the modes only with rendered sequences
+        raise MsdepthError(f"train.mode {t.mode}: data.source {params.data.source} has no sequences")
+    return training_sequences(paths.mono_split, paths.raw_root, t.source_frames, t.mode == "mono_stereo")
 
 
 def add_pose_metrics(params: Params, run: str, summary_path: Path) -> None:

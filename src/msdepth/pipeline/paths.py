@@ -36,6 +36,8 @@ ROI_SHEET = INDEX_DIR / "rois.png"
 PAIR_CACHE = Path("data/cache/train_pairs.npy")
 CACHED_PAIRS = Path("data/cache/train_pairs.txt")
 CACHE_REPORT = Path("data/cache/report.json")
+# model.pretrained's path and content hash (the pretrained stage's record, a dep of train).
+PRETRAINED = Path("data/pretrained.json")
 SUITE_NAMES = ("full", "roi", "gradients")
 COST_CURVES = Path("metrics/cost_curves")  # <variant>.json: the cost_curves stage's, drawn by figures
 # The folders that only the stages write: a stage removes the temp files that a stage killed
