@@ -10,6 +10,7 @@ from msdepth.data.pairs import load_pair_cache, load_pair_list
 from msdepth.pipeline.paths import (
     CACHED_PAIRS,
     PAIR_CACHE,
+    PRETRAINED,
     SeedArg,
     VariantArg,
     checked_run,
@@ -20,6 +21,7 @@ from msdepth.pipeline.paths import (
     train_summary_path,
     train_timing_path,
 )
+from msdepth.pipeline.pretrained import recorded_sha256
 
 log = logging.getLogger("msdepth")
 
@@ -50,6 +52,8 @@ def train(params: Params, variant: VariantArg, seed: SeedArg) -> None:
         summary_path=train_summary_path(run),
         timing_path=train_timing_path(run),
         sequences=sequences,
+        # The pretrained stage's hash: the fingerprint's, so that a resume never reads the weights.
+        pretrained_sha256=recorded_sha256(params.model.pretrained, PRETRAINED),
     )
     if sequences is not None and distributed.is_main_process():  # a monocular run: its pose net too
         net = trained_pose_net(params, checkpoint_path(run))

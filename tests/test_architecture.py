@@ -20,7 +20,13 @@ from msdepth.networks.model import MonodepthVGG, depth_network, save_model
 from msdepth.networks.resnet import ResNetEncoder
 from msdepth.networks.resnet_depth import DepthDecoder, ResNetMonodepth
 from msdepth.networks.serialization import load_weights_file
-from msdepth.training.train import build_model, build_pose_net, load_model, train_variant
+from msdepth.training.train import (
+    build_model,
+    build_pose_net,
+    load_model,
+    load_pretrained_encoders,
+    train_variant,
+)
 
 H, W = 64, 192  # ResNet-18 needs sides that are multiples of 32, at least 64
 RENDER = {"seed": 5, "drives": 1, "train_pairs": 6, "eval_frames": 1, "height": H, "width": W}
@@ -113,14 +119,17 @@ def test_pretrained_loads_into_every_resnet_encoder_of_the_run(tmp_path: Path) -
     path, state = _torchvision_file(tmp_path, seed=7)
     raw = {"width_multiplier": 1.0, "pose_width_multiplier": 1.0, "pretrained": str(path)}
     params = _params(raw, mode="mono")
-    depth = build_model(params).encoder.state_dict()
+    model, pose_net = build_model(params), build_pose_net(params)
+    load_pretrained_encoders(params.model.pretrained, model, pose_net)
+    depth = model.encoder.state_dict()
     assert all(torch.equal(depth[k], state[k]) for k in depth)
-    pose = build_pose_net(params).encoder.state_dict()
+    pose = pose_net.encoder.state_dict()
     assert torch.equal(pose["conv1.weight"], torch.cat([state["conv1.weight"]] * 2, dim=1) / 2)
     assert torch.equal(pose["layer4.1.conv2.weight"], state["layer4.1.conv2.weight"])
-    # Without it, from scratch: initialised anew, not the file's weights.
+    # Building the networks never reads the file (only a fresh start loads it, test_pretrained.py):
+    # initialised anew, not the file's weights.
     torch.manual_seed(8)
-    scratch = build_model(_params({"width_multiplier": 1.0})).encoder.state_dict()
+    scratch = build_model(params).encoder.state_dict()
     assert not torch.equal(scratch["layer1.0.conv1.weight"], state["layer1.0.conv1.weight"])
 
 

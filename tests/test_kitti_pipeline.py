@@ -22,7 +22,7 @@ from typing import Iterator
 
 import kitti_mirror
 import pytest
-from test_pipeline_e2e import _project, _run
+from test_pipeline_e2e import UP_TO_DATE, _project, _run, _status
 
 from msdepth.config.params import SyntheticConfig
 from msdepth.data import synthetic
@@ -127,7 +127,7 @@ def _check_run(work: Path, archives: int) -> str:
     assert "Baselines (image-blind, from training GT): constant, prior." in md and "Missing" not in md
     assert "| prior |" in md and "| constant |" in md
     assert sorted(p.name for p in (work / "plots" / "figures").iterdir()) == sorted(STAGE_FIGURES)
-    assert _run([sys.executable, "-m", "dvc", "status", "--quiet"], work) == ""
+    assert _status(work) == UP_TO_DATE
     return md
 
 

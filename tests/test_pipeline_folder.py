@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 import yaml
-from test_pipeline_e2e import _project, _run
+from test_pipeline_e2e import UP_TO_DATE, _project, _run, _status
 
 from msdepth.reporting.figures import ROI_FIGURES, STAGE_FIGURES
 
@@ -64,4 +64,4 @@ def test_repro_on_an_exported_folder(folder_repo: Path):
     assert figures == sorted(set(STAGE_FIGURES) - set(ROI_FIGURES))  # no ROIs, no ROI figures
     shown = json.loads(_run([sys.executable, "-m", "dvc", "metrics", "show", "--json"], repo))
     assert not any("error" in rev for rev in shown.values()), shown
-    assert _run([sys.executable, "-m", "dvc", "status", "--quiet"], repo) == ""
+    assert _status(repo) == UP_TO_DATE

@@ -7,6 +7,7 @@ destination folder and renames it over the final name only when the block succee
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import json
 import os
 import re
@@ -114,6 +115,23 @@ def write_text(path: str | os.PathLike, text: str) -> None:
     """Write a text file atomically."""
     with atomic_path(path) as tmp:
         tmp.write_text(text)
+
+
+def file_sha256(path: str | os.PathLike) -> str:
+    """The sha256 hex digest of the file at ``path``; a DataError names a path that is missing, a
+    folder or unreadable."""
+    path, digest = Path(path), hashlib.sha256()
+    try:
+        with path.open("rb") as f:
+            while block := f.read(1 << 20):  # hashlib.file_digest needs Python 3.11
+                digest.update(block)
+    except FileNotFoundError:
+        raise DataError(f"{path}: no such file") from None
+    except IsADirectoryError:
+        raise DataError(f"{path}: a folder, not a file") from None
+    except OSError as exc:
+        raise DataError(f"{path}: cannot read it ({exc.strerror or exc})") from None
+    return digest.hexdigest()
 
 
 # One filter for every row and a fixed deflate level: the bytes depend only on the pixels and

@@ -38,6 +38,8 @@ ROI_SHEET = INDEX_DIR / "rois.png"
 PAIR_CACHE = Path("data/cache/train_pairs.npy")
 CACHED_PAIRS = Path("data/cache/train_pairs.txt")
 CACHE_REPORT = Path("data/cache/report.json")
+# model.pretrained's path and content hash (the pretrained stage's record, a dep of train).
+PRETRAINED = Path("data/pretrained.json")
 SUITE_NAMES = ("full", "roi", "gradients")
 MODELS = Path("models")
 CHECKPOINTS = Path("checkpoints")

@@ -27,7 +27,7 @@ from msdepth.config.params import Params, fingerprint_fields, speed_only_train_k
 from msdepth.data.pairs import StereoPairs
 from msdepth.data.sequences import SequenceFrames, SequenceSample
 from msdepth.errors import MsdepthError
-from msdepth.io import write_json
+from msdepth.io import file_sha256, write_json
 from msdepth.losses.monocular import MonocularLoss, build_monocular_loss, monocular_losses
 from msdepth.losses.monodepth import MonodepthLoss
 from msdepth.losses.objective import build_loss
@@ -80,22 +80,37 @@ def seed_everything(seed: int) -> None:
 
 
 def build_model(params: Params) -> DepthNetwork:
-    """The depth network of ``params.model`` initialised for training: the VGG heads at
-    ``init_disparity``, a resnet18 encoder from ``model.pretrained`` when one is given."""
+    """The depth network of ``params.model`` initialised for training (the VGG heads at
+    ``init_disparity``); ``model.pretrained`` is loaded by :func:`load_pretrained_encoders`, only
+    into a run that starts fresh."""
     m = params.model
-    model = depth_network(m.architecture, m.width_multiplier, m.norm, m.heads, m.init_disparity)
-    if m.pretrained and isinstance(model, ResNetMonodepth):
-        load_pretrained(model.encoder, m.pretrained)
-    return model
+    return depth_network(m.architecture, m.width_multiplier, m.norm, m.heads, m.init_disparity)
 
 
 def build_pose_net(params: Params) -> PoseNet:
-    """The pose network of the monocular modes (Monodepth2's separate ResNet-18 pose network), its
-    encoder from ``model.pretrained`` when one is given."""
-    net = PoseNet(params.model.pose_width_multiplier)
-    if params.model.pretrained:
-        load_pretrained(net.encoder, params.model.pretrained)
-    return net
+    """The pose network of the monocular modes (Monodepth2's separate ResNet-18 pose network),
+    initialised anew (``model.pretrained``: :func:`load_pretrained_encoders`)."""
+    return PoseNet(params.model.pose_width_multiplier)
+
+
+def load_pretrained_encoders(
+    path: str | os.PathLike, model: DepthNetwork, pose_net: PoseNet | None = None, sha256: str | None = None
+) -> None:
+    """Load the torchvision resnet18 state dict at ``path`` (``model.pretrained``) into every ResNet
+    encoder of a run: a resnet18 depth network's and the pose network's (a VGG network has none).
+
+    With ``sha256`` the file must still hold that content, the one the checkpoint fingerprint
+    names; a TrainingError says it changed since it was hashed.
+    """
+    if sha256 is not None and (found := file_sha256(path)) != sha256:
+        raise TrainingError(
+            f"{path}: content changed since it was hashed (sha256 {sha256[:12]}..., now {found[:12]}...); "
+            "run `dvc repro` again to record and train on the new weights"
+        )
+    if isinstance(model, ResNetMonodepth):
+        load_pretrained(model.encoder, path)
+    if pose_net is not None:
+        load_pretrained(pose_net.encoder, path)
 
 
 def trained_pose_net(params: Params, checkpoint_path: str | os.PathLike) -> PoseNet:
@@ -104,7 +119,7 @@ def trained_pose_net(params: Params, checkpoint_path: str | os.PathLike) -> Pose
     state = load_checkpoint(Path(checkpoint_path), torch.device("cpu"))
     if "pose" not in state:
         raise TrainingError(f"{checkpoint_path}: no pose network (not a train.mode mono | mono_stereo run)")
-    net = PoseNet(params.model.pose_width_multiplier)  # not build_pose_net: no pretrained file to read
+    net = build_pose_net(params)
     net.load_state_dict(state["pose"])
     return net.eval()
 
@@ -155,17 +170,28 @@ def code_digest() -> str:
     return digest.hexdigest()[:16]
 
 
-def fingerprint(params: Params, variant: str, num_pairs: int, seed: int) -> str:
+def fingerprint(
+    params: Params, variant: str, num_pairs: int, seed: int, pretrained_sha256: str | None = None
+) -> str:
     """Hash of everything that shapes the training run, so a checkpoint is only resumed by its own
-    run: parameters, seed, data size and the training code (:func:`code_digest`)."""
+    run: parameters, seed, data size and the training code (:func:`code_digest`).
+
+    With ``model.pretrained`` set, ``pretrained_sha256`` (its content's hash, required then) stands
+    for its path: weights replaced under the same name train anew, moved ones still resume.
+    """
     appearance = params.variant(variant)
     # Settings that change only speed do not invalidate a checkpoint, nor do the other seeds.
     ignored = ("seeds", *speed_only_train_keys())
+    model = fingerprint_fields(params.model)
+    if params.model.pretrained:  # unset, the field is left out: those fingerprints stay as they were
+        if pretrained_sha256 is None:
+            raise TrainingError("model.pretrained is set: the fingerprint needs its content's sha256")
+        model["pretrained"] = f"sha256:{pretrained_sha256}"
     relevant = {
         "code": code_digest(),
         "seed": seed,
         "data": [params.data.height, params.data.width, num_pairs],
-        "model": fingerprint_fields(params.model),
+        "model": model,
         "train": {k: v for k, v in fingerprint_fields(params.train).items() if k not in ignored},
         "loss": fingerprint_fields(params.loss),
         "appearance": appearance,
@@ -237,6 +263,7 @@ class _Run:
     pose_net: PoseNet | None = None
     pose_network: Callable[[torch.Tensor, torch.Tensor], tuple[torch.Tensor, torch.Tensor]] | None = None
     loss_keys: tuple[str, ...] = LOSS_KEYS
+    pretrained_sha256: str | None = None  # model.pretrained's content hash; None when unset
     # Progress: from the checkpoint when resumed, then advanced by every epoch.
     start_epoch: int = 0
     step: int = 0
@@ -258,6 +285,7 @@ def train_variant(
     timing_path: str | os.PathLike | None = None,
     on_epoch: Callable[[int, DepthNetwork, dict[str, float]], None] | None = None,
     sequences: Sequence[SequenceSample] | None = None,
+    pretrained_sha256: str | None = None,
 ) -> TrainResult:
     """Train ``variant`` with training seed ``seed`` (default: the first of ``train.seeds``) on
     ``pairs``; write the final weights to ``model_path``. With ``train.mode`` mono or mono_stereo
@@ -274,10 +302,17 @@ def train_variant(
     interruptions) to ``timing_path``; under torchrun only rank 0 writes files.
     ``on_epoch(epoch, model, mean_losses)`` is called after each epoch trained in this call
     (epochs count from 1), e.g. to evaluate the network as it learns.
+
+    ``pretrained_sha256``: ``model.pretrained``'s content hash, for the fingerprint (the train
+    stage's is the ``pretrained`` stage's record); None: the file is hashed here, so that even a
+    resume needs it (see :func:`_resume_or_start`).
     """
-    run = _set_up(params, variant, pairs, params.train.seeds[0] if seed is None else seed, cache, sequences)
+    if params.model.pretrained and pretrained_sha256 is None:
+        pretrained_sha256 = file_sha256(params.model.pretrained)
+    run_seed = params.train.seeds[0] if seed is None else seed
+    run = _set_up(params, variant, pairs, run_seed, cache, sequences, pretrained_sha256)
     checkpoint_path = Path(checkpoint_path)
-    _resume(run, checkpoint_path)
+    _resume_or_start(run, checkpoint_path)
     live = _open_live(run, live_dir)
     started = time.perf_counter()
     resumed_from = run.start_epoch
@@ -305,8 +340,10 @@ def _set_up(
     seed: int,
     cache: np.ndarray | None,
     sequences: Sequence[SequenceSample] | None = None,
+    pretrained_sha256: str | None = None,
 ) -> _Run:
-    """Seed, threads, process group, data, network, loss and optimiser of a run from scratch."""
+    """Seed, threads, process group, data, network, loss and optimiser of a run from scratch
+    (without ``model.pretrained``'s weights: only a fresh start, not a resume, loads them)."""
     train_cfg = params.train
     torch.set_num_threads(train_cfg.threads)
     seed_everything(seed)  # the same seed on every rank: identical initial weights
@@ -321,9 +358,8 @@ def _set_up(
     network = torch.compile(network) if train_cfg.compile else network
     mono = train_cfg.mode != "stereo"
     criterion = (build_monocular_loss if mono else build_loss)(params, variant).to(device)
-    pose_net = (
-        build_pose_net(params).to(device) if mono else None
-    )  # after the loss: stereo's draws are unchanged
+    # After the loss: stereo's random draws are unchanged.
+    pose_net = build_pose_net(params).to(device) if mono else None
     trainable = [*model.parameters(), *criterion.parameters(), *(pose_net.parameters() if pose_net else ())]
     optimizer = torch.optim.Adam(trainable, lr=train_cfg.learning_rate)
     global_batch = train_cfg.batch_size * ctx.world
@@ -350,10 +386,11 @@ def _set_up(
         memory_format=memory_format,
         global_batch=global_batch,
         total_steps=steps_per_epoch * train_cfg.epochs,
-        fingerprint=fingerprint(params, variant, len(dataset), seed),
+        fingerprint=fingerprint(params, variant, len(dataset), seed, pretrained_sha256),
         pose_net=pose_net,
         pose_network=DistributedDataParallel(pose_net) if pose_net and ctx.world > 1 else pose_net,
         loss_keys=MONO_LOSS_KEYS if mono else LOSS_KEYS,
+        pretrained_sha256=pretrained_sha256,
     )
 
 
@@ -374,14 +411,24 @@ def _dataset(
     return SequenceFrames(sequences, t.source_frames, h, w, stereo=stereo, augment=t.augment, seed=seed)
 
 
-def _resume(run: _Run, checkpoint_path: Path) -> None:
-    """Continue ``run`` from the checkpoint at ``checkpoint_path`` if it is this run's (same fingerprint)."""
+def _resume_or_start(run: _Run, checkpoint_path: Path) -> None:
+    """Resume ``run`` from its checkpoint, or start it fresh: only then are ``model.pretrained``'s
+    weights loaded. A resumed run has them in its checkpoint and never reads the file (which may
+    have moved since)."""
+    if not _resume(run, checkpoint_path) and run.params.model.pretrained:
+        pretrained = run.params.model.pretrained
+        load_pretrained_encoders(pretrained, run.model, run.pose_net, run.pretrained_sha256)
+
+
+def _resume(run: _Run, checkpoint_path: Path) -> bool:
+    """Continue ``run`` from the checkpoint at ``checkpoint_path`` if it is this run's (same
+    fingerprint); returns whether it did."""
     if not checkpoint_path.exists():
-        return
+        return False
     state = load_checkpoint(checkpoint_path, run.device)
     if state.get("fingerprint") != run.fingerprint:
         log.info("ignoring checkpoint %s: it belongs to other parameters or training code", checkpoint_path)
-        return
+        return False
     run.model.load_state_dict(state["model"])
     run.criterion.load_state_dict(state["criterion"])
     run.optimizer.load_state_dict(state["optimizer"])
@@ -391,6 +438,7 @@ def _resume(run: _Run, checkpoint_path: Path) -> None:
     run.start_epoch, run.step, run.history = state["epoch"], state["step"], state["history"]
     run.seconds_before = state.get("seconds", 0.0)
     log.info("resuming %s from epoch %d (step %d)", run.variant, run.start_epoch, run.step)
+    return True
 
 
 def _open_live(run: _Run, live_dir: str | os.PathLike | None):
