@@ -22,7 +22,10 @@ import json
 import sys
 
 import pandas as pd
-from optimum_kernels import CAP, CLASSES, diff_cell, run_at, settings_at, show
+
+from msdepth.data.kitti import ROI_CLASSES as CLASSES
+from msdepth.errors import MsdepthError
+from msdepth.reporting.revisions import CAP, optimum_run_at, optimum_settings_at, paired_cell, show
 
 HEAD = "| run | frames | abs_rel | a1 | ROI abs_rel | " + " | ".join(CLASSES) + " | mask abs_rel |"
 DHEAD = "| after − before | Δ abs_rel | Δ ROI abs_rel | " + " | ".join(f"Δ {c}" for c in CLASSES) + " |"
@@ -45,11 +48,11 @@ def diff_row(label: str, after: dict, before: dict, keys: list[str]) -> str:
     full_keys, roi_keys = ["frame", *keys], ["roi", *keys]
     a_roi, b_roi = after["roi"], before["roi"]
     cells = [
-        diff_cell(after["full"], before["full"], full_keys, label),
-        diff_cell(a_roi, b_roi, roi_keys, label),
+        paired_cell(after["full"], before["full"], full_keys, label),
+        paired_cell(a_roi, b_roi, roi_keys, label),
     ]
     cells += [
-        diff_cell(a_roi[a_roi["class"] == c], b_roi[b_roi["class"] == c], roi_keys, f"{label} {c}")
+        paired_cell(a_roi[a_roi["class"] == c], b_roi[b_roi["class"] == c], roi_keys, f"{label} {c}")
         for c in CLASSES
     ]
     return f"| {label} | " + " | ".join(cells) + " |"
@@ -86,7 +89,7 @@ def section(title: str, pairs: list[tuple[str, dict, dict]], keys: list[str]) ->
 
 def report(before: str, after: str) -> str:
     """The markdown report: the optimum per variant and weight, then the trained networks."""
-    weights = settings_at(after)["weights"]
+    weights = optimum_settings_at(after)["weights"]
     lines = [
         f"Before: {before}; after: {after}. Cap {CAP} m; ROI columns: box abs_rel, the mean over ROIs; "
         "mask abs_rel: the exact-mask suite's. Δ: after − before, paired, mean [95 % interval], "
@@ -97,7 +100,8 @@ def report(before: str, after: str) -> str:
     for variant in ("ssim", "msssim"):
         for weight in weights:
             w = f"{float(weight):.1f}"
-            pairs.append((f"optimum {variant} w{w}", run_at(before, variant, w), run_at(after, variant, w)))
+            runs = optimum_run_at(before, variant, w), optimum_run_at(after, variant, w)
+            pairs.append((f"optimum {variant} w{w}", *runs))
     lines += section("The losses' optimum (no network)", pairs, [])
     variants = json.loads(show(after, "metrics/compare.json"))["variants"]
     nets = [(f"{v} (seeds)", trained_at(before, v), trained_at(after, v)) for v in variants]
@@ -111,7 +115,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("before", help="git revision of the run before the change")
     ap.add_argument("after", help="git revision of the run after it")
     args = ap.parse_args(argv)
-    print(report(args.before, args.after))
+    try:
+        print(report(args.before, args.after))
+    except MsdepthError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
     return 0
 
 

@@ -19,10 +19,9 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "src"))
+from msdepth.data.synthetic import EVAL, TRAIN, render_frame
 
-from msdepth.data.synthetic import EVAL, TRAIN, render_frame  # noqa: E402
+ROOT = Path(__file__).resolve().parents[1]
 
 KEYS = ("left", "right", "disp", "disp_right", "class_map")
 

@@ -20,12 +20,11 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import yaml  # noqa: E402
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "src"))
-
 from msdepth.config.params import params_from_dict  # noqa: E402
 from msdepth.data.kitti import CLASS_BITS  # noqa: E402
 from msdepth.optimum.solver import optimum_disparities  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
 
 
 def main() -> None:

@@ -32,28 +32,20 @@ import numpy as np
 import pandas as pd
 import yaml
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "src"))
-sys.path.insert(0, str(Path(__file__).resolve().parent))  # prepare_set, beside this script
-
-from prepare_set import apply  # noqa: E402
-
-from msdepth.config.params import Params, params_from_dict  # noqa: E402
-from msdepth.data import kitti  # noqa: E402
-from msdepth.data.index import read_eval_index  # noqa: E402
-from msdepth.data.pairs import build_pair_cache, load_pair_cache, load_pair_list  # noqa: E402
-from msdepth.errors import DataError  # noqa: E402
-from msdepth.evaluation import baselines  # noqa: E402
-from msdepth.evaluation.suites import depth_maps, evaluate_full, evaluate_roi, image_dependence, load_frames  # noqa: E402
+from msdepth.config.params import Params, apply_overrides, kernel_variant, params_from_dict
+from msdepth.data import kitti
+from msdepth.data.index import read_eval_index
+from msdepth.data.pairs import build_pair_cache, load_pair_cache, load_pair_list
+from msdepth.errors import DataError
+from msdepth.evaluation import baselines
+from msdepth.evaluation.suites import depth_maps, evaluate_full, evaluate_roi, image_dependence, load_frames
 
 INDEX = Path("data/index")
 
 
 def _params_for(base: dict, spec: str, threads: int) -> tuple[Params, str]:
     """Params for a variant spec ``ssim`` / ``msssim`` / ``msssim:K`` (MS-SSIM with kernel K)."""
-    raw = json.loads(json.dumps(base))
-    variant, _, kernel = spec.partition(":")
-    if kernel:
-        raw.setdefault(variant, {})["kernel_size"] = int(kernel)
+    variant, raw = kernel_variant(base, spec)
     raw.setdefault("train", {})["threads"] = threads
     return params_from_dict(raw), variant
 
@@ -304,7 +296,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", type=Path, required=True)
     ap.add_argument("--jobs", type=int, default=1)
     args = ap.parse_args(argv)
-    base = apply(yaml.safe_load(Path("params.yaml").read_text()), args.set)
+    base = apply_overrides(yaml.safe_load(Path("params.yaml").read_text()), args.set)
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "overrides.json").write_text(json.dumps(args.set))
     threads = max(1, (os.cpu_count() or 1) // args.jobs)

@@ -37,10 +37,9 @@ import numpy as np
 import pandas as pd
 import yaml
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "src"))
+from msdepth.reporting.compare import image_dependence, load_suite_metrics, load_unit_tables
 
-from msdepth.reporting.compare import image_dependence, load_suite_metrics, load_unit_tables  # noqa: E402
+ROOT = Path(__file__).resolve().parents[1]
 
 MODES = ("mono", "mono_stereo")
 CLASSES = ("car", "windshield", "glass", "sign")

@@ -11,6 +11,8 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 export PYTHONUNBUFFERED=1
 REPO=$PWD
+# The studies import msdepth; the GPU image has its dependencies but not the package installed.
+export PYTHONPATH="$REPO/src${PYTHONPATH:+:$PYTHONPATH}"
 RESULTS=${OUT:-$REPO/objects_gpu}
 WORK=${WORK:-/tmp/objects_gpu}
 DEVICE=${DEVICE:-cuda}

@@ -14,59 +14,11 @@ choice of frames only::
 from __future__ import annotations
 
 import argparse
-import io
-import json
-import subprocess
 import sys
-from pathlib import Path
 
-import pandas as pd
-import yaml
-
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "src"))
-
-from msdepth.reporting.stats import paired_bootstrap, paired_table  # noqa: E402
-
-CAP = 80
-CLASSES = ("car", "windshield", "glass", "sign")
-
-
-def show(ref: str, path: str) -> str:
-    """The text of ``path`` at git revision ``ref`` of the repository in the current folder."""
-    out = subprocess.run(["git", "show", f"{ref}:{path}"], capture_output=True, text=True)
-    if out.returncode:
-        raise SystemExit(f"error: {ref}:{path}: {out.stderr.strip()}")
-    return out.stdout
-
-
-def run_at(ref: str, variant: str, weight: str) -> dict:
-    """One optimum run at ``ref``: its per-frame and per-ROI tables and the masks' abs_rel."""
-    stem = f"optimum/{variant}/w{weight}"
-    full = pd.read_csv(io.StringIO(show(ref, f"metrics/full/{stem}.csv")))
-    roi = pd.read_csv(io.StringIO(show(ref, f"metrics/roi/{stem}.csv")))
-    masks = json.loads(show(ref, f"metrics/roi/{stem}.json"))["masks"][f"cap{CAP}"]
-    return {"full": full[full["cap"] == CAP], "roi": roi[roi["cap"] == CAP], "masks": masks}
-
-
-def settings_at(ref: str) -> dict:
-    """The optimum's weights and the MS-SSIM settings in ``ref``'s params.yaml."""
-    params = yaml.safe_load(show(ref, "params.yaml"))
-    weights = sorted({params["optimum"]["smoothness_weight"], *params["optimum"]["smoothness_sweep"]})
-    return {
-        "kernel": params["msssim"]["kernel_size"],
-        "levels": params["msssim"]["levels"],
-        "weights": weights,
-    }
-
-
-def diff_cell(run: pd.DataFrame, ref: pd.DataFrame, keys: list[str], what: str) -> str:
-    """``mean(run - ref)`` of abs_rel over paired units with its 95 % interval (``*``: excludes 0)."""
-    if run.empty:
-        return "–"
-    a, b = paired_table(run, ref, keys, "abs_rel", what)
-    d = paired_bootstrap(a, b)
-    return f"{d.mean:+.3f} [{d.low:+.3f}, {d.high:+.3f}]{' *' if d.excludes_zero else ''}"
+from msdepth.data.kitti import ROI_CLASSES as CLASSES
+from msdepth.errors import MsdepthError
+from msdepth.reporting.revisions import CAP, optimum_run_at, optimum_settings_at, paired_cell
 
 
 def rows_for(label: str, run: dict, ref: dict, what: str) -> tuple[str, str]:
@@ -79,9 +31,9 @@ def rows_for(label: str, run: dict, ref: dict, what: str) -> tuple[str, str]:
         + " | ".join(f"{v:.4f}" for v in by_class)
         + f" | {run['masks']['overall']['abs_rel']:.4f} |"
     )
-    cells = [diff_cell(full, ref["full"], ["frame"], what), diff_cell(roi, ref["roi"], ["roi"], what)]
+    cells = [paired_cell(full, ref["full"], ["frame"], what), paired_cell(roi, ref["roi"], ["roi"], what)]
     cells += [
-        diff_cell(roi[roi["class"] == c], ref["roi"][ref["roi"]["class"] == c], ["roi"], f"{what} {c}")
+        paired_cell(roi[roi["class"] == c], ref["roi"][ref["roi"]["class"] == c], ["roi"], f"{what} {c}")
         for c in CLASSES
     ]
     return absolute, f"| {label} | " + " | ".join(cells) + " |"
@@ -89,18 +41,18 @@ def rows_for(label: str, run: dict, ref: dict, what: str) -> tuple[str, str]:
 
 def report(refs: list[str]) -> str:
     """The markdown report over ``refs`` (the first one's ssim optimum is the reference)."""
-    base = settings_at(refs[0])
+    base = optimum_settings_at(refs[0])
     head = "| run | frames | abs_rel | a1 | ROI abs_rel | " + " | ".join(CLASSES) + " | mask abs_rel |"
     dhead = "| run | Δ abs_rel | Δ ROI abs_rel | " + " | ".join(f"Δ {c}" for c in CLASSES) + " |"
     lines = [f"Cap {CAP} m; ROI columns: box abs_rel, the mean over ROIs. Refs: {', '.join(refs)}.", ""]
     for weight in base["weights"]:
         w = f"{float(weight):.1f}"
-        ref = run_at(refs[0], "ssim", w)
+        ref = optimum_run_at(refs[0], "ssim", w)
         absolute, diffs = [rows_for(f"ssim w{w}", ref, ref, "ssim")[0]], []
         for r in refs:
-            s = settings_at(r)
+            s = optimum_settings_at(r)
             label = f"msssim k{s['kernel']} L{s['levels']} w{w}"
-            a, d = rows_for(label, run_at(r, "msssim", w), ref, f"{r} {label}")
+            a, d = rows_for(label, optimum_run_at(r, "msssim", w), ref, f"{r} {label}")
             absolute.append(a)
             diffs.append(d)
         lines += [f"## Smoothness weight {weight:g}", "", head, "|---" * 10 + "|", *absolute, ""]
@@ -112,7 +64,11 @@ def main(argv: list[str] | None = None) -> int:
     """Print the report for the revisions on the command line."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("refs", nargs="+", help="git revisions; the first one's ssim optimum is the reference")
-    print(report(ap.parse_args(argv).refs))
+    try:
+        print(report(ap.parse_args(argv).refs))
+    except MsdepthError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
     return 0
 
 

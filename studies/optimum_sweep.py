@@ -24,14 +24,12 @@ import numpy as np
 import pandas as pd
 import yaml
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "src"))
+from msdepth.config.params import apply_overrides, kernel_variant, params_from_dict
+from msdepth.data.kitti import KITTI_BASELINE
+from msdepth.data.synthetic import render_frame, within_range
+from msdepth.evaluation.suites import Frame, depth_maps, evaluate_full, evaluate_roi
 
-from msdepth.config.params import apply_overrides, params_from_dict  # noqa: E402
-from msdepth.data.kitti import KITTI_BASELINE  # noqa: E402
-from msdepth.data.synthetic import render_frame, within_range  # noqa: E402
-from msdepth.evaluation.suites import Frame, depth_maps, evaluate_full, evaluate_roi  # noqa: E402
-
+ROOT = Path(__file__).resolve().parents[1]  # its params.yaml is the base
 CAP = "cap80"
 ROI_KEYS = ("image", "class", "x0", "y0", "x1", "y1")
 
@@ -63,15 +61,6 @@ def scores(disps: list[np.ndarray], frames: list[Frame], rois: pd.DataFrame, par
     return out
 
 
-def variant_params(base: dict, spec: str):
-    """``name`` or ``msssim:K`` (MS-SSIM with kernel K) -> (label, name, params)."""
-    name, _, kernel = spec.partition(":")
-    raw = json.loads(json.dumps(base))
-    if kernel:
-        raw.setdefault(name, {})["kernel_size"] = int(kernel)
-    return spec, name, params_from_dict(raw)
-
-
 def main(argv: list[str] | None = None) -> int:
     from msdepth.optimum.solver import objective, optimise, optimum_disparities
 
@@ -92,8 +81,9 @@ def main(argv: list[str] | None = None) -> int:
         for f in frames
     ]
     rows = [{"run": "oracle constant", "weight": "", **scores(constant, frames, rois, params)}]
-    for spec in args.variants:
-        label, name, p = variant_params(base, spec)
+    for label in args.variants:
+        name, raw = kernel_variant(base, label)
+        p = params_from_dict(raw)
         for w in weights:
             start = time.perf_counter()
             disps = optimum_disparities(pairs, p, name, w, progress=False)

@@ -17,12 +17,11 @@ from pathlib import Path
 
 import yaml
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "src"))
+from msdepth.config.params import apply_overrides, params_from_dict
+from msdepth.data.synthetic import generate
+from msdepth.errors import MsdepthError
 
-from msdepth.config.params import apply_overrides as apply  # noqa: E402,F401  (learning.py imports it from here)
-from msdepth.config.params import params_from_dict  # noqa: E402
-from msdepth.errors import MsdepthError  # noqa: E402
+ROOT = Path(__file__).resolve().parents[1]  # its params.yaml and stages/
 
 
 def prepare(out: Path, assignments: list[str]) -> None:
@@ -31,10 +30,7 @@ def prepare(out: Path, assignments: list[str]) -> None:
     import os
     import runpy
 
-    # Here, not at the top: studies/learning.py imports this module for apply() alone.
-    from msdepth.data.synthetic import generate
-
-    raw = apply(yaml.safe_load((ROOT / "params.yaml").read_text()), assignments)
+    raw = apply_overrides(yaml.safe_load((ROOT / "params.yaml").read_text()), assignments)
     params = params_from_dict(raw)  # checked before anything is written
     out.mkdir(parents=True, exist_ok=True)
     (out / "params.yaml").write_text(yaml.safe_dump(raw, sort_keys=False))

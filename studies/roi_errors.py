@@ -23,14 +23,12 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "src"))
-
-from msdepth.config.params import load_params  # noqa: E402
-from msdepth.data import kitti  # noqa: E402
-from msdepth.data.index import read_eval_index  # noqa: E402
-from msdepth.data.pairs import load_pair_list  # noqa: E402
-from msdepth.evaluation import baselines  # noqa: E402
-from msdepth.evaluation.suites import depth_maps, load_frames, read_depth_maps  # noqa: E402
+from msdepth.config.params import load_params
+from msdepth.data import kitti
+from msdepth.data.index import read_eval_index
+from msdepth.data.pairs import load_pair_list
+from msdepth.evaluation import baselines
+from msdepth.evaluation.suites import depth_maps, load_frames, read_depth_maps
 
 INDEX = Path("data/index")
 CAP = 80.0

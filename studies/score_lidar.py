@@ -20,11 +20,9 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "src"))
-
-from msdepth.data.kitti import lidar_depth_map, read_calib, read_velodyne  # noqa: E402
-from msdepth.evaluation.metrics import compute_errors  # noqa: E402
-from msdepth.geometry.depth import clamp_depth  # noqa: E402
+from msdepth.data.kitti import lidar_depth_map, read_calib, read_velodyne
+from msdepth.evaluation.metrics import compute_errors
+from msdepth.geometry.depth import clamp_depth
 
 MIN_DEPTH = 1e-3
 

@@ -19,12 +19,10 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "src"))
-
-from msdepth.data.index import read_eval_index  # noqa: E402
-from msdepth.data.kitti import read_image  # noqa: E402
-from msdepth.errors import DataError  # noqa: E402
-from msdepth.evaluation.suites import load_frames  # noqa: E402
+from msdepth.data.index import read_eval_index
+from msdepth.data.kitti import read_image
+from msdepth.errors import DataError
+from msdepth.evaluation.suites import load_frames
 
 INDEX = Path("data/index")
 

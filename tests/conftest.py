@@ -1,14 +1,21 @@
-"""Fixtures shared by several test modules."""
+"""Fixtures and helpers shared by several test modules: tiny stereo pairs, the stage scripts, and
+child processes: a script of this tree, or DVC in a copy of the project (the end-to-end tests)."""
 
 from __future__ import annotations
 
 import functools
+import json
+import os
 import runpy
+import shutil
+import subprocess
+import sys
 from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
 import pytest
+import yaml
 
 from msdepth.io import write_png
 
@@ -38,3 +45,122 @@ def stage(name: str) -> SimpleNamespace:
     """The stage script ``stages/<name>.py`` loaded as a namespace (its ``__main__`` block not run):
     the scripts are not a package, and nothing in ``msdepth`` imports them."""
     return SimpleNamespace(**runpy.run_path(str(ROOT / "stages" / f"{name}.py")))
+
+
+# ------------------------------------------------------------------------- child processes
+
+
+def python_env(src: Path = ROOT / "src", **extra: str) -> dict[str, str]:
+    """This process's environment with ``src`` as PYTHONPATH (and ``extra``): a child Python
+    imports that tree's msdepth, whatever an installed one points at."""
+    return dict(os.environ, PYTHONPATH=str(src), **extra)
+
+
+def run_script(
+    script: str | Path, *args: str, cwd: Path, timeout: float = 120
+) -> subprocess.CompletedProcess:
+    """Run the Python script ``script`` (relative to the repository root, or absolute) in ``cwd``
+    with this tree's msdepth; its exit status and output, whatever they are."""
+    return subprocess.run(
+        [sys.executable, str(ROOT / script), *args],
+        cwd=cwd,
+        env=python_env(),
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+    )
+
+
+# --------------------------------------------------------- a copy of the project, run by DVC
+
+# Every copied project's params on top of params.yaml: the pipeline at a tiny size
+# (test_pipeline_e2e.py, test_pipeline_folder.py, test_kitti_pipeline.py).
+TINY = {
+    "data": {
+        "height": 32,
+        "width": 96,
+        "synthetic": {"drives": 2, "train_pairs": 16, "eval_frames": 3, "height": 48, "width": 160},
+    },
+    "model": {"width_multiplier": 0.0625},
+    "train": {"epochs": 2, "batch_size": 4, "seeds": [0]},
+    "msssim": {"levels": 3},
+    # Two weights, the least a sweep may hold (a decade, holding smoothness_weight 10): each one
+    # is a stage per variant. The first two frames' ROIs still give the car class its cost curve.
+    "optimum": {
+        "iterations": 3,
+        "levels": 1,
+        "sweep_frames": 2,
+        "smoothness_sweep": [1.0, 10.0],
+        "cost_frames": 2,
+    },
+}
+# What a copy holds of this project: the pipeline, its code and lists, DVC's and git's settings.
+PROJECT_FILES = ("dvc.yaml", "stages", "src", "data_lists", ".dvc", ".dvcignore", ".gitignore")
+
+
+def require_dvc() -> None:
+    """Skip the calling test (or fixture) where DVC is not installed."""
+    if shutil.which("dvc") is None and not (Path(sys.executable).parent / "dvc").exists():
+        pytest.skip("dvc is not installed")
+
+
+def merge(base: dict, patch: dict) -> dict:
+    """``base`` with ``patch`` merged in, section by section (``base`` itself is changed)."""
+    for k, v in patch.items():
+        base[k] = merge(base.get(k, {}), v) if isinstance(v, dict) else v
+    return base
+
+
+def stage_env(project: Path) -> dict[str, str]:
+    """The environment of DVC in a copied ``project``: its stages call ``python``, so this
+    interpreter comes first on PATH, and they import the copy's own sources."""
+    path = f"{Path(sys.executable).parent}{os.pathsep}{os.environ.get('PATH', '')}"
+    return python_env(project / "src", PATH=path)
+
+
+def run_checked(cmd: list[str], cwd: Path) -> str:
+    """Run ``cmd`` in the copied project ``cwd`` (:func:`stage_env`); its stdout, the test failing
+    with the output's tail unless it exits 0."""
+    proc = subprocess.run(cmd, cwd=cwd, capture_output=True, text=True, env=stage_env(cwd))
+    assert proc.returncode == 0, f"{' '.join(cmd)} failed:\n{proc.stdout[-3000:]}\n{proc.stderr[-3000:]}"
+    return proc.stdout
+
+
+# `dvc status --json` of a pipeline that is up to date: the pretrained stage hashes model.pretrained's
+# file on every `dvc repro` (dvc.yaml: always_changed), so DVC always lists it.
+UP_TO_DATE = {"pretrained": ["always changed"]}
+
+
+def dvc_status(repo: Path) -> dict:
+    """``dvc status --json`` in the copied project ``repo``."""
+    return json.loads(run_checked([sys.executable, "-m", "dvc", "status", "--json"], repo))
+
+
+def dvc(args: list[str], cwd: Path, ok: bool = True) -> subprocess.CompletedProcess:
+    """``dvc <args>`` in the copied project ``cwd``; unless ``ok`` is False, the test fails
+    with the output's tail unless it exits 0."""
+    proc = subprocess.run(
+        [sys.executable, "-m", "dvc", *args], cwd=cwd, capture_output=True, text=True, env=stage_env(cwd)
+    )
+    if ok:
+        assert proc.returncode == 0, (
+            f"dvc {' '.join(args)} failed:\n{proc.stdout[-3000:]}\n{proc.stderr[-3000:]}"
+        )
+    return proc
+
+
+def project(work: Path, patch: dict | None = None, tiny: dict = TINY) -> Path:
+    """A git repository at ``work`` holding a copy of this project's pipeline, its params.yaml
+    with ``tiny`` and then ``patch`` merged in, all committed."""
+    for name in PROJECT_FILES:
+        src = ROOT / name
+        if src.is_dir():
+            shutil.copytree(src, work / name, ignore=shutil.ignore_patterns("__pycache__", "tmp", "cache"))
+        else:
+            shutil.copy(src, work / name)
+    params = merge(merge(yaml.safe_load((ROOT / "params.yaml").read_text()), tiny), patch or {})
+    (work / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
+    run_checked(["git", "init", "-q"], work)
+    run_checked(["git", "add", "-A"], work)
+    run_checked(["git", "-c", "user.email=t@t", "-c", "user.name=t", "commit", "-qm", "init"], work)
+    return work

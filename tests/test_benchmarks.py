@@ -13,15 +13,14 @@ from pathlib import Path
 import pandas as pd
 import pytest
 import yaml
+from conftest import run_script
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
 def _script(path: Path, *args: str, cwd: Path) -> str:
-    """Run the Python script ``path`` in ``cwd``; its stdout (it must succeed)."""
-    proc = subprocess.run(
-        [sys.executable, str(path), *args], cwd=cwd, capture_output=True, text=True, timeout=600
-    )
+    """Run the Python script ``path`` in ``cwd`` with this tree's msdepth; its stdout (it must succeed)."""
+    proc = run_script(path, *args, cwd=cwd, timeout=600)
     assert proc.returncode == 0, proc.stderr[-3000:]
     return proc.stdout
 

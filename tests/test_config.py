@@ -10,7 +10,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
-from test_stages import _run as run_script
+from conftest import run_script
 
 from msdepth.config.checks import SHOWN_CHARS, shown
 from msdepth.config.params import MAX_PARAMS_BYTES, load_params, params_from_dict

@@ -11,13 +11,11 @@ from __future__ import annotations
 import hashlib
 import os
 import re
-import subprocess
-import sys
 import tempfile
 from pathlib import Path
 
 import pytest
-from conftest import stage
+from conftest import run_script, stage
 
 from msdepth.config.params import SyntheticConfig, params_from_dict
 from msdepth.data import roots
@@ -172,16 +170,8 @@ def test_the_stage_refuses_in_one_line_naming_the_root(tmp_path: Path) -> None:
     """data.source synthetic where KITTI was extracted: exit 1 and one line, also in a dry run."""
     before = _kitti_tree(tmp_path / "data" / "kitti")
     (tmp_path / "params.yaml").write_text("data: {source: synthetic, root: data/kitti}\n")
-    env = dict(os.environ, PYTHONPATH=str(ROOT / "src"))
     for args in ([], ["--dry-run"]):
-        proc = subprocess.run(
-            [sys.executable, str(ROOT / "stages" / "prepare_data.py"), *args],
-            cwd=tmp_path,
-            env=env,
-            capture_output=True,
-            text=True,
-            timeout=120,
-        )
+        proc = run_script("stages/prepare_data.py", *args, cwd=tmp_path)
         assert proc.returncode == 1, proc.stderr
         lines = proc.stderr.strip().splitlines()
         assert len(lines) == 1 and "data/kitti: holds KITTI's download" in lines[0], proc.stderr

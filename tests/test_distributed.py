@@ -3,13 +3,13 @@ process with the same global batch; the sampler reproduces a shuffling DataLoade
 
 from __future__ import annotations
 
-import os
 import subprocess
 import sys
 import textwrap
 from pathlib import Path
 
 import torch
+from conftest import python_env
 from test_train import _params, _train, _weights
 from torch.utils.data import DataLoader
 
@@ -67,7 +67,7 @@ def test_two_ranks_match_one_process_with_the_same_global_batch(pairs, tmp_path:
     script.write_text(
         CHILD.format(tests=str(ROOT / "tests"), pair_file=str(pair_file), out=str(tmp_path / "ddp"))
     )
-    env = dict(os.environ, PYTHONPATH=str(ROOT / "src"), OMP_NUM_THREADS="1")
+    env = python_env(OMP_NUM_THREADS="1")
     proc = subprocess.run(
         [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node=2", str(script)],
         capture_output=True,
@@ -116,7 +116,7 @@ def test_a_crashed_rank_stops_the_job_instead_of_hanging(pairs, tmp_path: Path) 
     pair_file.write_text("".join(f"{a} {b}\n" for a, b in pairs))
     script = tmp_path / "crash.py"
     script.write_text(CRASH.format(tests=str(ROOT / "tests"), pair_file=str(pair_file), out=str(tmp_path)))
-    env = dict(os.environ, PYTHONPATH=str(ROOT / "src"), OMP_NUM_THREADS="1")
+    env = python_env(OMP_NUM_THREADS="1")
     proc = subprocess.run(
         [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node=2", str(script)],
         capture_output=True,

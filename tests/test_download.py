@@ -28,6 +28,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from conftest import run_script
 
 from msdepth import io as dl_io
 from msdepth.config.params import params_from_dict
@@ -1029,21 +1030,9 @@ def _kitti_project(
 
 
 def _stage(cwd: Path, *args: str) -> tuple[int, str, str, float]:
-    import os
-    import subprocess
-    import sys
-
-    root = Path(__file__).resolve().parents[1]
-    env = dict(os.environ, PYTHONPATH=str(root / "src"))
+    """stages/prepare_data.py in ``cwd``: its exit status, stdout, stderr and seconds."""
     started = time.monotonic()
-    proc = subprocess.run(
-        [sys.executable, str(root / "stages" / "prepare_data.py"), *args],
-        cwd=cwd,
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=120,
-    )
+    proc = run_script("stages/prepare_data.py", *args, cwd=cwd)
     return proc.returncode, proc.stdout, proc.stderr, time.monotonic() - started
 
 

@@ -3,7 +3,6 @@ never leaves a truncated checkpoint under its final name."""
 
 from __future__ import annotations
 
-import os
 import signal
 import subprocess
 import sys
@@ -11,6 +10,7 @@ import textwrap
 from pathlib import Path
 
 import torch
+from conftest import python_env
 from test_train import _params, _train, _weights
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -47,7 +47,7 @@ def _run_child(tmp: Path, pairs, out: Path, mode: str, pause_at: int) -> str:
     pair_file.write_text("".join(f"{a} {b}\n" for a, b in pairs))
     script = tmp / "child.py"
     script.write_text(CHILD.format(tests=str(ROOT / "tests"), pair_file=str(pair_file), out=str(out)))
-    env = dict(os.environ, PAUSE_AT=str(pause_at), MODE=mode, PYTHONPATH=str(ROOT / "src"))
+    env = python_env(PAUSE_AT=str(pause_at), MODE=mode)
     proc = subprocess.Popen([sys.executable, str(script)], stdout=subprocess.PIPE, text=True, env=env)
     line = proc.stdout.readline().strip()
     if line == "PAUSED":

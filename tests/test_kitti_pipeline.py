@@ -22,7 +22,7 @@ from typing import Iterator
 
 import kitti_mirror
 import pytest
-from test_pipeline_e2e import UP_TO_DATE, _project, _run, _status
+from conftest import UP_TO_DATE, dvc_status, project, run_checked
 
 from msdepth.config.params import SyntheticConfig
 from msdepth.data import synthetic
@@ -127,7 +127,7 @@ def _check_run(work: Path, archives: int) -> str:
     assert "Baselines (image-blind, from training GT): constant, prior." in md and "Missing" not in md
     assert "| prior |" in md and "| constant |" in md
     assert sorted(p.name for p in (work / "plots" / "figures").iterdir()) == sorted(STAGE_FIGURES)
-    assert _status(work) == UP_TO_DATE
+    assert dvc_status(work) == UP_TO_DATE
     return md
 
 
@@ -159,8 +159,8 @@ def mirror(tmp_path_factory):
 
 def test_kitti_source_runs_every_stage(mirror, tmp_path: Path) -> None:
     base_url, lists, archives = mirror
-    work = _project(tmp_path, _kitti_params(base_url, lists, roi_min_size=4, roi_min_valid=0.2))
-    _run([sys.executable, "-m", "dvc", "repro", "--quiet"], work)
+    work = project(tmp_path, _kitti_params(base_url, lists, roi_min_size=4, roi_min_valid=0.2))
+    run_checked([sys.executable, "-m", "dvc", "repro", "--quiet"], work)
     _check_run(work, archives)
     report = json.loads((work / "data" / "index" / "report.json").read_text())
     assert report["source"] == "kitti" and report["train_pairs_found"] == SYN.train_pairs
@@ -191,7 +191,7 @@ def _check_monocular(work: Path, lists: Path) -> None:
     (odometry / "poses" / "09.txt").write_text("".join(poses))
     mono = ["-S", "train.mode=mono", "-S", f"data.kitti.mono_split={lists / 'mono.txt'}"]
     # One run's chain (its training, inference and full-image suite) is enough here.
-    _run([sys.executable, "-m", "dvc", "exp", "run", "--quiet", *mono, "eval_full@ssim-0"], work)
+    run_checked([sys.executable, "-m", "dvc", "exp", "run", "--quiet", *mono, "eval_full@ssim-0"], work)
     summary = json.loads((work / "metrics" / "train" / "ssim" / "seed0.json").read_text())
     assert summary["pose"]["snippets"] == len(shots) - 1 and list(summary["pose"]["sequences"]) == ["09"]
     full = json.loads((work / "metrics" / "full" / "ssim" / "seed0.json").read_text())
@@ -234,8 +234,8 @@ def test_real_kitti_files_run_every_stage(tmp_path: Path) -> None:
             base_url, lists, roi_min_size=16, roi_min_valid=0.03, rois_csv=str(lists / "rois.csv")
         )
         (tmp_path / "work").mkdir()
-        work = _project(tmp_path / "work", params)
-        _run([sys.executable, "-m", "dvc", "repro", "--quiet"], work)
+        work = project(tmp_path / "work", params)
+        run_checked([sys.executable, "-m", "dvc", "repro", "--quiet"], work)
     md = _check_run(work, len(urls))
     (tmp_path / "compare.md").write_text(md)  # kept beside the run for a reader of the test's tmp dir
     report = json.loads((work / "data" / "index" / "report.json").read_text())

@@ -11,12 +11,13 @@ import pytest
 
 from msdepth.__main__ import main
 from msdepth.cli.predict import default_focal
-from msdepth.config.params import Params, apply_overrides, params_from_dict
+from msdepth.config.params import Params, apply_overrides, kernel_variant, params_from_dict
 from msdepth.data.pairs import to_tensor
 from msdepth.data.synthetic import render_frame
 from msdepth.errors import ConfigError
 from msdepth.evaluation.metrics import compute_errors
 from msdepth.io import write_png
+from msdepth.optimum.frames import add_cost_curves
 from msdepth.optimum.solver import (
     COST_SCALES,
     basin,
@@ -134,6 +135,20 @@ def test_a_lambertian_plane_s_cost_curve_is_lowest_at_s_1(variant: str) -> None:
     assert 0.8 < low <= 1 <= high < 1.25  # a textured box: a narrow basin around the truth
 
 
+def test_add_cost_curves_appends_each_box_s_curve_to_its_class() -> None:
+    """One frame's boxes: the same curves as cost_curve per box, grouped by class after any already there."""
+    left, right = plane_pair()
+    gt = np.full((H, W), float(SHIFT), np.float32)
+    criterion = objective(Params(), "ssim")
+    boxes = [("car", (60, 12, 100, 36)), ("sign", (20, 4, 40, 20)), ("car", (100, 20, 140, 44))]
+    curves = {"car": [np.zeros(len(COST_SCALES))]}
+    add_cost_curves(curves, criterion, left, right, gt, boxes)
+    assert sorted(curves) == ["car", "sign"] and [len(curves[c]) for c in ("car", "sign")] == [3, 1]
+    added = [*curves["car"][1:], *curves["sign"]]
+    for got, (_, box) in zip(added, [boxes[0], boxes[2], boxes[1]], strict=True):
+        np.testing.assert_array_equal(got, cost_curve(to_tensor(left), to_tensor(right), gt, box, criterion))
+
+
 def test_basin_and_class_summary_on_known_curves() -> None:
     scales = np.geomspace(0.5, 2, 9)  # 0.5, 0.59, 0.71, 0.84, 1, 1.19, 1.41, 1.68, 2
     costs = np.abs(np.log(scales / 1.19))
@@ -157,6 +172,17 @@ def test_the_optimum_section_is_checked() -> None:
     assert raw == {"optimum": {"iterations": 7}, "msssim": {"kernel_size": 5}}
     with pytest.raises(ConfigError, match="KEY=VALUE"):
         apply_overrides({}, ["optimum.iterations"])
+
+
+def test_a_studies_variant_spec_sets_its_kernel_size_on_a_copy() -> None:
+    raw = {"msssim": {"levels": 3}, "train": {"seeds": [0]}}
+    name, out = kernel_variant(raw, "msssim:7")
+    assert name == "msssim" and out == {"msssim": {"levels": 3, "kernel_size": 7}, "train": {"seeds": [0]}}
+    assert raw == {"msssim": {"levels": 3}, "train": {"seeds": [0]}}  # the base stays for the next spec
+    assert kernel_variant(raw, "ssim") == ("ssim", raw)
+    assert kernel_variant({}, "ssim:5") == ("ssim", {"ssim": {"kernel_size": 5}})
+    with pytest.raises(ConfigError, match="NAME:KERNEL_SIZE"):
+        kernel_variant(raw, "msssim:big")
 
 
 # ----------------------------------------------------------------------------- the CLI

@@ -18,84 +18,22 @@ from pathlib import Path
 
 import pytest
 import yaml
+from conftest import UP_TO_DATE, dvc_status, merge, project, require_dvc, run_checked, stage_env
 
 from msdepth.reporting.figures import STAGE_FIGURES
 
 ROOT = Path(__file__).resolve().parents[1]
 
-TINY = {
-    "data": {
-        "height": 32,
-        "width": 96,
-        "synthetic": {"drives": 2, "train_pairs": 16, "eval_frames": 3, "height": 48, "width": 160},
-    },
-    "model": {"width_multiplier": 0.0625},
-    "train": {"epochs": 2, "batch_size": 4, "seeds": [0]},
-    "msssim": {"levels": 3},
-    # Two weights, the least a sweep may hold (a decade, holding smoothness_weight 10): each one
-    # is a stage per variant. The first two frames' ROIs still give the car class its cost curve.
-    "optimum": {
-        "iterations": 3,
-        "levels": 1,
-        "sweep_frames": 2,
-        "smoothness_sweep": [1.0, 10.0],
-        "cost_frames": 2,
-    },
-}
+# The copied projects run with conftest.TINY: 2 epochs, two optimum weights (SWEEP), 3 frames.
 SWEEP = ("1.0", "10.0")
 OPTIMUM_RUNS = [f"optimum/{v}/w{w}" for v in ("ssim", "msssim") for w in SWEEP]
 
 
-def _merge(base: dict, patch: dict) -> dict:
-    for k, v in patch.items():
-        base[k] = _merge(base.get(k, {}), v) if isinstance(v, dict) else v
-    return base
-
-
-# `dvc status --json` of a pipeline that is up to date: the pretrained stage hashes model.pretrained's
-# file on every `dvc repro` (dvc.yaml: always_changed), so DVC always lists it.
-UP_TO_DATE = {"pretrained": ["always changed"]}
-
-
-def _status(repo: Path) -> dict:
-    """``dvc status --json`` in ``repo``."""
-    return json.loads(_run([sys.executable, "-m", "dvc", "status", "--json"], repo))
-
-
-def _run(cmd: list[str], cwd: Path) -> str:
-    # Stages call `python`: make it this interpreter, importing the copied sources.
-    env = dict(
-        os.environ,
-        PATH=f"{Path(sys.executable).parent}{os.pathsep}{os.environ.get('PATH', '')}",
-        PYTHONPATH=str(cwd / "src"),
-    )
-    proc = subprocess.run(cmd, cwd=cwd, capture_output=True, text=True, env=env)
-    assert proc.returncode == 0, f"{' '.join(cmd)} failed:\n{proc.stdout[-3000:]}\n{proc.stderr[-3000:]}"
-    return proc.stdout
-
-
 @pytest.fixture(scope="module")
 def repo(tmp_path_factory) -> Path:
-    if shutil.which("dvc") is None and not (Path(sys.executable).parent / "dvc").exists():
-        pytest.skip("dvc is not installed")
-    work = _project(tmp_path_factory.mktemp("pipeline"))
-    _run([sys.executable, "-m", "dvc", "repro", "--quiet"], work)
-    return work
-
-
-def _project(work: Path, patch: dict | None = None) -> Path:
-    """A git repository holding the project's pipeline with the TINY params (and ``patch``)."""
-    for name in ("dvc.yaml", "stages", "src", "data_lists", ".dvc", ".dvcignore", ".gitignore"):
-        src = ROOT / name
-        if src.is_dir():
-            shutil.copytree(src, work / name, ignore=shutil.ignore_patterns("__pycache__", "tmp", "cache"))
-        else:
-            shutil.copy(src, work / name)
-    params = _merge(_merge(yaml.safe_load((ROOT / "params.yaml").read_text()), TINY), patch or {})
-    (work / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
-    _run(["git", "init", "-q"], work)
-    _run(["git", "add", "-A"], work)
-    _run(["git", "-c", "user.email=t@t", "-c", "user.name=t", "commit", "-qm", "init"], work)
+    require_dvc()
+    work = project(tmp_path_factory.mktemp("pipeline"))
+    run_checked([sys.executable, "-m", "dvc", "repro", "--quiet"], work)
     return work
 
 
@@ -138,10 +76,10 @@ def test_repro_writes_every_suite_and_the_comparison(repo: Path):
     figures = sorted(p.name for p in (repo / "plots" / "figures").iterdir())
     assert figures == sorted(STAGE_FIGURES)
     # `dvc plots show` writes a page that needs nothing from the internet.
-    _run([sys.executable, "-m", "dvc", "plots", "show", "-o", "plots_html"], repo)
+    run_checked([sys.executable, "-m", "dvc", "plots", "show", "-o", "plots_html"], repo)
     page = (repo / "plots_html" / "index.html").read_text()
     assert "http://" not in page and "https://" not in page and page.count("<img") == len(figures)
-    assert _status(repo) == UP_TO_DATE
+    assert dvc_status(repo) == UP_TO_DATE
 
 
 def _check_optimum(repo: Path, md: str, compare: dict) -> None:
@@ -175,20 +113,20 @@ def test_push_and_pull_through_a_local_dvc_remote(repo: Path, tmp_path: Path):
     """Share the trained models and outputs: `dvc push` to a directory remote, clone, `dvc pull`,
     and `dvc repro` in the clone redoes only the cheap uncached stages, not the training."""
     dvc = [sys.executable, "-m", "dvc"]
-    _run([*dvc, "remote", "add", "-d", "shared", str(tmp_path / "remote")], repo)
-    _run([*dvc, "push", "--quiet"], repo)
-    _run(["git", "add", "-A"], repo)
-    _run(["git", "-c", "user.email=t@t", "-c", "user.name=t", "commit", "-qm", "results"], repo)
+    run_checked([*dvc, "remote", "add", "-d", "shared", str(tmp_path / "remote")], repo)
+    run_checked([*dvc, "push", "--quiet"], repo)
+    run_checked(["git", "add", "-A"], repo)
+    run_checked(["git", "-c", "user.email=t@t", "-c", "user.name=t", "commit", "-qm", "results"], repo)
     clone = tmp_path / "clone"
-    _run(["git", "clone", "-q", str(repo), str(clone)], tmp_path)
-    _run([*dvc, "pull", "--quiet"], clone)
+    run_checked(["git", "clone", "-q", str(repo), str(clone)], tmp_path)
+    run_checked([*dvc, "pull", "--quiet"], clone)
     for out in (
         "models/ssim/seed0/model.pt",
         "models/msssim/seed0/model.pt",
         "outputs/msssim/seed0/depth.npz",
     ):
         assert (clone / out).read_bytes() == (repo / out).read_bytes(), out
-    log = _run([*dvc, "repro"], clone)
+    log = run_checked([*dvc, "repro"], clone)
     assert "Running stage 'train@" not in log and "Running stage 'infer@" not in log
     for suite in ("full", "roi", "gradients"):
         name = Path("metrics") / suite / "msssim" / "seed0.json"
@@ -198,12 +136,8 @@ def test_push_and_pull_through_a_local_dvc_remote(repo: Path, tmp_path: Path):
 def test_killed_repro_reruns_to_identical_results(repo: Path, tmp_path: Path):
     """SIGKILL `dvc repro` (and its stage) mid-training; the next `dvc repro` completes and
     every metric equals the uninterrupted run's."""
-    work = _project(tmp_path)
-    env = dict(
-        os.environ,
-        PATH=f"{Path(sys.executable).parent}{os.pathsep}{os.environ.get('PATH', '')}",
-        PYTHONPATH=str(work / "src"),
-    )
+    work = project(tmp_path)
+    env = stage_env(work)
     proc = subprocess.Popen(
         [sys.executable, "-m", "dvc", "repro", "--quiet"],
         cwd=work,
@@ -220,7 +154,7 @@ def test_killed_repro_reruns_to_identical_results(repo: Path, tmp_path: Path):
     os.killpg(proc.pid, signal.SIGKILL)  # dvc and the running stage, as a power cut would
     proc.wait()
     assert not (work / "metrics" / "compare.json").exists()
-    _run([sys.executable, "-m", "dvc", "repro", "--quiet"], work)
+    run_checked([sys.executable, "-m", "dvc", "repro", "--quiet"], work)
     for suite in ("full", "roi", "gradients"):
         for run in RUNS:
             name = Path("metrics") / suite / f"{run}.json"
@@ -270,9 +204,11 @@ def test_kernel_size_experiment_reruns_only_msssim_then_the_way_back_and_applyin
     shutil.copytree(repo, work, symlinks=True)
     dvc = [sys.executable, "-m", "dvc"]
     for key, value in (("user.email", "t@t"), ("user.name", "t")):
-        _run(["git", "config", key, value], work)
-    _run(["git", "add", "-A"], work)
-    _run(["git", "commit", "-qm", "results", "--allow-empty"], work)  # an earlier test may have committed
+        run_checked(["git", "config", key, value], work)
+    run_checked(["git", "add", "-A"], work)
+    run_checked(
+        ["git", "commit", "-qm", "results", "--allow-empty"], work
+    )  # an earlier test may have committed
     models = {run: work / "models" / run / "model.pt" for run in ("ssim/seed0", "msssim/seed0")}
     committed = {run: path.read_bytes() for run, path in models.items()}
     ssim_full = work / "metrics" / "full" / "ssim" / "seed0.json"
@@ -280,7 +216,7 @@ def test_kernel_size_experiment_reruns_only_msssim_then_the_way_back_and_applyin
     compare = work / "metrics" / "compare.md"
     # TINY's msssim.levels is 3, not the default 4: the row names it beside the kernel.
     assert "| msssim (levels=3) |" in compare.read_text() and "k=7" not in compare.read_text()
-    log = _run([*dvc, "exp", "run", "-n", "k7", "-S", "msssim.kernel_size=7"], work)
+    log = run_checked([*dvc, "exp", "run", "-n", "k7", "-S", "msssim.kernel_size=7"], work)
     ran = {line.split("'")[1] for line in log.splitlines() if line.startswith("Running stage '")}
     assert ran == MSSSIM_STAGES, sorted(ran ^ MSSSIM_STAGES)
     experiment = models["msssim/seed0"].read_bytes()
@@ -299,27 +235,27 @@ def test_kernel_size_experiment_reruns_only_msssim_then_the_way_back_and_applyin
     assert (
         json.loads((work / "metrics" / "compare.json").read_text())["settings"]["msssim"]["kernel_size"] == 7
     )
-    assert "k7" in _run([*dvc, "exp", "show", "--md", "--only-changed"], work)
+    assert "k7" in run_checked([*dvc, "exp", "show", "--md", "--only-changed"], work)
 
-    _run(["git", "checkout", "HEAD", "--", "."], work)
-    _run([*dvc, "checkout", "--quiet"], work)
+    run_checked(["git", "checkout", "HEAD", "--", "."], work)
+    run_checked([*dvc, "checkout", "--quiet"], work)
     assert {run: path.read_bytes() for run, path in models.items()} == committed
     assert "k=7" not in compare.read_text()
-    assert _run(["git", "status", "--porcelain"], work) == ""
-    assert _status(work) == UP_TO_DATE
+    assert run_checked(["git", "status", "--porcelain"], work) == ""
+    assert dvc_status(work) == UP_TO_DATE
 
-    _run([*dvc, "exp", "apply", "k7"], work)
+    run_checked([*dvc, "exp", "apply", "k7"], work)
     assert models["msssim/seed0"].read_bytes() == experiment
     assert yaml.safe_load((work / "params.yaml").read_text())["msssim"]["kernel_size"] == 7
 
 
 def test_dvc_metrics_show_lists_the_headline_numbers_and_fits_a_terminal(repo: Path):
-    shown = json.loads(_run([sys.executable, "-m", "dvc", "metrics", "show", "--json"], repo))
+    shown = json.loads(run_checked([sys.executable, "-m", "dvc", "metrics", "show", "--json"], repo))
     files = {path for rev in shown.values() for path in rev.get("data", {})}
     assert files == {f"metrics/headline/{suite}/{run}.json" for suite in ("full", "roi") for run in RUNS} | {
         f"metrics/headline/sets/eigen/full/{run}.json" for run in RUNS
     } | {f"metrics/headline/{suite}/{run}.json" for suite in ("full", "roi") for run in OPTIMUM_RUNS}
-    table = _run([sys.executable, "-m", "dvc", "metrics", "show"], repo)
+    table = run_checked([sys.executable, "-m", "dvc", "metrics", "show"], repo)
     assert max(map(len, table.splitlines())) <= 160, table
     mean = json.loads((repo / "metrics" / "headline" / "mean.json").read_text())
     assert set(mean) == {"ssim", "msssim", "constant", "prior"} and set(mean["ssim"]) == {
@@ -361,18 +297,14 @@ def test_bad_params_fail_dvc_repro_first_and_delete_nothing(repo: Path, patch: d
     """DVC removes a stage's outputs just before running it: validate_params runs first and stops
     `dvc repro` with one line, so the trained models and tracked results stay as they were."""
     good = (repo / "params.yaml").read_text()
-    before, git_before = _workspace(repo), _run(["git", "status", "--porcelain"], repo)
-    (repo / "params.yaml").write_text(yaml.safe_dump(_merge(yaml.safe_load(good), patch), sort_keys=False))
-    env = dict(
-        os.environ,
-        PATH=f"{Path(sys.executable).parent}{os.pathsep}{os.environ.get('PATH', '')}",
-        PYTHONPATH=str(repo / "src"),
-    )
+    before, git_before = _workspace(repo), run_checked(["git", "status", "--porcelain"], repo)
+    (repo / "params.yaml").write_text(yaml.safe_dump(merge(yaml.safe_load(good), patch), sort_keys=False))
+    env = stage_env(repo)
     try:
         proc = subprocess.run(
             [sys.executable, "-m", "dvc", "repro"], cwd=repo, env=env, capture_output=True, text=True
         )
-        after, git_after = _workspace(repo), _run(["git", "status", "--porcelain"], repo)
+        after, git_after = _workspace(repo), run_checked(["git", "status", "--porcelain"], repo)
     finally:
         (repo / "params.yaml").write_text(good)
     assert proc.returncode != 0
@@ -382,7 +314,7 @@ def test_bad_params_fail_dvc_repro_first_and_delete_nothing(repo: Path, patch: d
     changed = {name for name in before.keys() | after.keys() if before.get(name) != after.get(name)}
     assert changed == {"params.yaml"}
     assert set(git_after.splitlines()) - set(git_before.splitlines()) <= {" M params.yaml"}
-    assert _status(repo) == UP_TO_DATE
+    assert dvc_status(repo) == UP_TO_DATE
 
 
 def test_more_seeds_train_only_the_new_runs_and_widen_the_comparison(repo: Path, tmp_path: Path):
@@ -390,11 +322,11 @@ def test_more_seeds_train_only_the_new_runs_and_widen_the_comparison(repo: Path,
     params = yaml.safe_load((repo / "params.yaml").read_text())
     params["train"]["seeds"] = [0, 1]
     (repo / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
-    changed = set(json.loads(_run([sys.executable, "-m", "dvc", "status", "--json"], repo)))
+    changed = set(json.loads(run_checked([sys.executable, "-m", "dvc", "status", "--json"], repo)))
     assert {"train@ssim-1", "train@msssim-1", "compare", "figures"} <= changed
     assert not any(stage.endswith("-0") for stage in changed), changed  # seed 0's runs stand
     before = (repo / "metrics" / "full" / "ssim" / "seed0.json").read_text()
-    _run([sys.executable, "-m", "dvc", "repro", "--quiet"], repo)
+    run_checked([sys.executable, "-m", "dvc", "repro", "--quiet"], repo)
     assert (repo / "metrics" / "full" / "ssim" / "seed0.json").read_text() == before
     seed1 = json.loads((repo / "metrics" / "full" / "ssim" / "seed1.json").read_text())
     assert seed1 != json.loads(before)  # another seed, another run
@@ -417,11 +349,11 @@ def test_a_new_variant_in_variants_trains_only_its_runs_and_joins_the_comparison
     params["variants"] = ["ssim", "msssim", "mix"]
     params["mix"]["levels"] = 3  # the tiny input's coarsest training scale is 4 x 12 px
     (repo / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
-    changed = set(json.loads(_run([sys.executable, "-m", "dvc", "status", "--json"], repo)))
+    changed = set(json.loads(run_checked([sys.executable, "-m", "dvc", "status", "--json"], repo)))
     assert {"train@mix-0", "infer@mix-0", "compare"} <= changed
     assert not any("@ssim" in stage or "@msssim" in stage for stage in changed), changed
     before = (repo / "metrics" / "full" / "msssim" / "seed0.json").read_text()
-    _run([sys.executable, "-m", "dvc", "repro", "--quiet"], repo)
+    run_checked([sys.executable, "-m", "dvc", "repro", "--quiet"], repo)
     assert (repo / "metrics" / "full" / "msssim" / "seed0.json").read_text() == before
     for suite in ("full", "roi", "gradients"):
         assert (repo / "metrics" / suite / "mix" / "seed0.json").is_file(), suite
@@ -451,11 +383,7 @@ def test_torchrun_launcher_from_dvc_repro(repo: Path):
     params = yaml.safe_load((repo / "params.yaml").read_text())
     params["train"].update(launcher="torchrun", nproc=2, batch_size=2)  # the same global batch of 4
     (repo / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
-    env = dict(
-        os.environ,
-        PATH=f"{Path(sys.executable).parent}{os.pathsep}{os.environ.get('PATH', '')}",
-        PYTHONPATH=str(repo / "src"),
-    )
+    env = stage_env(repo)
     proc = subprocess.run(
         [sys.executable, "-m", "dvc", "repro", "train@ssim-0"],
         cwd=repo,
@@ -467,4 +395,8 @@ def test_torchrun_launcher_from_dvc_repro(repo: Path):
     assert "2 ranks x batch 2 = global batch 4" in proc.stderr  # logged by rank 0 under torchrun
     summary = json.loads((repo / "metrics" / "train" / "ssim" / "seed0.json").read_text())
     assert summary["steps"] == 2 * 4  # 2 epochs of 16 pairs / global batch 4
-    assert _run([sys.executable, "-m", "dvc", "status", "train@ssim-0"], repo).strip().endswith("up to date.")
+    assert (
+        run_checked([sys.executable, "-m", "dvc", "status", "train@ssim-0"], repo)
+        .strip()
+        .endswith("up to date.")
+    )

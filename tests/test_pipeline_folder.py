@@ -4,25 +4,23 @@
 from __future__ import annotations
 
 import json
-import shutil
 import sys
 from pathlib import Path
 
 import pytest
 import yaml
-from test_pipeline_e2e import UP_TO_DATE, _project, _run, _status
+from conftest import UP_TO_DATE, dvc_status, project, require_dvc, run_checked
 
 from msdepth.reporting.figures import ROI_FIGURES, STAGE_FIGURES
 
 
 @pytest.fixture(scope="module")
 def folder_repo(tmp_path_factory) -> Path:
-    if shutil.which("dvc") is None and not (Path(sys.executable).parent / "dvc").exists():
-        pytest.skip("dvc is not installed")
-    work = _project(tmp_path_factory.mktemp("folder"), {"eval": {"extra_sets": []}})
+    require_dvc()
+    work = project(tmp_path_factory.mktemp("folder"), {"eval": {"extra_sets": []}})
     dvc = [sys.executable, "-m", "dvc"]
-    _run([*dvc, "repro", "--quiet", "prepare_data"], work)  # the synthetic set in data/synthetic
-    _run(
+    run_checked([*dvc, "repro", "--quiet", "prepare_data"], work)  # the synthetic set in data/synthetic
+    run_checked(
         [sys.executable, "-m", "msdepth", "export-folder", "--from", "data/synthetic", "--to", "my_stereo"],
         work,
     )
@@ -32,7 +30,7 @@ def folder_repo(tmp_path_factory) -> Path:
     # compare depends on metrics/sets, which with eval.extra_sets: [] no stage writes (a clone has
     # the committed one; this fresh project has none).
     (work / "metrics" / "sets").mkdir(parents=True)
-    _run([*dvc, "repro", "--quiet"], work)
+    run_checked([*dvc, "repro", "--quiet"], work)
     return work
 
 
@@ -62,6 +60,6 @@ def test_repro_on_an_exported_folder(folder_repo: Path):
     assert set(mean) == {"ssim", "msssim"} and set(mean["ssim"]) == {"abs_rel", "settings"}
     figures = sorted(p.name for p in (repo / "plots" / "figures").iterdir())
     assert figures == sorted(set(STAGE_FIGURES) - set(ROI_FIGURES))  # no ROIs, no ROI figures
-    shown = json.loads(_run([sys.executable, "-m", "dvc", "metrics", "show", "--json"], repo))
+    shown = json.loads(run_checked([sys.executable, "-m", "dvc", "metrics", "show", "--json"], repo))
     assert not any("error" in rev for rev in shown.values()), shown
-    assert _status(repo) == UP_TO_DATE
+    assert dvc_status(repo) == UP_TO_DATE

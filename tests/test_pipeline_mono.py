@@ -5,16 +5,11 @@ evaluated median-scaled, its pose ATE written."""
 from __future__ import annotations
 
 import json
-import os
-import shutil
 import subprocess
-import sys
 from pathlib import Path
 
 import pytest
-import yaml
-
-ROOT = Path(__file__).resolve().parents[1]
+from conftest import dvc, project, require_dvc
 
 # The pose network's ResNet needs sides of 64 px or more; the rest as small as the stages allow.
 TINY = {
@@ -33,53 +28,14 @@ MONO = ["-S", "train.mode=mono", "-S", "data.synthetic.sequence_length=3"]
 TARGETS = ["eval_full", "eval_roi"]
 
 
-def _merge(base: dict, patch: dict) -> dict:
-    for k, v in patch.items():
-        base[k] = _merge(base.get(k, {}), v) if isinstance(v, dict) else v
-    return base
-
-
-def _dvc(args: list[str], cwd: Path, ok: bool = True) -> subprocess.CompletedProcess:
-    # Stages call `python`: make it this interpreter, importing the copied sources.
-    env = dict(
-        os.environ,
-        PATH=f"{Path(sys.executable).parent}{os.pathsep}{os.environ.get('PATH', '')}",
-        PYTHONPATH=str(cwd / "src"),
-    )
-    proc = subprocess.run(
-        [sys.executable, "-m", "dvc", *args], cwd=cwd, capture_output=True, text=True, env=env
-    )
-    if ok:
-        assert proc.returncode == 0, (
-            f"dvc {' '.join(args)} failed:\n{proc.stdout[-3000:]}\n{proc.stderr[-3000:]}"
-        )
-    return proc
-
-
 @pytest.fixture(scope="module")
 def repo(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    if shutil.which("dvc") is None and not (Path(sys.executable).parent / "dvc").exists():
-        pytest.skip("dvc is not installed")
-    work = tmp_path_factory.mktemp("mono")
-    for name in ("dvc.yaml", "stages", "src", "data_lists", ".dvc", ".dvcignore", ".gitignore"):
-        src = ROOT / name
-        if src.is_dir():
-            shutil.copytree(src, work / name, ignore=shutil.ignore_patterns("__pycache__", "tmp", "cache"))
-        else:
-            shutil.copy(src, work / name)
-    params = _merge(yaml.safe_load((ROOT / "params.yaml").read_text()), TINY)
-    (work / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
-    for cmd in (
-        ["init", "-q"],
-        ["add", "-A"],
-        ["-c", "user.email=t@t", "-c", "user.name=t", "commit", "-qm", "init"],
-    ):
-        subprocess.run(["git", *cmd], cwd=work, check=True, capture_output=True)
-    return work
+    require_dvc()
+    return project(tmp_path_factory.mktemp("mono"), tiny=TINY)
 
 
 def test_mono_without_sequences_stops_at_validation_in_one_line(repo: Path) -> None:
-    proc = _dvc(["exp", "run", "--quiet", "-S", "train.mode=mono"], repo, ok=False)
+    proc = dvc(["exp", "run", "--quiet", "-S", "train.mode=mono"], repo, ok=False)
     errors = [
         line for line in (proc.stdout + proc.stderr).splitlines() if line.startswith("error: params.yaml")
     ]
@@ -93,7 +49,7 @@ def test_mono_without_sequences_stops_at_validation_in_one_line(repo: Path) -> N
 
 
 def test_exp_run_trains_and_evaluates_every_variant_monocularly(repo: Path) -> None:
-    _dvc(["exp", "run", "--quiet", "-n", "mono", *MONO, *TARGETS], repo)
+    dvc(["exp", "run", "--quiet", "-n", "mono", *MONO, *TARGETS], repo)
     raw = repo / "data" / "synthetic"
     assert (raw / "train_mono_files.txt").stat().st_size > 0 and list(raw.glob("raw/*/*/poses.txt"))
     for variant in ("ssim", "msssim"):
@@ -108,4 +64,4 @@ def test_exp_run_trains_and_evaluates_every_variant_monocularly(repo: Path) -> N
         assert pose["snippets"] == 8 and pose["ate_mean"] >= 0
         headline = json.loads((repo / "metrics" / "headline" / "full" / variant / "seed0.json").read_text())
         assert headline["scale_ratio"] == pytest.approx(scaling["ratio_median"])
-    assert "mono" in _dvc(["exp", "show", "--md"], repo).stdout
+    assert "mono" in dvc(["exp", "show", "--md"], repo).stdout

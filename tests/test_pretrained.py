@@ -12,8 +12,7 @@ from pathlib import Path
 
 import pytest
 import torch
-from conftest import stage
-from test_pipeline_e2e import _project, _run
+from conftest import project, require_dvc, run_checked, stage
 
 import msdepth.training.train as train_mod
 from msdepth.config.params import Params, params_from_dict
@@ -178,13 +177,12 @@ def test_replacing_the_weights_under_the_same_name_makes_train_stale(tmp_path: P
     """The real dvc.yaml with stand-ins for train's inputs and outputs committed (no training): once
     the pretrained stage has recorded the new content, train@ssim-0's one changed dep is its record
     (the exact status: everything else is as committed)."""
-    if shutil.which("dvc") is None and not (Path(sys.executable).parent / "dvc").exists():
-        pytest.skip("dvc is not installed")
+    require_dvc()
     weights = tmp_path / "resnet18.pth"
     weights.write_bytes(b"A")
     patch = {**RESNET, "model": {**RESNET["model"], "pretrained": str(weights)}, "train": {"seeds": [0]}}
     (tmp_path / "work").mkdir()
-    work = _project(tmp_path / "work", patch)
+    work = project(tmp_path / "work", patch)
     for name in ("data/cache/train_pairs.txt", "data/cache/train_pairs.npy", "data/synthetic/x"):
         (work / name).parent.mkdir(parents=True, exist_ok=True)
         (work / name).write_text("an input\n")
@@ -192,9 +190,9 @@ def test_replacing_the_weights_under_the_same_name_makes_train_stale(tmp_path: P
         (work / name).parent.mkdir(parents=True, exist_ok=True)
         (work / name).write_text("an output\n")
     dvc = [sys.executable, "-m", "dvc"]
-    _run([*dvc, "repro", "--quiet", "pretrained"], work)
-    _run([*dvc, "commit", "--force", "--quiet", "train@ssim-0"], work)
+    run_checked([*dvc, "repro", "--quiet", "pretrained"], work)
+    run_checked([*dvc, "commit", "--force", "--quiet", "train@ssim-0"], work)
     weights.write_bytes(b"B")
-    _run([*dvc, "repro", "--quiet", "pretrained"], work)  # `dvc repro` runs it before train
-    status = json.loads(_run([*dvc, "status", "--json", "train@ssim-0"], work))
+    run_checked([*dvc, "repro", "--quiet", "pretrained"], work)  # `dvc repro` runs it before train
+    status = json.loads(run_checked([*dvc, "status", "--json", "train@ssim-0"], work))
     assert status == {"train@ssim-0": [{"changed deps": {str(PRETRAINED): "modified"}}]}

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import os
 import runpy
 import subprocess
 import sys
@@ -10,24 +9,12 @@ from pathlib import Path
 
 import pytest
 import yaml
-from conftest import stage
+from conftest import python_env, run_script, stage
 
 ROOT = Path(__file__).resolve().parents[1]
 SCRIPTS = sorted(
     {stage["cmd"].split()[1] for stage in yaml.safe_load((ROOT / "dvc.yaml").read_text())["stages"].values()}
 )
-
-
-def _run(script: str, *args: str, cwd: Path) -> subprocess.CompletedProcess:
-    env = dict(os.environ, PYTHONPATH=str(ROOT / "src"))
-    return subprocess.run(
-        [sys.executable, str(ROOT / script), *args],
-        cwd=cwd,
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=120,
-    )
 
 
 @pytest.mark.parametrize("script", SCRIPTS)
@@ -45,7 +32,7 @@ def test_help_prints_usage_and_runs_nothing(script: str, tmp_path: Path, monkeyp
 
 
 def test_help_from_the_command_line(tmp_path: Path):
-    proc = _run("stages/train.py", "--help", cwd=tmp_path)
+    proc = run_script("stages/train.py", "--help", cwd=tmp_path)
     assert proc.returncode == 0 and proc.stdout.startswith("usage: stages/train.py [-h] VARIANT SEED")
     assert list(tmp_path.iterdir()) == []
 
@@ -65,7 +52,7 @@ def test_usage_errors_exit_2_before_reading_params(tmp_path: Path, monkeypatch, 
 
 def test_prepare_data_dry_run_of_the_synthetic_set_writes_nothing(tmp_path: Path):
     (tmp_path / "params.yaml").write_text("data: {source: synthetic}\n")
-    proc = _run("stages/prepare_data.py", "--dry-run", cwd=tmp_path)
+    proc = run_script("stages/prepare_data.py", "--dry-run", cwd=tmp_path)
     assert proc.returncode == 0, proc.stderr
     assert proc.stdout.startswith("dry run: would render the synthetic set under data/synthetic: 12 drive(s)")
     assert [p.name for p in tmp_path.iterdir()] == ["params.yaml"]
@@ -79,7 +66,7 @@ def test_reading_params_imports_neither_torch_nor_numpy(tmp_path: Path):
         "heavy = [m for m in ('torch', 'numpy', 'msdepth.losses.appearance') if m in sys.modules]; "
         "print(sorted(p.appearance), heavy)"
     )
-    env = dict(os.environ, PYTHONPATH=str(ROOT / "src"))
+    env = python_env()
     proc = subprocess.run(
         [sys.executable, "-c", code], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=120
     )

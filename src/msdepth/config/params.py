@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import math
 import os
@@ -682,6 +683,19 @@ def apply_overrides(raw: dict, assignments: Sequence[str]) -> dict:
         except ConfigError as exc:
             raise ConfigError(f"--set {item}: {exc}") from None
     return raw
+
+
+def kernel_variant(raw: dict, spec: str) -> tuple[str, dict]:
+    """A studies' variant spec, ``name`` or ``name:K`` (the variant with ``kernel_size`` K), as
+    ``(name, a copy of raw with that kernel size set)``; ``raw`` itself is left as it is."""
+    name, _, kernel = spec.partition(":")
+    out = copy.deepcopy(raw)
+    if kernel:
+        try:
+            out.setdefault(name, {})["kernel_size"] = int(kernel)
+        except ValueError:
+            raise ConfigError(f"variant {shown(spec)}: expected NAME or NAME:KERNEL_SIZE") from None
+    return name, out
 
 
 MAX_PARAMS_BYTES = 1 << 20  # params.yaml is about 10 KB; a file this large is not one

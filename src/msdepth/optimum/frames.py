@@ -6,6 +6,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pandas as pd
@@ -13,6 +14,9 @@ import pandas as pd
 from msdepth.config.params import Params
 from msdepth.errors import ConfigError
 from msdepth.pipeline.paths import OPTIMUM, optimum_run, suite_dir
+
+if TYPE_CHECKING:
+    from msdepth.losses.monodepth import MonodepthLoss
 
 
 def checked_weight(params: Params, weight: str) -> float:
@@ -70,10 +74,9 @@ def roi_cost_curves(params: Params, variant: str, index: pd.DataFrame, rois: pd.
     """Per ROI class, the cost curve (:func:`msdepth.optimum.solver.cost_curve`) of every ROI whose GT is
     dense (valid fraction >= ``eval.dense_gt_fraction``), on the whole frame at the GT's size."""
     from msdepth.data.kitti import read_image
-    from msdepth.data.pairs import to_tensor
     from msdepth.errors import DataError
     from msdepth.evaluation.suites import load_frames
-    from msdepth.optimum.solver import cost_curve, objective
+    from msdepth.optimum.solver import objective
 
     criterion = objective(params, variant)
     curves: dict[str, list[np.ndarray]] = {}
@@ -84,14 +87,33 @@ def roi_cost_curves(params: Params, variant: str, index: pd.DataFrame, rois: pd.
         left, right = read_image(row.left), read_image(row.right)
         if left.shape[:2] != frame.shape or right.shape != left.shape:
             raise DataError(f"{row.left}: image {left.shape[:2]} does not match its GT {frame.shape}")
-        gt = gt_disparity_px(frame)
+        dense = []
         for b in boxes.to_dict("records"):
             box = (int(b["x0"]), int(b["y0"]), int(b["x1"]), int(b["y1"]))
             if frame.valid[box[1] : box[3], box[0] : box[2]].mean() < params.eval.dense_gt_fraction:
                 continue
-            curve = cost_curve(to_tensor(left), to_tensor(right), gt, box, criterion)
-            curves.setdefault(b["class"], []).append(curve)
+            dense.append((b["class"], box))
+        add_cost_curves(curves, criterion, left, right, gt_disparity_px(frame), dense)
     return curves
+
+
+def add_cost_curves(
+    curves: dict[str, list[np.ndarray]],
+    criterion: MonodepthLoss,
+    left: np.ndarray,
+    right: np.ndarray,
+    gt_disp_px: np.ndarray,
+    boxes: Sequence[tuple[str, tuple[int, int, int, int]]],
+) -> None:
+    """Append to ``curves[class]`` the cost curve (:func:`msdepth.optimum.solver.cost_curve`) of
+    each ``(class, (x0, y0, x1, y1))`` box of one frame under ``criterion`` (the variant's
+    :func:`msdepth.optimum.solver.objective`), from its images (H, W, 3) and GT disparity in px."""
+    from msdepth.data.pairs import to_tensor
+    from msdepth.optimum.solver import cost_curve
+
+    left_t, right_t = to_tensor(left), to_tensor(right)
+    for cls, box in boxes:
+        curves.setdefault(cls, []).append(cost_curve(left_t, right_t, gt_disp_px, box, criterion))
 
 
 def cost_summary(curves: dict[str, list[np.ndarray]]) -> dict:

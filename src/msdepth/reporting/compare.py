@@ -863,7 +863,9 @@ def optimum_data(
     }
 
 
-def _diff_cell(d: dict | None) -> str:
+def difference_cell(d: dict | None) -> str:
+    """A paired difference (:meth:`msdepth.reporting.stats.PairedDifference.as_dict`) as a table
+    cell, ``mean [low, high]`` with `` *`` where the interval excludes 0; empty for none."""
     if d is None:
         return ""
     star = " *" if d["excludes_zero"] else ""
@@ -911,7 +913,7 @@ def _optimum_lines(c: Comparison) -> list[str]:
     ]
     if o["differences"]:
         diff = [
-            [label, *[_diff_cell(d.get(s, {}).get(m)) for s in ("full", "roi") for m in OPTIMUM_METRICS]]
+            [label, *[difference_cell(d.get(s, {}).get(m)) for s in ("full", "roi") for m in OPTIMUM_METRICS]]
             for label, d in o["differences"].items()
         ]
         lines += [
