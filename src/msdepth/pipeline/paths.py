@@ -65,7 +65,7 @@ STAGE_OUTPUT_ROOTS = (INDEX_DIR, PAIR_CACHE.parent, MODELS, CHECKPOINTS, OUTPUTS
 # The validate_params stage's CHECKED: the same bytes whatever the params, so the stages after it
 # re-run only for the params keys (and code) they list themselves, never because this file changed.
 CHECKED_TEXT = (
-    "params.yaml passed msdepth.config.params.load_params (types, ranges, no unknown keys).\n"
+    "params.yaml passed msdepth.config.load_params (types, ranges, no unknown keys).\n"
     "This file's content never changes: the stages that depend on it re-run for their own params.\n"
 )
 
