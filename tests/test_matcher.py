@@ -178,6 +178,20 @@ def test_ms_ssim_maps_are_trainings_and_constant_maps_give_its_value(name):
     )
 
 
+def test_ms_ssim_floor_is_trainings():
+    """Anticorrelated images (y = 1 - x) have negative contrast-structure at every level, which
+    training floors before the power: the per-pixel form's floor gives the same value."""
+    x = torch.rand(1, 3, 32, 48)
+    y = 1 - x
+    weights = (0.25, 0.25, 0.25, 0.25)
+    maps = cv.level_maps(x, y, 3, 4)
+    assert all(float(m.mean()) < 0 for m in maps)
+    constant = cv.collapse([m.mean((2, 3), keepdim=True).expand_as(m).clone() for m in maps], weights)
+    training = ms_ssim(x, y, 3, 4, weights, padding="same")
+    torch.testing.assert_close(constant.mean(1)[0, 0, 0], training[0], rtol=1e-6, atol=0)
+    assert float(training[0]) == pytest.approx(cv.MS_SSIM_FLOOR, rel=1e-5)
+
+
 def test_upsample_aligns_with_the_pooling_cells():
     """A linear ramp pooled by training's 2x2 (odd sizes pad one px each side) and upsampled back is
     the ramp again away from the edges: the cells' centres are where :func:`upsample` puts them."""

@@ -43,7 +43,7 @@ WANG_WEIGHTS = (0.0448, 0.2856, 0.3001, 0.2363, 0.1333)
 # Floor for per-level MS-SSIM values before the power: d(x**w)/dx = w·x**(w-1) is unbounded as
 # x -> 0+ for w < 1, so relu'd values just above 0 can overflow to inf/NaN gradients; the floor
 # bounds it (about w·1e6) and makes negative contrast-structure a flat, finite region.
-MS_SSIM_FLOOR = 1e-6
+_MS_SSIM_EPS = 1e-6
 
 
 def _check_pair(name: str, x: Tensor, y: Tensor) -> None:
@@ -289,7 +289,7 @@ def ms_ssim_pyramid(
                 for x, y in zip(xs, ys, strict=True)
             ]
         )
-    stacked = stacked.clamp(min=MS_SSIM_FLOOR)  # (n, levels, B, C)
+    stacked = stacked.clamp(min=_MS_SSIM_EPS)  # (n, levels, B, C)
     return torch.prod(stacked ** w.view(1, -1, 1, 1), dim=1).mean(dim=-1)
 
 

@@ -19,10 +19,10 @@ of that reconstruction; with ``padding: reflect`` the slice's plain mean is.
 ``MS_c = Π_l max(ε, mean_p m_l(p))^{w_l}``, with ``m_l`` the contrast-structure map ``cs_l`` of
 level l < L − 1 and the full SSIM map (luminance · cs) of the coarsest level L − 1, box windows of
 ``msssim.kernel_size`` with "same" padding, levels halved by pytorch-msssim's 2×2 pooling, ``w_l``
-the level weights (Wang's or equal; ``learned`` ones at their initial value, equal) and ``ε`` =
-:data:`msdepth.losses.monodepth.MS_SSIM_FLOOR`; then ``S = mean_c MS_c``. The per-pixel form
-replaces each level's mean by that level's map around the pixel, collapsed coarse to fine like a
-Laplacian pyramid:
+the level weights (Wang's or equal; ``learned`` ones at their initial value, equal) and ``ε`` the
+floor training puts under each level's value (:data:`MS_SSIM_FLOOR`); then ``S = mean_c MS_c``.
+The per-pixel form replaces each level's mean by that level's map around the pixel, collapsed
+coarse to fine like a Laplacian pyramid:
 
     P_{L-1} = max(ε, m_{L-1})^{w_{L-1}},   P_l = max(ε, m_l)^{w_l} · U(P_{l+1}),   M_c = P_0,
 
@@ -55,7 +55,7 @@ from msdepth.config.variants.msssim import MSSSIMConfig
 from msdepth.config.variants.ssim import SSIMConfig
 from msdepth.errors import ConfigError
 from msdepth.losses import ssim_kernels
-from msdepth.losses.monodepth import MS_SSIM_FLOOR, level_weights, ssim
+from msdepth.losses.monodepth import level_weights, ssim
 from msdepth.networks.common import MAX_DISPARITY
 
 # Elements of one block of a sweep's inputs (disparities x channels x rows x columns): about
@@ -63,6 +63,10 @@ from msdepth.networks.common import MAX_DISPARITY
 # (SSIM on whole-image planes measured ~1.6x slower per disparity: memory-bound passes).
 BLOCK_ELEMENTS = 1 << 20
 DISPARITIES_PER_BLOCK = 8  # the SSIM sweep's; its rows per block follow from BLOCK_ELEMENTS
+# Training's floor of a level's MS-SSIM value before the power (msdepth.losses.monodepth keeps it
+# private, and a change there would stale every stage that depends on the loss's code);
+# tests/test_matcher.py checks that anticorrelated images meet the same floor as ms_ssim.
+MS_SSIM_FLOOR = 1e-6
 
 
 @dataclass(frozen=True)
