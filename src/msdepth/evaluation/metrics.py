@@ -1,5 +1,6 @@
-"""The field's standard depth metrics, exactly as Monodepth's ``compute_errors``, and the Eigen
-split's evaluation crop and median scaling, as Monodepth2's ``evaluate_depth.py`` applies them."""
+"""The field's standard depth metrics, exactly as Monodepth's ``compute_errors``, KITTI's stereo
+metrics on disparity (D1, end-point error), and the Eigen split's evaluation crop and median
+scaling, as Monodepth2's ``evaluate_depth.py`` applies them."""
 
 from __future__ import annotations
 
@@ -39,6 +40,31 @@ def compute_errors(gt: np.ndarray, pred: np.ndarray) -> dict[str, float]:
     sq_rel = np.mean(((gt - pred) ** 2) / gt)
     values = (abs_rel, sq_rel, rmse, rmse_log, a1, a2, a3)
     return {name: float(v) for name, v in zip(METRICS, values, strict=True)}
+
+
+# KITTI's stereo outlier (devkit, D1): an error above 3 px and above 5 % of the true disparity.
+D1_PIXELS = 3.0
+D1_FRACTION = 0.05
+
+
+def stereo_errors(gt_disp: np.ndarray, pred_disp: np.ndarray) -> dict[str, float]:
+    """KITTI's stereo metrics of a disparity map (px) against GT of the same shape (px, 0 = none).
+
+    ``d1``: the share (0..1) of GT pixels whose error ``|pred - gt|`` exceeds both 3 px and 5 % of
+    the GT disparity (the KITTI 2015 devkit's outlier; the benchmark reports it in %); ``epe``: the
+    mean absolute error (px) over the same pixels. The prediction must be dense there.
+    """
+    gt, pred = np.asarray(gt_disp, dtype=np.float64), np.asarray(pred_disp, dtype=np.float64)
+    if gt.shape != pred.shape:
+        raise ValueError(f"stereo_errors expects maps of one shape, got {gt.shape} and {pred.shape}")
+    valid = gt > 0
+    if not valid.any():
+        raise ValueError("stereo_errors got no GT pixels")
+    if not np.isfinite(pred[valid]).all():
+        raise ValueError("stereo_errors: the prediction is not finite at every GT pixel")
+    error = np.abs(pred[valid] - gt[valid])
+    outliers = (error > D1_PIXELS) & (error > D1_FRACTION * gt[valid])
+    return {"d1": float(outliers.mean()), "epe": float(error.mean())}
 
 
 # Garg et al.'s crop of the Eigen split, as fractions of the GT image size (Monodepth2's

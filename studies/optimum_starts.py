@@ -1,0 +1,171 @@
+"""Global starts for the losses' own optimum (issue #38) on the real KITTI frames of
+../shared/real-samples, against OpenCV's SGBM.
+
+Per frame (KITTI 2015 training 000000_10 and 000001_10 against ``disp_occ_0``; KITTI 2012 training
+000000_10 and 000001_10 against ``disp_occ`` and, separately, the reflective surfaces of
+``disp_refl_occ``) and per method: abs_rel of depth (f = 721.5377 px, B = 0.54 m, predictions
+capped at 80 m: a disparity below f·B/80 reads as 80 m; ``metrics.compute_errors`` on the GT pixels),
+KITTI's D1 and end-point error (``metrics.stereo_errors``), the share of pixels that passed the
+matcher's own checks before hole filling, and seconds. Methods: SGBM (``optimum.sgbm``); per
+variant (ssim; msssim with kernel 3 and 7) the winner-take-all of its own cost volume
+(``optimum.cost_volume``) and the semi-global start on it (``optimum.sgm``). All at full size,
+D = 0.3·W (the network heads' range). Prints markdown::
+
+    python studies/optimum_starts.py --out studies/results/optimum/starts.md
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from msdepth.config.params import apply_overrides, load_params, params_from_dict
+from msdepth.data.kitti import read_disparity, read_image
+from msdepth.data.pairs import to_tensor
+from msdepth.evaluation.metrics import compute_errors, stereo_errors
+from msdepth.geometry.depth import clamp_depth, disparity_to_depth
+from msdepth.optimum.cost_volume import cost_volume, matching_cost, winner_take_all
+from msdepth.optimum.sgbm import sgbm_disparity
+from msdepth.optimum.sgm import SGMConfig, sgm
+
+ROOT = Path(__file__).resolve().parents[1]
+SAMPLES = ROOT.parent / "shared" / "real-samples"
+FOCAL, BASELINE, CAP, MIN_DEPTH = 721.5377, 0.54, 80.0, 1e-3
+# (label, set folder, left, right, GT folders): KITTI 2012's reflective GT scored on its own.
+SETS = (
+    ("2015", "kitti2015-training", "image_2", "image_3", ("disp_occ_0",)),
+    ("2012", "kitti2012-training", "colored_0", "colored_1", ("disp_occ", "disp_refl_occ")),
+)
+FRAMES = ("000000_10", "000001_10")
+VARIANTS = (("ssim", "ssim", []), ("msssim k3", "msssim", ["msssim.kernel_size=3"]))
+VARIANTS += (("msssim k7", "msssim", ["msssim.kernel_size=7"]),)
+
+
+@dataclass
+class Result:
+    """One method's disparity on one frame: the map (px), its pre-filling validity, seconds."""
+
+    method: str
+    disparity: np.ndarray
+    valid: np.ndarray
+    seconds: float
+
+
+def scores(gt_disp: np.ndarray, result: Result) -> dict[str, float]:
+    """abs_rel (depth, capped), D1 (%), EPE (px) and the valid share (%) on the GT pixels."""
+    mask = gt_disp > 0
+    floor = FOCAL * BASELINE / CAP  # px: a disparity below it is beyond the cap
+    pred = clamp_depth(
+        disparity_to_depth(np.maximum(result.disparity, floor), FOCAL, BASELINE), MIN_DEPTH, CAP
+    )
+    gt = disparity_to_depth(gt_disp, FOCAL, BASELINE)
+    stereo = stereo_errors(gt_disp, result.disparity)
+    return {
+        "abs_rel": compute_errors(gt[mask], pred[mask])["abs_rel"],
+        "d1": 100 * stereo["d1"],
+        "epe": stereo["epe"],
+        "valid": 100 * float(result.valid[mask].mean()),
+    }
+
+
+def run_frame(left: np.ndarray, right: np.ndarray, costs: dict, timings: dict) -> list[Result]:
+    """Every method on one pair; ``timings`` collects the seconds of each part per method."""
+    start = time.perf_counter()
+    out = [Result("SGBM", *sgbm_disparity(left, right), time.perf_counter() - start)]
+    timings.setdefault("SGBM", []).append(out[0].seconds)
+    left_t, right_t = to_tensor(left), to_tensor(right)
+    for label, cost in costs.items():
+        start = time.perf_counter()
+        volume = cost_volume(left_t, right_t, cost)
+        built = time.perf_counter() - start
+        wta = winner_take_all(volume).numpy()
+        out.append(Result(f"{label} WTA", wta, np.ones(wta.shape, dtype=bool), built))
+        start = time.perf_counter()
+        disparity, valid = sgm(volume, SGMConfig())
+        matched = time.perf_counter() - start
+        out.append(Result(f"{label} SGM", disparity, valid, built + matched))
+        timings.setdefault(f"{label} volume", []).append(built)
+        timings.setdefault(f"{label} SGM", []).append(matched)
+        del volume
+    return out
+
+
+def table(rows: list[tuple[str, str, str, dict, float]]) -> list[str]:
+    """The markdown table of ``(frame, GT, method, scores, seconds)`` rows."""
+    lines = [
+        "| frame | GT | method | abs_rel | D1 % | EPE px | valid % | s |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for frame, gt, method, s, seconds in rows:
+        lines.append(
+            f"| {frame} | {gt} | {method} | {s['abs_rel']:.3f} | {s['d1']:.1f} | {s['epe']:.2f} | "
+            f"{s['valid']:.0f} | {seconds:.1f} |"
+        )
+    return lines
+
+
+def header(loads: tuple[tuple[float, ...], tuple[float, ...]]) -> list[str]:
+    """The table's title and how it was made (the machine's load: timings depend on it)."""
+    (start, end), threads = loads, torch.get_num_threads()
+    return [
+        "# Global starts for the losses' own optimum on real KITTI frames (issue #38)",
+        "",
+        f"`python studies/optimum_starts.py` (its docstring says what each column is). Full size, D = 0.3·W; "
+        f"SGM with its defaults (8 paths, p1 0.25, p2 4). Torch threads: {threads}; load average "
+        f"{start[0]:.1f} at the start, {end[0]:.1f} at the end (seconds are indicative on a shared machine). "
+        "WTA: the cost volume's winner-take-all, no check (valid 100 %). s: SGBM's own; WTA's is building "
+        "the volume, SGM's the volume and SGM. abs_rel: depth with f = 721.5377 px, B = 0.54 m, "
+        "capped at 80 m.",
+        "",
+    ]
+
+
+def costs_of(params_path: Path) -> dict:
+    """Each variant's matching cost, from ``params_path`` with the variant's overrides."""
+    import yaml
+
+    raw = yaml.safe_load(params_path.read_text(encoding="utf-8"))
+    out = {}
+    for label, name, overrides in VARIANTS:
+        params = (
+            params_from_dict(apply_overrides(dict(raw), overrides)) if overrides else load_params(params_path)
+        )
+        out[label] = matching_cost(params, name)
+    return out
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--samples", type=Path, default=SAMPLES, help="the real-samples folder")
+    parser.add_argument("--params", type=Path, default=ROOT / "params.yaml")
+    parser.add_argument("--out", type=Path, help="also write the markdown here")
+    args = parser.parse_args()
+    torch.set_num_threads(int(os.environ.get("OMP_NUM_THREADS", "1")))
+    costs, timings, rows = costs_of(args.params), {}, []
+    load_before = os.getloadavg()
+    for label, folder, left_dir, right_dir, gts in SETS:
+        base = args.samples / folder
+        for frame in FRAMES:
+            left, right = (read_image(base / d / f"{frame}.png") for d in (left_dir, right_dir))
+            results = run_frame(left, right, costs, timings)
+            for gt_dir in gts:
+                gt = read_disparity(base / gt_dir / f"{frame}.png")
+                rows += [(f"{label} {frame}", gt_dir, r.method, scores(gt, r), r.seconds) for r in results]
+            print(f"{label} {frame} done", flush=True)
+    loads = (load_before, os.getloadavg())
+    lines = header(loads) + table(rows) + ["", "| part | s per pair (mean) |", "|---|---|"]
+    lines += [f"| {part} | {np.mean(values):.2f} |" for part, values in timings.items()]
+    text = "\n".join(lines) + "\n"
+    print(text)
+    if args.out:
+        args.out.write_text(text, encoding="utf-8")
+
+
+if __name__ == "__main__":
+    main()
