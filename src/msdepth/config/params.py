@@ -467,6 +467,11 @@ class CompareConfig:
         check(0 <= self.seed <= SEED_MAX, f"{key}.seed", f"must be in 0..{SEED_MAX}, got {self.seed}")
 
 
+# The optimum's starts (msdepth.optimum.starts): a constant, SGM on the variant's own cost volume, SGBM.
+OptimumStart = Literal["constant", "cost", "sgbm"]
+OPTIMUM_STARTS: tuple[str, ...] = get_args(OptimumStart)
+
+
 @dataclass(frozen=True)
 class OptimumConfig:
     """The losses' own optimum (:mod:`msdepth.optimum.solver`): per stereo pair, the disparity maps that
@@ -476,6 +481,12 @@ class OptimumConfig:
     iterations: int = 100  # Adam steps per level: the stopping rule (docs/optimum.md, measured)
     learning_rate: float = 0.05  # Adam's, on the logit of disparity / 0.3 (the network heads' range)
     init_disparity: float = 0.04  # the constant start, fraction of the width
+    # constant: coarse to fine from init_disparity; cost/sgbm: a matched start (msdepth.optimum.starts),
+    # refined by refine_iterations Adam steps at the finest refine_levels levels (docs/optimum.md).
+    start: OptimumStart = "constant"
+    refine_levels: int = 1
+    refine_iterations: int = 50
+    refine_learning_rate: float = 0.05
     height: int = 0  # working size; 0 = data.synthetic's render size (the CLI: the image's own)
     width: int = 0
     # Its own weight, not loss.smoothness_weight: a network regularises implicitly, a per-pixel
@@ -501,6 +512,11 @@ class OptimumConfig:
             f"must be in (0, 0.3) (the heads' range), got {self.init_disparity}",
         )
         check(self.batch_size >= 1, f"{key}.batch_size", f"must be >= 1, got {self.batch_size}")
+        check(self.refine_levels >= 1, f"{key}.refine_levels", f"must be >= 1, got {self.refine_levels}")
+        steps = self.refine_iterations
+        check(steps >= 1, f"{key}.refine_iterations", f"must be >= 1, got {steps}")
+        rate = self.refine_learning_rate
+        check(rate > 0, f"{key}.refine_learning_rate", f"must be > 0, got {rate}")
         check(self.smoothness_weight >= 0, f"{key}.smoothness_weight", "must be >= 0")
         check(self.sweep_frames >= 0, f"{key}.sweep_frames", f"must be >= 0, got {self.sweep_frames}")
         check(self.cost_frames >= 0, f"{key}.cost_frames", f"must be >= 0, got {self.cost_frames}")

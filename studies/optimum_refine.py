@@ -1,0 +1,232 @@
+"""Refinement of the losses' own optimum from a matched start (issue #38), on real KITTI 2015 frames
+of ../shared/real-samples (training 000000_10 and 000001_10, GT ``disp_occ_0``; f = 721.5377 px,
+B = 0.54 m, depth capped at 80 m, as studies/optimum_starts.py scores).
+
+``steps``: per frame, variant, start and refinement learning rate, at one working size, the
+finest level's loss and the full-size abs_rel / D1 after 0, 10, 25, 50, 100 and 200 Adam steps
+(one run of 200 steps, scored at those steps): the measurement behind ``optimum.refine_iterations``
+and ``optimum.refine_learning_rate``.
+
+``sizes``: per frame, variant and start, the optimum at full, half and quarter working size (the
+params' refinement settings; the constant start runs the coarse-to-fine solver), each brought to
+full size (bilinear on the disparity as a fraction of width) and scored there, plus seconds. The
+start is matched once, at the frame's own size (:mod:`msdepth.optimum.starts`), so every size
+refines the same map. ``--smoothness-width N`` scales the optimum's smoothness weight with the
+working width, ``w · W / N`` (the edge-aware smoothness term, per pixel of the disparity as a
+fraction of width, falls as 1 / W; the appearance term does not). Prints markdown::
+
+    python studies/optimum_refine.py steps --size 188x621 --out studies/results/optimum/refine_steps.md
+    python studies/optimum_refine.py sizes --out studies/results/optimum/sizes.md
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import os
+import sys
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+import torch
+
+from msdepth.config.params import Params, apply_overrides, kernel_variant, params_from_dict
+from msdepth.data.kitti import read_disparity, read_image
+from msdepth.data.pairs import resize, to_tensor
+from msdepth.optimum.solver import objective, optimise
+from msdepth.optimum.starts import start_disparity
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from optimum_starts import SAMPLES, Result, scores  # noqa: E402 - the sibling study's scoring
+
+ROOT = Path(__file__).resolve().parents[1]
+FRAMES = ("000000_10", "000001_10")
+VARIANTS = ("ssim", "msssim:3", "msssim:7")
+STARTS = ("constant", "cost", "sgbm")
+MARKS = (0, 10, 25, 50, 100, 200)  # steps scored by ``steps``
+
+
+def variant_params(base: Path, spec: str, overrides: list[str]) -> tuple[str, Params]:
+    """``(variant, params)`` of a studies spec (``msssim:7``: its kernel size) on ``base``, overridden."""
+    import yaml
+
+    raw = apply_overrides(yaml.safe_load(base.read_text(encoding="utf-8")) or {}, overrides)
+    name, raw = kernel_variant(raw, spec)
+    return name, params_from_dict(raw)
+
+
+def kitti_frame(samples: Path, frame: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A KITTI 2015 training frame: left, right (uint8 RGB) and the left GT disparity (px)."""
+    base = samples / "kitti2015-training"
+    left, right = (read_image(base / d / f"{frame}.png") for d in ("image_2", "image_3"))
+    return left, right, read_disparity(base / "disp_occ_0" / f"{frame}.png")
+
+
+def full_size_scores(disp: np.ndarray, gt: np.ndarray) -> dict[str, float]:
+    """abs_rel, D1 (%), EPE of a left disparity (fraction of width, any size) brought to GT's size."""
+    height, width = gt.shape
+    if disp.shape != gt.shape:
+        disp = cv2.resize(disp, (width, height), interpolation=cv2.INTER_LINEAR)
+    return scores(gt, Result("", disp * width, np.ones(gt.shape, dtype=bool), 0.0))
+
+
+def parse_size(text: str, shape: tuple[int, ...]) -> tuple[int, int]:
+    """``HxW``, or ``full``/``half``/``quarter`` of ``shape``."""
+    named = {"full": 1, "half": 2, "quarter": 4}
+    if text in named:
+        return shape[0] // named[text], shape[1] // named[text]
+    height, width = text.split("x")
+    return int(height), int(width)
+
+
+def refine_trace(pair, gt, params: Params, variant: str, start: np.ndarray, size) -> list[dict]:
+    """One refinement of :data:`MARKS`[-1] + 1 steps at the finest level from ``start`` (2, H, W at
+    ``size``): per mark, the loss and the full-size scores."""
+    cfg = dataclasses.replace(params.optimum, refine_levels=1, refine_iterations=MARKS[-1] + 1)
+    left, right = (to_tensor(resize(x, *size))[None] for x in pair)
+    marks: dict[int, np.ndarray] = {0: start[0]}
+
+    def observe(step: int, disp: torch.Tensor) -> None:
+        if step in MARKS:
+            marks[step] = disp[0, 0].numpy().copy()
+
+    trace: list[list[float]] = []
+    optimise(left, right, objective(params, variant), cfg, trace, torch.from_numpy(start)[None], observe)
+    # trace[0][k]: the loss after k steps (before step k + 1), hence one step more than the last mark.
+    return [{"step": m, "loss": trace[0][m], **full_size_scores(marks[m], gt)} for m in MARKS]
+
+
+def steps_study(args: argparse.Namespace) -> list[str]:
+    """The ``steps`` table's lines."""
+    lines = [
+        "| frame | variant | start | lr | step | loss | abs_rel | D1 % |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for frame in args.frames:
+        left, right, gt = kitti_frame(args.samples, frame)
+        size = parse_size(args.size, gt.shape)
+        for spec in args.variants:
+            variant, params = variant_params(args.params, spec, args.set)
+            for start in [s for s in args.starts if s != "constant"]:
+                init = start_disparity(left, right, params, variant, start, size)
+                for rate in args.rates:
+                    run = dataclasses.replace(
+                        params, optimum=dataclasses.replace(params.optimum, refine_learning_rate=rate)
+                    )
+                    for row in refine_trace((left, right), gt, run, variant, init, size):
+                        lines.append(
+                            f"| {frame} | {spec} | {start} | {rate:g} | {row['step']} | {row['loss']:.5f} | "
+                            f"{row['abs_rel']:.3f} | {row['d1']:.1f} |"
+                        )
+                    print(lines[-1], flush=True)
+    return lines
+
+
+def optimum_at(
+    pair, params: Params, variant: str, init: np.ndarray | None, size, weight: float
+) -> np.ndarray:
+    """The left optimum (fraction of width) at working ``size`` from ``init`` (the full-size start,
+    resampled here) or, for None, the constant start."""
+    left, right = (to_tensor(resize(x, *size))[None] for x in pair)
+    start = None
+    if init is not None:
+        start = torch.from_numpy(
+            cv2.resize(init.transpose(1, 2, 0), size[::-1], interpolation=cv2.INTER_AREA)
+        )
+        start = start.permute(2, 0, 1)[None].contiguous()
+    return optimise(left, right, objective(params, variant, weight), params.optimum, start=start)[
+        0, 0
+    ].numpy()
+
+
+def row(*cells: object) -> str:
+    """A markdown table row."""
+    return "| " + " | ".join(str(c) for c in cells) + " |"
+
+
+def scored(s: dict[str, float]) -> tuple[str, str, str]:
+    """abs_rel, D1 and EPE cells."""
+    return f"{s['abs_rel']:.3f}", f"{s['d1']:.1f}", f"{s['epe']:.2f}"
+
+
+def sizes_study(args: argparse.Namespace) -> list[str]:
+    """The ``sizes`` table's lines."""
+    lines = [row("frame", "variant", "start", "size", "weight", "abs_rel", "D1 %", "EPE px", "s")]
+    lines.append(row(*["---"] * 9))
+    for frame in args.frames:
+        left, right, gt = kitti_frame(args.samples, frame)
+        for spec in args.variants:
+            variant, params = variant_params(args.params, spec, args.set)
+            for start in args.starts:
+                began = time.perf_counter()
+                init = None if start == "constant" else start_disparity(left, right, params, variant, start)
+                if init is not None:
+                    seconds = f"{time.perf_counter() - began:.1f}"
+                    lines.append(
+                        row(
+                            frame,
+                            spec,
+                            f"{start} (start)",
+                            "",
+                            "",
+                            *scored(full_size_scores(init[0], gt)),
+                            seconds,
+                        )
+                    )
+                for name in args.sizes:
+                    size = parse_size(name, gt.shape)
+                    weight = params.optimum.smoothness_weight
+                    if args.smoothness_width:
+                        weight *= size[1] / args.smoothness_width
+                    began = time.perf_counter()
+                    disp = optimum_at((left, right), params, variant, init, size, weight)
+                    seconds = f"{time.perf_counter() - began:.1f}"
+                    cells = (frame, spec, start, f"{name} {size[0]}x{size[1]}", f"{weight:.3g}")
+                    lines.append(row(*cells, *scored(full_size_scores(disp, gt)), seconds))
+                    print(lines[-1], flush=True)
+    return lines
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("study", choices=("steps", "sizes"))
+    parser.add_argument("--samples", type=Path, default=SAMPLES, help="the real-samples folder")
+    parser.add_argument("--params", type=Path, default=ROOT / "params.yaml")
+    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="a params override")
+    parser.add_argument("--frames", nargs="+", default=list(FRAMES))
+    parser.add_argument("--variants", nargs="+", default=list(VARIANTS), help="e.g. ssim msssim:7")
+    parser.add_argument("--starts", nargs="+", default=list(STARTS), choices=STARTS)
+    parser.add_argument("--size", default="half", help="steps: the working size, HxW or full/half/quarter")
+    parser.add_argument(
+        "--rates", nargs="+", type=float, default=[0.05, 0.02, 0.01], help="steps: learning rates"
+    )
+    parser.add_argument(
+        "--sizes", nargs="+", default=["full", "half", "quarter"], help="sizes: working sizes"
+    )
+    parser.add_argument("--smoothness-width", type=int, default=0, help="sizes: scale the weight by W / this")
+    parser.add_argument("--out", type=Path, help="also write the markdown here")
+    args = parser.parse_args()
+    torch.set_num_threads(int(os.environ.get("OMP_NUM_THREADS", "1")))
+    load = os.getloadavg()[0]
+    lines = steps_study(args) if args.study == "steps" else sizes_study(args)
+    argv = " ".join(sys.argv[1:])
+    text = (
+        "\n".join(
+            [
+                f"`python studies/optimum_refine.py {argv}` (load average {load:.1f} at the start, "
+                f"{os.getloadavg()[0]:.1f} at the end; torch threads {torch.get_num_threads()})",
+                "",
+                *lines,
+            ]
+        )
+        + "\n"
+    )
+    print(text)
+    if args.out:
+        args.out.write_text(text, encoding="utf-8")
+
+
+if __name__ == "__main__":
+    main()
