@@ -5,7 +5,7 @@ B = 0.54 m, depth capped at 80 m, as studies/optimum_starts.py scores).
 ``steps``: per frame, variant, start and refinement learning rate, at one working size, the
 finest level's loss and the full-size abs_rel / D1 after 0, 10, 25, 50, 100 and 200 Adam steps
 (one run of 200 steps, scored at those steps): the measurement behind ``optimum.refine_iterations``
-and ``optimum.refine_learning_rate``.
+and ``optimum.learning_rate`` (the one both paths use).
 
 ``sizes``: per frame, variant and start, the optimum at full, half and quarter working size (the
 params' refinement settings; the constant start runs the coarse-to-fine solver), each brought to
@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import itertools
 import os
 import sys
 import time
@@ -35,11 +36,11 @@ import torch
 from msdepth.config.params import Params, apply_overrides, kernel_variant, params_from_dict
 from msdepth.data.kitti import read_disparity, read_image
 from msdepth.data.pairs import resize, to_tensor
-from msdepth.optimum.solver import objective, optimise
+from msdepth.optimum.solver import disparity_pyramid, level_sizes, objective, optimise
 from msdepth.optimum.starts import start_disparity
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from optimum_starts import SAMPLES, Result, scores  # noqa: E402 - the sibling study's scoring
+from optimum_starts import SAMPLES, Result, scores, working_size  # noqa: E402 - the sibling study's
 
 ROOT = Path(__file__).resolve().parents[1]
 FRAMES = ("000000_10", "000001_10")
@@ -72,75 +73,6 @@ def full_size_scores(disp: np.ndarray, gt: np.ndarray) -> dict[str, float]:
     return scores(gt, Result("", disp * width, np.ones(gt.shape, dtype=bool), 0.0))
 
 
-def parse_size(text: str, shape: tuple[int, ...]) -> tuple[int, int]:
-    """``HxW``, or ``full``/``half``/``quarter`` of ``shape``."""
-    named = {"full": 1, "half": 2, "quarter": 4}
-    if text in named:
-        return shape[0] // named[text], shape[1] // named[text]
-    height, width = text.split("x")
-    return int(height), int(width)
-
-
-def refine_trace(pair, gt, params: Params, variant: str, start: np.ndarray, size) -> list[dict]:
-    """One refinement of :data:`MARKS`[-1] + 1 steps at the finest level from ``start`` (2, H, W at
-    ``size``): per mark, the loss and the full-size scores."""
-    cfg = dataclasses.replace(params.optimum, refine_levels=1, refine_iterations=MARKS[-1] + 1)
-    left, right = (to_tensor(resize(x, *size))[None] for x in pair)
-    marks: dict[int, np.ndarray] = {0: start[0]}
-
-    def observe(step: int, disp: torch.Tensor) -> None:
-        if step in MARKS:
-            marks[step] = disp[0, 0].numpy().copy()
-
-    trace: list[list[float]] = []
-    optimise(left, right, objective(params, variant), cfg, trace, torch.from_numpy(start)[None], observe)
-    # trace[0][k]: the loss after k steps (before step k + 1), hence one step more than the last mark.
-    return [{"step": m, "loss": trace[0][m], **full_size_scores(marks[m], gt)} for m in MARKS]
-
-
-def steps_study(args: argparse.Namespace) -> list[str]:
-    """The ``steps`` table's lines."""
-    lines = [
-        "| frame | variant | start | lr | step | loss | abs_rel | D1 % |",
-        "|---|---|---|---|---|---|---|---|",
-    ]
-    for frame in args.frames:
-        left, right, gt = kitti_frame(args.samples, frame)
-        size = parse_size(args.size, gt.shape)
-        for spec in args.variants:
-            variant, params = variant_params(args.params, spec, args.set)
-            for start in [s for s in args.starts if s != "constant"]:
-                init = start_disparity(left, right, params, variant, start, size)
-                for rate in args.rates:
-                    run = dataclasses.replace(
-                        params, optimum=dataclasses.replace(params.optimum, refine_learning_rate=rate)
-                    )
-                    for row in refine_trace((left, right), gt, run, variant, init, size):
-                        lines.append(
-                            f"| {frame} | {spec} | {start} | {rate:g} | {row['step']} | {row['loss']:.5f} | "
-                            f"{row['abs_rel']:.3f} | {row['d1']:.1f} |"
-                        )
-                    print(lines[-1], flush=True)
-    return lines
-
-
-def optimum_at(
-    pair, params: Params, variant: str, init: np.ndarray | None, size, weight: float
-) -> np.ndarray:
-    """The left optimum (fraction of width) at working ``size`` from ``init`` (the full-size start,
-    resampled here) or, for None, the constant start."""
-    left, right = (to_tensor(resize(x, *size))[None] for x in pair)
-    start = None
-    if init is not None:
-        start = torch.from_numpy(
-            cv2.resize(init.transpose(1, 2, 0), size[::-1], interpolation=cv2.INTER_AREA)
-        )
-        start = start.permute(2, 0, 1)[None].contiguous()
-    return optimise(left, right, objective(params, variant, weight), params.optimum, start=start)[
-        0, 0
-    ].numpy()
-
-
 def row(*cells: object) -> str:
     """A markdown table row."""
     return "| " + " | ".join(str(c) for c in cells) + " |"
@@ -151,10 +83,70 @@ def scored(s: dict[str, float]) -> tuple[str, str, str]:
     return f"{s['abs_rel']:.3f}", f"{s['d1']:.1f}", f"{s['epe']:.2f}"
 
 
+def refine_trace(pair, gt, params: Params, variant: str, start: np.ndarray, size, levels: int) -> list[dict]:
+    """One refinement from ``start`` (2, H, W at ``size``) at the finest ``levels`` levels, of
+    :data:`MARKS`[-1] + 1 steps each: per mark of the finest level, its loss and full-size scores
+    (step 0: the level's start, the coarser level's result or ``start``)."""
+    steps = MARKS[-1] + 1  # trace[k]: the loss after k steps (before step k + 1)
+    cfg = dataclasses.replace(params.optimum, refine_levels=levels, refine_iterations=steps)
+    left, right = (to_tensor(resize(x, *size))[None] for x in pair)
+    marks: dict[int, np.ndarray] = {0: start[0]}
+    calls = [0]
+
+    def observe(step: int, disp: torch.Tensor) -> None:
+        calls[0] += 1
+        finest = calls[0] > steps * (len(level_sizes(*size, levels)) - 1)
+        if (finest and step in MARKS) or (not finest and step == steps):
+            marks[step if finest else 0] = disp[0, 0].numpy().copy()
+
+    trace: list[list[float]] = []
+    optimise(left, right, objective(params, variant), cfg, trace, torch.from_numpy(start)[None], observe)
+    return [{"step": m, "loss": trace[-1][m], **full_size_scores(marks[m], gt)} for m in MARKS]
+
+
+def steps_study(args: argparse.Namespace) -> list[str]:
+    """The ``steps`` table's lines."""
+    lines = [row("frame", "variant", "start", "levels", "lr", "step", "loss", "abs_rel", "D1 %")]
+    lines.append(row(*["---"] * 9))
+    for frame in args.frames:
+        left, right, gt = kitti_frame(args.samples, frame)
+        size = working_size(args.size, gt.shape)
+        for spec in args.variants:
+            variant, params = variant_params(args.params, spec, args.set)
+            for start in [s for s in args.starts if s != "constant"]:
+                init = start_disparity(left, right, params, variant, start, size)
+                for levels, rate in itertools.product(args.levels, args.rates):
+                    run = dataclasses.replace(
+                        params, optimum=dataclasses.replace(params.optimum, learning_rate=rate)
+                    )
+                    for r in refine_trace((left, right), gt, run, variant, init, size, levels):
+                        cells = (frame, spec, start, levels, f"{rate:g}", r["step"], f"{r['loss']:.5f}")
+                        lines.append(row(*cells, f"{r['abs_rel']:.3f}", f"{r['d1']:.1f}"))
+                    print(lines[-1], flush=True)
+    return lines
+
+
+def optimum_at(
+    pair, params: Params, variant: str, init: np.ndarray | None, size, weight: float
+) -> tuple[np.ndarray, float]:
+    """The left optimum (fraction of width) at working ``size`` from ``init`` (the full-size start,
+    resampled here) or, for None, the constant start; and the objective's value there."""
+    left, right = (to_tensor(resize(x, *size))[None] for x in pair)
+    start = None
+    if init is not None:
+        resampled = cv2.resize(init.transpose(1, 2, 0), size[::-1], interpolation=cv2.INTER_AREA)
+        start = torch.from_numpy(resampled).permute(2, 0, 1)[None].contiguous()
+    criterion = objective(params, variant, weight)
+    disp = optimise(left, right, criterion, params.optimum, start=start)
+    with torch.no_grad():
+        loss = float(criterion(disparity_pyramid(disp), left, right)["total"])
+    return disp[0, 0].numpy(), loss
+
+
 def sizes_study(args: argparse.Namespace) -> list[str]:
     """The ``sizes`` table's lines."""
-    lines = [row("frame", "variant", "start", "size", "weight", "abs_rel", "D1 %", "EPE px", "s")]
-    lines.append(row(*["---"] * 9))
+    lines = [row("frame", "variant", "start", "size", "weight", "loss", "abs_rel", "D1 %", "EPE px", "s")]
+    lines.append(row(*["---"] * 10))
     for frame in args.frames:
         left, right, gt = kitti_frame(args.samples, frame)
         for spec in args.variants:
@@ -164,26 +156,24 @@ def sizes_study(args: argparse.Namespace) -> list[str]:
                 init = None if start == "constant" else start_disparity(left, right, params, variant, start)
                 if init is not None:
                     seconds = f"{time.perf_counter() - began:.1f}"
-                    lines.append(
-                        row(
-                            frame,
-                            spec,
-                            f"{start} (start)",
-                            "",
-                            "",
-                            *scored(full_size_scores(init[0], gt)),
-                            seconds,
-                        )
-                    )
+                    cells = (frame, spec, f"{start} (start)", "full", "", "")
+                    lines.append(row(*cells, *scored(full_size_scores(init[0], gt)), seconds))
                 for name in args.sizes:
-                    size = parse_size(name, gt.shape)
+                    size = working_size(name, gt.shape)
                     weight = params.optimum.smoothness_weight
                     if args.smoothness_width:
                         weight *= size[1] / args.smoothness_width
                     began = time.perf_counter()
-                    disp = optimum_at((left, right), params, variant, init, size, weight)
+                    disp, loss = optimum_at((left, right), params, variant, init, size, weight)
                     seconds = f"{time.perf_counter() - began:.1f}"
-                    cells = (frame, spec, start, f"{name} {size[0]}x{size[1]}", f"{weight:.3g}")
+                    cells = (
+                        frame,
+                        spec,
+                        start,
+                        f"{name} {size[0]}x{size[1]}",
+                        f"{weight:.3g}",
+                        f"{loss:.5f}",
+                    )
                     lines.append(row(*cells, *scored(full_size_scores(disp, gt)), seconds))
                     print(lines[-1], flush=True)
     return lines
@@ -199,6 +189,7 @@ def main() -> None:
     parser.add_argument("--variants", nargs="+", default=list(VARIANTS), help="e.g. ssim msssim:7")
     parser.add_argument("--starts", nargs="+", default=list(STARTS), choices=STARTS)
     parser.add_argument("--size", default="half", help="steps: the working size, HxW or full/half/quarter")
+    parser.add_argument("--levels", nargs="+", type=int, default=[1], help="steps: refine_levels values")
     parser.add_argument(
         "--rates", nargs="+", type=float, default=[0.05, 0.02, 0.01], help="steps: learning rates"
     )

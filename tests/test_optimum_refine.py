@@ -122,7 +122,7 @@ def test_the_start_and_refinement_keys_are_checked() -> None:
     assert params_from_dict({"optimum": {"start": "cost"}}).optimum.start == "cost"
     with pytest.raises(ConfigError, match=r"optimum.start: 'nope' is not one of \['constant', 'cost', "):
         params_from_dict({"optimum": {"start": "nope"}})
-    for key in ("refine_levels", "refine_iterations", "refine_learning_rate"):
+    for key in ("refine_levels", "refine_iterations"):
         with pytest.raises(ConfigError, match=f"optimum.{key}"):
             params_from_dict({"optimum": {key: 0}})
 

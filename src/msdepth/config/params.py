@@ -482,11 +482,10 @@ class OptimumConfig:
     learning_rate: float = 0.05  # Adam's, on the logit of disparity / 0.3 (the network heads' range)
     init_disparity: float = 0.04  # the constant start, fraction of the width
     # constant: coarse to fine from init_disparity; cost/sgbm: a matched start (msdepth.optimum.starts),
-    # refined by refine_iterations Adam steps at the finest refine_levels levels (docs/optimum.md).
+    # refined by refine_iterations Adam steps at each of the finest refine_levels levels (docs/optimum.md).
     start: OptimumStart = "constant"
     refine_levels: int = 1
     refine_iterations: int = 50
-    refine_learning_rate: float = 0.05
     height: int = 0  # working size; 0 = data.synthetic's render size (the CLI: the image's own)
     width: int = 0
     # Its own weight, not loss.smoothness_weight: a network regularises implicitly, a per-pixel
@@ -515,8 +514,6 @@ class OptimumConfig:
         check(self.refine_levels >= 1, f"{key}.refine_levels", f"must be >= 1, got {self.refine_levels}")
         steps = self.refine_iterations
         check(steps >= 1, f"{key}.refine_iterations", f"must be >= 1, got {steps}")
-        rate = self.refine_learning_rate
-        check(rate > 0, f"{key}.refine_learning_rate", f"must be > 0, got {rate}")
         check(self.smoothness_weight >= 0, f"{key}.smoothness_weight", "must be >= 0")
         check(self.sweep_frames >= 0, f"{key}.sweep_frames", f"must be >= 0, got {self.sweep_frames}")
         check(self.cost_frames >= 0, f"{key}.cost_frames", f"must be >= 0, got {self.cost_frames}")

@@ -100,11 +100,11 @@ def optimise(
 ) -> Tensor:
     """The optimum of a batch of pairs: (B, 2, H, W) disparities (left, right) as fractions of width.
 
-    From a constant (``start`` None): ``optimum.iterations`` steps at each of ``optimum.levels``
-    levels at ``optimum.learning_rate``. From ``start`` (B, 2, H, W), a matched start
+    From a constant (``start`` None): ``optimum.iterations`` Adam steps at each of
+    ``optimum.levels`` levels. From ``start`` (B, 2, H, W), a matched start
     (:mod:`msdepth.optimum.starts`): ``optimum.refine_iterations`` steps at each of the finest
-    ``optimum.refine_levels`` levels at ``optimum.refine_learning_rate``, the coarsest level's
-    logits those of the area-downsampled start.
+    ``optimum.refine_levels`` levels, the coarsest one's logits those of the area-downsampled start.
+    Both at ``optimum.learning_rate``.
 
     A ConfigError when the variant's term does not fit a level (e.g. a valid-padded SSIM window
     larger than the coarsest scale): fewer levels or a larger working size then.
@@ -118,18 +118,18 @@ def optimise(
     if start is None:
         sizes = level_sizes(height, width, cfg.levels)
         logits = left.new_full((batch, 2, *sizes[0]), _logit(cfg.init_disparity))
-        steps, rate = cfg.iterations, cfg.learning_rate
+        steps = cfg.iterations
     else:
         if start.shape != (batch, 2, height, width):
             raise ValueError(f"optimum: a start of shape {tuple(start.shape)} for pairs {tuple(left.shape)}")
         sizes = level_sizes(height, width, cfg.refine_levels)
         logits = start_logits(F.interpolate(start.to(left), size=sizes[0], mode="area"))
-        steps, rate = cfg.refine_iterations, cfg.refine_learning_rate
+        steps = cfg.refine_iterations
     for size in sizes:
         logits = F.interpolate(logits, size=size, mode="bilinear", align_corners=False)
         # The objective on the pair at this level's size (area: the filter of the image pyramid).
         left_l, right_l = (F.interpolate(x, size=size, mode="area") for x in (left, right))
-        logits = descend(logits, left_l, right_l, criterion, steps, rate, trace, observe)
+        logits = descend(logits, left_l, right_l, criterion, steps, cfg.learning_rate, trace, observe)
     with torch.no_grad():
         return MAX_DISPARITY * torch.sigmoid(logits)
 

@@ -81,8 +81,15 @@ def start_disparity(
     height, width = size or left.shape[:2]
     if start == "constant":
         return np.full((2, height, width), params.optimum.init_disparity, dtype=np.float32)
-    left_px = matched_disparity(left, right, params, variant, start)
-    both = np.stack((left_px, right_from_left(left_px)), axis=-1) / left.shape[1]
+    return both_views(matched_disparity(left, right, params, variant, start), (height, width))
+
+
+def both_views(left_px: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """A matched start (2, h, w) float32, fractions of the width in [0, 0.3], from the left view's
+    disparity (px, (H, W), at the pair's own size): the right view warped from it
+    (:func:`right_from_left`), both area-resampled to ``size``."""
+    height, width = size
+    both = np.stack((left_px, right_from_left(left_px)), axis=-1) / left_px.shape[1]
     if both.shape[:2] != (height, width):
         both = cv2.resize(both, (width, height), interpolation=cv2.INTER_AREA)
     return np.ascontiguousarray(np.clip(both, 0.0, MAX_DISPARITY).transpose(2, 0, 1), dtype=np.float32)
