@@ -11,9 +11,8 @@ and ``optimum.learning_rate`` (the one both paths use).
 params' refinement settings; the constant start runs the coarse-to-fine solver), each brought to
 full size (bilinear on the disparity as a fraction of width) and scored there, plus seconds. The
 start is matched once, at the frame's own size (:mod:`msdepth.optimum.starts`), so every size
-refines the same map. ``--smoothness-width N`` scales the optimum's smoothness weight with the
-working width, ``w · W / N`` (the edge-aware smoothness term, per pixel of the disparity as a
-fraction of width, falls as 1 / W; the appearance term does not). Prints markdown::
+refines the same map. The smoothness weight is the solver's ``working_weight``: scaled with the
+working width by ``--set optimum.smoothness_width=N``. Prints markdown::
 
     python studies/optimum_refine.py steps --size 188x621 --out studies/results/optimum/refine_steps.md
     python studies/optimum_refine.py sizes --out studies/results/optimum/sizes.md
@@ -36,7 +35,7 @@ import torch
 from msdepth.config.params import Params, apply_overrides, kernel_variant, params_from_dict
 from msdepth.data.kitti import read_disparity, read_image
 from msdepth.data.pairs import resize, to_tensor
-from msdepth.optimum.solver import disparity_pyramid, level_sizes, objective, optimise
+from msdepth.optimum.solver import disparity_pyramid, level_sizes, objective, optimise, working_weight
 from msdepth.optimum.starts import start_disparity
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -160,9 +159,7 @@ def sizes_study(args: argparse.Namespace) -> list[str]:
                     lines.append(row(*cells, *scored(full_size_scores(init[0], gt)), seconds))
                 for name in args.sizes:
                     size = working_size(name, gt.shape)
-                    weight = params.optimum.smoothness_weight
-                    if args.smoothness_width:
-                        weight *= size[1] / args.smoothness_width
+                    weight = working_weight(params, size[1])
                     began = time.perf_counter()
                     disp, loss = optimum_at((left, right), params, variant, init, size, weight)
                     seconds = f"{time.perf_counter() - began:.1f}"
@@ -196,7 +193,6 @@ def main() -> None:
     parser.add_argument(
         "--sizes", nargs="+", default=["full", "half", "quarter"], help="sizes: working sizes"
     )
-    parser.add_argument("--smoothness-width", type=int, default=0, help="sizes: scale the weight by W / this")
     parser.add_argument("--out", type=Path, help="also write the markdown here")
     args = parser.parse_args()
     torch.set_num_threads(int(os.environ.get("OMP_NUM_THREADS", "1")))

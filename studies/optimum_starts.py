@@ -44,7 +44,7 @@ from msdepth.geometry.depth import clamp_depth, disparity_to_depth
 from msdepth.optimum.cost_volume import cost_volume, matching_cost, winner_take_all
 from msdepth.optimum.sgbm import sgbm_disparity
 from msdepth.optimum.sgm import SGMConfig, sgm
-from msdepth.optimum.solver import objective, optimise
+from msdepth.optimum.solver import objective, optimise, working_weight
 from msdepth.optimum.starts import both_views
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -122,7 +122,7 @@ def refined(
     """``variant`` ((label, name, params))'s optimum at the working ``size`` from each start (label ->
     the left disparity in px at full size, or None for the constant), at full size in px."""
     label, name, params = variant
-    criterion = objective(params, name)
+    criterion = objective(params, name, working_weight(params, size[1]))
     pair = [to_tensor(resize(x, *size))[None] for x in (left, right)]
     height, width = left.shape[:2]
     out = []

@@ -4,11 +4,14 @@
 
 from __future__ import annotations
 
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
+from test_matcher import fake_samples
 from test_optimum import SHIFT, H, W, plane_pair, small
 
 from msdepth.__main__ import main
@@ -18,7 +21,7 @@ from msdepth.data.pairs import resize, to_tensor
 from msdepth.errors import ConfigError
 from msdepth.evaluation.metrics import stereo_errors
 from msdepth.io import write_png
-from msdepth.optimum.solver import objective, optimise, optimum_disparities, start_logits
+from msdepth.optimum.solver import objective, optimise, optimum_disparities, start_logits, working_weight
 from msdepth.optimum.starts import right_from_left, start_disparity
 
 KITTI2015 = Path(__file__).resolve().parents[2] / "shared" / "real-samples" / "kitti2015-training"
@@ -161,3 +164,51 @@ def test_refinement_from_sgbm_on_real_kitti_2015_at_quarter_size() -> None:
     start_d1 = stereo_errors(gt_small, init[0] * size[1])["d1"]
     refined_d1 = stereo_errors(gt_small, disp[0, 0].numpy() * size[1])["d1"]
     assert refined_d1 < 0.10 and start_d1 < 0.10, (start_d1, refined_d1)
+
+
+def test_refine_study_on_a_tiny_fake_samples_folder(tmp_path) -> None:
+    """studies/optimum_refine.py's two tables end to end on tiny synthetic frames (a plane at 5 px)."""
+    fake_samples(tmp_path)
+    script = Path(__file__).resolve().parents[1] / "studies" / "optimum_refine.py"
+    fast = [
+        "--set",
+        "optimum.iterations=3",
+        "--set",
+        "optimum.levels=1",
+        "--set",
+        "optimum.refine_iterations=3",
+    ]
+    common = ["--samples", str(tmp_path), "--frames", "000000_10", "--variants", "ssim", *fast]
+    for study, extra in (
+        ("sizes", ["--sizes", "full", "40x128"]),
+        ("steps", ["--size", "full", "--rates", "0.05"]),
+    ):
+        out = tmp_path / f"{study}.md"
+        proc = subprocess.run(
+            [sys.executable, str(script), study, *common, *extra, "--out", str(out)],
+            capture_output=True,
+            text=True,
+            timeout=300,
+        )
+        assert proc.returncode == 0, proc.stderr[-3000:]
+        text = out.read_text(encoding="utf-8")
+        if study == "sizes":  # each start's own row, then one per size; SGM's start on a plane: exact
+            assert text.count("| 000000_10 | ssim |") == 2 * 3 + 2
+            assert "| 000000_10 | ssim | cost (start) | full |  |  | 0.0" in text
+        else:  # 6 marks per matched start
+            assert text.count("| 000000_10 | ssim | sgbm | 1 | 0.05 |") == 6
+
+
+def test_the_smoothness_weight_scales_with_the_working_width_when_asked() -> None:
+    params = Params()
+    assert working_weight(params, 1242) == params.optimum.smoothness_weight  # 0: not scaled
+    scaled = small(params, smoothness_width=414)
+    assert working_weight(scaled, 1242) == pytest.approx(30.0) and working_weight(scaled, 207, 3.0) == 1.5
+    with pytest.raises(ConfigError, match="optimum.smoothness_width"):
+        params_from_dict({"optimum": {"smoothness_width": -1}})
+    # At twice the reference width, the optimum is the unscaled one's at twice the weight.
+    fast = small(params, levels=1, iterations=5)
+    pair = [plane_pair()]
+    doubled = optimum_disparities(pair, small(fast, smoothness_width=W // 2), "ssim", progress=False)[0]
+    twice = optimum_disparities(pair, fast, "ssim", 2 * fast.optimum.smoothness_weight, progress=False)[0]
+    assert doubled.tobytes() == twice.tobytes()

@@ -484,7 +484,7 @@ class OptimumConfig:
     # constant: coarse to fine from init_disparity; cost/sgbm: a matched start (msdepth.optimum.starts),
     # refined by refine_iterations Adam steps at each of the finest refine_levels levels (docs/optimum.md).
     start: OptimumStart = "constant"
-    refine_levels: int = 1
+    refine_levels: int = 2
     refine_iterations: int = 50
     height: int = 0  # working size; 0 = data.synthetic's render size (the CLI: the image's own)
     width: int = 0
@@ -492,6 +492,9 @@ class OptimumConfig:
     # map does not. Results are reported at every weight of smoothness_sweep (a decade or more).
     smoothness_weight: float = 10.0
     smoothness_sweep: tuple[float, ...] = (3.0, 10.0, 30.0)
+    # 0: the weights as given at any working size. N: they hold at a working width of N px and
+    # scale by W / N at width W (the smoothness term falls as 1 / W; docs/optimum.md, measured).
+    smoothness_width: int = 0
     batch_size: int = 4  # pairs optimised together (independent: each pair's gradient is its own)
     # The pipeline's optimum stages (docs/optimum-pipeline.md): the sweep's weights other than
     # smoothness_weight see only the first sweep_frames evaluation frames (0 = all), the cost
@@ -515,6 +518,8 @@ class OptimumConfig:
         steps = self.refine_iterations
         check(steps >= 1, f"{key}.refine_iterations", f"must be >= 1, got {steps}")
         check(self.smoothness_weight >= 0, f"{key}.smoothness_weight", "must be >= 0")
+        width = self.smoothness_width
+        check(width >= 0, f"{key}.smoothness_width", f"must be 0 (not scaled) or a width in px, got {width}")
         check(self.sweep_frames >= 0, f"{key}.sweep_frames", f"must be >= 0, got {self.sweep_frames}")
         check(self.cost_frames >= 0, f"{key}.cost_frames", f"must be >= 0, got {self.cost_frames}")
         check(self.threads >= 1, f"{key}.threads", f"must be >= 1, got {self.threads}")

@@ -63,6 +63,19 @@ def objective(params: Params, variant: str, smoothness_weight: float | None = No
     return criterion.requires_grad_(False)
 
 
+def working_weight(params: Params, width: int, smoothness_weight: float | None = None) -> float:
+    """The smoothness weight at a working ``width``: ``smoothness_weight`` (default
+    ``optimum.smoothness_weight``), times ``width / optimum.smoothness_width`` when that is set.
+
+    The edge-aware smoothness term is a mean over pixels of the disparity's step to the next
+    pixel, a fraction of the width: at twice the width a surface's steps halve, and so does the
+    term, while the appearance term stays; scaling the weight with the width keeps their balance
+    (docs/optimum.md has the measurement)."""
+    weight = params.optimum.smoothness_weight if smoothness_weight is None else smoothness_weight
+    reference = params.optimum.smoothness_width
+    return weight * width / reference if reference else weight
+
+
 def disparity_pyramid(disp: Tensor) -> list[Tensor]:
     """A (B, 2, H, W) disparity map at the loss's 4 scales (fine -> coarse), area-downsampled as the
     images are, so scale s has the size of the image pyramid's scale s."""
@@ -195,13 +208,14 @@ def optimum_disparities(
     ``(left, right)`` uint8 RGB pair, ``optimum.batch_size`` pairs at a time.
 
     ``size``: the working size (default: :func:`working_size`); pairs are area-resized to it,
-    as training's input is. Consecutive pairs of one size share a batch. ``start``: ``constant``,
+    as training's input is; the smoothness weight is :func:`working_weight`'s at its width.
+    Consecutive pairs of one size share a batch. ``start``: ``constant``,
     ``cost`` or ``sgbm`` (default ``optimum.start``; :func:`msdepth.optimum.starts.start_disparity`,
     matched at each pair's own size).
     """
     cfg = params.optimum
     start = cfg.start if start is None else start
-    criterion = objective(params, variant, smoothness_weight)
+    criteria: dict[float, MonodepthLoss] = {}  # by working weight (one per width, if scaled)
     out: list[np.ndarray] = []
     with tqdm(total=len(pairs), desc=f"optimum {variant}", unit="pair", disable=not progress) as bar:
         first = 0
@@ -217,8 +231,11 @@ def optimum_disparities(
             chunk = pairs[first:stop]
             left = torch.stack([to_tensor(resize(a, h, w)) for a, _ in chunk])
             right = torch.stack([to_tensor(resize(b, h, w)) for _, b in chunk])
+            weight = working_weight(params, w, smoothness_weight)
+            if weight not in criteria:
+                criteria[weight] = objective(params, variant, weight)
             init = batch_start(chunk, params, variant, start, (h, w))
-            disp = optimise(left, right, criterion, cfg, start=init)
+            disp = optimise(left, right, criteria[weight], cfg, start=init)
             out += [d[0].numpy().astype(np.float32) for d in disp]
             bar.update(len(chunk))
             first = stop
