@@ -28,6 +28,7 @@ from __future__ import annotations
 import argparse
 import copy
 import os
+import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -175,6 +176,7 @@ def class_table(rows: list[tuple[str, str, str, dict, float]]) -> list[str]:
 def header(loads: tuple[tuple[float, ...], tuple[float, ...]], size: tuple[int, int] | None) -> list[str]:
     """The table's title and how it was made (the machine's load: timings depend on it)."""
     (start, end), threads = loads, torch.get_num_threads()
+    command = " ".join(sys.argv[1:])
     refine = (
         f" Optimum rows: the variant's optimum at a {size[0]}x{size[1]} working size from each start "
         "(`--refine`; its s is the optimisation's alone), scored at full size."
@@ -184,7 +186,8 @@ def header(loads: tuple[tuple[float, ...], tuple[float, ...]], size: tuple[int, 
     return [
         "# Global starts for the losses' own optimum on real KITTI frames (issue #38)",
         "",
-        f"`python studies/optimum_starts.py` (its docstring says what each column is). Full size, D = 0.3·W; "
+        f"`python studies/optimum_starts.py {command}` "
+        "(its docstring says what each column is). Matched at full size, D = 0.3·W; "
         f"SGM with its defaults (8 paths, p1 0.25, p2 4). Torch threads: {threads}; load average "
         f"{start[0]:.1f} at the start, {end[0]:.1f} at the end (seconds are indicative on a shared machine). "
         "WTA: the cost volume's winner-take-all, no check (valid 100 %). s: SGBM's own; WTA's is building "
@@ -194,16 +197,17 @@ def header(loads: tuple[tuple[float, ...], tuple[float, ...]], size: tuple[int, 
     ]
 
 
-def variants_of(params_path: Path) -> dict[str, tuple[str, Params]]:
-    """Each variant's ``(name, params)`` by label, from ``params_path`` with the variant's overrides."""
+def variants_of(params_path: Path, assignments: list[str] = ()) -> dict[str, tuple[str, Params]]:
+    """Each variant's ``(name, params)`` by label, from ``params_path`` with the ``--set``
+    ``assignments`` and the variant's overrides."""
     import yaml
 
     raw = yaml.safe_load(params_path.read_text(encoding="utf-8"))
     out = {}
     for label, name, overrides in VARIANTS:
         params = (
-            params_from_dict(apply_overrides(copy.deepcopy(raw), overrides))
-            if overrides
+            params_from_dict(apply_overrides(copy.deepcopy(raw), [*assignments, *overrides]))
+            if overrides or assignments
             else load_params(params_path)
         )
         out[label] = (name, params)
@@ -226,10 +230,11 @@ def main() -> None:
     parser.add_argument("--samples", type=Path, default=SAMPLES, help="the real-samples folder")
     parser.add_argument("--params", type=Path, default=ROOT / "params.yaml")
     parser.add_argument("--refine", help="also each variant's optimum from each start at this working size")
+    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="a params override")
     parser.add_argument("--out", type=Path, help="also write the markdown here")
     args = parser.parse_args()
     torch.set_num_threads(int(os.environ.get("OMP_NUM_THREADS", "1")))
-    variants, timings, rows, size = variants_of(args.params), {}, [], None
+    variants, timings, rows, size = variants_of(args.params, args.set), {}, [], None
     load_before = os.getloadavg()
     for label, folder, left_dir, right_dir, gts in SETS:
         base = args.samples / folder

@@ -40,14 +40,17 @@ def refine(variant: str, start: float) -> np.ndarray:
 
 @pytest.mark.parametrize("variant", ["ssim", "msssim"])
 def test_refinement_from_the_truth_stays_there(variant: str) -> None:
+    """Measured: median 0.03 px, mean 0.04 px off, both variants (the interior's max 0.2 px)."""
     error = np.abs(refine(variant, SHIFT)[INTERIOR] - SHIFT)
-    assert np.median(error) < 0.1 and error.mean() < 0.2, (np.median(error), error.mean())
+    assert np.median(error) < 0.1 and error.mean() < 0.1, (np.median(error), error.mean())
 
 
 @pytest.mark.parametrize("variant", ["ssim", "msssim"])
-def test_refinement_from_a_start_a_few_pixels_off_moves_towards_the_truth(variant: str) -> None:
-    error = np.abs(refine(variant, SHIFT + 3)[INTERIOR] - SHIFT)
-    assert np.median(error) < 1.0 and error.mean() < 1.5, (np.median(error), error.mean())
+@pytest.mark.parametrize("offset", [3, -3])
+def test_refinement_from_a_start_a_few_pixels_off_reaches_the_truth(variant: str, offset: int) -> None:
+    """From 3 px nearer or farther: measured median 0.03 px, mean 0.04 px off (max 0.24 px)."""
+    error = np.abs(refine(variant, SHIFT + offset)[INTERIOR] - SHIFT)
+    assert np.median(error) < 0.1 and error.mean() < 0.2, (np.median(error), error.mean())
 
 
 def test_refinement_runs_the_refine_settings_at_the_finest_levels() -> None:
@@ -151,7 +154,9 @@ def test_cli_start_flag(tmp_path, capsys) -> None:
 
 def test_refinement_from_sgbm_on_real_kitti_2015_at_quarter_size() -> None:
     """000001_10 refined at 93 x 310 from SGBM's start (matched at full size), scored at the GT's
-    pixels of the quarter-size grid (GT sampled every 4th px, divided by 4)."""
+    pixels of the quarter-size grid (GT sampled every 4th px, divided by 4: 3 px there are 12 at
+    full size). Measured: D1 1.9 % at the start, 3.8 % refined (EPE 0.40 and 0.63 px); on
+    000000_10, 2.4 % and 3.2 %."""
     if not KITTI2015.is_dir():
         pytest.skip("../shared/real-samples is not available")
     left, right = (read_image(KITTI2015 / d / "000001_10.png") for d in ("image_2", "image_3"))
@@ -161,9 +166,9 @@ def test_refinement_from_sgbm_on_real_kitti_2015_at_quarter_size() -> None:
     pair = [to_tensor(resize(x, *size))[None] for x in (left, right)]
     disp = optimise(*pair, objective(Params(), "ssim"), Params().optimum, start=torch.from_numpy(init)[None])
     gt_small = gt[: 4 * size[0] : 4, : 4 * size[1] : 4] / 4
-    start_d1 = stereo_errors(gt_small, init[0] * size[1])["d1"]
-    refined_d1 = stereo_errors(gt_small, disp[0, 0].numpy() * size[1])["d1"]
-    assert refined_d1 < 0.10 and start_d1 < 0.10, (start_d1, refined_d1)
+    start = stereo_errors(gt_small, init[0] * size[1])
+    refined = stereo_errors(gt_small, disp[0, 0].numpy() * size[1])
+    assert start["d1"] < 0.04 and refined["d1"] < 0.07 and refined["epe"] < 1.0, (start, refined)
 
 
 def test_refine_study_on_a_tiny_fake_samples_folder(tmp_path) -> None:
