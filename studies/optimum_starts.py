@@ -9,30 +9,44 @@ KITTI's D1 and end-point error (``metrics.stereo_errors``), the share of pixels 
 matcher's own checks before hole filling, and seconds. Methods: SGBM (``optimum.sgbm``); per
 variant (ssim; msssim with kernel 3 and 7) the winner-take-all of its own cost volume
 (``optimum.cost_volume``) and the semi-global start on it (``optimum.sgm``). All at full size,
-D = 0.3·W (the network heads' range). Prints markdown::
+D = 0.3·W (the network heads' range).
+
+``--refine SIZE`` (``full``, ``half``, ``quarter`` or ``HxW``) adds, per variant, the variant's own
+optimum (``optimum.solver.optimise``, the params' settings) at that working size from each start:
+the constant (coarse to fine), its SGM result and SGBM's (refined at the finest level; the right
+view warped from the left, ``optimum.starts``), brought to full size (bilinear on the disparity as
+a fraction of width) and scored there; its seconds are the optimisation's alone (the start's are
+in the start's row). KITTI 2012's reflective pixels (``disp_refl_occ``) and the rest (``disp_occ``)
+are then also compared per method (abs_rel and D1, reflective minus the rest). Prints markdown::
 
     python studies/optimum_starts.py --out studies/results/optimum/starts.md
+    python studies/optimum_starts.py --refine half --out studies/results/optimum/starts_refined.md
 """
 
 from __future__ import annotations
 
 import argparse
+import copy
 import os
+import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
 
+import cv2
 import numpy as np
 import torch
 
-from msdepth.config.params import apply_overrides, load_params, params_from_dict
+from msdepth.config.params import Params, apply_overrides, load_params, params_from_dict
 from msdepth.data.kitti import read_disparity, read_image
-from msdepth.data.pairs import to_tensor
+from msdepth.data.pairs import resize, to_tensor
 from msdepth.evaluation.metrics import compute_errors, stereo_errors
 from msdepth.geometry.depth import clamp_depth, disparity_to_depth
 from msdepth.optimum.cost_volume import cost_volume, matching_cost, winner_take_all
 from msdepth.optimum.sgbm import sgbm_disparity
 from msdepth.optimum.sgm import SGMConfig, sgm
+from msdepth.optimum.solver import objective, optimise, working_weight
+from msdepth.optimum.starts import both_views
 
 ROOT = Path(__file__).resolve().parents[1]
 SAMPLES = ROOT.parent / "shared" / "real-samples"
@@ -74,15 +88,19 @@ def scores(gt_disp: np.ndarray, result: Result) -> dict[str, float]:
     }
 
 
-def run_frame(left: np.ndarray, right: np.ndarray, costs: dict, timings: dict) -> list[Result]:
-    """Every method on one pair; ``timings`` collects the seconds of each part per method."""
+def run_frame(
+    left: np.ndarray, right: np.ndarray, variants: dict, timings: dict, size: tuple[int, int] | None = None
+) -> list[Result]:
+    """Every method on one pair (``variants``: label -> (name, params)), and with a working ``size``
+    each variant's optimum from each start; ``timings`` collects the seconds of each part per method."""
     start = time.perf_counter()
-    out = [Result("SGBM", *sgbm_disparity(left, right), time.perf_counter() - start)]
+    sgbm_result = Result("SGBM", *sgbm_disparity(left, right), time.perf_counter() - start)
+    out = [sgbm_result]
     timings.setdefault("SGBM", []).append(out[0].seconds)
     left_t, right_t = to_tensor(left), to_tensor(right)
-    for label, cost in costs.items():
+    for label, (name, params) in variants.items():
         start = time.perf_counter()
-        volume = cost_volume(left_t, right_t, cost)
+        volume = cost_volume(left_t, right_t, matching_cost(params, name))
         built = time.perf_counter() - start
         wta = winner_take_all(volume).numpy()
         out.append(Result(f"{label} WTA", wta, np.ones(wta.shape, dtype=bool), built))
@@ -93,6 +111,31 @@ def run_frame(left: np.ndarray, right: np.ndarray, costs: dict, timings: dict) -
         timings.setdefault(f"{label} volume", []).append(built)
         timings.setdefault(f"{label} SGM", []).append(matched)
         del volume
+        if size is not None:
+            starts = {"constant": None, "SGM": disparity, "SGBM": sgbm_result.disparity}
+            out += refined(left, right, (label, name, params), starts, size, timings)
+    return out
+
+
+def refined(
+    left: np.ndarray, right: np.ndarray, variant: tuple, starts: dict, size: tuple[int, int], timings: dict
+) -> list[Result]:
+    """``variant`` ((label, name, params))'s optimum at the working ``size`` from each start (label ->
+    the left disparity in px at full size, or None for the constant), at full size in px."""
+    label, name, params = variant
+    criterion = objective(params, name, working_weight(params, size[1]))
+    pair = [to_tensor(resize(x, *size))[None] for x in (left, right)]
+    height, width = left.shape[:2]
+    out = []
+    for start_label, disparity in starts.items():
+        began = time.perf_counter()
+        init = None if disparity is None else torch.from_numpy(both_views(disparity, size))[None]
+        disp = optimise(*pair, criterion, params.optimum, start=init)[0, 0].numpy()
+        seconds = time.perf_counter() - began
+        full = cv2.resize(disp, (width, height), interpolation=cv2.INTER_LINEAR) * width
+        method = f"{label} optimum from {start_label}"
+        out.append(Result(method, full, np.ones(full.shape, dtype=bool), seconds))
+        timings.setdefault(method, []).append(seconds)
     return out
 
 
@@ -110,57 +153,105 @@ def table(rows: list[tuple[str, str, str, dict, float]]) -> list[str]:
     return lines
 
 
-def header(loads: tuple[tuple[float, ...], tuple[float, ...]]) -> list[str]:
+def class_table(rows: list[tuple[str, str, str, dict, float]]) -> list[str]:
+    """Per KITTI 2012 frame and method: abs_rel and D1 on the reflective pixels (``disp_refl_occ``),
+    on the rest (``disp_occ``), and the difference (reflective minus the rest)."""
+    by_key = {(frame, gt, method): s for frame, gt, method, s, _ in rows}
+    lines = [
+        "| frame | method | abs_rel refl | abs_rel rest | diff | D1 % refl | D1 % rest | diff |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for (frame, gt, method), refl in by_key.items():
+        rest = by_key.get((frame, "disp_occ", method))
+        if gt != "disp_refl_occ" or rest is None:
+            continue
+        lines.append(
+            f"| {frame} | {method} | {refl['abs_rel']:.3f} | {rest['abs_rel']:.3f} | "
+            f"{refl['abs_rel'] - rest['abs_rel']:+.3f} | {refl['d1']:.1f} | {rest['d1']:.1f} | "
+            f"{refl['d1'] - rest['d1']:+.1f} |"
+        )
+    return lines
+
+
+def header(loads: tuple[tuple[float, ...], tuple[float, ...]], size: tuple[int, int] | None) -> list[str]:
     """The table's title and how it was made (the machine's load: timings depend on it)."""
     (start, end), threads = loads, torch.get_num_threads()
+    command = " ".join(sys.argv[1:])
+    refine = (
+        f" Optimum rows: the variant's optimum at a {size[0]}x{size[1]} working size from each start "
+        "(`--refine`; its s is the optimisation's alone), scored at full size."
+        if size
+        else ""
+    )
     return [
         "# Global starts for the losses' own optimum on real KITTI frames (issue #38)",
         "",
-        f"`python studies/optimum_starts.py` (its docstring says what each column is). Full size, D = 0.3·W; "
+        f"`python studies/optimum_starts.py {command}` "
+        "(its docstring says what each column is). Matched at full size, D = 0.3·W; "
         f"SGM with its defaults (8 paths, p1 0.25, p2 4). Torch threads: {threads}; load average "
         f"{start[0]:.1f} at the start, {end[0]:.1f} at the end (seconds are indicative on a shared machine). "
         "WTA: the cost volume's winner-take-all, no check (valid 100 %). s: SGBM's own; WTA's is building "
         "the volume, SGM's the volume and SGM. abs_rel: depth with f = 721.5377 px, B = 0.54 m, "
-        "capped at 80 m.",
+        f"capped at 80 m.{refine}",
         "",
     ]
 
 
-def costs_of(params_path: Path) -> dict:
-    """Each variant's matching cost, from ``params_path`` with the variant's overrides."""
+def variants_of(params_path: Path, assignments: list[str] = ()) -> dict[str, tuple[str, Params]]:
+    """Each variant's ``(name, params)`` by label, from ``params_path`` with the ``--set``
+    ``assignments`` and the variant's overrides."""
     import yaml
 
     raw = yaml.safe_load(params_path.read_text(encoding="utf-8"))
     out = {}
     for label, name, overrides in VARIANTS:
         params = (
-            params_from_dict(apply_overrides(dict(raw), overrides)) if overrides else load_params(params_path)
+            params_from_dict(apply_overrides(copy.deepcopy(raw), [*assignments, *overrides]))
+            if overrides or assignments
+            else load_params(params_path)
         )
-        out[label] = matching_cost(params, name)
+        out[label] = (name, params)
     return out
+
+
+def working_size(text: str | None, shape: tuple[int, ...]) -> tuple[int, int] | None:
+    """``--refine``'s size for a frame of ``shape``: ``full``/``half``/``quarter`` of it, or ``HxW``."""
+    if text is None:
+        return None
+    named = {"full": 1, "half": 2, "quarter": 4}
+    if text in named:
+        return shape[0] // named[text], shape[1] // named[text]
+    height, _, width = text.partition("x")
+    return int(height), int(width)
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--samples", type=Path, default=SAMPLES, help="the real-samples folder")
     parser.add_argument("--params", type=Path, default=ROOT / "params.yaml")
+    parser.add_argument("--refine", help="also each variant's optimum from each start at this working size")
+    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="a params override")
     parser.add_argument("--out", type=Path, help="also write the markdown here")
     args = parser.parse_args()
     torch.set_num_threads(int(os.environ.get("OMP_NUM_THREADS", "1")))
-    costs, timings, rows = costs_of(args.params), {}, []
+    variants, timings, rows, size = variants_of(args.params, args.set), {}, [], None
     load_before = os.getloadavg()
     for label, folder, left_dir, right_dir, gts in SETS:
         base = args.samples / folder
         for frame in FRAMES:
             left, right = (read_image(base / d / f"{frame}.png") for d in (left_dir, right_dir))
-            results = run_frame(left, right, costs, timings)
+            size = working_size(args.refine, left.shape)
+            results = run_frame(left, right, variants, timings, size)
             for gt_dir in gts:
                 gt = read_disparity(base / gt_dir / f"{frame}.png")
                 rows += [(f"{label} {frame}", gt_dir, r.method, scores(gt, r), r.seconds) for r in results]
             print(f"{label} {frame} done", flush=True)
     loads = (load_before, os.getloadavg())
-    lines = header(loads) + table(rows) + ["", "| part | s per pair (mean) |", "|---|---|"]
+    lines = header(loads, size) + table(rows) + ["", "| part | s per pair (mean) |", "|---|---|"]
     lines += [f"| {part} | {np.mean(values):.2f} |" for part, values in timings.items()]
+    if args.refine:
+        lines += ["", "KITTI 2012: reflective pixels (disp_refl_occ) against the rest (disp_occ).", ""]
+        lines += class_table(rows)
     text = "\n".join(lines) + "\n"
     print(text)
     if args.out:

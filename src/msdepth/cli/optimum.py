@@ -47,6 +47,13 @@ def optimum_command(add_parser: Callable[..., argparse.ArgumentParser]) -> None:
     camera_options(o, principal_point=False)
     o.add_argument("--height", type=int, help="working height (default: optimum.height, else the image's)")
     o.add_argument("--width", type=int, help="working width (default: optimum.width, else the image's)")
+    o.add_argument(
+        "--start",
+        metavar="{constant,cost,sgbm}",
+        help="where the optimum starts (default: optimum.start): a constant, refined coarse to fine; or "
+        "a matched start, refined at the finest level: SGM on the variant's own cost volume (cost) or "
+        "OpenCV's SGBM (sgbm), matched at the image's own size",
+    )
     o.add_argument("--quiet", action="store_true", help="no progress bar")
     o.set_defaults(run=run)
 
@@ -101,7 +108,8 @@ def run(args: argparse.Namespace) -> int:
     from msdepth.data.pairs import check_same_size
     from msdepth.optimum.solver import objective, optimum_disparities
 
-    params = read_params(args.params, args.set)
+    # --start is optimum.start's override, checked (one line) as the params file's value is.
+    params = read_params(args.params, [*args.set, *([f"optimum.start={args.start}"] if args.start else [])])
     size = requested_size(args, params)
     objective(params, args.variant)  # an unknown variant fails before any image is read
     given = {k: v for k, v in (("focal", args.focal), ("baseline", args.baseline)) if v is not None}

@@ -467,6 +467,11 @@ class CompareConfig:
         check(0 <= self.seed <= SEED_MAX, f"{key}.seed", f"must be in 0..{SEED_MAX}, got {self.seed}")
 
 
+# The optimum's starts (msdepth.optimum.starts): a constant, SGM on the variant's own cost volume, SGBM.
+OptimumStart = Literal["constant", "cost", "sgbm"]
+OPTIMUM_STARTS: tuple[str, ...] = get_args(OptimumStart)
+
+
 @dataclass(frozen=True)
 class OptimumConfig:
     """The losses' own optimum (:mod:`msdepth.optimum.solver`): per stereo pair, the disparity maps that
@@ -476,12 +481,20 @@ class OptimumConfig:
     iterations: int = 100  # Adam steps per level: the stopping rule (docs/optimum.md, measured)
     learning_rate: float = 0.05  # Adam's, on the logit of disparity / 0.3 (the network heads' range)
     init_disparity: float = 0.04  # the constant start, fraction of the width
+    # constant: coarse to fine from init_disparity; cost/sgbm: a matched start (msdepth.optimum.starts),
+    # refined by refine_iterations Adam steps at each of the finest refine_levels levels (docs/optimum.md).
+    start: OptimumStart = "constant"
+    refine_levels: int = 2
+    refine_iterations: int = 50
     height: int = 0  # working size; 0 = data.synthetic's render size (the CLI: the image's own)
     width: int = 0
     # Its own weight, not loss.smoothness_weight: a network regularises implicitly, a per-pixel
     # map does not. Results are reported at every weight of smoothness_sweep (a decade or more).
     smoothness_weight: float = 10.0
     smoothness_sweep: tuple[float, ...] = (3.0, 10.0, 30.0)
+    # 0: the weights as given at any working size. N: they hold at a working width of N px and
+    # scale by W / N at width W (the smoothness term falls as 1 / W; docs/optimum.md, measured).
+    smoothness_width: int = 0
     batch_size: int = 4  # pairs optimised together (independent: each pair's gradient is its own)
     # The pipeline's optimum stages (docs/optimum-pipeline.md): the sweep's weights other than
     # smoothness_weight see only the first sweep_frames evaluation frames (0 = all), the cost
@@ -501,7 +514,12 @@ class OptimumConfig:
             f"must be in (0, 0.3) (the heads' range), got {self.init_disparity}",
         )
         check(self.batch_size >= 1, f"{key}.batch_size", f"must be >= 1, got {self.batch_size}")
+        check(self.refine_levels >= 1, f"{key}.refine_levels", f"must be >= 1, got {self.refine_levels}")
+        steps = self.refine_iterations
+        check(steps >= 1, f"{key}.refine_iterations", f"must be >= 1, got {steps}")
         check(self.smoothness_weight >= 0, f"{key}.smoothness_weight", "must be >= 0")
+        width = self.smoothness_width
+        check(width >= 0, f"{key}.smoothness_width", f"must be 0 (not scaled) or a width in px, got {width}")
         check(self.sweep_frames >= 0, f"{key}.sweep_frames", f"must be >= 0, got {self.sweep_frames}")
         check(self.cost_frames >= 0, f"{key}.cost_frames", f"must be >= 0, got {self.cost_frames}")
         check(self.threads >= 1, f"{key}.threads", f"must be >= 1, got {self.threads}")

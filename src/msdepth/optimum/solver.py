@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Sequence
+from typing import Callable, Sequence
 
 import numpy as np
 import torch
@@ -38,12 +38,16 @@ from msdepth.errors import ConfigError
 from msdepth.losses.monodepth import MonodepthLoss, reconstruct, scale_pyramid
 from msdepth.losses.objective import build_loss
 from msdepth.networks.common import MAX_DISPARITY
+from msdepth.optimum.starts import start_disparity
 
 NUM_SCALES = 4  # the network's disparity scales (1, 1/2, 1/4, 1/8), all of which training's loss sees
 # px: the shortest side of a coarse level; its coarsest training scale (1/8) keeps 3 px, SSIM's window.
 MIN_LEVEL_SIDE = 24
 COST_SCALES = np.geomspace(0.5, 2.0, 25)  # the cost curves' s grid: log-spaced, s = 1 in the middle
 BASIN_TOLERANCE = 0.05  # the basin: s whose cost rises less than this share of the curve's range
+# A matched start's disparity is kept this share of the heads' range (0.3) off its ends: the
+# sigmoid's gradient vanishes there (1e-3: 0.37 px at 1242 px, beyond the 80 m cap).
+START_MARGIN = 1e-3
 
 
 def objective(params: Params, variant: str, smoothness_weight: float | None = None) -> MonodepthLoss:
@@ -57,6 +61,19 @@ def objective(params: Params, variant: str, smoothness_weight: float | None = No
     variants = params.variants if variant in params.variants else (*params.variants, variant)
     criterion = build_loss(dataclasses.replace(params, loss=loss, variants=variants), variant)
     return criterion.requires_grad_(False)
+
+
+def working_weight(params: Params, width: int, smoothness_weight: float | None = None) -> float:
+    """The smoothness weight at a working ``width``: ``smoothness_weight`` (default
+    ``optimum.smoothness_weight``), times ``width / optimum.smoothness_width`` when that is set.
+
+    The edge-aware smoothness term is a mean over pixels of the disparity's step to the next
+    pixel, a fraction of the width: at twice the width a surface's steps halve, and so does the
+    term, while the appearance term stays; scaling the weight with the width keeps their balance
+    (docs/optimum.md has the measurement)."""
+    weight = params.optimum.smoothness_weight if smoothness_weight is None else smoothness_weight
+    reference = params.optimum.smoothness_width
+    return weight * width / reference if reference else weight
 
 
 def disparity_pyramid(disp: Tensor) -> list[Tensor]:
@@ -77,46 +94,93 @@ def _logit(disparity: float) -> float:
     return math.log(disparity / (MAX_DISPARITY - disparity))
 
 
+def start_logits(start: Tensor) -> Tensor:
+    """The logits of a (B, 2, H, W) start disparity (fractions of width): ``logit(start / 0.3)``,
+    the ratio clamped to [:data:`START_MARGIN`, 1 - :data:`START_MARGIN`] so that a start on the
+    range's edge (a matcher's 0 in a row with no match) keeps a usable gradient."""
+    ratio = (start / MAX_DISPARITY).clamp(START_MARGIN, 1 - START_MARGIN)
+    return torch.log(ratio / (1 - ratio))
+
+
 def optimise(
     left: Tensor,
     right: Tensor,
     criterion: MonodepthLoss,
     cfg: OptimumConfig,
     trace: list[list[float]] | None = None,
+    start: Tensor | None = None,
+    observe: Callable[[int, Tensor], None] | None = None,
 ) -> Tensor:
     """The optimum of a batch of pairs: (B, 2, H, W) disparities (left, right) as fractions of width.
 
+    From a constant (``start`` None): ``optimum.iterations`` Adam steps at each of
+    ``optimum.levels`` levels. From ``start`` (B, 2, H, W), a matched start
+    (:mod:`msdepth.optimum.starts`): ``optimum.refine_iterations`` steps at each of the finest
+    ``optimum.refine_levels`` levels, the coarsest one's logits those of the area-downsampled start.
+    Both at ``optimum.learning_rate``.
+
     A ConfigError when the variant's term does not fit a level (e.g. a valid-padded SSIM window
-    larger than the coarsest scale): fewer ``optimum.levels`` or a larger working size then.
+    larger than the coarsest scale): fewer levels or a larger working size then.
 
     ``left``, ``right``: (B, 3, H, W) in [0, 1]. ``trace``, when given, gets each level's
-    per-step loss (summed over the batch), for measuring the stopping rule. Deterministic on CPU.
+    per-step loss (summed over the batch), for measuring the stopping rule; ``observe``, when given,
+    is called after each step with its number in the level (from 1) and the disparity (B, 2, h, w),
+    for scoring the steps. Deterministic on CPU.
     """
     batch, _, height, width = left.shape
-    sizes = level_sizes(height, width, cfg.levels)
-    logits = left.new_full((batch, 2, *sizes[0]), _logit(cfg.init_disparity))
+    if start is None:
+        sizes = level_sizes(height, width, cfg.levels)
+        logits = left.new_full((batch, 2, *sizes[0]), _logit(cfg.init_disparity))
+        steps = cfg.iterations
+    else:
+        if start.shape != (batch, 2, height, width):
+            raise ValueError(f"optimum: a start of shape {tuple(start.shape)} for pairs {tuple(left.shape)}")
+        sizes = level_sizes(height, width, cfg.refine_levels)
+        logits = start_logits(F.interpolate(start.to(left), size=sizes[0], mode="area"))
+        steps = cfg.refine_iterations
     for size in sizes:
         logits = F.interpolate(logits, size=size, mode="bilinear", align_corners=False)
         # The objective on the pair at this level's size (area: the filter of the image pyramid).
         left_l, right_l = (F.interpolate(x, size=size, mode="area") for x in (left, right))
-        logits = logits.detach().requires_grad_(True)
-        adam = torch.optim.Adam([logits], lr=cfg.learning_rate)
-        steps = []
-        for _ in range(cfg.iterations):
-            disp = MAX_DISPARITY * torch.sigmoid(logits)
-            # x batch: each pair's gradient is that of its own loss, whatever its batch mates.
-            try:
-                loss = criterion(disparity_pyramid(disp), left_l, right_l)["total"] * batch
-            except ValueError as exc:
-                raise ConfigError(f"optimum: at the {size[0]}x{size[1]} level: {exc}") from None
-            adam.zero_grad(set_to_none=True)
-            loss.backward()
-            adam.step()
-            steps.append(loss.item())
-        if trace is not None:
-            trace.append(steps)
+        logits = descend(logits, left_l, right_l, criterion, steps, cfg.learning_rate, trace, observe)
     with torch.no_grad():
         return MAX_DISPARITY * torch.sigmoid(logits)
+
+
+def descend(
+    logits: Tensor,
+    left: Tensor,
+    right: Tensor,
+    criterion: MonodepthLoss,
+    steps: int,
+    learning_rate: float,
+    trace: list[list[float]] | None = None,
+    observe: Callable[[int, Tensor], None] | None = None,
+) -> Tensor:
+    """``steps`` Adam steps on ``logits`` (B, 2, h, w) of the objective on one level's pair (B, 3,
+    h, w); the logits after them (detached). ``trace`` and ``observe``: :func:`optimise`'s."""
+    batch = left.shape[0]
+    size = tuple(left.shape[-2:])
+    logits = logits.detach().requires_grad_(True)
+    adam = torch.optim.Adam([logits], lr=learning_rate)
+    losses = []
+    for _ in range(steps):
+        disp = MAX_DISPARITY * torch.sigmoid(logits)
+        # x batch: each pair's gradient is that of its own loss, whatever its batch mates.
+        try:
+            loss = criterion(disparity_pyramid(disp), left, right)["total"] * batch
+        except ValueError as exc:
+            raise ConfigError(f"optimum: at the {size[0]}x{size[1]} level: {exc}") from None
+        adam.zero_grad(set_to_none=True)
+        loss.backward()
+        adam.step()
+        losses.append(loss.item())
+        if observe is not None:
+            with torch.no_grad():
+                observe(len(losses), MAX_DISPARITY * torch.sigmoid(logits))
+    if trace is not None:
+        trace.append(losses)
+    return logits.detach()
 
 
 def working_size(
@@ -138,35 +202,59 @@ def optimum_disparities(
     smoothness_weight: float | None = None,
     size: tuple[int, int] | None = None,
     progress: bool = True,
+    start: str | None = None,
 ) -> list[np.ndarray]:
     """The left optimum disparity (fraction of width, float32 at the working size) of every
     ``(left, right)`` uint8 RGB pair, ``optimum.batch_size`` pairs at a time.
 
     ``size``: the working size (default: :func:`working_size`); pairs are area-resized to it,
-    as training's input is. Consecutive pairs of one size share a batch.
+    as training's input is; the smoothness weight is :func:`working_weight`'s at its width.
+    Consecutive pairs of one size share a batch. ``start``: ``constant``,
+    ``cost`` or ``sgbm`` (default ``optimum.start``; :func:`msdepth.optimum.starts.start_disparity`,
+    matched at each pair's own size).
     """
     cfg = params.optimum
-    criterion = objective(params, variant, smoothness_weight)
+    start = cfg.start if start is None else start
+    criteria: dict[float, MonodepthLoss] = {}  # by working weight (one per width, if scaled)
     out: list[np.ndarray] = []
     with tqdm(total=len(pairs), desc=f"optimum {variant}", unit="pair", disable=not progress) as bar:
-        start = 0
-        while start < len(pairs):
-            h, w = working_size(cfg, pairs[start][0].shape, size)
-            stop = start + 1
+        first = 0
+        while first < len(pairs):
+            h, w = working_size(cfg, pairs[first][0].shape, size)
+            stop = first + 1
             while (
                 stop < len(pairs)
-                and stop - start < cfg.batch_size
+                and stop - first < cfg.batch_size
                 and working_size(cfg, pairs[stop][0].shape, size) == (h, w)
             ):
                 stop += 1
-            chunk = pairs[start:stop]
+            chunk = pairs[first:stop]
             left = torch.stack([to_tensor(resize(a, h, w)) for a, _ in chunk])
             right = torch.stack([to_tensor(resize(b, h, w)) for _, b in chunk])
-            disp = optimise(left, right, criterion, cfg)
+            weight = working_weight(params, w, smoothness_weight)
+            if weight not in criteria:
+                criteria[weight] = objective(params, variant, weight)
+            init = batch_start(chunk, params, variant, start, (h, w))
+            disp = optimise(left, right, criteria[weight], cfg, start=init)
             out += [d[0].numpy().astype(np.float32) for d in disp]
             bar.update(len(chunk))
-            start = stop
+            first = stop
     return out
+
+
+def batch_start(
+    pairs: Sequence[tuple[np.ndarray, np.ndarray]],
+    params: Params,
+    variant: str,
+    start: str,
+    size: tuple[int, int],
+) -> Tensor | None:
+    """The (B, 2, h, w) start of a batch of uint8 pairs at the working ``size``
+    (:func:`msdepth.optimum.starts.start_disparity`), or None for the constant start."""
+    if start == "constant":
+        return None
+    maps = [start_disparity(left, right, params, variant, start, size) for left, right in pairs]
+    return torch.from_numpy(np.stack(maps))
 
 
 # ----------------------------------------------------------------------------- cost curves
