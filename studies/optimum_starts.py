@@ -189,7 +189,8 @@ def header(loads: tuple[tuple[float, ...], tuple[float, ...]], size: tuple[int, 
         f"`python studies/optimum_starts.py {command}` "
         "(its docstring says what each column is). Matched at full size, D = 0.3·W; "
         f"SGM with its defaults (8 paths, p1 0.25, p2 4). Torch threads: {threads}; load average "
-        f"{start[0]:.1f} at the start, {end[0]:.1f} at the end (seconds are indicative on a shared machine). "
+        f"{start[0]:.1f} at the start, {end[0]:.1f} at the end "
+        "(seconds are indicative: 2 shared AMD EPYC cores). "
         "WTA: the cost volume's winner-take-all, no check (valid 100 %). s: SGBM's own; WTA's is building "
         "the volume, SGM's the volume and SGM. abs_rel: depth with f = 721.5377 px, B = 0.54 m, "
         f"capped at 80 m.{refine}",
