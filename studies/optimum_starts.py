@@ -45,7 +45,7 @@ from msdepth.geometry.depth import clamp_depth, disparity_to_depth
 from msdepth.optimum.cost_volume import cost_volume, matching_cost, winner_take_all
 from msdepth.optimum.sgbm import sgbm_disparity
 from msdepth.optimum.sgm import SGMConfig, sgm
-from msdepth.optimum.solver import objective, optimise, working_weight
+from msdepth.optimum.solver import disparity_pyramid, objective, optimise, working_weight
 from msdepth.optimum.starts import both_views
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -69,6 +69,7 @@ class Result:
     disparity: np.ndarray
     valid: np.ndarray
     seconds: float
+    loss: float | None = None  # an optimum's: the objective at its working size
 
 
 def scores(gt_disp: np.ndarray, result: Result) -> dict[str, float]:
@@ -85,6 +86,7 @@ def scores(gt_disp: np.ndarray, result: Result) -> dict[str, float]:
         "d1": 100 * stereo["d1"],
         "epe": stereo["epe"],
         "valid": 100 * float(result.valid[mask].mean()),
+        "loss": result.loss,
     }
 
 
@@ -130,11 +132,13 @@ def refined(
     for start_label, disparity in starts.items():
         began = time.perf_counter()
         init = None if disparity is None else torch.from_numpy(both_views(disparity, size))[None]
-        disp = optimise(*pair, criterion, params.optimum, start=init)[0, 0].numpy()
+        disp = optimise(*pair, criterion, params.optimum, start=init)
         seconds = time.perf_counter() - began
-        full = cv2.resize(disp, (width, height), interpolation=cv2.INTER_LINEAR) * width
+        with torch.no_grad():
+            loss = float(criterion(disparity_pyramid(disp), *pair)["total"])
+        full = cv2.resize(disp[0, 0].numpy(), (width, height), interpolation=cv2.INTER_LINEAR) * width
         method = f"{label} optimum from {start_label}"
-        out.append(Result(method, full, np.ones(full.shape, dtype=bool), seconds))
+        out.append(Result(method, full, np.ones(full.shape, dtype=bool), seconds, loss))
         timings.setdefault(method, []).append(seconds)
     return out
 
@@ -142,13 +146,14 @@ def refined(
 def table(rows: list[tuple[str, str, str, dict, float]]) -> list[str]:
     """The markdown table of ``(frame, GT, method, scores, seconds)`` rows."""
     lines = [
-        "| frame | GT | method | abs_rel | D1 % | EPE px | valid % | s |",
-        "|---|---|---|---|---|---|---|---|",
+        "| frame | GT | method | abs_rel | D1 % | EPE px | valid % | s | loss |",
+        "|---|---|---|---|---|---|---|---|---|",
     ]
     for frame, gt, method, s, seconds in rows:
+        loss = "" if s.get("loss") is None else f"{s['loss']:.5f}"
         lines.append(
             f"| {frame} | {gt} | {method} | {s['abs_rel']:.3f} | {s['d1']:.1f} | {s['epe']:.2f} | "
-            f"{s['valid']:.0f} | {seconds:.1f} |"
+            f"{s['valid']:.0f} | {seconds:.1f} | {loss} |"
         )
     return lines
 
@@ -173,13 +178,13 @@ def class_table(rows: list[tuple[str, str, str, dict, float]]) -> list[str]:
     return lines
 
 
-def header(loads: tuple[tuple[float, ...], tuple[float, ...]], size: tuple[int, int] | None) -> list[str]:
+def header(loads: tuple[tuple[float, ...], tuple[float, ...]], size: str | None) -> list[str]:
     """The table's title and how it was made (the machine's load: timings depend on it)."""
     (start, end), threads = loads, torch.get_num_threads()
     command = " ".join(sys.argv[1:])
     refine = (
-        f" Optimum rows: the variant's optimum at a {size[0]}x{size[1]} working size from each start "
-        "(`--refine`; its s is the optimisation's alone), scored at full size."
+        f" Optimum rows: the variant's optimum at the working size `{size}` from each start "
+        "(`--refine`; its s is the optimisation's alone; loss: the objective there), scored at full size."
         if size
         else ""
     )
@@ -235,7 +240,7 @@ def main() -> None:
     parser.add_argument("--out", type=Path, help="also write the markdown here")
     args = parser.parse_args()
     torch.set_num_threads(int(os.environ.get("OMP_NUM_THREADS", "1")))
-    variants, timings, rows, size = variants_of(args.params, args.set), {}, [], None
+    variants, timings, rows = variants_of(args.params, args.set), {}, []
     load_before = os.getloadavg()
     for label, folder, left_dir, right_dir, gts in SETS:
         base = args.samples / folder
@@ -248,7 +253,7 @@ def main() -> None:
                 rows += [(f"{label} {frame}", gt_dir, r.method, scores(gt, r), r.seconds) for r in results]
             print(f"{label} {frame} done", flush=True)
     loads = (load_before, os.getloadavg())
-    lines = header(loads, size) + table(rows) + ["", "| part | s per pair (mean) |", "|---|---|"]
+    lines = header(loads, args.refine) + table(rows) + ["", "| part | s per pair (mean) |", "|---|---|"]
     lines += [f"| {part} | {np.mean(values):.2f} |" for part, values in timings.items()]
     if args.refine:
         lines += ["", "KITTI 2012: reflective pixels (disp_refl_occ) against the rest (disp_occ).", ""]
