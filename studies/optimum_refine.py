@@ -100,7 +100,7 @@ def refine_trace(pair, gt, params: Params, variant: str, start: np.ndarray, size
 
     trace: list[list[float]] = []
     optimise(left, right, objective(params, variant), cfg, trace, torch.from_numpy(start)[None], observe)
-    return [{"step": m, "loss": trace[-1][m], **full_size_scores(marks[m], gt)} for m in MARKS]
+    return [{**full_size_scores(marks[m], gt), "step": m, "loss": trace[-1][m]} for m in MARKS]
 
 
 def steps_study(args: argparse.Namespace) -> list[str]:
