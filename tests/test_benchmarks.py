@@ -45,6 +45,7 @@ def test_loss_benchmark_prints_the_ratios_to_pytorch_msssim() -> None:
     assert "pytorch-msssim / ours (training config, box k3 L4):" in out
 
 
+@pytest.mark.slow
 def test_train_step_benchmark_with_the_speed_switches() -> None:
     out = _run(
         "train_step.py",
@@ -96,6 +97,7 @@ def test_train_step_benchmark_loss_only() -> None:
     assert "| MS-SSIM k11 |" in out
 
 
+@pytest.mark.slow
 def test_train_loop_benchmark() -> None:
     out = _run(
         "train_loop.py",
@@ -194,6 +196,7 @@ def study_set(tmp_path_factory) -> Path:
     return work
 
 
+@pytest.mark.slow
 def test_learning_study_smoke(study_set: Path, tmp_path: Path) -> None:
     """studies/learning.py end to end on a tiny generated set: trains, evaluates per epoch, summarises."""
     shutil.copytree(study_set, tmp_path, dirs_exist_ok=True)
@@ -264,6 +267,7 @@ def test_roi_error_study_known_answers(study_set: Path, tmp_path: Path, monkeypa
         assert exact[key][5] == far[key][5] and np.isfinite(float(exact[key][5])), key
 
 
+@pytest.mark.slow
 def test_objects_gpu_script_runs_tiny_on_the_cpu_without_matplotlib_or_dvclive(tmp_path: Path) -> None:
     """studies/objects_gpu.sh, the prepared GPU run for issue 17's goal 3, at the tiny size on the
     CPU, with matplotlib and dvclive made unimportable as on the GPU machine's image."""

@@ -29,6 +29,9 @@ from msdepth.data import synthetic
 from msdepth.data.download import KITTI_BASE_URL
 from msdepth.reporting.figures import STAGE_FIGURES
 
+# The tests here run DVC on copied projects: the second tier (`-m slow`).
+pytestmark = pytest.mark.slow
+
 SYN = SyntheticConfig(seed=4, drives=2, train_pairs=12, eval_frames=3, height=48, width=160)
 REAL = Path(__file__).resolve().parents[2] / "shared" / "real-samples" / "kitti-object-pair"
 # What KITTI's archives never hold: the synthetic set's own files.

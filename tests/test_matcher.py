@@ -417,6 +417,7 @@ def test_starts_study_on_a_tiny_fake_samples_folder(tmp_path):
     assert "| 2015 000000_10 | disp_occ_0 | ssim SGM | 0.0" in text
 
 
+@pytest.mark.slow
 def test_starts_study_refines_from_each_start(tmp_path):
     """``--refine``: each variant's optimum from the constant, its SGM and SGBM, and the reflective
     pixels against the rest (here the same plane: a difference of 0)."""

@@ -171,6 +171,7 @@ def test_refinement_from_sgbm_on_real_kitti_2015_at_quarter_size() -> None:
     assert start["d1"] < 0.04 and refined["d1"] < 0.07 and refined["epe"] < 1.0, (start, refined)
 
 
+@pytest.mark.slow
 def test_refine_study_on_a_tiny_fake_samples_folder(tmp_path) -> None:
     """studies/optimum_refine.py's two tables end to end on tiny synthetic frames (a plane at 5 px)."""
     fake_samples(tmp_path)

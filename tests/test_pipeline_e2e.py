@@ -23,6 +23,8 @@ from conftest import UP_TO_DATE, dvc_status, merge, project, require_dvc, run_ch
 from msdepth.reporting.figures import STAGE_FIGURES
 
 ROOT = Path(__file__).resolve().parents[1]
+# The tests here run DVC on copied projects: the second tier (`-m slow`).
+pytestmark = pytest.mark.slow
 
 # The copied projects run with conftest.TINY: 2 epochs, two optimum weights (SWEEP), 3 frames.
 SWEEP = ("1.0", "10.0")

@@ -13,6 +13,9 @@ from conftest import UP_TO_DATE, dvc_status, project, require_dvc, run_checked
 
 from msdepth.reporting.figures import ROI_FIGURES, STAGE_FIGURES
 
+# The tests here run DVC on copied projects: the second tier (`-m slow`).
+pytestmark = pytest.mark.slow
+
 
 @pytest.fixture(scope="module")
 def folder_repo(tmp_path_factory) -> Path:

@@ -11,6 +11,9 @@ from pathlib import Path
 import pytest
 from conftest import dvc, project, require_dvc
 
+# The tests here run DVC on copied projects: the second tier (`-m slow`).
+pytestmark = pytest.mark.slow
+
 # The pose network's ResNet needs sides of 64 px or more; the rest as small as the stages allow.
 TINY = {
     "data": {

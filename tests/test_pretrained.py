@@ -173,6 +173,7 @@ def test_a_fresh_run_loads_the_weights_and_a_resume_never_reads_them(pairs, tmp_
         train()
 
 
+@pytest.mark.slow
 def test_replacing_the_weights_under_the_same_name_makes_train_stale(tmp_path: Path) -> None:
     """The real dvc.yaml with stand-ins for train's inputs and outputs committed (no training): once
     the pretrained stage has recorded the new content, train@ssim-0's one changed dep is its record
