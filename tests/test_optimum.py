@@ -267,7 +267,12 @@ def test_cli_on_folders_names_each_bad_pair_and_does_the_others(tmp_path, capsys
     assert len(errors) == 3
     for name in ("b.png", "c.png", "d.png"):
         assert sum(name in line for line in errors) == 1, (name, errors)
-    assert sorted(p.name for p in out.iterdir()) == ["a_depth.npy", "a_disp.npy", "a_disp.png"]
+    assert sorted(p.name for p in out.iterdir()) == [
+        ".msdepth-optimum",
+        "a_depth.npy",
+        "a_disp.npy",
+        "a_disp.png",
+    ]
 
 
 def test_cli_refuses_bad_arguments_in_one_line(tmp_path, capsys) -> None:
@@ -287,6 +292,7 @@ def test_cli_refuses_bad_arguments_in_one_line(tmp_path, capsys) -> None:
 def test_cli_reads_the_params_file_and_its_overrides(tmp_path) -> None:
     (tmp_path / "p.yaml").write_text("optimum:\n  levels: 0\n")
     write_png(tmp_path / "l.png", plane_pair()[0])
-    args = [tmp_path / "l.png", tmp_path / "l.png", "--variant", "ssim", "--out", tmp_path]
+    write_png(tmp_path / "r.png", plane_pair()[1])
+    args = [tmp_path / "l.png", tmp_path / "r.png", "--variant", "ssim", "--out", tmp_path]
     assert main(["optimum", *map(str, args), "--params", str(tmp_path / "p.yaml")]) == 1  # levels 0
     assert cli(*args, "--params", tmp_path / "p.yaml") == 0  # FAST's optimum.levels=1 wins

@@ -11,13 +11,17 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
-from typing import Callable
+from typing import TYPE_CHECKING, Callable
 
 import yaml
 
 from msdepth.cli.options import camera_options
 from msdepth.config.params import Params, apply_overrides, params_from_dict
 from msdepth.errors import ConfigError, DataError, MsdepthError
+from msdepth.io import OutputPolicy
+
+if TYPE_CHECKING:
+    from msdepth.cli.predict import PredictOptions
 
 
 def optimum_command(add_parser: Callable[..., argparse.ArgumentParser]) -> None:
@@ -72,15 +76,24 @@ def read_params(path: str | None, assignments: list[str]) -> Params:
     return params_from_dict(apply_overrides(raw, assignments))
 
 
-def stereo_pairs(left: Path, right: Path) -> list[tuple[Path, Path, Path]]:
+def stereo_pairs(left: Path, right: Path, skip: Path | None = None) -> list[tuple[Path, Path, Path]]:
     """``(left image, right image, output stem)`` of two images or two folders (recursive,
-    sorted; a right image is expected at the left one's relative path)."""
+    sorted; a right image is expected at the left one's relative path; files under ``skip``, the
+    output folder, are not listed). LEFT and RIGHT the same file or folder is refused."""
     from msdepth.cli.predict import IMAGE_EXTENSIONS
 
+    if left.exists() and right.exists() and left.resolve() == right.resolve():
+        raise DataError(f"{left} and {right}: LEFT and RIGHT are the same, not a stereo pair")
     if left.is_file() and right.is_file():
         return [(left, right, Path(left.stem))]
     if left.is_dir() and right.is_dir():
-        files = sorted(p for p in left.rglob("*") if p.is_file() and p.suffix.lower() in IMAGE_EXTENSIONS)
+        files = sorted(
+            p
+            for p in left.rglob("*")
+            if p.is_file()
+            and p.suffix.lower() in IMAGE_EXTENSIONS
+            and not (skip and p.resolve().is_relative_to(skip.resolve()))
+        )
         if not files:
             raise DataError(f"{left}: no images in this folder or below")
         return [(p, right / p.relative_to(left), p.relative_to(left).with_suffix("")) for p in files]
@@ -102,11 +115,13 @@ def requested_size(args: argparse.Namespace, params: Params) -> tuple[int, int] 
 
 
 def run(args: argparse.Namespace) -> int:
-    """The ``optimum`` subcommand: exit code 0, or 1 when a pair failed (each named on stderr)."""
-    from msdepth.cli.predict import PredictOptions, save_outputs
-    from msdepth.data.kitti import read_image
-    from msdepth.data.pairs import check_same_size
-    from msdepth.optimum.solver import objective, optimum_disparities
+    """The ``optimum`` subcommand: exit code 0, or 1 when a pair failed (each named on stderr).
+
+    Pairs are read, optimised and written ``optimum.batch_size`` at a time, so a run killed
+    midway keeps the pairs it finished; every output goes through :class:`msdepth.io.OutputPolicy`.
+    """
+    from msdepth.cli.predict import PredictOptions
+    from msdepth.optimum.solver import objective
 
     # --start is optimum.start's override, checked (one line) as the params file's value is.
     params = read_params(args.params, [*args.set, *([f"optimum.start={args.start}"] if args.start else [])])
@@ -114,32 +129,59 @@ def run(args: argparse.Namespace) -> int:
     objective(params, args.variant)  # an unknown variant fails before any image is read
     given = {k: v for k, v in (("focal", args.focal), ("baseline", args.baseline)) if v is not None}
     options = PredictOptions(disp_format="both", depth_format="npy", progress=False, **given)
+    left, right, out = Path(args.left), Path(args.right), Path(args.out)
+    policy = OutputPolicy(out, "optimum", input_dirs=(left, right))
+    pairs = stereo_pairs(left, right, out)
+    policy.protect([p for pair in pairs for p in pair[:2]])
+    policy.prepare()
     failed = 0
+    for first in range(0, len(pairs), params.optimum.batch_size):
+        chunk = pairs[first : first + params.optimum.batch_size]
+        failed += _optimise_and_write(chunk, params, args, size, options, policy)
+    print(
+        f"wrote the optimum of {len(pairs) - failed} of {len(pairs)} pair(s) to {args.out}", file=sys.stderr
+    )
+    return 1 if failed else 0
 
-    def fail(exc: Exception) -> None:
-        nonlocal failed
-        print(f"error: {' '.join(str(exc).splitlines())}", file=sys.stderr)
-        failed += 1
 
-    good = []
-    for left_path, right_path, stem in stereo_pairs(Path(args.left), Path(args.right)):
+def _fail(exc: Exception) -> int:
+    print(f"error: {' '.join(str(exc).splitlines())}", file=sys.stderr)
+    return 1
+
+
+def _optimise_and_write(
+    chunk: list[tuple[Path, Path, Path]],
+    params: Params,
+    args: argparse.Namespace,
+    size: tuple[int, int] | None,
+    options: PredictOptions,
+    policy: OutputPolicy,
+) -> int:
+    """Read, optimise and write one batch of pairs; the number that failed (each named on stderr)."""
+    from msdepth.cli.predict import output_paths, save_outputs
+    from msdepth.data.kitti import read_image
+    from msdepth.data.pairs import check_same_size
+    from msdepth.optimum.solver import optimum_disparities
+
+    failed, good = 0, []
+    for left_path, right_path, stem in chunk:
         try:
             left, right = read_image(left_path), read_image(right_path)
             check_same_size(left_path, left.shape, right_path, right.shape, "right image")
-            good.append((stem, left, right))
+            good.append((left_path, stem, left, right))
         except DataError as exc:
-            fail(exc)
-    read_failed = failed
-    pairs = [(left, right) for _, left, right in good]
+            failed += _fail(exc)
+    if not good:
+        return failed
+    pairs = [(left, right) for _, _, left, right in good]
     disps = optimum_disparities(pairs, params, args.variant, size=size, progress=not args.quiet)
-    for (stem, left, _), disp in zip(good, disps, strict=True):
+    for (left_path, stem, left, _), disp in zip(good, disps, strict=True):
         try:
+            policy.claim(list(output_paths(Path(args.out) / stem, options).values()), left_path)
             save_outputs(Path(args.out) / stem, left, disp, options)
         except (MsdepthError, OSError) as exc:
-            fail(exc)
-    print(
-        f"wrote the optimum of {len(good) + read_failed - failed} of {len(good) + read_failed} pair(s) "
-        f"to {args.out}",
-        file=sys.stderr,
-    )
-    return 1 if failed else 0
+            message = str(exc)
+            failed += _fail(
+                exc if message.startswith(str(left_path)) else MsdepthError(f"{left_path}: {message}")
+            )
+    return failed
