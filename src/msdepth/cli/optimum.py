@@ -13,11 +13,9 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Callable
 
-import yaml
-
 from msdepth.cli.options import camera_options
-from msdepth.config.params import Params, apply_overrides, params_from_dict
-from msdepth.errors import ConfigError, DataError, MsdepthError
+from msdepth.config.params import MAX_OPTIMUM_SIDE, Params, apply_overrides, load_params, params_from_dict
+from msdepth.errors import ConfigError, DataError, MsdepthError, PixelLimitError
 from msdepth.io import OutputPolicy
 
 if TYPE_CHECKING:
@@ -63,17 +61,12 @@ def optimum_command(add_parser: Callable[..., argparse.ArgumentParser]) -> None:
 
 
 def read_params(path: str | None, assignments: list[str]) -> Params:
-    """``path`` (or ./params.yaml, or the defaults) with the ``--set`` assignments, validated."""
+    """``path`` (or ./params.yaml, or the defaults) with the ``--set`` assignments, validated: the
+    hardened reader and checks of every params file (:func:`msdepth.config.params.load_params`)."""
     source = Path(path) if path else Path("params.yaml")
-    raw: dict = {}
     if path or source.is_file():
-        if not source.is_file():
-            raise ConfigError(f"{source}: no such params file")
-        try:
-            raw = yaml.safe_load(source.read_text()) or {}
-        except yaml.YAMLError as exc:
-            raise ConfigError(f"{source}: not valid YAML: {exc}") from None
-    return params_from_dict(apply_overrides(raw, assignments))
+        return load_params(source, assignments)
+    return params_from_dict(apply_overrides({}, assignments))
 
 
 def stereo_pairs(left: Path, right: Path, skip: Path | None = None) -> list[tuple[Path, Path, Path]]:
@@ -111,6 +104,8 @@ def requested_size(args: argparse.Namespace, params: Params) -> tuple[int, int] 
         raise ConfigError("optimum: give both a working height and width (--height/--width), or neither")
     if height and min(height, width) < 24:
         raise ConfigError(f"optimum: the working size {height}x{width} is below 24 px")
+    if height and max(height, width) > MAX_OPTIMUM_SIDE:
+        raise ConfigError(f"optimum: the working size {height}x{width} is over {MAX_OPTIMUM_SIDE} px a side")
     return (height, width) if height else None
 
 
@@ -159,16 +154,23 @@ def _optimise_and_write(
 ) -> int:
     """Read, optimise and write one batch of pairs; the number that failed (each named on stderr)."""
     from msdepth.cli.predict import output_paths, save_outputs
+    from msdepth.data.imagefile import MAX_IMAGE_PIXELS
     from msdepth.data.kitti import read_image
     from msdepth.data.pairs import check_same_size
     from msdepth.optimum.solver import optimum_disparities
 
     failed, good = 0, []
+    # Without a working size the optimum runs at the image's own, so that is bounded as a working size is.
+    limit = MAX_IMAGE_PIXELS if size else MAX_OPTIMUM_SIDE**2
     for left_path, right_path, stem in chunk:
         try:
-            left, right = read_image(left_path), read_image(right_path)
+            left, right = read_image(left_path, limit), read_image(right_path, limit)
             check_same_size(left_path, left.shape, right_path, right.shape, "right image")
             good.append((left_path, stem, left, right))
+        except PixelLimitError as exc:
+            failed += _fail(
+                MsdepthError(f"{exc}, the optimum's at an image's own size (give --height, --width)")
+            )
         except DataError as exc:
             failed += _fail(exc)
     if not good:

@@ -39,7 +39,7 @@ from msdepth.data import kitti
 from msdepth.data.imagefile import MAX_IMAGE_PIXELS
 from msdepth.data.pairs import resize, to_tensor
 from msdepth.data.synthetic import focal_for_width
-from msdepth.errors import DataError, MsdepthError
+from msdepth.errors import DataError, MsdepthError, PixelLimitError
 from msdepth.evaluation.infer import network_disparity
 from msdepth.geometry.depth import disparity_to_depth, pixel_disparity
 from msdepth.io import OutputPolicy, atomic_path, save_npy, write_png
@@ -281,6 +281,8 @@ def save_outputs(stem: Path, rgb: np.ndarray, disp_fraction: np.ndarray, options
 def _read(path: Path, stem: Path, max_pixels: int) -> _Frame:
     try:
         return _Frame(path, str(path), stem, kitti.read_image(path, max_pixels))
+    except PixelLimitError as exc:
+        return _Frame(path, str(path), stem, None, f"{exc} (raise it with --max-megapixels)")
     except DataError as exc:
         return _Frame(path, str(path), stem, None, str(exc))
 
@@ -358,7 +360,10 @@ def input_frames(
         raise DataError(f"{path}: no such file or folder")
     suffix = path.suffix.lower()
     if suffix in IMAGE_EXTENSIONS:  # read now: an unreadable single image is a plain DataError
-        return iter([_Frame(path, str(path), Path(path.stem), kitti.read_image(path, max_pixels))]), 1
+        frame = _read(path, Path(path.stem), max_pixels)
+        if frame.error:
+            raise DataError(frame.error)
+        return iter([frame]), 1
     if suffix in VIDEO_EXTENSIONS:
         return _video_frames(path)
     raise DataError(
