@@ -263,7 +263,7 @@ class OutputPolicy:
             if Path(folder).is_dir() and self.out_dir.resolve() == Path(folder).resolve():
                 raise OutputError(
                     f"{self.out_dir}: the output folder is the input folder {folder}, whose files the "
-                    "outputs could replace and a later run would read as inputs; choose another --out"
+                    "outputs could replace and a later run would read as inputs; choose another output folder"
                 )
         self.ours = read_manifest(self.manifest)
         # A run killed mid-write left the temp of an output it had listed: remove those only.
