@@ -474,7 +474,8 @@ OptimumStart = Literal["constant", "cost", "sgbm"]
 OPTIMUM_STARTS: tuple[str, ...] = get_args(OptimumStart)
 
 
-# The optimum's memory is about 0.7 GB per megapixel of working size (measured for issue 42): a side of
+# The optimum's memory is about 0.7 GB per megapixel of working size (a 1-megapixel pair peaks 0.74 GB
+# above a 48 x 128 one, levels 1, on a 2-core AMD EPYC): a side of
 # 4096 px keeps a square pair near 12 GB; more levels than 12 halve any such side below 1 px.
 MAX_OPTIMUM_SIDE = 4096
 MAX_OPTIMUM_LEVELS = 12
