@@ -18,9 +18,8 @@ import sys
 from pathlib import Path
 
 import pandas as pd
-import yaml
 
-from msdepth.config.params import apply_overrides, kernel_variant, params_from_dict
+from msdepth.config.params import apply_overrides, kernel_variant, params_from_dict, read_params_file
 from msdepth.data.synthetic import render_frame
 from msdepth.optimum.frames import add_cost_curves, cost_summary
 
@@ -36,7 +35,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--variants", nargs="+", default=["ssim", "msssim:3"])
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE")
     args = ap.parse_args(argv)
-    base = apply_overrides(yaml.safe_load((ROOT / "params.yaml").read_text()), args.set)
+    base = apply_overrides(read_params_file(ROOT / "params.yaml"), args.set)
     s = params_from_dict(base).data.synthetic
     frames = [render_frame(s.seed, 1, i, s.height, s.width) for i in range(args.frames)]
     rows = []

@@ -18,9 +18,8 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
-import yaml  # noqa: E402
 
-from msdepth.config.params import params_from_dict  # noqa: E402
+from msdepth.config.params import params_from_dict, read_params_file  # noqa: E402
 from msdepth.data.kitti import CLASS_BITS  # noqa: E402
 from msdepth.optimum.solver import optimum_disparities  # noqa: E402
 
@@ -30,7 +29,7 @@ ROOT = Path(__file__).resolve().parents[1]
 def main() -> None:
     """Command line: BEFORE_DIR AFTER_DIR OUT_PNG."""
     before, after, out = (Path(a) for a in sys.argv[1:4])
-    params = params_from_dict(yaml.safe_load((ROOT / "params.yaml").read_text()))
+    params = params_from_dict(read_params_file(ROOT / "params.yaml"))
     files = sorted(before.glob("1_*.npz"))  # evaluation frames
     counts = [int((np.load(f)["class_map"] & CLASS_BITS["windshield"]).astype(bool).sum()) for f in files]
     name = files[int(np.argmax(counts))].name

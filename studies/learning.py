@@ -30,9 +30,8 @@ from typing import Callable
 
 import numpy as np
 import pandas as pd
-import yaml
 
-from msdepth.config.params import Params, apply_overrides, kernel_variant, params_from_dict
+from msdepth.config.params import Params, apply_overrides, kernel_variant, params_from_dict, read_params_file
 from msdepth.data import kitti
 from msdepth.data.index import read_eval_index
 from msdepth.data.pairs import build_pair_cache, load_pair_cache, load_pair_list
@@ -296,7 +295,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", type=Path, required=True)
     ap.add_argument("--jobs", type=int, default=1)
     args = ap.parse_args(argv)
-    base = apply_overrides(yaml.safe_load(Path("params.yaml").read_text()), args.set)
+    base = apply_overrides(read_params_file("params.yaml"), args.set)
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "overrides.json").write_text(json.dumps(args.set))
     threads = max(1, (os.cpu_count() or 1) // args.jobs)

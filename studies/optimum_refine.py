@@ -32,7 +32,7 @@ import cv2
 import numpy as np
 import torch
 
-from msdepth.config.params import Params, apply_overrides, kernel_variant, params_from_dict
+from msdepth.config.params import Params, apply_overrides, kernel_variant, params_from_dict, read_params_file
 from msdepth.data.kitti import read_disparity, read_image
 from msdepth.data.pairs import resize, to_tensor
 from msdepth.optimum.solver import disparity_pyramid, level_sizes, objective, optimise, working_weight
@@ -50,9 +50,7 @@ MARKS = (0, 10, 25, 50, 100, 200)  # steps scored by ``steps``
 
 def variant_params(base: Path, spec: str, overrides: list[str]) -> tuple[str, Params]:
     """``(variant, params)`` of a studies spec (``msssim:7``: its kernel size) on ``base``, overridden."""
-    import yaml
-
-    raw = apply_overrides(yaml.safe_load(base.read_text(encoding="utf-8")) or {}, overrides)
+    raw = apply_overrides(read_params_file(base), overrides)
     name, raw = kernel_variant(raw, spec)
     return name, params_from_dict(raw)
 

@@ -37,7 +37,7 @@ import cv2
 import numpy as np
 import torch
 
-from msdepth.config.params import Params, apply_overrides, load_params, params_from_dict
+from msdepth.config.params import Params, apply_overrides, load_params, params_from_dict, read_params_file
 from msdepth.data.kitti import read_disparity, read_image
 from msdepth.data.pairs import resize, to_tensor
 from msdepth.evaluation.metrics import compute_errors, stereo_errors
@@ -206,9 +206,7 @@ def header(loads: tuple[tuple[float, ...], tuple[float, ...]], size: str | None)
 def variants_of(params_path: Path, assignments: list[str] = ()) -> dict[str, tuple[str, Params]]:
     """Each variant's ``(name, params)`` by label, from ``params_path`` with the ``--set``
     ``assignments`` and the variant's overrides."""
-    import yaml
-
-    raw = yaml.safe_load(params_path.read_text(encoding="utf-8"))
+    raw = read_params_file(params_path)
     out = {}
     for label, name, overrides in VARIANTS:
         params = (

@@ -22,9 +22,8 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
-import yaml
 
-from msdepth.config.params import apply_overrides, kernel_variant, params_from_dict
+from msdepth.config.params import apply_overrides, kernel_variant, params_from_dict, read_params_file
 from msdepth.data.kitti import KITTI_BASELINE
 from msdepth.data.synthetic import render_frame, within_range
 from msdepth.evaluation.suites import Frame, depth_maps, evaluate_full, evaluate_roi
@@ -71,7 +70,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE")
     ap.add_argument("--trace", action="store_true", help="print the mean loss per level at steps 25, 50, ...")
     args = ap.parse_args(argv)
-    base = apply_overrides(yaml.safe_load((ROOT / "params.yaml").read_text()), args.set)
+    base = apply_overrides(read_params_file(ROOT / "params.yaml"), args.set)
     params = params_from_dict(base)
     pairs, frames, rois = rendered(params, args.frames)
     weights = args.weights or list(params.optimum.smoothness_sweep)

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import yaml
 
-from msdepth.config.params import apply_overrides, params_from_dict
+from msdepth.config.params import apply_overrides, params_from_dict, read_params_file
 from msdepth.data.synthetic import generate
 from msdepth.errors import MsdepthError
 
@@ -30,7 +30,7 @@ def prepare(out: Path, assignments: list[str]) -> None:
     import os
     import runpy
 
-    raw = apply_overrides(yaml.safe_load((ROOT / "params.yaml").read_text()), assignments)
+    raw = apply_overrides(read_params_file(ROOT / "params.yaml"), assignments)
     params = params_from_dict(raw)  # checked before anything is written
     out.mkdir(parents=True, exist_ok=True)
     (out / "params.yaml").write_text(yaml.safe_dump(raw, sort_keys=False))

@@ -69,3 +69,17 @@ def test_an_unbounded_s_rect_02_is_refused(tmp_path: Path) -> None:
     with pytest.raises(ValueError, match="lidar_depth_map: shape must be"):
         kitti.lidar_depth_map(np.ones((1, 4)), np.eye(4), np.eye(3), np.eye(3, 4), (4_000_000, 10_000_000))
     assert kitti.read_raw_calib(_calib_day(tmp_path / "ok", "1242 375")).shape == (375, 1242)
+
+
+@pytest.mark.parametrize(("body", "holds"), [(b"\x00" * 76, 76), (b"\x00" * 84, 84), (b"\x00" * 81, 81)])
+def test_npy_gt_whose_body_is_not_exactly_its_shape_is_one_data_error(
+    tmp_path: Path, body: bytes, holds: int
+) -> None:
+    # Issue 42, item 4: np.load ignored trailing bytes after the declared (4, 5) float32.
+    (tmp_path / "gt.npy").write_bytes(_npy_declaring((4, 5), body))
+    with pytest.raises(
+        DataError, match=rf"gt.npy: its header declares float32 \(4, 5\) \(80 bytes\) but it holds {holds}"
+    ):
+        read_gt_depth("npy_depth", tmp_path / "gt.npy", focal=700.0, baseline=0.5)
+    (tmp_path / "gt.npy").write_bytes(_npy_declaring((4, 5), b"\x00" * 80))
+    assert read_gt_depth("npy_depth", tmp_path / "gt.npy", focal=700.0, baseline=0.5).shape == (4, 5)

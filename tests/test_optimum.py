@@ -267,7 +267,12 @@ def test_cli_on_folders_names_each_bad_pair_and_does_the_others(tmp_path, capsys
     assert len(errors) == 3
     for name in ("b.png", "c.png", "d.png"):
         assert sum(name in line for line in errors) == 1, (name, errors)
-    assert sorted(p.name for p in out.iterdir()) == ["a_depth.npy", "a_disp.npy", "a_disp.png"]
+    assert sorted(p.name for p in out.iterdir()) == [
+        ".msdepth-optimum",
+        "a_depth.npy",
+        "a_disp.npy",
+        "a_disp.png",
+    ]
 
 
 def test_cli_refuses_bad_arguments_in_one_line(tmp_path, capsys) -> None:
@@ -287,6 +292,79 @@ def test_cli_refuses_bad_arguments_in_one_line(tmp_path, capsys) -> None:
 def test_cli_reads_the_params_file_and_its_overrides(tmp_path) -> None:
     (tmp_path / "p.yaml").write_text("optimum:\n  levels: 0\n")
     write_png(tmp_path / "l.png", plane_pair()[0])
-    args = [tmp_path / "l.png", tmp_path / "l.png", "--variant", "ssim", "--out", tmp_path]
+    write_png(tmp_path / "r.png", plane_pair()[1])
+    args = [tmp_path / "l.png", tmp_path / "r.png", "--variant", "ssim", "--out", tmp_path]
     assert main(["optimum", *map(str, args), "--params", str(tmp_path / "p.yaml")]) == 1  # levels 0
     assert cli(*args, "--params", tmp_path / "p.yaml") == 0  # FAST's optimum.levels=1 wins
+
+
+@pytest.mark.parametrize(
+    ("content", "expected"),
+    [
+        (
+            b"optimum:\n  levels: 2\n  levels: 3\n",
+            "p.yaml: optimum.levels: duplicate key (lines 2 and 3): keep one",
+        ),
+        (b"optimum:\n  start: caf\xe9\n", "p.yaml: not UTF-8 text (byte 0xe9 on line 2)"),
+        (b"- 1\n- 2\n", "p.yaml: params: expected a mapping at the top level"),
+        (
+            b"optimum: &a\n  levels: 2\ncompare: *a\n",
+            "p.yaml: compare: a YAML alias (of the value at line 1) is refused",
+        ),
+        (
+            b"data: {kitti: {odometry_sequences: ['" + b"0" * 300 + b"']}}\n",
+            "odometry sequence numbers of two digits",
+        ),
+    ],
+)
+def test_cli_params_go_through_the_hardened_reader(tmp_path, capsys, content: bytes, expected: str) -> None:
+    # Issue 42 case 12: --params took the last of two duplicate keys, and a non-UTF-8 file, a top-level
+    # list and aliases gave tracebacks or were accepted. Case 13: a 300-character sequence name passed.
+    (tmp_path / "p.yaml").write_bytes(content)
+    write_png(tmp_path / "l.png", plane_pair()[0])
+    write_png(tmp_path / "r.png", plane_pair()[1])
+    args = [tmp_path / "l.png", tmp_path / "r.png", "--variant", "ssim", "--out", tmp_path / "out"]
+    assert main(["optimum", *map(str, args), "--params", str(tmp_path / "p.yaml")]) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("error: ") and expected in err, err
+    assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize(
+    ("extra", "expected"),
+    [
+        (
+            ["--set", "optimum.levels=" + "9" * 100_000],
+            "an integer written with 100000 characters is out of range",
+        ),
+        (["--set", "optimum.levels=4000000000"], "optimum.levels: must be in 1..12, got 4000000000"),
+        (
+            ["--set", "optimum.height=1000000000", "--set", "optimum.width=1000000000"],
+            "optimum.height: must be",
+        ),
+        (["--set", "optimum.batch_size=100000"], "optimum.batch_size: must be in 1..64"),
+        (
+            ["--height", "100000", "--width", "100000"],
+            "the working size 100000x100000 is over 4096 px a side",
+        ),
+    ],
+)
+def test_cli_sizes_are_bounded_in_one_short_line(tmp_path, capsys, extra: list[str], expected: str) -> None:
+    # Issue 42 cases 8 and 12: these ended in MemoryError or cv2.error tracebacks, and a 100,000-digit
+    # --set value was echoed whole.
+    write_png(tmp_path / "l.png", plane_pair()[0])
+    write_png(tmp_path / "r.png", plane_pair()[1])
+    args = [tmp_path / "l.png", tmp_path / "r.png", "--variant", "ssim", "--out", tmp_path / "out"]
+    assert main(["optimum", *map(str, args), *extra]) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and len(err) < 300 and expected in err, err
+
+
+def test_cli_pixel_limit_names_optimum_s_own_options(tmp_path, capsys) -> None:
+    # Issue 42 case 12: the message named --max-megapixels, which optimum does not have.
+    write_png(tmp_path / "l.png", np.zeros((4100, 4200, 3), np.uint8))
+    write_png(tmp_path / "r.png", np.zeros((4100, 4200, 3), np.uint8))
+    assert cli(tmp_path / "l.png", tmp_path / "r.png", "--variant", "ssim", "--out", tmp_path / "out") == 1
+    err = capsys.readouterr().err
+    assert "over the limit of 16.7772 megapixels" in err and "(give --height, --width)" in err
+    assert "--max-megapixels" not in err

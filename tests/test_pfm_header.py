@@ -44,3 +44,38 @@ def test_round_trip_still_holds(tmp_path: Path) -> None:
     image = np.random.default_rng(0).random((5, 7, 3)).astype(np.float32)
     write_pfm(tmp_path / "c.pfm", image, little_endian=False)
     np.testing.assert_array_equal(read_pfm(tmp_path / "c.pfm"), image)
+
+
+def test_crlf_line_ends_are_read_unshifted(tmp_path: Path) -> None:
+    # Issue 42 case 10: "\r\n" after the scale shifted the samples by one byte (values of -6e37..2e38,
+    # 66 % counted as valid GT).
+    samples = np.arange(6, dtype="<f4").reshape(2, 3) + 0.5
+    for header in (b"Pf\r\n3 2\r\n-1.0\r\n", b"Pf\n3 2\n-1.0\n", b"Pf\r3 2\r-1.0\r"):
+        (tmp_path / "a.pfm").write_bytes(header + samples[::-1].tobytes())
+        np.testing.assert_array_equal(read_pfm(tmp_path / "a.pfm"), samples)
+
+
+def test_a_lone_cr_before_a_newline_byte_is_refused_not_misread(tmp_path: Path) -> None:
+    # The bottom row's first sample starts with byte 0x0a: after a lone "\r" that reads as "\r\n".
+    samples = np.frombuffer(b"\n\0\0\0" + np.arange(1, 6, dtype="<f4").tobytes(), "<f4").reshape(2, 3)
+    (tmp_path / "a.pfm").write_bytes(b"Pf\r3 2\r-1.0\r" + samples.tobytes())
+    with pytest.raises(DataError, match="truncated PFM"):
+        read_pfm(tmp_path / "a.pfm")
+
+
+@pytest.mark.parametrize(
+    ("extra", "expected"),
+    [
+        (-1, "truncated PFM"),
+        (1, "PFM with trailing bytes"),
+        (4, "PFM with trailing bytes"),
+        (-4, "truncated PFM"),
+    ],
+)
+def test_a_body_not_exactly_w_h_c_floats_is_refused(tmp_path: Path, extra: int, expected: str) -> None:
+    body = np.arange(6, dtype="<f4").tobytes()
+    body = body[:extra] if extra < 0 else body + b"\0" * extra
+    for header in (b"Pf\n3 2\n-1.0\n", b"Pf\r\n3 2\r\n-1.0\r\n"):
+        (tmp_path / "a.pfm").write_bytes(header + body)
+        with pytest.raises(DataError, match=rf"a\.pfm: {expected}: 3x2x1 float32 need exactly 24 bytes"):
+            read_pfm(tmp_path / "a.pfm")

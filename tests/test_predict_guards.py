@@ -134,8 +134,8 @@ def test_non_finite_camera_options_are_refused(
     assert not (tmp_path / "out").exists()
 
 
-def test_a_model_whose_output_is_nan_fails_the_frame(tmp_path: Path, capsys) -> None:
-    # Item 10: the colour map of a NaN disparity was written and the exit code was 0.
+def test_a_model_with_nan_weights_is_refused_at_load(tmp_path: Path, capsys) -> None:
+    # Issue 42 case 13: non-finite weights are refused when the file is loaded, in one line.
     torch.manual_seed(0)
     model = MonodepthVGG(0.0625).eval()
     with torch.no_grad():
@@ -144,6 +144,22 @@ def test_a_model_whose_output_is_nan_fails_the_frame(tmp_path: Path, capsys) -> 
     path = _save(tmp_path / "nan.pt", model)
     _image(tmp_path / "a.png", 1)
     assert run(tmp_path / "a.png", "--model", path, "--out", tmp_path / "out") == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"error: {path}: refused to load: model.") and "NaN" in err[0]
+    assert not (tmp_path / "out").exists()
+
+
+def test_a_model_whose_output_is_nan_fails_the_frame(tiny: Path, tmp_path: Path, capsys, monkeypatch) -> None:
+    # Item 10: the colour map of a NaN disparity was written and the exit code was 0. Finite weights
+    # can still overflow, so the output is checked too.
+    import msdepth.cli.predict as predict_module
+
+    def nan_output(model, images, post_process):
+        return np.full((images.shape[0], images.shape[2], images.shape[3]), np.nan, np.float32)
+
+    monkeypatch.setattr(predict_module, "network_disparity", nan_output)
+    _image(tmp_path / "a.png", 1)
+    assert run(tmp_path / "a.png", "--model", tiny, "--out", tmp_path / "out") == 1
     err = capsys.readouterr().err
     assert "a.png: the model's output has NaN or infinite values" in err
     assert not list((tmp_path / "out").glob("a*"))

@@ -13,3 +13,12 @@ class DataError(MsdepthError):
 
 class ConfigError(MsdepthError):
     """A parameter in params.yaml has the wrong type or is out of range (the message names the key)."""
+
+
+class PixelLimitError(DataError):
+    """An image's header declares more pixels than the limit of the command reading it."""
+
+
+class OutputError(MsdepthError):
+    """An output may not be written where asked: it would replace an input, the model or a file the
+    command did not write, two inputs map to it, or the output folder is not usable (it names the path)."""

@@ -19,7 +19,7 @@ from typing import Any, Callable, Iterator
 
 import numpy as np
 
-from msdepth.errors import DataError
+from msdepth.errors import DataError, OutputError
 
 
 def _file_mode() -> int:
@@ -196,3 +196,152 @@ def save_npz(path: str | os.PathLike, **arrays: np.ndarray) -> None:
     """Write arrays to a compressed ``.npz`` atomically."""
     with atomic_path(path, suffix=".npz") as tmp:
         np.savez_compressed(tmp, **arrays)
+
+
+# The output policy: every command that writes into a user's folder (predict, optimum, export-onnx,
+# export-folder) claims each output path through an OutputPolicy before writing it atomically.
+MANIFEST_PREFIX = ".msdepth-"  # the manifest of command C is "<output folder>/.msdepth-C"
+
+
+def manifest_line(name: str) -> str:
+    """One manifest line for ``name``: a JSON string in ASCII, so any character of a file name (a
+    newline, U+2028, a byte that is not UTF-8 as Python's surrogate escape) stays on its one line."""
+    return json.dumps(name, ensure_ascii=True) + "\n"
+
+
+def read_manifest(path: str | os.PathLike) -> set[str]:
+    """The names a manifest lists (split on ``\\n`` only); a line that is not a JSON string is a name
+    as the plain-lines manifests of earlier versions wrote it. A missing manifest lists nothing."""
+    try:
+        data = Path(path).read_bytes()
+    except FileNotFoundError:
+        return set()
+    except OSError as exc:
+        raise DataError(f"{path}: cannot read this output manifest ({exc.strerror or exc})") from None
+    names = set()
+    for raw in data.split(b"\n"):
+        line = raw.decode("utf-8", errors="surrogateescape")
+        if line.startswith('"'):
+            try:
+                names.add(str(json.loads(line)))
+                continue
+            except ValueError:
+                pass
+        if line:
+            names.add(line)
+    return names
+
+
+def _nearest_existing(path: Path) -> Path:
+    while not path.exists() and path.parent != path:
+        path = path.parent
+    return path
+
+
+class OutputPolicy:
+    """What ``msdepth <command>`` may write under ``out_dir``: never an input, the model or the
+    manifest, no existing file the command did not write itself (those it wrote are listed in
+    ``out_dir/.msdepth-<command>``), and no path twice in one run (two inputs, one output).
+
+    ``inputs``: files never to replace; ``input_dirs``: folders the output folder may not be.
+    Raises OutputError (one line) when ``out_dir`` is an input folder or not a folder.
+    """
+
+    def __init__(
+        self,
+        out_dir: str | os.PathLike,
+        command: str,
+        inputs: tuple[str | os.PathLike, ...] = (),
+        input_dirs: tuple[str | os.PathLike, ...] = (),
+    ) -> None:
+        self.out_dir, self.command = Path(out_dir), command
+        self.manifest = self.out_dir / f"{MANIFEST_PREFIX}{command}"
+        self.protected = {Path(p).resolve(): Path(p) for p in inputs}
+        self.claimed: dict[Path, str] = {}  # resolved output -> the input it is the output of
+        check_output_folder(self.out_dir)
+        for folder in input_dirs:
+            if Path(folder).is_dir() and self.out_dir.resolve() == Path(folder).resolve():
+                raise OutputError(
+                    f"{self.out_dir}: the output folder is the input folder {folder}, whose files the "
+                    "outputs could replace and a later run would read as inputs; choose another output folder"
+                )
+        self.ours = read_manifest(self.manifest)
+        # A run killed mid-write left the temp of an output it had listed: remove those only.
+        if self.out_dir.is_dir():
+            remove_stale_temps(self.out_dir, lambda final: self._name(final) in self.ours)
+
+    def _name(self, path: Path) -> str:
+        return path.relative_to(self.out_dir).as_posix()
+
+    def protect(self, inputs: list[Path]) -> None:
+        """Add input files that no output may replace."""
+        self.protected.update((Path(p).resolve(), Path(p)) for p in inputs)
+
+    def prepare(self) -> None:
+        """Create the output folder; OutputError (one line) if it cannot be created or written."""
+        try:
+            self.out_dir.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise OutputError(
+                f"{self.out_dir}: cannot create the output folder ({exc.strerror or exc})"
+            ) from None
+        if not os.access(self.out_dir, os.W_OK | os.X_OK):
+            raise OutputError(f"{self.out_dir}: the output folder is not writable")
+
+    def claim(self, paths: list[Path], source: str | os.PathLike) -> None:
+        """Check that every path, an output of ``source``, may be written, and list the new ones in
+        the manifest first (so a run killed mid-write may rewrite them); OutputError naming the
+        first that may not, with nothing written."""
+        for path in paths:
+            self._check(Path(path), str(source))
+        new = [self._name(Path(p)) for p in paths if self._name(Path(p)) not in self.ours]
+        for path in paths:
+            self.claimed[Path(path).resolve()] = str(source)
+        if new:
+            self.prepare()
+            with open(self.manifest, "a", encoding="ascii") as f:
+                f.write("".join(manifest_line(name) for name in new))
+            self.ours.update(new)
+
+    def _check(self, path: Path, source: str) -> None:
+        resolved = path.resolve()
+        if resolved in self.protected:
+            raise OutputError(f"{path}: an output would replace the input {self.protected[resolved]}")
+        if resolved == self.manifest.resolve() or not resolved.parent.is_relative_to(self.out_dir.resolve()):
+            raise OutputError(f"{path}: not a path msdepth {self.command} may write (outside {self.out_dir})")
+        if resolved in self.claimed and self.claimed[resolved] != source:
+            raise OutputError(f"{source}: same output name as {self.claimed[resolved]} ({path}); rename one")
+        if path.is_dir():
+            raise OutputError(f"{path}: a folder where msdepth {self.command} writes a file")
+        if (path.exists() or path.is_symlink()) and self._name(path) not in self.ours:
+            raise OutputError(
+                f"{path}: exists and was not written by msdepth {self.command} (not listed in "
+                f"{self.manifest}); move it or choose another --out"
+            )
+
+
+def check_output_folder(out_dir: str | os.PathLike) -> None:
+    """OutputError (one line) when ``out_dir`` exists and is not a folder, or lies under a file."""
+    out_dir = Path(out_dir)
+    existing = _nearest_existing(out_dir)
+    if existing == out_dir and not out_dir.is_dir():
+        raise OutputError(f"{out_dir}: exists and is not a folder; the output must be a folder")
+    if existing != out_dir and not existing.is_dir():
+        raise OutputError(f"{out_dir}: cannot create the output folder under the file {existing}")
+
+
+def output_file_policy(
+    out: str | os.PathLike, command: str, inputs: tuple[str | os.PathLike, ...] = ()
+) -> OutputPolicy:
+    """The policy of a command that writes the one file ``out`` (export-onnx), ``out`` checked (claim
+    it before writing): OutputError (one line) if ``out`` is a folder, an input, or a file the
+    command did not write."""
+    out = Path(out)
+    if out.is_dir():
+        raise OutputError(f"{out}: a folder; --out names the file to write")
+    policy = OutputPolicy(out.parent, command, inputs)
+    policy._check(out, str(inputs[0]) if inputs else str(out))
+    policy.prepare()
+    for stale in atomic_temps(out):  # left by a writer of ``out`` killed mid-write (only that form)
+        stale.unlink()
+    return policy

@@ -25,7 +25,7 @@ from torch import Tensor, nn
 
 from msdepth.cli.predict import load_trained
 from msdepth.errors import MsdepthError
-from msdepth.io import atomic_path, atomic_temps
+from msdepth.io import atomic_path, output_file_policy
 from msdepth.networks.model import DepthNetwork
 
 INPUT_NAME = "image"
@@ -60,13 +60,11 @@ def export_onnx(
     ``height``/``width`` (default: the model's training size) set the tracing input, which is
     also the fixed input size when ``dynamic`` is False; ``opset`` defaults to DEFAULT_OPSET.
     Returns the model's metadata, also stored in the ONNX file as ``msdepth.*`` properties.
+    ``out_path`` may not be the model, a folder or a file export-onnx did not write (OutputError).
     """
-    for stale in atomic_temps(out_path, suffix=".onnx"):  # left by an export killed mid-write
-        stale.unlink()
+    policy = output_file_policy(out_path, "export-onnx", (model_path,))
     if importlib.util.find_spec("onnx") is None:
         raise MsdepthError("ONNX export needs the 'onnx' package: pip install 'msdepth[onnx]'")
-    import onnx
-
     model, meta = load_trained(model_path, "cpu")
     h = int(meta["height"]) if height is None else height
     w = int(meta["width"]) if width is None else width
@@ -76,6 +74,7 @@ def export_onnx(
     if not OPSET_RANGE[0] <= opset <= OPSET_RANGE[1]:
         raise MsdepthError(f"ONNX export: opset must be in {OPSET_RANGE[0]}..{OPSET_RANGE[1]}, got {opset}")
     axes = {0: "batch", 2: "height", 3: "width"}
+    policy.claim([Path(out_path)], model_path)
     with atomic_path(Path(out_path), suffix=".onnx") as tmp:
         with warnings.catch_warnings():
             # The exporter's own deprecation notices (see the module docstring), not the user's concern.
@@ -95,15 +94,22 @@ def export_onnx(
             except Exception as exc:  # exporter errors are long and name no file
                 first_line = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
                 raise MsdepthError(f"{out_path}: ONNX export failed ({first_line})") from exc
-        proto = onnx.load(str(tmp))
-        onnx.checker.check_model(proto)
-        info = {
-            "variant": str(meta.get("variant", "")),
-            "width_multiplier": str(meta.get("width_multiplier", "")),
-            "height": str(h),
-            "width": str(w),
-            "output": "finest-scale disparity (B, 2, H, W): channel 0 = left, fraction of width",
-        }
-        onnx.helper.set_model_props(proto, {f"msdepth.{k}": v for k, v in info.items()})
-        onnx.save(proto, str(tmp))
+        _add_properties(tmp, meta, h, w)
     return meta
+
+
+def _add_properties(path: Path, meta: dict, h: int, w: int) -> None:
+    """Check the exported graph at ``path`` and store the model's metadata in it (``msdepth.*``)."""
+    import onnx
+
+    proto = onnx.load(str(path))
+    onnx.checker.check_model(proto)
+    info = {
+        "variant": str(meta.get("variant", "")),
+        "width_multiplier": str(meta.get("width_multiplier", "")),
+        "height": str(h),
+        "width": str(w),
+        "output": "finest-scale disparity (B, 2, H, W): channel 0 = left, fraction of width",
+    }
+    onnx.helper.set_model_props(proto, {f"msdepth.{k}": v for k, v in info.items()})
+    onnx.save(proto, str(path))

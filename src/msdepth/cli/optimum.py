@@ -11,13 +11,15 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
-from typing import Callable
-
-import yaml
+from typing import TYPE_CHECKING, Callable
 
 from msdepth.cli.options import camera_options
-from msdepth.config.params import Params, apply_overrides, params_from_dict
-from msdepth.errors import ConfigError, DataError, MsdepthError
+from msdepth.config.params import MAX_OPTIMUM_SIDE, Params, apply_overrides, load_params, params_from_dict
+from msdepth.errors import ConfigError, DataError, MsdepthError, PixelLimitError
+from msdepth.io import OutputPolicy
+
+if TYPE_CHECKING:
+    from msdepth.cli.predict import PredictOptions
 
 
 def optimum_command(add_parser: Callable[..., argparse.ArgumentParser]) -> None:
@@ -59,28 +61,32 @@ def optimum_command(add_parser: Callable[..., argparse.ArgumentParser]) -> None:
 
 
 def read_params(path: str | None, assignments: list[str]) -> Params:
-    """``path`` (or ./params.yaml, or the defaults) with the ``--set`` assignments, validated."""
+    """``path`` (or ./params.yaml, or the defaults) with the ``--set`` assignments, validated: the
+    hardened reader and checks of every params file (:func:`msdepth.config.params.load_params`)."""
     source = Path(path) if path else Path("params.yaml")
-    raw: dict = {}
     if path or source.is_file():
-        if not source.is_file():
-            raise ConfigError(f"{source}: no such params file")
-        try:
-            raw = yaml.safe_load(source.read_text()) or {}
-        except yaml.YAMLError as exc:
-            raise ConfigError(f"{source}: not valid YAML: {exc}") from None
-    return params_from_dict(apply_overrides(raw, assignments))
+        return load_params(source, assignments)
+    return params_from_dict(apply_overrides({}, assignments))
 
 
-def stereo_pairs(left: Path, right: Path) -> list[tuple[Path, Path, Path]]:
+def stereo_pairs(left: Path, right: Path, skip: Path | None = None) -> list[tuple[Path, Path, Path]]:
     """``(left image, right image, output stem)`` of two images or two folders (recursive,
-    sorted; a right image is expected at the left one's relative path)."""
+    sorted; a right image is expected at the left one's relative path; files under ``skip``, the
+    output folder, are not listed). LEFT and RIGHT the same file or folder is refused."""
     from msdepth.cli.predict import IMAGE_EXTENSIONS
 
+    if left.exists() and right.exists() and left.resolve() == right.resolve():
+        raise DataError(f"{left} and {right}: LEFT and RIGHT are the same, not a stereo pair")
     if left.is_file() and right.is_file():
         return [(left, right, Path(left.stem))]
     if left.is_dir() and right.is_dir():
-        files = sorted(p for p in left.rglob("*") if p.is_file() and p.suffix.lower() in IMAGE_EXTENSIONS)
+        files = sorted(
+            p
+            for p in left.rglob("*")
+            if p.is_file()
+            and p.suffix.lower() in IMAGE_EXTENSIONS
+            and not (skip and p.resolve().is_relative_to(skip.resolve()))
+        )
         if not files:
             raise DataError(f"{left}: no images in this folder or below")
         return [(p, right / p.relative_to(left), p.relative_to(left).with_suffix("")) for p in files]
@@ -98,15 +104,19 @@ def requested_size(args: argparse.Namespace, params: Params) -> tuple[int, int] 
         raise ConfigError("optimum: give both a working height and width (--height/--width), or neither")
     if height and min(height, width) < 24:
         raise ConfigError(f"optimum: the working size {height}x{width} is below 24 px")
+    if height and max(height, width) > MAX_OPTIMUM_SIDE:
+        raise ConfigError(f"optimum: the working size {height}x{width} is over {MAX_OPTIMUM_SIDE} px a side")
     return (height, width) if height else None
 
 
 def run(args: argparse.Namespace) -> int:
-    """The ``optimum`` subcommand: exit code 0, or 1 when a pair failed (each named on stderr)."""
-    from msdepth.cli.predict import PredictOptions, save_outputs
-    from msdepth.data.kitti import read_image
-    from msdepth.data.pairs import check_same_size
-    from msdepth.optimum.solver import objective, optimum_disparities
+    """The ``optimum`` subcommand: exit code 0, or 1 when a pair failed (each named on stderr).
+
+    Pairs are read, optimised and written ``optimum.batch_size`` at a time, so a run killed
+    midway keeps the pairs it finished; every output goes through :class:`msdepth.io.OutputPolicy`.
+    """
+    from msdepth.cli.predict import PredictOptions
+    from msdepth.optimum.solver import objective
 
     # --start is optimum.start's override, checked (one line) as the params file's value is.
     params = read_params(args.params, [*args.set, *([f"optimum.start={args.start}"] if args.start else [])])
@@ -114,32 +124,66 @@ def run(args: argparse.Namespace) -> int:
     objective(params, args.variant)  # an unknown variant fails before any image is read
     given = {k: v for k, v in (("focal", args.focal), ("baseline", args.baseline)) if v is not None}
     options = PredictOptions(disp_format="both", depth_format="npy", progress=False, **given)
+    left, right, out = Path(args.left), Path(args.right), Path(args.out)
+    policy = OutputPolicy(out, "optimum", input_dirs=(left, right))
+    pairs = stereo_pairs(left, right, out)
+    policy.protect([p for pair in pairs for p in pair[:2]])
+    policy.prepare()
     failed = 0
-
-    def fail(exc: Exception) -> None:
-        nonlocal failed
-        print(f"error: {' '.join(str(exc).splitlines())}", file=sys.stderr)
-        failed += 1
-
-    good = []
-    for left_path, right_path, stem in stereo_pairs(Path(args.left), Path(args.right)):
-        try:
-            left, right = read_image(left_path), read_image(right_path)
-            check_same_size(left_path, left.shape, right_path, right.shape, "right image")
-            good.append((stem, left, right))
-        except DataError as exc:
-            fail(exc)
-    read_failed = failed
-    pairs = [(left, right) for _, left, right in good]
-    disps = optimum_disparities(pairs, params, args.variant, size=size, progress=not args.quiet)
-    for (stem, left, _), disp in zip(good, disps, strict=True):
-        try:
-            save_outputs(Path(args.out) / stem, left, disp, options)
-        except (MsdepthError, OSError) as exc:
-            fail(exc)
+    for first in range(0, len(pairs), params.optimum.batch_size):
+        chunk = pairs[first : first + params.optimum.batch_size]
+        failed += _optimise_and_write(chunk, params, args, size, options, policy)
     print(
-        f"wrote the optimum of {len(good) + read_failed - failed} of {len(good) + read_failed} pair(s) "
-        f"to {args.out}",
-        file=sys.stderr,
+        f"wrote the optimum of {len(pairs) - failed} of {len(pairs)} pair(s) to {args.out}", file=sys.stderr
     )
     return 1 if failed else 0
+
+
+def _fail(exc: Exception) -> int:
+    print(f"error: {' '.join(str(exc).splitlines())}", file=sys.stderr)
+    return 1
+
+
+def _optimise_and_write(
+    chunk: list[tuple[Path, Path, Path]],
+    params: Params,
+    args: argparse.Namespace,
+    size: tuple[int, int] | None,
+    options: PredictOptions,
+    policy: OutputPolicy,
+) -> int:
+    """Read, optimise and write one batch of pairs; the number that failed (each named on stderr)."""
+    from msdepth.cli.predict import output_paths, save_outputs
+    from msdepth.data.imagefile import MAX_IMAGE_PIXELS
+    from msdepth.data.kitti import read_image
+    from msdepth.data.pairs import check_same_size
+    from msdepth.optimum.solver import optimum_disparities
+
+    failed, good = 0, []
+    # Without a working size the optimum runs at the image's own, so that is bounded as a working size is.
+    limit = MAX_IMAGE_PIXELS if size else MAX_OPTIMUM_SIDE**2
+    for left_path, right_path, stem in chunk:
+        try:
+            left, right = read_image(left_path, limit), read_image(right_path, limit)
+            check_same_size(left_path, left.shape, right_path, right.shape, "right image")
+            good.append((left_path, stem, left, right))
+        except PixelLimitError as exc:
+            failed += _fail(
+                MsdepthError(f"{exc}, the optimum's at an image's own size (give --height, --width)")
+            )
+        except DataError as exc:
+            failed += _fail(exc)
+    if not good:
+        return failed
+    pairs = [(left, right) for _, _, left, right in good]
+    disps = optimum_disparities(pairs, params, args.variant, size=size, progress=not args.quiet)
+    for (left_path, stem, left, _), disp in zip(good, disps, strict=True):
+        try:
+            policy.claim(list(output_paths(Path(args.out) / stem, options).values()), left_path)
+            save_outputs(Path(args.out) / stem, left, disp, options)
+        except (MsdepthError, OSError) as exc:
+            message = str(exc)
+            failed += _fail(
+                exc if message.startswith(str(left_path)) else MsdepthError(f"{left_path}: {message}")
+            )
+    return failed

@@ -14,9 +14,10 @@ Outputs for a frame whose output stem is ``S`` (see :func:`predict` for the stem
 - ``S_depth.npy``: depth in metres (float32); 0 = invalid or beyond ``max_depth``;
 - ``S.ply``: coloured point cloud in the camera frame (x right, y down, z forward, metres).
 
-Nothing but these outputs is ever replaced: every file written under the output folder is listed
-in its ``.msdepth-predict`` file, and a frame whose output name is taken by a file not listed
-there (a user's own ``S_disp.png``), by the input or by the model is refused. The output folder
+Nothing but these outputs is ever replaced (the shared output policy, :class:`msdepth.io.OutputPolicy`):
+every file written under the output folder is listed in its ``.msdepth-predict`` file, and a frame
+whose output name is taken by a file not listed there (a user's own ``S_disp.png``), by the input,
+by the model or by another input's output (``a.png`` and ``a.jpg``) is refused. The output folder
 may lie inside an input folder (it is then skipped when the inputs are listed) but may not be it.
 """
 
@@ -38,10 +39,10 @@ from msdepth.data import kitti
 from msdepth.data.imagefile import MAX_IMAGE_PIXELS
 from msdepth.data.pairs import resize, to_tensor
 from msdepth.data.synthetic import focal_for_width
-from msdepth.errors import DataError, MsdepthError
+from msdepth.errors import DataError, MsdepthError, PixelLimitError
 from msdepth.evaluation.infer import network_disparity
 from msdepth.geometry.depth import disparity_to_depth, pixel_disparity
-from msdepth.io import atomic_path, remove_stale_temps, save_npy, write_png
+from msdepth.io import OutputPolicy, atomic_path, save_npy, write_png
 from msdepth.networks.device import resolve_device
 from msdepth.networks.model import DepthNetwork, load_model
 
@@ -52,7 +53,6 @@ PLY_FORMATS = ("none", "binary", "ascii")
 DEPTH_PNG_SCALE = 1000.0  # codes per metre: millimetres, so 65535 = 65.535 m
 COLORMAP = cv2.COLORMAP_PLASMA  # Monodepth's figures use plasma
 COLOR_PERCENTILE = 95  # the colour scale saturates here, so a few near pixels don't flatten the rest
-MANIFEST = ".msdepth-predict"  # in the output folder: the files predict wrote there, one a line
 
 
 @dataclass(frozen=True)
@@ -278,44 +278,11 @@ def save_outputs(stem: Path, rgb: np.ndarray, disp_fraction: np.ndarray, options
         write_ply(paths["ply"], points, colors, binary=options.ply == "binary")
 
 
-class OutputGuard:
-    """Which files predict may write under ``out_dir``: never an input or the model, and no existing
-    file that predict did not write itself (those it wrote are listed in ``out_dir/MANIFEST``)."""
-
-    def __init__(self, out_dir: Path, protected: list[Path]) -> None:
-        self.out_dir = out_dir
-        self.manifest = out_dir / MANIFEST
-        self.protected = {p.resolve(): p for p in protected}
-        lines = self.manifest.read_text(errors="replace").splitlines() if self.manifest.is_file() else []
-        self.ours = set(lines)
-        # A run killed mid-write left the temp of an output it had listed: remove those only.
-        remove_stale_temps(out_dir, lambda final: final.relative_to(out_dir).as_posix() in self.ours)
-
-    def claim(self, paths: list[Path]) -> None:
-        """Check that every path may be written, and list the new ones in the manifest first (so a
-        run killed mid-write can rewrite them); MsdepthError naming the first that may not."""
-        names = [p.relative_to(self.out_dir).as_posix() for p in paths]
-        for path, name in zip(paths, names, strict=True):
-            if path.resolve() in self.protected:
-                raise MsdepthError(
-                    f"{path}: an output would replace the input {self.protected[path.resolve()]}"
-                )
-            if (path.exists() or path.is_symlink()) and name not in self.ours:
-                raise MsdepthError(
-                    f"{path}: exists and was not written by msdepth predict (not listed in {self.manifest}); "
-                    "move it or choose another --out"
-                )
-        new = [name for name in names if name not in self.ours]
-        if new:
-            self.out_dir.mkdir(parents=True, exist_ok=True)
-            with open(self.manifest, "a", encoding="utf-8") as f:
-                f.write("".join(f"{name}\n" for name in new))
-            self.ours.update(new)
-
-
 def _read(path: Path, stem: Path, max_pixels: int) -> _Frame:
     try:
         return _Frame(path, str(path), stem, kitti.read_image(path, max_pixels))
+    except PixelLimitError as exc:
+        return _Frame(path, str(path), stem, None, f"{exc} (raise it with --max-megapixels)")
     except DataError as exc:
         return _Frame(path, str(path), stem, None, str(exc))
 
@@ -337,15 +304,9 @@ def _folder_frames(
         raise DataError(f"{root}: no images ({', '.join(IMAGE_EXTENSIONS)}) in this folder or below")
 
     def frames() -> Iterator[_Frame]:
-        first_with_stem: dict[Path, Path] = {}
+        # a.png and a.jpg share their outputs: the output policy refuses the second's
         for path in images:
-            stem = path.relative_to(root).with_suffix("")
-            if stem in first_with_stem:  # a.png and a.jpg would overwrite each other's outputs
-                clash = f"{path}: same output name as {first_with_stem[stem]}; rename one"
-                yield _Frame(path, str(path), stem, None, clash)
-                continue
-            first_with_stem[stem] = path
-            yield _read(path, stem, max_pixels)
+            yield _read(path, path.relative_to(root).with_suffix(""), max_pixels)
 
     return frames(), len(images)
 
@@ -399,24 +360,16 @@ def input_frames(
         raise DataError(f"{path}: no such file or folder")
     suffix = path.suffix.lower()
     if suffix in IMAGE_EXTENSIONS:  # read now: an unreadable single image is a plain DataError
-        return iter([_Frame(path, str(path), Path(path.stem), kitti.read_image(path, max_pixels))]), 1
+        frame = _read(path, Path(path.stem), max_pixels)
+        if frame.error:
+            raise DataError(frame.error)
+        return iter([frame]), 1
     if suffix in VIDEO_EXTENSIONS:
         return _video_frames(path)
     raise DataError(
         f"{path}: unsupported file type {suffix or '(no extension)'!r}; "
         f"images: {' '.join(IMAGE_EXTENSIONS)}; videos: {' '.join(VIDEO_EXTENSIONS)}"
     )
-
-
-def _check_out_dir(input_path: Path, out_dir: Path) -> None:
-    """MsdepthError if ``out_dir`` is the input folder: outputs could replace inputs and be read as
-    inputs on the next run (an output folder inside it is skipped instead, see input_frames)."""
-    if input_path.is_dir() and out_dir.resolve() == input_path.resolve():
-        raise MsdepthError(
-            f"{out_dir}: the output folder is the input folder, whose images the outputs could replace "
-            f"and a later run would read as inputs; choose another --out, e.g. {out_dir / 'depth'} "
-            "(an output folder inside the input folder is skipped when it is listed)"
-        )
 
 
 def _network_batch(
@@ -464,7 +417,9 @@ def predict(
     """
     report = PredictReport()
     input_path, out_dir = Path(input_path), Path(out_dir)
-    _check_out_dir(input_path, out_dir)
+    # an output folder inside the input folder is skipped when the inputs are listed
+    single = () if input_path.is_dir() else (input_path,)
+    policy = OutputPolicy(out_dir, "predict", (model_path, *single), (input_path,))
     max_pixels = int(options.max_megapixels * 1e6)
     # bad input fails before the model loads
     frames, total = input_frames(input_path, report, out_dir if input_path.is_dir() else None, max_pixels)
@@ -472,7 +427,7 @@ def predict(
     model, meta = load_trained(model_path, device)
     height, width = options.height or int(meta["height"]), options.width or int(meta["width"])
     _check_network_size(model_path, meta, height, width)
-    guard = OutputGuard(out_dir, [Path(model_path)] + ([] if input_path.is_dir() else [input_path]))
+    policy.prepare()
 
     def fail(frame: _Frame, error: str) -> None:
         message = frame.message(error)
@@ -485,7 +440,7 @@ def predict(
             try:
                 if disp is None:
                     raise MsdepthError(f"out of memory while predicting it in a batch of {len(batch)}")
-                guard.claim(list(output_paths(out_dir / frame.stem, options).values()))
+                policy.claim(list(output_paths(out_dir / frame.stem, options).values()), frame.source)
                 save_outputs(out_dir / frame.stem, frame.image, disp, options)
                 report.written += 1
             except (MsdepthError, OSError) as exc:

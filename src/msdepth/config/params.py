@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal, Sequence, get_args, get_origin
 
-from msdepth.config.checks import check, shown
+from msdepth.config.checks import SHOWN_CHARS, check, shown
 from msdepth.config.network_sizes import TRAINING_SIDES, sides_problem
 from msdepth.config.params_yaml import parse
 from msdepth.config.variants import (
@@ -131,9 +131,11 @@ class KittiConfig:
             "give either drives or drive_count, not both",
         )
         check(
-            all(s.isdigit() for s in self.odometry_sequences),
+            # two ASCII digits (KITTI's are 00..21): a name becomes a file name, which has a length limit
+            all(s.isascii() and s.isdigit() and len(s) == 2 for s in self.odometry_sequences),
             f"{key}.odometry_sequences",
-            f"must be KITTI odometry sequence numbers like '09', got {shown(list(self.odometry_sequences))}",
+            f"must be KITTI odometry sequence numbers of two digits like '09', "
+            f"got {shown(list(self.odometry_sequences))}",
         )
         scheme = urllib.parse.urlsplit(self.base_url).scheme.lower()
         refused = (
@@ -472,6 +474,14 @@ OptimumStart = Literal["constant", "cost", "sgbm"]
 OPTIMUM_STARTS: tuple[str, ...] = get_args(OptimumStart)
 
 
+# The optimum's memory is about 0.7 GB per megapixel of working size (a 1-megapixel pair peaks 0.74 GB
+# above a 48 x 128 one, levels 1, on a 2-core AMD EPYC): a side of
+# 4096 px keeps a square pair near 12 GB; more levels than 12 halve any such side below 1 px.
+MAX_OPTIMUM_SIDE = 4096
+MAX_OPTIMUM_LEVELS = 12
+MAX_OPTIMUM_BATCH = 64
+
+
 @dataclass(frozen=True)
 class OptimumConfig:
     """The losses' own optimum (:mod:`msdepth.optimum.solver`): per stereo pair, the disparity maps that
@@ -505,7 +515,13 @@ class OptimumConfig:
 
     def validate(self, key: str, params: Params) -> None:
         """Range checks of the ``key`` section; a ConfigError names the key."""
-        check(self.levels >= 1, f"{key}.levels", f"must be >= 1, got {self.levels}")
+        for name in ("levels", "refine_levels"):  # each level halves the size: more than 12 leave < 1 px
+            value = getattr(self, name)
+            check(
+                1 <= value <= MAX_OPTIMUM_LEVELS,
+                f"{key}.{name}",
+                f"must be in 1..{MAX_OPTIMUM_LEVELS}, got {value}",
+            )
         check(self.iterations >= 1, f"{key}.iterations", f"must be >= 1, got {self.iterations}")
         check(self.learning_rate > 0, f"{key}.learning_rate", f"must be > 0, got {self.learning_rate}")
         check(
@@ -513,8 +529,12 @@ class OptimumConfig:
             f"{key}.init_disparity",
             f"must be in (0, 0.3) (the heads' range), got {self.init_disparity}",
         )
-        check(self.batch_size >= 1, f"{key}.batch_size", f"must be >= 1, got {self.batch_size}")
-        check(self.refine_levels >= 1, f"{key}.refine_levels", f"must be >= 1, got {self.refine_levels}")
+        batch = self.batch_size
+        check(
+            1 <= batch <= MAX_OPTIMUM_BATCH,
+            f"{key}.batch_size",
+            f"must be in 1..{MAX_OPTIMUM_BATCH}, got {batch}",
+        )
         steps = self.refine_iterations
         check(steps >= 1, f"{key}.refine_iterations", f"must be >= 1, got {steps}")
         check(self.smoothness_weight >= 0, f"{key}.smoothness_weight", "must be >= 0")
@@ -531,7 +551,11 @@ class OptimumConfig:
         )
         for name in ("height", "width"):
             size = getattr(self, name)
-            check(size == 0 or size >= 24, f"{key}.{name}", f"must be 0 (default) or >= 24, got {size}")
+            check(
+                size == 0 or 24 <= size <= MAX_OPTIMUM_SIDE,
+                f"{key}.{name}",
+                f"must be 0 (default) or in 24..{MAX_OPTIMUM_SIDE} px, got {size}",
+            )
 
 
 @dataclass(frozen=True)
@@ -689,18 +713,25 @@ def apply_overrides(raw: dict, assignments: Sequence[str]) -> dict:
     for item in assignments:
         key, sep, value = item.partition("=")
         if not sep or not key:
-            raise ConfigError(f"--set: expected KEY=VALUE, got {item!r}")
+            raise ConfigError(f"--set: expected KEY=VALUE, got {shown(item)}")
         node = raw
         *parents, last = key.split(".")
         for part in parents:
             node = node.setdefault(part, {})
             if not isinstance(node, dict):
-                raise ConfigError(f"--set {item}: {part} is not a section")
+                raise ConfigError(f"--set {_cut(item)}: {shown(part)} is not a section")
         try:
             node[last] = parse(value)
-        except ConfigError as exc:
-            raise ConfigError(f"--set {item}: {exc}") from None
+        except ConfigError as exc:  # the assignment is echoed cut: it may be any length
+            problem = str(exc).removeprefix("top level: ")
+            raise ConfigError(f"--set {_cut(item)}: {problem}") from None
     return raw
+
+
+def _cut(text: str) -> str:
+    """``text`` on one line, cut to about SHOWN_CHARS characters."""
+    text = " ".join(text.splitlines())
+    return text if len(text) <= SHOWN_CHARS else f"{text[: SHOWN_CHARS - 3]}..."
 
 
 def kernel_variant(raw: dict, spec: str) -> tuple[str, dict]:
@@ -719,8 +750,20 @@ def kernel_variant(raw: dict, spec: str) -> tuple[str, dict]:
 MAX_PARAMS_BYTES = 1 << 20  # params.yaml is about 10 KB; a file this large is not one
 
 
-def load_params(path: str | os.PathLike = "params.yaml") -> Params:
-    """Read ``params.yaml`` into a validated :class:`Params` (one ConfigError naming the key)."""
+def load_params(path: str | os.PathLike = "params.yaml", overrides: Sequence[str] = ()) -> Params:
+    """Read ``params.yaml`` (:func:`read_params_file`), with the ``--set`` ``overrides``
+    (:func:`apply_overrides`), into a validated :class:`Params` (one ConfigError naming the key)."""
+    raw = read_params_file(path)
+    try:
+        return params_from_dict(apply_overrides(raw, overrides))
+    except ConfigError as exc:
+        raise ConfigError(f"{path}: {exc}") from None
+
+
+def read_params_file(path: str | os.PathLike = "params.yaml") -> dict:
+    """The hardened reading of a params file as plain data: at most MAX_PARAMS_BYTES, UTF-8, no
+    alias, duplicate key or long integer (:func:`msdepth.config.params_yaml.parse`), a mapping at the
+    top level (empty file: ``{}``). Every refusal is one ConfigError naming the file."""
     path = Path(path)
     try:
         with path.open("rb") as file:
@@ -741,6 +784,7 @@ def load_params(path: str | os.PathLike = "params.yaml") -> Params:
             line = data.count(b"\n", 0, exc.start) + 1
             raise ConfigError(f"not UTF-8 text (byte 0x{data[exc.start]:02x} on line {line})") from None
         raw = parse(text)
-        return params_from_dict({} if raw is None else raw)
+        check(raw is None or isinstance(raw, dict), "params", "expected a mapping at the top level")
+        return {} if raw is None else raw
     except ConfigError as exc:
         raise ConfigError(f"{path}: {exc}") from None

@@ -44,7 +44,7 @@ def _disparity_depth(disp: np.ndarray, path: str | os.PathLike, focal: float, ba
 
 def _npy_header(path: str | os.PathLike) -> tuple[tuple[int, ...], np.dtype]:
     """Shape and dtype that a ``.npy`` header declares, checked against the file's size before any
-    array is allocated (a 128-byte header can declare terabytes)."""
+    array is allocated (a 128-byte header can declare terabytes): the data must be exactly that size."""
     try:
         with open(path, "rb") as f:
             version = np.lib.format.read_magic(f)
@@ -60,7 +60,7 @@ def _npy_header(path: str | os.PathLike) -> tuple[tuple[int, ...], np.dtype]:
     if len(shape) != 2 or not (np.issubdtype(dtype, np.floating) or np.issubdtype(dtype, np.integer)):
         raise DataError(f"{path}: GT must be a 2-D numeric array, got {dtype} of shape {shape}")
     needed = dtype.itemsize * shape[0] * shape[1]
-    if needed > data_bytes:
+    if needed != data_bytes:  # short, or trailing bytes np.load would ignore: not the file it claims
         raise DataError(
             f"{path}: its header declares {dtype} {shape} ({needed} bytes) but it holds {data_bytes}"
         )

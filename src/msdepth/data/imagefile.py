@@ -25,7 +25,7 @@ from typing import Iterator
 import cv2
 import numpy as np
 
-from msdepth.errors import DataError
+from msdepth.errors import DataError, PixelLimitError
 
 # 120 million pixels: a 108-megapixel phone photo (12,000 x 9,000) fits; decoding one costs
 # about 2 GB at peak. Raise it with read_image(max_pixels=...) or `msdepth predict --max-megapixels`.
@@ -183,9 +183,10 @@ def check_declared_size(data: bytes, max_pixels: int = MAX_IMAGE_PIXELS) -> tupl
     if width <= 0 or height <= 0:
         raise DataError(f"the header declares an empty image ({width} x {height} px)")
     if width * height > max_pixels:
-        raise DataError(
+        # No option named here: each command that has one (predict's --max-megapixels) adds it.
+        raise PixelLimitError(
             f"the header declares {width} x {height} px ({width * height / 1e6:.0f} megapixels), over the "
-            f"limit of {max_pixels / 1e6:g} megapixels (raise it with --max-megapixels, or max_pixels=)"
+            f"limit of {max_pixels / 1e6:g} megapixels"
         )
     return width, height
 

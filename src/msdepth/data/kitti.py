@@ -45,7 +45,7 @@ def _decode(
     try:
         return imagefile.decode(data, flags, max_pixels)
     except DataError as exc:
-        raise DataError(f"{path}: {what}: {exc}") from None
+        raise type(exc)(f"{path}: {what}: {exc}") from None
 
 
 def _decode_as(path: PathLike, what: str, dtype: type, channels: int) -> np.ndarray:

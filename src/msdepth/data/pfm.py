@@ -21,8 +21,9 @@ import numpy as np
 from msdepth.errors import DataError
 from msdepth.io import atomic_path
 
-# Three whitespace-separated header fields after the magic; exactly one whitespace byte ends the
-# scale, then the samples start (a binary sample may itself look like whitespace). The header is
+# Three whitespace-separated header fields after the magic; "\r\n" (Windows line ends) or one other
+# whitespace byte ends the scale, then the samples start (a binary sample may itself look like
+# whitespace, so nothing more is skipped). The header is
 # split into tokens within its first HEADER_LIMIT bytes: a regex over the whole file took
 # quadratic time (a 32 KB header of digits, 18.6 s).
 HEADER_LIMIT = 256
@@ -32,7 +33,8 @@ _SCALE = re.compile(rb"[-+]?[0-9]*\.?[0-9]+(?:[eE][-+]?[0-9]+)?")
 
 
 def _header(data: bytes) -> tuple[bytes, int, int, float, int] | None:
-    """(magic, width, height, scale, where the samples start), or None if the header is malformed."""
+    """(magic, width, height, scale, where the byte ending the scale is), or None if the header is
+    malformed."""
     head = data[: HEADER_LIMIT + 1]
     if head[:2] not in (b"PF", b"Pf"):
         return None
@@ -53,12 +55,13 @@ def _header(data: bytes) -> tuple[bytes, int, int, float, int] | None:
     width, height, scale = fields
     if not (_INTEGER.fullmatch(width) and _INTEGER.fullmatch(height) and _SCALE.fullmatch(scale)):
         return None
-    return head[:2], int(width), int(height), float(scale), pos + 1
+    return head[:2], int(width), int(height), float(scale), pos
 
 
 def read_pfm(path: str | os.PathLike) -> np.ndarray:
     """The samples of a PFM file as float32, top row first: ``(H, W)`` for ``Pf``, ``(H, W, 3)``
-    for ``PF``. A malformed or truncated file is a DataError naming it."""
+    for ``PF``. A malformed file, or a body not exactly width x height x channels float32 (short or
+    with trailing bytes), is a DataError naming it; "\\r\\n" may end the header."""
     path = Path(path)
     try:
         data = path.read_bytes()
@@ -70,17 +73,20 @@ def read_pfm(path: str | os.PathLike) -> np.ndarray:
             f"{path}: not a PFM file (expects 'PF' or 'Pf', width height, scale within its first "
             f"{HEADER_LIMIT} bytes)"
         )
-    magic, width, height, scale, start = header
+    magic, width, height, scale, end = header
     if width < 1 or height < 1:
         raise DataError(f"{path}: PFM size {width}x{height} is empty")
     if scale == 0:
         raise DataError(f"{path}: PFM scale is 0 (its sign gives the byte order)")
     channels = 3 if magic == b"PF" else 1
     count = width * height * channels
-    body = data[start:]
-    if len(body) < 4 * count:
+    # "\r\n" is always the line end: a lone "\r" before a sample starting with byte 0x0a is then one
+    # byte short and refused, where the other reading would shift every sample of a cut CRLF file.
+    body = data[end + 2 :] if data[end : end + 2] == b"\r\n" else data[end + 1 :]
+    if len(body) != 4 * count:
+        what = "truncated PFM" if len(body) < 4 * count else "PFM with trailing bytes"
         raise DataError(
-            f"{path}: truncated PFM: {width}x{height}x{channels} float32 need {4 * count} bytes, "
+            f"{path}: {what}: {width}x{height}x{channels} float32 need exactly {4 * count} bytes, "
             f"the file has {len(body)} after its header"
         )
     samples = np.frombuffer(body, dtype="<f4" if scale < 0 else ">f4", count=count)

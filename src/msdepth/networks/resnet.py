@@ -94,7 +94,13 @@ def load_pretrained(encoder: ResNetEncoder, path: str | os.PathLike) -> None:
     path = Path(path)
     remedy = 'give model.pretrained a torchvision resnet18 state dict (or "" to train from scratch)'
     state = load_weights_file(path, "cpu", what="ResNet-18 state dict", remedy=remedy)
-    state = {k: v for k, v in state.items() if not str(k).startswith("fc.")}
+    names = [k for k in state if not isinstance(k, str)]
+    if names:  # sorting the missing and unexpected names below would raise a TypeError
+        raise MsdepthError(
+            f"{path}: not a torchvision resnet18 state dict (a key that is not a parameter name: "
+            f"{repr(names[0])[:40]}); {remedy}"
+        )
+    state = {k: v for k, v in state.items() if not k.startswith("fc.")}
     if isinstance(state.get("conv1.weight"), Tensor) and encoder.input_images > 1:
         n = encoder.input_images
         state["conv1.weight"] = torch.cat([state["conv1.weight"]] * n, dim=1) / n

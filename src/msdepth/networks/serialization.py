@@ -34,9 +34,16 @@ from msdepth.io import atomic_path
 
 def save_weights_file(path: str | os.PathLike, state: dict[str, Any]) -> None:
     """``torch.save`` of ``state`` through a temp file and a rename: never a truncated file, and the
-    same bytes for the same state (OSError, e.g. a full disk, propagates; ``path`` is untouched)."""
+    same bytes for the same state (OSError, e.g. a full disk, propagates; ``path`` is untouched).
+    A state holding a NaN or infinite float tensor is a MsdepthError, and nothing is written."""
     # Through an open file: torch.save names the zip's root folder after a path it is given (here
     # the random temp name), so equal weights would give different bytes (and DVC hashes) per run.
+    bad = nonfinite_tensors(state)
+    if bad:
+        raise MsdepthError(
+            f"{path}: not written: {bad[0]} holds NaN or infinite values ({len(bad)} tensor(s) in all); "
+            "a file of them would give NaN depth"
+        )
     with atomic_path(path) as tmp, open(tmp, "wb") as f:
         torch.save(state, f)
 
@@ -85,7 +92,38 @@ def load_weights_file(
             f"{path}: not a {what} file written by msdepth (it holds a "
             f"{type(state).__name__}, not a dict); {remedy}"
         )
+    bad = nonfinite_tensors(state)
+    if bad:
+        raise MsdepthError(
+            f"{path}: refused to load: {bad[0]} holds NaN or infinite values ({len(bad)} tensor(s) in all), "
+            f"which would give NaN depth; {remedy}"
+        )
     return state
+
+
+# A checkpoint's optimizer state is not weights: Adam's second moments may overflow in bfloat16
+# (inf), which Adam tolerates (the step is then 0), so only the other entries are checked.
+NOT_WEIGHTS = ("optimizer",)
+
+
+def nonfinite_tensors(state: Any, prefix: str = "") -> list[str]:
+    """The names (``model.conv1.weight``) of the floating-point tensors in ``state`` (nested dicts,
+    lists and tuples; not its top-level :data:`NOT_WEIGHTS` entries) that hold a NaN or an infinity."""
+    if isinstance(state, torch.Tensor):
+        finite = not state.is_floating_point() or bool(torch.isfinite(state).all())
+        return [] if finite else [prefix or "a tensor"]
+    if isinstance(state, dict):
+        items = state.items()
+    elif isinstance(state, (list, tuple)):
+        items = enumerate(state)
+    else:
+        return []
+    found = []
+    for key, value in items:
+        if not prefix and key in NOT_WEIGHTS:
+            continue
+        found += nonfinite_tensors(value, f"{prefix}.{key}" if prefix else str(key)[:80])
+    return found
 
 
 # What a torch.save'd dict of tensors names in its pickle (protocol 2's GLOBAL opcode): the dict

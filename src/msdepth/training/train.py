@@ -120,7 +120,11 @@ def trained_pose_net(params: Params, checkpoint_path: str | os.PathLike) -> Pose
     if "pose" not in state:
         raise TrainingError(f"{checkpoint_path}: no pose network (not a train.mode mono | mono_stereo run)")
     net = build_pose_net(params)
-    net.load_state_dict(state["pose"])
+    try:
+        net.load_state_dict(state["pose"])
+    except (RuntimeError, TypeError, AttributeError) as exc:  # wrong shapes or names: long messages
+        what = " ".join(str(exc).split())[:200] or type(exc).__name__
+        raise TrainingError(f"{checkpoint_path}: a malformed checkpoint ({what})") from None
     return net.eval()
 
 
@@ -429,16 +433,46 @@ def _resume(run: _Run, checkpoint_path: Path) -> bool:
     if state.get("fingerprint") != run.fingerprint:
         log.info("ignoring checkpoint %s: it belongs to other parameters or training code", checkpoint_path)
         return False
-    run.model.load_state_dict(state["model"])
-    run.criterion.load_state_dict(state["criterion"])
-    run.optimizer.load_state_dict(state["optimizer"])
-    if run.pose_net is not None:
-        run.pose_net.load_state_dict(state["pose"])
-    torch.set_rng_state(state["torch_rng"])
-    run.start_epoch, run.step, run.history = state["epoch"], state["step"], state["history"]
-    run.seconds_before = state.get("seconds", 0.0)
+    _restore(run, state, checkpoint_path)
     log.info("resuming %s from epoch %d (step %d)", run.variant, run.start_epoch, run.step)
     return True
+
+
+CHECKPOINT_KEYS = ("epoch", "step", "history", "model", "criterion", "optimizer", "torch_rng")
+
+
+def _restore(run: _Run, state: dict, path: Path) -> None:
+    """Load a checkpoint's ``state`` into ``run``; a TrainingError naming ``path`` and what is wrong
+    when it is malformed (a missing entry, wrong shapes, a bad RNG state, progress out of range)."""
+
+    def malformed(problem: str) -> TrainingError:
+        return TrainingError(f"{path}: a malformed checkpoint ({problem}); delete it to train this run anew")
+
+    missing = [k for k in (*CHECKPOINT_KEYS, *(("pose",) if run.pose_net else ())) if k not in state]
+    if missing:
+        raise malformed(f"no {', '.join(missing)} entry")
+    epoch, step, history = state["epoch"], state["step"], state["history"]
+    counts = all(isinstance(v, int) and not isinstance(v, bool) for v in (epoch, step))
+    if not counts or not 0 <= epoch <= run.params.train.epochs or step < 0:
+        raise malformed(f"epoch {repr(epoch)[:20]} and step {repr(step)[:20]} are not counts of this run")
+    if not isinstance(history, list) or len(history) != epoch:
+        raise malformed(
+            f"a history of {len(history) if isinstance(history, list) else 'no'} epochs at epoch {epoch}"
+        )
+    seconds = state.get("seconds", 0.0)
+    if not isinstance(seconds, (int, float)) or not math.isfinite(seconds) or seconds < 0:
+        raise malformed(f"seconds {repr(seconds)[:20]}")
+    try:
+        run.model.load_state_dict(state["model"])
+        run.criterion.load_state_dict(state["criterion"])
+        run.optimizer.load_state_dict(state["optimizer"])
+        if run.pose_net is not None:
+            run.pose_net.load_state_dict(state["pose"])
+        torch.set_rng_state(state["torch_rng"])
+    except (RuntimeError, KeyError, TypeError, ValueError, AttributeError, IndexError) as exc:
+        # load_state_dict's first line is only "Error(s) in loading ...:"; what is wrong follows it
+        raise malformed(" ".join(str(exc).split())[:200] or type(exc).__name__) from None
+    run.start_epoch, run.step, run.history, run.seconds_before = epoch, step, history, float(seconds)
 
 
 def _open_live(run: _Run, live_dir: str | os.PathLike | None):

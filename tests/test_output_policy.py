@@ -1,0 +1,265 @@
+"""The shared output policy (:class:`msdepth.io.OutputPolicy`) and every ``msdepth`` subcommand that writes.
+
+:data:`WRITERS` holds, per subcommand, the arguments that make it write into a folder of the test's
+choosing; ``test_every_subcommand_is_walked`` enumerates the subcommands from the parser itself, so a
+new subcommand fails until it is added there and passes the same hostile cases (issue 42): an output
+that is an input or the model, a user's own file at an output name, ``--out`` that names a file (or
+a folder, for a file output), lies under a file or cannot be created. Each must be refused in one
+line with nothing changed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+from pathlib import Path
+from typing import Callable
+
+import cv2
+import numpy as np
+import pytest
+import torch
+
+from msdepth.__main__ import build_parser, main
+from msdepth.config.params import SyntheticConfig
+from msdepth.data.synthetic import generate
+from msdepth.errors import OutputError
+from msdepth.io import OutputPolicy, manifest_line, read_manifest
+from msdepth.networks.model import MonodepthVGG
+
+FAST_OPTIMUM = ["--variant", "ssim", "--set", "optimum.iterations=2", "--set", "optimum.levels=1", "--quiet"]
+TINY = SyntheticConfig(seed=3, drives=1, train_pairs=2, eval_frames=1, height=24, width=80)
+
+
+def _image(path: Path, value: int = 1) -> bytes:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    rng = np.random.default_rng(value)
+    ok, data = cv2.imencode(path.suffix, cv2.resize(rng.integers(0, 256, (6, 16, 3), np.uint8), (128, 48)))
+    assert ok
+    path.write_bytes(data.tobytes())
+    return data.tobytes()
+
+
+@pytest.fixture(scope="module")
+def model(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    torch.manual_seed(0)
+    path = tmp_path_factory.mktemp("model") / "model.pt"
+    state = {"model": MonodepthVGG(0.0625).eval().state_dict(), "criterion": {}, "width_multiplier": 0.0625}
+    torch.save({**state, "height": 32, "width": 96, "variant": "tiny"}, path)
+    return path
+
+
+@pytest.fixture(scope="module")
+def synthetic(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    root = tmp_path_factory.mktemp("synthetic") / "data"
+    generate(TINY, root, progress=False, workers=1, lidar=False)
+    return root
+
+
+# Per subcommand: (the arguments that write to OUT, the input folder or file a hostile --out may
+# name, a file the command would write under OUT, whether --out names a file rather than a folder).
+Writer = Callable[[Path, Path, Path, Path], tuple[list[str], Path, Path, bool]]
+
+
+def _predict(tmp: Path, out: Path, model: Path, synthetic: Path) -> tuple[list[str], Path, Path, bool]:
+    _image(tmp / "in" / "a.png")
+    return (
+        ["predict", str(tmp / "in"), "--model", str(model), "--out", str(out), "--quiet"],
+        tmp / "in",
+        out / "a_disp.png",
+        False,
+    )
+
+
+def _optimum(tmp: Path, out: Path, model: Path, synthetic: Path) -> tuple[list[str], Path, Path, bool]:
+    _image(tmp / "L" / "a.png", 1)
+    _image(tmp / "R" / "a.png", 2)
+    return (
+        ["optimum", str(tmp / "L"), str(tmp / "R"), "--out", str(out), *FAST_OPTIMUM],
+        tmp / "L",
+        out / "a_disp.npy",
+        False,
+    )
+
+
+def _export_onnx(tmp: Path, out: Path, model: Path, synthetic: Path) -> tuple[list[str], Path, Path, bool]:
+    return ["export-onnx", "--model", str(model), "--out", str(out)], model, out, True
+
+
+def _export_folder(tmp: Path, out: Path, model: Path, synthetic: Path) -> tuple[list[str], Path, Path, bool]:
+    return ["export-folder", "--from", str(synthetic), "--to", str(out)], synthetic, out / "eval.txt", False
+
+
+WRITERS: dict[str, Writer] = {
+    "predict": _predict,
+    "optimum": _optimum,
+    "export-onnx": _export_onnx,
+    "export-folder": _export_folder,
+}
+
+
+def test_every_subcommand_is_walked() -> None:
+    # A new subcommand fails here until WRITERS says how it writes, so the hostile cases reach it.
+    sub = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
+    assert set(sub.choices) == set(WRITERS)
+
+
+def _tree(root: Path) -> dict[Path, bytes]:
+    return {p: p.read_bytes() for p in root.rglob("*") if p.is_file()}
+
+
+def _one_line_refusal(argv: list[str], capsys: pytest.CaptureFixture[str], expected: str) -> None:
+    assert main(argv) == 1
+    err = capsys.readouterr().err
+    errors = [line for line in err.splitlines() if line.startswith("error:")]
+    assert "Traceback" not in err and len(errors) == 1, err
+    assert expected in errors[0], errors[0]
+
+
+def _user_file_at_output(
+    args: list[str], source: Path, target: Path, file_out: bool
+) -> tuple[list[str], str]:
+    target.parent.mkdir(parents=True, exist_ok=True)
+    target.write_bytes(b"the user's own file")  # where the command would write
+    return args, "exists and" if not file_out else "was not written by msdepth"
+
+
+def _out_is_the_input(args: list[str], source: Path, target: Path, file_out: bool) -> tuple[list[str], str]:
+    out = args[args.index("--to" if "--to" in args else "--out") + 1]
+    return [source.as_posix() if a == out else a for a in args], "input"
+
+
+def _out_is_the_other_kind(
+    args: list[str], source: Path, target: Path, file_out: bool
+) -> tuple[list[str], str]:
+    flag = "--to" if "--to" in args else "--out"
+    out = Path(args[args.index(flag) + 1])
+    if file_out:
+        out.mkdir(parents=True)
+        return args, "a folder"
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_bytes(b"the user's own file")
+    return args, "not a folder"
+
+
+def _out_under_a_file(args: list[str], source: Path, target: Path, file_out: bool) -> tuple[list[str], str]:
+    flag = "--to" if "--to" in args else "--out"
+    out = Path(args[args.index(flag) + 1])
+    _image(out.parent / "photo.png", 9)  # the user's photo, where a folder would have to be
+    args[args.index(flag) + 1] = str(out.parent / "photo.png" / "sub" / out.name)
+    return args, "under the file"
+
+
+def _out_in_proc(args: list[str], source: Path, target: Path, file_out: bool) -> tuple[list[str], str]:
+    flag = "--to" if "--to" in args else "--out"
+    args[args.index(flag) + 1] = "/proc/msdepth-test/out" + (".onnx" if file_out else "")
+    return args, "/proc/msdepth-test"
+
+
+CASES = {
+    "user_file_at_an_output_name": _user_file_at_output,
+    "out_is_an_input": _out_is_the_input,
+    "out_is_a_file_or_a_folder": _out_is_the_other_kind,
+    "out_under_a_file": _out_under_a_file,
+    "out_cannot_be_created": _out_in_proc,
+}
+
+
+@pytest.mark.parametrize("case", sorted(CASES))
+@pytest.mark.parametrize("command", sorted(WRITERS))
+def test_every_subcommand_refuses_hostile_outputs_in_one_line(
+    command: str, case: str, model: Path, synthetic: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "out" / ("m.onnx" if command == "export-onnx" else "")
+    args, source, target, file_out = WRITERS[command](tmp_path, out, model, synthetic)
+    args, expected = CASES[case](args, source, target, file_out)
+    before = {**_tree(tmp_path), **_tree(model.parent), **_tree(synthetic)}
+    _one_line_refusal(args, capsys, expected)
+    after = {**_tree(tmp_path), **_tree(model.parent), **_tree(synthetic)}
+    assert {p: after.get(p) for p in before} == before  # nothing replaced or removed
+    assert not [p for p in after if p not in before and not p.name.startswith(".msdepth-")]
+
+
+def test_predict_and_optimum_refuse_two_inputs_with_one_output(
+    model: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # Issue 42 case 2: a.png and a.jpg both wrote a_*, "2 of 2 written", one result lost.
+    for side, value in (("L", 1), ("R", 2)):
+        _image(tmp_path / side / "a.png", value)
+        _image(tmp_path / side / "a.jpg", value)
+    out = tmp_path / "out"
+    _one_line_refusal(
+        ["optimum", str(tmp_path / "L"), str(tmp_path / "R"), "--out", str(out), *FAST_OPTIMUM],
+        capsys,
+        "a.png: same output name as",
+    )
+    optimum = _tree(out)
+    assert (
+        main(["predict", str(tmp_path / "L"), "--model", str(model), "--out", str(tmp_path / "p"), "--quiet"])
+        == 1
+    )
+    assert "L/a.png: same output name as" in capsys.readouterr().err
+    assert _tree(out) == optimum and (out / "a_disp.npy").is_file()
+
+
+def test_optimum_refuses_left_equal_to_right(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    # Issue 42 case 14: LEFT == RIGHT wrote a result (mean 1.2 px disparity) with no warning.
+    _image(tmp_path / "L" / "a.png")
+    for left, right in (
+        (tmp_path / "L", tmp_path / "L"),
+        (tmp_path / "L" / "a.png", tmp_path / "L" / "a.png"),
+    ):
+        _one_line_refusal(
+            ["optimum", str(left), str(right), "--out", str(tmp_path / "out"), *FAST_OPTIMUM],
+            capsys,
+            "LEFT and RIGHT are the same",
+        )
+    assert not (tmp_path / "out").exists()
+
+
+def test_names_with_any_byte_keep_the_manifest_exact(
+    model: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # Issue 42 cases 3 and 9: "evil\nscene.png" forged the manifest line "scene_disp.png"; U+2028 in
+    # a name made every rerun refuse predict's own outputs; "caf\xe9.png" crashed the manifest write.
+    names = [
+        "evil\nscene.png",
+        "line\u2028sep.png",
+        "cr\rname.png",
+        "nel\x85.png",
+        os.fsdecode(b"caf\xe9.png"),
+    ]
+    for i, name in enumerate(names):
+        _image(tmp_path / "in" / name, i)
+    users = _image(tmp_path / "out" / "scene_disp.png", 9)
+    argv = ["predict", str(tmp_path / "in"), "--model", str(model), "--out", str(tmp_path / "out"), "--quiet"]
+    assert main(argv) == 0, capsys.readouterr().err
+    assert main(argv) == 0, capsys.readouterr().err  # its own outputs, however named, may be rewritten
+    assert "scene_disp.png" not in read_manifest(tmp_path / "out" / ".msdepth-predict")
+    _image(tmp_path / "in" / "scene.png", 7)
+    assert main(argv) == 1
+    assert "scene_disp.png: exists and was not written by msdepth predict" in capsys.readouterr().err
+    assert (tmp_path / "out" / "scene_disp.png").read_bytes() == users
+    for name in names:
+        assert (tmp_path / "out" / (Path(name).stem + "_disp.png")).is_file()
+
+
+def test_manifest_lines_round_trip_any_name_and_read_old_plain_manifests(tmp_path: Path) -> None:
+    names = ["a\nb", "c\u2028d", "e\rf", "g\x85", os.fsdecode(b"caf\xe9"), '"quoted', "plain"]
+    manifest = tmp_path / ".msdepth-predict"
+    manifest.write_text("".join(manifest_line(n) for n in names), encoding="ascii")
+    assert manifest.read_bytes().count(b"\n") == len(names)
+    assert read_manifest(manifest) == set(names)
+    manifest.write_text("old_disp.png\nsub/old_depth.png\n")  # an earlier version's plain lines
+    assert read_manifest(manifest) == {"old_disp.png", "sub/old_depth.png"}
+
+
+def test_a_policy_refuses_the_manifest_and_paths_leaving_the_folder(tmp_path: Path) -> None:
+    (tmp_path / "elsewhere").mkdir()
+    (tmp_path / "out").mkdir()
+    (tmp_path / "out" / "link").symlink_to(tmp_path / "elsewhere")
+    policy = OutputPolicy(tmp_path / "out", "predict")
+    for path in (tmp_path / "out" / ".msdepth-predict", tmp_path / "out" / "link" / "x.png"):
+        with pytest.raises(OutputError, match="not a path msdepth predict may write"):
+            policy.claim([path], "in.png")
+    assert not (tmp_path / "out" / ".msdepth-predict").exists()
