@@ -272,10 +272,14 @@ def test_compare_without_rois_says_the_roi_suites_were_skipped():
     assert "## Full image, cap 80 m" in md and result["roi"] == {} and result["rois_skipped"] == "no ROIs"
 
 
-def test_mean_headline_without_rois_has_no_roi_number():
+def test_means_without_rois_have_no_roi_number():
+    """The compare stage's per-variant mean rows from a comparison without ROIs: full image only."""
     from msdepth.evaluation.metrics import METRICS
-    from msdepth.reporting.pipeline_compare import mean_headline
+    from msdepth.reporting.compare import build_comparison, comparison_data
+    from msdepth.reporting.pipeline_compare import mean_rows
 
-    full = {"cap80": dict.fromkeys(METRICS, 0.5)}
-    suites = {"full": {"a/seed0": full}, "roi": {"a/seed0": {"rois": 0, NO_ROIS: "x"}}}
-    assert mean_headline(suites, {"a": ["a/seed0"]}) == {"a": {"abs_rel": 0.5}}
+    full = {"cap80": dict.fromkeys(METRICS, 0.5), "images": 2, "excluded_images": 0}
+    none = {"rois": 0, NO_ROIS: "no ROIs"}
+    suites = {"full": {"ssim": full}, "roi": {"ssim": none}, "gradients": {"ssim": none}}
+    result, _ = build_comparison(comparison_data(suites, ["ssim"], []))
+    assert mean_rows(result, ["ssim"], "cap80") == {"ssim": {"abs_rel": 0.5, "a1": 0.5}}

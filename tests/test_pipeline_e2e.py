@@ -216,6 +216,7 @@ def test_kernel_size_experiment_reruns_only_msssim_then_the_way_back_and_applyin
     ssim_full = work / "metrics" / "full" / "ssim" / "seed0.json"
     ssim_metrics = ssim_full.read_text()
     compare = work / "metrics" / "compare.md"
+    committed_json = json.loads((work / "metrics" / "compare.json").read_text())
     # TINY's msssim.levels is 3, not the default 4: the row names it beside the kernel.
     assert "| msssim (levels=3) |" in compare.read_text() and "k=7" not in compare.read_text()
     log = run_checked([*dvc, "exp", "run", "-n", "k7", "-S", "msssim.kernel_size=7"], work)
@@ -232,11 +233,15 @@ def test_kernel_size_experiment_reruns_only_msssim_then_the_way_back_and_applyin
     )
     assert sum(line.startswith("| msssim (k=7, levels=3) |") for line in md) >= 4  # KITTI and Eigen tables
     assert not any(line.startswith("| msssim |") for line in md)
-    mean = json.loads((work / "metrics" / "headline" / "mean.json").read_text())
-    assert mean["msssim"]["settings"] == {"kernel_size": 7, "levels": 3, "weights": "wang"}
-    assert (
-        json.loads((work / "metrics" / "compare.json").read_text())["settings"]["msssim"]["kernel_size"] == 7
-    )
+    new_json = json.loads((work / "metrics" / "compare.json").read_text())
+    assert new_json["settings"]["msssim"] == {"kernel_size": 7, "levels": 3, "weights": "wang"}
+    # The README's `dvc metrics diff` line: only the means, and MS-SSIM's is compare.json's change.
+    diff = [*dvc, "metrics", "diff", "--json", "--targets", "metrics/headline/mean"]
+    means = json.loads(run_checked(diff, work))  # {file: {key: {old, new, diff}}}
+    assert set(means) == {"metrics/headline/mean/msssim.json"}, means  # SSIM's mean unchanged
+    change = means["metrics/headline/mean/msssim.json"]["abs_rel"]
+    old, new = (c["full"]["cap80"]["msssim"]["abs_rel"] for c in (committed_json, new_json))
+    assert (change["old"], change["new"]) == (old, new) and change["diff"] == pytest.approx(new - old)
     assert "k7" in run_checked([*dvc, "exp", "show", "--md", "--only-changed"], work)
 
     run_checked(["git", "checkout", "HEAD", "--", "."], work)
@@ -256,16 +261,14 @@ def test_dvc_metrics_show_lists_the_headline_numbers_and_fits_a_terminal(repo: P
     files = {path for rev in shown.values() for path in rev.get("data", {})}
     assert files == {f"metrics/headline/{suite}/{run}.json" for suite in ("full", "roi") for run in RUNS} | {
         f"metrics/headline/sets/eigen/full/{run}.json" for run in RUNS
-    } | {f"metrics/headline/{suite}/{run}.json" for suite in ("full", "roi") for run in OPTIMUM_RUNS}
-    table = run_checked([sys.executable, "-m", "dvc", "metrics", "show"], repo)
-    assert max(map(len, table.splitlines())) <= 160, table
-    mean = json.loads((repo / "metrics" / "headline" / "mean.json").read_text())
-    assert set(mean) == {"ssim", "msssim", "constant", "prior"} and set(mean["ssim"]) == {
-        "abs_rel",
-        "roi_abs_rel",
-        "eigen_abs_rel",
-        "settings",
+    } | {f"metrics/headline/{suite}/{run}.json" for suite in ("full", "roi") for run in OPTIMUM_RUNS} | {
+        f"metrics/headline/mean/{variant}.json" for variant in ("ssim", "msssim")
     }
+    table = run_checked([sys.executable, "-m", "dvc", "metrics", "show"], repo)
+    assert max(map(len, table.splitlines())) <= 173, table  # tests/test_metrics_show.py: WIDEST
+    mean = json.loads((repo / "metrics" / "headline" / "mean" / "ssim.json").read_text())
+    # The three frames hold windshields and cars: their classes' columns.
+    assert set(mean) == {"abs_rel", "a1", "roi_abs_rel", "mask_abs_rel", "windshield", "car"}
     full = json.loads((repo / "metrics" / "headline" / "full" / "ssim" / "seed0.json").read_text())
     assert set(full) == {"abs_rel", "rmse", "a1", "variation"}
     roi = json.loads((repo / "metrics" / "headline" / "roi" / "ssim" / "seed0.json").read_text())

@@ -50,7 +50,8 @@ TRAIN_SUMMARIES = METRICS / "train"  # <run>.json: the train stage's summaries (
 COST_CURVES = METRICS / "cost_curves"  # <variant>.json: the cost_curves stage's, drawn by figures
 COMPARE_JSON = METRICS / "compare.json"
 COMPARE_MD = METRICS / "compare.md"
-MEAN_HEADLINE = HEADLINE / "mean.json"  # per variant, the mean over its seeds
+# <variant>.json: per variant its mean over seeds, the compare stage's DVC metrics (see mean_path)
+MEANS = HEADLINE / "mean"
 PLOTS = Path("plots")
 TRAIN_PLOTS = PLOTS / "train"  # <run>/: each run's dvclive curves
 FIGURES_DIR = PLOTS / "figures"
@@ -156,6 +157,11 @@ def suite_path(suite: str, run: str, suffix: str = ".json", root: Path = METRICS
 def headline_path(suite: str, run: str, root: Path = HEADLINE) -> Path:
     """A run's headline numbers of one suite, the DVC metric (below :data:`HEADLINE`, or an extra set's)."""
     return Path(root) / suite / f"{run}.json"
+
+
+def mean_path(variant: str, root: Path = MEANS) -> Path:
+    """A variant's mean over its seeds, one flat row of ``dvc metrics show`` (the compare stage's)."""
+    return Path(root) / f"{variant}.json"
 
 
 def set_metrics_dir(name: str) -> Path:

@@ -383,7 +383,7 @@ SETTING_NAMES = {"kernel_size": "k"}
 
 def variant_settings(params: Params) -> dict[str, dict]:
     """Each compared variant's params section (``params.<variant>``) as a dict: what its runs were
-    trained with, for ``compare.json`` and ``headline/mean.json``."""
+    trained with, for ``compare.json``."""
     return {v: dataclasses.asdict(getattr(params, v)) for v in params.variants}
 
 

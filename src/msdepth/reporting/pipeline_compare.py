@@ -8,21 +8,18 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Callable, Sequence
 
-import numpy as np
-
 from msdepth.config.params import Params
 from msdepth.evaluation.baselines import BASELINES, skipped_reason
-from msdepth.evaluation.results import headline
 from msdepth.evaluation.suites import no_rois
 from msdepth.io import write_json, write_text
 from msdepth.optimum.frames import optimum_runs
 from msdepth.pipeline.paths import (
     COMPARE_JSON,
     COMPARE_MD,
-    MEAN_HEADLINE,
     METRICS,
     OPTIMUM,
     SUITE_NAMES,
+    mean_path,
     set_metrics_dir,
     suite_dir,
     variant_runs,
@@ -58,7 +55,7 @@ def run_groups(
 def compare(params: Params) -> None:
     """One table of every variant (mean over its seeds) and baseline, as Markdown and JSON
     (:data:`~msdepth.pipeline.paths.COMPARE_MD`, :data:`~msdepth.pipeline.paths.COMPARE_JSON`), and
-    the per-variant means (:data:`~msdepth.pipeline.paths.MEAN_HEADLINE`).
+    each variant's mean over its seeds as a DVC metric (:func:`~msdepth.pipeline.paths.mean_path`).
 
     A baseline the baselines stage could not build is listed as missing, with the reason.
     """
@@ -85,18 +82,13 @@ def compare(params: Params) -> None:
         monocular=monocular_data(suites["full"], load_training_summaries(runs), groups, caps[0]),
     )
     result, md = build_comparison(comparison)
-    means = mean_headline(suites, groups)
-    for variant, settings in variant_settings(params).items():
-        means[variant]["settings"] = settings  # what the numbers were trained with
     for name in params.eval.extra_sets:
         result.setdefault("sets", {})[name], section = compare_set(params, name, comparison.settings_label)
         md += "\n" + section
-        for group, block in result["sets"][name]["full"][caps[0]].items():
-            if group in means:
-                means[group][f"{name}_abs_rel"] = block["abs_rel"]
     write_json(COMPARE_JSON, result)
     write_text(COMPARE_MD, md)
-    write_json(MEAN_HEADLINE, means)
+    for variant, row in mean_rows(result, params.variants, caps[0]).items():
+        write_json(mean_path(variant), row)
 
 
 def optimum_section(params: Params, groups: dict[str, list[str]], compared: Sequence[str]) -> dict | None:
@@ -121,22 +113,24 @@ def optimum_section(params: Params, groups: dict[str, list[str]], compared: Sequ
     return optimum_data(suites, runs, stats, f"cap{params.eval.caps[0]:g}")
 
 
-def mean_headline(suites: dict, groups: dict[str, list[str]]) -> dict:
-    """Per variant (and baseline) the headline numbers averaged over its runs, with the
-    seed-to-seed sd of abs_rel: the one file to read in ``dvc exp show`` across experiments
-    (:func:`compare` adds each extra set's mean abs_rel as ``<set>_abs_rel``). Without ROIs
-    there is no ``roi_abs_rel``."""
-    out = {}
-    for group, runs in groups.items():
-        full = [headline("full", suites["full"][r]) for r in runs]
-        roi = [headline("roi", suites["roi"][r]) for r in runs]
-        abs_rel = [h["abs_rel"] for h in full]
-        out[group] = {"abs_rel": float(np.mean(abs_rel))}
-        if all("roi_abs_rel" in h for h in roi):  # absent without ROIs
-            out[group]["roi_abs_rel"] = float(np.mean([h["roi_abs_rel"] for h in roi]))
-        if len(runs) > 1:
-            out[group]["abs_rel_sd"] = float(np.std(abs_rel, ddof=1))
-    return out
+def mean_rows(result: dict, variants: Sequence[str], cap: str) -> dict[str, dict[str, float]]:
+    """Per variant its mean over seeds at ``cap`` (the headline cap), taken from the comparison
+    (``result``, what compare.json holds): the per-seed headline files' ``abs_rel``, ``a1``,
+    ``roi_abs_rel`` and ``mask_abs_rel``, then each ROI class's abs_rel under the class's name, as
+    in the README's table. Flat keys, so each is one column of ``dvc metrics show`` and one line of
+    ``dvc metrics diff``. Without ROIs only ``abs_rel`` and ``a1``."""
+    rows = {}
+    for variant in variants:
+        full = result["full"][cap][variant]
+        row = {"abs_rel": full["abs_rel"], "a1": full["a1"]}
+        roi = result.get("roi", {}).get(cap, {}).get(variant)
+        if roi:  # {} without ROIs
+            row["roi_abs_rel"] = roi["overall"]["abs_rel"]
+            if (mask := result.get("roi_masks", {}).get(cap, {}).get(variant)) is not None:
+                row["mask_abs_rel"] = mask["overall"]["abs_rel"]
+            row.update({c: m["abs_rel"] for c, m in roi.get("by_class", {}).items()})
+        rows[variant] = row
+    return rows
 
 
 def compare_set(params: Params, name: str, label: Callable[[str], str] = str) -> tuple[dict, str]:
