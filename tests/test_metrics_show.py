@@ -11,6 +11,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
 import yaml
 from conftest import python_env, require_dvc
 
@@ -38,6 +39,8 @@ def _dvc_metrics_show() -> list[str]:
     return proc.stdout.splitlines()
 
 
+# Runs DVC (seconds, on the committed metrics): the second tier, like every DVC test.
+@pytest.mark.slow
 def test_dvc_metrics_show_lists_the_means_first_then_each_run_in_seed_order():
     require_dvc()
     lines = _dvc_metrics_show()
