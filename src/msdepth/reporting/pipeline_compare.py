@@ -116,7 +116,7 @@ def optimum_section(params: Params, groups: dict[str, list[str]], compared: Sequ
 def mean_rows(result: dict, variants: Sequence[str], cap: str) -> dict[str, dict[str, float]]:
     """Per variant its mean over seeds at ``cap`` (the headline cap), taken from the comparison
     (``result``, what compare.json holds): the per-seed headline files' ``abs_rel``, ``a1``,
-    ``roi_abs_rel`` and ``mask_abs_rel``, then each ROI class's abs_rel under the class's name, as
+    ``roi`` and ``masks`` (ROI and exact-mask abs_rel), then each ROI class's abs_rel under the class's name, as
     in the README's table. Flat keys, so each is one column of ``dvc metrics show`` and one line of
     ``dvc metrics diff``. Without ROIs only ``abs_rel`` and ``a1``."""
     rows = {}
@@ -125,9 +125,9 @@ def mean_rows(result: dict, variants: Sequence[str], cap: str) -> dict[str, dict
         row = {"abs_rel": full["abs_rel"], "a1": full["a1"]}
         roi = result.get("roi", {}).get(cap, {}).get(variant)
         if roi:  # {} without ROIs
-            row["roi_abs_rel"] = roi["overall"]["abs_rel"]
+            row["roi"] = roi["overall"]["abs_rel"]
             if (mask := result.get("roi_masks", {}).get(cap, {}).get(variant)) is not None:
-                row["mask_abs_rel"] = mask["overall"]["abs_rel"]
+                row["masks"] = mask["overall"]["abs_rel"]
             row.update({c: m["abs_rel"] for c, m in roi.get("by_class", {}).items()})
         rows[variant] = row
     return rows
