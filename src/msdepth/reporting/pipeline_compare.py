@@ -116,9 +116,9 @@ def optimum_section(params: Params, groups: dict[str, list[str]], compared: Sequ
 def mean_rows(result: dict, variants: Sequence[str], cap: str) -> dict[str, dict[str, float]]:
     """Per variant its mean over seeds at ``cap`` (the headline cap), taken from the comparison
     (``result``, what compare.json holds): the per-seed headline files' ``abs_rel``, ``a1``,
-    ``roi`` and ``masks`` (ROI and exact-mask abs_rel), then each ROI class's abs_rel under the class's name, as
-    in the README's table. Flat keys, so each is one column of ``dvc metrics show`` and one line of
-    ``dvc metrics diff``. Without ROIs only ``abs_rel`` and ``a1``."""
+    ``roi`` and ``masks`` (ROI and exact-mask abs_rel), then each ROI class's abs_rel under the
+    class's name, as in the README's table. Flat keys, so each is one column of
+    ``dvc metrics show`` and one line of ``dvc metrics diff``. Without ROIs only ``abs_rel`` and ``a1``."""
     rows = {}
     for variant in variants:
         full = result["full"][cap][variant]
