@@ -1,7 +1,7 @@
 """The hand-drawn ROIs on the real KITTI 2015 frames (issue 39, item 3): their GT density, an
 overlay picture of each frame, and a sanity score of OpenCV's SGBM inside them.
 
-Reads ``data_lists/kitti2015_rois.csv`` (:func:`msdepth.data.rois.read_annotation`) and the frames of
+Reads ``data_lists/kitti2015_rois.csv`` (:func:`msdepth.data.annotations.read_annotation`) and the frames of
 ``../shared/real-samples/kitti2015-training`` (left and right images, ``disp_occ_0`` GT). For each
 box: the share of its pixels with GT. For each class: the ROI suite
 (:func:`msdepth.evaluation.suites.evaluate_roi`, cap 80 m) on the SGBM disparity
@@ -24,7 +24,7 @@ import pandas as pd
 
 from msdepth.config.params import EvalConfig
 from msdepth.data import kitti
-from msdepth.data.rois import gt_density, read_annotation
+from msdepth.data.annotations import gt_density, read_annotation
 from msdepth.evaluation.suites import Frame, evaluate_roi
 from msdepth.geometry.depth import disparity_to_depth
 from msdepth.io import write_png, write_text

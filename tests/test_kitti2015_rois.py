@@ -12,7 +12,7 @@ import pandas as pd
 import pytest
 
 from msdepth.data import kitti
-from msdepth.data.rois import KITTI2015_SIZE, gt_density, read_annotation
+from msdepth.data.annotations import KITTI2015_SIZE, gt_density, read_annotation
 from msdepth.errors import DataError
 
 ROOT = Path(__file__).resolve().parents[1]
