@@ -83,7 +83,7 @@ def density_table(boxes: pd.DataFrame, density: np.ndarray) -> list[str]:
         "|---|---|---|---|---|---|---|",
     ]
     for k, box in zip(boxes.index, boxes.itertuples(index=False), strict=True):
-        flag = f"< {SPARSE:.0%}" if density[k] < SPARSE else ""
+        flag = f"< {SPARSE * 100:g} %" if density[k] < SPARSE else ""
         lines.append(
             f"| {k + 2} | {box.image} | {box[1]} | {box.x0}, {box.y0}, {box.x1}, {box.y1} | "
             f"{box.x1 - box.x0}x{box.y1 - box.y0} | {density[k]:.3f} | {flag} |"
@@ -120,7 +120,7 @@ def report(rois_csv: Path, samples: Path, pictures: Path | None) -> str:
         + ", ".join(f"{c} {counts.get(c, 0)}" for c in kitti.ROI_CLASSES)
         + ") and the KITTI 2015 frames of `../shared/real-samples/` (`disp_occ_0` GT).",
         "",
-        f"## GT density per box (flagged: under {SPARSE:.0%})",
+        f"## GT density per box (flagged: under {SPARSE * 100:g} %)",
         "",
     ]
     scores = [

@@ -11,9 +11,11 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from msdepth.config.params import EvalConfig
 from msdepth.data import kitti
 from msdepth.data.annotations import KITTI2015_SIZE, gt_density, read_annotation
 from msdepth.errors import DataError
+from msdepth.evaluation.suites import Frame, evaluate_roi
 
 ROOT = Path(__file__).resolve().parents[1]
 CSV = ROOT / "data_lists" / "kitti2015_rois.csv"
@@ -83,3 +85,26 @@ def test_gt_density_is_as_documented() -> None:
     documented = documented_density()
     assert sorted(documented) == [i + 2 for i in range(len(boxes))]  # one row per box, CSV lines
     assert np.allclose([documented[i + 2] for i in range(len(boxes))], measured, atol=5e-4)
+
+
+def test_the_roi_suite_scores_them() -> None:
+    """The boxes go into the ROI suite as they are: the GT as prediction scores 0 in every class,
+    and the boxes without any GT are the ones left out."""
+    cap = 1000.0  # beyond every GT depth (a few pixels lie past 80 m, which the cap would clamp)
+    if not SAMPLES.is_dir():
+        pytest.skip("../shared/real-samples is not available")
+    boxes = read_annotation(CSV)
+    names = sorted(boxes["image"].unique())
+    frames = [
+        Frame.from_disparity(n, kitti.read_disparity(SAMPLES / "disp_occ_0" / f"{n}.png"), 721.5377, 0.54)
+        for n in names
+    ]
+    summary, per_roi = evaluate_roi(
+        {f.name: f.gt_depth for f in frames}, frames, boxes, EvalConfig(caps=(cap,))
+    )
+    by_class = summary[f"cap{cap:g}"]["by_class"]
+    assert set(by_class) == set(kitti.ROI_CLASSES)
+    assert all(m["abs_rel"] == pytest.approx(0.0, abs=1e-6) for m in by_class.values())
+    empty = gt_density(boxes, {f.name: f.gt_depth for f in frames}) == 0
+    assert summary["excluded_rois"] == int(empty.sum()) > 0
+    assert sorted(per_roi["roi"].unique()) == [i for i in range(len(boxes)) if not empty[i]]
