@@ -1,0 +1,66 @@
+"""Seeds a verdict needs (msdepth.reporting.power): hand-computed sizes, and t quantiles and
+powers against SciPy's values (scipy.stats.t.ppf, scipy.stats.nct, written down here: SciPy is
+not a dependency)."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from msdepth.reporting.power import pooled_sd, power_at, seeds_needed, t_cdf, t_quantile
+
+
+def test_normal_size_by_hand() -> None:
+    # z_0.975 = 1.959964, z_0.8 = 0.841621: 2 (2.801585)² = 15.698 per group at δ = σ -> 16;
+    # at δ = σ/2 four times that, 62.79 -> 63.
+    assert seeds_needed(1.0, 1.0, t_based=False) == 16
+    assert seeds_needed(0.5, 1.0, t_based=False) == 63
+    assert seeds_needed(-0.02, 0.02, t_based=False) == 16  # only |δ| / σ matters
+
+
+def test_t_size_is_the_two_sample_t_tests() -> None:
+    # The textbook sizes of the two-sided two-sample t-test at 80 % power (G*Power, SciPy's nct).
+    assert seeds_needed(1.0, 1.0) == 17
+    assert seeds_needed(0.5, 1.0) == 64
+    assert seeds_needed(2.0, 1.0) == 6
+    assert seeds_needed(3.2, 1.0) == 3  # where the plain t-quantile iteration cycles (2 <-> 6)
+
+
+def test_edge_cases() -> None:
+    assert seeds_needed(0.0, 1.0) == math.inf
+    assert seeds_needed(0.1, 0.0) == 2  # no spread: the smallest design
+    with pytest.raises(ValueError, match="alpha"):
+        seeds_needed(1.0, 1.0, alpha=1.5)
+    with pytest.raises(ValueError, match="n >= 2"):
+        power_at(1, 1.0, 1.0)
+
+
+@pytest.mark.parametrize(
+    ("p", "df", "expected"),
+    [
+        (0.975, 4, 2.776445),
+        (0.975, 30, 2.042272),
+        (0.8, 30, 0.853767),
+        (0.975, 2, 4.302653),
+        (0.999, 3, 10.214532),
+    ],
+)
+def test_t_quantile_matches_scipy(p: float, df: int, expected: float) -> None:
+    assert t_quantile(p, df) == pytest.approx(expected, abs=1e-6)
+    assert t_quantile(1 - p, df) == pytest.approx(-expected, abs=1e-6)
+    assert t_cdf(expected, df) == pytest.approx(p, abs=1e-6)  # expected is rounded to 1e-6
+
+
+@pytest.mark.parametrize(
+    ("n", "effect", "expected"), [(3, 1.0, 0.15879), (3, 3.0, 0.78255), (12, 0.8, 0.46576), (2, 2.0, 0.21831)]
+)
+def test_power_matches_scipys_noncentral_t(n: int, effect: float, expected: float) -> None:
+    assert power_at(n, effect, 1.0) == pytest.approx(expected, abs=5e-5)
+
+
+def test_pooled_sd_by_hand() -> None:
+    # variances 1 and 4 over 3 seeds each: sqrt((2·1 + 2·4) / 4) = sqrt(2.5)
+    assert pooled_sd([1.0, 2.0, 3.0], [2.0, 4.0, 6.0]) == pytest.approx(math.sqrt(2.5))
+    with pytest.raises(ValueError, match="at least 2"):
+        pooled_sd([1.0], [1.0, 2.0])
