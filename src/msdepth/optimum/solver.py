@@ -47,8 +47,9 @@ COST_SCALES = np.geomspace(0.5, 2.0, 25)  # the cost curves' s grid: log-spaced,
 BASIN_TOLERANCE = 0.05  # the basin: s whose cost rises less than this share of the curve's range
 # s_min: the s nearest 1 among those whose cost is within this share of the lowest cost. Rounding
 # moves a mean cost by <= 5e-8 of it (1 against 2 threads, the default set's 8 frames); the two
-# lowest points of the committed curves are >= 1.8e-5 of the cost apart. 1e-6 is 20x the one and
-# 1/18 of the other: ties of exact arithmetic become ties, real differences stay differences.
+# lowest points of a default run's curves are >= 4.1e-6 of the cost apart (MS-SSIM's 2 signs).
+# 1e-6 is 20x the one and 1/4 of the other: ties of exact arithmetic become ties, real
+# differences stay differences.
 S_MIN_TOLERANCE = 1e-6
 # A matched start's disparity is kept this share of the heads' range (0.3) off its ends: the
 # sigmoid's gradient vanishes there (1e-3: 0.37 px at 1242 px, beyond the 80 m cap).
