@@ -224,3 +224,13 @@ def test_reading_params_depends_on_no_loss_code():
     }
     assert "config/variants/ssim.py" in closure and "config/params.py" in closure
     assert not {f for f in closure if f.startswith(("losses/", "geometry/", "networks/"))}
+
+
+def test_a_stage_that_reads_the_data_through_an_index_depends_on_the_data():
+    """An index names paths, not contents: without ``${data.root}`` a re-render left cost_curves and
+    optimum with the previous data's results (issue 40: the s_min that "flipped" on a rerun)."""
+    stages = yaml.safe_load((ROOT / "dvc.yaml").read_text())["stages"]
+    indexes = ("data/index/eval_frames.csv", "data/index/sets", "data/index/train_pairs.txt")
+    readers = [name for name, stage in stages.items() if set(stage.get("deps", [])) & set(indexes)]
+    assert {"infer", "cost_curves", "optimum", "eval_set"} <= set(readers)
+    assert [name for name in readers if "${data.root}" not in stages[name]["deps"]] == []

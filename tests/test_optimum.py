@@ -14,17 +14,19 @@ from msdepth.cli.predict import default_focal
 from msdepth.config.params import Params, apply_overrides, kernel_variant, params_from_dict
 from msdepth.data.pairs import to_tensor
 from msdepth.data.synthetic import render_frame
-from msdepth.errors import ConfigError
+from msdepth.errors import ConfigError, DataError
 from msdepth.evaluation.metrics import compute_errors
 from msdepth.io import write_png
 from msdepth.optimum.frames import add_cost_curves
 from msdepth.optimum.solver import (
     COST_SCALES,
+    S_MIN_TOLERANCE,
     basin,
     class_summary,
     cost_curve,
     curve_minimum,
     level_sizes,
+    minimum_index,
     objective,
     optimise,
     optimum_disparities,
@@ -157,8 +159,49 @@ def test_basin_and_class_summary_on_known_curves() -> None:
     flat = np.array([1.0, 1.0, 0.0, 0.0, 0.0, 1.0, 1.0, 1.0, 1.0])
     assert basin(scales, flat) == (pytest.approx(scales[2]), pytest.approx(scales[4]))
     summary = class_summary({"car": [flat, flat + 1]}, scales)
-    assert summary["car"]["rois"] == 2 and summary["car"]["s_min"] == pytest.approx(scales[2])
+    # A tie: the point nearest s = 1 (scales[4]), not the first one (scales[2]).
+    assert summary["car"]["rois"] == 2 and summary["car"]["s_min"] == pytest.approx(scales[4])
     assert summary["car"]["basin_ratio"] == pytest.approx(scales[4] / scales[2])
+
+
+def _flat_basin() -> np.ndarray:
+    """A cost curve over COST_SCALES (s = 1 at index 12) whose basin, indices 10-14, is flat at 0.1
+    (as a sum of float32 terms, equal in exact arithmetic, leaves it)."""
+    costs = 0.1 + 0.01 * np.abs(np.log(COST_SCALES)) ** 2
+    costs[10:15] = 0.1
+    return costs
+
+
+@pytest.mark.parametrize("index", [10, 11, 13, 14])
+def test_a_last_bit_in_a_flat_basin_does_not_move_s_min_or_the_basin(index: int) -> None:
+    flat = _flat_basin()
+    perturbed = flat.copy()
+    perturbed[index] -= 1e-12  # below float32 rounding of a cost of 0.1 (~7e-9)
+    assert int(np.argmin(perturbed)) == index  # a plain argmin follows the last bit ...
+    for costs in (flat, perturbed):  # ... s_min stays at the point nearest s = 1
+        assert minimum_index(COST_SCALES, costs) == 12 and curve_minimum(COST_SCALES, costs) == 1.0
+        assert basin(COST_SCALES, costs) == (COST_SCALES[10], COST_SCALES[14])
+
+
+def test_s_min_tolerance_is_relative_to_the_lowest_cost_and_ties_go_to_the_smaller_s() -> None:
+    costs = _flat_basin()
+    costs[12] = 0.1 * (1 + 2 * S_MIN_TOLERANCE)  # clearly above: the truth is no longer a minimum
+    assert curve_minimum(COST_SCALES, costs) == COST_SCALES[11]  # 0.944 and 1.059 tie: the smaller
+    costs[12] = 0.1 * (1 + 0.5 * S_MIN_TOLERANCE)  # within rounding of the minimum: a tie again
+    assert curve_minimum(COST_SCALES, costs) == 1.0
+    # Scaled costs keep their s_min: the tolerance is a share of the cost, not an absolute.
+    assert curve_minimum(COST_SCALES, 1e6 * costs) == 1.0 and curve_minimum(COST_SCALES, 1e-6 * costs) == 1.0
+    # A curve flat within rounding: every s ties, s_min is 1 and the basin the whole grid.
+    level = np.full(len(COST_SCALES), 0.1) + np.linspace(0, 1e-9, len(COST_SCALES))
+    assert curve_minimum(COST_SCALES, level) == 1.0
+    assert basin(COST_SCALES, level) == (COST_SCALES[0], COST_SCALES[-1])
+
+
+def test_a_bad_cost_curve_is_one_line() -> None:
+    with pytest.raises(DataError, match="expected 25 finite costs"):
+        curve_minimum(COST_SCALES, np.full(len(COST_SCALES), np.nan))
+    with pytest.raises(DataError, match="expected 25 finite costs"):
+        basin(COST_SCALES, np.ones(3))
 
 
 def test_the_optimum_section_is_checked() -> None:

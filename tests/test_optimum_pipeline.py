@@ -172,3 +172,28 @@ def test_the_optimum_stage_lists_every_optimum_key_it_reads_and_no_training_weig
     assert {p for p in listed if p.startswith("optimum")} == expected
     assert "loss" not in listed and "loss.smoothness_weight" not in listed and "${item.variant}" in listed
     assert "optimum.cost_frames" in stages["cost_curves"]["params"]
+
+
+def test_the_cost_curves_of_a_rerun_are_the_same_bytes(tmp_path: Path):
+    """issue 40: the stage's computation twice on a tiny rendered set writes identical files."""
+    from msdepth.config.params import SyntheticConfig
+    from msdepth.data import synthetic
+    from msdepth.data.index import build_eval_index, write_eval_index
+    from msdepth.optimum.frames import write_cost_curves
+
+    root = tmp_path / "synthetic"
+    synthetic.generate(
+        SyntheticConfig(seed=3, drives=1, train_pairs=1, eval_frames=2, height=96, width=320),
+        root,
+        progress=False,
+        workers=1,
+        lidar=False,
+    )
+    k2015 = root / "kitti2015"
+    write_eval_index(tmp_path / "eval.csv", build_eval_index(k2015, k2015 / "test_files.txt", "disp_noc_0"))
+    params = params_from_dict({"optimum": {"cost_frames": 2, "threads": 1}})
+    outs = [tmp_path / "a.json", tmp_path / "b.json"]
+    for out in outs:
+        write_cost_curves(params, "ssim", tmp_path / "eval.csv", root / "rois.csv", out)
+    assert json.loads(outs[0].read_text())["classes"]  # some box had dense GT
+    assert outs[0].read_bytes() == outs[1].read_bytes()

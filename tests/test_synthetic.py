@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import json
+import os
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -281,3 +284,36 @@ def test_class_map_is_indexed_and_read_with_the_frames(root: Path) -> None:
     assert all(Path(p).name.endswith(".png") and "class_map" in p for p in index["class_map"])
     frames = load_frames(index)
     assert all(f.class_map is not None and f.class_map.shape == f.shape for f in frames)
+
+
+# Evaluation frames of seed 2017 at the default render size whose images differed between numpy's
+# AVX-512 and AVX2/baseline kernels (float32 pow and arctan2) before the shading computed those in
+# float64: one pixel by one level each.
+_SIMD_FRAMES = (20, 21, 32, 37)
+_RENDER_DIGEST = f"""
+import hashlib
+from msdepth.data.synthetic import EVAL, render_frame
+digest = hashlib.sha256()
+for index in {_SIMD_FRAMES}:
+    frame = render_frame(2017, EVAL, index, 125, 414)
+    digest.update(frame.left.tobytes() + frame.right.tobytes())
+print(digest.hexdigest())
+"""
+
+
+def _digest_with_numpy_kernels_off(disabled: list[str]) -> str:
+    env = {**os.environ, "NPY_DISABLE_CPU_FEATURES": " ".join(disabled)}
+    run = subprocess.run(
+        [sys.executable, "-c", _RENDER_DIGEST], env=env, capture_output=True, text=True, check=True
+    )
+    return run.stdout.strip()
+
+
+def test_the_render_is_the_same_bytes_at_every_simd_level() -> None:
+    """issue 40: the data a CPU renders must not depend on its SIMD level (numpy's dispatched kernels)."""
+    from numpy._core._multiarray_umath import __cpu_dispatch__, __cpu_features__
+
+    dispatched = [f for f in __cpu_dispatch__ if __cpu_features__.get(f)]
+    if not dispatched:
+        pytest.skip("this CPU runs numpy's baseline kernels only: nothing to compare")
+    assert _digest_with_numpy_kernels_off([]) == _digest_with_numpy_kernels_off(dispatched)

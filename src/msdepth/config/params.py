@@ -306,6 +306,8 @@ class TrainConfig:
     num_workers: int = _speed_only(0)
     augment: bool = True
     device: Literal["cpu", "cuda", "auto"] = _speed_only("cpu")
+    # torch's CPU threads split its reductions differently, so the count changes float rounding
+    # (weights by ~1e-7, benchmarks/README.md); a checkpoint still resumes at another count.
     threads: int = _speed_only(2)
     # Speed switches for a GPU (all off on the CPU default). The loss is always computed in fp32;
     # amp changes the network's arithmetic, so it is not speed-only.
@@ -377,8 +379,9 @@ class TrainConfig:
 
 
 def speed_only_train_keys() -> tuple[str, ...]:
-    """The ``train.*`` keys that change how fast a run goes, never what it computes: a
-    checkpoint stays valid when they change (the training fingerprint leaves them out)."""
+    """The ``train.*`` keys that change how fast a run goes, not what it computes beyond float
+    rounding (``threads`` changes the rounding; the others on the CPU, nothing): a checkpoint
+    stays valid when they change (the training fingerprint leaves them out)."""
     return tuple(f.name for f in dataclasses.fields(TrainConfig) if f.metadata.get("speed_only"))
 
 

@@ -34,7 +34,7 @@ from tqdm import tqdm
 
 from msdepth.config.params import OptimumConfig, Params
 from msdepth.data.pairs import resize, to_tensor
-from msdepth.errors import ConfigError
+from msdepth.errors import ConfigError, DataError
 from msdepth.losses.monodepth import MonodepthLoss, reconstruct, scale_pyramid
 from msdepth.losses.objective import build_loss
 from msdepth.networks.common import MAX_DISPARITY
@@ -45,6 +45,12 @@ NUM_SCALES = 4  # the network's disparity scales (1, 1/2, 1/4, 1/8), all of whic
 MIN_LEVEL_SIDE = 24
 COST_SCALES = np.geomspace(0.5, 2.0, 25)  # the cost curves' s grid: log-spaced, s = 1 in the middle
 BASIN_TOLERANCE = 0.05  # the basin: s whose cost rises less than this share of the curve's range
+# s_min: the s nearest 1 among those whose cost is within this share of the lowest cost. Rounding
+# moves a mean cost by <= 5e-8 of it (1 against 2 threads, the default set's 8 frames); the two
+# lowest points of a default run's curves are >= 4.1e-6 of the cost apart (MS-SSIM's 2 signs).
+# 1e-6 is 20x the one and 1/4 of the other: ties of exact arithmetic become ties, real
+# differences stay differences.
+S_MIN_TOLERANCE = 1e-6
 # A matched start's disparity is kept this share of the heads' range (0.3) off its ends: the
 # sigmoid's gradient vanishes there (1e-3: 0.37 px at 1242 px, beyond the 80 m cap).
 START_MARGIN = 1e-3
@@ -297,23 +303,46 @@ def cost_curve(
     return np.array(costs)
 
 
+def minimum_index(scales: Sequence[float], costs: np.ndarray, tolerance: float = S_MIN_TOLERANCE) -> int:
+    """The index of ``s_min``: among the grid points whose cost exceeds the lowest by at most
+    ``tolerance`` of the lowest cost's magnitude, the one nearest s = 1 (in log s: 0.5 and 2 are
+    equally far); of two equally near, the smaller s.
+
+    Not a plain argmin: on a flat basin, points equal in exact arithmetic differ in their last
+    bits, which depend on the thread count and the CPU's kernels; the tolerance makes them a tie
+    and the tie has one answer.
+    """
+    scales, costs = np.asarray(scales, dtype=float), np.asarray(costs, dtype=float)
+    if costs.shape != scales.shape or not costs.size or not np.isfinite(costs).all():
+        raise DataError(f"cost curve: expected {scales.size} finite costs, got {costs.tolist()}")
+    lowest = costs.min()
+    near = np.flatnonzero(costs <= lowest + tolerance * abs(lowest))
+    # Distances rounded: log(s) and log(1/s) of a geometric grid may differ in their last bit.
+    distance = np.round(np.abs(np.log(scales[near])), 9)
+    return int(near[np.lexsort((scales[near], distance))[0]])
+
+
 def curve_minimum(scales: Sequence[float], costs: np.ndarray) -> float:
-    """The ``s`` of the lowest cost (the first, on a tie)."""
-    return float(np.asarray(scales)[int(np.argmin(costs))])
+    """``s_min``: the ``s`` of the lowest cost, rounding-proof (:func:`minimum_index`)."""
+    return float(np.asarray(scales)[minimum_index(scales, costs)])
 
 
 def basin(
     scales: Sequence[float], costs: np.ndarray, tolerance: float = BASIN_TOLERANCE
 ) -> tuple[float, float]:
-    """``(s_low, s_high)``: the contiguous range of ``s`` around the minimum whose cost exceeds the
-    minimum by at most ``tolerance`` of the curve's range (max - min over the grid).
+    """``(s_low, s_high)``: the contiguous range of ``s`` around ``s_min`` (:func:`minimum_index`)
+    whose cost exceeds the lowest by at most ``tolerance`` of the curve's range (max - min over
+    the grid), and never by less than ``s_min``'s own tolerance.
 
     Relative to the range, not to the minimum's cost: a box changes a whole frame's cost by a
-    small fraction, so 5 % of the cost itself would take in every ``s`` of the grid.
+    small fraction, so 5 % of the cost itself would take in every ``s`` of the grid. Grown from
+    ``s_min``, not from the argmin, so that the basin always holds ``s_min`` and moves with it only;
+    a curve flat to within rounding is one basin.
     """
     scales, costs = np.asarray(scales, dtype=float), np.asarray(costs, dtype=float)
-    best = int(np.argmin(costs))
-    limit = costs[best] + tolerance * (costs.max() - costs.min())
+    best = minimum_index(scales, costs)
+    lowest = costs.min()
+    limit = lowest + max(tolerance * (costs.max() - lowest), S_MIN_TOLERANCE * abs(lowest))
     low = high = best
     while low > 0 and costs[low - 1] <= limit:
         low -= 1

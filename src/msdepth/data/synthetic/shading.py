@@ -74,6 +74,17 @@ def _fbm(
     return 0.5 + total / norm * 1.6
 
 
+def _float32_of(ufunc: np.ufunc, *args: np.ndarray | float) -> np.ndarray:
+    """``ufunc(*args)`` computed in float64 and rounded to float32.
+
+    numpy's float32 ``power`` and ``arctan2`` have SIMD kernels (AVX2, AVX-512, none) that round
+    differently: the same frame rendered on two CPUs differed by one level in a pixel of 51 of
+    the default set's 4,015 files. The float64 kernels differ too, but by far less than a float32
+    step, so rounded to float32 they agree (docs/design.md, "The synthetic set").
+    """
+    return ufunc(*(np.asarray(a, np.float64) for a in args)).astype(np.float32)
+
+
 def _rowdot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Row-wise dot product of two (N, 3) arrays."""
     return np.einsum("ij,ij->i", a, b)
@@ -86,7 +97,7 @@ def _frac(x: np.ndarray) -> np.ndarray:
 def _sky(scene: Scene, d: np.ndarray) -> np.ndarray:
     """Sky colour along unit directions ``d``: horizon-to-zenith gradient with clouds."""
     e = -d[:, 1]
-    t = np.clip(e / 0.6, 0, 1)[:, None] ** 0.6
+    t = _float32_of(np.power, np.clip(e / 0.6, 0, 1), 0.6)[:, None]
     col = scene.sky_horizon * (1 - t) + scene.sky_zenith * t
     s = 1.0 / (np.maximum(e, 0.02) + 0.1)
     c = _fbm(d[:, 0] * s * 2 + scene.tex_shift[0], d[:, 2] * s * 2 + scene.tex_shift[1], 0.0, 1.0, 4)
@@ -97,7 +108,7 @@ def _sky(scene: Scene, d: np.ndarray) -> np.ndarray:
 def _environment(scene: Scene, d: np.ndarray) -> np.ndarray:
     """What a mirror reflects along unit directions ``d``: sky, a skyline with windows, the street."""
     e = -d[:, 1]
-    az = np.arctan2(d[:, 0], d[:, 2])
+    az = _float32_of(np.arctan2, d[:, 0], d[:, 2])
     col = _sky(scene, d)
     # Overhead: branches, wires and cloud edges as fine, high-contrast patches. A reflection's
     # content then shifts visibly between the two viewpoints (it lies at another depth).
@@ -330,7 +341,7 @@ def _surface(
 def _reflection(scene: Scene, h: _Surface, f0: np.ndarray | float) -> tuple[np.ndarray, np.ndarray]:
     """Schlick-Fresnel weight and the environment along the mirrored view ray."""
     cos = np.clip(h["n_dot_v"], 0, 1)
-    fres = f0 + (1 - f0) * (1 - cos) ** 5
+    fres = f0 + (1 - f0) * _float32_of(np.power, 1 - cos, 5)
     mirrored = h["d"] + 2 * cos[:, None] * h["n"]
     return fres.astype(np.float32), _environment(scene, mirrored)
 
@@ -373,6 +384,6 @@ def _light(
     # The highlight only where it can matter (0.6 ** 20 is already ~4e-5): pow is slow.
     lit = np.nonzero((spec_k > 0) & (n_dot_h > 0.6) & (n_dot_l > 0))[0]
     spec = np.zeros_like(spec_k)
-    spec[lit] = spec_k[lit] * n_dot_h[lit] ** shininess[lit]
+    spec[lit] = spec_k[lit] * _float32_of(np.power, n_dot_h[lit], shininess[lit])
     light = (scene.ambient + n_dot_l)[:, None] * scene.sun_colour.astype(np.float32)
     return albedo * light + spec[:, None] * scene.sun_colour.astype(np.float32) + extra
