@@ -28,7 +28,7 @@ import os
 import sys
 import tempfile
 import threading
-from typing import BinaryIO, Callable, Iterator
+from typing import BinaryIO, Callable, Iterable, Iterator, TypeVar
 
 import cv2
 import numpy as np
@@ -58,7 +58,12 @@ _LIBJPEG_ERRORS = (b"Corrupt JPEG data", b"Premature end of JPEG file")
 _STDERR_LOCK = threading.Lock()
 
 
-ReadAt = Callable[[int, int], bytes]  # (position, count) -> at most count bytes from position
+# The decoded pixels a batch of predict or optimum may hold: 32 megapixels (96 MB of RGB): eight
+# KITTI frames (0.47 megapixels each) or three 12-megapixel photos; a larger image goes alone.
+BATCH_PIXEL_BUDGET = 32_000_000
+
+ReadAt = Callable[[int, int], bytes]
+Item = TypeVar("Item")  # (position, count) -> at most count bytes from position
 
 
 def max_file_bytes(pixels: int) -> int:
@@ -75,15 +80,21 @@ def _u32(data: bytes, pos: int, order: str = "big") -> int:
     return int.from_bytes(data[pos : pos + 4], order)
 
 
+def _png_header_size(data: bytes) -> tuple[int, int]:
+    """(width, height) of a PNG's IHDR chunk, which must come first."""
+    if len(data) < 33:  # signature, IHDR and its CRC
+        raise DataError(f"truncated PNG: {len(data)} bytes, its header is cut off")
+    if data[12:16] != b"IHDR":
+        raise DataError("corrupt PNG: it does not start with an IHDR chunk")
+    return _u32(data, 16), _u32(data, 20)
+
+
 def png_size(data: bytes) -> tuple[int, int]:
     """(width, height) of a PNG after walking its chunks to IEND; DataError if they do not get there.
 
     Walking the chunk headers costs microseconds; OpenCV allocates a chunk's declared length first.
     """
-    if len(data) < 33:  # signature, IHDR and its CRC
-        raise DataError(f"truncated PNG: {len(data)} bytes, its header is cut off")
-    if data[12:16] != b"IHDR":
-        raise DataError("corrupt PNG: it does not start with an IHDR chunk")
+    size = _png_header_size(data)
     pos = len(_PNG_MAGIC)
     while pos + 12 <= len(data):  # 4 length + 4 type + data + 4 CRC
         length, kind = _u32(data, pos), data[pos + 4 : pos + 8]
@@ -92,7 +103,7 @@ def png_size(data: bytes) -> tuple[int, int]:
                 f"truncated PNG: chunk {kind!r} at byte {pos} declares {length} bytes, past the end"
             )
         if kind == b"IEND":
-            return _u32(data, 16), _u32(data, 20)
+            return size
         pos += 12 + length
     raise DataError(f"truncated PNG: no IEND chunk (the chunks stop at byte {pos})")
 
@@ -257,9 +268,7 @@ def header_size(file: BinaryIO) -> tuple[int, int]:
         return file.read(count)
 
     if head.startswith(_PNG_MAGIC):
-        if len(head) < 33 or head[12:16] != b"IHDR":
-            raise DataError("corrupt PNG: it does not start with a whole IHDR chunk")
-        return _u32(head, 16), _u32(head, 20)
+        return _png_header_size(head)
     if head.startswith(_JPEG_MAGIC):
         return _jpeg_frame_size(at)
     return _other_size(head, at)
@@ -359,3 +368,33 @@ def decode(data: bytes, flags: int = cv2.IMREAD_UNCHANGED, max_pixels: int = MAX
     if img is None:
         raise DataError("cannot decode it (corrupt or not an image)")
     return img
+
+
+def batches_by_pixels(
+    items: Iterable[Item], pixels: Callable[[Item], int], max_count: int, budget: int = BATCH_PIXEL_BUDGET
+) -> Iterator[list[Item]]:
+    """Consecutive batches of ``items``, each closed as soon as it holds ``max_count`` items or
+    ``budget`` pixels (``pixels(item)`` each): a batch holds less than ``budget`` plus one item's
+    pixels, and no item of the next batch is read before it is handed over (``items`` may decode
+    lazily)."""
+    batch: list[Item] = []
+    total = 0
+    for item in items:
+        batch.append(item)
+        total += pixels(item)
+        if len(batch) >= max_count or total >= budget:
+            yield batch
+            batch, total = [], 0
+    if batch:
+        yield batch
+
+
+def file_pixels(path: str | os.PathLike) -> int:
+    """The pixels an image file's header declares (:func:`header_size`), 0 if it cannot be read: a
+    plan's estimate only; the file is checked in full when it is read."""
+    try:
+        with open(path, "rb") as file:
+            width, height = header_size(file)
+    except (OSError, DataError):
+        return 0
+    return max(width, 0) * max(height, 0)
