@@ -113,3 +113,17 @@ def test_predict_batches_large_frames_alone(tiny: Path, tmp_path: Path, monkeypa
     options = predict_module.PredictOptions(progress=False)
     assert predict_module.predict(tmp_path / "in", tiny, tmp_path / "o", options).written == 4
     assert sizes == [2, 2] and BATCH_PIXEL_BUDGET == 32_000_000
+
+
+@pytest.mark.parametrize("command", ["predict", "export-onnx"])
+def test_network_sides_over_the_model_bound_are_refused(
+    tiny: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str], command: str
+) -> None:
+    # --height/--width 100000 would have run (or traced) the network at 10^10 px.
+    _image(tmp_path / "in" / "a.png")
+    head = ["predict", str(tmp_path / "in")] if command == "predict" else ["export-onnx"]
+    out = tmp_path / ("o" if command == "predict" else "m.onnx")
+    argv = [*head, "--model", str(tiny), "--out", str(out), "--height", "100000", "--width", "100000"]
+    assert main(argv) == 1
+    errors = _errors(capsys.readouterr().err)
+    assert len(errors) == 1 and "4096 px a side" in errors[0]

@@ -44,7 +44,7 @@ from msdepth.evaluation.infer import network_disparity
 from msdepth.geometry.depth import disparity_to_depth, pixel_disparity
 from msdepth.io import OutputPolicy, atomic_path, save_npy, write_png
 from msdepth.networks.device import resolve_device
-from msdepth.networks.model import DepthNetwork, load_model
+from msdepth.networks.model import MAX_INPUT_SIDE, DepthNetwork, load_model
 
 IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp", ".ppm")
 VIDEO_EXTENSIONS = (".avi", ".mp4", ".mov", ".mkv", ".webm", ".m4v", ".mpg", ".mpeg", ".wmv")
@@ -421,6 +421,11 @@ def _network_batch(
 def _check_network_size(model_path: str | os.PathLike, meta: dict, height: int, width: int) -> None:
     """One MsdepthError naming the model when its network cannot run at ``height`` x ``width``."""
     architecture = meta.get("architecture", "vgg")  # files from before the option hold a VGG network
+    if max(height, width) > MAX_INPUT_SIDE:  # what a model file may declare, and so what it may run at
+        raise MsdepthError(
+            f"{model_path}: the network input {height} x {width} is over {MAX_INPUT_SIDE} px a side "
+            "(--height, --width)"
+        )
     rule = sides_problem(architecture, (height, width))
     if rule is not None:
         raise MsdepthError(

@@ -35,8 +35,9 @@ import numpy as np
 
 from msdepth.errors import DataError, PixelLimitError
 
-# 120 million pixels: a 108-megapixel phone photo (12,000 x 9,000) fits; decoding one costs
-# about 2 GB at peak. Raise it with read_image(max_pixels=...) or `msdepth predict --max-megapixels`.
+# 120 million pixels: a 108-megapixel phone photo (12,000 x 9,000) fits; predict on one peaks at
+# about 4.3 GiB (measured, docs/user-guide.md "Security"). Raise it with read_image(max_pixels=...)
+# or `msdepth predict --max-megapixels`.
 MAX_IMAGE_PIXELS = 120_000_000
 # The most bytes a real image file spends per pixel: 16-bit RGBA stored without compression (TIFF,
 # PNG at level 0, PAM-like PNM). An ASCII PNM can spend more; it is refused past this bound.
