@@ -39,7 +39,11 @@ def _predict_command(add_parser: AddParser) -> None:
     camera_options(p)
     _output_options(p)
     p.add_argument("--device", choices=("auto", "cpu", "cuda"), help="default: auto (CUDA if available)")
-    p.add_argument("--batch-size", type=int, help="frames per network batch (default: 8)")
+    p.add_argument(
+        "--batch-size",
+        type=int,
+        help="at most this many frames per network batch, fewer once they hold 32 megapixels (default: 8)",
+    )
     p.add_argument(
         "--max-megapixels",
         type=float,

@@ -26,7 +26,7 @@ from torch import Tensor, nn
 from msdepth.cli.predict import load_trained
 from msdepth.errors import MsdepthError
 from msdepth.io import atomic_path, output_file_policy
-from msdepth.networks.model import DepthNetwork
+from msdepth.networks.model import MAX_INPUT_SIDE, DepthNetwork
 
 INPUT_NAME = "image"
 OUTPUT_NAME = "disparity"
@@ -68,8 +68,8 @@ def export_onnx(
     model, meta = load_trained(model_path, "cpu")
     h = int(meta["height"]) if height is None else height
     w = int(meta["width"]) if width is None else width
-    if h <= 0 or w <= 0:
-        raise MsdepthError(f"ONNX export: input size must be positive, got {h}x{w}")
+    if h <= 0 or w <= 0 or max(h, w) > MAX_INPUT_SIDE:
+        raise MsdepthError(f"ONNX export: input size must be 1 to {MAX_INPUT_SIDE} px a side, got {h}x{w}")
     opset = DEFAULT_OPSET if opset is None else opset
     if not OPSET_RANGE[0] <= opset <= OPSET_RANGE[1]:
         raise MsdepthError(f"ONNX export: opset must be in {OPSET_RANGE[0]}..{OPSET_RANGE[1]}, got {opset}")

@@ -112,10 +112,12 @@ def requested_size(args: argparse.Namespace, params: Params) -> tuple[int, int] 
 def run(args: argparse.Namespace) -> int:
     """The ``optimum`` subcommand: exit code 0, or 1 when a pair failed (each named on stderr).
 
-    Pairs are read, optimised and written ``optimum.batch_size`` at a time, so a run killed
+    Pairs are read, optimised and written ``optimum.batch_size`` at a time (fewer when their
+    images reach :data:`msdepth.data.imagefile.BATCH_PIXEL_BUDGET` pixels), so a run killed
     midway keeps the pairs it finished; every output goes through :class:`msdepth.io.OutputPolicy`.
     """
     from msdepth.cli.predict import PredictOptions
+    from msdepth.data.imagefile import batches_by_pixels, file_pixels
     from msdepth.optimum.solver import objective
 
     # --start is optimum.start's override, checked (one line) as the params file's value is.
@@ -130,8 +132,9 @@ def run(args: argparse.Namespace) -> int:
     policy.protect([p for pair in pairs for p in pair[:2]])
     policy.prepare()
     failed = 0
-    for first in range(0, len(pairs), params.optimum.batch_size):
-        chunk = pairs[first : first + params.optimum.batch_size]
+    # planned by memory from the headers: at most optimum.batch_size pairs, closed at
+    # BATCH_PIXEL_BUDGET decoded pixels (a pair holds two images)
+    for chunk in batches_by_pixels(pairs, lambda pair: 2 * file_pixels(pair[0]), params.optimum.batch_size):
         failed += _optimise_and_write(chunk, params, args, size, options, policy)
     print(
         f"wrote the optimum of {len(pairs) - failed} of {len(pairs)} pair(s) to {args.out}", file=sys.stderr

@@ -36,7 +36,7 @@ from tqdm import tqdm
 
 from msdepth.config.network_sizes import sides_problem
 from msdepth.data import kitti
-from msdepth.data.imagefile import MAX_IMAGE_PIXELS
+from msdepth.data.imagefile import MAX_IMAGE_PIXELS, batches_by_pixels
 from msdepth.data.pairs import resize, to_tensor
 from msdepth.data.synthetic import focal_for_width
 from msdepth.errors import DataError, MsdepthError, PixelLimitError
@@ -44,7 +44,7 @@ from msdepth.evaluation.infer import network_disparity
 from msdepth.geometry.depth import disparity_to_depth, pixel_disparity
 from msdepth.io import OutputPolicy, atomic_path, save_npy, write_png
 from msdepth.networks.device import resolve_device
-from msdepth.networks.model import DepthNetwork, load_model
+from msdepth.networks.model import MAX_INPUT_SIDE, DepthNetwork, load_model
 
 IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp", ".ppm")
 VIDEO_EXTENSIONS = (".avi", ".mp4", ".mov", ".mkv", ".webm", ".m4v", ".mpg", ".mpeg", ".wmv")
@@ -311,13 +311,15 @@ def _folder_frames(
     return frames(), len(images)
 
 
-def _video_frames(path: Path) -> tuple[Iterator[_Frame], int]:
+def _video_frames(path: Path, max_pixels: int) -> tuple[Iterator[_Frame], int]:
     capture = cv2.VideoCapture(str(path))
     opened = capture.isOpened()
     total = max(int(capture.get(cv2.CAP_PROP_FRAME_COUNT)), 0) if opened else 0
+    size = (int(capture.get(cv2.CAP_PROP_FRAME_WIDTH)), int(capture.get(cv2.CAP_PROP_FRAME_HEIGHT)))
     capture.release()  # reopened when iterated, so nothing stays open if the model then fails to load
     if not opened:
         raise DataError(f"{path}: OpenCV cannot open this video (corrupt, or a codec it lacks)")
+    _check_video_size(path, *size, max_pixels)  # before any frame is decoded
 
     def frames() -> Iterator[_Frame]:
         capture = cv2.VideoCapture(str(path))
@@ -327,8 +329,14 @@ def _video_frames(path: Path) -> tuple[Iterator[_Frame], int]:
                 ok, bgr = capture.read()
                 if not ok:
                     break
+                label = f"{path} frame {index}"
+                if bgr.shape[:2] != size[::-1]:  # a stream that changes size midway: not trusted
+                    yield _Frame(
+                        path, label, Path(path.stem) / f"{index:06d}", None, _size_changed(size, bgr)
+                    )
+                    break
                 rgb = cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
-                yield _Frame(path, f"{path} frame {index}", Path(path.stem) / f"{index:06d}", rgb)
+                yield _Frame(path, label, Path(path.stem) / f"{index:06d}", rgb)
                 index += 1
         finally:
             capture.release()
@@ -338,6 +346,24 @@ def _video_frames(path: Path) -> tuple[Iterator[_Frame], int]:
             )
 
     return frames(), total
+
+
+def _check_video_size(path: Path, width: int, height: int, max_pixels: int) -> None:
+    """The pixel limit of images, on the frame size a video's container declares (PixelLimitError)."""
+    if width <= 0 or height <= 0:
+        raise DataError(f"{path}: the video declares no frame size ({width} x {height} px); not decoded")
+    if width * height > max_pixels:
+        raise PixelLimitError(
+            f"{path}: the video's frames are {width} x {height} px ({width * height / 1e6:.1f} megapixels), "
+            f"over the limit of {max_pixels / 1e6:g} megapixels (raise it with --max-megapixels)"
+        )
+
+
+def _size_changed(size: tuple[int, int], bgr: np.ndarray) -> str:
+    return (
+        f"the frame is {bgr.shape[1]} x {bgr.shape[0]} px, not the {size[0]} x {size[1]} px the video "
+        "declares; the rest of the video is skipped"
+    )
 
 
 def input_frames(
@@ -365,7 +391,7 @@ def input_frames(
             raise DataError(frame.error)
         return iter([frame]), 1
     if suffix in VIDEO_EXTENSIONS:
-        return _video_frames(path)
+        return _video_frames(path, max_pixels)
     raise DataError(
         f"{path}: unsupported file type {suffix or '(no extension)'!r}; "
         f"images: {' '.join(IMAGE_EXTENSIONS)}; videos: {' '.join(VIDEO_EXTENSIONS)}"
@@ -395,6 +421,11 @@ def _network_batch(
 def _check_network_size(model_path: str | os.PathLike, meta: dict, height: int, width: int) -> None:
     """One MsdepthError naming the model when its network cannot run at ``height`` x ``width``."""
     architecture = meta.get("architecture", "vgg")  # files from before the option hold a VGG network
+    if max(height, width) > MAX_INPUT_SIDE:  # what a model file may declare, and so what it may run at
+        raise MsdepthError(
+            f"{model_path}: the network input {height} x {width} is over {MAX_INPUT_SIDE} px a side "
+            "(--height, --width)"
+        )
     rule = sides_problem(architecture, (height, width))
     if rule is not None:
         raise MsdepthError(
@@ -450,16 +481,20 @@ def predict(
             bar.update(1)
 
     with tqdm(total=total or None, desc="predict", unit="frame", disable=not options.progress) as bar:
-        batch: list[_Frame] = []
-        for frame in frames:
-            if frame.image is None:
-                fail(frame, frame.error or "unreadable")
-                bar.update(1)
-                continue
-            batch.append(frame)
-            if len(batch) == options.batch_size:
-                run(batch)
-                batch = []
-        if batch:
+
+        def readable() -> Iterator[_Frame]:
+            for frame in frames:
+                if frame.image is None:
+                    fail(frame, frame.error or "unreadable")
+                    bar.update(1)
+                else:
+                    yield frame
+
+        # planned by memory: a batch closes at options.batch_size frames or BATCH_PIXEL_BUDGET pixels
+        for batch in batches_by_pixels(readable(), _pixels, options.batch_size):
             run(batch)
     return report
+
+
+def _pixels(frame: _Frame) -> int:
+    return 0 if frame.image is None else frame.image.shape[0] * frame.image.shape[1]

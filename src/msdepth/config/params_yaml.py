@@ -50,7 +50,11 @@ def one_line(exc: yaml.YAMLError) -> str:
 
 def parse(text: str) -> Any:
     """The data of YAML ``text`` (mappings, lists and scalars), or a ConfigError (one line)."""
-    loader = _BoundedLoader(text)
+    try:
+        # the reader checks the characters when it is built: a control character raises there
+        loader = _BoundedLoader(text)
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"not valid YAML: {one_line(exc)}") from None
     try:
         node = loader.get_single_node()
         return None if node is None else _Builder(loader).build(node, "")

@@ -827,6 +827,61 @@ def _marker(zip_path: Path, dest_dir: Path) -> Path:
     return dest_dir / f".{zip_path.name}.complete"
 
 
+def _pending(zip_path: Path, dest_dir: Path) -> Path:
+    """The record of the files an extraction is moving into place, written before the first move
+    and replaced by the completion marker after the last: a run killed midway still owns them."""
+    return dest_dir / f".{zip_path.name}.pending"
+
+
+def file_owners(dest_dir: Path) -> dict[str, str]:
+    """Which archive wrote each file under ``dest_dir`` (relative POSIX path -> archive name), from
+    the ``files`` of its completion markers and pending records. Markers written before the list
+    was kept own nothing: their files are treated as files no archive wrote."""
+    owners: dict[str, str] = {}
+    records = [*dest_dir.glob(".*.zip.complete"), *dest_dir.glob(".*.zip.pending")]
+    for record in sorted(records):
+        try:
+            data = json.loads(record.read_text(encoding="utf-8"))
+        except (OSError, UnicodeDecodeError, ValueError):
+            continue  # unreadable: owns nothing, so its files are refused rather than replaced
+        files = data.get("files") if isinstance(data, dict) else None
+        archive = record.name[1:].rsplit(".", 1)[0]
+        for name in files if isinstance(files, list) else []:
+            if isinstance(name, str):
+                owners.setdefault(name, archive)
+    return owners
+
+
+def _replacement(zip_path: Path, member: str, target: Path, owners: dict[str, str]) -> str | None:
+    """Why ``member`` may not replace the existing ``target``, or None: another archive wrote it, or
+    no archive did (a user's file, a folder source's); this archive's own file may be replaced."""
+    owner = owners.get(member)
+    if owner == zip_path.name:
+        return None
+    whose = f"written by {owner}" if owner else "a file no KITTI archive wrote here"
+    return f"member {member!r} would replace {target} ({whose})"
+
+
+def check_replacements(zf: zipfile.ZipFile, zip_path: Path, dest_dir: Path, jpeg: bool = False) -> None:
+    """Refuse, before anything is extracted, an archive whose member would replace a file under
+    ``dest_dir`` that this archive did not write (:func:`file_owners`); with ``jpeg`` the JPEG a PNG
+    member becomes is checked too. :func:`_publish` checks the extracted tree again, under the lock."""
+    if not dest_dir.is_dir():
+        return
+    owners = file_owners(dest_dir)
+    for info in zf.infolist():
+        if info.is_dir():
+            continue
+        names = [info.filename]
+        if jpeg and info.filename.lower().endswith(".png"):
+            names.append(info.filename[:-4] + ".jpg")
+        for name in names:
+            target = dest_dir / name
+            problem = target.is_file() and _replacement(zip_path, name, target, owners)
+            if problem:
+                raise DataError(f"{zip_path}: {problem}; refusing to extract, nothing was changed")
+
+
 def check_members(zf: zipfile.ZipFile, zip_path: Path) -> int:
     """Refuse an archive with a member that must not be unpacked; return the declared total size.
 
@@ -901,14 +956,23 @@ def _to_jpeg(root: Path, quality: int) -> None:
 _MOVE_LOCK = threading.Lock()
 
 
-def _publish(zip_path: Path, tmp: Path, dest_dir: Path) -> None:
-    """Move the extracted tree ``tmp`` into ``dest_dir``, unless a member would replace a folder
-    with a file or a file with a folder there: that is another archive's, and refused whole."""
+def _publish(zip_path: Path, tmp: Path, dest_dir: Path) -> list[str]:
+    """Move the extracted tree ``tmp`` into ``dest_dir`` and return its files (relative POSIX
+    paths), unless a member would replace a folder with a file or a file with a folder there, or a
+    file this archive did not write (:func:`_replacement`): refused whole, before any move."""
+    files = sorted(p.relative_to(tmp).as_posix() for p in tmp.rglob("*") if not p.is_dir())
     with _MOVE_LOCK:
         collision = _collision(tmp, dest_dir, tmp)
-        if collision:
-            raise DataError(f"{zip_path}: {collision}; refusing to extract")
+        owners = file_owners(dest_dir)
+        replaced = (
+            _replacement(zip_path, f, dest_dir / f, owners) for f in files if (dest_dir / f).is_file()
+        )
+        problem = collision or next((r for r in replaced if r), None)
+        if problem:
+            raise DataError(f"{zip_path}: {problem}; refusing to extract, nothing was changed")
+        write_json(_pending(zip_path, dest_dir), {"archive": zip_path.name, "files": files})
         _move_into(tmp, dest_dir)
+    return files
 
 
 def _collision(src: Path, dst: Path, root: Path) -> str | None:
@@ -971,9 +1035,11 @@ def extract(
     are converted to JPEG (``jpeg_quality``) before anything is moved into place.
 
     Nothing at all is written (not even ``dest_dir``) for an archive that :func:`check_members`
-    refuses or whose declared size exceeds the free space at ``dest_dir``, and nothing is moved
-    into place for one with a member that would replace a folder by a file or a file by a folder
-    (:func:`_publish`): that is another archive's, whose marker would still say complete.
+    or :func:`check_replacements` refuses or whose declared size exceeds the free space at
+    ``dest_dir``, and nothing is moved into place for one with a member that would replace a
+    folder by a file, a file by a folder, or a file this archive did not write (:func:`_publish`):
+    that is another archive's, whose marker would still say complete, or the user's. The marker
+    lists the files the archive wrote (:func:`file_owners`).
     """
     zip_path, dest_dir = Path(zip_path), Path(dest_dir)
     marker = _marker(zip_path, dest_dir)
@@ -985,6 +1051,7 @@ def extract(
         raise DataError(f"{zip_path}: not a readable zip archive ({exc})") from None
     with zf:
         _check_free_space(zip_path, dest_dir, check_members(zf, zip_path))
+        check_replacements(zf, zip_path, dest_dir, jpeg)
         tmp = None
         try:
             dest_dir.mkdir(parents=True, exist_ok=True)
@@ -999,8 +1066,10 @@ def extract(
                     raise DataError(f"{zip_path}: member {info.filename} is corrupt ({exc})") from None
             if jpeg:
                 _to_jpeg(tmp, jpeg_quality)
-            _publish(zip_path, tmp, dest_dir)
-            write_json(marker, {"archive": zip_path.name, "members": len(members), "jpeg": jpeg})
+            files = _publish(zip_path, tmp, dest_dir)
+            record = {"archive": zip_path.name, "members": len(members), "jpeg": jpeg, "files": files}
+            write_json(marker, record)
+            _pending(zip_path, dest_dir).unlink(missing_ok=True)
         except OSError as exc:  # disk full, permissions: name the archive, not just a member path
             raise DataError(f"{zip_path}: extraction into {dest_dir} failed ({exc})") from None
         finally:
@@ -1184,7 +1253,10 @@ class _Fetching:
         except DataError:
             # The archive was set aside: forget its extraction too, so that the next run fetches
             # and unpacks it again rather than taking the deleted archive for "extracted, removed".
-            marker.unlink(missing_ok=True)
+            # Its files stay its own (the marker becomes its pending record), so that extraction may
+            # replace them and no other archive may.
+            if marker.exists():
+                os.replace(marker, _pending(archive, self.plan.extract_dir))
             raise
         self._add("skipped" if present else "fetched", name)
         if extract(archive, self.plan.extract_dir, jpeg=self.options.jpeg):

@@ -10,6 +10,14 @@ fills it with grey rows) while data after the image (a phone's "motion photo" vi
 previews) is allowed. libjpeg reports corrupt entropy-coded data only as a warning on stderr
 (and decodes grey blocks): that warning is caught and turned into a refusal.
 
+A file is read only after its size and header pass (:func:`read_file`): its size on disk is
+bounded by the pixel limit (:func:`max_file_bytes`), its header (a PNG's IHDR, a JPEG's markers up
+to the frame header, read by seeking, at most :data:`JPEG_HEADER_MARKERS` of them) declares at most
+that many pixels, and its size is bounded again by the pixels it declares. So a sparse 2 GB file
+named ``b.png`` (4 KB on disk) costs a stat and no read. A JPEG of more than
+:data:`MAX_JPEG_SCANS` scans is refused before decoding: libjpeg decodes every scan again, so a
+200 KB file of 5,000 repeated scans took 48 s.
+
 Every problem is a DataError without the file name; callers prefix it.
 """
 
@@ -20,16 +28,27 @@ import os
 import sys
 import tempfile
 import threading
-from typing import Iterator
+from typing import BinaryIO, Callable, Iterable, Iterator, TypeVar
 
 import cv2
 import numpy as np
 
 from msdepth.errors import DataError, PixelLimitError
 
-# 120 million pixels: a 108-megapixel phone photo (12,000 x 9,000) fits; decoding one costs
-# about 2 GB at peak. Raise it with read_image(max_pixels=...) or `msdepth predict --max-megapixels`.
+# 120 million pixels: a 108-megapixel phone photo (12,000 x 9,000) fits; predict on one peaks at
+# about 4.3 GiB (measured, docs/user-guide.md "Security"). Raise it with read_image(max_pixels=...)
+# or `msdepth predict --max-megapixels`.
 MAX_IMAGE_PIXELS = 120_000_000
+# The most bytes a real image file spends per pixel: 16-bit RGBA stored without compression (TIFF,
+# PNG at level 0, PAM-like PNM). An ASCII PNM can spend more; it is refused past this bound.
+MAX_BYTES_PER_PIXEL = 8
+# What a file may hold beyond its pixels: EXIF, ICC profiles, MPF previews, a motion photo's video.
+FILE_SLACK_BYTES = 64 * 2**20
+# Progressive JPEGs of libjpeg, phones and cameras have at most about 20 scans (libjpeg's own
+# progression has 10); libjpeg decodes each scan over the whole frame, so time grows with the count.
+MAX_JPEG_SCANS = 100
+JPEG_HEADER_MARKERS = 1024  # markers walked (by seeking, 4 bytes read each) to find the frame header
+_HEAD_BYTES = 64 * 1024  # read first: every header but a JPEG's or a TIFF's directory lies in it
 
 _PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 _JPEG_MAGIC = b"\xff\xd8"
@@ -40,6 +59,20 @@ _LIBJPEG_ERRORS = (b"Corrupt JPEG data", b"Premature end of JPEG file")
 _STDERR_LOCK = threading.Lock()
 
 
+# The decoded pixels a batch of predict or optimum may hold: 32 megapixels (96 MB of RGB): eight
+# KITTI frames (0.47 megapixels each) or three 12-megapixel photos; a larger image goes alone.
+BATCH_PIXEL_BUDGET = 32_000_000
+
+ReadAt = Callable[[int, int], bytes]
+Item = TypeVar("Item")  # (position, count) -> at most count bytes from position
+
+
+def max_file_bytes(pixels: int) -> int:
+    """The largest file accepted for an image of ``pixels`` pixels: :data:`MAX_BYTES_PER_PIXEL` a
+    pixel, plus :data:`FILE_SLACK_BYTES` of metadata."""
+    return MAX_BYTES_PER_PIXEL * pixels + FILE_SLACK_BYTES
+
+
 def _u16(data: bytes, pos: int, order: str = "big") -> int:
     return int.from_bytes(data[pos : pos + 2], order)
 
@@ -48,15 +81,21 @@ def _u32(data: bytes, pos: int, order: str = "big") -> int:
     return int.from_bytes(data[pos : pos + 4], order)
 
 
+def _png_header_size(data: bytes) -> tuple[int, int]:
+    """(width, height) of a PNG's IHDR chunk, which must come first."""
+    if len(data) < 33:  # signature, IHDR and its CRC
+        raise DataError(f"truncated PNG: {len(data)} bytes, its header is cut off")
+    if data[12:16] != b"IHDR":
+        raise DataError("corrupt PNG: it does not start with an IHDR chunk")
+    return _u32(data, 16), _u32(data, 20)
+
+
 def png_size(data: bytes) -> tuple[int, int]:
     """(width, height) of a PNG after walking its chunks to IEND; DataError if they do not get there.
 
     Walking the chunk headers costs microseconds; OpenCV allocates a chunk's declared length first.
     """
-    if len(data) < 33:  # signature, IHDR and its CRC
-        raise DataError(f"truncated PNG: {len(data)} bytes, its header is cut off")
-    if data[12:16] != b"IHDR":
-        raise DataError("corrupt PNG: it does not start with an IHDR chunk")
+    size = _png_header_size(data)
     pos = len(_PNG_MAGIC)
     while pos + 12 <= len(data):  # 4 length + 4 type + data + 4 CRC
         length, kind = _u32(data, pos), data[pos + 4 : pos + 8]
@@ -65,7 +104,7 @@ def png_size(data: bytes) -> tuple[int, int]:
                 f"truncated PNG: chunk {kind!r} at byte {pos} declares {length} bytes, past the end"
             )
         if kind == b"IEND":
-            return _u32(data, 16), _u32(data, 20)
+            return size
         pos += 12 + length
     raise DataError(f"truncated PNG: no IEND chunk (the chunks stop at byte {pos})")
 
@@ -88,9 +127,10 @@ def _jpeg_scan_end(data: bytes, pos: int) -> int:
 def jpeg_size(data: bytes) -> tuple[int, int]:
     """(width, height) of a JPEG's frame header, after walking its markers to the end-of-image marker.
 
-    Bytes after that marker (a motion photo's video, MPF previews) are allowed and ignored.
+    Bytes after that marker (a motion photo's video, MPF previews) are allowed and ignored; more
+    than :data:`MAX_JPEG_SCANS` scans (start-of-scan markers) are refused.
     """
-    pos, size = 2, None
+    pos, size, scans = 2, None, 0
     while True:
         while pos < len(data) and data[pos] == 0xFF and pos + 1 < len(data) and data[pos + 1] == 0xFF:
             pos += 1  # fill bytes
@@ -111,6 +151,13 @@ def jpeg_size(data: bytes) -> tuple[int, int]:
         end = pos + 2 + _u16(data, pos + 2)
         if marker in _JPEG_SOF and end <= len(data) and end - pos >= 9:
             size = (_u16(data, pos + 7), _u16(data, pos + 5))
+        if marker == 0xDA:
+            scans += 1
+            if scans > MAX_JPEG_SCANS:  # refused before libjpeg decodes them all again
+                raise DataError(
+                    f"JPEG with more than {MAX_JPEG_SCANS} scans (real progressive JPEGs have at most "
+                    "about 20): refused, its decoding time grows with every scan"
+                )
         pos = _jpeg_scan_end(data, end) if marker == 0xDA else end
 
 
@@ -124,16 +171,18 @@ def _pnm_size(data: bytes) -> tuple[int, int]:
     return int(tokens[0]), int(tokens[1])
 
 
-def _tiff_size(data: bytes) -> tuple[int, int]:
-    """ImageWidth and ImageLength of a TIFF's first image file directory."""
-    order = "little" if data[:2] == b"II" else "big"
-    ifd = _u32(data, 4, order)
-    count = _u16(data, ifd, order) if ifd + 2 <= len(data) else 0
+def _tiff_size(at: ReadAt) -> tuple[int, int]:
+    """ImageWidth and ImageLength of a TIFF's first image file directory (which may lie anywhere)."""
+    order = "little" if at(0, 2) == b"II" else "big"
+    ifd = _u32(at(4, 4), 0, order)
+    head = at(ifd, 2)
+    count = _u16(head, 0, order) if len(head) == 2 else 0
+    table = at(ifd + 2, 12 * count)  # at most 65,535 entries: 786 KB
     found: dict[int, int] = {}
-    for entry in range(ifd + 2, min(ifd + 2 + 12 * count, len(data) - 11), 12):
-        tag, kind = _u16(data, entry, order), _u16(data, entry + 2, order)
+    for entry in range(0, len(table) - 11, 12):
+        tag, kind = _u16(table, entry, order), _u16(table, entry + 2, order)
         if tag in (256, 257):
-            found[tag] = _u16(data, entry + 8, order) if kind == 3 else _u32(data, entry + 8, order)
+            found[tag] = _u16(table, entry + 8, order) if kind == 3 else _u32(table, entry + 8, order)
     if len(found) < 2:
         raise DataError("corrupt TIFF: no ImageWidth and ImageLength in its first directory")
     return found[256], found[257]
@@ -151,6 +200,51 @@ def _webp_size(data: bytes) -> tuple[int, int]:
     raise DataError("corrupt WebP: no VP8, VP8L or VP8X header")
 
 
+def _jpeg_frame_size(at: ReadAt) -> tuple[int, int]:
+    """(width, height) of a JPEG's frame header, found by walking its markers from the start with
+    ``at`` (4 bytes read per marker, the segments between skipped); DataError if a scan, the end or
+    :data:`JPEG_HEADER_MARKERS` markers come first."""
+    pos = 2
+    for _ in range(JPEG_HEADER_MARKERS):
+        head = at(pos, 4)
+        if len(head) < 2:
+            raise DataError("truncated JPEG (no frame header)")
+        if head[0] != 0xFF:
+            raise DataError(f"corrupt JPEG: no marker at byte {pos}")
+        marker = head[1]
+        if marker == 0xFF or marker in _JPEG_STANDALONE:  # a fill byte, or a marker without length
+            pos += 1 if marker == 0xFF else 2
+            continue
+        if marker in (0xD9, 0xDA):
+            raise DataError("corrupt JPEG: no frame header before its first scan")
+        frame = at(pos + 4, 5) if marker in _JPEG_SOF else b""
+        if len(head) < 4 or (marker in _JPEG_SOF and len(frame) < 5):
+            raise DataError("truncated JPEG (no frame header)")
+        if marker in _JPEG_SOF:  # precision, then height and width
+            return _u16(frame, 3), _u16(frame, 1)
+        pos += 2 + _u16(head, 2)
+    raise DataError(f"corrupt JPEG: no frame header in its first {JPEG_HEADER_MARKERS} markers")
+
+
+def _other_size(data: bytes, at: ReadAt) -> tuple[int, int]:
+    """(width, height) of a BMP, TIFF, WebP or PNM from its first bytes ``data`` (``at`` for the
+    rest); DataError for any other format."""
+    if data.startswith(b"BM") and len(data) >= 26:
+        if _u32(data, 14, "little") == 12:  # OS/2 BITMAPCOREHEADER: 16-bit sizes
+            return _u16(data, 18, "little"), _u16(data, 20, "little")
+        width, height = (int.from_bytes(data[i : i + 4], "little", signed=True) for i in (18, 22))
+        return abs(width), abs(height)  # a negative height means rows stored top-down
+    if data[:4] in (b"II*\x00", b"MM\x00*") and len(data) >= 8:
+        return _tiff_size(at)
+    if data[:4] == b"RIFF" and data[8:12] == b"WEBP":
+        return _webp_size(data)
+    if len(data) >= 2 and data[:1] == b"P" and data[1:2] in b"123456":
+        return _pnm_size(data)
+    raise DataError(
+        "cannot decode it: not a PNG, JPEG, BMP, TIFF, WebP or PNM image (or its header is cut off)"
+    )
+
+
 def declared_size(data: bytes) -> tuple[int, int]:
     """(width, height) that an image file's header declares, read without decoding any pixel.
 
@@ -161,25 +255,32 @@ def declared_size(data: bytes) -> tuple[int, int]:
         return png_size(data)
     if data.startswith(_JPEG_MAGIC):
         return jpeg_size(data)
-    if data.startswith(b"BM") and len(data) >= 26:
-        if _u32(data, 14, "little") == 12:  # OS/2 BITMAPCOREHEADER: 16-bit sizes
-            return _u16(data, 18, "little"), _u16(data, 20, "little")
-        width, height = (int.from_bytes(data[i : i + 4], "little", signed=True) for i in (18, 22))
-        return abs(width), abs(height)  # a negative height means rows stored top-down
-    if data[:4] in (b"II*\x00", b"MM\x00*") and len(data) >= 8:
-        return _tiff_size(data)
-    if data[:4] == b"RIFF" and data[8:12] == b"WEBP":
-        return _webp_size(data)
-    if len(data) >= 2 and data[:1] == b"P" and data[1:2] in b"123456":
-        return _pnm_size(data)
-    raise DataError(
-        "cannot decode it: not a PNG, JPEG, BMP, TIFF, WebP or PNM image (or its header is cut off)"
-    )
+    return _other_size(data, lambda pos, count: data[pos : pos + count])
+
+
+def header_size(file: BinaryIO) -> tuple[int, int]:
+    """(width, height) that an open image file's header declares, reading only the header: the
+    first 64 KiB, a JPEG's markers up to its frame header and a TIFF's first directory."""
+    file.seek(0)
+    head = file.read(_HEAD_BYTES)
+
+    def at(pos: int, count: int) -> bytes:
+        file.seek(pos)
+        return file.read(count)
+
+    if head.startswith(_PNG_MAGIC):
+        return _png_header_size(head)
+    if head.startswith(_JPEG_MAGIC):
+        return _jpeg_frame_size(at)
+    return _other_size(head, at)
 
 
 def check_declared_size(data: bytes, max_pixels: int = MAX_IMAGE_PIXELS) -> tuple[int, int]:
     """:func:`declared_size`, and a DataError unless it is non-empty and at most ``max_pixels``."""
-    width, height = declared_size(data)
+    return _within_limit(*declared_size(data), max_pixels)
+
+
+def _within_limit(width: int, height: int, max_pixels: int) -> tuple[int, int]:
     if width <= 0 or height <= 0:
         raise DataError(f"the header declares an empty image ({width} x {height} px)")
     if width * height > max_pixels:
@@ -189,6 +290,36 @@ def check_declared_size(data: bytes, max_pixels: int = MAX_IMAGE_PIXELS) -> tupl
             f"limit of {max_pixels / 1e6:g} megapixels"
         )
     return width, height
+
+
+def _mib(nbytes: int) -> str:
+    return f"{nbytes / 2**20:,.0f} MiB"
+
+
+def read_file(path: str | os.PathLike, max_pixels: int = MAX_IMAGE_PIXELS) -> bytes:
+    """The bytes of an image file, read only after its size and header pass the bounds.
+
+    Before any read: the file's size against :func:`max_file_bytes` of ``max_pixels`` (a
+    PixelLimitError: raising the limit raises it). Then only the header (:func:`header_size`): the
+    size it declares against ``max_pixels``, and the file's size against :func:`max_file_bytes` of
+    the declared pixels. Only then the whole file, which :func:`decode` walks again.
+    """
+    with open(path, "rb") as file:
+        size = os.fstat(file.fileno()).st_size
+        if size > max_file_bytes(max_pixels):
+            raise PixelLimitError(
+                f"the file is {_mib(size)}, more than any image within the limit of {max_pixels / 1e6:g} "
+                f"megapixels takes ({_mib(max_file_bytes(max_pixels))}: {MAX_BYTES_PER_PIXEL} bytes a "
+                "pixel and 64 MiB of metadata); nothing of it was read"
+            )
+        width, height = _within_limit(*header_size(file), max_pixels)
+        if size > max_file_bytes(width * height):
+            raise DataError(
+                f"the file is {_mib(size)}, more than its header's {width} x {height} px can take "
+                f"({_mib(max_file_bytes(width * height))}); only its header was read"
+            )
+        file.seek(0)
+        return file.read(size)
 
 
 @contextlib.contextmanager
@@ -238,3 +369,33 @@ def decode(data: bytes, flags: int = cv2.IMREAD_UNCHANGED, max_pixels: int = MAX
     if img is None:
         raise DataError("cannot decode it (corrupt or not an image)")
     return img
+
+
+def batches_by_pixels(
+    items: Iterable[Item], pixels: Callable[[Item], int], max_count: int, budget: int = BATCH_PIXEL_BUDGET
+) -> Iterator[list[Item]]:
+    """Consecutive batches of ``items``, each closed as soon as it holds ``max_count`` items or
+    ``budget`` pixels (``pixels(item)`` each): a batch holds less than ``budget`` plus one item's
+    pixels, and no item of the next batch is read before it is handed over (``items`` may decode
+    lazily)."""
+    batch: list[Item] = []
+    total = 0
+    for item in items:
+        batch.append(item)
+        total += pixels(item)
+        if len(batch) >= max_count or total >= budget:
+            yield batch
+            batch, total = [], 0
+    if batch:
+        yield batch
+
+
+def file_pixels(path: str | os.PathLike) -> int:
+    """The pixels an image file's header declares (:func:`header_size`), 0 if it cannot be read: a
+    plan's estimate only; the file is checked in full when it is read."""
+    try:
+        with open(path, "rb") as file:
+            width, height = header_size(file)
+    except (OSError, DataError):
+        return 0
+    return max(width, 0) * max(height, 0)

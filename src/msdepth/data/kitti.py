@@ -34,18 +34,20 @@ PathLike = str | os.PathLike
 def _decode(
     path: PathLike, what: str, flags: int = cv2.IMREAD_UNCHANGED, max_pixels: int = MAX_IMAGE_PIXELS
 ) -> np.ndarray:
-    """Read and decode an image file (:func:`imagefile.decode`: header size checked first), or raise
-    DataError naming it. ``IMREAD_UNCHANGED`` keeps the depth and channels."""
+    """Read and decode an image file, or raise DataError naming it: :func:`imagefile.read_file`
+    (the file's size and header checked before its body is read), then :func:`imagefile.decode`.
+    ``IMREAD_UNCHANGED`` keeps the depth and channels."""
     path = Path(path)
     if not path.is_file():
         raise DataError(f"{path}: no such {what} file")
-    data = path.read_bytes()
-    if not data:
+    if path.stat().st_size == 0:
         raise DataError(f"{path}: {what} file is empty (0 bytes)")
     try:
-        return imagefile.decode(data, flags, max_pixels)
+        return imagefile.decode(imagefile.read_file(path, max_pixels), flags, max_pixels)
     except DataError as exc:
         raise type(exc)(f"{path}: {what}: {exc}") from None
+    except OSError as exc:  # unreadable (permissions, an I/O error): still one line naming it
+        raise DataError(f"{path}: {what}: cannot read it ({exc.strerror or exc})") from None
 
 
 def _decode_as(path: PathLike, what: str, dtype: type, channels: int) -> np.ndarray:

@@ -10,7 +10,8 @@ Each source has a tree of its own (``data.root``: ``data/synthetic`` for the syn
   ``kitti2015/``, the annotated depth's).
 
 The renderer replaces only a tree it marked as its own (or an empty one), and the download
-writes into no tree the renderer marked; either refuses with one line naming the root.
+writes into no tree the renderer marked nor a stereo folder (:data:`FOLDER_MARKS`); either
+refuses with one line naming the root.
 """
 
 from __future__ import annotations
@@ -23,6 +24,9 @@ SUMMARY = "synthetic.json"
 # Written first by the renderer and removed after SUMMARY: a tree whose render was interrupted is
 # still known as the renderer's own.
 RENDERING = ".synthetic-rendering"
+# A stereo folder's camera file and evaluation list (data.folder.camera and eval_list's defaults),
+# and export-folder's manifest: what data.source folder's tree holds at its top.
+FOLDER_MARKS = ("camera.yaml", "eval.txt", ".msdepth-export-folder")
 _KITTI_MARKERS = ".*.complete"  # download.py's completion markers, one folder below the root
 
 
@@ -63,12 +67,24 @@ def check_synthetic_root(root: Path) -> None:
         raise DataError(f"{root}: holds files the synthetic renderer did not write ({found}): {advice}")
 
 
+def folder_mark(root: Path) -> Path | None:
+    """The file that marks ``root`` as a stereo folder (data.source: folder), or None."""
+    for name in FOLDER_MARKS:
+        if (root / name).is_file():
+            return root / name
+    return None
+
+
 def check_kitti_root(root: Path) -> None:
-    """Refuse (DataError, one line naming ``root``) to put KITTI into the synthetic set's tree."""
+    """Refuse (DataError, one line naming ``root``) to put KITTI into the synthetic set's tree or a
+    stereo folder's (data.source: folder): a member of the same name would replace its file."""
     root = Path(root)
     mark = synthetic_mark(root)
+    what = "the synthetic set"
+    if mark is None:
+        mark, what = folder_mark(root), "a stereo folder (data.source: folder)"
     if mark is not None:
         raise DataError(
-            f"{root}: holds the synthetic set ({mark.name}): KITTI needs a data.root of its own "
+            f"{root}: holds {what} ({mark.name}): KITTI needs a data.root of its own "
             "(e.g. data/kitti); nothing was written"
         )
