@@ -326,6 +326,7 @@ def _spread_lines(
 SET_TITLES = {
     "eigen": "Eigen split (raw LiDAR GT, Garg crop)",
     "eigen_benchmark": "Eigen benchmark split (KITTI's annotated depth GT, Garg crop)",
+    "kitti2012": "KITTI 2012 stereo training frames (disp_occ with the reflective surfaces' GT)",
 }
 
 
