@@ -124,3 +124,43 @@ def test_kitti2012_is_an_extra_set_the_params_accept():
     params = Params()
     params = dataclasses.replace(params, eval=dataclasses.replace(params.eval, extra_sets=("kitti2012",)))
     params.eval.validate("eval", params)
+
+
+def set_summaries(root: Path) -> dict[str, dict]:
+    """The kitti2012 set's full summaries below ``root``/metrics, by run file stem."""
+    return {
+        p.stem: json.loads(p.read_text()) for p in (root / "metrics" / "sets" / "kitti2012").rglob("*.json")
+    }
+
+
+@needs_sample
+def test_a_network_and_the_baselines_are_scored_on_the_shared_frames_with_their_reflective_class(
+    tmp_path, monkeypatch
+):
+    """The eval_set and baselines_set stages' functions on the shared frames: an untrained network
+    (the path, not its numbers) and both baselines of a stand-in training GT, each with the
+    reflective class's exact-mask scores and D1."""
+    import torch
+
+    from msdepth.data.index import write_eval_index
+    from msdepth.evaluation import baselines
+    from msdepth.evaluation.extra_sets import evaluate_on_set
+    from msdepth.training.train import build_model
+
+    params = Params()
+    params = dataclasses.replace(params, eval=dataclasses.replace(params.eval, extra_sets=("kitti2012",)))
+    index_path = tmp_path / "kitti2012.csv"
+    write_eval_index(index_path, build_kitti2012_index(SAMPLE))
+    monkeypatch.chdir(tmp_path)
+    torch.manual_seed(0)
+    model = build_model(params).eval()
+    evaluate_on_set(params, "kitti2012", "ssim/seed0", model, {"height": 64, "width": 192}, index_path)
+    gt = np.full((4, 37, 122), 0.02, np.float32)  # fraction of width: ~25 px at 1226
+    monkeypatch.setattr(baselines, "indexed_training_gt", lambda _: baselines.TrainingGT(gt, available=4))
+    baselines.score_set_baselines(params, "kitti2012", tmp_path / "unused.txt", index_path)
+    summaries = set_summaries(tmp_path)
+    assert set(summaries) >= {"seed0", "constant", "prior"}
+    for run in ("seed0", "constant", "prior"):
+        masks = summaries[run]["masks"]
+        assert masks["cap80"]["by_class"]["reflective"]["count"] == 2
+        assert 0 <= masks["stereo"]["reflective"]["d1"] <= 100

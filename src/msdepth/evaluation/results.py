@@ -153,10 +153,11 @@ def score_set(  # noqa: ANN001 - frames
     median-scaled when ``scaled`` (default: ``eval.median_scaling``)."""
     scaled = params.eval.median_scaling if scaled is None else scaled
     summary, table = evaluate_full(pred, frames, params.eval, median_scaling=scaled)
-    # A set whose frames carry class maps (KITTI 2012) is also scored on each class's exact pixels.
-    masks = exact_class_summary(
-        median_scaled_maps(pred, frames, params.eval)[0] if scaled else pred, frames, params.eval
-    )
-    if masks is not None:
-        summary["masks"] = masks
+    # A set whose frames carry class maps (KITTI 2012) is also scored on each class's exact pixels;
+    # the others' summaries stay as they were.
+    if frames and all(f.class_map is not None for f in frames):
+        scored = median_scaled_maps(pred, frames, params.eval)[0] if scaled else pred
+        masks = exact_class_summary(scored, frames, params.eval)
+        if masks is not None:
+            summary["masks"] = masks
     write_suite("full", run, summary, table, root=set_metrics_dir(name), headline_root=set_headline_dir(name))
