@@ -164,3 +164,25 @@ def test_a_network_and_the_baselines_are_scored_on_the_shared_frames_with_their_
         masks = summaries[run]["masks"]
         assert masks["cap80"]["by_class"]["reflective"]["count"] == 2
         assert 0 <= masks["stereo"]["reflective"]["d1"] <= 100
+
+
+def test_compare_md_has_the_reflective_class_of_the_set(tmp_path, monkeypatch):
+    """compare.md's kitti2012 section: the whole frame's pixels said, and a table of the exact class
+    per run (a run off by 10 % everywhere has abs_rel 0.1 there)."""
+    from msdepth.reporting.pipeline_compare import compare_set
+
+    tiny_set(tmp_path / "set", frames=("000000_10", "000001_10"))
+    frames = load_frames(build_kitti2012_index(tmp_path / "set"))
+    monkeypatch.chdir(tmp_path)
+    params = Params()
+    params = dataclasses.replace(params, train=dataclasses.replace(params.train, seeds=(0,)))
+    for run, scale in (("ssim/seed0", 1.1), ("msssim/seed0", 1.0), ("constant", 2.0), ("prior", 3.0)):
+        score_set(
+            params, "kitti2012", run, {f.name: f.gt_depth * scale for f in frames}, frames, scaled=False
+        )
+    result, md = compare_set(params, "kitti2012")
+    assert "every GT pixel of the whole frame" in md and "Garg" not in md
+    assert "## kitti2012: exact class pixels, cap 80 m" in md
+    row = next(line for line in md.splitlines() if line.startswith("| reflective | ssim"))
+    assert row.split("|")[3].strip() == "0.1000"
+    assert result["masks"]["msssim"]["cap80"]["by_class"]["reflective"]["abs_rel"] == pytest.approx(0.0)
