@@ -31,7 +31,7 @@ import pytest
 from conftest import run_script
 
 from msdepth import io as dl_io
-from msdepth.config.params import params_from_dict
+from msdepth.config.params import Params, params_from_dict
 from msdepth.data import download as dl
 from msdepth.errors import DataError
 
@@ -1115,6 +1115,17 @@ LISTED = [
                 "data_scene_flow.zip",
             ],
         ),
+        (
+            ["kitti2012"],
+            "KITTI raw: 2 drives named by the train split (of 5 in the archive list) + 1 calibration archive",
+            [
+                "2011_09_26_calib.zip",
+                "2011_09_26_drive_0001_sync.zip",
+                "2011_09_26_drive_0003_sync.zip",
+                "data_scene_flow.zip",
+                "data_stereo_flow.zip",
+            ],
+        ),
     ],
 )
 def test_stage_dry_run_asks_only_for_what_the_splits_and_sets_need(
@@ -1126,6 +1137,7 @@ def test_stage_dry_run_asks_only_for_what_the_splits_and_sets_need(
         server.files[f"{day}_calib.zip"] = calib_zip(day)
     server.files["data_scene_flow.zip"] = calib_zip("2015_00_00")
     server.files["data_depth_annotated.zip"] = calib_zip("train")
+    server.files["data_stereo_flow.zip"] = calib_zip("training")
     work = _kitti_project(
         tmp_path,
         server.base_url,
@@ -1145,6 +1157,7 @@ def test_stage_dry_run_asks_only_for_what_the_splits_and_sets_need(
     assert lines[0] == header
     annotated = [line for line in lines if line.startswith("KITTI annotated depth: ")]
     assert len(annotated) == ("eigen_benchmark" in extra_sets)
+    assert len([line for line in lines if line.startswith("KITTI 2012: ")]) == ("kitti2012" in extra_sets)
     assert lines[-1].startswith(f"dry run, in all: would fetch {len(asked)} archive(s), ")
 
 
@@ -1195,11 +1208,54 @@ def test_annotated_depth_archive_unpacks_where_the_benchmark_index_looks(
     assert annotated_gt_path(root, "2011_09_26/2011_09_26_drive_0001_sync", 6) is None
 
 
-def test_every_extra_set_has_its_list_for_the_download() -> None:
+def test_every_extra_set_has_its_list_or_its_archive_for_the_download() -> None:
+    """A set of raw frames has its split list (the drives to fetch); KITTI 2012 its own archive."""
     from msdepth.data.eval_sets import SETS
-    from msdepth.data.prepare import SET_SPLITS
+    from msdepth.data.prepare import SET_SPLITS, single_archives
 
-    assert set(SET_SPLITS) == set(SETS)
+    for name in set(SETS) - set(SET_SPLITS):
+        params = Params()
+        params = dataclasses.replace(
+            params,
+            data=dataclasses.replace(params.data, source="kitti"),
+            eval=dataclasses.replace(params.eval, extra_sets=(name,)),
+        )
+        assert len(single_archives(params)) == 2, name  # KITTI 2015's and the set's
+
+
+def test_kitti2012_archive_unpacks_where_the_kitti2012_index_looks(server: _Server, tmp_path: Path) -> None:
+    """data_stereo_flow.zip holds training/ and testing/ at its top: fetched into data.root/kitti2012
+    (prepare's folder for it), the set's index finds its frames, GT and reflective GT there; a
+    second fetch of the complete archive asks nothing."""
+    from msdepth.data.eval_sets import build_kitti2012_index
+    from msdepth.data.prepare import single_archives
+
+    image = cv2.imencode(".png", np.full((370, 1226, 3), 128, np.uint8))[1].tobytes()
+    disp = cv2.imencode(".png", np.full((370, 1226), 256 * 20, np.uint16))[1].tobytes()
+    members = {f"training/{d}/000000_10.png": image for d in ("colored_0", "colored_1")}
+    members |= {f"training/{d}/000000_10.png": disp for d in ("disp_occ", "disp_refl_occ")}
+    members["testing/colored_0/000000_10.png"] = image
+    buf = stdio.BytesIO()
+    with zipfile.ZipFile(buf, "w") as zf:
+        for name, data in members.items():
+            zf.writestr(name, data)
+    server.files["data_stereo_flow.zip"] = buf.getvalue()
+    params = Params()
+    params = dataclasses.replace(
+        params,
+        data=dataclasses.replace(params.data, source="kitti", root=str(tmp_path / "kitti")),
+        eval=dataclasses.replace(params.eval, extra_sets=("kitti2012",)),
+    )
+    label, archive, dest = single_archives(params)[-1]
+    assert (label, archive, dest) == ("KITTI 2012", "data_stereo_flow.zip", tmp_path / "kitti" / "kitti2012")
+    report = dl.fetch_all(server.base_url, [archive], tmp_path / "zips", dest, FAST)
+    assert report["extracted"] == ["data_stereo_flow.zip"]
+    index = build_kitti2012_index(dest / "training")
+    assert list(index["frame"]) == ["000000_10"] and index["focal"][0] == pytest.approx(707.0912)
+    assert Path(index["class_map"][0]) == dest / "training" / "disp_refl_occ" / "000000_10.png"
+    asked = len(server.log)
+    assert dl.fetch_all(server.base_url, [archive], tmp_path / "zips", dest, FAST)["extracted"] == []
+    assert len(server.log) == asked
 
 
 # --------------------------------------------------------------------------- a hostile list or mirror

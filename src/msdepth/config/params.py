@@ -435,8 +435,9 @@ class EvalConfig:
     post_process: bool = True
     dense_gt_fraction: float = 0.9
     # Evaluated beside KITTI 2015 (which always runs: the dissertation's tables and the ROI
-    # suites), full-image suite only, each under metrics/sets/<set>/ (msdepth.data.eval_sets).
-    extra_sets: tuple[Literal["eigen", "eigen_benchmark"], ...] = _list_may_be_empty(("eigen",))
+    # suites), full-image suite only, each under metrics/sets/<set>/ (msdepth.data.eval_sets);
+    # kitti2012's full-image summary adds its exact class "reflective" (msdepth.evaluation.classes).
+    extra_sets: tuple[Literal["eigen", "eigen_benchmark", "kitti2012"], ...] = _list_may_be_empty(("eigen",))
     median_scaling: bool = False  # per-image median scaling of the extra sets (Monodepth2's mono evaluation)
 
     def validate(self, key: str, params: Params) -> None:

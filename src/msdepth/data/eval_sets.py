@@ -3,9 +3,13 @@
 - ``eigen``: the Eigen split (697 frames of 28 raw drives), GT = the frame's Velodyne scan
   projected with the day's calibration, as Monodepth and Monodepth2 evaluate it;
 - ``eigen_benchmark``: its 652 frames with KITTI's improved, accumulated GT (Uhrig et al. 2017,
-  ``data_depth_annotated.zip``).
+  ``data_depth_annotated.zip``);
+- ``kitti2012``: KITTI 2012's stereo training frames (``data_stereo_flow.zip``'s ``training/``,
+  :mod:`msdepth.data.kitti2012`), GT ``disp_occ`` with ``disp_refl_occ``'s reflective surfaces, and
+  those pixels as the exact-mask class ``reflective`` (the index's ``class_map`` column).
 
-Both are evaluated inside Garg's crop with GT in (min_depth, cap) (:mod:`msdepth.evaluation.suites`). Each
+The Eigen sets are evaluated inside Garg's crop with GT in (min_depth, cap), KITTI 2012 on the
+whole frame as KITTI 2015 (:mod:`msdepth.evaluation.suites`). Each
 builder returns rows of :data:`msdepth.data.index.EVAL_COLUMNS`, so the suites read every set the
 same way (:func:`msdepth.evaluation.suites.load_frames`).
 """
@@ -18,7 +22,7 @@ from typing import Callable
 import pandas as pd
 
 from msdepth.config.params import Params
-from msdepth.data import kitti
+from msdepth.data import kitti, kitti2012
 from msdepth.data.index import EVAL_COLUMNS, velodyne_path
 from msdepth.data.layout import layout
 from msdepth.data.pairs import check_same_size
@@ -126,11 +130,33 @@ def build_eigen_benchmark_index(raw_root: Path, split: Path, annotated_root: Pat
     )
 
 
+def build_kitti2012_index(root: Path) -> pd.DataFrame:
+    """KITTI 2012's frames under its ``training/`` folder ``root``: images, GT (kind ``kitti2012``),
+    the ``disp_refl_occ`` PNG as the class map (class ``reflective``), camera
+    (:func:`msdepth.data.kitti2012.camera`: ``calib/`` or the default by width)."""
+    rows = []
+    for frame in kitti2012.frames(root):
+        paths = kitti2012.frame_paths(root, frame)
+        shape = kitti.read_image(paths["left"]).shape
+        check_same_size(
+            paths["left"], shape, paths["right"], kitti.read_image(paths["right"]).shape, "right image"
+        )
+        for what in ("gt", kitti2012.REFLECTIVE):
+            check_same_size(
+                paths["left"], shape, paths[what], kitti.read_disparity(paths[what]).shape, what + " GT"
+            )
+        focal, baseline = kitti2012.camera(root, frame, shape[1])
+        row = (frame, str(paths["left"]), str(paths["right"]), str(paths["gt"]), "kitti2012", "", "", "")
+        rows.append((*row, str(paths[kitti2012.REFLECTIVE]), focal, baseline))
+    return pd.DataFrame(rows, columns=list(EVAL_COLUMNS))
+
+
 SETS: dict[str, Callable[[Params], pd.DataFrame]] = {
     "eigen": lambda p: build_eigen_index(layout(p).raw_root, layout(p).eigen_split),
     "eigen_benchmark": lambda p: build_eigen_benchmark_index(
         layout(p).raw_root, layout(p).eigen_benchmark_split, layout(p).depth_annotated
     ),
+    "kitti2012": lambda p: build_kitti2012_index(layout(p).kitti2012_root),
 }
 
 

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from msdepth.data import kitti
+from msdepth.data import kitti, kitti2012
 from msdepth.data.pfm import read_pfm
 from msdepth.errors import DataError
 from msdepth.geometry.depth import disparity_to_depth
@@ -21,6 +21,7 @@ from msdepth.geometry.depth import disparity_to_depth
 # The index's ``gt_kind`` column: what its ``gt`` file holds.
 GT_KINDS = {
     "disparity": "KITTI disparity PNG (uint16, pixels x 256); depth = focal * baseline / disparity",
+    "kitti2012": "KITTI 2012 disp_occ PNG, the sibling disp_refl_occ's reflective surfaces in its place",
     "depth": "KITTI depth-benchmark PNG (uint16, metres x 256)",
     "velodyne": "KITTI Velodyne scan (.bin), projected into camera 2 with the raw day's calibration",
     "pfm": "PFM disparity in px (Scene Flow, Middlebury); inf, NaN and <= 0 are invalid",
@@ -85,6 +86,8 @@ def read_gt_depth(
     """
     if kind == "disparity":
         return disparity_to_depth(kitti.read_disparity(path), focal, baseline)
+    if kind == "kitti2012":
+        return disparity_to_depth(kitti2012.read_gt_disparity(path)[0], focal, baseline)
     if kind == "depth":
         return kitti.read_depth(path)
     if kind == "velodyne":
@@ -102,3 +105,13 @@ def read_gt_depth(
     if kind == "none":
         return np.zeros(kitti.read_image(path).shape[:2], np.float32)
     raise DataError(f"{path}: unknown GT kind {kind!r}; known: {sorted(GT_KINDS)}")
+
+
+def read_class_map(kind: str, path: str | os.PathLike) -> np.ndarray:
+    """The class map (bits of :data:`msdepth.data.kitti.CLASS_BITS`) that the index's ``class_map``
+    column names for a frame of GT ``kind``: KITTI 2012's is its ``disp_refl_occ`` PNG (the
+    ``reflective`` class, :func:`msdepth.data.kitti2012.reflective_class_map`), any other a class
+    map PNG (:func:`msdepth.data.kitti.read_class_map`)."""
+    if kind == "kitti2012":
+        return kitti2012.reflective_class_map(path)
+    return kitti.read_class_map(path)

@@ -109,9 +109,10 @@ def read_obj_map(path: PathLike) -> np.ndarray:
     return _decode_as(path, "object map", np.uint8, 1)
 
 
-# Bits of a class map (synthetic set only: KITTI has no per-pixel class labels). A pixel may
-# carry several: a windshield pixel is also a car pixel.
-CLASS_BITS = {"car": 1, "windshield": 2, "glass": 4, "sign": 8}
+# Bits of a class map: the synthetic set's ROI classes, and KITTI 2012's reflective surfaces (the
+# pixels of its disp_refl_occ, msdepth.data.kitti2012; KITTI 2015 has no per-pixel class labels). A
+# pixel may carry several: a windshield pixel is also a car pixel.
+CLASS_BITS = {"car": 1, "windshield": 2, "glass": 4, "sign": 8, "reflective": 16}
 
 
 def read_class_map(path: PathLike) -> np.ndarray:

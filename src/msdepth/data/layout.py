@@ -12,6 +12,7 @@ from pathlib import Path
 from msdepth.config.params import Params
 
 MONO_SPLIT = "train_mono_files.txt"  # below a synthetic root
+KITTI2012 = "kitti2012"  # below data.root: data_stereo_flow.zip extracted (training/, testing/)
 
 
 @dataclass(frozen=True)
@@ -37,6 +38,9 @@ class Layout:
     mono_split: Path | None = None
     # KITTI odometry (sequences/<NN>/image_2, poses/<NN>.txt) for the monocular runs' pose ATE.
     odometry: Path | None = None
+    # eval.extra_sets' kitti2012: data_stereo_flow.zip's training/ (msdepth.data.kitti2012), extracted
+    # into kitti2012/ below data.root as data_scene_flow.zip is into kitti2015/.
+    kitti2012_root: Path | None = None
 
 
 @dataclass(frozen=True)
@@ -85,6 +89,7 @@ def layout(params: Params) -> Layout:
             root / "eigen_benchmark_test_files.txt",
             root / "depth_annotated",
             root / MONO_SPLIT,
+            kitti2012_root=root / KITTI2012 / "training",
         )
     k = params.data.kitti
     return Layout(
@@ -98,4 +103,5 @@ def layout(params: Params) -> Layout:
         root / k.depth_annotated,
         Path(k.mono_split),
         root / k.odometry,
+        root / KITTI2012 / "training",
     )

@@ -74,24 +74,9 @@ def fetch_kitti(params: Params, dry_run: bool) -> None:
             label="KITTI raw",
             header=selection.describe(),
         ),
-        "KITTI 2015": download.fetch_all(
-            k.base_url,
-            [k.scene_flow_archive],
-            k.download_dir,
-            paths.kitti2015_root,
-            options,
-            label="KITTI 2015",
-        ),
     }
-    if "eigen_benchmark" in params.eval.extra_sets:  # its GT: KITTI's annotated depth (train/, val/)
-        reports["annotated depth"] = download.fetch_all(
-            k.base_url,
-            [k.depth_annotated_archive],
-            k.download_dir,
-            paths.depth_annotated,
-            options,
-            label="KITTI annotated depth",
-        )
+    for label, archive, dest in single_archives(params):
+        reports[label] = download.fetch_all(k.base_url, [archive], k.download_dir, dest, options, label=label)
     if dry_run:
         print(download.dry_run_total(list(reports.values())))
         return
@@ -100,6 +85,22 @@ def fetch_kitti(params: Params, dry_run: bool) -> None:
         selection.describe(),
         "; ".join(f"{what} {_summary(r)}" for what, r in reports.items()),
     )
+
+
+def single_archives(params: Params) -> list[tuple[str, str, Path]]:
+    """``(label, archive, folder it is extracted into)`` of each one-archive KITTI download the
+    params need: KITTI 2015 always; the annotated depth for eval.extra_sets' eigen_benchmark
+    (``train/``, ``val/``); KITTI 2012's stereo/flow archive for its kitti2012 (``training/``,
+    ``testing/``, :mod:`msdepth.data.kitti2012`)."""
+    from msdepth.data import kitti2012
+
+    k, paths = params.data.kitti, layout(params)
+    out = [("KITTI 2015", k.scene_flow_archive, paths.kitti2015_root)]
+    if "eigen_benchmark" in params.eval.extra_sets:
+        out.append(("KITTI annotated depth", k.depth_annotated_archive, paths.depth_annotated))
+    if "kitti2012" in params.eval.extra_sets:
+        out.append(("KITTI 2012", kitti2012.ARCHIVE, paths.kitti2012_root.parent))
+    return out
 
 
 # The list file of each extra evaluation set (eval.extra_sets), as msdepth.data.eval_sets reads it.
@@ -113,7 +114,8 @@ def needed_splits(params: Params) -> dict[str, Path]:
     paths = layout(params)
     splits = {"the train split": paths.train_split}
     for name in params.eval.extra_sets:
-        splits[name] = getattr(paths, SET_SPLITS[name])
+        if name in SET_SPLITS:  # kitti2012 lists no raw drive: its archive holds its frames
+            splits[name] = getattr(paths, SET_SPLITS[name])
     if params.train.monocular and paths.mono_split is not None:
         splits["the monocular split"] = paths.mono_split
     return splits

@@ -13,6 +13,7 @@ from msdepth.config.params import Params
 from msdepth.data import kitti
 from msdepth.data.index import read_eval_index
 from msdepth.errors import ConfigError, DataError
+from msdepth.evaluation.classes import exact_class_summary
 from msdepth.evaluation.suites import (
     depth_maps,
     evaluate_full,
@@ -55,7 +56,7 @@ def headline(suite: str, summary: dict) -> dict[str, float] | None:
         out = {"abs_rel": m["abs_rel"], "a1": m["a1"]}
         if "median_scaling" in m:  # a monocular run's depth, median-scaled per image
             out["scale_ratio"] = m["median_scaling"]["ratio_median"]
-        return out
+        return {**out, **class_headline(summary, cap)}
     if suite == "roi":
         m = summary[cap]["overall"]
         out = {"roi": m["abs_rel"]}
@@ -63,6 +64,18 @@ def headline(suite: str, summary: dict) -> dict[str, float] | None:
             out["masks"] = summary["masks"][cap]["overall"]["abs_rel"]
         return out
     return None
+
+
+def class_headline(summary: dict, cap: str) -> dict[str, float]:
+    """An extra set's exact classes in its full-image headline (KITTI 2012's ``reflective``): each
+    class's abs_rel at ``cap`` and its D1 (%); nothing for a set without classes."""
+    masks = summary.get("masks", {})
+    out = {}
+    for cls, m in masks.get(cap, {}).get("by_class", {}).items():
+        out[f"{cls}_abs_rel"] = m["abs_rel"]
+        if cls in masks.get("stereo", {}):
+            out[f"{cls}_d1"] = masks["stereo"][cls]["d1"]
+    return out
 
 
 def write_suite(
@@ -142,4 +155,11 @@ def score_set(  # noqa: ANN001 - frames
     median-scaled when ``scaled`` (default: ``eval.median_scaling``)."""
     scaled = params.eval.median_scaling if scaled is None else scaled
     summary, table = evaluate_full(pred, frames, params.eval, median_scaling=scaled)
+    # A set whose frames carry class maps (KITTI 2012) is also scored on each class's exact pixels;
+    # the others' summaries stay as they were.
+    if frames and all(f.class_map is not None for f in frames):
+        scored = median_scaled_maps(pred, frames, params.eval)[0] if scaled else pred
+        masks = exact_class_summary(scored, frames, params.eval)
+        if masks is not None:
+            summary["masks"] = masks
     write_suite("full", run, summary, table, root=set_metrics_dir(name), headline_root=set_headline_dir(name))

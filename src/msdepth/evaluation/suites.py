@@ -20,7 +20,7 @@ import pandas as pd
 
 from msdepth.config.params import EvalConfig
 from msdepth.data import kitti
-from msdepth.data.ground_truth import read_gt_depth
+from msdepth.data.ground_truth import read_class_map, read_gt_depth
 from msdepth.errors import DataError
 from msdepth.evaluation.metrics import METRICS, compute_errors, garg_crop_mask, median_scale
 from msdepth.geometry.depth import clamp_depth, disparity_to_depth, pixel_disparity
@@ -63,7 +63,7 @@ class Frame:
     gt_depth: np.ndarray
     focal: float
     baseline: float
-    class_map: np.ndarray | None = None  # bits of kitti.CLASS_BITS (synthetic set only)
+    class_map: np.ndarray | None = None  # bits of kitti.CLASS_BITS (synthetic set, KITTI 2012)
     crop: np.ndarray | None = None
     gt_in_range: bool = False
 
@@ -99,7 +99,7 @@ def load_frames(index: pd.DataFrame) -> list[Frame]:
                 depth,
                 focal,
                 baseline,
-                kitti.read_class_map(row.class_map) if row.class_map else None,
+                read_class_map(row.gt_kind, row.class_map) if row.class_map else None,
                 CROPS[row.crop](*depth.shape) if row.crop else None,
                 gt_in_range=bool(row.crop),
             )

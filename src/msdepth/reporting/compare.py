@@ -326,7 +326,34 @@ def _spread_lines(
 SET_TITLES = {
     "eigen": "Eigen split (raw LiDAR GT, Garg crop)",
     "eigen_benchmark": "Eigen benchmark split (KITTI's annotated depth GT, Garg crop)",
+    "kitti2012": "KITTI 2012 stereo training frames (disp_occ with the reflective surfaces' GT)",
 }
+# What a set evaluates, where it is not the Eigen sets' (msdepth.evaluation.suites' Frame.crop).
+SET_PIXELS = {"kitti2012": "every GT pixel of the whole frame (GT beyond the cap kept, as KITTI 2015's)"}
+
+
+def class_lines(
+    name: str, groups: dict[str, dict], runs: Sequence[str], cap: str, label: Callable
+) -> list[str]:
+    """An extra set's exact classes at ``cap`` (KITTI 2012's ``reflective``, the summaries' ``masks``,
+    msdepth.evaluation.classes): per class and run, abs_rel, a1, D1 and EPE; none for other sets."""
+    masks = {r: groups[r].get("masks") for r in runs}
+    if any(m is None or cap not in m for m in masks.values()):
+        return []
+    rows = [
+        [cls, label(r), *(f"{m[cap]['by_class'][cls][k]:.4f}" for k in ("abs_rel", "a1")),
+         f"{m['stereo'][cls]['d1']:.1f}", f"{m['stereo'][cls]['epe']:.2f}"]
+        for cls in sorted(masks[runs[0]][cap]["by_class"])
+        for r, m in masks.items()
+    ]  # fmt: skip
+    return [
+        f"## {name}: exact class pixels, cap {cap[3:]} m",
+        "",
+        "Each class's exact GT pixels of every frame that has some (D1 %, EPE px: KITTI's, uncapped).",
+        "",
+        _table(["class", "run", "abs_rel", "a1", "D1 %", "EPE px"], rows),
+        "",
+    ]
 
 
 def build_set_section(
@@ -353,8 +380,9 @@ def build_set_section(
     md = [f"# {SET_TITLES.get(name, name)}", "", *_missing_lines(missing_baselines)]
     result: dict = {"full": {}, "statistics": stats, "seed_spread": spread, "images": images}
     scaling = suites["full"][runs[0]][caps[0]].get("median_scaling")
+    pixels = SET_PIXELS.get(name, "GT in (min_depth, cap) inside Garg's crop")
     md += [
-        f"{images} images; GT in (min_depth, cap) inside Garg's crop, the 7 metrics per image, then "
+        f"{images} images; {pixels}, the 7 metrics per image, then "
         + (
             "averaged; every prediction median-scaled per image (eval.median_scaling)."
             if scaling
@@ -374,6 +402,10 @@ def build_set_section(
         md += _ci_lines(stats, "full", cap, "images", baselines, label)
         if len(seeds) > 1:
             md += _spread_lines(spread["full"][cap], variants, len(seeds), label)
+        md += class_lines(name, suites["full"], runs, cap, label)
+    masks = {r: suites["full"][r]["masks"] for r in runs if "masks" in suites["full"][r]}
+    if masks:  # KITTI 2012's reflective class (msdepth.evaluation.classes)
+        result["masks"] = masks
     return result, "\n".join(md) + "\n"
 
 
