@@ -4,10 +4,14 @@ Renders evaluation frames of the synthetic set (``data.synthetic``, exact GT: di
 ``gt_max_depth``), runs the optimum (:mod:`msdepth.optimum.solver`) per variant and weight, and scores
 it with the evaluation's suites (cap 80 m): full-frame abs_rel and a1, ROI abs_rel per class
 (boxes) and over the classes' exact pixels (masks), beside an oracle constant (each frame's
-median GT disparity). Prints a markdown table; ``--trace`` also prints the mean loss per level
-at steps 25, 50, 100, ... (the stopping rule's measurement)::
+median GT disparity). Every row has KITTI's D1 (%) and EPE (px), the full-image suite's.
+``--matchers`` adds the matchers, unrefined, as the pipeline's match and sgbm stages run them: SGM
+on each variant's own cost volume and OpenCV's SGBM (:func:`msdepth.optimum.starts.matched_disparity`).
+Prints a markdown table; ``--trace`` also prints the mean loss per level at steps 25, 50, 100, ...
+(the stopping rule's measurement)::
 
     python studies/optimum_sweep.py --frames 8 --variants ssim msssim:3 --weights 0.3 1 3
+    python studies/optimum_sweep.py --frames 8 --weights 10 --matchers --set optimum.iterations=50
     python studies/optimum_sweep.py --frames 4 --variants ssim msssim:3 --weights 1 \\
         --set optimum.iterations=200 --trace
 """
@@ -49,15 +53,35 @@ def rendered(params, count: int) -> tuple[list, list[Frame], pd.DataFrame]:
 
 def scores(disps: list[np.ndarray], frames: list[Frame], rois: pd.DataFrame, params) -> dict:
     """Full-frame abs_rel/a1 and per-class ROI abs_rel (boxes, masks) at cap 80 m."""
-    pred = depth_maps(np.stack(disps), frames)
+    pred = depth_maps(disps, frames)
     full, _ = evaluate_full(pred, frames, params.eval)
     roi, _ = evaluate_roi(pred, frames, rois, params.eval)
     out = {"abs_rel": full[CAP]["abs_rel"], "a1": full[CAP]["a1"]}
+    out.update({"D1 %": 100 * full[CAP]["d1"], "EPE px": full[CAP]["epe"]})
     for cls, m in roi[CAP]["by_class"].items():
         out[f"box {cls}"] = m["abs_rel"]
     for cls, m in roi.get("masks", {}).get(CAP, {}).get("by_class", {}).items():
         out[f"mask {cls}"] = m["abs_rel"]
     return out
+
+
+def matcher_rows(
+    base: dict, variants: list[str], pairs: list, frames: list[Frame], rois: pd.DataFrame
+) -> list:
+    """SGM on each variant's own cost volume, then SGBM: each pair matched at its own size, unrefined."""
+    from msdepth.optimum.starts import matched_disparity
+
+    rows = []
+    for label, start in [*((v, "cost") for v in variants), ("SGBM", "sgbm")]:
+        name, raw = kernel_variant(base, "ssim" if start == "sgbm" else label)
+        p = params_from_dict(raw)
+        clock = time.perf_counter()
+        disps = [matched_disparity(left, right, p, name, start) / left.shape[1] for left, right in pairs]
+        seconds = (time.perf_counter() - clock) / len(pairs)
+        run = label if start == "sgbm" else f"SGM {label}"
+        rows.append({"run": run, "weight": "", "s/pair": round(seconds, 2), **scores(disps, frames, rois, p)})
+        print(json.dumps(rows[-1]), file=sys.stderr)
+    return rows
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -69,6 +93,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--weights", nargs="+", type=float, default=None, help="default: the sweep")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE")
     ap.add_argument("--trace", action="store_true", help="print the mean loss per level at steps 25, 50, ...")
+    ap.add_argument("--matchers", action="store_true", help="add SGM on each variant's cost and SGBM")
     args = ap.parse_args(argv)
     base = apply_overrides(read_params_file(ROOT / "params.yaml"), args.set)
     params = params_from_dict(base)
@@ -80,6 +105,8 @@ def main(argv: list[str] | None = None) -> int:
         for f in frames
     ]
     rows = [{"run": "oracle constant", "weight": "", **scores(constant, frames, rois, params)}]
+    if args.matchers:
+        rows += matcher_rows(base, args.variants, pairs, frames, rois)
     for label in args.variants:
         name, raw = kernel_variant(base, label)
         p = params_from_dict(raw)

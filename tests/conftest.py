@@ -89,6 +89,8 @@ TINY = {
     "optimum": {
         "iterations": 3,
         "levels": 1,
+        "refine_iterations": 3,  # the default start, cost: refined at the finest level only
+        "refine_levels": 1,
         "sweep_frames": 2,
         "smoothness_sweep": [1.0, 10.0],
         "cost_frames": 2,

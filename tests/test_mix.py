@@ -8,9 +8,12 @@ import numpy as np
 import pytest
 import torch
 
+from msdepth.config.checks import has_per_pixel_cost
 from msdepth.config.params import LossConfig, params_from_dict
 from msdepth.config.variants import configs
 from msdepth.config.variants.mix import MixConfig
+from msdepth.config.variants.msssim import MSSSIMConfig
+from msdepth.config.variants.ssim import SSIMConfig
 from msdepth.errors import ConfigError
 from msdepth.losses.appearance import build_appearance, terms
 from msdepth.losses.appearance.mix import MixAppearance, gaussian_l1
@@ -143,6 +146,7 @@ def test_the_pipeline_trains_mix(tmp_path, pairs) -> None:
         "msssim": {"levels": 3},  # 32 x 64: the coarsest training scale (4 x 8 px) has 3 levels
         "mix": {"levels": 3},
         "variants": ["ssim", "mix"],
+        "optimum": {"start": "sgbm"},  # mix has no per-pixel cost for the default start, cost
     }
     params = params_from_dict(raw)
     assert isinstance(build_appearance(params, "mix"), MixAppearance)
@@ -162,3 +166,24 @@ def test_the_pipeline_trains_mix(tmp_path, pairs) -> None:
         other, "mix", pairs, tmp_path / "a" / "model.pt", tmp_path / "a" / "ck.pt", progress=False
     )
     assert again.resumed_from_epoch == 0
+
+
+def test_the_cost_start_refuses_a_variant_without_a_per_pixel_cost() -> None:
+    """optimum.start: cost matches on each variant's own cost volume; mix has none (one line)."""
+    with pytest.raises(ConfigError) as err:
+        params_from_dict({"variants": ["ssim", "mix"]})
+    assert str(err.value) == (
+        "optimum.start: cost needs each variant's per-pixel cost and ['mix'] have none: "
+        "set it to sgbm or constant"
+    )
+    for start in ("sgbm", "constant"):
+        assert (
+            params_from_dict({"variants": ["ssim", "mix"], "optimum": {"start": start}}).variants[1] == "mix"
+        )
+    assert params_from_dict({}).optimum.start == "cost"  # ssim and msssim have one
+    assert (SSIMConfig.per_pixel_cost, MSSSIMConfig.per_pixel_cost, MixConfig.per_pixel_cost) == (
+        True,
+        True,
+        False,
+    )
+    assert not has_per_pixel_cost(object())  # a config that does not say has none

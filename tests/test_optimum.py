@@ -53,6 +53,10 @@ def plane_pair(shift: int = SHIFT) -> tuple[np.ndarray, np.ndarray]:
 
 
 def small(params: Params, **optimum) -> Params:
+    """``params`` with the ``optimum`` keys given. The instrument's tests here check the constant
+    start's coarse-to-fine solver at the weights as given (mix has no matched ``cost`` start), so
+    ``start`` and ``smoothness_width`` are ``constant`` and 0 unless a test asks otherwise."""
+    optimum = {"start": "constant", "smoothness_width": 0, **optimum}
     return dataclasses.replace(params, optimum=dataclasses.replace(params.optimum, **optimum))
 
 

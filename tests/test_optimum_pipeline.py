@@ -43,27 +43,49 @@ def _difference(mean: float, low: float, high: float) -> dict:
             "excludes_zero": low > 0 or high < 0}  # fmt: skip
 
 
-RUNS = {"optimum ssim w10": "optimum/ssim/w10.0", "optimum ssim w3": "optimum/ssim/w3.0"}
+def _stereo(abs_rel: float, d1: float, epe: float) -> dict:
+    full = _full(abs_rel)
+    full["cap80"].update(d1=d1, epe=epe)
+    return full
+
+
+RUNS = {
+    "optimum ssim w10": "optimum/ssim/w10.0",
+    "optimum ssim w3": "optimum/ssim/w3.0",
+    "SGBM": "optimum/sgbm",
+}
 OPT_SUITES = {
-    "full": {"optimum/ssim/w10.0": _full(0.1), "optimum/ssim/w3.0": _full(0.15, images=2)},
-    "roi": {"optimum/ssim/w10.0": _roi(0.12, 0.11, 0.09), "optimum/ssim/w3.0": _roi(0.2, 0.21, 0.19)},
+    "full": {
+        "optimum/ssim/w10.0": _stereo(0.1, 0.1234, 1.5),
+        "optimum/ssim/w3.0": _full(0.15, images=2),
+        "optimum/sgbm": _stereo(0.05, 0.034, 0.876),
+    },
+    "roi": {
+        "optimum/ssim/w10.0": _roi(0.12, 0.11, 0.09),
+        "optimum/ssim/w3.0": _roi(0.2, 0.21, 0.19),
+        "optimum/sgbm": _roi(0.07, 0.06, 0.05),
+    },
 }
 FULL_DIFF = {"abs_rel": _difference(-0.2, -0.3, -0.1), "a1": _difference(0.2, -0.1, 0.4)}
 ROI_DIFF = {"abs_rel": _difference(-0.1, -0.2, 0.05), "a1": _difference(0.1, 0.0, 0.2)}
 STATS = {
     "reference": "ssim",
-    "full": {"cap80": {"optimum ssim w10": FULL_DIFF}},
-    "roi": {"cap80": {"optimum ssim w10": ROI_DIFF}},
+    "full": {"cap80": {"optimum ssim w10": FULL_DIFF, "SGBM": FULL_DIFF}},
+    "roi": {"cap80": {"optimum ssim w10": ROI_DIFF, "SGBM": ROI_DIFF}},
 }
+SKIPPED = {"SGM (mix cost)": "variant mix has no per-pixel cost: no cost volume to match on"}
 
 
 def test_optimum_data_collects_each_runs_numbers_and_its_differences():
-    data = optimum_data(OPT_SUITES, RUNS, STATS, "cap80")
+    data = optimum_data(OPT_SUITES, RUNS, STATS, "cap80", SKIPPED)
     w10 = data["runs"]["optimum ssim w10"]
-    assert (w10["images"], w10["abs_rel"], w10["a1"]) == (3, 0.1, 0.9)
+    assert (w10["images"], w10["abs_rel"], w10["a1"], w10["d1"], w10["epe"]) == (3, 0.1, 0.9, 0.1234, 1.5)
+    assert "d1" not in data["runs"]["optimum ssim w3"]  # metrics written before D1: none shown
+    assert data["skipped"] == SKIPPED
     assert (w10["roi_abs_rel"], w10["by_class"], w10["mask_abs_rel"]) == (0.12, {"car": 0.11}, 0.09)
     assert data["runs"]["optimum ssim w3"]["images"] == 2
-    assert set(data["differences"]) == {"optimum ssim w10"}  # the sweep's subset weights: no pairing
+    # the sweep's subset weights: no pairing; the matchers see every frame
+    assert set(data["differences"]) == {"optimum ssim w10", "SGBM"}
     assert data["differences"]["optimum ssim w10"]["full"]["abs_rel"]["mean"] == -0.2
     assert data["reference"] == "ssim"
 
@@ -85,16 +107,20 @@ def _trained_suites() -> dict:
 
 
 def test_the_optimum_section_shows_optimum_trained_runs_and_baselines_side_by_side():
-    data = optimum_data(OPT_SUITES, RUNS, STATS, "cap80")
+    data = optimum_data(OPT_SUITES, RUNS, STATS, "cap80", SKIPPED)
     result, md = build_comparison(
         comparison_data(_trained_suites(), ["ssim", "msssim"], ["prior"], optimum=data)
     )
     section = md[md.index("# The losses' own optimum (no network)") :]
     # The trained runs and the baselines were scored on every frame: their count stands beside them.
-    assert "| ssim | 5 | 0.3000 | 0.7000 | 0.3500 | 0.3300 |" in section
-    assert "| prior | 5 | 0.5000 | 0.5000 | 0.5000 | 0.5000 |" in section
-    assert "| optimum ssim w10 | 3 | 0.1000 | 0.9000 | 0.1200 | 0.0900 |" in section
+    # D1 in %, EPE in px; "–" where a suite has neither (metrics written before they were added).
+    assert "| ssim | 5 | 0.3000 | 0.7000 | – | – | 0.3500 | 0.3300 |" in section
+    assert "| prior | 5 | 0.5000 | 0.5000 | – | – | 0.5000 | 0.5000 |" in section
+    assert "| optimum ssim w10 | 3 | 0.1000 | 0.9000 | 12.3 | 1.50 | 0.1200 | 0.0900 |" in section
     assert "| optimum ssim w3 | 2 | 0.1500 |" in section
+    assert "| SGBM | 3 | 0.0500 | 0.9500 | 3.4 | 0.88 | 0.0700 | 0.0500 |" in section
+    assert "SGM (mix cost): skipped (variant mix has no per-pixel cost" in section
+    assert "| SGBM | -0.200 [-0.300, -0.100] * |" in section
     # * only where the interval excludes 0; the optimum has no seed: the interval covers the images.
     assert "| optimum ssim w10 | -0.200 [-0.300, -0.100] * | +0.200 [-0.100, +0.400] |" in section
     assert "| -0.100 [-0.200, +0.050] | +0.100 [+0.000, +0.200] |" in section
@@ -197,3 +223,93 @@ def test_the_cost_curves_of_a_rerun_are_the_same_bytes(tmp_path: Path):
         write_cost_curves(params, "ssim", tmp_path / "eval.csv", root / "rois.csv", out)
     assert json.loads(outs[0].read_text())["classes"]  # some box had dense GT
     assert outs[0].read_bytes() == outs[1].read_bytes()
+
+
+# ----------------------------------------------------------------------------- the matchers' stage
+
+
+@pytest.fixture(scope="module")
+def rendered(tmp_path_factory) -> tuple[Path, object]:
+    """A tiny rendered set (2 evaluation frames, 48 x 160) with its index and ROIs, as the data,
+    index and rois stages write them, and the params that made it."""
+    from conftest import stage
+
+    from msdepth.data.synthetic import generate
+
+    root = tmp_path_factory.mktemp("match")
+    raw = {
+        "data": {
+            "height": 32,
+            "width": 96,
+            "synthetic": {
+                "seed": 3,
+                "drives": 1,
+                "train_pairs": 1,
+                "eval_frames": 2,
+                "height": 48,
+                "width": 160,
+            },
+        },
+        "msssim": {"levels": 3},
+        "mix": {"levels": 3},
+        "variants": ["ssim", "mix"],
+        "optimum": {"start": "sgbm", "threads": 1},  # mix: no per-pixel cost for the cost start
+    }
+    params = params_from_dict(raw)
+    with pytest.MonkeyPatch.context() as mp:
+        mp.chdir(root)
+        generate(params.data.synthetic, Path(params.data.root), progress=False, workers=1)
+        stage("index").index(params)
+        stage("rois").rois(params)
+    return root, params
+
+
+def test_the_match_stage_scores_sgm_and_sgbm_and_skips_a_variant_without_a_cost(rendered, monkeypatch):
+    """stages/match.py: SGM on ssim's cost and SGBM through every suite as runs optimum/match/ssim and
+    optimum/sgbm (metrics only, D1 and EPE in the full suite); mix, with no per-pixel cost, leaves
+    skipped metrics that compare lists with the reason; an unknown matcher is one line."""
+    from conftest import stage
+
+    from msdepth.evaluation.baselines import skipped_reason
+    from msdepth.optimum.frames import matcher_runs
+    from msdepth.pipeline.paths import HEADLINE, METRICS, SGBM_RUN, headline_path, match_run, suite_path
+
+    root, params = rendered
+    monkeypatch.chdir(root)
+    match = stage("match").match
+    for matcher in ("ssim", "sgbm", "mix"):
+        match(params, matcher)
+    assert match_run("ssim") == "optimum/match/ssim" and match_run("sgbm") == SGBM_RUN == "optimum/sgbm"
+    for run in (match_run("ssim"), SGBM_RUN):
+        full = json.loads(suite_path("full", run).read_text())
+        assert full["images"] == 2 and full["cap80"]["abs_rel"] < 0.5, run  # a rendered scene: matched
+        assert 0 <= full["cap80"]["d1"] < 0.5 and 0 < full["cap80"]["epe"] < 5, run
+        table = pd.read_csv(suite_path("full", run, ".csv"))
+        assert {"d1", "epe"} <= set(table.columns) and len(table) == 2 * len(params.eval.caps)
+        assert suite_path("roi", run).is_file() and suite_path("gradients", run, ".csv").is_file()
+        assert "d1" not in json.loads(headline_path("full", run).read_text())  # dvc metrics show's width
+        assert not (root / "outputs" / run).exists()
+    assert skipped_reason(METRICS, match_run("mix"), ["full", "roi"]) == (
+        "variant mix has no per-pixel cost: no cost volume to match on"
+    )
+    assert "skipped" in json.loads(headline_path("roi", match_run("mix"), HEADLINE).read_text())
+    assert not (METRICS / "gradients" / "optimum" / "match" / "mix.json").read_text().count("cap80")
+    assert matcher_runs(params) == {
+        "SGM (ssim cost)": "optimum/match/ssim",
+        "SGM (mix cost)": "optimum/match/mix",
+        "SGBM": "optimum/sgbm",
+    }
+    with pytest.raises(ConfigError, match="unknown variant 'msssim'"):
+        match(params, "msssim")
+
+
+def test_the_match_stages_list_what_they_read():
+    """match@<variant> reads its variant's section and the cost's α; sgbm reads neither; both the
+    evaluation keys of the suites and optimum.threads, and no optimiser key."""
+    import yaml
+
+    stages = yaml.safe_load((Path(__file__).resolve().parents[1] / "dvc.yaml").read_text())["stages"]
+    suites = {"eval.caps", "eval.min_depth", "eval.mask_gt_beyond_cap", "eval.dense_gt_fraction"}
+    assert set(stages["match"]["params"]) == {"optimum.threads", "loss.alpha", "${item.variant}", *suites}
+    assert set(stages["sgbm"]["params"]) == {"optimum.threads", *suites}
+    assert stages["sgbm"]["cmd"] == "python stages/match.py sgbm"

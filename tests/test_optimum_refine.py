@@ -69,12 +69,17 @@ def test_start_logits_keep_the_range_s_ends_off() -> None:
     assert disp[1] == pytest.approx(0.075, rel=1e-5)
 
 
-def test_the_constant_start_is_the_default_and_unchanged() -> None:
-    params = small(Params(), levels=2, iterations=5)
+def test_the_cost_start_is_the_default() -> None:
+    """optimum.start defaults to cost (SGM on the variant's own cost volume, the best by measurement:
+    docs/optimum.md); the constant start stays one key away."""
+    defaults = Params()
+    assert (defaults.optimum.start, defaults.optimum.smoothness_width) == ("cost", 414)
+    params = small(defaults, refine_levels=1, refine_iterations=3, start=defaults.optimum.start)
     pair = [plane_pair()]
     default = optimum_disparities(pair, params, "ssim", progress=False)[0]
-    constant = optimum_disparities(pair, params, "ssim", progress=False, start="constant")[0]
-    assert default.tobytes() == constant.tobytes()
+    cost = optimum_disparities(pair, params, "ssim", progress=False, start="cost")[0]
+    assert default.tobytes() == cost.tobytes()
+    assert np.median(np.abs(default[INTERIOR] * W - SHIFT)) < 0.5
 
 
 # ----------------------------------------------------------------------------- the starts
@@ -124,8 +129,8 @@ def test_optimum_disparities_refines_a_batch_from_matched_starts() -> None:
 
 
 def test_the_start_and_refinement_keys_are_checked() -> None:
-    assert Params().optimum.start == "constant"
-    assert params_from_dict({"optimum": {"start": "cost"}}).optimum.start == "cost"
+    assert Params().optimum.start == "cost"
+    assert params_from_dict({"optimum": {"start": "constant"}}).optimum.start == "constant"
     with pytest.raises(ConfigError, match=r"optimum.start: 'nope' is not one of \['constant', 'cost', "):
         params_from_dict({"optimum": {"start": "nope"}})
     for key in ("refine_levels", "refine_iterations"):
@@ -206,9 +211,10 @@ def test_refine_study_on_a_tiny_fake_samples_folder(tmp_path) -> None:
 
 
 def test_the_smoothness_weight_scales_with_the_working_width_when_asked() -> None:
-    params = Params()
-    assert working_weight(params, 1242) == params.optimum.smoothness_weight  # 0: not scaled
-    scaled = small(params, smoothness_width=414)
+    params = small(Params())  # smoothness_width 0: not scaled
+    assert working_weight(params, 1242) == params.optimum.smoothness_weight
+    scaled = Params()  # the default: the weights hold at 414 px, the render width
+    assert working_weight(scaled, 414) == scaled.optimum.smoothness_weight
     assert working_weight(scaled, 1242) == pytest.approx(30.0) and working_weight(scaled, 207, 3.0) == 1.5
     with pytest.raises(ConfigError, match="optimum.smoothness_width"):
         params_from_dict({"optimum": {"smoothness_width": -1}})

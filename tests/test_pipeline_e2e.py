@@ -100,15 +100,36 @@ def _check_optimum(repo: Path, md: str, compare: dict) -> None:
     assert "interval covers the choice of images" in section and "ROI abs rel per class" in section
     diff = compare["optimum"]["differences"]
     assert (
-        set(diff) == {"optimum ssim w10", "optimum msssim w10"}
+        set(diff) == {"optimum ssim w10", "optimum msssim w10", *MATCHERS}
         and diff["optimum ssim w10"]["full"]["abs_rel"]["n"] == 3
     )
+    _check_matchers(repo, section, diff)
     for variant in ("ssim", "msssim"):
         curves = json.loads((repo / "metrics" / "cost_curves" / f"{variant}.json").read_text())
         assert len(curves["scales"]) == 25 and curves["classes"], variant
         for cls, summary in curves["classes"].items():
             assert summary["basin_low"] <= summary["s_min"] <= summary["basin_high"], cls
             assert len(curves["mean_curves"][cls]) == 25
+
+
+MATCHERS = {"SGM (ssim cost)": "optimum/match/ssim", "SGM (msssim cost)": "optimum/match/msssim",
+            "SGBM": "optimum/sgbm"}  # fmt: skip
+
+
+def _check_matchers(repo: Path, section: str, diff: dict) -> None:
+    """The match and sgbm stages: metrics only (no outputs), every frame, D1 and EPE in the full
+    suite (the optimum's and the trained runs' too), the rows and their differences in compare.md."""
+    for label, run in MATCHERS.items():
+        full = json.loads((repo / "metrics" / "full" / f"{run}.json").read_text())
+        assert full["images"] == 3 and 0 <= full["cap80"]["d1"] <= 1 and full["cap80"]["epe"] >= 0, run
+        assert (repo / "metrics" / "roi" / f"{run}.csv").stat().st_size > 0
+        assert not (repo / "outputs" / run).exists()
+        assert re.search(
+            rf"^\| {re.escape(label)} \| 3 \| [0-9.]+ \| [0-9.]+ \| [0-9.]+ \| [0-9.]+ \|", section, re.M
+        )
+        assert diff[label]["full"]["abs_rel"]["n"] == 3
+    for run in ("ssim/seed0", OPTIMUM_RUNS[0]):
+        assert "d1" in json.loads((repo / "metrics" / "full" / f"{run}.json").read_text())["cap80"], run
 
 
 def test_push_and_pull_through_a_local_dvc_remote(repo: Path, tmp_path: Path):
@@ -189,6 +210,7 @@ MSSSIM_STAGES = {
     "eval_set@eigen-msssim-0",
     *(f"optimum@msssim-{w}" for w in SWEEP),
     "cost_curves@msssim",
+    "match@msssim",  # SGM on its cost volume (SGBM's stage reads no variant's section)
     "compare",
     "report",
     "figures",
@@ -348,15 +370,19 @@ def test_more_seeds_train_only_the_new_runs_and_widen_the_comparison(repo: Path,
 
 def test_a_new_variant_in_variants_trains_only_its_runs_and_joins_the_comparison(repo: Path, tmp_path: Path):
     """docs/design.md "Loss variants": listing a registered variant (Zhao et al.'s mix) in `variants` is
-    all `dvc repro` needs; the runs that exist stand, the new one is evaluated and compared."""
+    all `dvc repro` needs (and, mix having no per-pixel cost, an optimum.start other than cost); the
+    trained runs that exist stand, the new one is evaluated and compared."""
     repo = _copy(repo, tmp_path)  # the module's project keeps its two variants
     params = yaml.safe_load((repo / "params.yaml").read_text())
     params["variants"] = ["ssim", "msssim", "mix"]
     params["mix"]["levels"] = 3  # the tiny input's coarsest training scale is 4 x 12 px
+    params["optimum"]["start"] = "sgbm"  # mix has no per-pixel cost to start from (the default: cost)
     (repo / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
     changed = set(json.loads(run_checked([sys.executable, "-m", "dvc", "status", "--json"], repo)))
     assert {"train@mix-0", "infer@mix-0", "compare"} <= changed
-    assert not any("@ssim" in stage or "@msssim" in stage for stage in changed), changed
+    # The new start re-runs the other variants' optimum (optimum.start is theirs too), nothing else.
+    trained = [s for s in changed if ("@ssim" in s or "@msssim" in s) and not s.startswith("optimum@")]
+    assert not trained and "match@mix" in changed, changed
     before = (repo / "metrics" / "full" / "msssim" / "seed0.json").read_text()
     run_checked([sys.executable, "-m", "dvc", "repro", "--quiet"], repo)
     assert (repo / "metrics" / "full" / "msssim" / "seed0.json").read_text() == before
@@ -364,7 +390,9 @@ def test_a_new_variant_in_variants_trains_only_its_runs_and_joins_the_comparison
         assert (repo / "metrics" / suite / "mix" / "seed0.json").is_file(), suite
     compare = json.loads((repo / "metrics" / "compare.json").read_text())
     assert "mix" in compare["statistics"]["full"]["cap80"]
-    assert "mix" in (repo / "metrics" / "compare.md").read_text()
+    md = (repo / "metrics" / "compare.md").read_text()
+    assert "mix" in md and "SGM (mix cost): skipped (variant mix has no per-pixel cost" in md
+    assert "skipped" in json.loads((repo / "metrics" / "full" / "optimum" / "match" / "mix.json").read_text())
 
 
 def test_train_stage_tracks_every_train_key_but_the_seeds():

@@ -60,7 +60,8 @@ def test_prepare_data_dry_run_of_the_synthetic_set_writes_nothing(tmp_path: Path
 
 def test_reading_params_imports_neither_torch_nor_numpy(tmp_path: Path):
     """Every stage reads its params: the loss variants' configs come without their terms."""
-    (tmp_path / "params.yaml").write_text("variants: [ssim, msssim, mix]\n")
+    # mix has no per-pixel cost: optimum.start cost (the default) would refuse it.
+    (tmp_path / "params.yaml").write_text("variants: [ssim, msssim, mix]\noptimum: {start: sgbm}\n")
     code = (
         "import sys; from msdepth.pipeline.paths import load_params; p = load_params('params.yaml'); "
         "heavy = [m for m in ('torch', 'numpy', 'msdepth.losses.appearance') if m in sys.modules]; "

@@ -7,6 +7,7 @@ sections with these, so neither imports the other for them (and reading params i
 from __future__ import annotations
 
 import reprlib
+from collections.abc import Mapping
 
 from msdepth.errors import ConfigError
 
@@ -44,4 +45,24 @@ def check_levels_fit(key: str, levels: int, height: int, width: int) -> None:
         min(height, width) // 8 // 2 ** (levels - 1) >= 1,
         f"{key}.levels",
         f"{levels} levels do not fit the coarsest training scale ({height // 8}x{width // 8} px)",
+    )
+
+
+def has_per_pixel_cost(config: object) -> bool:
+    """Whether a variant's config (:mod:`msdepth.config.variants`) says its term has a per-pixel
+    form that a cost volume can be built from (its class's ``per_pixel_cost``; False if unsaid)."""
+    return bool(getattr(config, "per_pixel_cost", False))
+
+
+def check_per_pixel_costs(key: str, start: str, sections: Mapping[str, object]) -> None:
+    """Raise a ConfigError on ``key`` (``optimum.start``) when the start is ``cost`` and a variant's
+    config in ``sections`` (name -> config) has no per-pixel cost (:func:`has_per_pixel_cost`): SGM on
+    its cost volume cannot be built."""
+    if start != "cost":
+        return
+    without = [name for name, config in sections.items() if not has_per_pixel_cost(config)]
+    check(
+        not without,
+        key,
+        f"cost needs each variant's per-pixel cost and {without} have none: set it to sgbm or constant",
     )

@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal, Sequence, get_args, get_origin
 
-from msdepth.config.checks import SHOWN_CHARS, check, shown
+from msdepth.config.checks import SHOWN_CHARS, check, check_per_pixel_costs, shown
 from msdepth.config.network_sizes import TRAINING_SIDES, sides_problem
 from msdepth.config.params_yaml import parse
 from msdepth.config.variants import (
@@ -497,7 +497,7 @@ class OptimumConfig:
     init_disparity: float = 0.04  # the constant start, fraction of the width
     # constant: coarse to fine from init_disparity; cost/sgbm: a matched start (msdepth.optimum.starts),
     # refined by refine_iterations Adam steps at each of the finest refine_levels levels (docs/optimum.md).
-    start: OptimumStart = "constant"
+    start: OptimumStart = "cost"
     refine_levels: int = 2
     refine_iterations: int = 50
     height: int = 0  # working size; 0 = data.synthetic's render size (the CLI: the image's own)
@@ -508,7 +508,8 @@ class OptimumConfig:
     smoothness_sweep: tuple[float, ...] = (3.0, 10.0, 30.0)
     # 0: the weights as given at any working size. N: they hold at a working width of N px and
     # scale by W / N at width W (the smoothness term falls as 1 / W; docs/optimum.md, measured).
-    smoothness_width: int = 0
+    # 414: the render width, where the weights were chosen, so the pipeline's results keep them.
+    smoothness_width: int = 414
     batch_size: int = 4  # pairs optimised together (independent: each pair's gradient is its own)
     # The pipeline's optimum stages (docs/optimum-pipeline.md): the sweep's weights other than
     # smoothness_weight see only the first sweep_frames evaluation frames (0 = all), the cost
@@ -547,6 +548,7 @@ class OptimumConfig:
         check(self.sweep_frames >= 0, f"{key}.sweep_frames", f"must be >= 0, got {self.sweep_frames}")
         check(self.cost_frames >= 0, f"{key}.cost_frames", f"must be >= 0, got {self.cost_frames}")
         check(self.threads >= 1, f"{key}.threads", f"must be >= 1, got {self.threads}")
+        check_per_pixel_costs(f"{key}.start", self.start, {v: params.appearance[v] for v in params.variants})
         sweep = self.smoothness_sweep
         check(
             min(sweep) > 0 and max(sweep) >= 10 * min(sweep) and self.smoothness_weight in sweep,

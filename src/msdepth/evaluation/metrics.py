@@ -42,6 +42,9 @@ def compute_errors(gt: np.ndarray, pred: np.ndarray) -> dict[str, float]:
     return {name: float(v) for name, v in zip(METRICS, values, strict=True)}
 
 
+# KITTI's stereo metrics of :func:`stereo_errors`, reported beside METRICS by the full-image suite
+# (lower is better for both).
+STEREO_METRICS = ("d1", "epe")
 # KITTI's stereo outlier (devkit, D1): an error above 3 px and above 5 % of the true disparity.
 D1_PIXELS = 3.0
 D1_FRACTION = 0.05
@@ -64,7 +67,7 @@ def stereo_errors(gt_disp: np.ndarray, pred_disp: np.ndarray) -> dict[str, float
         raise ValueError("stereo_errors: the prediction is not finite at every GT pixel")
     error = np.abs(pred[valid] - gt[valid])
     outliers = (error > D1_PIXELS) & (error > D1_FRACTION * gt[valid])
-    return {"d1": float(outliers.mean()), "epe": float(error.mean())}
+    return dict(zip(STEREO_METRICS, (float(outliers.mean()), float(error.mean())), strict=True))
 
 
 # Garg et al.'s crop of the Eigen split, as fractions of the GT image size (Monodepth2's

@@ -3,8 +3,9 @@
 Every suite reads the same inputs whatever the evaluation set: predicted depth per frame (from
 :func:`depth_maps`), the frames (:class:`Frame`: GT depth, camera, crop) and, for the ROI suites,
 the ROI boxes. Metrics are computed per image (or per ROI) with
-:func:`msdepth.evaluation.metrics.compute_errors`, then averaged, for each depth cap. Frames or ROIs
-without valid GT are excluded and counted.
+:func:`msdepth.evaluation.metrics.compute_errors` (the full image also with
+:func:`~msdepth.evaluation.metrics.stereo_errors`, D1 and EPE), then averaged, for each depth cap.
+Frames or ROIs without valid GT are excluded and counted.
 """
 
 from __future__ import annotations
@@ -22,8 +23,21 @@ from msdepth.config.params import EvalConfig
 from msdepth.data import kitti
 from msdepth.data.ground_truth import read_class_map, read_gt_depth
 from msdepth.errors import DataError
-from msdepth.evaluation.metrics import METRICS, compute_errors, garg_crop_mask, median_scale
-from msdepth.geometry.depth import clamp_depth, disparity_to_depth, pixel_disparity
+from msdepth.evaluation.metrics import (
+    METRICS,
+    STEREO_METRICS,
+    compute_errors,
+    garg_crop_mask,
+    median_scale,
+    stereo_errors,
+)
+from msdepth.geometry.depth import (
+    clamp_depth,
+    depth_to_disparity,
+    disparity_to_depth,
+    pixel_disparity,
+    predicted_depth,
+)
 from msdepth.pipeline.paths import ROIS
 
 GRADIENTS = ("sobel_x", "sobel_y", "laplacian")
@@ -129,7 +143,7 @@ def depth_maps(
             sigmoid = pixel_disparity(disp, h, w) / (w * MAX_DISPARITY)
             out[frame.name] = disp_to_depth(sigmoid.astype(np.float32))[1].astype(np.float32)
         else:
-            out[frame.name] = disparity_to_depth(pixel_disparity(disp, h, w), frame.focal, frame.baseline)
+            out[frame.name] = predicted_depth(pixel_disparity(disp, h, w), frame.focal, frame.baseline)
     return out
 
 
@@ -141,10 +155,13 @@ def _metrics_in(
     cfg: EvalConfig,
     box: tuple[slice, slice] | None = None,
     scale: bool = False,
+    stereo: bool = False,
 ) -> dict | None:
     """The 7 metrics of ``pred`` against ``frame``'s GT on ``mask`` (``pred`` and ``mask`` already
     cropped to ``box``). ``scale``: the prediction is median-scaled first (per image, as
-    Monodepth2's monocular evaluation) and the ratio returned as ``ratio``."""
+    Monodepth2's monocular evaluation) and the ratio returned as ``ratio``. ``stereo``: KITTI's D1
+    and EPE too (:data:`~msdepth.evaluation.metrics.STEREO_METRICS`), on the disparities f·B/depth of
+    the same capped prediction and the GT (KITTI 2015's GT disparity back; LiDAR depth's)."""
     gt = frame.gt_depth if box is None else frame.gt_depth[box]
     mask = _evaluated(frame, gt, mask, cap, cfg)
     if not mask.any():
@@ -153,7 +170,11 @@ def _metrics_in(
     ratio = None
     if scale:
         pred, ratio = median_scale(gt, pred)
-    metrics = compute_errors(gt, clamp_depth(pred, cfg.min_depth, cap))
+    pred = clamp_depth(pred, cfg.min_depth, cap)
+    metrics = compute_errors(gt, pred)
+    if stereo:
+        camera = (frame.focal, frame.baseline)
+        metrics.update(stereo_errors(depth_to_disparity(gt, *camera), depth_to_disparity(pred, *camera)))
     return metrics if ratio is None else {**metrics, "ratio": ratio}
 
 
@@ -192,7 +213,8 @@ def _mean(rows: list[dict], keys: tuple[str, ...]) -> dict[str, float]:
 def evaluate_full(
     pred: dict[str, np.ndarray], frames: list[Frame], cfg: EvalConfig, *, median_scaling: bool = False
 ) -> tuple[dict, pd.DataFrame]:
-    """Suite 1: the 7 metrics per image over valid GT, then averaged, per cap.
+    """Suite 1: the 7 metrics per image over valid GT, and KITTI's D1 and EPE on the disparity
+    f·B/depth of the capped prediction against the GT's (:func:`_metrics_in`), then averaged, per cap.
 
     ``median_scaling``: each prediction is first scaled by median(GT) / median(prediction) over
     its evaluated pixels (Monodepth2's monocular evaluation); the ratios' median and relative
@@ -203,12 +225,12 @@ def evaluate_full(
     for cap in cfg.caps:
         per_cap = []
         for f in frames:
-            m = _metrics_in(f, pred[f.name], f.valid, cap, cfg, scale=median_scaling)
+            m = _metrics_in(f, pred[f.name], f.valid, cap, cfg, scale=median_scaling, stereo=True)
             if m is not None:
                 per_cap.append({"frame": f.name, "cap": cap, **m})
         if not per_cap:
             raise DataError("full-image evaluation: no frame has valid ground truth")
-        summary[f"cap{cap:g}"] = _mean(per_cap, METRICS)
+        summary[f"cap{cap:g}"] = _mean(per_cap, METRICS + STEREO_METRICS)
         if median_scaling:
             ratios = np.array([r["ratio"] for r in per_cap])
             med = float(np.median(ratios))

@@ -24,6 +24,30 @@ def disparity_to_depth(disp_px: np.ndarray, focal: float, baseline: float) -> np
     return depth
 
 
+def predicted_depth(disp_px: np.ndarray, focal: float, baseline: float) -> np.ndarray:
+    """A prediction's depth (m) = focal * baseline / disparity; disparity <= 0 is infinitely far.
+
+    Monodepth's evaluation divides without a guard, so a zero disparity (a matcher's sky) becomes
+    infinite depth and the cap clamps it to the farthest depth. :func:`disparity_to_depth` is for
+    GT, where 0 means "no GT"; clamped, that 0 would read as the nearest depth instead.
+    """
+    disp_px = np.asarray(disp_px, dtype=np.float32)
+    depth = np.full_like(disp_px, np.inf)
+    valid = disp_px > 0
+    depth[valid] = focal * baseline / disp_px[valid]
+    return depth
+
+
+def depth_to_disparity(depth: np.ndarray, focal: float, baseline: float) -> np.ndarray:
+    """Disparity (px, float64) = focal * baseline / depth of depths in m; depth <= 0 gives 0 (no GT,
+    as KITTI's disparity maps mark it) and infinite depth 0 px."""
+    depth = np.asarray(depth, dtype=np.float64)
+    out = np.zeros_like(depth)
+    valid = depth > 0
+    out[valid] = focal * baseline / depth[valid]
+    return out
+
+
 def clamp_depth(depth: np.ndarray, min_depth: float, max_depth: float) -> np.ndarray:
     """Clamp predicted depth to [min_depth, max_depth] as Monodepth's KITTI-2015 evaluation does."""
     out = depth.copy()

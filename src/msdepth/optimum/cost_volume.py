@@ -101,7 +101,10 @@ def matching_cost(params: Params, variant: str) -> MatchingCost:
         spec = "equal" if section.weights == "learned" else section.weights  # learned: their start
         weights = level_weights(spec, section.levels, torch.zeros((), dtype=torch.float32))
         return MatchingCost(params.loss.alpha, section.kernel_size, tuple(weights.tolist()))
-    raise ConfigError(f"cost volume: variant {variant!r} ({type(section).__name__}) has no per-pixel form")
+    raise ConfigError(
+        f"cost volume: variant {variant!r} ({type(section).__name__}) has no per-pixel form: "
+        "set optimum.start to sgbm or constant"
+    )
 
 
 def default_max_disparity(width: int) -> int:

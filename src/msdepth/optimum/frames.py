@@ -1,6 +1,8 @@
 """The losses' own optimum (:mod:`msdepth.optimum.solver`) on the pipeline's evaluation frames, scored
-with the same depth conversion and suites as a trained run, and the cost curves of every ROI
-with dense GT. The stages ``optimum`` and ``cost_curves`` (stages/*.py) call these."""
+with the same depth conversion and suites as a trained run; the matchers beside it (SGM on a
+variant's own cost volume, OpenCV's SGBM: :mod:`msdepth.optimum.starts`, no refinement), scored the
+same way; and the cost curves of every ROI with dense GT. The stages ``optimum``, ``match`` and
+``cost_curves`` (stages/*.py) call these."""
 
 from __future__ import annotations
 
@@ -11,9 +13,10 @@ from typing import TYPE_CHECKING
 import numpy as np
 import pandas as pd
 
+from msdepth.config.checks import has_per_pixel_cost
 from msdepth.config.params import Params
 from msdepth.errors import ConfigError
-from msdepth.pipeline.paths import OPTIMUM, optimum_run, suite_dir
+from msdepth.pipeline.paths import OPTIMUM, SGBM, match_run, optimum_run, suite_dir
 
 if TYPE_CHECKING:
     from msdepth.losses.monodepth import MonodepthLoss
@@ -149,12 +152,9 @@ def score_optimum(
     ``rois``), exactly as a trained run's."""
     import torch
 
-    from msdepth.data import kitti
     from msdepth.data.index import read_eval_index
-    from msdepth.evaluation.results import run_suite
     from msdepth.evaluation.suites import depth_maps, load_frames
     from msdepth.io import save_npy, save_npz
-    from msdepth.pipeline.paths import SUITE_NAMES
 
     torch.set_num_threads(params.optimum.threads)
     index = sweep_frames(params, read_eval_index(eval_index), weight)
@@ -163,9 +163,67 @@ def score_optimum(
     frames = load_frames(index)
     pred = depth_maps(disp, frames)
     save_npz(depth, **pred)
+    score_depth(params, run, pred, frames, rois)
+
+
+def score_depth(params: Params, run: str, pred: dict[str, np.ndarray], frames: list, rois: Path) -> None:
+    """Every suite on ``pred`` (frame -> depth at GT size) of ``frames`` as run ``run``, the ROI
+    suites on the boxes of ``rois`` that lie on those frames: what a trained run's eval stages do."""
+    from msdepth.data import kitti
+    from msdepth.evaluation.results import run_suite
+    from msdepth.pipeline.paths import SUITE_NAMES
+
     boxes = boxes_of(kitti.read_rois(rois), [f.name for f in frames])
     for suite in SUITE_NAMES:
         run_suite(params, suite, run, pred, frames, None if suite == "full" else boxes)
+
+
+def checked_matcher(params: Params, matcher: str) -> str:
+    """``matcher`` if it is ``sgbm`` or a configured variant, else a ConfigError naming them."""
+    return matcher if matcher == SGBM else params.variant(matcher)
+
+
+def match_disparities(params: Params, matcher: str, index: pd.DataFrame) -> list[np.ndarray]:
+    """The left disparity (h, w; fraction of the width, as the infer stage writes a network's) of
+    every row ``(left, right)`` of an evaluation index, at the pair's own size: OpenCV's SGBM
+    (``matcher`` ``sgbm``) or SGM on the variant ``matcher``'s own cost volume, winner-take-all with
+    sub-pixel refinement, the left-right check and holes filled
+    (:func:`msdepth.optimum.starts.matched_disparity`): the optimum's matched start, unrefined."""
+    from msdepth.data.kitti import read_image
+    from msdepth.optimum.starts import matched_disparity
+
+    start = "sgbm" if matcher == SGBM else "cost"
+    out = []
+    for left, right in zip(index["left"], index["right"], strict=True):
+        left_image = read_image(left)
+        px = matched_disparity(left_image, read_image(right), params, matcher, start)
+        out.append(px / np.float32(left_image.shape[1]))
+    return out
+
+
+def score_match(params: Params, matcher: str, eval_index: Path, rois: Path) -> None:
+    """A matcher (:func:`match_disparities`) on every frame of ``eval_index``, with
+    ``optimum.threads`` torch threads, converted to depth and scored by every suite as run
+    :func:`~msdepth.pipeline.paths.match_run` (metrics only: no disparities or depth kept). A
+    variant without a per-pixel cost (``mix``) writes skipped metrics, as a baseline that cannot be
+    built does (:func:`msdepth.evaluation.baselines.write_skipped`)."""
+    import torch
+
+    from msdepth.data.index import read_eval_index
+    from msdepth.evaluation.baselines import write_skipped
+    from msdepth.evaluation.suites import depth_maps, load_frames
+    from msdepth.pipeline.paths import HEADLINE, METRICS, SUITE_NAMES
+
+    run = match_run(checked_matcher(params, matcher))
+    if matcher != SGBM and not has_per_pixel_cost(params.appearance[matcher]):
+        reason = f"variant {matcher} has no per-pixel cost: no cost volume to match on"
+        for suite in SUITE_NAMES:
+            write_skipped(METRICS, suite, run, reason, suite != "gradients", HEADLINE)
+        return
+    torch.set_num_threads(params.optimum.threads)
+    index = read_eval_index(eval_index)
+    frames = load_frames(index)
+    score_depth(params, run, depth_maps(match_disparities(params, matcher, index), frames), frames, rois)
 
 
 def write_cost_curves(params: Params, variant: str, eval_index: Path, rois: Path, out: Path) -> None:
@@ -207,3 +265,10 @@ def optimum_runs(params: Params, metrics_dir: Path) -> dict[str, str]:
                 raise DataError(f"{folder}: no optimum at weight {weight:g}")
             out[f"{OPTIMUM} {variant} w{weight:g}"] = optimum_run(variant, found[weight])
     return out
+
+
+def matcher_runs(params: Params) -> dict[str, str]:
+    """``{label: run}`` of the matchers' runs (:func:`score_match`): ``SGM (<variant> cost)`` per
+    variant of ``variants`` (a skipped one included), then ``SGBM``."""
+    runs = {f"SGM ({variant} cost)": match_run(variant) for variant in params.variants}
+    return {**runs, "SGBM": match_run(SGBM)}

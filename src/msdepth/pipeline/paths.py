@@ -97,6 +97,18 @@ def optimum_run(variant: str, weight: str) -> str:
     return f"{OPTIMUM}/{variant}/w{weight}"
 
 
+MATCH = "match"  # SGM on a variant's own cost volume: run optimum/match/<variant>
+SGBM = "sgbm"  # OpenCV's SGBM (the matchers' rows beside the optimum's; msdepth.optimum.frames)
+SGBM_RUN = f"{OPTIMUM}/{SGBM}"
+MatcherArg = Annotated[str, f"a variant listed in params.yaml's variants (SGM on its own cost) or {SGBM}"]
+
+
+def match_run(matcher: str) -> str:
+    """A matcher's run, no refinement, below the optimum's: :data:`SGBM_RUN` for ``sgbm``, else
+    ``optimum/match/<variant>`` (SGM on that variant's own cost volume)."""
+    return SGBM_RUN if matcher == SGBM else f"{OPTIMUM}/{MATCH}/{matcher}"
+
+
 def checked_run(params: Params, variant: str, seed: str) -> str:
     """The run of a stage's ``VARIANT SEED`` arguments, a ConfigError if either is not configured."""
     return run_name(params.variant(variant), params.seed(seed))

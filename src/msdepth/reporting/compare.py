@@ -15,7 +15,7 @@ import pandas as pd
 from msdepth.config.params import CompareConfig, Params
 from msdepth.config.variants import configs as variant_configs
 from msdepth.errors import DataError
-from msdepth.evaluation.metrics import HIGHER_IS_BETTER, METRICS
+from msdepth.evaluation.metrics import HIGHER_IS_BETTER, METRICS, STEREO_METRICS
 from msdepth.evaluation.suites import GRADIENTS, NO_ROIS
 from msdepth.pipeline.paths import suite_path, train_summary_path
 from msdepth.reporting.stats import paired_table, seed_bootstrap
@@ -863,8 +863,10 @@ OPTIMUM_METRICS = ("abs_rel", "a1")
 
 
 def _optimum_row(full: dict, roi: dict | None, cap: str) -> dict:
-    """One run's numbers in the optimum section: full-image, ROI (overall and per class), masks."""
+    """One run's numbers in the optimum section: full-image (with D1 and EPE where the suite has
+    them: metrics written before they were added have not), ROI (overall and per class), masks."""
     row = {"images": full.get("images"), **{m: full[cap][m] for m in OPTIMUM_METRICS}}
+    row.update({m: full[cap][m] for m in STEREO_METRICS if m in full[cap]})
     if roi is not None and cap in roi:
         row["roi_abs_rel"] = roi[cap]["overall"]["abs_rel"]
         row["by_class"] = {k: v["abs_rel"] for k, v in roi[cap]["by_class"].items()}
@@ -875,11 +877,16 @@ def _optimum_row(full: dict, roi: dict | None, cap: str) -> dict:
 
 
 def optimum_data(
-    suites: dict[str, dict[str, dict]], runs: dict[str, str], stats: dict | None, cap: str
+    suites: dict[str, dict[str, dict]],
+    runs: dict[str, str],
+    stats: dict | None,
+    cap: str,
+    skipped: dict[str, str] | None = None,
 ) -> dict:
-    """The section's data: per optimum label (``runs``: label -> run, e.g. ``"optimum ssim w10"``)
-    its numbers at ``cap`` (:func:`_optimum_row`), and the differences to the reference that
-    ``stats`` (:func:`paired_statistics` over groups that hold these labels) has for them."""
+    """The section's data: per optimum or matcher label (``runs``: label -> run, e.g.
+    ``"optimum ssim w10"``, ``"SGBM"``) its numbers at ``cap`` (:func:`_optimum_row`), the
+    differences to the reference that ``stats`` (:func:`paired_statistics` over groups that hold
+    these labels) has for them, and the matchers ``skipped`` (label -> why)."""
     roi = suites.get("roi", {})
     rows = {label: _optimum_row(suites["full"][run], roi.get(run), cap) for label, run in runs.items()}
     differences: dict = {}
@@ -892,6 +899,7 @@ def optimum_data(
         "reference": (stats or {}).get("reference"),
         "runs": rows,
         "differences": differences,
+        "skipped": dict(skipped or {}),
     }
 
 
@@ -915,6 +923,21 @@ def _optimum_side_rows(c: Comparison, cap: str) -> dict[str, dict]:
     return out
 
 
+def _optimum_main_row(name: str, r: dict) -> list[str]:
+    """A row of the optimum section's main table: D1 in %, EPE in px (– where a run has none)."""
+    d1, epe = r.get("d1"), r.get("epe")
+    return [
+        name,
+        str(r.get("images") or ""),
+        _fmt(r.get("abs_rel")),
+        _fmt(r.get("a1")),
+        "–" if d1 is None else f"{100 * d1:.1f}",
+        "–" if epe is None else f"{epe:.2f}",
+        _fmt(r.get("roi_abs_rel")),
+        _fmt(r.get("mask_abs_rel")),
+    ]
+
+
 def _optimum_lines(c: Comparison) -> list[str]:
     """The optimum of every variant and weight beside the trained runs and the baselines, its
     differences to the reference with intervals, and its ROI abs_rel per class."""
@@ -922,8 +945,7 @@ def _optimum_lines(c: Comparison) -> list[str]:
         return []
     o, cap = c.optimum, c.optimum["cap"]
     rows = {**_optimum_side_rows(c, cap), **o["runs"]}
-    cols = ["abs_rel", "a1", "roi_abs_rel", "mask_abs_rel"]
-    main = [[name, str(r.get("images") or ""), *[_fmt(r.get(k)) for k in cols]] for name, r in rows.items()]
+    main = [_optimum_main_row(name, r) for name, r in rows.items()]
     classes = sorted({k for r in rows.values() for k in r.get("by_class", {})})
     per_class = [
         [
@@ -938,11 +960,16 @@ def _optimum_lines(c: Comparison) -> list[str]:
         "",
         "Per stereo pair, the disparity that minimises each variant's own training objective, optimised "
         "directly with both views (docs/optimum.md), scored with the same suites. The weight is the "
-        f"optimum's own smoothness weight; images: the frames each row was scored on. Cap {cap[3:]} m.",
+        f"optimum's own smoothness weight; images: the frames each row was scored on. Cap {cap[3:]} m. "
+        "The matchers, unrefined: SGM on a variant's own cost volume and OpenCV's SGBM (the optimum's "
+        "`cost` and `sgbm` starts). D1: KITTI's share of GT pixels off by > 3 px and > 5 %; EPE: the "
+        "mean disparity error, on the capped depth's disparity f·B/depth.",
         "",
-        _table(["run", "images", "abs_rel", "a1", "ROI abs_rel", "mask abs_rel"], main),
+        _table(["run", "images", "abs_rel", "a1", "D1 (%)", "EPE (px)", "ROI abs_rel", "mask abs_rel"], main),
         "",
     ]
+    if o.get("skipped"):
+        lines += [" ".join(f"{label}: skipped ({why})." for label, why in o["skipped"].items()), ""]
     if o["differences"]:
         diff = [
             [label, *[difference_cell(d.get(s, {}).get(m)) for s in ("full", "roi") for m in OPTIMUM_METRICS]]

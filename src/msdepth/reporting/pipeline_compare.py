@@ -12,7 +12,7 @@ from msdepth.config.params import Params
 from msdepth.evaluation.baselines import BASELINES, skipped_reason
 from msdepth.evaluation.suites import no_rois
 from msdepth.io import write_json, write_text
-from msdepth.optimum.frames import optimum_runs
+from msdepth.optimum.frames import matcher_runs, optimum_runs
 from msdepth.pipeline.paths import (
     COMPARE_JSON,
     COMPARE_MD,
@@ -92,25 +92,30 @@ def compare(params: Params) -> None:
 
 
 def optimum_section(params: Params, groups: dict[str, list[str]], compared: Sequence[str]) -> dict | None:
-    """The optimum runs' numbers and, at the default weight (every frame), their paired differences
-    to the reference variant over images and ROIs (the sweep's other weights see a subset).
+    """The optimum runs' and the matchers' numbers and, at the default weight (every frame) and for
+    the matchers (every frame), their paired differences to the reference variant over images and
+    ROIs (the sweep's other weights see a subset). A matcher without metrics (skipped: a variant
+    without a per-pixel cost; or its stage not run) is listed with the reason.
 
     None, and no section, where no optimum stage has written anything (the stages run alone, as the
     tests do); once any has, every variant and weight must be there (a DataError names the first
     missing)."""
     if not (suite_dir("full") / OPTIMUM).is_dir():
         return None
-    runs = optimum_runs(params, METRICS)
+    matchers = matcher_runs(params)
+    reasons = {k: skipped_reason(METRICS, r, compared) for k, r in matchers.items()}
+    skipped = {k: why for k, why in reasons.items() if why is not None}
+    matchers = {k: r for k, r in matchers.items() if k not in skipped}
+    runs = {**optimum_runs(params, METRICS), **matchers}
     suites = load_suite_metrics(METRICS, list(runs.values()), compared)
-    default = {
-        k: [r] for k, r in runs.items() if k.rsplit(" w", 1)[1] == f"{params.optimum.smoothness_weight:g}"
-    }
+    weight = f"{params.optimum.smoothness_weight:g}"
+    default = {k: [r] for k, r in runs.items() if k in matchers or k.rsplit(" w", 1)[1] == weight}
     reference = {params.compare.reference: groups[params.compare.reference]}
     tables = load_unit_tables(
         METRICS, [*reference[params.compare.reference], *(r[0] for r in default.values())], compared
     )
     stats = paired_statistics(tables, {**reference, **default}, params.compare, params.eval.caps[:1])
-    return optimum_data(suites, runs, stats, f"cap{params.eval.caps[0]:g}")
+    return optimum_data(suites, runs, stats, f"cap{params.eval.caps[0]:g}", skipped)
 
 
 def mean_rows(result: dict, variants: Sequence[str], cap: str) -> dict[str, dict[str, float]]:

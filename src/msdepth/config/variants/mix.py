@@ -5,7 +5,7 @@ whose docstring explains the defaults)."""
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Literal
+from typing import TYPE_CHECKING, ClassVar, Literal
 
 from msdepth.config.checks import check, check_levels_fit
 from msdepth.config.variants import register
@@ -17,6 +17,8 @@ if TYPE_CHECKING:
 @register("mix")
 @dataclass(frozen=True)
 class MixConfig:
+    # No per-pixel form of its term (msdepth.optimum.cost_volume): optimum.start: cost cannot match on it.
+    per_pixel_cost: ClassVar[bool] = False
     alpha: float = 0.84  # Zhao et al.'s weight of the MS-SSIM term
     levels: int = 4  # 5 in Zhao et al.; needs an input whose coarsest training scale has 16 px
     sigma: float = 0.5  # px, the Gaussian window of every level (level i: sigma·2^i px of the image)

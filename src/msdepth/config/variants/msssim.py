@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Literal
+from typing import TYPE_CHECKING, ClassVar, Literal
 
 from msdepth.config.checks import check, check_levels_fit
 from msdepth.config.variants import register
@@ -15,6 +15,8 @@ if TYPE_CHECKING:
 @register("msssim")
 @dataclass(frozen=True)
 class MSSSIMConfig:
+    # A per-pixel form of its term exists (msdepth.optimum.cost_volume): optimum.start: cost can match on it.
+    per_pixel_cost: ClassVar[bool] = True
     kernel_size: int = 3
     levels: int = 4
     weights: Literal["wang", "equal", "learned"] = "wang"
