@@ -196,3 +196,24 @@ def test_sentences_from_known_rows() -> None:
     assert data["classes"] == ["car", "windshield"] and list(data["sentences"]) == data["classes"]
     md = "\n".join(verdict_lines(data))
     assert "| car | optimum w30 | +0.100 [+0.040, +0.160] * | 8 | m |" in md
+
+
+def test_the_verdict_figure_is_a_png_with_and_without_rows(tmp_path: Path) -> None:
+    from msdepth.reporting.figures import read_verdict, verdict_figure
+
+    rows = [
+        Row("stereo networks", FULL_FRAME, -0.002, -0.012, 0.008, 40, "m", "network"),
+        Row("stereo networks", "windshield", -0.04, -0.13, 0.06, 66, "m", "network"),
+        Row("optimum w10", "windshield", -0.01, -0.04, -0.002, 66, "m", "optimum"),
+        Row("optimum w10", "windshield", -0.02, -0.05, 0.01, 14, "m", "external"),
+    ]
+    compare_json = tmp_path / "compare.json"
+    compare_json.write_text(json.dumps({"verdict": verdict_data(rows, 80.0, 0.95, "MS-SSIM", "SSIM")}))
+    data = read_verdict(compare_json)
+    assert any(r["kind"] == "pooled" for r in data["rows"])  # the two optimum w10 rows
+    for name, verdict in (("verdict.png", data), ("empty.png", None)):
+        path = verdict_figure(verdict, tmp_path / name)
+        assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["compare.json", "empty.png", "verdict.png"]
+    with pytest.raises(DataError, match="absent.json: cannot read the comparison"):
+        read_verdict(tmp_path / "absent.json")
