@@ -217,3 +217,30 @@ def test_the_verdict_figure_is_a_png_with_and_without_rows(tmp_path: Path) -> No
     assert sorted(p.name for p in tmp_path.iterdir()) == ["compare.json", "empty.png", "verdict.png"]
     with pytest.raises(DataError, match="absent.json: cannot read the comparison"):
         read_verdict(tmp_path / "absent.json")
+
+
+def test_the_monocular_study_writes_per_seed_values_the_verdict_reads(tmp_path: Path) -> None:
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("monocular_study", ROOT / "studies" / "monocular.py")
+    study = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(study)
+    params = {"variants": ["ssim", "msssim"], "train": {"seeds": [0, 1]}}
+    for i, run in enumerate(study.runs_of(params)):  # ssim/seed0, ssim/seed1, msssim/seed0, msssim/seed1
+        for suite, body in (
+            ("full", {"cap80": {"abs_rel": 0.2 + 0.01 * i}}),
+            ("roi", {"cap80": {"by_class": {"car": {"abs_rel": 0.4 - 0.1 * (i >= 2) + 0.01 * i}}}}),
+        ):
+            path = tmp_path / "metrics" / suite / f"{run}.json"
+            path.parent.mkdir(parents=True, exist_ok=True)
+            path.write_text(json.dumps(body))
+    values = {"modes": {"mono": study.seed_values(tmp_path, params, 80.0)}}
+    assert values["modes"]["mono"]["ssim"] == {
+        FULL_FRAME: pytest.approx([0.2, 0.21]),
+        "car": pytest.approx([0.4, 0.41]),
+    }
+    (tmp_path / "table.json").write_text(json.dumps(values))
+    rows = {
+        r.cls: r for r in seed_rows(read_monocular(tmp_path / "table.json", tmp_path / "x.md"), "ssim", 0.95)
+    }
+    assert rows["car"].diff == pytest.approx(-0.08) and rows[FULL_FRAME].diff == pytest.approx(0.02)
