@@ -182,10 +182,10 @@ def test_sentences_from_known_rows() -> None:
         Row("optimum w30", "car", 0.1, 0.04, 0.16, 8, "m", "optimum"),
     ]
     assert class_sentence("windshield", rows) == (
-        "windshield: MS-SSIM's abs_rel is lower than SSIM's in 2 of 3 instruments; no interval excludes 0."
+        "windshield: MS-SSIM's error is lower in 2 of 3 instruments; no interval excludes 0."
     )
     assert class_sentence("car", rows) == (
-        "car: MS-SSIM's abs_rel is lower than SSIM's in 1 of 2 instruments; the interval excludes 0 for "
+        "car: MS-SSIM's error is lower in 1 of 2 instruments; intervals excluding 0: "
         "optimum w3 (lower), optimum w30 (higher)."
     )
     pooled = Row("optimum w10, pooled", "windshield", -0.012, -0.02, -0.004, 80, "m", "pooled")

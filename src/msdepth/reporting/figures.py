@@ -75,7 +75,7 @@ from msdepth.pipeline.paths import (
     train_plots_dir,
     variant_runs,
 )
-from msdepth.reporting.verdict import Row
+from msdepth.reporting.verdict import VERDICT_FIGURE, Row
 
 log = logging.getLogger("msdepth")
 
@@ -86,7 +86,6 @@ LOSS_TERMS = ("total", "appearance")
 FIGURES = ("disparity.png", "roi_depth.png", "roi_gradients.png", "training_curves.png", "error_scatter.png")
 ROI_FIGURES = ("roi_depth.png", "roi_gradients.png")  # drawn only where there are ROIs
 COST_CURVES_FIGURE = "cost_curves.png"  # drawn by cost_curve_figure
-VERDICT_FIGURE = "verdict.png"  # drawn by verdict_figure, from compare.json's verdict
 # Everything the figures stage writes to plots/figures.
 STAGE_FIGURES = (*FIGURES, COST_CURVES_FIGURE, VERDICT_FIGURE)
 

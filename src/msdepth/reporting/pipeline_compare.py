@@ -152,7 +152,12 @@ def verdict_section(params: Params, groups: dict[str, list[str]], compared: Sequ
             rows += optimum_rows(opt_tables, by_weight, cfg, cap)
     rows += read_external_rows(REAL_VERDICT)
     better, than = display_names(params.variants, cfg.reference)
-    return verdict_data(rows, cap, cfg.confidence, better, than)
+    data = verdict_data(rows, cap, cfg.confidence, better, than)
+    # Which of the monocular study's files the rows came from: the results page says how they were made.
+    source = next((p for p in (MONOCULAR_JSON, MONOCULAR_TABLE) if p.is_file()), None)
+    if any(r.kind == "seeds" for r in rows) and source is not None:
+        data["monocular_source"] = source.as_posix()
+    return data
 
 
 def mean_rows(result: dict, variants: Sequence[str], cap: str) -> dict[str, dict[str, float]]:

@@ -60,6 +60,7 @@ from msdepth.reporting.compare import UNIT_KEYS, paired_statistics
 from msdepth.reporting.stats import paired_bootstrap, paired_table
 
 METRIC = "abs_rel"
+VERDICT_FIGURE = "verdict.png"  # below plots/figures: the figures stage draws it (figures.verdict_figure)
 FULL_FRAME = "full frame"
 CLASS_ORDER = (FULL_FRAME, "car", "windshield", "glass", "sign", "reflective")
 MIN_UNITS = 5
@@ -403,18 +404,18 @@ def signed(x: float, decimals: int = 3) -> str:
     return f"{x:+.{decimals}f}".replace("-", "\u2212")
 
 
-def class_sentence(cls: str, rows: Sequence[Row], better: str = "MS-SSIM", than: str = "SSIM") -> str:
-    """One sentence from ``cls``'s rows: in how many instruments ``better``'s abs_rel is lower,
-    which intervals exclude 0, and the pooled estimates."""
+def class_sentence(cls: str, rows: Sequence[Row], better: str = "MS-SSIM") -> str:
+    """One sentence from ``cls``'s rows: in how many instruments ``better``'s error (abs_rel) is
+    lower, which intervals exclude 0 (and on which side), and the pooled estimates."""
     own = [r for r in rows if r.cls == cls and r.kind != "pooled"]
     pooled = [r for r in rows if r.cls == cls and r.kind == "pooled"]
     lower = sum(r.diff < 0 for r in own)
     noun = "instrument" if len(own) == 1 else "instruments"
-    text = f"{cls}: {better}'s abs_rel is lower than {than}'s in {lower} of {len(own)} {noun}"
+    text = f"{cls}: {better}'s error is lower in {lower} of {len(own)} {noun}"
     excluding = [r for r in own if r.excludes_zero]
     if excluding:
         parts = [f"{r.instrument} ({'lower' if r.diff < 0 else 'higher'})" for r in excluding]
-        text += f"; the interval excludes 0 for {', '.join(parts)}"
+        text += f"; intervals excluding 0: {', '.join(parts)}"
     else:
         text += "; no interval excludes 0"
     for r in pooled:
@@ -443,7 +444,7 @@ def verdict_data(rows: Sequence[Row], cap: float, confidence: float, better: str
         "reference": than,
         "classes": classes,
         "rows": [r.as_dict() for r in rows],
-        "sentences": {c: class_sentence(c, rows, better, than) for c in classes},
+        "sentences": {c: class_sentence(c, rows, better) for c in classes},
     }
 
 
