@@ -18,6 +18,7 @@ from msdepth.reporting.verdict import (
     MIN_UNITS,
     Row,
     class_sentence,
+    display_names,
     network_rows,
     optimum_rows,
     parse_monocular_table,
@@ -244,3 +245,9 @@ def test_the_monocular_study_writes_per_seed_values_the_verdict_reads(tmp_path: 
         r.cls: r for r in seed_rows(read_monocular(tmp_path / "table.json", tmp_path / "x.md"), "ssim", 0.95)
     }
     assert rows["car"].diff == pytest.approx(-0.08) and rows[FULL_FRAME].diff == pytest.approx(0.02)
+
+
+def test_display_names_of_one_two_and_three_variants() -> None:
+    assert display_names(["ssim", "msssim"], "ssim") == ("MS-SSIM", "SSIM")
+    assert display_names(["ssim"], "ssim") == ("MS-SSIM", "SSIM")  # external rows are MS-SSIM − SSIM
+    assert display_names(["ssim", "msssim", "mix"], "ssim") == ("each other variant", "SSIM")

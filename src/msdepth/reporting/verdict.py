@@ -427,7 +427,10 @@ def display_names(variants: Sequence[str], reference: str) -> tuple[str, str]:
     """The sentences' names of the compared variant and of the reference: ``MS-SSIM``, ``SSIM``
     (with several compared variants, ``each variant``)."""
     others = [v for v in variants if v != reference]
-    better = DISPLAY_NAMES.get(others[0], others[0]) if len(others) == 1 else "each other variant"
+    if len(others) == 1:
+        better = DISPLAY_NAMES.get(others[0], others[0])
+    else:  # none (one variant: no rows but external ones) or several
+        better = "each other variant" if others else "MS-SSIM"
     return better, DISPLAY_NAMES.get(reference, reference)
 
 
