@@ -251,3 +251,20 @@ def test_display_names_of_one_two_and_three_variants() -> None:
     assert display_names(["ssim", "msssim"], "ssim") == ("MS-SSIM", "SSIM")
     assert display_names(["ssim"], "ssim") == ("MS-SSIM", "SSIM")  # external rows are MS-SSIM − SSIM
     assert display_names(["ssim", "msssim", "mix"], "ssim") == ("each other variant", "SSIM")
+
+
+def test_an_external_reflective_row_gets_its_panel_after_the_known_classes(tmp_path: Path) -> None:
+    from msdepth.reporting.figures import verdict_figure
+
+    rows = [
+        Row("stereo networks", "sign", -0.05, -0.19, 0.06, 26, "m", "network"),
+        Row("optimum w10", "reflective", -0.03, -0.05, -0.01, 28568, "m", "external"),
+        Row("stereo networks", FULL_FRAME, -0.002, -0.012, 0.008, 40, "m", "network"),
+    ]
+    data = verdict_data(rows, 80.0, 0.95, "MS-SSIM", "SSIM")
+    assert data["classes"] == [FULL_FRAME, "sign", "reflective"]
+    assert data["sentences"]["reflective"] == (
+        "reflective: MS-SSIM's error is lower in 1 of 1 instrument; "
+        "intervals excluding 0: optimum w10 (lower)."
+    )
+    assert verdict_figure(data, tmp_path / "v.png").read_bytes()[:4] == b"\x89PNG"
