@@ -21,7 +21,11 @@ A mode already snapshotted under ``--out`` is not run again (delete its folder t
 table.md: per mode and variant, mean ± sd over seeds of full-frame abs_rel (median-scaled for
 M and MS), ROI abs_rel per class, the image-dependence measure (variation; the per-pixel prior's
 is 0) and its correlation with the prior, the pose ATE, and the training time per run against
-stereo's.
+stereo's. table.json, written with it: the same runs' values per seed, ``{"cap", "seeds",
+"metric": "abs_rel", "modes": {mode: {variant: {"full frame" | ROI class: [one value per
+seed]}}}}``, which the compare stage's verdict reads (msdepth.reporting.verdict.read_monocular;
+the committed results predate it, so the verdict parses table.md's mean ± sd until the study is
+run again: the per-seed values were not kept).
 """
 
 from __future__ import annotations
@@ -38,6 +42,7 @@ import pandas as pd
 import yaml
 
 from msdepth.reporting.compare import image_dependence, load_suite_metrics, load_unit_tables
+from msdepth.reporting.verdict import FULL_FRAME
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -186,6 +191,23 @@ def scaled_stereo_rows(repo: Path, params: dict, cap: float) -> list[list[str]]:
     return rows
 
 
+def seed_values(snap: Path, params: dict, cap: float) -> dict[str, dict[str, list[float]]]:
+    """Per variant of the snapshot ``snap``, each seed's full-frame abs_rel (under ``"full frame"``,
+    median-scaled for M and MS as the table's) and ROI abs_rel per class: table.json's values."""
+    runs, key = runs_of(params), f"cap{cap:g}"
+    suites = load_suite_metrics(snap / "metrics", runs, ("full", "roi"))
+    out: dict[str, dict[str, list[float]]] = {}
+    for variant in params["variants"]:
+        members = [r for r in runs if r.startswith(f"{variant}/")]
+        values = {FULL_FRAME: [suites["full"][r][key]["abs_rel"] for r in members]}
+        for cls in CLASSES:
+            found = [suites["roi"][r][key]["by_class"].get(cls, {}).get("abs_rel") for r in members]
+            if all(v is not None and np.isfinite(v) for v in found):
+                values[cls] = found
+        out[variant] = values
+    return out
+
+
 def _json(path: Path) -> dict:
     return json.loads(path.read_text()) if path.is_file() else {}
 
@@ -280,6 +302,9 @@ def main(argv: list[str] | None = None) -> int:
             run_mode(repo, mode, args.sequence_length, args.set, out / "runs" / mode, runs_of(params))
     used = yaml.safe_load((out / "runs" / args.modes[0] / "params.yaml").read_text())
     (out / "table.md").write_text(table(out, args.modes, used, args.cap, repo))
+    modes = {m: seed_values(out / "runs" / m, used, args.cap) for m in ["stereo", *args.modes]}
+    values = {"cap": args.cap, "seeds": used["train"]["seeds"], "metric": "abs_rel", "modes": modes}
+    (out / "table.json").write_text(json.dumps(values, indent=1) + "\n")
     figure(out, repo, args.modes, used)
     print((out / "table.md").read_text())
     return 0

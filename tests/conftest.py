@@ -98,6 +98,8 @@ TINY = {
 }
 # What a copy holds of this project: the pipeline, its code and lists, DVC's and git's settings.
 PROJECT_FILES = ("dvc.yaml", "stages", "src", "data_lists", ".dvc", ".dvcignore", ".gitignore")
+# ... and the studies' results that the compare stage reads into the verdict (dvc.yaml deps).
+PROJECT_FILES += ("studies/results/monocular/table.md", "studies/results/real/verdict.json")
 
 
 def require_dvc() -> None:
@@ -159,6 +161,7 @@ def project(work: Path, patch: dict | None = None, tiny: dict = TINY) -> Path:
         if src.is_dir():
             shutil.copytree(src, work / name, ignore=shutil.ignore_patterns("__pycache__", "tmp", "cache"))
         else:
+            (work / name).parent.mkdir(parents=True, exist_ok=True)
             shutil.copy(src, work / name)
     params = merge(merge(yaml.safe_load((ROOT / "params.yaml").read_text()), tiny), patch or {})
     (work / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))

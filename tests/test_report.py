@@ -256,3 +256,36 @@ def test_missing_or_broken_metrics_are_one_line(tmp_path: Path):
     del data["full"]
     with pytest.raises(DataError, match=r"compare\.json: no full \(re-run the compare stage\)"):
         load_results(_project(tmp_path, data))
+
+
+def test_the_verdict_sentences_go_into_the_readme_and_the_page(tmp_path: Path):
+    from msdepth.reporting.verdict import Row, verdict_data
+
+    rows = [
+        Row("stereo networks", "windshield", -0.04, -0.13, 0.06, 66, "m", "network"),
+        Row("optimum w10", "windshield", -0.01, -0.04, -0.002, 66, "m", "optimum"),
+        Row("optimum w10", "windshield", -0.02, -0.05, 0.01, 14, "m", "external"),
+    ]
+    data = copy.deepcopy(COMPARISON)
+    data["verdict"] = verdict_data(rows, 80.0, 0.95, "MS-SSIM", "SSIM")
+    r = load_results(_project(tmp_path, data))
+    block = " ".join(readme_block(r).split())
+    assert (
+        "Per surface class, MS-SSIM − SSIM by every instrument ([verdict.png](plots/figures/verdict.png)):"
+        in block
+    )
+    assert (
+        "**windshield**: MS-SSIM's error is lower in 3 of 3 instruments; intervals excluding 0: "
+        "optimum w10 (lower); optimum w10, pooled:" in block
+    )
+    page = " ".join(results_page(r).split())
+    assert "(stereo networks and optimum w10; [verdict.png](../plots/figures/verdict.png)" in page
+    assert "- windshield: MS-SSIM's error is lower in 3 of 3 instruments;" in page
+    assert (
+        "## The verdict per surface class ![the verdict per surface class](../plots/figures/verdict.png)"
+        in page
+    )
+    assert "Pooled here: optimum w10, pooled (windshield)." in page
+    assert "(none here: the study's results are absent)" in page
+    plain = load_results(_project(tmp_path / "plain", copy.deepcopy(COMPARISON)))
+    assert "verdict.png" not in readme_block(plain) and "## The verdict" not in results_page(plain)

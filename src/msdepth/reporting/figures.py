@@ -24,6 +24,10 @@ Files written to ``out_dir`` by :func:`make_figures`:
     Per-image abs rel (cap ``caps[0]``) of each other variant against the reference variant
     (``ssim`` if present, else the first); only written when there are two or more variants.
 
+:func:`pipeline_figures` adds ``cost_curves.png`` (:func:`cost_curve_figure`) and ``verdict.png``
+(:func:`verdict_figure`: per surface class, every instrument's MS-SSIM − SSIM abs_rel with its
+interval, the numbers of compare.json's ``verdict``, :mod:`msdepth.reporting.verdict`).
+
 Every number printed on a figure comes from the evaluation code itself
 (:func:`msdepth.evaluation.suites.evaluate_roi`, :func:`msdepth.evaluation.suites.gradient_maps`,
 :func:`msdepth.geometry.depth.clamp_depth`), so it equals the metrics files. :func:`roi_examples`
@@ -57,6 +61,7 @@ from msdepth.evaluation.suites import Frame, evaluate_roi, gradient_maps, load_f
 from msdepth.geometry.depth import clamp_depth, pixel_disparity
 from msdepth.io import atomic_path
 from msdepth.pipeline.paths import (
+    COMPARE_JSON,
     COST_CURVES,
     EVAL_FRAMES,
     METRICS,
@@ -70,6 +75,7 @@ from msdepth.pipeline.paths import (
     train_plots_dir,
     variant_runs,
 )
+from msdepth.reporting.verdict import VERDICT_FIGURE, Row
 
 log = logging.getLogger("msdepth")
 
@@ -80,7 +86,8 @@ LOSS_TERMS = ("total", "appearance")
 FIGURES = ("disparity.png", "roi_depth.png", "roi_gradients.png", "training_curves.png", "error_scatter.png")
 ROI_FIGURES = ("roi_depth.png", "roi_gradients.png")  # drawn only where there are ROIs
 COST_CURVES_FIGURE = "cost_curves.png"  # drawn by cost_curve_figure
-STAGE_FIGURES = (*FIGURES, COST_CURVES_FIGURE)  # everything the figures stage writes to plots/figures
+# Everything the figures stage writes to plots/figures.
+STAGE_FIGURES = (*FIGURES, COST_CURVES_FIGURE, VERDICT_FIGURE)
 
 
 @dataclass
@@ -611,13 +618,97 @@ def cost_curve_figure(summaries: Mapping[str, dict], path: Path) -> Path:
     return _save(fig, path)
 
 
-def pipeline_figures(params: Params, out_dir: Path, cost_curves: Path = COST_CURVES) -> list[Path]:
+# The verdict's instruments by kind: colour and what the legend says of their intervals.
+VERDICT_KINDS = {
+    "network": ("tab:blue", "trained stereo networks: bootstrap over units and seeds"),
+    "seeds": ("tab:purple", "mono / MS networks: Welch t over seeds (mean ± sd)"),
+    "optimum": ("tab:orange", "the loss's own optimum: paired bootstrap over units"),
+    "external": ("tab:green", "real pairs (studies/results/real)"),
+    "pooled": ("black", "pooled (inverse-variance, independent rows)"),
+}
+
+
+def _verdict_panel(ax, cls: str, rows: list[Row], instruments: list[str]) -> None:
+    """One class: a dot and a horizontal bar per instrument (filled where the interval excludes
+    0), a line at 0, each row's n at the right edge."""
+    own = [r for r in rows if r.cls == cls]
+    for r in own:
+        y = instruments.index(r.instrument)
+        color = VERDICT_KINDS.get(r.kind, ("grey", ""))[0]
+        ax.errorbar(
+            r.diff,
+            y,
+            xerr=[[r.diff - r.low], [r.high - r.diff]],
+            fmt="D" if r.kind == "pooled" else "o",
+            color=color,
+            mfc=color if r.excludes_zero else "white",
+            capsize=3,
+            markersize=5,
+        )
+        ax.annotate(
+            f"n={r.n}", (1.0, y), xycoords=("axes fraction", "data"), ha="right", va="bottom", fontsize=6
+        )
+    ax.axvline(0.0, color="k", linewidth=0.8)
+    lower = sum(r.diff < 0 for r in own if r.kind != "pooled")
+    ax.set_title(f"{cls}: lower in {lower} of {sum(r.kind != 'pooled' for r in own)}", fontsize=9)
+    ax.grid(axis="x", alpha=0.3)
+    reach = max([abs(v) for r in own for v in (r.low, r.high)] + [1e-3]) * 1.2
+    ax.set_xlim(-reach, reach)  # 0 in the middle: left of it the variant is better, right the reference
+
+
+def verdict_figure(verdict: Mapping | None, path: Path) -> Path:
+    """``verdict.png``: one panel per surface class of compare.json's ``verdict``
+    (:func:`msdepth.reporting.verdict.verdict_data`), one row per instrument, its difference and
+    interval; negative: the variant (MS-SSIM) has the lower error. A legend in the spare panel."""
+    rows = [Row.from_dict(d) for d in (verdict or {}).get("rows", [])]
+    if not rows:
+        fig = _new_figure(4.0, 1.5)
+        ax = fig.add_subplot(1, 1, 1)
+        ax.text(0.5, 0.5, "no instrument compares two variants", ha="center", va="center")
+        _off(ax)
+        return _save(fig, path)
+    classes, instruments = list(verdict["classes"]), list(dict.fromkeys(r.instrument for r in rows))
+    cols = min(3, len(classes) + 1)  # + 1: the legend's panel
+    grid = -(-(len(classes) + 1) // cols)
+    fig = _new_figure(4.2 * cols, 0.32 * len(instruments) * grid + 1.4 * grid)
+    axes = fig.subplots(grid, cols, squeeze=False, sharey=True).ravel()
+    better, than = verdict["variant"], verdict["reference"]
+    for i, (ax, cls) in enumerate(zip(axes, classes, strict=False)):
+        _verdict_panel(ax, cls, rows, instruments)
+        ax.set_xlabel(f"{better} − {than} abs_rel\n(negative: {better} better)", fontsize=8)
+        if i % cols == 0:
+            ax.set_yticks(range(len(instruments)), instruments, fontsize=8)
+    axes[0].set_ylim(len(instruments) - 0.5, -0.5)  # the first instrument on top
+    legend = axes[len(classes)]
+    for kind, (color, text) in VERDICT_KINDS.items():
+        if any(r.kind == kind for r in rows):
+            legend.plot([], [], "o", color=color, label=text)
+    legend.plot([], [], "o", color="grey", mfc="white", label="hollow: interval includes 0")
+    title = f"{verdict['confidence'] * 100:g} % intervals\nn: the images, ROIs or seeds of each"
+    legend.legend(loc="center", fontsize=7, title_fontsize=8, frameon=False, title=title)
+    for ax in axes[len(classes) :]:
+        ax.axis("off")
+    return _save(fig, path)
+
+
+def read_verdict(path: Path) -> dict | None:
+    """compare.json's ``verdict`` (None where it has none); a DataError names a missing or
+    unreadable file."""
+    try:
+        return json.loads(Path(path).read_text()).get("verdict")
+    except (OSError, ValueError) as exc:
+        raise DataError(f"{path}: cannot read the comparison ({exc}); run the compare stage first") from None
+
+
+def pipeline_figures(
+    params: Params, out_dir: Path, cost_curves: Path = COST_CURVES, compare_json: Path = COMPARE_JSON
+) -> list[Path]:
     """The figures stage's figures in ``out_dir``, from the pipeline's outputs; returns their paths.
 
     :func:`make_figures` of the first seed's run of each variant (the figures show predictions,
     not an average of them; the training curves show every seed's), and :func:`cost_curve_figure`
     of the cost_curves stage's summaries below ``cost_curves``: the losses' own preference per
-    ROI class.
+    ROI class; :func:`verdict_figure` of the comparison's verdict (``compare_json``).
     """
     groups = variant_runs(params)
     paths = make_figures(
@@ -625,5 +716,6 @@ def pipeline_figures(params: Params, out_dir: Path, cost_curves: Path = COST_CUR
     )
     summaries = read_cost_curves(cost_curves, params.variants)
     paths.append(cost_curve_figure(summaries, Path(out_dir) / COST_CURVES_FIGURE))
+    paths.append(verdict_figure(read_verdict(compare_json), Path(out_dir) / VERDICT_FIGURE))
     log.info("figures: %s", ", ".join(p.name for p in paths))
     return paths

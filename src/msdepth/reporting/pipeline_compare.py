@@ -17,7 +17,10 @@ from msdepth.pipeline.paths import (
     COMPARE_JSON,
     COMPARE_MD,
     METRICS,
+    MONOCULAR_JSON,
+    MONOCULAR_TABLE,
     OPTIMUM,
+    REAL_VERDICT,
     SUITE_NAMES,
     mean_path,
     set_metrics_dir,
@@ -38,6 +41,16 @@ from msdepth.reporting.compare import (
     paired_statistics,
     seed_spread,
     variant_settings,
+)
+from msdepth.reporting.verdict import (
+    display_names,
+    network_rows,
+    optimum_rows,
+    read_external_rows,
+    read_monocular,
+    seed_rows,
+    verdict_data,
+    verdict_lines,
 )
 
 
@@ -82,6 +95,8 @@ def compare(params: Params) -> None:
         monocular=monocular_data(suites["full"], load_training_summaries(runs), groups, caps[0]),
     )
     result, md = build_comparison(comparison)
+    result["verdict"] = verdict_section(params, groups, compared)
+    md += "\n" + "\n".join(verdict_lines(result["verdict"]))
     for name in params.eval.extra_sets:
         result.setdefault("sets", {})[name], section = compare_set(params, name, comparison.settings_label)
         md += "\n" + section
@@ -116,6 +131,38 @@ def optimum_section(params: Params, groups: dict[str, list[str]], compared: Sequ
     )
     stats = paired_statistics(tables, {**reference, **default}, params.compare, params.eval.caps[:1])
     return optimum_data(suites, runs, stats, f"cap{params.eval.caps[0]:g}", skipped)
+
+
+def verdict_section(params: Params, groups: dict[str, list[str]], compared: Sequence[str]) -> dict:
+    """compare.json's ``verdict`` (:func:`msdepth.reporting.verdict.verdict_data`): per surface class,
+    each variant minus ``compare.reference`` in abs_rel at the headline cap, by the trained networks
+    (every seed), the monocular study's networks (:data:`~msdepth.pipeline.paths.MONOCULAR_TABLE`),
+    the optimum at every weight and the real-pairs study's rows
+    (:data:`~msdepth.pipeline.paths.REAL_VERDICT`, where it exists)."""
+    cfg, cap = params.compare, params.eval.caps[0]
+    variants = {v: groups[v] for v in params.variants}
+    rows = []
+    if len(variants) > 1:
+        tables = load_unit_tables(METRICS, [r for runs in variants.values() for r in runs], compared)
+        rows += network_rows(tables, variants, cfg, cap)
+        rows += seed_rows(read_monocular(MONOCULAR_JSON, MONOCULAR_TABLE), cfg.reference, cfg.confidence)
+        if (suite_dir("full") / OPTIMUM).is_dir():
+            by_weight: dict[str, dict[str, str]] = {}
+            for label, run in optimum_runs(params, METRICS).items():
+                _, variant, weight = label.split(" ")  # "optimum <variant> w<weight>"
+                by_weight.setdefault(weight, {})[variant] = run
+            opt_tables = load_unit_tables(
+                METRICS, [r for w in by_weight.values() for r in w.values()], compared
+            )
+            rows += optimum_rows(opt_tables, by_weight, cfg, cap)
+    rows += read_external_rows(REAL_VERDICT)
+    better, than = display_names(params.variants, cfg.reference)
+    data = verdict_data(rows, cap, cfg.confidence, better, than)
+    # Which of the monocular study's files the rows came from: the results page says how they were made.
+    source = next((p for p in (MONOCULAR_JSON, MONOCULAR_TABLE) if p.is_file()), None)
+    if any(r.kind == "seeds" for r in rows) and source is not None:
+        data["monocular_source"] = source.as_posix()
+    return data
 
 
 def mean_rows(result: dict, variants: Sequence[str], cap: str) -> dict[str, dict[str, float]]:

@@ -13,13 +13,14 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import textwrap
 from pathlib import Path
 from typing import Any, Sequence
 
 from msdepth.errors import DataError, MsdepthError
 from msdepth.evaluation.metrics import HIGHER_IS_BETTER
 from msdepth.io import write_text
-from msdepth.pipeline.paths import COMPARE_JSON, README, RESULTS, run_name, train_summary_path
+from msdepth.pipeline.paths import COMPARE_JSON, FIGURES_DIR, README, RESULTS, run_name, train_summary_path
 from msdepth.reporting.compare import (
     MIN_SEEDS_FOR_MARKS,
     SET_TITLES,
@@ -27,6 +28,7 @@ from msdepth.reporting.compare import (
     marks_allowed,
     settings_text,
 )
+from msdepth.reporting.verdict import MIN_UNITS, VERDICT_FIGURE
 
 COMMAND = "python -m msdepth.reporting.report"
 BEGIN = (
@@ -319,9 +321,51 @@ def baseline_classes_sentence(r: Results) -> str:
 
 def wrap(text: str, width: int = 100) -> str:
     """A paragraph wrapped at ``width`` (never inside a word), so diffs stay readable."""
-    import textwrap
-
     return textwrap.fill(text, width, break_long_words=False, break_on_hyphens=False)
+
+
+def verdict_sentences(r: Results) -> list[str]:
+    """compare.json's sentence per surface class (:mod:`msdepth.reporting.verdict`), in its order;
+    [] where the comparison has no verdict."""
+    block = r.get("verdict", default=None) or {}
+    return [block["sentences"][c] for c in block.get("classes", []) if c in block.get("sentences", {})]
+
+
+def verdict_lead(r: Results, figure: str) -> str:
+    """The line before the per-class sentences: what the instruments are, the figure at ``figure``
+    (a path relative to the page)."""
+    block = r.get("verdict")
+    instruments = list(dict.fromkeys(x["instrument"] for x in block["rows"] if x.get("kind") != "pooled"))
+    return (
+        f"Per surface class, {block['variant']} − {block['reference']} in abs_rel by every instrument "
+        f"({_join(instruments)}; [{VERDICT_FIGURE}]({figure}), the table in `metrics/compare.md`):"
+    )
+
+
+def verdict_list(r: Results, figure: str) -> list[str]:
+    """The per-class sentences as a Markdown list under :func:`verdict_lead`; [] without a verdict."""
+    sentences = verdict_sentences(r)
+    if not sentences:
+        return []
+    items = [
+        textwrap.fill(s, 100, initial_indent="- ", subsequent_indent="  ", break_on_hyphens=False)
+        for s in sentences
+    ]
+    return [wrap(verdict_lead(r, figure)), "", *items]
+
+
+def readme_verdict(r: Results) -> list[str]:
+    """The README's per-class sentences, continuing the verdict's paragraph (the README is kept
+    within tests/test_docs.py's line limit); [] without a verdict."""
+    block = r.get("verdict", default=None) or {}
+    sentences = block.get("sentences", {})
+    if not sentences:
+        return []
+    # Each sentence starts with its class: bold, so that the paragraph reads as a list.
+    bold = [f"**{c}**{sentences[c][len(c) :]}" for c in block.get("classes", []) if c in sentences]
+    figure = f"[{VERDICT_FIGURE}]({FIGURES_DIR.as_posix()}/{VERDICT_FIGURE})"
+    lead = f"Per surface class, {block['variant']} − {block['reference']} by every instrument ({figure}):"
+    return [wrap(" ".join([lead, *bold]))]
 
 
 def readme_block(r: Results) -> str:
@@ -337,6 +381,7 @@ def readme_block(r: Results) -> str:
                 verdict(r) + " How to read the table, the Eigen split and the studies behind it: "
                 "[docs/results.md](docs/results.md)."
             ),
+            *readme_verdict(r),
             END,
         ]
     )
@@ -558,10 +603,72 @@ SET_NOTE = (
 )
 
 
+VERDICT_HOW = """How each row's interval is made. Trained stereo networks: the comparison's own bootstrap
+(resampling the images, or the class's ROIs, and each variant's seeds). Mono and mono+stereo
+networks: the monocular study's, Welch's t interval of the difference of the two variants' means
+over seeds{monocular}; it covers training noise with the frames held fixed, and its full frame is
+median-scaled per image, as the study scores it. The loss's own optimum at each weight: a paired
+bootstrap over the images or ROIs that weight was scored on. Real pairs: the rows of
+`studies/results/real/verdict.json`, written by the real-pairs study (the schema is in
+`src/msdepth/reporting/verdict.py`). A row over fewer than {min_units} images or ROIs is left out: a
+percentile interval over one or two units is narrow, not certain."""
+
+POOLING = """Pooling. Rows of different instruments are not pooled: they score the same frames, so they
+are not independent of the frames' draw, and they measure different quantities (a training mode,
+an optimum weight), whose average estimates nothing in particular. Rows of one network instrument
+are not pooled either: each scores the same trained networks, whose seed noise they share. Only
+one optimum instrument (`optimum w10`, say) measured on other frames, such as the real pairs', is
+pooled with the pipeline's row: the optimum has no training noise, so rows on disjoint frames are
+independent. They are combined by inverse-variance weighting (a fixed effect: one common
+difference assumed; each row's standard error is its interval's half-width over the normal
+quantile)."""
+
+
+def _monocular_source(r: Results) -> str:
+    """Where the verdict's mono and MS rows come from, as a clause of :data:`VERDICT_HOW`."""
+    source = r.get("verdict", "monocular_source", default=None)
+    if source is None:
+        return " (none here: the study's results are absent)"
+    if source.endswith(".md"):
+        return (
+            f", computed from the mean ± sd of `{source}` (that run kept no per-seed values; the study "
+            "now writes them to `table.json`, which replaces the table here once it exists)"
+        )
+    return f", from the values per seed in `{source}`"
+
+
+def verdict_section(r: Results) -> str:
+    """The verdict per surface class: the figure, the sentences, how the intervals are made and
+    which rows are pooled; empty without a verdict in compare.json."""
+    sentences = verdict_list(r, f"../{FIGURES_DIR.as_posix()}/{VERDICT_FIGURE}")
+    if not sentences:
+        return ""
+    rows = r.get("verdict", "rows")
+    pooled = sorted({f"{x['instrument']} ({x['class']})" for x in rows if x.get("kind") == "pooled"})
+    pooled_text = (
+        f" Pooled here: {_join(pooled)}."
+        if pooled
+        else " None is pooled here: no instrument has a second, independent measurement yet."
+    )
+    image = f"![the verdict per surface class](../{FIGURES_DIR.as_posix()}/{VERDICT_FIGURE})"
+    return "\n\n".join(
+        [
+            "## The verdict per surface class",
+            image,
+            "\n".join(sentences),
+            wrap(VERDICT_HOW.format(min_units=MIN_UNITS, monocular=_monocular_source(r))),
+            wrap(POOLING + pooled_text),
+        ]
+    )
+
+
 def results_page(r: Results) -> str:
-    """``docs/results.md``: the default run, how to read it, the studies, the extra sets, figures."""
+    """``docs/results.md``: the default run, how to read it, the verdict per surface class, the
+    studies, the extra sets, figures."""
     sets = r.get("sets", default={}) or {}
-    parts = [INTRO, default_run_section(r), reading_section(r), STUDIES]
+    parts = [INTRO, default_run_section(r), reading_section(r)]
+    parts += [section] if (section := verdict_section(r)) else []
+    parts += [STUDIES]
     parts += [set_section(r, name, block) for name, block in sets.items()]
     return "\n\n".join([*parts, FIGURES]) + "\n"
 

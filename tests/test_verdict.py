@@ -1,0 +1,270 @@
+"""The verdict's rows (per class, every instrument), its intervals over seeds, the external rows'
+reader, the pooling rule and the sentences, on hand-made numbers with known answers."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from msdepth.config.params import CompareConfig
+from msdepth.errors import DataError
+from msdepth.evaluation.metrics import METRICS
+from msdepth.reporting.verdict import (
+    FULL_FRAME,
+    MIN_UNITS,
+    Row,
+    class_sentence,
+    display_names,
+    network_rows,
+    optimum_rows,
+    parse_monocular_table,
+    pooled_rows,
+    read_external_rows,
+    read_monocular,
+    seed_rows,
+    t_quantile,
+    verdict_data,
+    verdict_lines,
+    welch_interval,
+)
+
+ROOT = Path(__file__).resolve().parents[1]
+CFG = CompareConfig(reference="ssim", bootstrap_samples=300, confidence=0.95, seed=0)
+# Per class: ROIs, and MS-SSIM's abs_rel minus SSIM's on every one of them (and every seed).
+SHIFTS = {"windshield": (8, -0.1), "car": (6, 0.0), "sign": (MIN_UNITS - 1, -0.2)}
+
+
+def roi_table(shift: bool) -> pd.DataFrame:
+    """A per-ROI table: SSIM's abs_rel varies by ROI (each seed's the same, so that the seed draws
+    add nothing); MS-SSIM's is SHIFTS' offset from it."""
+    rows, roi = [], 0
+    for cls, (count, delta) in SHIFTS.items():
+        for i in range(count):
+            base = 0.3 + 0.05 * i
+            rows.append(
+                {"roi": roi, "image": f"{i:06d}_10", "class": cls, "cap": 80, "value": base + shift * delta}
+            )
+            roi += 1
+    t = pd.DataFrame(rows)
+    for m in METRICS:
+        t[m] = t["value"]
+    return t.drop(columns="value")
+
+
+def full_table(shift: bool) -> pd.DataFrame:
+    """A per-image table: MS-SSIM 0.05 above SSIM on every image (each seed the same)."""
+    t = pd.DataFrame({"frame": [f"{i:06d}_10" for i in range(10)], "cap": 80})
+    for m in METRICS:
+        t[m] = 0.2 + 0.01 * np.arange(10) + shift * 0.05
+    return t
+
+
+def test_network_rows_give_the_known_per_class_difference() -> None:
+    groups = {v: [f"{v}/seed{s}" for s in (0, 1)] for v in ("ssim", "msssim")}
+    tables = {
+        "full": {r: full_table(v == "msssim") for v in groups for r in groups[v]},
+        "roi": {r: roi_table(v == "msssim") for v in groups for r in groups[v]},
+    }
+    rows = {r.cls: r for r in network_rows(tables, groups, CFG, 80.0)}
+    assert list(rows) == [FULL_FRAME, "car", "windshield"]  # sign: fewer than MIN_UNITS ROIs, left out
+    w = rows["windshield"]
+    assert (w.diff, w.low, w.high) == pytest.approx((-0.1, -0.1, -0.1)) and w.excludes_zero and w.n == 8
+    assert (rows["car"].diff, rows["car"].low, rows["car"].high) == pytest.approx((0, 0, 0))
+    assert not rows["car"].excludes_zero
+    assert rows[FULL_FRAME].diff == pytest.approx(0.05) and rows[FULL_FRAME].low == pytest.approx(0.05)
+    assert {r.kind for r in rows.values()} == {"network"} and w.instrument == "stereo networks"
+
+
+def test_optimum_rows_pair_each_weight_alone() -> None:
+    tables = {"roi": {"o/ssim/w3": roi_table(False), "o/msssim/w3": roi_table(True)}}
+    runs = {"w3": {"ssim": "o/ssim/w3", "msssim": "o/msssim/w3"}}
+    rows = {r.cls: r for r in optimum_rows(tables, runs, CFG, 80.0)}
+    assert set(rows) == {"car", "windshield"}
+    assert rows["windshield"].instrument == "optimum w3" and rows["windshield"].kind == "optimum"
+    assert (rows["windshield"].low, rows["windshield"].high) == pytest.approx((-0.1, -0.1))
+
+
+def test_t_quantile_and_welch_interval_known_values() -> None:
+    assert t_quantile(0.975, 2) == pytest.approx(4.302653, abs=1e-4)
+    assert t_quantile(0.975, 4) == pytest.approx(2.776445, abs=1e-4)
+    assert t_quantile(0.975, 1e6) == pytest.approx(1.959964, abs=1e-3)
+    # Equal sd and n: df = 2(n - 1) = 4; half-width t(4)·sqrt(2·sd²/n).
+    diff, low, high = welch_interval((1.0, 0.1, 3), (0.9, 0.1, 3))
+    half = 2.776445 * np.sqrt(2 * 0.01 / 3)
+    assert (diff, low, high) == pytest.approx((0.1, 0.1 - half, 0.1 + half), abs=1e-4)
+
+
+def test_the_committed_monocular_table_parses_to_its_numbers() -> None:
+    stats = parse_monocular_table(ROOT / "studies/results/monocular/table.md")
+    assert stats["mono"]["ssim"]["windshield"] == (0.4897, 0.0643, 3)
+    assert stats["mono_stereo"]["msssim"][FULL_FRAME] == (0.2020, 0.0041, 3)
+    rows = {(r.instrument, r.cls): r for r in seed_rows(stats, "ssim", 0.95)}
+    assert rows[("mono networks", "windshield")].diff == pytest.approx(0.4483 - 0.4897)
+    assert ("stereo networks", "windshield") not in rows  # the pipeline's own rows compare those
+
+
+def test_monocular_json_per_seed_and_a_bad_table(tmp_path: Path) -> None:
+    path = tmp_path / "table.json"
+    seeds = {"ssim": {"car": [0.3, 0.4, 0.5]}, "msssim": {"car": [0.2, 0.3, 0.4]}}
+    path.write_text(json.dumps({"seeds": [0, 1, 2], "modes": {"mono": seeds}}))
+    stats = read_monocular(path, tmp_path / "absent.md")
+    assert stats["mono"]["ssim"]["car"] == pytest.approx((0.4, 0.1, 3))
+    assert read_monocular(tmp_path / "none.json", tmp_path / "none.md") == {}
+    bad = tmp_path / "table.md"
+    bad.write_text(
+        "Mean ± sd over seeds [0, 1].\n\n| mode | variant | abs_rel |\n|---|---|---|\n"
+        "| mono | ssim | 0.2 ± x |\n"
+    )
+    with pytest.raises(DataError, match=r"table\.md: row \['mono', 'ssim'\], column 'abs_rel'"):
+        parse_monocular_table(bad)
+
+
+GOOD = {"instrument": "optimum w10", "class": "windshield", "diff": -0.02, "low": -0.05, "high": 0.01}
+
+
+@pytest.mark.parametrize(
+    "content, message",
+    [
+        ("{not json", "not readable as JSON"),
+        ('{"rows": []}', "needs a JSON list of rows"),
+        (json.dumps([{**GOOD, "n": 3}]), "needs exactly the keys"),
+        (json.dumps([{**GOOD, "n": 3, "method": "m", "low": 0.0}]), "needs low <= diff <= high"),
+        (json.dumps([{**GOOD, "n": 0, "method": "m"}]), "n must be a positive integer"),
+        (json.dumps([{**GOOD, "n": 3, "method": "m", "diff": "x"}]), "diff must be a finite number"),
+    ],
+)
+def test_malformed_external_rows_are_one_line_naming_the_file(
+    tmp_path: Path, content: str, message: str
+) -> None:
+    path = tmp_path / "verdict.json"
+    path.write_text(content)
+    with pytest.raises(DataError) as err:
+        read_external_rows(path)
+    assert str(err.value).startswith(str(path)) and message in str(err.value) and "\n" not in str(err.value)
+
+
+def test_external_rows_read_and_absent_file(tmp_path: Path) -> None:
+    path = tmp_path / "verdict.json"
+    path.write_text(json.dumps([{**GOOD, "n": 14, "method": "paired bootstrap over ROIs"}]))
+    (row,) = read_external_rows(path)
+    assert row == Row(
+        "optimum w10", "windshield", -0.02, -0.05, 0.01, 14, "paired bootstrap over ROIs", "external"
+    )
+    assert read_external_rows(tmp_path / "absent.json") == []
+    assert read_external_rows(ROOT / "studies/results/real/verdict.json") == []  # the committed placeholder
+
+
+def test_only_one_optimum_instrument_from_independent_rows_is_pooled() -> None:
+    z = 1.959964
+    rows = [
+        Row("optimum w10", "glass", -0.1, -0.1 - z * 0.01, -0.1 + z * 0.01, 50, "m", "optimum"),
+        Row("optimum w10", "glass", -0.3, -0.3 - z * 0.01, -0.3 + z * 0.01, 20, "m", "external"),
+        Row("stereo networks", "glass", -0.1, -0.2, 0.0, 50, "m", "network"),
+        Row("stereo networks", "glass", -0.3, -0.4, -0.2, 20, "m", "external"),
+        Row("optimum w3", "glass", -0.3, -0.4, -0.2, 20, "m", "optimum"),
+    ]
+    (pooled,) = pooled_rows(rows)
+    assert pooled.instrument == "optimum w10, pooled" and pooled.kind == "pooled" and pooled.n == 70
+    # Equal variances: the plain mean, its standard error 0.01/sqrt(2).
+    assert pooled.diff == pytest.approx(-0.2)
+    assert pooled.high - pooled.diff == pytest.approx(z * 0.01 / np.sqrt(2), rel=1e-4)
+
+
+def test_sentences_from_known_rows() -> None:
+    rows = [
+        Row("stereo networks", "windshield", -0.04, -0.13, 0.06, 66, "m", "network"),
+        Row("mono networks", "windshield", -0.04, -0.17, 0.09, 3, "m", "seeds"),
+        Row("optimum w10", "windshield", 0.01, -0.04, 0.02, 66, "m", "optimum"),
+        Row("optimum w3", "car", -0.1, -0.16, -0.05, 8, "m", "optimum"),
+        Row("optimum w30", "car", 0.1, 0.04, 0.16, 8, "m", "optimum"),
+    ]
+    assert class_sentence("windshield", rows) == (
+        "windshield: MS-SSIM's error is lower in 2 of 3 instruments; no interval excludes 0."
+    )
+    assert class_sentence("car", rows) == (
+        "car: MS-SSIM's error is lower in 1 of 2 instruments; intervals excluding 0: "
+        "optimum w3 (lower), optimum w30 (higher)."
+    )
+    pooled = Row("optimum w10, pooled", "windshield", -0.012, -0.02, -0.004, 80, "m", "pooled")
+    assert class_sentence("windshield", [*rows, pooled]).endswith(
+        "no interval excludes 0; optimum w10, pooled: \u22120.012 [\u22120.020, \u22120.004]."
+    )
+    data = verdict_data(rows, 80.0, 0.95, "MS-SSIM", "SSIM")
+    assert data["classes"] == ["car", "windshield"] and list(data["sentences"]) == data["classes"]
+    md = "\n".join(verdict_lines(data))
+    assert "| car | optimum w30 | +0.100 [+0.040, +0.160] * | 8 | m |" in md
+
+
+def test_the_verdict_figure_is_a_png_with_and_without_rows(tmp_path: Path) -> None:
+    from msdepth.reporting.figures import read_verdict, verdict_figure
+
+    rows = [
+        Row("stereo networks", FULL_FRAME, -0.002, -0.012, 0.008, 40, "m", "network"),
+        Row("stereo networks", "windshield", -0.04, -0.13, 0.06, 66, "m", "network"),
+        Row("optimum w10", "windshield", -0.01, -0.04, -0.002, 66, "m", "optimum"),
+        Row("optimum w10", "windshield", -0.02, -0.05, 0.01, 14, "m", "external"),
+    ]
+    compare_json = tmp_path / "compare.json"
+    compare_json.write_text(json.dumps({"verdict": verdict_data(rows, 80.0, 0.95, "MS-SSIM", "SSIM")}))
+    data = read_verdict(compare_json)
+    assert any(r["kind"] == "pooled" for r in data["rows"])  # the two optimum w10 rows
+    for name, verdict in (("verdict.png", data), ("empty.png", None)):
+        path = verdict_figure(verdict, tmp_path / name)
+        assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["compare.json", "empty.png", "verdict.png"]
+    with pytest.raises(DataError, match="absent.json: cannot read the comparison"):
+        read_verdict(tmp_path / "absent.json")
+
+
+def test_the_monocular_study_writes_per_seed_values_the_verdict_reads(tmp_path: Path) -> None:
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("monocular_study", ROOT / "studies" / "monocular.py")
+    study = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(study)
+    params = {"variants": ["ssim", "msssim"], "train": {"seeds": [0, 1]}}
+    for i, run in enumerate(study.runs_of(params)):  # ssim/seed0, ssim/seed1, msssim/seed0, msssim/seed1
+        for suite, body in (
+            ("full", {"cap80": {"abs_rel": 0.2 + 0.01 * i}}),
+            ("roi", {"cap80": {"by_class": {"car": {"abs_rel": 0.4 - 0.1 * (i >= 2) + 0.01 * i}}}}),
+        ):
+            path = tmp_path / "metrics" / suite / f"{run}.json"
+            path.parent.mkdir(parents=True, exist_ok=True)
+            path.write_text(json.dumps(body))
+    values = {"modes": {"mono": study.seed_values(tmp_path, params, 80.0)}}
+    assert values["modes"]["mono"]["ssim"] == {
+        FULL_FRAME: pytest.approx([0.2, 0.21]),
+        "car": pytest.approx([0.4, 0.41]),
+    }
+    (tmp_path / "table.json").write_text(json.dumps(values))
+    rows = {
+        r.cls: r for r in seed_rows(read_monocular(tmp_path / "table.json", tmp_path / "x.md"), "ssim", 0.95)
+    }
+    assert rows["car"].diff == pytest.approx(-0.08) and rows[FULL_FRAME].diff == pytest.approx(0.02)
+
+
+def test_display_names_of_one_two_and_three_variants() -> None:
+    assert display_names(["ssim", "msssim"], "ssim") == ("MS-SSIM", "SSIM")
+    assert display_names(["ssim"], "ssim") == ("MS-SSIM", "SSIM")  # external rows are MS-SSIM − SSIM
+    assert display_names(["ssim", "msssim", "mix"], "ssim") == ("each other variant", "SSIM")
+
+
+def test_an_external_reflective_row_gets_its_panel_after_the_known_classes(tmp_path: Path) -> None:
+    from msdepth.reporting.figures import verdict_figure
+
+    rows = [
+        Row("stereo networks", "sign", -0.05, -0.19, 0.06, 26, "m", "network"),
+        Row("optimum w10", "reflective", -0.03, -0.05, -0.01, 28568, "m", "external"),
+        Row("stereo networks", FULL_FRAME, -0.002, -0.012, 0.008, 40, "m", "network"),
+    ]
+    data = verdict_data(rows, 80.0, 0.95, "MS-SSIM", "SSIM")
+    assert data["classes"] == [FULL_FRAME, "sign", "reflective"]
+    assert data["sentences"]["reflective"] == (
+        "reflective: MS-SSIM's error is lower in 1 of 1 instrument; "
+        "intervals excluding 0: optimum w10 (lower)."
+    )
+    assert verdict_figure(data, tmp_path / "v.png").read_bytes()[:4] == b"\x89PNG"
