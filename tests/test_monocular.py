@@ -31,8 +31,10 @@ def _random(*shape: int, seed: int) -> torch.Tensor:
 
 
 def _term(name: str):
+    # mix has no per-pixel cost, so the optimum's default cost start is refused: sgbm.
     return build_appearance(
-        params_from_dict({"variants": [name], "compare": {"reference": name}}), name
+        params_from_dict({"variants": [name], "compare": {"reference": name}, "optimum": {"start": "sgbm"}}),
+        name,
     ).double()
 
 
