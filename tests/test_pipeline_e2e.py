@@ -283,9 +283,11 @@ def test_dvc_metrics_show_lists_the_headline_numbers_and_fits_a_terminal(repo: P
     files = {path for rev in shown.values() for path in rev.get("data", {})}
     assert files == {f"metrics/headline/{suite}/{run}.json" for suite in ("full", "roi") for run in RUNS} | {
         f"metrics/headline/sets/eigen/full/{run}.json" for run in RUNS
-    } | {f"metrics/headline/{suite}/{run}.json" for suite in ("full", "roi") for run in OPTIMUM_RUNS} | {
-        f"metrics/headline/mean/{variant}.json" for variant in ("ssim", "msssim")
-    }
+    } | {
+        f"metrics/headline/{suite}/{run}.json"
+        for suite in ("full", "roi")
+        for run in [*OPTIMUM_RUNS, *MATCHERS.values()]
+    } | {f"metrics/headline/mean/{variant}.json" for variant in ("ssim", "msssim")}
     table = run_checked([sys.executable, "-m", "dvc", "metrics", "show"], repo)
     assert max(map(len, table.splitlines())) <= 132, table  # tests/test_metrics_show.py: WIDEST
     mean = json.loads((repo / "metrics" / "headline" / "mean" / "ssim.json").read_text())
