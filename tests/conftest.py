@@ -102,6 +102,19 @@ PROJECT_FILES = ("dvc.yaml", "stages", "src", "data_lists", ".dvc", ".dvcignore"
 PROJECT_FILES += ("studies/results/monocular/table.md", "studies/results/real/verdict.json")
 
 
+def save_tiny_model(path: Path) -> Path:
+    """A randomly initialised MonodepthVGG(0.0625) (seed 0) saved at ``path`` as a model file for
+    32 x 96 inputs: the CLI tests' model."""
+    import torch
+
+    from msdepth.networks.model import MonodepthVGG
+
+    torch.manual_seed(0)
+    state = {"model": MonodepthVGG(0.0625).eval().state_dict(), "criterion": {}, "width_multiplier": 0.0625}
+    torch.save({**state, "height": 32, "width": 96, "variant": "tiny"}, path)
+    return path
+
+
 def require_dvc() -> None:
     """Skip the calling test (or fixture) where DVC is not installed."""
     if shutil.which("dvc") is None and not (Path(sys.executable).parent / "dvc").exists():

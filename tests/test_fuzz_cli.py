@@ -18,14 +18,13 @@ from typing import Iterator
 import cv2
 import numpy as np
 import pytest
-import torch
+from conftest import save_tiny_model
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from msdepth.__main__ import build_parser, main
 from msdepth.config.params import apply_overrides, params_from_dict
 from msdepth.errors import ConfigError
-from msdepth.networks.model import MonodepthVGG
 
 FEW = settings(
     max_examples=12,
@@ -53,11 +52,7 @@ _ints = st.sampled_from([-1, 0, 1, 3, 10**9, 2**63])
 
 @pytest.fixture(scope="module")
 def model(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    torch.manual_seed(0)
-    path = tmp_path_factory.mktemp("model") / "model.pt"
-    state = {"model": MonodepthVGG(0.0625).eval().state_dict(), "criterion": {}, "width_multiplier": 0.0625}
-    torch.save({**state, "height": 32, "width": 96, "variant": "tiny"}, path)
-    return path
+    return save_tiny_model(tmp_path_factory.mktemp("model") / "model.pt")
 
 
 @contextlib.contextmanager

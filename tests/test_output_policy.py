@@ -18,14 +18,13 @@ from typing import Callable
 import cv2
 import numpy as np
 import pytest
-import torch
+from conftest import save_tiny_model
 
 from msdepth.__main__ import build_parser, main
 from msdepth.config.params import SyntheticConfig
 from msdepth.data.synthetic import generate
 from msdepth.errors import OutputError
 from msdepth.io import OutputPolicy, manifest_line, read_manifest
-from msdepth.networks.model import MonodepthVGG
 
 FAST_OPTIMUM = ["--variant", "ssim", "--set", "optimum.iterations=2", "--set", "optimum.levels=1", "--quiet"]
 TINY = SyntheticConfig(seed=3, drives=1, train_pairs=2, eval_frames=1, height=24, width=80)
@@ -42,11 +41,7 @@ def _image(path: Path, value: int = 1) -> bytes:
 
 @pytest.fixture(scope="module")
 def model(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    torch.manual_seed(0)
-    path = tmp_path_factory.mktemp("model") / "model.pt"
-    state = {"model": MonodepthVGG(0.0625).eval().state_dict(), "criterion": {}, "width_multiplier": 0.0625}
-    torch.save({**state, "height": 32, "width": 96, "variant": "tiny"}, path)
-    return path
+    return save_tiny_model(tmp_path_factory.mktemp("model") / "model.pt")
 
 
 @pytest.fixture(scope="module")

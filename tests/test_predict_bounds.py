@@ -8,21 +8,16 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-import torch
+from conftest import save_tiny_model
 
 from msdepth.__main__ import main
 from msdepth.cli import predict as predict_module
 from msdepth.data.imagefile import BATCH_PIXEL_BUDGET, batches_by_pixels
-from msdepth.networks.model import MonodepthVGG
 
 
 @pytest.fixture(scope="module")
 def tiny(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    torch.manual_seed(0)
-    path = tmp_path_factory.mktemp("model") / "model.pt"
-    state = {"model": MonodepthVGG(0.0625).eval().state_dict(), "criterion": {}, "width_multiplier": 0.0625}
-    torch.save({**state, "height": 32, "width": 96, "variant": "tiny"}, path)
-    return path
+    return save_tiny_model(tmp_path_factory.mktemp("model") / "model.pt")
 
 
 def _image(path: Path, h: int = 48, w: int = 128) -> None:
