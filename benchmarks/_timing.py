@@ -61,14 +61,25 @@ def compare(
     return Timings(times)
 
 
-def table(timings: Timings, baseline: str, unit_scale: float = 1e3, unit: str = "ms") -> str:
-    """Markdown table: median time, and the per-round time ratio to ``baseline`` (median [IQR])."""
-    rows = [f"| candidate | median {unit} | time / {baseline} | IQR of the ratio |", "|---|---|---|---|"]
+def table(
+    timings: Timings,
+    baseline: str,
+    unit_scale: float = 1e3,
+    unit: str = "ms",
+    anchor: str | None = None,
+) -> str:
+    """Markdown table: median time, and the per-round time ratio to ``baseline`` (median [IQR]);
+    with ``anchor``, also the per-round ratio to that candidate (median), a reference beside the
+    baseline (e.g. a classic method the candidates are measured against)."""
+    extra = (f" time / {anchor} |", "---|") if anchor else ("", "")
+    head = f"| candidate | median {unit} | time / {baseline} | IQR of the ratio |{extra[0]}"
+    rows = [head, f"|---|---|---|---|{extra[1]}"]
     for name in timings.rounds:
         mid, low, high = timings.ratio(name, baseline)
-        rows.append(
-            f"| {name} | {timings.median(name) * unit_scale:.2f} | {mid:.3f} | {low:.3f}-{high:.3f} |"
-        )
+        row = f"| {name} | {timings.median(name) * unit_scale:.2f} | {mid:.3f} | {low:.3f}-{high:.3f} |"
+        if anchor:
+            row += f" {timings.ratio(name, anchor)[0]:.1f} |"
+        rows.append(row)
     return "\n".join(rows)
 
 

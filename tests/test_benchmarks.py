@@ -139,6 +139,7 @@ def test_ratios_are_paired_within_rounds() -> None:
     assert mid == pytest.approx(1.1) and low == pytest.approx(1.1) and high == pytest.approx(1.125)
     assert timings.ratio("base", "base") == (1.0, 1.0, 1.0)
     assert "| cand | 3400.00 | 1.100 | 1.100-1.125 |" in table(timings, "base")
+    assert "| cand | 3400.00 | 1.100 | 1.100-1.125 | 1.1 |" in table(timings, "base", anchor="base")
 
 
 def test_train_step_benchmark_by_network() -> None:
@@ -306,14 +307,30 @@ def test_objects_gpu_script_runs_tiny_on_the_cpu_without_matplotlib_or_dvclive(t
     assert "no curves.png" in proc.stderr and not (tmp_path / "out" / "curves.png").exists()
 
 
-def test_optimum_benchmark_prints_seconds_per_pair_side_by_side() -> None:
-    out = _run(
-        "optimum.py", "--sizes", "32x96", "48x128", "--iterations", "2", "--repeats", "1", "--threads", "1"
-    )
-    for size in ("32 x 96", "48 x 128"):
-        section = out.split(f"{size}: seconds per pair")[1].split("seconds per pair")[0]
+def test_optimum_benchmark_prints_every_path_beside_the_previous_implementation() -> None:
+    """Per size and variant: the constant start (the baseline), the cost start alone, the cost and
+    sgbm paths and SGBM alone (the anchor column), and the default path's line."""
+    tiny = ("--iterations", "1", "--repeats", "1", "--warmup", "0", "--threads", "1")
+    out = _run("optimum.py", "--sizes", "32x64", "48x96", *tiny)
+    assert out.startswith("optimum: constant start 3 levels x 1 steps, matched starts 2 levels x 1 steps")
+    for size in ("32 x 64", "48 x 96"):
+        section = out.split(f"{size}: seconds per pair")[1].split("seconds per pair (true")[0]
         for name in ("SSIM k3", "MS-SSIM k3", "MS-SSIM k11"):
-            assert f"| {name} |" in section
+            head = f"| time / {name} constant | IQR of the ratio | time / SGBM alone |"
+            table = section.split(head)[1].split("\n\n")[0]
+            rows = [line.split(" | ")[0] for line in table.splitlines() if line.startswith("| ")]
+            paths = ("constant", "cost start", "cost", "sgbm")
+            assert rows == [f"| {name} {path}" for path in paths] + ["| SGBM alone"], table
+            assert f"{name}, the default path (cost): " in table
+
+
+def test_optimum_benchmark_selects_paths_and_variants() -> None:
+    """--paths and --variants time only those rows (and the anchor); the ratios are to the first."""
+    tiny = ("--iterations", "1", "--repeats", "1", "--warmup", "0", "--threads", "1")
+    out = _run("optimum.py", "--sizes", "32x64", "--paths", "sgbm", "--variants", "msssim:5", *tiny)
+    rows = [line.split(" | ")[0] for line in out.splitlines() if line.startswith("| ")]
+    assert rows == ["| candidate", "| MS-SSIM k5 sgbm", "| SGBM alone"]
+    assert "time / MS-SSIM k5 sgbm |" in out and "default path" not in out
 
 
 def _optimum_commit(repo: Path, kernel: int, offset: float) -> None:
