@@ -16,7 +16,26 @@ both at the working size (``--size``, default half) and brought to full size (bi
 disparity as a fraction of the width). Scores at full size on the GT pixels of each class:
 abs_rel and a1 of depth (predictions capped at 80 m: a disparity below f·B/80 reads as 80 m;
 ``metrics.compute_errors``), KITTI's D1 (%) and EPE (px) (``metrics.stereo_errors``); and seconds.
-Writes ``<out>/real_pairs.md`` through the output policy::
+Writes ``<out>/real_pairs.md`` through the output policy.
+
+From the same disparities it also writes ``<out>/verdict.json``, the real pairs' rows of the
+verdict (:mod:`msdepth.reporting.verdict`, whose schema it follows and which the compare stage
+reads): MS-SSIM at ``msssim.kernel_size`` minus ``compare.reference`` (SSIM) in abs_rel, per
+instrument (``optimum w<weight>``, the pipeline's names, so the compare stage pools them with its
+own optimum rows; ``cost start``, SGM on each variant's own cost volume) and class, each with a
+:func:`msdepth.reporting.stats.paired_bootstrap` interval (``compare``'s samples, confidence and
+seed) over units of that class:
+
+- ``full frame``: the pairs (abs_rel over each pair's GT pixels, as in ``real_pairs.md``);
+- each ROI class (car, windshield, glass, sign): the hand-drawn boxes of
+  ``data_lists/kitti2015_rois.csv`` on the KITTI 2015 frames that hold GT
+  (:func:`msdepth.evaluation.suites.evaluate_roi`, cap 80 m, as ``studies/real_rois.py``);
+- ``reflective``: KITTI 2012 has two frames, too few units, so the units are the 32x32 px tiles
+  of its frames that hold at least 50 reflective GT pixels (:func:`tile_units`; a tile's abs_rel
+  over its reflective GT pixels).
+
+A row over fewer than ``verdict.MIN_UNITS`` units is not written. ``--weights`` restricts the
+sweep (e.g. ``--weights 10``)::
 
     OMP_NUM_THREADS=1 python studies/real_pairs.py --out studies/results/real
 """
@@ -29,26 +48,39 @@ import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Sequence
 
 import cv2
 import numpy as np
+import pandas as pd
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from optimum_starts import BASELINE, FOCAL, SAMPLES, variants_of, working_size  # noqa: E402 - sibling study
 from score_lidar import lidar_gt  # noqa: E402 - the sibling study's LiDAR GT
 
+from msdepth.config.params import CompareConfig, EvalConfig, Params  # noqa: E402
 from msdepth.data import kitti, kitti2012  # noqa: E402
+from msdepth.data.annotations import KITTI2015_SIZE, gt_density, read_annotation  # noqa: E402
 from msdepth.evaluation.metrics import compute_errors, stereo_errors  # noqa: E402
+from msdepth.evaluation.suites import Frame, evaluate_roi  # noqa: E402
 from msdepth.geometry.depth import clamp_depth, disparity_to_depth  # noqa: E402
-from msdepth.io import OutputPolicy, write_text  # noqa: E402
+from msdepth.io import OutputPolicy, write_json, write_text  # noqa: E402
 from msdepth.optimum.sgbm import sgbm_disparity  # noqa: E402
 from msdepth.optimum.solver import optimum_disparities  # noqa: E402
 from msdepth.optimum.starts import matched_disparity  # noqa: E402
+from msdepth.reporting.stats import paired_bootstrap, paired_table  # noqa: E402
+from msdepth.reporting.verdict import FULL_FRAME, METRIC, MIN_UNITS, class_order, read_external_rows  # noqa: E402
 
+ROOT = Path(__file__).resolve().parents[1]
 CAP, MIN_DEPTH = 80.0, 1e-3
 FRAMES = ("000000_10", "000001_10")
-REPORT = "real_pairs.md"
+REPORT, VERDICT = "real_pairs.md", "verdict.json"
+ROIS_CSV = ROOT / "data_lists" / "kitti2015_rois.csv"
+TILE, TILE_PIXELS = 32, 50  # reflective units: 32x32 px tiles with at least 50 reflective GT px
+COST_START = "cost start"  # the matcher's instrument (the pipeline's verdict has no matcher row)
+
+Results = dict[str, tuple[np.ndarray, float]]  # method -> (full-size disparity in px, seconds)
 
 
 @dataclass
@@ -64,6 +96,7 @@ class RealPair:
     baseline: float
     classes: dict[str, np.ndarray] = field(default_factory=dict)  # class -> its pixels (bool)
     gt_in_range: bool = False  # LiDAR GT: only GT in (MIN_DEPTH, CAP), as the Eigen evaluation
+    roi_frame: str | None = None  # the frame's name in the hand-drawn ROIs' CSV (KITTI 2015)
 
 
 def object_pair(base: Path) -> RealPair:
@@ -79,7 +112,7 @@ def kitti2015_pair(base: Path, frame: str) -> RealPair:
     """A KITTI 2015 training frame against ``disp_occ_0`` (no calib: Monodepth's camera)."""
     left, right = (kitti.read_image(base / d / f"{frame}.png") for d in ("image_2", "image_3"))
     gt = kitti.read_disparity(base / "disp_occ_0" / f"{frame}.png")
-    return RealPair(f"2015 {frame}", "disp_occ_0", left, right, gt, FOCAL, BASELINE)
+    return RealPair(f"2015 {frame}", "disp_occ_0", left, right, gt, FOCAL, BASELINE, roi_frame=frame)
 
 
 def kitti2012_pair(base: Path, frame: str) -> RealPair:
@@ -114,23 +147,34 @@ def full_size(fraction: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
     return cv2.resize(fraction, (width, height), interpolation=cv2.INTER_LINEAR) * width
 
 
-def scores(pair: RealPair, disparity: np.ndarray, mask: np.ndarray) -> dict[str, float] | None:
-    """abs_rel and a1 (depth, capped), D1 (%) and EPE (px) on the GT pixels of ``mask``; None if none."""
-    gt_depth = disparity_to_depth(pair.gt_disp, pair.focal, pair.baseline)
+def evaluated(pair: RealPair, mask: np.ndarray) -> np.ndarray:
+    """The GT pixels of ``mask`` that are scored (LiDAR GT: only those in (MIN_DEPTH, CAP) m)."""
     mask = mask & (pair.gt_disp > 0)
     if pair.gt_in_range:
+        gt_depth = disparity_to_depth(pair.gt_disp, pair.focal, pair.baseline)
         mask &= (gt_depth > MIN_DEPTH) & (gt_depth < CAP)
+    return mask
+
+
+def capped_depth(pair: RealPair, disparity: np.ndarray) -> np.ndarray:
+    """The depth (m) of a disparity (px): a disparity below f·B/CAP, none included, reads as CAP."""
+    floor = pair.focal * pair.baseline / CAP  # px: a disparity below it is beyond the cap
+    return disparity_to_depth(np.maximum(disparity, floor), pair.focal, pair.baseline)
+
+
+def scores(pair: RealPair, disparity: np.ndarray, mask: np.ndarray) -> dict[str, float] | None:
+    """abs_rel and a1 (depth, capped), D1 (%) and EPE (px) on the GT pixels of ``mask``; None if none."""
+    mask = evaluated(pair, mask)
     if not mask.any():
         return None
-    floor = pair.focal * pair.baseline / CAP  # px: a disparity below it is beyond the cap
-    pred = disparity_to_depth(np.maximum(disparity, floor), pair.focal, pair.baseline)
-    depth = compute_errors(gt_depth[mask], clamp_depth(pred[mask], MIN_DEPTH, CAP))
+    gt_depth = disparity_to_depth(pair.gt_disp, pair.focal, pair.baseline)
+    depth = compute_errors(gt_depth[mask], clamp_depth(capped_depth(pair, disparity)[mask], MIN_DEPTH, CAP))
     stereo = stereo_errors(np.where(mask, pair.gt_disp, 0.0), disparity)
     return {"pixels": int(mask.sum()), "abs_rel": depth["abs_rel"], "a1": depth["a1"],
             "d1": 100 * stereo["d1"], "epe": stereo["epe"]}  # fmt: skip
 
 
-def methods(pair: RealPair, variants: dict, size: tuple[int, int]):  # noqa: ANN201 - a generator
+def methods(pair: RealPair, variants: dict, size: tuple[int, int], weights: Sequence[float]):  # noqa: ANN201 - a generator
     """Yield ``(method, full-size disparity in px, seconds)`` for every method on ``pair``."""
     began = time.perf_counter()
     yield "SGBM", sgbm_disparity(pair.left, pair.right)[0], time.perf_counter() - began
@@ -138,30 +182,170 @@ def methods(pair: RealPair, variants: dict, size: tuple[int, int]):  # noqa: ANN
     for label, (name, params) in variants.items():
         began = time.perf_counter()
         start = matched_disparity(*small, params, name, "cost") / size[1]
-        yield f"{label} cost start", full_size(start, pair.left.shape), time.perf_counter() - began
-        for weight in params.optimum.smoothness_sweep:
+        yield f"{label} {COST_START}", full_size(start, pair.left.shape), time.perf_counter() - began
+        for weight in weights:
             began = time.perf_counter()
-            disp = optimum_disparities([(pair.left, pair.right)], params, name, weight, size, progress=False)[
-                0
-            ]
+            images = [(pair.left, pair.right)]
+            disp = optimum_disparities(images, params, name, weight, size, progress=False)[0]
             seconds = time.perf_counter() - began
-            yield f"{label} optimum w{weight:g}", full_size(disp, pair.left.shape), seconds
+            yield f"{label} {optimum_name(weight)}", full_size(disp, pair.left.shape), seconds
 
 
-def score_pairs(pairs: list[RealPair], variants: dict, size_name: str) -> list[dict]:
-    """One row per pair, method and class (``all`` and each exact class), printing progress."""
-    rows = []
+def optimum_name(weight: float) -> str:
+    """The optimum's instrument at ``weight``, as the pipeline names it (``optimum w10``)."""
+    return f"optimum w{weight:g}"
+
+
+def disparities(
+    pairs: list[RealPair], variants: dict, size_name: str, weights: Sequence[float]
+) -> list[Results]:
+    """Per pair (in order), every method's full-size disparity and seconds, printing progress."""
+    out = []
     for number, pair in enumerate(pairs, 1):
+        results: Results = {}
         size = working_size(size_name, pair.left.shape)
-        for method, disparity, seconds in methods(pair, variants, size):
-            masks = {"all": np.ones(pair.gt_disp.shape, bool), **pair.classes}
+        for method, disparity, seconds in methods(pair, variants, size, weights):
+            results[method] = (disparity, seconds)
+            print(f"[{number}/{len(pairs)}] {pair.label} {method}: {seconds:.1f} s", flush=True)
+        out.append(results)
+    return out
+
+
+def score_pairs(pairs: list[RealPair], results: list[Results]) -> list[dict]:
+    """One row per pair, method and class (``all`` and each exact class)."""
+    rows = []
+    for pair, by_method in zip(pairs, results, strict=True):
+        masks = {"all": np.ones(pair.gt_disp.shape, bool), **pair.classes}
+        for method, (disparity, seconds) in by_method.items():
             for cls, mask in masks.items():
                 found = scores(pair, disparity, mask)
                 if found is not None:
                     rows.append({"pair": pair.label, "gt": pair.gt_name, "method": method, "class": cls,
                                  "s": seconds, **found})  # fmt: skip
-            print(f"[{number}/{len(pairs)}] {pair.label} {method}: {seconds:.1f} s", flush=True)
     return rows
+
+
+# --- the verdict's rows: MS-SSIM − SSIM per instrument and class, over units ---------------------
+
+
+def tile_units(
+    mask: np.ndarray, tile: int = TILE, min_pixels: int = TILE_PIXELS
+) -> list[tuple[slice, slice]]:
+    """The ``tile`` x ``tile`` px tiles of a grid from the top-left corner (those at the right and
+    bottom edges may be smaller) that hold at least ``min_pixels`` pixels of ``mask``, row by row."""
+    height, width = mask.shape
+    out = []
+    for y in range(0, height, tile):
+        for x in range(0, width, tile):
+            box = (slice(y, min(y + tile, height)), slice(x, min(x + tile, width)))
+            if int(mask[box].sum()) >= min_pixels:
+                out.append(box)
+    return out
+
+
+def tile_values(pair: RealPair, disparity: np.ndarray, cls: str) -> list[dict]:
+    """Per tile of :func:`tile_units` over ``cls``'s scored GT pixels, abs_rel on those pixels."""
+    mask = evaluated(pair, pair.classes[cls])
+    gt_depth = disparity_to_depth(pair.gt_disp, pair.focal, pair.baseline)
+    pred = clamp_depth(capped_depth(pair, disparity), MIN_DEPTH, CAP)
+    rows = []
+    for box in tile_units(mask):
+        inside = mask[box]
+        errors = compute_errors(gt_depth[box][inside], pred[box][inside])
+        unit = f"{pair.label} y{box[0].start} x{box[1].start}"
+        rows.append({"class": cls, "unit": unit, METRIC: errors[METRIC]})
+    return rows
+
+
+def roi_values(pairs: list[RealPair], results: list[Results], method: str, boxes: pd.DataFrame) -> list[dict]:
+    """Per hand-drawn box with GT on the KITTI 2015 frames at hand (at the size the boxes were drawn
+    on), ``method``'s abs_rel at cap CAP (:func:`~msdepth.evaluation.suites.evaluate_roi`, as
+    ``studies/real_rois.py``); [] where no box has GT."""
+    frames, pred, gt = [], {}, {}
+    for pair, by_method in zip(pairs, results, strict=True):
+        if pair.roi_frame in set(boxes["image"]) and pair.gt_disp.shape == KITTI2015_SIZE:
+            frames.append(Frame.from_disparity(pair.roi_frame, pair.gt_disp, pair.focal, pair.baseline))
+            pred[pair.roi_frame] = capped_depth(pair, by_method[method][0])
+            gt[pair.roi_frame] = pair.gt_disp
+    chosen = boxes[boxes["image"].isin(pred)]
+    if chosen.empty or not (gt_density(chosen, gt) > 0).any():  # the suite needs a box with GT
+        return []
+    _, table = evaluate_roi(pred, frames, chosen.reset_index(drop=True), EvalConfig(caps=(CAP,)))
+    lines = chosen.index + 2  # a box's CSV line (header 1) names it; the suite numbers them 0, 1, ...
+    return [
+        {"class": r["class"], "unit": f"{r['image']} line {lines[r['roi']]}", METRIC: r[METRIC]}
+        for r in table.to_dict("records")
+    ]
+
+
+def unit_table(
+    pairs: list[RealPair], results: list[Results], method: str, boxes: pd.DataFrame
+) -> pd.DataFrame:
+    """``method``'s abs_rel per unit (columns class, unit, abs_rel): each pair as the full frame,
+    each box with GT under its class, each tile of every exact class (KITTI 2012's reflective)."""
+    rows = []
+    for pair, by_method in zip(pairs, results, strict=True):
+        disparity = by_method[method][0]
+        found = scores(pair, disparity, np.ones(pair.gt_disp.shape, bool))
+        if found is not None:
+            rows.append({"class": FULL_FRAME, "unit": pair.label, METRIC: found[METRIC]})
+        for cls in pair.classes:
+            rows += tile_values(pair, disparity, cls)
+    rows += roi_values(pairs, results, method, boxes)
+    return pd.DataFrame(rows, columns=["class", "unit", METRIC])
+
+
+def unit_method(cls: str, pairs: list[RealPair]) -> str:
+    """How a verdict row of ``cls`` was made over its units, in words (the row's ``method``)."""
+    if cls == FULL_FRAME:
+        names = ", ".join(p.label for p in pairs)
+        return f"real pairs: paired bootstrap over the pairs ({names}; the object pair's GT is LiDAR)"
+    if any(cls in p.classes for p in pairs):
+        names = ", ".join(p.label for p in pairs if cls in p.classes)
+        return (
+            f"real pairs: paired bootstrap over {TILE}x{TILE} px tiles with >= {TILE_PIXELS} {cls} GT px "
+            f"({names}; two frames are too few units), a tile's abs_rel over its {cls} GT px"
+        )
+    names = ", ".join(p.label for p in pairs if p.roi_frame is not None)
+    return f"real pairs: paired bootstrap over the hand-drawn ROIs with GT ({names}; {ROIS_CSV.name})"
+
+
+def verdict_rows(
+    pairs: list[RealPair],
+    results: list[Results],
+    cfg: CompareConfig,
+    labels: tuple[str, str],
+    weights: Sequence[float],
+) -> list[dict]:
+    """The rows of ``verdict.json`` (:mod:`msdepth.reporting.verdict`'s external schema): per
+    instrument and class, ``labels[0]`` minus ``labels[1]`` (methods' labels) in abs_rel over the
+    class's units, :func:`~msdepth.reporting.stats.paired_bootstrap` at ``cfg``'s settings; a class
+    with fewer than MIN_UNITS units is left out."""
+    variant, reference = labels
+    boxes = read_annotation(ROIS_CSV)
+    rows = []
+    for instrument in [COST_START, *(optimum_name(w) for w in weights)]:
+        a, b = (unit_table(pairs, results, f"{label} {instrument}", boxes) for label in labels)
+        for cls in class_order(list(a["class"].unique())):
+            what = f"real pairs, {instrument}, {variant} vs {reference}, {cls}"
+            values, ref = paired_table(a[a["class"] == cls], b[b["class"] == cls], ["unit"], METRIC, what)
+            if len(values) < MIN_UNITS:
+                continue
+            d = paired_bootstrap(values, ref, cfg.bootstrap_samples, cfg.confidence, cfg.seed)
+            rows.append({"instrument": instrument, "class": cls, "diff": d.mean, "low": d.low, "high": d.high,
+                         "n": int(d.n), "method": unit_method(cls, pairs)})  # fmt: skip
+    return rows
+
+
+def verdict_labels(variants: dict[str, tuple[str, Params]]) -> tuple[str, str]:
+    """The labels of the verdict's two variants: MS-SSIM at the params' ``msssim.kernel_size`` (the
+    pipeline's ``msssim``) and ``compare.reference``; a SystemExit where either is not a variant here."""
+    params = next(iter(variants.values()))[1]
+    labels = (f"msssim k{params.msssim.kernel_size}", params.compare.reference)
+    for label in labels:
+        if label not in variants:
+            raise SystemExit(f"verdict: no variant {label!r} here (variants: {', '.join(variants)})")
+    return labels
 
 
 def table(rows: list[dict]) -> list[str]:
@@ -207,7 +391,9 @@ def report(rows: list[dict], pairs: list[RealPair], absent: list[str], size: str
         f"(optimum and cost start; SGBM at full size); scored at full size. Torch threads "
         f"{torch.get_num_threads()}; load average {loads[0][0]:.1f} at the start, {loads[1][0]:.1f} at "
         "the end (seconds are indicative). Class `all`: every GT pixel; `reflective`: KITTI 2012's "
-        "disp_refl_occ pixels (msdepth.data.kitti2012).",
+        "disp_refl_occ pixels (msdepth.data.kitti2012). The verdict's rows (MS-SSIM − SSIM per "
+        "instrument and class, over pairs, hand-drawn ROIs and reflective tiles) are in `verdict.json`, "
+        "from the same disparities.",
         "",
         "## Means over the pairs",
         "",
@@ -221,27 +407,39 @@ def report(rows: list[dict], pairs: list[RealPair], absent: list[str], size: str
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Score every real pair at hand and write ``<out>/real_pairs.md``."""
+    """Score every real pair at hand; write ``<out>/real_pairs.md`` and ``<out>/verdict.json``."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--samples", type=Path, default=SAMPLES, help="the real-samples folder")
-    parser.add_argument("--params", type=Path, default=Path(__file__).resolve().parents[1] / "params.yaml")
+    parser.add_argument("--params", type=Path, default=ROOT / "params.yaml")
     parser.add_argument("--size", default="half", help="working size: full, half, quarter or HxW")
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="a params override")
-    parser.add_argument("--out", type=Path, required=True, help="the folder of real_pairs.md")
+    parser.add_argument(
+        "--weights", help="the optimum's weights, e.g. 3,10 (default: optimum.smoothness_sweep)"
+    )
+    parser.add_argument(
+        "--out", type=Path, required=True, help="the folder of real_pairs.md and verdict.json"
+    )
     args = parser.parse_args(argv)
     policy = OutputPolicy(args.out, "real-pairs")
-    policy.claim([args.out / REPORT], args.samples)
+    policy.claim([args.out / REPORT, args.out / VERDICT], args.samples)
     torch.set_num_threads(int(os.environ.get("OMP_NUM_THREADS", "1")))
     variants = variants_of(args.params, args.set)
+    labels = verdict_labels(variants)
+    params = variants[labels[1]][1]
+    weights = [float(w) for w in args.weights.split(",")] if args.weights else params.optimum.smoothness_sweep
     pairs, absent = real_pairs(args.samples)
     if not pairs:
         print(f"{args.samples}: no real pair at hand ({', '.join(absent)} absent)", file=sys.stderr)
         return 1
     before = os.getloadavg()
-    rows = score_pairs(pairs, variants, args.size)
-    text = report(rows, pairs, absent, args.size, (before, os.getloadavg()))
+    results = disparities(pairs, variants, args.size, weights)
+    text = report(score_pairs(pairs, results), pairs, absent, args.size, (before, os.getloadavg()))
     write_text(args.out / REPORT, text)
+    rows = verdict_rows(pairs, results, params.compare, labels, weights)
+    write_json(args.out / VERDICT, rows)
+    read_external_rows(args.out / VERDICT)  # the compare stage's reader: the schema holds
     print(text)
+    print(f"{args.out / VERDICT}: {len(rows)} rows")
     return 0
 
 

@@ -1,5 +1,7 @@
 """studies/real_pairs.py end to end on a tiny fake samples folder (the real-samples layout with
-tiny synthetic frames, as tests/test_matcher.py's starts study test)."""
+tiny synthetic frames, as tests/test_matcher.py's starts study test), on the shared real pairs
+(``../shared/real-samples``; skipped where it is absent) for its verdict rows, and its reflective
+tiles on a hand-made mask."""
 
 from __future__ import annotations
 
@@ -7,11 +9,15 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 import yaml
 from test_matcher import fake_samples
 
+from msdepth.reporting.verdict import FULL_FRAME, MIN_UNITS, POOLABLE, Row, pooled_rows, read_external_rows
+
 ROOT = Path(__file__).resolve().parents[1]
+SAMPLES = ROOT.parent / "shared" / "real-samples"
 
 
 @pytest.mark.slow
@@ -43,3 +49,51 @@ def test_real_pairs_study_on_a_tiny_fake_samples_folder(tmp_path):
     assert "| 2012 000000_10 | disp_occ+refl | msssim k7 optimum w30 | reflective |" in text
     assert "| 2015 000000_10 | disp_occ_0 | SGBM | all | 5120 | 0.0" in text  # the plane at 5 px, matched
     assert "[4/4] 2012 000001_10 msssim k7 optimum w30" in proc.stdout
+    assert (out / "verdict.json").is_file()  # claimed beside the report: the second run replaced it
+
+
+def test_a_tile_is_a_unit_when_it_holds_enough_pixels_of_the_class(monkeypatch):
+    """The reflective units: 32x32 tiles from the top-left corner, the edge tiles smaller, each
+    counted when it holds at least 50 pixels of the mask."""
+    monkeypatch.syspath_prepend(str(ROOT / "studies"))
+    from real_pairs import tile_units
+
+    mask = np.zeros((70, 100), bool)  # tiles: rows at 0, 32, 64 (6 px high); columns at 0, 32, 64, 96 (4 px)
+    mask[0:5, 0:10] = True  # 50 px in tile (0, 0): a unit
+    mask[0:7, 32:39] = True  # 49 px in tile (0, 32): not one
+    mask[32:64, 64:96] = True  # a whole tile: a unit
+    mask[64:70, 0:9] = True  # 54 px in the bottom edge tile (0..32 wide, 6 high): a unit
+    mask[32:70, 96:100] = True  # 128 px over two right edge tiles, 32x4 (128) and 6x4 (24): the first
+    starts = [(box[0].start, box[1].start) for box in tile_units(mask)]
+    assert starts == [(0, 0), (32, 64), (32, 96), (64, 0)]
+    edge = tile_units(mask)[-1]
+    assert (edge[0].stop, edge[1].stop) == (70, 32)
+    assert len(tile_units(mask, min_pixels=49)) == 5
+    assert tile_units(mask, tile=100, min_pixels=2000) == []  # one 70x100 tile holds 1,329 px
+
+
+@pytest.mark.skipif(not SAMPLES.is_dir(), reason=f"{SAMPLES} absent (a clone without ../shared)")
+def test_the_verdict_rows_of_the_shared_real_pairs(tmp_path, monkeypatch):
+    """On the shared pairs at a tiny working size (the path, not the optimum): both outputs, and
+    verdict.json as the compare stage reads it, with every class for each instrument (the optimum
+    named as the pipeline names it, so that its rows pool), each over at least MIN_UNITS units."""
+    monkeypatch.syspath_prepend(str(ROOT / "studies"))
+    from real_pairs import main
+
+    tiny = ["optimum.iterations=2", "optimum.levels=1", "optimum.start=constant"]
+    args = ["--samples", str(SAMPLES), "--size", "48x160", "--weights", "10", "--out", str(tmp_path)]
+    assert main([*args, *(x for s in tiny for x in ("--set", s))]) == 0
+    assert "| 2012 000001_10 | disp_occ+refl | msssim k3 optimum w10 | reflective |" in (
+        tmp_path / "real_pairs.md"
+    ).read_text(encoding="utf-8")
+    rows = read_external_rows(tmp_path / "verdict.json")
+    classes = [FULL_FRAME, "car", "windshield", "glass", "sign", "reflective"]
+    assert [(r.instrument, r.cls) for r in rows] == [
+        (i, c) for i in ("cost start", "optimum w10") for c in classes
+    ]
+    assert all(r.n >= MIN_UNITS for r in rows)
+    assert {r.n for r in rows if r.cls == FULL_FRAME} == {5}  # the object pair, 2 KITTI 2015 and 2 KITTI 2012
+    assert "tiles" in next(r for r in rows if r.cls == "reflective").method
+    assert POOLABLE.match("optimum w10") and not POOLABLE.match("cost start")
+    pipeline = Row("optimum w10", "car", 0.0, -0.01, 0.01, 9, "paired bootstrap over ROIs", "optimum")
+    assert [(r.instrument, r.cls) for r in pooled_rows([*rows, pipeline])] == [("optimum w10, pooled", "car")]
