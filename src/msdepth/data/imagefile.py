@@ -55,7 +55,9 @@ _JPEG_MAGIC = b"\xff\xd8"
 _JPEG_SOF = set(range(0xC0, 0xD0)) - {0xC4, 0xC8, 0xCC}  # frame headers (0xC4 etc. are tables)
 _JPEG_STANDALONE = set(range(0xD0, 0xD8)) | {0x01}  # RSTn and TEM: no length field
 _HEADER_LIMIT = 4096  # bytes of a PNM header searched for its size
-_LIBJPEG_ERRORS = (b"Corrupt JPEG data", b"Premature end of JPEG file")
+# libjpeg's warnings that the data is corrupt (it decodes on, with grey blocks or a wrong picture);
+# a repeated or out-of-order progressive scan is "Inconsistent progression sequence".
+_LIBJPEG_ERRORS = (b"Corrupt JPEG data", b"Premature end of JPEG file", b"Inconsistent progression sequence")
 _STDERR_LOCK = threading.Lock()
 
 
