@@ -17,8 +17,8 @@ import sys
 from pathlib import Path
 
 import numpy as np
-import yaml
 
+from msdepth.config.params import read_params_file
 from msdepth.data.synthetic import EVAL, TRAIN, render_frame
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -72,7 +72,7 @@ def main() -> None:
     ap.add_argument("--eval", type=int, default=40)
     ap.add_argument("--train", type=int, default=40)
     args = ap.parse_args()
-    s = yaml.safe_load((ROOT / "params.yaml").read_text())["data"]["synthetic"]
+    s = read_params_file(ROOT / "params.yaml")["data"]["synthetic"]
     (dump if args.mode == "dump" else compare)(args, s)
 
 

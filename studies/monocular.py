@@ -39,8 +39,8 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
-import yaml
 
+from msdepth.config.params import read_params_file
 from msdepth.reporting.compare import image_dependence, load_suite_metrics, load_unit_tables
 from msdepth.reporting.verdict import FULL_FRAME
 
@@ -291,7 +291,7 @@ def main(argv: list[str] | None = None) -> int:
     out = (args.out or repo / "studies" / "results" / "monocular").resolve()
     if sh(["git", "status", "--porcelain", "--", *RESTORED], repo).strip():
         raise SystemExit(f"error: {repo}: uncommitted changes in {', '.join(RESTORED)}; commit them first")
-    params = yaml.safe_load((repo / "params.yaml").read_text())
+    params = read_params_file(repo / "params.yaml")
     if params["train"].get("mode", "stereo") != "stereo":
         raise SystemExit(f"error: {repo}/params.yaml: train.mode must be stereo (the study's baseline)")
     (out / "runs").mkdir(parents=True, exist_ok=True)
@@ -300,7 +300,7 @@ def main(argv: list[str] | None = None) -> int:
     for mode in args.modes:
         if not (out / "runs" / mode).is_dir():
             run_mode(repo, mode, args.sequence_length, args.set, out / "runs" / mode, runs_of(params))
-    used = yaml.safe_load((out / "runs" / args.modes[0] / "params.yaml").read_text())
+    used = read_params_file(out / "runs" / args.modes[0] / "params.yaml")
     (out / "table.md").write_text(table(out, args.modes, used, args.cap, repo))
     modes = {m: seed_values(out / "runs" / m, used, args.cap) for m in ["stereo", *args.modes]}
     values = {"cap": args.cap, "seeds": used["train"]["seeds"], "metric": "abs_rel", "modes": modes}

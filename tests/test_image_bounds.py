@@ -94,3 +94,11 @@ def test_a_jpeg_of_5000_repeated_scans_is_refused_before_decoding(tmp_path: Path
 def test_a_progressive_jpeg_of_real_scan_count_is_read(tmp_path: Path) -> None:
     (tmp_path / "q.jpg").write_bytes(repeated_scans(0))
     assert kitti.read_image(tmp_path / "q.jpg").shape == (64, 96, 3)
+
+
+def test_a_jpeg_of_repeated_scans_under_the_count_bound_is_refused_as_corrupt(tmp_path: Path) -> None:
+    # Case 5's file with 50 repeats (under MAX_JPEG_SCANS) was decoded with exit code 0 and libjpeg's
+    # bare "Inconsistent progression sequence" warning on stderr: a bogus progression is corrupt data.
+    (tmp_path / "p.jpg").write_bytes(repeated_scans(50))
+    with pytest.raises(DataError, match=r"p.jpg: image: corrupt JPEG \(libjpeg: Inconsistent progression"):
+        kitti.read_image(tmp_path / "p.jpg")

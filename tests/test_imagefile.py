@@ -5,6 +5,7 @@ data after the image are read."""
 from __future__ import annotations
 
 import io
+import re
 import struct
 import zlib
 from pathlib import Path
@@ -13,9 +14,9 @@ import cv2
 import numpy as np
 import pytest
 
-from msdepth.data import kitti
+from msdepth.data import imagefile, kitti
 from msdepth.data.pairs import build_pair_cache
-from msdepth.errors import DataError
+from msdepth.errors import DataError, PixelLimitError
 
 
 def _chunk(kind: bytes, data: bytes) -> bytes:
@@ -60,6 +61,35 @@ def test_the_pixel_limit_can_be_raised_and_lowered(tmp_path: Path) -> None:
     assert kitti.read_image(tmp_path / "a.png", max_pixels=2000).shape == (40, 50, 3)
     with pytest.raises(DataError, match="40 px .*over the limit of 0.00199"):
         kitti.read_image(tmp_path / "a.png", max_pixels=1999)
+
+
+@pytest.mark.parametrize(
+    ("width", "height", "limit", "expected"),
+    [
+        (12_000, 12_000, 120_000_000, "declares 12000 x 12000 px (144 megapixels), over the limit of 120 "),
+        (300, 200, 10_000, "declares 300 x 200 px (0.06 megapixels), over the limit of 0.01 megapixels"),
+        (1280, 960, 1_000_000, "declares 1280 x 960 px (1.229 megapixels), over the limit of 1 megapixels"),
+        (100_000, 100_000, 120_000_000, "(10000 megapixels)"),
+    ],
+)
+def test_one_pixel_limit_check_and_message(width: int, height: int, limit: int, expected: str) -> None:
+    # One check for images and video frames (issue 42): predict's video check repeated it with its
+    # own words and rounding ("0 megapixels" over a limit of 0.01 came from the image's).
+    assert imagefile.check_pixel_limit(width, height, width * height) == (width, height)
+    with pytest.raises(PixelLimitError) as err:
+        imagefile.check_pixel_limit(width, height, min(limit, width * height - 1), "the video")
+    assert str(err.value).startswith("the video declares") and "\n" not in str(err.value)
+    if width * height > limit:
+        with pytest.raises(PixelLimitError, match=re.escape(expected)):
+            imagefile.check_pixel_limit(width, height, limit)
+    with pytest.raises(DataError, match=r"^the header declares an empty image \(0 x 5 px\)$"):
+        imagefile.check_pixel_limit(0, 5, limit)
+
+
+def test_predict_checks_video_frames_with_the_image_reader_s_check() -> None:
+    # The duplicate is gone: predict words no pixel limit of its own.
+    source = (Path(__file__).parents[1] / "src/msdepth/cli/predict.py").read_text()
+    assert "check_pixel_limit(" in source and "over the limit of" not in source
 
 
 @pytest.mark.parametrize(

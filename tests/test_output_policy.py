@@ -258,3 +258,33 @@ def test_a_policy_refuses_the_manifest_and_paths_leaving_the_folder(tmp_path: Pa
         with pytest.raises(OutputError, match="not a path msdepth predict may write"):
             policy.claim([path], "in.png")
     assert not (tmp_path / "out" / ".msdepth-predict").exists()
+
+
+def test_optimum_writes_each_batch_before_the_next_is_optimised(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # Issue 42 case 8: nothing was written until the last pair finished, so a kill lost the whole run.
+    # Here the second batch's optimisation is interrupted: the first pair's outputs are already there.
+    import msdepth.optimum.solver as solver
+
+    calls = []
+
+    def optimum_disparities(pairs, *args, **kwargs):
+        calls.append(len(pairs))
+        if len(calls) > 1:
+            raise KeyboardInterrupt  # as a kill midway would stop it
+        return [np.full(left.shape[:2], 0.05, np.float32) for left, _ in pairs]
+
+    monkeypatch.setattr(solver, "optimum_disparities", optimum_disparities)
+    for name in ("a", "b"):
+        _image(tmp_path / "L" / f"{name}.png", 1)
+        _image(tmp_path / "R" / f"{name}.png", 2)
+    out = tmp_path / "out"
+    argv = ["optimum", str(tmp_path / "L"), str(tmp_path / "R"), "--out", str(out), *FAST_OPTIMUM]
+    with pytest.raises(KeyboardInterrupt):
+        main([*argv, "--set", "optimum.batch_size=1"])
+    assert calls == [1, 1]
+    assert sorted(p.name for p in out.iterdir()) == [".msdepth-optimum", *(f"a{s}" for s in OPTIMUM_SUFFIXES)]
+
+
+OPTIMUM_SUFFIXES = ("_depth.npy", "_disp.npy", "_disp.png")

@@ -49,7 +49,8 @@ def test_video_frames_over_the_pixel_limit_are_refused_before_decoding(
     assert main([*argv, "--max-megapixels", "0.05"]) == 1
     errors = _errors(capsys.readouterr().err)
     assert errors == [
-        f"error: {clip}: the video's frames are 320 x 240 px (0.1 megapixels), over the limit of 0.05 "
+        # the image reader's own check and words (imagefile.check_pixel_limit), the file and option added
+        f"error: {clip}: the video declares 320 x 240 px (0.0768 megapixels), over the limit of 0.05 "
         "megapixels (raise it with --max-megapixels)"
     ]
     assert not (tmp_path / "o" / "big").exists()

@@ -36,7 +36,7 @@ from tqdm import tqdm
 
 from msdepth.config.network_sizes import sides_problem
 from msdepth.data import kitti
-from msdepth.data.imagefile import MAX_IMAGE_PIXELS, batches_by_pixels
+from msdepth.data.imagefile import MAX_IMAGE_PIXELS, batches_by_pixels, check_pixel_limit
 from msdepth.data.pairs import resize, to_tensor
 from msdepth.data.synthetic import focal_for_width
 from msdepth.errors import DataError, MsdepthError, PixelLimitError
@@ -349,14 +349,14 @@ def _video_frames(path: Path, max_pixels: int) -> tuple[Iterator[_Frame], int]:
 
 
 def _check_video_size(path: Path, width: int, height: int, max_pixels: int) -> None:
-    """The pixel limit of images, on the frame size a video's container declares (PixelLimitError)."""
-    if width <= 0 or height <= 0:
-        raise DataError(f"{path}: the video declares no frame size ({width} x {height} px); not decoded")
-    if width * height > max_pixels:
-        raise PixelLimitError(
-            f"{path}: the video's frames are {width} x {height} px ({width * height / 1e6:.1f} megapixels), "
-            f"over the limit of {max_pixels / 1e6:g} megapixels (raise it with --max-megapixels)"
-        )
+    """The image reader's pixel limit (:func:`check_pixel_limit`) on the frame size a video's
+    container declares, with the file named and predict's option (PixelLimitError) added."""
+    try:
+        check_pixel_limit(width, height, max_pixels, "the video")
+    except PixelLimitError as exc:
+        raise PixelLimitError(f"{path}: {exc} (raise it with --max-megapixels)") from None
+    except DataError as exc:
+        raise DataError(f"{path}: {exc}; not decoded") from None
 
 
 def _size_changed(size: tuple[int, int], bgr: np.ndarray) -> str:

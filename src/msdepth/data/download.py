@@ -939,10 +939,13 @@ def _to_jpeg(root: Path, quality: int) -> None:
     """
     import cv2  # only needed for the optional conversion
 
+    from msdepth.data.imagefile import decode, read_file
+
     for png in sorted(root.rglob("*.png")):
-        image = cv2.imread(str(png), cv2.IMREAD_UNCHANGED)
-        if image is None:
-            raise DataError(f"{png}: OpenCV cannot decode this PNG")
+        try:  # the one image reader: size and header bounded before the file is read and decoded
+            image = decode(read_file(png), cv2.IMREAD_UNCHANGED)
+        except (OSError, DataError) as exc:
+            raise DataError(f"{png}: {getattr(exc, 'strerror', None) or exc}") from None
         if image.dtype != "uint8":
             continue
         if not cv2.imwrite(str(png.with_suffix(".jpg")), image, [cv2.IMWRITE_JPEG_QUALITY, quality]):

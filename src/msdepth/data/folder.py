@@ -41,10 +41,11 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from msdepth.config.params_yaml import parse as parse_yaml
 from msdepth.data import kitti
 from msdepth.data.ground_truth import read_gt_depth
 from msdepth.data.layout import FolderLayout
-from msdepth.errors import DataError
+from msdepth.errors import ConfigError, DataError
 from msdepth.io import write_text
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
@@ -64,15 +65,25 @@ class Camera:
         return self.focal_px * width / self.width_px
 
 
+MAX_CAMERA_BYTES = 64 * 1024  # three numbers; anything this large is not a camera file
+
+
 def read_camera(path: str | os.PathLike) -> Camera:
     """The camera file (YAML: ``focal_px``, ``width_px``, ``baseline_m``, all > 0)."""
     path = Path(path)
     try:
-        raw = yaml.safe_load(path.read_text())
+        with path.open("rb") as file:
+            data = file.read(MAX_CAMERA_BYTES + 1)
+        if len(data) > MAX_CAMERA_BYTES:
+            raise DataError(f"{path}: larger than {MAX_CAMERA_BYTES} bytes: not a camera file")
+        # the params reader's YAML parser: no aliases, duplicate keys or unbounded integers
+        raw = parse_yaml(data.decode("utf-8"))
     except FileNotFoundError:
         raise DataError(f"{path}: no camera file (data.folder.camera: {', '.join(CAMERA_KEYS)})") from None
-    except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
-        raise DataError(f"{path}: not a readable YAML camera file ({exc})") from None
+    except OSError as exc:
+        raise DataError(f"{path}: not a readable YAML camera file ({exc.strerror or exc})") from None
+    except (UnicodeDecodeError, ConfigError) as exc:
+        raise DataError(f"{path}: not a readable YAML camera file ({' '.join(str(exc).split())})") from None
     if not isinstance(raw, dict):
         raise DataError(f"{path}: expected a mapping with {', '.join(CAMERA_KEYS)}")
     missing, unknown = set(CAMERA_KEYS) - set(raw), set(raw) - set(CAMERA_KEYS)

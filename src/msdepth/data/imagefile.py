@@ -55,7 +55,9 @@ _JPEG_MAGIC = b"\xff\xd8"
 _JPEG_SOF = set(range(0xC0, 0xD0)) - {0xC4, 0xC8, 0xCC}  # frame headers (0xC4 etc. are tables)
 _JPEG_STANDALONE = set(range(0xD0, 0xD8)) | {0x01}  # RSTn and TEM: no length field
 _HEADER_LIMIT = 4096  # bytes of a PNM header searched for its size
-_LIBJPEG_ERRORS = (b"Corrupt JPEG data", b"Premature end of JPEG file")
+# libjpeg's warnings that the data is corrupt (it decodes on, with grey blocks or a wrong picture);
+# a repeated or out-of-order progressive scan is "Inconsistent progression sequence".
+_LIBJPEG_ERRORS = (b"Corrupt JPEG data", b"Premature end of JPEG file", b"Inconsistent progression sequence")
 _STDERR_LOCK = threading.Lock()
 
 
@@ -277,17 +279,30 @@ def header_size(file: BinaryIO) -> tuple[int, int]:
 
 def check_declared_size(data: bytes, max_pixels: int = MAX_IMAGE_PIXELS) -> tuple[int, int]:
     """:func:`declared_size`, and a DataError unless it is non-empty and at most ``max_pixels``."""
-    return _within_limit(*declared_size(data), max_pixels)
+    return check_pixel_limit(*declared_size(data), max_pixels)
 
 
-def _within_limit(width: int, height: int, max_pixels: int) -> tuple[int, int]:
+def megapixels(pixels: int) -> str:
+    """``pixels`` in megapixels, to 4 significant digits and never in exponent form: "144",
+    "0.0768", "1.229", "10000"."""
+    return f"{float(f'{pixels / 1e6:.4g}'):f}".rstrip("0").rstrip(".")
+
+
+def check_pixel_limit(
+    width: int, height: int, max_pixels: int, declared_by: str = "the header"
+) -> tuple[int, int]:
+    """The one pixel limit of every image and video frame, checked on the size ``declared_by``
+    declares before anything is decoded (an image's header here, a video's container in predict):
+    ``(width, height)``, or a DataError for an empty size and a PixelLimitError over ``max_pixels``.
+
+    No option is named: each command that has one (predict's ``--max-megapixels``) adds it.
+    """
     if width <= 0 or height <= 0:
-        raise DataError(f"the header declares an empty image ({width} x {height} px)")
+        raise DataError(f"{declared_by} declares an empty image ({width} x {height} px)")
     if width * height > max_pixels:
-        # No option named here: each command that has one (predict's --max-megapixels) adds it.
         raise PixelLimitError(
-            f"the header declares {width} x {height} px ({width * height / 1e6:.0f} megapixels), over the "
-            f"limit of {max_pixels / 1e6:g} megapixels"
+            f"{declared_by} declares {width} x {height} px ({megapixels(width * height)} megapixels), "
+            f"over the limit of {max_pixels / 1e6:g} megapixels"
         )
     return width, height
 
@@ -312,7 +327,7 @@ def read_file(path: str | os.PathLike, max_pixels: int = MAX_IMAGE_PIXELS) -> by
                 f"megapixels takes ({_mib(max_file_bytes(max_pixels))}: {MAX_BYTES_PER_PIXEL} bytes a "
                 "pixel and 64 MiB of metadata); nothing of it was read"
             )
-        width, height = _within_limit(*header_size(file), max_pixels)
+        width, height = check_pixel_limit(*header_size(file), max_pixels)
         if size > max_file_bytes(width * height):
             raise DataError(
                 f"the file is {_mib(size)}, more than its header's {width} x {height} px can take "

@@ -12,8 +12,8 @@ import json
 import subprocess
 
 import pandas as pd
-import yaml
 
+from msdepth.config.params_yaml import parse as parse_yaml
 from msdepth.errors import DataError
 from msdepth.reporting.compare import difference_cell
 from msdepth.reporting.stats import paired_bootstrap, paired_table
@@ -40,7 +40,7 @@ def optimum_run_at(ref: str, variant: str, weight: str) -> dict:
 
 def optimum_settings_at(ref: str) -> dict:
     """The optimum's weights and the MS-SSIM settings in ``ref``'s params.yaml."""
-    params = yaml.safe_load(show(ref, "params.yaml"))
+    params = parse_yaml(show(ref, "params.yaml"))  # the params reader's parser
     weights = sorted({params["optimum"]["smoothness_weight"], *params["optimum"]["smoothness_sweep"]})
     return {
         "kernel": params["msssim"]["kernel_size"],
