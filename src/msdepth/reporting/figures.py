@@ -59,7 +59,7 @@ from msdepth.data.index import read_eval_index
 from msdepth.errors import DataError
 from msdepth.evaluation.suites import Frame, evaluate_roi, gradient_maps, load_frames, read_depth_maps
 from msdepth.geometry.depth import clamp_depth, pixel_disparity
-from msdepth.io import atomic_path
+from msdepth.io import write_figure
 from msdepth.pipeline.paths import (
     COMPARE_JSON,
     COST_CURVES,
@@ -189,9 +189,8 @@ def _new_figure(width: float, height: float) -> Figure:
 
 
 def _save(fig: Figure, path: Path) -> Path:
-    with atomic_path(path, suffix=".png") as tmp:
-        # No "Software: matplotlib <version>" text chunk: the file then depends on the drawing only.
-        fig.savefig(tmp, dpi=DPI, format="png", metadata={"Software": None})
+    # No "Software: matplotlib <version>" text chunk: the file then depends on the drawing only.
+    write_figure(path, fig, dpi=DPI, format="png", metadata={"Software": None})
     fig.clear()  # drop the artists (and their image arrays) now rather than at garbage collection
     return path
 
