@@ -38,7 +38,8 @@ from msdepth.data.pairs import build_pair_cache, load_pair_cache, load_pair_list
 from msdepth.errors import DataError, OutputError
 from msdepth.evaluation import baselines
 from msdepth.evaluation.suites import depth_maps, evaluate_full, evaluate_roi, image_dependence, load_frames
-from msdepth.io import OutputPolicy, write_figure, write_text
+from msdepth.io import OutputPolicy, write_text
+from msdepth.reporting.figures import write_figure
 
 INDEX = Path("data/index")
 

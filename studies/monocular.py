@@ -42,8 +42,9 @@ import pandas as pd
 
 from msdepth.config.params import read_params_file
 from msdepth.errors import OutputError
-from msdepth.io import OutputPolicy, write_figure, write_text
+from msdepth.io import OutputPolicy, write_text
 from msdepth.reporting.compare import image_dependence, load_suite_metrics, load_unit_tables
+from msdepth.reporting.figures import write_figure
 from msdepth.reporting.verdict import FULL_FRAME
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -23,7 +23,8 @@ from msdepth.data.index import read_eval_index
 from msdepth.data.kitti import read_image
 from msdepth.errors import DataError, OutputError
 from msdepth.evaluation.suites import load_frames
-from msdepth.io import output_file_policy, write_figure
+from msdepth.io import output_file_policy
+from msdepth.reporting.figures import write_figure
 
 INDEX = Path("data/index")
 

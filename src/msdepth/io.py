@@ -186,13 +186,6 @@ def write_png(path: str | os.PathLike, image: np.ndarray) -> None:
         tmp.write_bytes(data)
 
 
-def write_figure(path: str | os.PathLike, fig: Any, **savefig_kwargs: Any) -> None:
-    """Save a matplotlib figure (anything with ``savefig``) to ``path``, atomically; the format
-    follows ``path``'s suffix unless ``savefig_kwargs`` names one."""
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, **savefig_kwargs)
-
-
 def save_npy(path: str | os.PathLike, array: np.ndarray) -> None:
     """Write one array as ``.npy``, atomically."""
     with atomic_path(path, suffix=".npy") as tmp:

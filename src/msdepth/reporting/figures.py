@@ -39,9 +39,10 @@ from __future__ import annotations
 import dataclasses
 import json
 import logging
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Mapping, Sequence
+from typing import Any, Mapping, Sequence
 
 import cv2
 import matplotlib
@@ -59,7 +60,7 @@ from msdepth.data.index import read_eval_index
 from msdepth.errors import DataError
 from msdepth.evaluation.suites import Frame, evaluate_roi, gradient_maps, load_frames, read_depth_maps
 from msdepth.geometry.depth import clamp_depth, pixel_disparity
-from msdepth.io import write_figure
+from msdepth.io import atomic_path
 from msdepth.pipeline.paths import (
     COMPARE_JSON,
     COST_CURVES,
@@ -186,6 +187,14 @@ def _new_figure(width: float, height: float) -> Figure:
     fig = Figure(figsize=(width, height), dpi=DPI, layout="constrained")
     FigureCanvasAgg(fig)
     return fig
+
+
+def write_figure(path: str | os.PathLike, fig: Any, **savefig_kwargs: Any) -> None:
+    """Save a matplotlib figure (anything with ``savefig``) to ``path`` atomically
+    (:func:`msdepth.io.atomic_path`), for every figure the project writes; the format follows
+    ``path``'s suffix unless ``savefig_kwargs`` names one."""
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, **savefig_kwargs)
 
 
 def _save(fig: Figure, path: Path) -> Path:
