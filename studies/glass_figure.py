@@ -21,14 +21,22 @@ import numpy as np  # noqa: E402
 
 from msdepth.config.params import params_from_dict, read_params_file  # noqa: E402
 from msdepth.data.kitti import CLASS_BITS  # noqa: E402
+from msdepth.errors import OutputError  # noqa: E402
+from msdepth.io import output_file_policy  # noqa: E402
 from msdepth.optimum.solver import optimum_disparities  # noqa: E402
+from msdepth.reporting.figures import write_figure  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> int:
     """Command line: BEFORE_DIR AFTER_DIR OUT_PNG."""
-    before, after, out = (Path(a) for a in sys.argv[1:4])
+    before, after, out = (Path(a) for a in (sys.argv[1:] if argv is None else argv)[:3])
+    try:  # before the optimum runs: a file the study did not write is refused at once
+        output_file_policy(out, "glass-figure").claim([out], before)
+    except OutputError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
     params = params_from_dict(read_params_file(ROOT / "params.yaml"))
     files = sorted(before.glob("1_*.npz"))  # evaluation frames
     counts = [int((np.load(f)["class_map"] & CLASS_BITS["windshield"]).astype(bool).sum()) for f in files]
@@ -63,13 +71,14 @@ def main() -> None:
         x.axis("off")
     fig.suptitle(f"evaluation frame {name[2:8]}, seed {params.data.synthetic.seed}")
     fig.tight_layout()
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out, dpi=110)
+    write_figure(out, fig, dpi=110)
+    plt.close(fig)
     print(
         f"frame {name}: windshield pixels {int(mask.sum())}; "
         f"abs_rel before {errs[0]:.3f}, after {errs[1]:.3f}"
     )
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

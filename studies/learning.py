@@ -35,9 +35,11 @@ from msdepth.config.params import Params, apply_overrides, kernel_variant, param
 from msdepth.data import kitti
 from msdepth.data.index import read_eval_index
 from msdepth.data.pairs import build_pair_cache, load_pair_cache, load_pair_list
-from msdepth.errors import DataError
+from msdepth.errors import DataError, OutputError
 from msdepth.evaluation import baselines
 from msdepth.evaluation.suites import depth_maps, evaluate_full, evaluate_roi, image_dependence, load_frames
+from msdepth.io import OutputPolicy, write_text
+from msdepth.reporting.figures import write_figure
 
 INDEX = Path("data/index")
 
@@ -49,13 +51,38 @@ def _params_for(base: dict, spec: str, threads: int) -> tuple[Params, str]:
     return params_from_dict(raw), variant
 
 
+def run_name(spec: str, seed: int) -> str:
+    """The name of one run's result ``<name>.json`` and work folder ``work/<name>``."""
+    return f"{spec.replace(':', '_k')}_seed{seed}"
+
+
+def cache_path(params: Params, out: Path) -> Path:
+    """The study's own pair cache, built where the pipeline's is of another input size."""
+    return out / f"cache_{params.data.height}x{params.data.width}.npy"
+
+
+def claim_outputs(out: Path, base: dict, jobs: list[tuple[str, int]]) -> OutputPolicy:
+    """Claim every file the study may write under ``out`` (through the output policy, manifest
+    ``out/.msdepth-learning``) before any run starts: OutputError (one line) naming the first that
+    exists and was not written by the study."""
+    paths = [out / "overrides.json", out / "summary.md", out / "curves.png"]
+    paths += sorted({cache_path(_params_for(base, spec, 1)[0], out) for spec, _ in jobs})
+    for spec, seed in jobs:
+        name = run_name(spec, seed)
+        paths += [out / f"{name}.json", out / "work" / name / "model.pt", out / "work" / name / "ck.pt"]
+    policy = OutputPolicy(out, "learning")
+    policy.claim(paths, "params.yaml")
+    return policy
+
+
 def _pairs_and_cache(params: Params, out: Path) -> tuple[list, np.ndarray]:
+    """The training pairs and their decoded cache: the pipeline's, or the study's own at its size."""
     pairs = load_pair_list("data/cache/train_pairs.txt")
     h, w = params.data.height, params.data.width
     try:
         return pairs, load_pair_cache("data/cache/train_pairs.npy", len(pairs), h, w)
     except Exception:  # another input size than the pipeline's cache: build one for the study
-        path = out / f"cache_{h}x{w}.npy"
+        path = cache_path(params, out)
         if not path.exists():
             build_pair_cache(pairs, h, w, path, progress=False)
         return pairs, load_pair_cache(path, len(pairs), h, w)
@@ -137,7 +164,7 @@ def run_one(base: dict, spec: str, seed: int, out: str, threads: int) -> dict:
     from msdepth.training.train import train_variant
 
     out_dir = Path(out)
-    name = f"{spec.replace(':', '_k')}_seed{seed}"
+    name = run_name(spec, seed)
     result_path = out_dir / f"{name}.json"
     if result_path.exists():
         return json.loads(result_path.read_text())
@@ -177,7 +204,7 @@ def run_one(base: dict, spec: str, seed: int, out: str, threads: int) -> dict:
         "image_dependence": image_dependence(pred, ev.frames, params.eval.caps[0]),
         "history": history,
     }
-    result_path.write_text(json.dumps(row, indent=1))
+    write_text(result_path, json.dumps(row, indent=1))
     return row
 
 
@@ -284,10 +311,12 @@ def curves_figure(rows: list[dict], prior: dict, path: Path) -> None:
     axes[1][0].set_ylabel("abs_rel, cap 80 m")
     axes[1][-1].legend(fontsize=7)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    write_figure(path, fig, dpi=110)
+    plt.close(fig)
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Train and evaluate every (variant, seed) not yet in ``--out``; write the summary and curves."""
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--variants", nargs="+", default=["ssim", "msssim:3"])
     ap.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
@@ -296,10 +325,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--jobs", type=int, default=1)
     args = ap.parse_args(argv)
     base = apply_overrides(read_params_file("params.yaml"), args.set)
-    args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / "overrides.json").write_text(json.dumps(args.set))
-    threads = max(1, (os.cpu_count() or 1) // args.jobs)
     jobs = [(spec, seed) for seed in args.seeds for spec in args.variants]
+    try:
+        claim_outputs(args.out, base, jobs)
+    except OutputError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
+    write_text(args.out / "overrides.json", json.dumps(args.set))
+    threads = max(1, (os.cpu_count() or 1) // args.jobs)
     with ProcessPoolExecutor(args.jobs) as pool:
         list(
             pool.map(
@@ -314,7 +347,7 @@ def main(argv: list[str] | None = None) -> int:
             np.corrcoef(r["per_image_abs_rel"], prior["prior"]["per_image_abs_rel"])[0, 1]
         )
     text = summarise(rows, prior)
-    (args.out / "summary.md").write_text(text + "\n")
+    write_text(args.out / "summary.md", text + "\n")
     try:
         curves_figure(rows, prior, args.out / "curves.png")
     except ImportError:  # e.g. the GPU machine's image has no matplotlib: the numbers are the result

@@ -41,7 +41,10 @@ import numpy as np
 import pandas as pd
 
 from msdepth.config.params import read_params_file
+from msdepth.errors import OutputError
+from msdepth.io import OutputPolicy, write_text
 from msdepth.reporting.compare import image_dependence, load_suite_metrics, load_unit_tables
+from msdepth.reporting.figures import write_figure
 from msdepth.reporting.verdict import FULL_FRAME
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -51,6 +54,8 @@ CLASSES = ("car", "windshield", "glass", "sign")
 SNAPSHOT = ("metrics/full", "metrics/roi", "metrics/train", "metrics/compare.md")
 # What an experiment rewrites in the workspace that git holds: checked clean first, restored after.
 # (The report stage rewrites README.md's results block and docs/results.md.)
+# What the study writes at the top of --out (its manifest: .msdepth-monocular); runs/ holds snapshots.
+OUTPUTS = ("table.md", "table.json", "disparities.png")
 RESTORED = ("params.yaml", "dvc.lock", "metrics", "plots", "README.md", "docs/results.md")
 
 
@@ -272,11 +277,12 @@ def figure(out: Path, repo: Path, modes: list[str], params: dict, frames: int = 
     for ax in axes.ravel():
         ax.axis("off")
     fig.tight_layout()
-    fig.savefig(out / "disparities.png", dpi=110)
+    write_figure(out / "disparities.png", fig, dpi=110)
     plt.close(fig)
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Snapshot stereo, run and snapshot every mode not yet under ``--out``; write the tables and figure."""
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--repo", type=Path, default=ROOT, help="the project checkout (default: this one)")
     ap.add_argument("--out", type=Path, default=None, help="default: <repo>/studies/results/monocular")
@@ -289,6 +295,11 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     repo = args.repo.resolve()
     out = (args.out or repo / "studies" / "results" / "monocular").resolve()
+    try:  # before the hours of experiments: a file the study did not write is refused at once
+        OutputPolicy(out, "monocular").claim([out / name for name in OUTPUTS], repo / "params.yaml")
+    except OutputError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
     if sh(["git", "status", "--porcelain", "--", *RESTORED], repo).strip():
         raise SystemExit(f"error: {repo}: uncommitted changes in {', '.join(RESTORED)}; commit them first")
     params = read_params_file(repo / "params.yaml")
@@ -301,10 +312,10 @@ def main(argv: list[str] | None = None) -> int:
         if not (out / "runs" / mode).is_dir():
             run_mode(repo, mode, args.sequence_length, args.set, out / "runs" / mode, runs_of(params))
     used = read_params_file(out / "runs" / args.modes[0] / "params.yaml")
-    (out / "table.md").write_text(table(out, args.modes, used, args.cap, repo))
+    write_text(out / "table.md", table(out, args.modes, used, args.cap, repo))
     modes = {m: seed_values(out / "runs" / m, used, args.cap) for m in ["stereo", *args.modes]}
     values = {"cap": args.cap, "seeds": used["train"]["seeds"], "metric": "abs_rel", "modes": modes}
-    (out / "table.json").write_text(json.dumps(values, indent=1) + "\n")
+    write_text(out / "table.json", json.dumps(values, indent=1) + "\n")
     figure(out, repo, args.modes, used)
     print((out / "table.md").read_text())
     return 0

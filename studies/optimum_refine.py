@@ -35,6 +35,8 @@ import torch
 from msdepth.config.params import Params, apply_overrides, kernel_variant, params_from_dict, read_params_file
 from msdepth.data.kitti import read_disparity, read_image
 from msdepth.data.pairs import resize, to_tensor
+from msdepth.errors import OutputError
+from msdepth.io import output_file_policy, write_text
 from msdepth.optimum.solver import disparity_pyramid, level_sizes, objective, optimise, working_weight
 from msdepth.optimum.starts import start_disparity
 
@@ -174,7 +176,8 @@ def sizes_study(args: argparse.Namespace) -> list[str]:
     return lines
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> int:
+    """Run the ``steps`` or ``sizes`` study; print its markdown and write it to ``--out``."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("study", choices=("steps", "sizes"))
     parser.add_argument("--samples", type=Path, default=SAMPLES, help="the real-samples folder")
@@ -192,15 +195,21 @@ def main() -> None:
         "--sizes", nargs="+", default=["full", "half", "quarter"], help="sizes: working sizes"
     )
     parser.add_argument("--out", type=Path, help="also write the markdown here")
-    args = parser.parse_args()
+    args = parser.parse_args(argv)
+    if args.out:  # claimed before the study's minutes: a file it did not write is refused at once
+        try:
+            output_file_policy(args.out, "optimum-refine").claim([args.out], args.samples)
+        except OutputError as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return 1
     torch.set_num_threads(int(os.environ.get("OMP_NUM_THREADS", "1")))
     load = os.getloadavg()[0]
     lines = steps_study(args) if args.study == "steps" else sizes_study(args)
-    argv = " ".join(sys.argv[1:])
+    shown = " ".join(sys.argv[1:] if argv is None else argv)
     text = (
         "\n".join(
             [
-                f"`python studies/optimum_refine.py {argv}` (load average {load:.1f} at the start, "
+                f"`python studies/optimum_refine.py {shown}` (load average {load:.1f} at the start, "
                 f"{os.getloadavg()[0]:.1f} at the end; torch threads {torch.get_num_threads()})",
                 "",
                 *lines,
@@ -210,8 +219,9 @@ def main() -> None:
     )
     print(text)
     if args.out:
-        args.out.write_text(text, encoding="utf-8")
+        write_text(args.out, text)
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

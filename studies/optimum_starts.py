@@ -40,8 +40,10 @@ import torch
 from msdepth.config.params import Params, apply_overrides, load_params, params_from_dict, read_params_file
 from msdepth.data.kitti import read_disparity, read_image
 from msdepth.data.pairs import resize, to_tensor
+from msdepth.errors import OutputError
 from msdepth.evaluation.metrics import compute_errors, stereo_errors
 from msdepth.geometry.depth import clamp_depth, disparity_to_depth
+from msdepth.io import output_file_policy, write_text
 from msdepth.optimum.cost_volume import cost_volume, matching_cost, winner_take_all
 from msdepth.optimum.sgbm import sgbm_disparity
 from msdepth.optimum.sgm import SGMConfig, sgm
@@ -229,14 +231,21 @@ def working_size(text: str | None, shape: tuple[int, ...]) -> tuple[int, int] | 
     return int(height), int(width)
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> int:
+    """Score every method on every frame; print the markdown and write it to ``--out``."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--samples", type=Path, default=SAMPLES, help="the real-samples folder")
     parser.add_argument("--params", type=Path, default=ROOT / "params.yaml")
     parser.add_argument("--refine", help="also each variant's optimum from each start at this working size")
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="a params override")
     parser.add_argument("--out", type=Path, help="also write the markdown here")
-    args = parser.parse_args()
+    args = parser.parse_args(argv)
+    if args.out:  # claimed before the study's minutes: a file it did not write is refused at once
+        try:
+            output_file_policy(args.out, "optimum-starts").claim([args.out], args.samples)
+        except OutputError as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return 1
     torch.set_num_threads(int(os.environ.get("OMP_NUM_THREADS", "1")))
     variants, timings, rows = variants_of(args.params, args.set), {}, []
     load_before = os.getloadavg()
@@ -259,8 +268,9 @@ def main() -> None:
     text = "\n".join(lines) + "\n"
     print(text)
     if args.out:
-        args.out.write_text(text, encoding="utf-8")
+        write_text(args.out, text)
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

@@ -20,6 +20,7 @@ import yaml
 from msdepth.config.params import apply_overrides, params_from_dict, read_params_file
 from msdepth.data.synthetic import generate
 from msdepth.errors import MsdepthError
+from msdepth.io import OutputPolicy, write_text
 
 ROOT = Path(__file__).resolve().parents[1]  # its params.yaml and stages/
 
@@ -32,8 +33,10 @@ def prepare(out: Path, assignments: list[str]) -> None:
 
     raw = apply_overrides(read_params_file(ROOT / "params.yaml"), assignments)
     params = params_from_dict(raw)  # checked before anything is written
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "params.yaml").write_text(yaml.safe_dump(raw, sort_keys=False))
+    # Through the output policy (manifest out/.msdepth-prepare-set): a params.yaml the study did not
+    # write (e.g. --out naming a project) is refused in one line (OutputError) before anything is written.
+    OutputPolicy(out, "prepare-set").claim([out / "params.yaml"], ROOT / "params.yaml")
+    write_text(out / "params.yaml", yaml.safe_dump(raw, sort_keys=False))
     os.chdir(out)  # the pipeline's paths are relative to the project folder
     generate(params.data.synthetic, Path(params.data.root), progress=True)
     for name in ("index", "rois", "cache"):  # the stage scripts' own functions, as dvc repro runs them

@@ -27,8 +27,10 @@ from msdepth.config.params import load_params
 from msdepth.data import kitti
 from msdepth.data.index import read_eval_index
 from msdepth.data.pairs import load_pair_list
+from msdepth.errors import OutputError
 from msdepth.evaluation import baselines
 from msdepth.evaluation.suites import depth_maps, load_frames, read_depth_maps
+from msdepth.io import output_file_policy, write_text
 
 INDEX = Path("data/index")
 CAP = 80.0
@@ -94,9 +96,15 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--min-height", type=float, default=4.0, help="px at the network's input")
     ap.add_argument("--out", type=Path)
     args = ap.parse_args(argv)
+    if args.out:  # claimed before the report is computed
+        try:
+            output_file_policy(args.out, "roi-errors").claim([args.out], "outputs")
+        except OutputError as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return 1
     text = report(args.runs, args.min_height)
     if args.out:
-        args.out.write_text(text + "\n")
+        write_text(args.out, text + "\n")
     print(text)
     return 0
 

@@ -21,8 +21,10 @@ import numpy as np
 
 from msdepth.data.index import read_eval_index
 from msdepth.data.kitti import read_image
-from msdepth.errors import DataError
+from msdepth.errors import DataError, OutputError
 from msdepth.evaluation.suites import load_frames
+from msdepth.io import output_file_policy
+from msdepth.reporting.figures import write_figure
 
 INDEX = Path("data/index")
 
@@ -65,11 +67,12 @@ def figure(models: dict[str, Path], names: list[str], out: Path) -> None:
     for ax in axes.flat:
         ax.axis("off")
     fig.tight_layout()
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out, dpi=80)
+    write_figure(out, fig, dpi=80)
+    plt.close(fig)
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Predict the frames with every model and write the figure to ``--out``."""
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--models", nargs="+", required=True, metavar="LABEL=PATH")
     ap.add_argument("--frames", nargs="+", required=True, help="evaluation frame names, e.g. 000003_10")
@@ -82,8 +85,9 @@ def main(argv: list[str] | None = None) -> int:
             ap.error(f"--models: expected LABEL=PATH, got {item!r}")
         models[label] = Path(path)
     try:
+        output_file_policy(args.out, "side-by-side").claim([args.out], INDEX)  # before any model loads
         figure(models, args.frames, args.out)
-    except DataError as exc:
+    except (DataError, OutputError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1
     print(args.out)

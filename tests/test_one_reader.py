@@ -1,7 +1,7 @@
 """Every entry point reads params, YAML and images through the one reader of each (issue 42, build
-items 2 and 3): a source scan, so a new stage, study or command cannot read around them, and the
-files that used to (a folder source's camera file, the KITTI JPEG conversion) refuse hostile input
-in one line."""
+items 2 and 3), and stages, studies and benchmarks write through msdepth.io's atomic writers: a
+source scan, so a new stage, study or command cannot read or write around them, and the files that
+used to (a folder source's camera file, the KITTI JPEG conversion) refuse hostile input in one line."""
 
 from __future__ import annotations
 
@@ -42,6 +42,15 @@ def test_no_entry_point_decodes_an_image_around_the_image_reader() -> None:
     # data/download.py's JPEG conversion used cv2.imread: no bound before decoding.
     pattern = r"\bcv2\.(imread|imreadmulti|imdecode)\(|\bImage\.open\(|\bimageio\."
     assert _offenders(pattern, IMAGE_READERS) == []
+
+
+def test_no_entry_point_writes_a_file_around_the_atomic_writers() -> None:
+    # Eight studies wrote their --out with Path.write_text or savefig: a user's file at that name was
+    # replaced, and a killed run left half a file. Stages, studies and benchmarks write through
+    # msdepth.io (write_text, write_json, write_png; figures: msdepth.reporting.figures.write_figure; ... after the output policy's claim).
+    # src/ is left out: it holds the writers themselves (a write inside their atomic_path block).
+    library = {p.relative_to(ROOT).as_posix() for p in SOURCES if p.is_relative_to(ROOT / "src")}
+    assert _offenders(r"\.write_text\(|\.write_bytes\(|\bsavefig\(", library) == []
 
 
 @pytest.mark.parametrize(

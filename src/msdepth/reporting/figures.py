@@ -39,9 +39,10 @@ from __future__ import annotations
 import dataclasses
 import json
 import logging
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Mapping, Sequence
+from typing import Any, Mapping, Sequence
 
 import cv2
 import matplotlib
@@ -188,10 +189,17 @@ def _new_figure(width: float, height: float) -> Figure:
     return fig
 
 
+def write_figure(path: str | os.PathLike, fig: Any, **savefig_kwargs: Any) -> None:
+    """Save a matplotlib figure (anything with ``savefig``) to ``path`` atomically
+    (:func:`msdepth.io.atomic_path`), for every figure the project writes; the format follows
+    ``path``'s suffix unless ``savefig_kwargs`` names one."""
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, **savefig_kwargs)
+
+
 def _save(fig: Figure, path: Path) -> Path:
-    with atomic_path(path, suffix=".png") as tmp:
-        # No "Software: matplotlib <version>" text chunk: the file then depends on the drawing only.
-        fig.savefig(tmp, dpi=DPI, format="png", metadata={"Software": None})
+    # No "Software: matplotlib <version>" text chunk: the file then depends on the drawing only.
+    write_figure(path, fig, dpi=DPI, format="png", metadata={"Software": None})
     fig.clear()  # drop the artists (and their image arrays) now rather than at garbage collection
     return path
 

@@ -1,0 +1,76 @@
+"""Every study that writes files claims them through the output policy before its work (the project's
+rule for every entry point): a user's file at an output name is refused in one line naming it and
+left as it was, and the results committed under studies/results are listed in their studies'
+manifests, so a rerun may replace them."""
+
+from __future__ import annotations
+
+import importlib.util
+import sys
+from pathlib import Path
+from types import ModuleType
+
+import pytest
+
+from msdepth.io import MANIFEST_PREFIX, read_manifest
+
+ROOT = Path(__file__).resolve().parents[1]
+RESULTS = ROOT / "studies" / "results"
+
+# study: (its arguments with "{out}" for the output folder, the user's file it would write over)
+CASES = {
+    "learning": (["--variants", "ssim", "--seeds", "0", "--out", "{out}"], "ssim_seed0.json"),
+    "monocular": (["--repo", str(ROOT), "--out", "{out}"], "table.md"),
+    "optimum_refine": (["steps", "--out", "{out}/refine_steps.md"], "refine_steps.md"),
+    "optimum_starts": (["--out", "{out}/starts.md"], "starts.md"),
+    "prepare_set": (["--out", "{out}"], "params.yaml"),
+    "roi_errors": (["--out", "{out}/roi_errors.md"], "roi_errors.md"),
+    "glass_figure": (["{out}/before", "{out}/after", "{out}/windshield.png"], "windshield.png"),
+    "side_by_side": (
+        ["--models", "a=models/none.pt", "--frames", "000003_10", "--out", "{out}/disparity.png"],
+        "disparity.png",
+    ),
+}
+
+
+def load_study(name: str) -> ModuleType:
+    """studies/<name>.py as a module (the studies are scripts, not a package)."""
+    spec = importlib.util.spec_from_file_location(f"study_{name}", ROOT / "studies" / f"{name}.py")
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module  # dataclasses look their module up there
+    spec.loader.exec_module(module)
+    return module
+
+
+@pytest.mark.parametrize("name", sorted(CASES))
+def test_a_study_refuses_a_file_it_did_not_write(name: str, tmp_path: Path, monkeypatch, capsys) -> None:
+    """The claim comes first: the study stops in one line naming the user's file, which is unchanged,
+    and nothing else is written (no manifest, no other output)."""
+    arguments, target = CASES[name]
+    out = tmp_path.resolve() / "out"
+    out.mkdir()
+    user = out / target
+    user.write_bytes(b"the user's own file\n")
+    monkeypatch.chdir(ROOT)  # learning.py reads ./params.yaml, as from the repository root
+    code = load_study(name).main([a.replace("{out}", str(out)) for a in arguments])
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert code == 1
+    assert len(lines) == 1 and lines[0].startswith(f"error: {user}: exists and was not written"), lines
+    assert user.read_bytes() == b"the user's own file\n"
+    assert [p.name for p in out.iterdir()] == [target]
+
+
+def test_the_committed_results_are_listed_in_their_studies_manifests() -> None:
+    """Each manifest under studies/results lists only files that are there; every committed result
+    of the eight studies is listed in one."""
+    manifests = sorted(RESULTS.rglob(f"{MANIFEST_PREFIX}*"))
+    listed = set()
+    for manifest in manifests:
+        names = read_manifest(manifest)
+        assert names and all((manifest.parent / n).is_file() for n in names), manifest
+        listed |= {manifest.parent / n for n in names}
+    for path in ("grid/summary.md", "monocular/table.md", "optimum/sizes.md", "optimum/starts.md"):
+        assert RESULTS / path in listed, path
+    for path in ("roi_errors.md", "glass/windshield.png", "input_96x320/disparity.png"):
+        assert RESULTS / path in listed, path
