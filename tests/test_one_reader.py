@@ -47,7 +47,8 @@ def test_no_entry_point_decodes_an_image_around_the_image_reader() -> None:
 def test_no_entry_point_writes_a_file_around_the_atomic_writers() -> None:
     # Eight studies wrote their --out with Path.write_text or savefig: a user's file at that name was
     # replaced, and a killed run left half a file. Stages, studies and benchmarks write through
-    # msdepth.io (write_text, write_json, write_png; figures: msdepth.reporting.figures.write_figure; ... after the output policy's claim).
+    # msdepth.io (write_text, write_json, write_png, ...) and figures through
+    # msdepth.reporting.figures.write_figure, after the output policy's claim.
     # src/ is left out: it holds the writers themselves (a write inside their atomic_path block).
     library = {p.relative_to(ROOT).as_posix() for p in SOURCES if p.is_relative_to(ROOT / "src")}
     assert _offenders(r"\.write_text\(|\.write_bytes\(|\bsavefig\(", library) == []
