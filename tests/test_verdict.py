@@ -194,6 +194,13 @@ def test_sentences_from_known_rows() -> None:
     assert class_sentence("windshield", [*rows, pooled]).endswith(
         "no interval excludes 0; optimum w10, pooled: \u22120.012 [\u22120.020, \u22120.004]."
     )
+    # Another study's row of the same instrument is named with its source (the method before ":").
+    real = Row("optimum w3", "car", -0.02, -0.03, -0.01, 16, "real pairs: over ROIs", "external")
+    assert (real.label, rows[3].label) == ("optimum w3, real pairs", "optimum w3")
+    assert class_sentence("car", [*rows, real]).endswith(
+        "optimum w3 (lower), optimum w30 (higher), optimum w3, real pairs (lower)."
+    )
+    assert Row("x", "car", 0, -1, 1, 5, "no colon", "external").label == "x, another study"
     data = verdict_data(rows, 80.0, 0.95, "MS-SSIM", "SSIM")
     assert data["classes"] == ["car", "windshield"] and list(data["sentences"]) == data["classes"]
     md = "\n".join(verdict_lines(data))
@@ -266,6 +273,6 @@ def test_an_external_reflective_row_gets_its_panel_after_the_known_classes(tmp_p
     assert data["classes"] == [FULL_FRAME, "sign", "reflective"]
     assert data["sentences"]["reflective"] == (
         "reflective: MS-SSIM's error is lower in 1 of 1 instrument; "
-        "intervals excluding 0: optimum w10 (lower)."
+        "intervals excluding 0: optimum w10, another study (lower)."
     )
     assert verdict_figure(data, tmp_path / "v.png").read_bytes()[:4] == b"\x89PNG"

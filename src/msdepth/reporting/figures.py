@@ -641,7 +641,7 @@ def _verdict_panel(ax, cls: str, rows: list[Row], instruments: list[str]) -> Non
     0), a line at 0, each row's n at the right edge."""
     own = [r for r in rows if r.cls == cls]
     for r in own:
-        y = instruments.index(r.instrument)
+        y = instruments.index(r.label)
         color = VERDICT_KINDS.get(r.kind, ("grey", ""))[0]
         ax.errorbar(
             r.diff,
@@ -675,7 +675,7 @@ def verdict_figure(verdict: Mapping | None, path: Path) -> Path:
         ax.text(0.5, 0.5, "no instrument compares two variants", ha="center", va="center")
         _off(ax)
         return _save(fig, path)
-    classes, instruments = list(verdict["classes"]), list(dict.fromkeys(r.instrument for r in rows))
+    classes, instruments = list(verdict["classes"]), list(dict.fromkeys(r.label for r in rows))
     cols = min(3, len(classes) + 1)  # + 1: the legend's panel
     grid = -(-(len(classes) + 1) // cols)
     fig = _new_figure(4.2 * cols, 0.32 * len(instruments) * grid + 1.4 * grid)

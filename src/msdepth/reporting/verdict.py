@@ -88,6 +88,16 @@ class Row:
     def excludes_zero(self) -> bool:
         return self.low > 0 or self.high < 0
 
+    @property
+    def label(self) -> str:
+        """The row's name in sentences, tables and figures: the instrument, and for another
+        study's row also its source (its method's text before ":"), so that a real-pairs
+        ``optimum w10`` is not read as, or drawn over, the pipeline's own row of that name."""
+        if self.kind != "external":
+            return self.instrument
+        source = self.method.split(":", 1)[0].strip() if ":" in self.method else "another study"
+        return f"{self.instrument}, {source}"
+
     def as_dict(self) -> dict:
         """The row as compare.json holds it (the external schema's keys, then ``kind``)."""
         return {
@@ -414,7 +424,7 @@ def class_sentence(cls: str, rows: Sequence[Row], better: str = "MS-SSIM") -> st
     text = f"{cls}: {better}'s error is lower in {lower} of {len(own)} {noun}"
     excluding = [r for r in own if r.excludes_zero]
     if excluding:
-        parts = [f"{r.instrument} ({'lower' if r.diff < 0 else 'higher'})" for r in excluding]
+        parts = [f"{r.label} ({'lower' if r.diff < 0 else 'higher'})" for r in excluding]
         text += f"; intervals excluding 0: {', '.join(parts)}"
     else:
         text += "; no interval excludes 0"
@@ -477,6 +487,6 @@ def verdict_lines(data: dict | None) -> list[str]:
             if r.cls == cls:
                 star = " *" if r.excludes_zero else ""
                 cell = f"{r.diff:+.3f} [{r.low:+.3f}, {r.high:+.3f}]{star}"
-                lines.append(f"| {cls} | {r.instrument} | {cell} | {r.n} | {r.method} |")
+                lines.append(f"| {cls} | {r.label} | {cell} | {r.n} | {r.method} |")
     lines += ["", *[f"- {data['sentences'][c]}" for c in data["classes"]], ""]
     return lines
