@@ -17,7 +17,7 @@ import torch
 from msdepth.config.params import Params
 from msdepth.data.kitti import read_disparity, read_image
 from msdepth.data.pairs import to_tensor
-from msdepth.errors import ConfigError
+from msdepth.errors import ConfigError, DataError
 from msdepth.evaluation.metrics import stereo_errors
 from msdepth.losses.appearance import build_appearance
 from msdepth.losses.monodepth import ms_ssim, reconstruct
@@ -433,3 +433,18 @@ def test_starts_study_refines_from_each_start(tmp_path):
         assert f"| 2015 000000_10 | disp_occ_0 | msssim k7 optimum from {start} |" in text
     assert "| 2015 000000_10 | disp_occ_0 | ssim optimum from SGM | 0.0" in text
     assert "| 2012 000001_10 | ssim optimum from SGBM | " in text and "| +0.000 |" in text
+
+
+def test_the_cost_volume_is_bounded_before_it_is_allocated() -> None:
+    # Issue 42 (bounded memory): the volume grows with H·W²; the optimum CLI's own-size limit
+    # (4096 x 4096 px) would have asked for ~150 GiB. Known answers: KITTI's size fits, 4096² does not.
+    assert cv.volume_bytes(375, 1242) == 375 * 1242 * 373 * cv.VOLUME_BYTES_PER_CELL
+    cv.check_volume_size(375, 1242)
+    with pytest.raises(
+        DataError, match=r"4096 x 4096 px pair at 1229 disparities would take about 153\.6 GiB"
+    ):
+        cv.check_volume_size(4096, 4096)
+    # A broadcast (zero-memory) view of a huge pair: refused before the volume is allocated.
+    huge = torch.zeros(3, 1, 1).expand(3, 2048, 4096)
+    with pytest.raises(DataError, match="over the cost start's 8 GiB"):
+        cv.cost_volume(huge, huge, cv.MatchingCost(0.85, 3, ()))

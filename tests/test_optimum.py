@@ -415,3 +415,24 @@ def test_cli_pixel_limit_names_optimum_s_own_options(tmp_path, capsys) -> None:
     err = capsys.readouterr().err
     assert "over the limit of 16.7772 megapixels" in err and "(give --height, --width)" in err
     assert "--max-megapixels" not in err
+
+
+def test_cli_refuses_a_cost_volume_over_its_budget_in_one_line_per_pair(tmp_path, capsys) -> None:
+    # Issue 42 case 8 with the cost start: 2400 x 1000 px is within the own-size pixel limit, but its
+    # volume (721 disparities) would take ~12.9 GiB; the pair is refused, named, before any work.
+    write_png(tmp_path / "l.png", np.zeros((1000, 2400, 3), np.uint8))
+    write_png(tmp_path / "r.png", np.zeros((1000, 2400, 3), np.uint8))
+    args = (
+        tmp_path / "l.png",
+        tmp_path / "r.png",
+        "--variant",
+        "ssim",
+        "--start",
+        "cost",
+        "--out",
+        tmp_path / "o",
+    )
+    assert cli(*args) == 1
+    err = capsys.readouterr().err
+    assert err.startswith(f"error: {tmp_path / 'l.png'}: the cost volume of a 2400 x 1000 px pair at 721 ")
+    assert "choose optimum.start sgbm or constant" in err and err.count("error:") == 1

@@ -147,6 +147,11 @@ def _fail(exc: Exception) -> int:
     return 1
 
 
+def _naming(path: Path, exc: Exception) -> Exception:
+    """``exc`` if its message starts with ``path``, else an MsdepthError naming ``path`` first."""
+    return exc if str(exc).startswith(str(path)) else MsdepthError(f"{path}: {exc}")
+
+
 def _optimise_and_write(
     chunk: list[tuple[Path, Path, Path]],
     params: Params,
@@ -160,6 +165,7 @@ def _optimise_and_write(
     from msdepth.data.imagefile import MAX_IMAGE_PIXELS
     from msdepth.data.kitti import read_image
     from msdepth.data.pairs import check_same_size
+    from msdepth.optimum.cost_volume import check_volume_size
     from msdepth.optimum.solver import optimum_disparities
 
     failed, good = 0, []
@@ -169,13 +175,15 @@ def _optimise_and_write(
         try:
             left, right = read_image(left_path, limit), read_image(right_path, limit)
             check_same_size(left_path, left.shape, right_path, right.shape, "right image")
+            if params.optimum.start == "cost":
+                check_volume_size(*left.shape[:2])
             good.append((left_path, stem, left, right))
         except PixelLimitError as exc:
             failed += _fail(
                 MsdepthError(f"{exc}, the optimum's at an image's own size (give --height, --width)")
             )
         except DataError as exc:
-            failed += _fail(exc)
+            failed += _fail(_naming(left_path, exc))
     if not good:
         return failed
     pairs = [(left, right) for _, _, left, right in good]
@@ -185,8 +193,5 @@ def _optimise_and_write(
             policy.claim(list(output_paths(Path(args.out) / stem, options).values()), left_path)
             save_outputs(Path(args.out) / stem, left, disp, options)
         except (MsdepthError, OSError) as exc:
-            message = str(exc)
-            failed += _fail(
-                exc if message.startswith(str(left_path)) else MsdepthError(f"{left_path}: {message}")
-            )
+            failed += _fail(_naming(left_path, exc))
     return failed

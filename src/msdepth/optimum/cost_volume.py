@@ -53,7 +53,7 @@ from torch import Tensor
 from msdepth.config.params import Params
 from msdepth.config.variants.msssim import MSSSIMConfig
 from msdepth.config.variants.ssim import SSIMConfig
-from msdepth.errors import ConfigError
+from msdepth.errors import ConfigError, DataError
 from msdepth.losses import ssim_kernels
 from msdepth.losses.monodepth import level_weights, ssim
 from msdepth.networks.common import MAX_DISPARITY
@@ -203,6 +203,34 @@ def shifted(right: Tensor, disparities: Sequence[int]) -> Tensor:
     return right[..., shift_index(right.shape[-1], disparities).to(right.device)].permute(2, 0, 1, 3)
 
 
+# Peak bytes per cell of an (H, W, D + 1) volume on the cost start's path: the float32 volume, SGM's
+# int16 steps, path costs and sums. Measured: 726 MiB above the constant start's peak at 1024 x 512
+# px, D = 307 (4.7 B a cell); 8 leaves room. The volume grows with H·W², so without a bound the
+# optimum CLI's own-size limit (4096 x 4096 px) would ask for about 150 GiB.
+VOLUME_BYTES_PER_CELL = 8
+MAX_VOLUME_BYTES = 8 << 30  # KITTI's 375 x 1242 px at D = 372: 1.3 GiB
+
+
+def volume_bytes(height: int, width: int, max_disparity: int | None = None) -> int:
+    """The cost start's estimated peak bytes for an ``height`` x ``width`` pair (D as in
+    :func:`cost_volume`): (H·W·(D + 1)) cells of :data:`VOLUME_BYTES_PER_CELL`."""
+    top = default_max_disparity(width) if max_disparity is None else int(max_disparity)
+    return height * width * (top + 1) * VOLUME_BYTES_PER_CELL
+
+
+def check_volume_size(height: int, width: int, max_disparity: int | None = None) -> None:
+    """A DataError, before any allocation, when the cost volume of an ``height`` x ``width`` pair
+    would take more than :data:`MAX_VOLUME_BYTES` (:func:`volume_bytes`)."""
+    need = volume_bytes(height, width, max_disparity)
+    if need > MAX_VOLUME_BYTES:
+        top = default_max_disparity(width) if max_disparity is None else int(max_disparity)
+        raise DataError(
+            f"the cost volume of a {width} x {height} px pair at {top + 1} disparities would take about "
+            f"{need / 2**30:.1f} GiB, over the cost start's {MAX_VOLUME_BYTES / 2**30:g} GiB (it runs at the "
+            "pair's own size): choose optimum.start sgbm or constant, or give the pair smaller"
+        )
+
+
 def cost_volume(left: Tensor, right: Tensor, cost: MatchingCost, max_disparity: int | None = None) -> Tensor:
     """The (H, W, D + 1) float32 cost of every left pixel at disparities 0 … D (D: ``max_disparity``,
     default :func:`default_max_disparity`), for a (C, H, W) pair in [0, 1]. Layout: disparity last,
@@ -218,6 +246,7 @@ def cost_volume(left: Tensor, right: Tensor, cost: MatchingCost, max_disparity: 
         raise ValueError(
             f"cost volume: a {height}x{width} image is too small for a {cost.kernel_size} px window"
         )
+    check_volume_size(height, width, top)
     volume = left.new_empty(height, width, top + 1)
     with torch.no_grad():
         if cost.weights:
