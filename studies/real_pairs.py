@@ -1,4 +1,4 @@
-"""Every real stereo pair at hand, scored for every loss variant at every optimum weight (issue #39).
+"""Every real stereo pair at hand, scored for every loss variant's optimum and networks (issue #39).
 
 The pairs, from ``../shared/real-samples`` (a pair whose folder is absent is skipped and named):
 - ``object``: the KITTI object pair against its Velodyne scan projected into the left camera
@@ -13,18 +13,30 @@ variant (ssim; msssim with kernel 3 and 7), the cost-volume start (SGM on the va
 volume, :func:`msdepth.optimum.starts.matched_disparity`) and the variant's optimum at every weight
 of ``optimum.smoothness_sweep`` from ``optimum.start`` (:func:`msdepth.optimum.solver.optimum_disparities`),
 both at the working size (``--size``, default half) and brought to full size (bilinear on the
-disparity as a fraction of the width). Scores at full size on the GT pixels of each class:
-abs_rel and a1 of depth (predictions capped at 80 m: a disparity below f·B/80 reads as 80 m;
-``metrics.compute_errors``), KITTI's D1 (%) and EPE (px) (``metrics.stereo_errors``); and seconds.
-Writes ``<out>/real_pairs.md`` through the output policy.
+disparity as a fraction of the width). With ``--models DIR``, also every trained network
+``DIR/<variant>/seed<S>/model.pt`` of the params' ``variants`` (method ``network <variant>
+seed<S>``), run as ``msdepth predict`` runs a model file (:func:`msdepth.cli.predict.load_trained`,
+the hardened loader; the left image alone at the file's own input size; flip post-processing as
+``eval.post_process``), its left disparity (a fraction of the width) brought to full size as
+above. Scores at full size on the GT pixels of each class: abs_rel and a1 of depth (predictions
+capped at 80 m: a disparity below f·B/80 reads as 80 m; ``metrics.compute_errors``), abs_rel after
+median scaling (``abs_rel med``: the prediction times median(GT) / median(prediction) over those
+pixels, then capped), KITTI's D1 (%) and EPE (px) (``metrics.stereo_errors``); and seconds. The
+networks were trained on the synthetic set, whose camera differs from KITTI's: their metric depth
+(reported as is) on real frames mostly measures that domain gap, which ``abs_rel med`` takes the
+scale out of. Writes ``<out>/real_pairs.md`` through the output policy: the means over the pairs
+(each variant's networks also over their seeds, ``network <variant> (<n> seeds)``), then every row.
 
 From the same disparities it also writes ``<out>/verdict.json``, the real pairs' rows of the
 verdict (:mod:`msdepth.reporting.verdict`, whose schema it follows and which the compare stage
 reads): MS-SSIM at ``msssim.kernel_size`` minus ``compare.reference`` (SSIM) in abs_rel, per
 instrument (``optimum w<weight>``, the pipeline's names, so the compare stage pools them with its
-own optimum rows; ``cost start``, SGM on each variant's own cost volume) and class, each with a
-:func:`msdepth.reporting.stats.paired_bootstrap` interval (``compare``'s samples, confidence and
-seed) over units of that class:
+own optimum rows; ``cost start``, SGM on each variant's own cost volume; with ``--models``,
+``stereo networks``, the pipeline's name, which the verdict labels "stereo networks, real pairs":
+each non-reference variant of ``variants`` minus ``compare.reference``) and class, each with a
+:func:`msdepth.reporting.stats.seed_bootstrap` interval (``compare``'s samples, confidence and
+seed) over units of that class, and for the networks over each variant's seeds too (with one run
+a side, as the optimum and the cost start, it is the paired bootstrap over units, draw for draw):
 
 - ``full frame``: the pairs (abs_rel over each pair's GT pixels, as in ``real_pairs.md``);
 - each ROI class (car, windshield, glass, sign): the hand-drawn boxes of
@@ -35,9 +47,10 @@ seed) over units of that class:
   over its reflective GT pixels).
 
 A row over fewer than ``verdict.MIN_UNITS`` units is not written. ``--weights`` restricts the
-sweep (e.g. ``--weights 10``)::
+sweep (e.g. ``--weights 10``); ``--models`` names the trained networks' folder (the pipeline's
+``models``)::
 
-    OMP_NUM_THREADS=1 python studies/real_pairs.py --out studies/results/real
+    OMP_NUM_THREADS=1 python studies/real_pairs.py --models models --out studies/results/real
 """
 
 from __future__ import annotations
@@ -59,17 +72,20 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from optimum_starts import BASELINE, FOCAL, SAMPLES, variants_of, working_size  # noqa: E402 - sibling study
 from score_lidar import lidar_gt  # noqa: E402 - the sibling study's LiDAR GT
 
+from msdepth.cli.predict import load_trained  # noqa: E402 - the hardened loader `msdepth predict` uses
 from msdepth.config.params import CompareConfig, EvalConfig, Params  # noqa: E402
 from msdepth.data import kitti, kitti2012  # noqa: E402
 from msdepth.data.annotations import KITTI2015_SIZE, gt_density, read_annotation  # noqa: E402
-from msdepth.evaluation.metrics import compute_errors, stereo_errors  # noqa: E402
+from msdepth.data.pairs import resize, to_tensor  # noqa: E402
+from msdepth.evaluation.infer import network_disparity  # noqa: E402
+from msdepth.evaluation.metrics import compute_errors, median_scale, stereo_errors  # noqa: E402
 from msdepth.evaluation.suites import Frame, evaluate_roi  # noqa: E402
 from msdepth.geometry.depth import clamp_depth, disparity_to_depth  # noqa: E402
 from msdepth.io import OutputPolicy, write_json, write_text  # noqa: E402
 from msdepth.optimum.sgbm import sgbm_disparity  # noqa: E402
 from msdepth.optimum.solver import optimum_disparities  # noqa: E402
 from msdepth.optimum.starts import matched_disparity  # noqa: E402
-from msdepth.reporting.stats import paired_bootstrap, paired_table  # noqa: E402
+from msdepth.reporting.stats import paired_table, seed_bootstrap  # noqa: E402
 from msdepth.reporting.verdict import FULL_FRAME, METRIC, MIN_UNITS, class_order, read_external_rows  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -79,8 +95,11 @@ REPORT, VERDICT = "real_pairs.md", "verdict.json"
 ROIS_CSV = ROOT / "data_lists" / "kitti2015_rois.csv"
 TILE, TILE_PIXELS = 32, 50  # reflective units: 32x32 px tiles with at least 50 reflective GT px
 COST_START = "cost start"  # the matcher's instrument (the pipeline's verdict has no matcher row)
+NETWORKS = "stereo networks"  # the trained networks' instrument (as the pipeline names its own)
+MODEL_FILE = "model.pt"  # --models DIR: DIR/<variant>/seed<S>/model.pt
 
 Results = dict[str, tuple[np.ndarray, float]]  # method -> (full-size disparity in px, seconds)
+Runs = dict[str, list[str]]  # variant -> its methods (one per seed; the optimum: one)
 
 
 @dataclass
@@ -163,15 +182,19 @@ def capped_depth(pair: RealPair, disparity: np.ndarray) -> np.ndarray:
 
 
 def scores(pair: RealPair, disparity: np.ndarray, mask: np.ndarray) -> dict[str, float] | None:
-    """abs_rel and a1 (depth, capped), D1 (%) and EPE (px) on the GT pixels of ``mask``; None if none."""
+    """abs_rel and a1 (depth, capped), abs_rel after median scaling (``abs_rel_med``: the prediction
+    times median(GT) / median(prediction) over these pixels, then capped), D1 (%) and EPE (px) on the
+    GT pixels of ``mask``; None if none."""
     mask = evaluated(pair, mask)
     if not mask.any():
         return None
-    gt_depth = disparity_to_depth(pair.gt_disp, pair.focal, pair.baseline)
-    depth = compute_errors(gt_depth[mask], clamp_depth(capped_depth(pair, disparity)[mask], MIN_DEPTH, CAP))
+    gt_depth = disparity_to_depth(pair.gt_disp, pair.focal, pair.baseline)[mask]
+    pred = capped_depth(pair, disparity)[mask]
+    depth = compute_errors(gt_depth, clamp_depth(pred, MIN_DEPTH, CAP))
+    scaled = compute_errors(gt_depth, clamp_depth(median_scale(gt_depth, pred)[0], MIN_DEPTH, CAP))
     stereo = stereo_errors(np.where(mask, pair.gt_disp, 0.0), disparity)
-    return {"pixels": int(mask.sum()), "abs_rel": depth["abs_rel"], "a1": depth["a1"],
-            "d1": 100 * stereo["d1"], "epe": stereo["epe"]}  # fmt: skip
+    return {"pixels": int(mask.sum()), "abs_rel": depth["abs_rel"], "abs_rel_med": scaled["abs_rel"],
+            "a1": depth["a1"], "d1": 100 * stereo["d1"], "epe": stereo["epe"]}  # fmt: skip
 
 
 def methods(pair: RealPair, variants: dict, size: tuple[int, int], weights: Sequence[float]):  # noqa: ANN201 - a generator
@@ -209,6 +232,62 @@ def disparities(
             print(f"[{number}/{len(pairs)}] {pair.label} {method}: {seconds:.1f} s", flush=True)
         out.append(results)
     return out
+
+
+# --- the trained networks (--models) -------------------------------------------------------------
+
+
+def model_files(models: Path, variants: Sequence[str]) -> dict[str, dict[int, Path]]:
+    """Per variant (in order), its model files ``models/<variant>/seed<S>/model.pt`` by seed (sorted);
+    a SystemExit naming the folder where a variant has none."""
+    found = {}
+    for variant in variants:
+        seeds = {}
+        for path in (models / variant).glob(f"seed*/{MODEL_FILE}"):
+            number = path.parent.name.removeprefix("seed")
+            if number.isdigit():
+                seeds[int(number)] = path
+        if not seeds:
+            raise SystemExit(f"--models: no {models / variant}/seed<S>/{MODEL_FILE}")
+        found[variant] = dict(sorted(seeds.items()))
+    return found
+
+
+def network_name(variant: str, seed: int) -> str:
+    """A trained network's method (``network ssim seed0``)."""
+    return f"network {variant} seed{seed}"
+
+
+def network_pixels(model: torch.nn.Module, meta: dict, pair: RealPair, post_process: bool) -> np.ndarray:
+    """The network's left disparity of ``pair`` as ``msdepth predict`` makes it: the left image alone
+    at the model file's input size (area resize), flip post-processing if asked, then the disparity
+    (a fraction of the width) brought to the pair's full size in px by :func:`full_size`."""
+    height, width = int(meta["height"]), int(meta["width"])
+    batch = to_tensor(resize(pair.left, height, width)).unsqueeze(0)
+    return full_size(network_disparity(model, batch, post_process)[0], pair.left.shape)
+
+
+def network_disparities(
+    pairs: list[RealPair], results: list[Results], files: dict[str, dict[int, Path]], post_process: bool
+) -> Runs:
+    """Add every trained network's full-size disparity and seconds to ``results`` (per pair, in
+    order), loading each model file once; returns each variant's methods (one per seed)."""
+    runs: Runs = {}
+    for variant, by_seed in files.items():
+        for seed, path in by_seed.items():
+            model, meta = load_trained(path)
+            method = network_name(variant, seed)
+            runs.setdefault(variant, []).append(method)
+            for number, (pair, by_method) in enumerate(zip(pairs, results, strict=True), 1):
+                began = time.perf_counter()
+                by_method[method] = (
+                    network_pixels(model, meta, pair, post_process),
+                    time.perf_counter() - began,
+                )
+                print(
+                    f"[{number}/{len(pairs)}] {pair.label} {method}: {by_method[method][1]:.1f} s", flush=True
+                )
+    return runs
 
 
 def score_pairs(pairs: list[RealPair], results: list[Results]) -> list[dict]:
@@ -295,19 +374,74 @@ def unit_table(
     return pd.DataFrame(rows, columns=["class", "unit", METRIC])
 
 
-def unit_method(cls: str, pairs: list[RealPair]) -> str:
-    """How a verdict row of ``cls`` was made over its units, in words (the row's ``method``)."""
+def unit_words(cls: str, pairs: list[RealPair]) -> str:
+    """The units of a verdict row of ``cls``, in words (what its bootstrap draws)."""
     if cls == FULL_FRAME:
         names = ", ".join(p.label for p in pairs)
-        return f"real pairs: paired bootstrap over the pairs ({names}; the object pair's GT is LiDAR)"
+        return f"the pairs ({names}; the object pair's GT is LiDAR)"
     if any(cls in p.classes for p in pairs):
         names = ", ".join(p.label for p in pairs if cls in p.classes)
         return (
-            f"real pairs: paired bootstrap over {TILE}x{TILE} px tiles with >= {TILE_PIXELS} {cls} GT px "
-            f"({names}; two frames are too few units), a tile's abs_rel over its {cls} GT px"
+            f"{TILE}x{TILE} px tiles with >= {TILE_PIXELS} {cls} GT px ({names}; two frames are too "
+            f"few units), a tile's abs_rel over its {cls} GT px"
         )
     names = ", ".join(p.label for p in pairs if p.roi_frame is not None)
-    return f"real pairs: paired bootstrap over the hand-drawn ROIs with GT ({names}; {ROIS_CSV.name})"
+    return f"the hand-drawn ROIs with GT ({names}; {ROIS_CSV.name})"
+
+
+def unit_method(cls: str, pairs: list[RealPair], seeds: tuple[int, int] | None = None) -> str:
+    """How a verdict row of ``cls`` was made, in words (the row's ``method``): over its units, and
+    with ``seeds`` (the variant's and the reference's counts) over each side's seeds as well."""
+    if seeds is None:
+        return f"real pairs: paired bootstrap over {unit_words(cls, pairs)}"
+    return (
+        f"real pairs: paired bootstrap over units and seeds ({seeds[0]} and {seeds[1]}); "
+        f"the units: {unit_words(cls, pairs)}"
+    )
+
+
+def unit_matrix(tables: dict[str, pd.DataFrame], methods: Sequence[str], anchor: str, cls: str) -> np.ndarray:
+    """(methods, units): each method's abs_rel on ``cls``'s units, in the order of ``anchor``'s
+    (:func:`~msdepth.reporting.stats.paired_table`: the units must match one to one)."""
+    base = tables[anchor][tables[anchor]["class"] == cls]
+    rows = []
+    for method in methods:
+        table = tables[method][tables[method]["class"] == cls]
+        what = f"real pairs, {method} vs {anchor}, {cls}"
+        rows.append(paired_table(base, table, ["unit"], METRIC, what)[1])
+    return np.array(rows)
+
+
+def difference_rows(
+    pairs: list[RealPair],
+    results: list[Results],
+    runs: Runs,
+    reference: str,
+    instrument: str,
+    cfg: CompareConfig,
+) -> list[dict]:
+    """Per class, each variant of ``runs`` minus ``reference`` in abs_rel over the class's units
+    (:func:`unit_table`) and each side's runs, by :func:`~msdepth.reporting.stats.seed_bootstrap` at
+    ``cfg``'s settings (one run each: the paired bootstrap over units, draw for draw); a class with
+    fewer than MIN_UNITS units is left out. A row is named ``instrument`` (with the variant after a
+    comma where several are compared, as the pipeline names them)."""
+    boxes = read_annotation(ROIS_CSV)
+    tables = {m: unit_table(pairs, results, m, boxes) for methods in runs.values() for m in methods}
+    anchor = runs[reference][0]
+    others = [v for v in runs if v != reference]
+    rows = []
+    for cls in class_order(list(tables[anchor]["class"].unique())):
+        ref = unit_matrix(tables, runs[reference], anchor, cls)
+        for variant in others:
+            values = unit_matrix(tables, runs[variant], anchor, cls)
+            if values.shape[1] < MIN_UNITS:
+                continue
+            d = seed_bootstrap(values, ref, cfg.bootstrap_samples, cfg.confidence, cfg.seed)
+            seeds = (len(values), len(ref)) if max(len(values), len(ref)) > 1 else None
+            name = instrument if len(others) == 1 else f"{instrument}, {variant}"
+            rows.append({"instrument": name, "class": cls, "diff": d.mean, "low": d.low, "high": d.high,
+                         "n": int(d.n), "method": unit_method(cls, pairs, seeds)})  # fmt: skip
+    return rows
 
 
 def verdict_rows(
@@ -316,24 +450,18 @@ def verdict_rows(
     cfg: CompareConfig,
     labels: tuple[str, str],
     weights: Sequence[float],
+    networks: Runs | None = None,
 ) -> list[dict]:
     """The rows of ``verdict.json`` (:mod:`msdepth.reporting.verdict`'s external schema): per
-    instrument and class, ``labels[0]`` minus ``labels[1]`` (methods' labels) in abs_rel over the
-    class's units, :func:`~msdepth.reporting.stats.paired_bootstrap` at ``cfg``'s settings; a class
-    with fewer than MIN_UNITS units is left out."""
-    variant, reference = labels
-    boxes = read_annotation(ROIS_CSV)
+    instrument and class, ``labels[0]`` minus ``labels[1]`` (methods' labels) for the cost start and
+    each optimum weight, and with ``networks`` (variant -> its networks' methods) every variant
+    minus ``cfg.reference`` as the instrument NETWORKS (:func:`difference_rows`)."""
     rows = []
     for instrument in [COST_START, *(optimum_name(w) for w in weights)]:
-        a, b = (unit_table(pairs, results, f"{label} {instrument}", boxes) for label in labels)
-        for cls in class_order(list(a["class"].unique())):
-            what = f"real pairs, {instrument}, {variant} vs {reference}, {cls}"
-            values, ref = paired_table(a[a["class"] == cls], b[b["class"] == cls], ["unit"], METRIC, what)
-            if len(values) < MIN_UNITS:
-                continue
-            d = paired_bootstrap(values, ref, cfg.bootstrap_samples, cfg.confidence, cfg.seed)
-            rows.append({"instrument": instrument, "class": cls, "diff": d.mean, "low": d.low, "high": d.high,
-                         "n": int(d.n), "method": unit_method(cls, pairs)})  # fmt: skip
+        runs = {label: [f"{label} {instrument}"] for label in labels}
+        rows += difference_rows(pairs, results, runs, labels[1], instrument, cfg)
+    if networks:
+        rows += difference_rows(pairs, results, networks, cfg.reference, NETWORKS, cfg)
     return rows
 
 
@@ -351,39 +479,76 @@ def verdict_labels(variants: dict[str, tuple[str, Params]]) -> tuple[str, str]:
 def table(rows: list[dict]) -> list[str]:
     """The markdown table of every row."""
     lines = [
-        "| pair | GT | method | class | GT px | abs_rel | a1 | D1 % | EPE px | s |",
-        "|---|---|---|---|---|---|---|---|---|---|",
+        "| pair | GT | method | class | GT px | abs_rel | abs_rel med | a1 | D1 % | EPE px | s |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     lines += [
         f"| {r['pair']} | {r['gt']} | {r['method']} | {r['class']} | {r['pixels']} | {r['abs_rel']:.3f} | "
-        f"{r['a1']:.3f} | {r['d1']:.1f} | {r['epe']:.2f} | {r['s']:.1f} |"
+        f"{r['abs_rel_med']:.3f} | {r['a1']:.3f} | {r['d1']:.1f} | {r['epe']:.2f} | {r['s']:.1f} |"
         for r in rows
     ]
     return lines
 
 
-def mean_table(rows: list[dict]) -> list[str]:
-    """Per class and method, the mean over the pairs that have the class (each pair weighs one)."""
+def mean_table(rows: list[dict], groups: Runs | None = None) -> list[str]:
+    """Per class and method, the mean over the pairs that have the class (each pair weighs one);
+    after each class's methods, each of ``groups`` (a name -> its methods, e.g. a variant's networks
+    over seeds) as the mean over its methods and those pairs."""
     lines = [
-        "| class | method | pairs | abs_rel | a1 | D1 % | EPE px | s |",
-        "|---|---|---|---|---|---|---|---|",
+        "| class | method | pairs | abs_rel | abs_rel med | a1 | D1 % | EPE px | s |",
+        "|---|---|---|---|---|---|---|---|---|",
     ]
-    keys = dict.fromkeys((r["class"], r["method"]) for r in rows)
-    for cls, method in sorted(keys, key=lambda k: k[0] != "all"):
-        sel = [r for r in rows if r["class"] == cls and r["method"] == method]
-        mean = {k: float(np.mean([r[k] for r in sel])) for k in ("abs_rel", "a1", "d1", "epe", "s")}
-        lines.append(
-            f"| {cls} | {method} | {len(sel)} | {mean['abs_rel']:.3f} | {mean['a1']:.3f} | "
-            f"{mean['d1']:.1f} | {mean['epe']:.2f} | {mean['s']:.1f} |"
-        )
+    named = {m: [m] for m in dict.fromkeys(r["method"] for r in rows)} | dict(groups or {})
+    for cls in sorted(dict.fromkeys(r["class"] for r in rows), key=lambda c: c != "all"):
+        for name, members in named.items():
+            sel = [r for r in rows if r["class"] == cls and r["method"] in members]
+            if not sel:
+                continue
+            mean = {
+                k: float(np.mean([r[k] for r in sel]))
+                for k in ("abs_rel", "abs_rel_med", "a1", "d1", "epe", "s")
+            }
+            lines.append(
+                f"| {cls} | {name} | {len({r['pair'] for r in sel})} | {mean['abs_rel']:.3f} | "
+                f"{mean['abs_rel_med']:.3f} | {mean['a1']:.3f} | {mean['d1']:.1f} | {mean['epe']:.2f} | "
+                f"{mean['s']:.1f} |"
+            )
     return lines
 
 
-def report(rows: list[dict], pairs: list[RealPair], absent: list[str], size: str, loads: tuple) -> str:
-    """The study's markdown: how it was made, the mean table, then every row."""
+def network_words(files: dict[str, dict[int, Path]], post_process: bool) -> str:
+    """The report's sentences on the trained networks (``--models``); "" without them."""
+    if not files:
+        return ""
+    shown = "; ".join(f"{v}: seeds {', '.join(map(str, s))}" for v, s in files.items())
+    return (
+        f" Networks (`network <variant> seed<S>`, {shown}; `network <variant> (<n> seeds)`: their mean): "
+        "each model file as `msdepth predict` runs it, the left image alone at the file's input size, "
+        f"flip post-processing {'on' if post_process else 'off'} (`eval.post_process`), its disparity "
+        "(a fraction of the width) bilinear to the full size in px. They were trained on the synthetic "
+        "set, whose camera differs from KITTI's: their metric depth on real frames (abs_rel, a1, D1, "
+        "EPE, reported as is) mostly measures that domain gap; `abs_rel med` (every method's abs_rel "
+        "after per-row median scaling, Monodepth2's) takes the scale out of it. Their verdict rows "
+        f"(`{NETWORKS}`, over units and seeds) use unscaled abs_rel as every other row."
+    )
+
+
+def report(
+    rows: list[dict],
+    pairs: list[RealPair],
+    absent: list[str],
+    size: str,
+    loads: tuple,
+    networks: Runs | None = None,
+    words: str = "",
+) -> str:
+    """The study's markdown: how it was made (``words``: :func:`network_words`), the mean table (with
+    ``networks``, variant -> its networks' methods, each variant also over its seeds), then every row."""
     shown = ", ".join(f"{p.label} {p.left.shape[1]}x{p.left.shape[0]}" for p in pairs)
+    groups = {f"network {v} ({len(m)} seeds)": m for v, m in (networks or {}).items()}
     lines = [
-        "# Every real pair at hand: SGBM, the cost-volume start and each variant's optimum (issue #39)",
+        "# Every real pair at hand: SGBM, the cost-volume start, each variant's optimum"
+        f"{' and trained networks' if networks else ''} (issue #39)",
         "",
         f"`OMP_NUM_THREADS={os.environ.get('OMP_NUM_THREADS', '')} python studies/real_pairs.py "
         f"{' '.join(sys.argv[1:])}` (its docstring says what each column is). Pairs: {shown}"
@@ -393,11 +558,11 @@ def report(rows: list[dict], pairs: list[RealPair], absent: list[str], size: str
         "the end (seconds are indicative). Class `all`: every GT pixel; `reflective`: KITTI 2012's "
         "disp_refl_occ pixels (msdepth.data.kitti2012). The verdict's rows (MS-SSIM − SSIM per "
         "instrument and class, over pairs, hand-drawn ROIs and reflective tiles) are in `verdict.json`, "
-        "from the same disparities.",
+        f"from the same disparities.{words}",
         "",
         "## Means over the pairs",
         "",
-        *mean_table(rows),
+        *mean_table(rows, groups),
         "",
         "## Every pair",
         "",
@@ -406,8 +571,8 @@ def report(rows: list[dict], pairs: list[RealPair], absent: list[str], size: str
     return "\n".join(lines) + "\n"
 
 
-def main(argv: list[str] | None = None) -> int:
-    """Score every real pair at hand; write ``<out>/real_pairs.md`` and ``<out>/verdict.json``."""
+def arguments(argv: list[str] | None) -> argparse.Namespace:
+    """The command line (see the module docstring)."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--samples", type=Path, default=SAMPLES, help="the real-samples folder")
     parser.add_argument("--params", type=Path, default=ROOT / "params.yaml")
@@ -417,9 +582,19 @@ def main(argv: list[str] | None = None) -> int:
         "--weights", help="the optimum's weights, e.g. 3,10 (default: optimum.smoothness_sweep)"
     )
     parser.add_argument(
+        "--models",
+        type=Path,
+        help="also the trained networks DIR/<variant>/seed<S>/model.pt (params' variants)",
+    )
+    parser.add_argument(
         "--out", type=Path, required=True, help="the folder of real_pairs.md and verdict.json"
     )
-    args = parser.parse_args(argv)
+    return parser.parse_args(argv)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Score every real pair at hand; write ``<out>/real_pairs.md`` and ``<out>/verdict.json``."""
+    args = arguments(argv)
     policy = OutputPolicy(args.out, "real-pairs")
     policy.claim([args.out / REPORT, args.out / VERDICT], args.samples)
     torch.set_num_threads(int(os.environ.get("OMP_NUM_THREADS", "1")))
@@ -427,15 +602,23 @@ def main(argv: list[str] | None = None) -> int:
     labels = verdict_labels(variants)
     params = variants[labels[1]][1]
     weights = [float(w) for w in args.weights.split(",")] if args.weights else params.optimum.smoothness_sweep
+    files = model_files(args.models, params.variants) if args.models else {}
+    for variant, by_seed in files.items():
+        if list(by_seed) != list(params.train.seeds):
+            print(f"--models: {variant} has seeds {list(by_seed)}, train.seeds {list(params.train.seeds)}",
+                  file=sys.stderr)  # fmt: skip
     pairs, absent = real_pairs(args.samples)
     if not pairs:
         print(f"{args.samples}: no real pair at hand ({', '.join(absent)} absent)", file=sys.stderr)
         return 1
     before = os.getloadavg()
     results = disparities(pairs, variants, args.size, weights)
-    text = report(score_pairs(pairs, results), pairs, absent, args.size, (before, os.getloadavg()))
+    networks = network_disparities(pairs, results, files, params.eval.post_process) if files else None
+    loads = (before, os.getloadavg())
+    words = network_words(files, params.eval.post_process)
+    text = report(score_pairs(pairs, results), pairs, absent, args.size, loads, networks, words)
     write_text(args.out / REPORT, text)
-    rows = verdict_rows(pairs, results, params.compare, labels, weights)
+    rows = verdict_rows(pairs, results, params.compare, labels, weights, networks)
     write_json(args.out / VERDICT, rows)
     read_external_rows(args.out / VERDICT)  # the compare stage's reader: the schema holds
     print(text)

@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from conftest import save_tiny_model
 from test_matcher import fake_samples
 
 from msdepth.reporting.verdict import FULL_FRAME, MIN_UNITS, POOLABLE, Row, pooled_rows, read_external_rows
@@ -97,3 +98,35 @@ def test_the_verdict_rows_of_the_shared_real_pairs(tmp_path, monkeypatch):
     assert POOLABLE.match("optimum w10") and not POOLABLE.match("cost start")
     pipeline = Row("optimum w10", "car", 0.0, -0.01, 0.01, 9, "paired bootstrap over ROIs", "optimum")
     assert [(r.instrument, r.cls) for r in pooled_rows([*rows, pipeline])] == [("optimum w10, pooled", "car")]
+
+
+@pytest.mark.skipif(not SAMPLES.is_dir(), reason=f"{SAMPLES} absent (a clone without ../shared)")
+def test_the_trained_networks_on_the_shared_real_pairs(tmp_path, monkeypatch):
+    """``--models``: every network of a model tree (two variants, two seeds each, the CLI tests' tiny
+    model) scored on every pair, each variant also over its seeds in the mean table, and the
+    ``stereo networks`` rows (over units and seeds) in verdict.json as the compare stage reads it."""
+    monkeypatch.syspath_prepend(str(ROOT / "studies"))
+    from real_pairs import main
+
+    for variant in ("ssim", "msssim"):
+        for seed in (0, 1):
+            (tmp_path / "models" / variant / f"seed{seed}").mkdir(parents=True)
+            save_tiny_model(tmp_path / "models" / variant / f"seed{seed}" / "model.pt")
+    tiny = ["optimum.iterations=2", "optimum.levels=1", "optimum.start=constant"]
+    args = ["--samples", str(SAMPLES), "--size", "48x160", "--weights", "10", "--out", str(tmp_path / "out")]
+    assert main([*args, "--models", str(tmp_path / "models"), *(x for s in tiny for x in ("--set", s))]) == 0
+    text = (tmp_path / "out" / "real_pairs.md").read_text(encoding="utf-8")
+    for method in ("network ssim seed0", "network ssim seed1", "network msssim seed1"):
+        assert f"| 2015 000000_10 | disp_occ_0 | {method} | all |" in text
+    assert "| 2012 000001_10 | disp_occ+refl | network msssim seed0 | reflective |" in text
+    assert (
+        "| all | network ssim (2 seeds) | 5 |" in text
+        and "| reflective | network msssim (2 seeds) | 2 |" in text
+    )
+    rows = [
+        r for r in read_external_rows(tmp_path / "out" / "verdict.json") if r.instrument == "stereo networks"
+    ]
+    assert [r.cls for r in rows] == [FULL_FRAME, "car", "windshield", "glass", "sign", "reflective"]
+    assert all(r.method.startswith("real pairs:") and "units and seeds (2 and 2)" in r.method for r in rows)
+    assert rows[0].label == "stereo networks, real pairs" and rows[0].n == 5
+    assert all(r.diff == 0 for r in rows)  # the same tiny model for every variant and seed
