@@ -97,14 +97,24 @@ def run_exp_show() -> list:
 
 def _data(record: dict) -> tuple[dict, dict]:
     """A revision's ``params.yaml`` data and ``{metrics file: its data}`` (empty where it has none)."""
-    data = record.get("data") if isinstance(record.get("data"), dict) else {}
-    params = ((data.get("params") or {}).get(PARAMS_FILE) or {}).get("data") or {}
+    data = _mapping(record.get("data"))
+    params = _mapping(_mapping(_mapping(data.get("params")).get(PARAMS_FILE)).get("data"))
     metrics = {
-        name: entry["data"]
-        for name, entry in (data.get("metrics") or {}).items()
+        str(name): entry["data"]
+        for name, entry in _mapping(data.get("metrics")).items()
         if isinstance(entry, dict) and isinstance(entry.get("data"), dict)
     }
-    return (params if isinstance(params, dict) else {}), metrics
+    return params, metrics
+
+
+def _mapping(value: Any) -> dict:
+    """``value`` where it is a mapping, else an empty one (DVC's JSON read defensively)."""
+    return value if isinstance(value, dict) else {}
+
+
+def _list(value: Any) -> list:
+    """``value`` where it is a list, else an empty one."""
+    return value if isinstance(value, list) else []
 
 
 def experiments(records: Sequence[dict]) -> list[Experiment]:
@@ -115,10 +125,10 @@ def experiments(records: Sequence[dict]) -> list[Experiment]:
         rev = str(record.get("rev") or "")
         label = record.get("name") or (rev if rev == "workspace" else rev[:7])
         rows.append(Experiment(str(label), *_data(record)))
-        for experiment in record.get("experiments") or []:
+        for experiment in _list(record.get("experiments")):
             if not isinstance(experiment, dict):
                 continue
-            for entry in experiment.get("revs") or []:
+            for entry in _list(experiment.get("revs")):
                 if not isinstance(entry, dict):
                     continue
                 name = entry.get("name") or experiment.get("name")
