@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import io
+import json
 import os
 import tempfile
 from pathlib import Path
@@ -33,7 +34,7 @@ FEW = settings(
     database=None,
     suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture],
 )
-FUZZED = ("predict", "optimum", "export-onnx", "export-folder")
+FUZZED = ("predict", "optimum", "export-onnx", "export-folder", "experiments")
 MAX_LINE = 1000  # an error line echoing a 100 KB value is a defect too (case 12)
 
 # A file name component: any character but "/" and NUL, or any bytes (not UTF-8 too) but those.
@@ -214,3 +215,25 @@ def test_the_params_reader_on_hostile_assignments(sets: list[str]) -> None:
     except ConfigError as exc:
         message = str(exc)
         assert "\n" not in message and len(message) < MAX_LINE, message
+
+
+@FEW
+@given(
+    content=st.one_of(
+        st.binary(max_size=200),
+        st.recursive(
+            st.none() | st.booleans() | st.floats(allow_nan=False) | st.text(max_size=8),
+            lambda inner: (
+                st.lists(inner, max_size=3) | st.dictionaries(st.text(max_size=8), inner, max_size=3)
+            ),
+            max_leaves=12,
+        ).map(lambda v: json.dumps(v).encode()),
+    ),
+    md=st.booleans(),
+)
+def test_experiments_reads_any_file_in_one_line(content: bytes, md: bool) -> None:
+    # A saved `dvc exp show --json` output of any bytes or any JSON shape: a table or one error line.
+    with _folder() as folder:
+        path = folder / "show.json"
+        path.write_bytes(content)
+        _run(["experiments", "--json", str(path), *(["--md"] if md else [])])

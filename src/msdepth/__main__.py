@@ -1,5 +1,5 @@
-"""Command line: ``msdepth predict``, ``optimum``, ``export-onnx`` and ``export-folder`` (also
-``python -m msdepth``)."""
+"""Command line: ``msdepth predict``, ``optimum``, ``export-onnx``, ``export-folder`` and
+``experiments`` (also ``python -m msdepth``)."""
 
 from __future__ import annotations
 
@@ -7,6 +7,7 @@ import argparse
 import sys
 from typing import Callable, Sequence
 
+from msdepth.cli.experiments import experiments_command
 from msdepth.cli.optimum import optimum_command
 from msdepth.cli.options import camera_options
 from msdepth.errors import MsdepthError
@@ -115,6 +116,7 @@ _COMMANDS: tuple[Callable[[AddParser], None], ...] = (
     _export_onnx_command,
     _export_folder_command,
     optimum_command,
+    experiments_command,
 )
 
 

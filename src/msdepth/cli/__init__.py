@@ -1,1 +1,2 @@
-"""The ``msdepth`` command's subcommands: predict, optimum, export-onnx, export-folder, example."""
+"""The ``msdepth`` command's subcommands: predict, optimum, export-onnx, export-folder,
+experiments, example."""
