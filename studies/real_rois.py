@@ -25,9 +25,10 @@ import pandas as pd
 from msdepth.config.params import EvalConfig
 from msdepth.data import kitti
 from msdepth.data.annotations import gt_density, read_annotation
+from msdepth.errors import OutputError
 from msdepth.evaluation.suites import Frame, evaluate_roi
 from msdepth.geometry.depth import disparity_to_depth
-from msdepth.io import write_png, write_text
+from msdepth.io import OutputPolicy, output_file_policy, write_png, write_text
 from msdepth.optimum.sgbm import sgbm_disparity
 
 ROIS_CSV = Path("data_lists/kitti2015_rois.csv")
@@ -133,6 +134,17 @@ def report(rois_csv: Path, samples: Path, pictures: Path | None) -> str:
     return "\n".join(head + density_table(boxes, density) + scores + score_table(summary)) + "\n"
 
 
+def claim_outputs(out: Path | None, pictures: Path | None, rois_csv: Path, samples: Path) -> None:
+    """Claim the report and each frame's overlay picture (:class:`msdepth.io.OutputPolicy`) before
+    any work; an OutputError names a file the study did not write."""
+    if out is not None:
+        output_file_policy(out, "real-rois").claim([out], samples)
+    if pictures is not None:
+        names = sorted(read_annotation(rois_csv)["image"].unique())
+        paths = [pictures / f"rois_{name.split('_')[0]}.png" for name in names]
+        OutputPolicy(pictures, "real-rois").claim(paths, samples)
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--rois", type=Path, default=ROIS_CSV)
@@ -140,6 +152,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", type=Path, help="the markdown report (printed if not given)")
     ap.add_argument("--pictures", type=Path, help="folder for rois_<frame>.png (KITTI pixels: not the repo)")
     args = ap.parse_args(argv)
+    try:  # the claims first: a user's file at an output name is refused, not replaced
+        claim_outputs(args.out, args.pictures, args.rois, args.samples)
+    except OutputError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
     text = report(args.rois, args.samples, args.pictures)
     if args.out:
         write_text(args.out, text)
