@@ -39,7 +39,6 @@ from msdepth.errors import DataError, OutputError
 from msdepth.evaluation import baselines
 from msdepth.evaluation.suites import depth_maps, evaluate_full, evaluate_roi, image_dependence, load_frames
 from msdepth.io import OutputPolicy, write_text
-from msdepth.reporting.figures import write_figure
 
 INDEX = Path("data/index")
 
@@ -293,6 +292,8 @@ def curves_figure(rows: list[dict], prior: dict, path: Path) -> None:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+
+    from msdepth.reporting.figures import write_figure  # matplotlib's, so only where it is there
 
     specs = sorted({r["spec"] for r in rows})
     fig, axes = plt.subplots(2, len(specs), figsize=(3.2 * len(specs), 5.2), sharex=True, squeeze=False)
