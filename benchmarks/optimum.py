@@ -15,6 +15,8 @@ path (``--paths``), each row the whole call the pipeline makes
   (D = 0.3·W), then ``optimum.refine_levels`` x ``optimum.refine_iterations`` steps; beside it
   ``cost start``, the start alone (:func:`msdepth.optimum.solver.batch_start`), and the start's
   share of the path (median of the per-round ratio);
+- ``cost uncapped``, where the size is wider than ``optimum.max_width``: the cost path with no
+  cap (matched and solved at the pair's own size), as it ran before the cap;
 - ``sgbm``: OpenCV's SGBM as the start, then the same refinement;
 - ``SGBM alone``: OpenCV's matcher (:func:`msdepth.optimum.sgbm.sgbm_disparity`), the anchor: the
   last column is every row's time in SGBM's.
@@ -49,10 +51,12 @@ from msdepth.config.params import Params, load_params  # noqa: E402
 from msdepth.data.synthetic import EVAL, Frame, render_frame  # noqa: E402
 from msdepth.optimum.sgbm import sgbm_disparity  # noqa: E402
 from msdepth.optimum.solver import batch_start, optimum_disparities  # noqa: E402
+from msdepth.optimum.starts import capped_size  # noqa: E402
 
 PATHS = ("constant", "cost", "sgbm")
 VARIANTS = ("ssim:3", "msssim:3", "msssim:11")
 ANCHOR = "SGBM alone"
+UNCAPPED = "uncapped"  # the cost path at the pair's own size (optimum.max_width 0), as before the cap
 # Issue #38's targets, s per 375 x 1242 pair on 2 CPU cores, the default path (cost).
 TARGET_SIZE = (375, 1242)
 TARGETS = {"SSIM k3": 5.0, "MS-SSIM k3": 5.0, "MS-SSIM k11": 10.0}
@@ -85,6 +89,11 @@ def with_kernel(params: Params, variant: str, kernel: int) -> Params:
     return dataclasses.replace(params, appearance={**params.appearance, variant: section})
 
 
+def uncapped(params: Params) -> Params:
+    """``params`` with ``optimum.max_width`` 0: the pair matched and solved at its own size."""
+    return dataclasses.replace(params, optimum=dataclasses.replace(params.optimum, max_width=0))
+
+
 def rendered_frames(params: Params, count: int, height: int, width: int) -> list[Frame]:
     """The first ``count`` rendered evaluation frames (``data.synthetic.seed``) at ``height`` x ``width``."""
     return [render_frame(params.data.synthetic.seed, EVAL, i, height, width) for i in range(count)]
@@ -105,6 +114,11 @@ def candidates(
             out[f"{name} {path}"] = lambda p=p, v=variant, s=path: optimum_disparities(
                 pairs, p, v, size=shape, progress=False, start=s
             )
+            if path == "cost" and capped_size(shape, p.optimum.max_width) != shape:
+                whole = uncapped(p)
+                out[f"{name} cost {UNCAPPED}"] = lambda p=whole, v=variant: optimum_disparities(
+                    pairs, p, v, size=shape, progress=False, start="cost"
+                )
     out[ANCHOR] = lambda: [sgbm_disparity(left, right) for left, right in pairs]
     return out
 
@@ -128,6 +142,9 @@ def report(
             cost = timings.median(f"{name} cost") / batch
             share = timings.ratio(f"{name} cost start", f"{name} cost")[0]
             line = f"{name}, the default path (cost): {cost:.2f} s per pair, its start {share:.0%} of it"
+            if f"{name} cost {UNCAPPED}" in timings.rounds:
+                speedup = timings.ratio(f"{name} cost {UNCAPPED}", f"{name} cost")[0]
+                line += f", {speedup:.2f}x faster than {UNCAPPED}"
             if shape == TARGET_SIZE and name in TARGETS:
                 line += f"; target <= {TARGETS[name]:g} s on 2 cores"
             block.append(line)

@@ -429,6 +429,8 @@ def test_cli_refuses_a_cost_volume_over_its_budget_in_one_line_per_pair(tmp_path
         "ssim",
         "--start",
         "cost",
+        "--set",
+        "optimum.max_width=0",  # the default cap would match it at 600 x 250 px, well within
         "--out",
         tmp_path / "o",
     )

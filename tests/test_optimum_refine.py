@@ -4,6 +4,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import subprocess
 import sys
 from pathlib import Path
@@ -22,7 +23,7 @@ from msdepth.errors import ConfigError
 from msdepth.evaluation.metrics import stereo_errors
 from msdepth.io import write_png
 from msdepth.optimum.solver import objective, optimise, optimum_disparities, start_logits, working_weight
-from msdepth.optimum.starts import right_from_left, start_disparity
+from msdepth.optimum.starts import capped_size, right_from_left, start_disparity
 
 KITTI2015 = Path(__file__).resolve().parents[2] / "shared" / "real-samples" / "kitti2015-training"
 TRUTH = SHIFT / W  # the plane's disparity as a fraction of the width
@@ -125,6 +126,35 @@ def test_optimum_disparities_refines_a_batch_from_matched_starts() -> None:
     assert np.median(np.abs(second[INTERIOR] * W - 8)) < 0.5
 
 
+# ----------------------------------------------------------------------------- the width cap
+
+
+def test_capped_size_halves_while_wider_than_the_cap() -> None:
+    assert capped_size((375, 1242), 640) == (187, 621)  # KITTI: half size, rounding down
+    assert capped_size((375, 1242), 320) == (93, 310)
+    assert capped_size((125, 414), 640) == (125, 414)  # the render size: as it is
+    assert capped_size((375, 1242), 0) == (375, 1242)  # 0: no cap
+    assert capped_size((50, 4000), 640) == (25, 2000)  # never a side under 24 px
+
+
+def test_a_pair_wider_than_the_cap_is_solved_at_its_halving_and_resized_back() -> None:
+    """Exactly the half-size pair's optimum, bilinear to the full size: the cap is one rule for the
+    matcher and the solver, so full and half size give one answer (docs/optimum.md)."""
+    left, right = plane_pair()
+    half_pair = [(resize(left, H // 2, W // 2), resize(right, H // 2, W // 2))]
+    params = small(Params(), start="cost", refine_levels=1, refine_iterations=3, smoothness_width=414)
+    capped = dataclasses.replace(params, optimum=dataclasses.replace(params.optimum, max_width=W // 2))
+    full = optimum_disparities([(left, right)], capped, "ssim", progress=False)[0]
+    half = optimum_disparities(half_pair, params, "ssim", progress=False)[0]
+    assert full.shape == (H, W) and half.shape == (H // 2, W // 2) and full.dtype == np.float32
+    up = torch.nn.functional.interpolate(torch.from_numpy(half)[None, None], size=(H, W), mode="bilinear")
+    np.testing.assert_array_equal(full, up[0, 0].numpy())
+    uncapped = optimum_disparities([(left, right)], params, "ssim", progress=False)[0]
+    assert not np.array_equal(full, uncapped)  # the default cap (640 px) leaves 160 px as it is
+    start = start_disparity(left, right, capped, "ssim", "cost")
+    np.testing.assert_array_equal(start, start_disparity(*half_pair[0], params, "ssim", "cost", (H, W)))
+
+
 # ----------------------------------------------------------------------------- params and CLI
 
 
@@ -136,6 +166,11 @@ def test_the_start_and_refinement_keys_are_checked() -> None:
     for key in ("refine_levels", "refine_iterations"):
         with pytest.raises(ConfigError, match=f"optimum.{key}"):
             params_from_dict({"optimum": {key: 0}})
+    assert Params().optimum.max_width == 640
+    assert params_from_dict({"optimum": {"max_width": 0}}).optimum.max_width == 0
+    for bad in (-1, 32, 5000):
+        with pytest.raises(ConfigError, match=r"optimum.max_width: must be 0 \(no cap\) or in 64..4096 px"):
+            params_from_dict({"optimum": {"max_width": bad}})
 
 
 def test_cli_start_flag(tmp_path, capsys) -> None:

@@ -54,7 +54,7 @@ def optimum_command(add_parser: Callable[..., argparse.ArgumentParser]) -> None:
         metavar="{constant,cost,sgbm}",
         help="where the optimum starts (default: optimum.start): a constant, refined coarse to fine; or "
         "a matched start, refined at the finest level: SGM on the variant's own cost volume (cost) or "
-        "OpenCV's SGBM (sgbm), matched at the image's own size",
+        "OpenCV's SGBM (sgbm), matched at the image's own size (halved within optimum.max_width)",
     )
     o.add_argument("--quiet", action="store_true", help="no progress bar")
     o.set_defaults(run=run)
@@ -167,6 +167,7 @@ def _optimise_and_write(
     from msdepth.data.pairs import check_same_size
     from msdepth.optimum.cost_volume import check_volume_size
     from msdepth.optimum.solver import optimum_disparities
+    from msdepth.optimum.starts import capped_size
 
     failed, good = 0, []
     # Without a working size the optimum runs at the image's own, so that is bounded as a working size is.
@@ -176,7 +177,7 @@ def _optimise_and_write(
             left, right = read_image(left_path, limit), read_image(right_path, limit)
             check_same_size(left_path, left.shape, right_path, right.shape, "right image")
             if params.optimum.start == "cost":
-                check_volume_size(*left.shape[:2])
+                check_volume_size(*capped_size(left.shape[:2], params.optimum.max_width))
             good.append((left_path, stem, left, right))
         except PixelLimitError as exc:
             failed += _fail(

@@ -227,7 +227,8 @@ def check_volume_size(height: int, width: int, max_disparity: int | None = None)
         raise DataError(
             f"the cost volume of a {width} x {height} px pair at {top + 1} disparities would take about "
             f"{need / 2**30:.1f} GiB, over the cost start's {MAX_VOLUME_BYTES / 2**30:g} GiB (it runs at the "
-            "pair's own size): choose optimum.start sgbm or constant, or give the pair smaller"
+            "pair's own size, halved within optimum.max_width): lower optimum.max_width, choose "
+            "optimum.start sgbm or constant, or give the pair smaller"
         )
 
 

@@ -38,7 +38,7 @@ from msdepth.errors import ConfigError, DataError
 from msdepth.losses.monodepth import MonodepthLoss, reconstruct, scale_pyramid
 from msdepth.losses.objective import build_loss
 from msdepth.networks.common import MAX_DISPARITY
-from msdepth.optimum.starts import start_disparity
+from msdepth.optimum.starts import capped_size, start_disparity
 
 NUM_SCALES = 4  # the network's disparity scales (1, 1/2, 1/4, 1/8), all of which training's loss sees
 # px: the shortest side of a coarse level; its coarsest training scale (1/8) keeps 3 px, SSIM's window.
@@ -213,11 +213,14 @@ def optimum_disparities(
     """The left optimum disparity (fraction of width, float32 at the working size) of every
     ``(left, right)`` uint8 RGB pair, ``optimum.batch_size`` pairs at a time.
 
-    ``size``: the working size (default: :func:`working_size`); pairs are area-resized to it,
-    as training's input is; the smoothness weight is :func:`working_weight`'s at its width.
+    ``size``: the working size (default: :func:`working_size`). A working size wider than
+    ``optimum.max_width`` is solved at its largest halving within it
+    (:func:`msdepth.optimum.starts.capped_size`) and the result resized back bilinearly (a
+    fraction of the width needs no rescaling). Pairs are area-resized to the size solved at, as
+    training's input is; the smoothness weight is :func:`working_weight`'s at its width.
     Consecutive pairs of one size share a batch. ``start``: ``constant``,
     ``cost`` or ``sgbm`` (default ``optimum.start``; :func:`msdepth.optimum.starts.start_disparity`,
-    matched at each pair's own size).
+    matched at each pair's own size, capped alike).
     """
     cfg = params.optimum
     start = cfg.start if start is None else start
@@ -235,13 +238,16 @@ def optimum_disparities(
             ):
                 stop += 1
             chunk = pairs[first:stop]
-            left = torch.stack([to_tensor(resize(a, h, w)) for a, _ in chunk])
-            right = torch.stack([to_tensor(resize(b, h, w)) for _, b in chunk])
-            weight = working_weight(params, w, smoothness_weight)
+            solved = capped_size((h, w), cfg.max_width)
+            left = torch.stack([to_tensor(resize(a, *solved)) for a, _ in chunk])
+            right = torch.stack([to_tensor(resize(b, *solved)) for _, b in chunk])
+            weight = working_weight(params, solved[1], smoothness_weight)
             if weight not in criteria:
                 criteria[weight] = objective(params, variant, weight)
-            init = batch_start(chunk, params, variant, start, (h, w))
+            init = batch_start(chunk, params, variant, start, solved)
             disp = optimise(left, right, criteria[weight], cfg, start=init)
+            if solved != (h, w):
+                disp = F.interpolate(disp, size=(h, w), mode="bilinear", align_corners=False)
             out += [d[0].numpy().astype(np.float32) for d in disp]
             bar.update(len(chunk))
             first = stop

@@ -7,10 +7,11 @@ completeness: the solver does not need a map for it). ``cost``: semi-global matc
 (:mod:`msdepth.optimum.cost_volume`, D = 0.3·W). ``sgbm``: OpenCV's SGBM
 (:func:`msdepth.optimum.sgbm.sgbm_disparity`).
 
-Both matchers run on the pair at the frame's own size, whatever the working size: a disparity as
-a fraction of the width does not depend on the size, so one match serves every working size and
-the refinement's result can be compared across sizes from the same start. The map is then
-area-resampled to the working size (the images' own filter).
+Both matchers run on the pair at the frame's own size (:func:`capped_size`: its largest halving
+within ``optimum.max_width``), whatever the working size: a disparity as a fraction of the width
+does not depend on the size, so one match serves every working size and the refinement's result
+can be compared across sizes from the same start. The map is then area-resampled to the working
+size (the images' own filter).
 
 The right view's disparity is derived from the left one by warping (:func:`right_from_left`), not
 by a second, right-view match: left pixel x at disparity d is right pixel x − d; where several left
@@ -27,12 +28,25 @@ import cv2
 import numpy as np
 
 from msdepth.config.params import OPTIMUM_STARTS, Params
-from msdepth.data.pairs import to_tensor
+from msdepth.data.pairs import resize, to_tensor
 from msdepth.errors import ConfigError
 from msdepth.networks.common import MAX_DISPARITY
 from msdepth.optimum.cost_volume import cost_volume, matching_cost
 from msdepth.optimum.sgbm import sgbm_disparity
 from msdepth.optimum.sgm import fill_holes, sgm
+
+# px: the shortest side a halving by optimum.max_width keeps (the solver's coarse levels' own floor).
+MIN_CAPPED_SIDE = 24
+
+
+def capped_size(size: tuple[int, int], max_width: int) -> tuple[int, int]:
+    """``(height, width)`` halved (rounding down, as the solver's levels) while wider than
+    ``max_width`` and both halves keep :data:`MIN_CAPPED_SIDE` px; ``size`` itself when
+    ``max_width`` is 0 (no cap)."""
+    height, width = size
+    while max_width and width > max_width and min(height, width) // 2 >= MIN_CAPPED_SIDE:
+        height, width = height // 2, width // 2
+    return height, width
 
 
 def matched_disparity(
@@ -73,14 +87,17 @@ def start_disparity(
     """The start (2, h, w) float32: left and right disparity as fractions of the width, in
     [0, 0.3], of a uint8 RGB pair (H, W, 3) at the working ``size`` (default: the pair's own).
 
-    Matched at the pair's own size and area-resampled to ``size``; the right channel warped from
-    the left (:func:`right_from_left`). ``constant``: ``optimum.init_disparity`` in both.
+    Matched at the pair's own size capped by ``optimum.max_width`` (:func:`capped_size`; the pair
+    area-resized to it) and area-resampled to ``size``; the right channel warped from the left
+    (:func:`right_from_left`). ``constant``: ``optimum.init_disparity`` in both.
     """
     if start not in OPTIMUM_STARTS:
         raise ConfigError(f"optimum.start: unknown start {start!r}; one of {list(OPTIMUM_STARTS)}")
     height, width = size or left.shape[:2]
     if start == "constant":
         return np.full((2, height, width), params.optimum.init_disparity, dtype=np.float32)
+    match = capped_size(left.shape[:2], params.optimum.max_width)
+    left, right = (resize(image, *match) for image in (left, right))
     return both_views(matched_disparity(left, right, params, variant, start), (height, width))
 
 
