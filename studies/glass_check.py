@@ -20,6 +20,8 @@ import numpy as np
 
 from msdepth.config.params import read_params_file
 from msdepth.data.synthetic import EVAL, TRAIN, render_frame
+from msdepth.errors import OutputError
+from msdepth.io import OutputPolicy, save_npz
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -32,16 +34,17 @@ def frames(args: argparse.Namespace) -> list[tuple[int, int]]:
 
 
 def dump(args: argparse.Namespace, s: dict) -> None:
-    """Render and save each frame's images and GT."""
+    """Render and save each frame's images and GT, every file claimed first (output policy)."""
     out = Path(args.a)
-    out.mkdir(parents=True, exist_ok=True)
-    for split, i in frames(args):
+    paths = {(split, i): out / f"{split}_{i:06d}.npz" for split, i in frames(args)}
+    OutputPolicy(out, "glass-check").claim(list(paths.values()), ROOT / "params.yaml")
+    for (split, i), path in paths.items():
         f = render_frame(s["seed"], split, i, s["height"], s["width"])
-        np.savez_compressed(out / f"{split}_{i:06d}.npz", **{k: getattr(f, k) for k in KEYS})
+        save_npz(path, **{k: getattr(f, k) for k in KEYS})
 
 
-def compare(args: argparse.Namespace, s: dict) -> None:
-    """Print per-split counts of differing bytes outside and inside glass; exit 1 if any outside."""
+def compare(args: argparse.Namespace, s: dict) -> int:
+    """Print per-split counts of differing bytes outside and inside glass; 1 if any outside, else 0."""
     from msdepth.data.synthetic import glass_pixels  # only the new renderer has it
 
     totals = {}
@@ -60,10 +63,10 @@ def compare(args: argparse.Namespace, s: dict) -> None:
             f"{name}: {t[5] // 2} frames; GT/disparity values changed {t[0]}; non-glass pixels changed "
             f"{t[1]} of {t[2]}; glass pixels changed {t[3]} of {t[4]}"
         )
-    sys.exit(1 if any(t[0] or t[1] for t in totals.values()) else 0)
+    return 1 if any(t[0] or t[1] for t in totals.values()) else 0
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> int:
     """Command line: dump DIR | compare DIR_A DIR_B."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("mode", choices=("dump", "compare"))
@@ -71,10 +74,17 @@ def main() -> None:
     ap.add_argument("b", nargs="?")
     ap.add_argument("--eval", type=int, default=40)
     ap.add_argument("--train", type=int, default=40)
-    args = ap.parse_args()
+    args = ap.parse_args(argv)
     s = read_params_file(ROOT / "params.yaml")["data"]["synthetic"]
-    (dump if args.mode == "dump" else compare)(args, s)
+    if args.mode == "compare":
+        return compare(args, s)
+    try:
+        dump(args, s)
+    except OutputError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

@@ -21,8 +21,7 @@ import numpy as np  # noqa: E402
 
 from msdepth.config.params import params_from_dict, read_params_file  # noqa: E402
 from msdepth.data.kitti import CLASS_BITS  # noqa: E402
-from msdepth.errors import OutputError  # noqa: E402
-from msdepth.io import output_file_policy  # noqa: E402
+from msdepth.io import claim_output_file  # noqa: E402
 from msdepth.optimum.solver import optimum_disparities  # noqa: E402
 from msdepth.reporting.figures import write_figure  # noqa: E402
 
@@ -32,10 +31,7 @@ ROOT = Path(__file__).resolve().parents[1]
 def main(argv: list[str] | None = None) -> int:
     """Command line: BEFORE_DIR AFTER_DIR OUT_PNG."""
     before, after, out = (Path(a) for a in (sys.argv[1:] if argv is None else argv)[:3])
-    try:  # before the optimum runs: a file the study did not write is refused at once
-        output_file_policy(out, "glass-figure").claim([out], before)
-    except OutputError as exc:
-        print(f"error: {exc}", file=sys.stderr)
+    if not claim_output_file(out, "glass-figure", before):  # before the optimum runs
         return 1
     params = params_from_dict(read_params_file(ROOT / "params.yaml"))
     files = sorted(before.glob("1_*.npz"))  # evaluation frames

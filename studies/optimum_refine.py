@@ -35,8 +35,7 @@ import torch
 from msdepth.config.params import Params, apply_overrides, kernel_variant, params_from_dict, read_params_file
 from msdepth.data.kitti import read_disparity, read_image
 from msdepth.data.pairs import resize, to_tensor
-from msdepth.errors import OutputError
-from msdepth.io import output_file_policy, write_text
+from msdepth.io import claim_output_file, write_text
 from msdepth.optimum.solver import disparity_pyramid, level_sizes, objective, optimise, working_weight
 from msdepth.optimum.starts import start_disparity
 
@@ -196,12 +195,8 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("--out", type=Path, help="also write the markdown here")
     args = parser.parse_args(argv)
-    if args.out:  # claimed before the study's minutes: a file it did not write is refused at once
-        try:
-            output_file_policy(args.out, "optimum-refine").claim([args.out], args.samples)
-        except OutputError as exc:
-            print(f"error: {exc}", file=sys.stderr)
-            return 1
+    if not claim_output_file(args.out, "optimum-refine", args.samples):  # before the work
+        return 1
     torch.set_num_threads(int(os.environ.get("OMP_NUM_THREADS", "1")))
     load = os.getloadavg()[0]
     lines = steps_study(args) if args.study == "steps" else sizes_study(args)

@@ -40,10 +40,9 @@ import torch
 from msdepth.config.params import Params, apply_overrides, load_params, params_from_dict, read_params_file
 from msdepth.data.kitti import read_disparity, read_image
 from msdepth.data.pairs import resize, to_tensor
-from msdepth.errors import OutputError
 from msdepth.evaluation.metrics import compute_errors, stereo_errors
 from msdepth.geometry.depth import clamp_depth, disparity_to_depth
-from msdepth.io import output_file_policy, write_text
+from msdepth.io import claim_output_file, write_text
 from msdepth.optimum.cost_volume import cost_volume, matching_cost, winner_take_all
 from msdepth.optimum.sgbm import sgbm_disparity
 from msdepth.optimum.sgm import SGMConfig, sgm
@@ -240,12 +239,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="a params override")
     parser.add_argument("--out", type=Path, help="also write the markdown here")
     args = parser.parse_args(argv)
-    if args.out:  # claimed before the study's minutes: a file it did not write is refused at once
-        try:
-            output_file_policy(args.out, "optimum-starts").claim([args.out], args.samples)
-        except OutputError as exc:
-            print(f"error: {exc}", file=sys.stderr)
-            return 1
+    if not claim_output_file(args.out, "optimum-starts", args.samples):  # before the work
+        return 1
     torch.set_num_threads(int(os.environ.get("OMP_NUM_THREADS", "1")))
     variants, timings, rows = variants_of(args.params, args.set), {}, []
     load_before = os.getloadavg()

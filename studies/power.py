@@ -17,8 +17,7 @@ import math
 import sys
 from pathlib import Path
 
-from msdepth.errors import OutputError
-from msdepth.io import output_file_policy, write_text
+from msdepth.io import claim_output_file, write_text
 from msdepth.pipeline.paths import METRICS, run_name
 from msdepth.reporting.compare import load_suite_metrics
 from msdepth.reporting.power import pooled_sd, power_at, seeds_needed
@@ -117,12 +116,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--root", type=Path, default=Path("."), help="the project folder (committed metrics)")
     ap.add_argument("--out", type=Path, help="the markdown table (printed if not given)")
     args = ap.parse_args(argv)
-    if args.out:
-        try:  # the claim first: a user's file at --out is refused, not replaced
-            output_file_policy(args.out, "power").claim([args.out], args.root / METRICS)
-        except OutputError as exc:
-            print(f"error: {exc}", file=sys.stderr)
-            return 1
+    if not claim_output_file(args.out, "power", args.root / METRICS):  # before the work
+        return 1
     text = report(args.root)
     if args.out:
         write_text(args.out, text)

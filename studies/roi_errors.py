@@ -27,10 +27,9 @@ from msdepth.config.params import load_params
 from msdepth.data import kitti
 from msdepth.data.index import read_eval_index
 from msdepth.data.pairs import load_pair_list
-from msdepth.errors import OutputError
 from msdepth.evaluation import baselines
 from msdepth.evaluation.suites import depth_maps, load_frames, read_depth_maps
-from msdepth.io import output_file_policy, write_text
+from msdepth.io import claim_output_file, write_text
 
 INDEX = Path("data/index")
 CAP = 80.0
@@ -96,12 +95,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--min-height", type=float, default=4.0, help="px at the network's input")
     ap.add_argument("--out", type=Path)
     args = ap.parse_args(argv)
-    if args.out:  # claimed before the report is computed
-        try:
-            output_file_policy(args.out, "roi-errors").claim([args.out], "outputs")
-        except OutputError as exc:
-            print(f"error: {exc}", file=sys.stderr)
-            return 1
+    if not claim_output_file(args.out, "roi-errors", "outputs"):  # before the work
+        return 1
     text = report(args.runs, args.min_height)
     if args.out:
         write_text(args.out, text + "\n")

@@ -24,7 +24,7 @@ from msdepth.__main__ import build_parser, main
 from msdepth.config.params import SyntheticConfig
 from msdepth.data.synthetic import generate
 from msdepth.errors import OutputError
-from msdepth.io import OutputPolicy, manifest_line, read_manifest
+from msdepth.io import OutputPolicy, claim_output_file, manifest_line, read_manifest
 
 FAST_OPTIMUM = ["--variant", "ssim", "--set", "optimum.iterations=2", "--set", "optimum.levels=1", "--quiet"]
 TINY = SyntheticConfig(seed=3, drives=1, train_pairs=2, eval_frames=1, height=24, width=80)
@@ -260,6 +260,25 @@ def test_a_policy_refuses_the_manifest_and_paths_leaving_the_folder(tmp_path: Pa
         with pytest.raises(OutputError, match="not a path msdepth predict may write"):
             policy.claim([path], "in.png")
     assert not (tmp_path / "out" / ".msdepth-predict").exists()
+
+
+def test_a_study_claims_its_one_file_or_refuses_in_one_line(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "report.md"
+    assert claim_output_file(None, "power", "metrics")  # nothing asked: nothing to claim
+    assert claim_output_file(out, "power", "metrics") and not out.exists()
+    assert read_manifest(tmp_path / ".msdepth-power") == {"report.md"}
+    out.write_text("the study's own report\n")
+    assert claim_output_file(out, "power", "metrics")  # its own file, listed: rewritable
+    users = tmp_path / "notes.md"
+    users.write_text("a user's notes\n")
+    capsys.readouterr()
+    assert not claim_output_file(users, "power", "metrics")
+    assert not claim_output_file(tmp_path, "power", "metrics")  # a folder
+    err = capsys.readouterr().err.splitlines()
+    assert len(err) == 2 and "notes.md: exists and was not written by msdepth power" in err[0]
+    assert "a folder" in err[1] and users.read_text() == "a user's notes\n"
 
 
 def test_optimum_writes_each_batch_before_the_next_is_optimised(

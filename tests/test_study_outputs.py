@@ -26,6 +26,7 @@ CASES = {
     "prepare_set": (["--out", "{out}"], "params.yaml"),
     "roi_errors": (["--out", "{out}/roi_errors.md"], "roi_errors.md"),
     "glass_figure": (["{out}/before", "{out}/after", "{out}/windshield.png"], "windshield.png"),
+    "glass_check": (["dump", "{out}", "--eval", "1", "--train", "0"], "1_000000.npz"),
     "power": (["--out", "{out}/power.md"], "power.md"),
     "real_rois": (["--out", "{out}/kitti2015_rois.md"], "kitti2015_rois.md"),
     "side_by_side": (

@@ -12,6 +12,7 @@ import json
 import os
 import re
 import struct
+import sys
 import tempfile
 import zlib
 from pathlib import Path
@@ -345,3 +346,17 @@ def output_file_policy(
     for stale in atomic_temps(out):  # left by a writer of ``out`` killed mid-write (only that form)
         stale.unlink()
     return policy
+
+
+def claim_output_file(out: str | os.PathLike | None, command: str, source: str | os.PathLike) -> bool:
+    """Claim the one file ``out`` that a study writes, before its minutes of work: True when ``out``
+    is None or may be written (listed in the folder's manifest); False after one line on stderr when
+    it may not (a folder, an input, or a file the command did not write), for the caller to exit 1."""
+    if out is None:
+        return True
+    try:
+        output_file_policy(out, command).claim([Path(out)], source)
+    except OutputError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return False
+    return True
