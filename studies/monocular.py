@@ -34,6 +34,7 @@ import argparse
 import json
 import shutil
 import subprocess
+import tempfile
 import sys
 from pathlib import Path
 
@@ -74,8 +75,18 @@ def runs_of(params: dict) -> list[str]:
 
 def snapshot(repo: Path, dest: Path, runs: list[str]) -> None:
     """Copy the workspace's metrics, each run's evaluation disparities and training timing to ``dest``."""
-    tmp = dest.with_name(dest.name + ".tmp")
-    shutil.rmtree(tmp, ignore_errors=True)
+    # A fresh folder of our own next to dest (never a fixed name, which could be a user's folder).
+    tmp = Path(tempfile.mkdtemp(prefix=f".{dest.name}.", suffix=".partial", dir=dest.parent))
+    try:
+        copy_snapshot(repo, tmp, runs)
+        tmp.rename(dest)  # a complete snapshot or none
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+
+
+def copy_snapshot(repo: Path, tmp: Path, runs: list[str]) -> None:
+    """Copy what :func:`snapshot` keeps from ``repo`` into the empty folder ``tmp``."""
     for rel in SNAPSHOT:
         src = repo / rel
         if src.is_dir():
@@ -89,7 +100,6 @@ def snapshot(repo: Path, dest: Path, runs: list[str]) -> None:
                 (tmp / rel).parent.mkdir(parents=True, exist_ok=True)
                 shutil.copy(repo / rel, tmp / rel)
     shutil.copy(repo / "params.yaml", tmp / "params.yaml")
-    tmp.rename(dest)  # a complete snapshot or none
 
 
 def run_mode(repo: Path, mode: str, length: int, sets: list[str], dest: Path, runs: list[str]) -> None:

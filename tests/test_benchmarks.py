@@ -45,81 +45,32 @@ def test_loss_benchmark_prints_the_ratios_to_pytorch_msssim() -> None:
     assert "pytorch-msssim / ours (training config, box k3 L4):" in out
 
 
+# A tiny network on tiny images: the benchmarks' code paths in seconds.
+TINY = "--height 32 --width 96 --width-multiplier 0.0625".split()
+
+
 @pytest.mark.slow
 def test_train_step_benchmark_with_the_speed_switches() -> None:
-    out = _run(
-        "train_step.py",
-        "--batch",
-        "1",
-        "--height",
-        "32",
-        "--width",
-        "96",
-        "--width-multiplier",
-        "0.0625",
-        "--kernels",
-        "3,11",
-        "--repeats",
-        "1",
-        "--amp",
-        "bf16",
-        "--channels-last",
-        "--profile",
-        "1",
-    )
+    switches = "--kernels 3,11 --repeats 1 --amp bf16 --channels-last --profile 1".split()
+    out = _run("train_step.py", "--batch", "1", *TINY, *switches)
     assert "amp bf16, channels_last True" in out
-    assert (
-        "| MS-SSIM k11 |" in out.split("GPU busy share")[1]
-    )  # the profile table, GPU columns empty on a CPU
+    # the profile table, GPU columns empty on a CPU
+    assert "| MS-SSIM k11 |" in out.split("GPU busy share")[1]
     for name in ("SSIM k3", "MS-SSIM k3", "MS-SSIM k11"):
         assert f"| {name} |" in out
     assert "images/s:" in out
 
 
 def test_train_step_benchmark_loss_only() -> None:
-    out = _run(
-        "train_step.py",
-        "--batch",
-        "1",
-        "--height",
-        "32",
-        "--width",
-        "96",
-        "--width-multiplier",
-        "0.0625",
-        "--kernels",
-        "11",
-        "--repeats",
-        "1",
-        "--loss-only",
-    )
+    out = _run("train_step.py", "--batch", "1", *TINY, *"--kernels 11 --repeats 1 --loss-only".split())
     assert out.startswith("loss forward+backward only, batch 1x3x32x96")
     assert "| MS-SSIM k11 |" in out
 
 
 @pytest.mark.slow
 def test_train_loop_benchmark() -> None:
-    out = _run(
-        "train_loop.py",
-        "--batch",
-        "2",
-        "--height",
-        "32",
-        "--width",
-        "96",
-        "--width-multiplier",
-        "0.0625",
-        "--pairs",
-        "4",
-        "--epochs",
-        "1",
-        "--repeats",
-        "1",
-        "--warmup",
-        "0",
-        "--sync",
-        "2",
-    )
+    loop = "--pairs 4 --epochs 1 --repeats 1 --warmup 0 --sync 2".split()
+    out = _run("train_loop.py", "--batch", "2", *TINY, *loop)
     assert out.startswith("training loop, 4 pairs x 1 epochs, batch 2x3x32x96")
     for name in ("ssim sync 1", "ssim sync 2", "msssim sync 1", "msssim sync 2"):
         assert f"| {name} |" in out
@@ -143,20 +94,7 @@ def test_ratios_are_paired_within_rounds() -> None:
 
 
 def test_train_step_benchmark_by_network() -> None:
-    out = _run(
-        "train_step.py",
-        "--batch",
-        "1",
-        "--height",
-        "32",
-        "--width",
-        "96",
-        "--width-multiplier",
-        "0.0625",
-        "--repeats",
-        "1",
-        "--networks",
-    )
+    out = _run("train_step.py", "--batch", "1", *TINY, "--repeats", "1", "--networks")
     assert out.startswith("SSIM training step by network, batch 1x3x32x96")
     for name in ("norm none, heads independent", "norm group, heads residual"):
         assert f"| {name} |" in out

@@ -235,3 +235,38 @@ def test_a_stage_that_reads_the_data_through_an_index_depends_on_the_data():
     readers = [name for name, stage in stages.items() if set(stage.get("deps", [])) & set(indexes)]
     assert {"infer", "cost_curves", "optimum", "eval_set"} <= set(readers)
     assert [name for name in readers if "${data.root}" not in stages[name]["deps"]] == []
+
+
+def stale_lock_entries(root: Path) -> list[str]:
+    """Why ``root``'s dvc.lock is not the one `dvc repro` would commit (empty if it is): a locked dep
+    that git tracks (code, split lists) or a locked param whose current value differs from the lock.
+    Deps that are other stages' outputs and are simply not built here ("deleted") are not stale."""
+    import json
+    import subprocess
+
+    shell = dict(cwd=root, capture_output=True, text=True, check=False)
+    tracked = set(subprocess.run(["git", "ls-files"], **shell).stdout.split())
+    status = subprocess.run(["dvc", "status", "--json"], **shell)
+    if status.returncode != 0:
+        return [f"dvc status failed: {status.stderr.strip()[-300:]}"]
+    stale = []
+    for stage, changes in json.loads(status.stdout or "{}").items():
+        for change in changes if isinstance(changes, list) else []:
+            for path, state in (change.get("changed deps", {}) if isinstance(change, dict) else {}).items():
+                under_git = path in tracked or any(f.startswith(path.rstrip("/") + "/") for f in tracked)
+                if isinstance(state, dict) or (under_git and state != "deleted"):
+                    stale.append(f"{stage}: {path} {state}")
+    return stale
+
+
+@pytest.mark.skipif(not (ROOT / ".git").exists(), reason="needs the git checkout (tracked files)")
+def test_dvc_lock_is_current_with_the_tracked_code_and_params():
+    """A fresh clone's `dvc repro` leaves git clean only if dvc.lock holds today's code and params:
+    a code edit without a relock would rerun every stage importing it and rewrite dvc.lock."""
+    stale = stale_lock_entries(ROOT)
+    if stale:
+        pytest.fail(
+            "dvc.lock is stale (relock with `dvc repro`, which must reproduce the locked outputs):\n  "
+            + "\n  ".join(stale[:20]),
+            pytrace=False,
+        )

@@ -77,3 +77,24 @@ def test_the_committed_results_are_listed_in_their_studies_manifests() -> None:
         assert RESULTS / path in listed, path
     for path in ("roi_errors.md", "glass/windshield.png", "input_96x320/disparity.png", "power.md"):
         assert RESULTS / path in listed, path
+
+
+def test_the_monocular_snapshot_leaves_a_users_folder_alone_and_no_partial_one(tmp_path: Path) -> None:
+    """The snapshot stages into a fresh folder of its own: a user's ``stereo.tmp`` (the fixed name it
+    once cleared) keeps its file, a complete snapshot lands at ``dest``, and a failed copy leaves
+    nothing behind, neither ``dest`` nor a partial folder."""
+    study = load_study("monocular")
+    repo, runs = tmp_path / "repo", tmp_path / "out" / "runs"
+    (repo / "metrics").mkdir(parents=True)
+    (repo / "metrics" / "compare.md").write_text("table\n")
+    (repo / "params.yaml").write_text("variants: [ssim]\n")
+    (runs / "stereo.tmp").mkdir(parents=True)
+    (runs / "stereo.tmp" / "mine.txt").write_text("the user's\n")
+    study.snapshot(repo, runs / "stereo", [])
+    assert (runs / "stereo.tmp" / "mine.txt").read_text() == "the user's\n"
+    assert (runs / "stereo" / "params.yaml").read_text() == "variants: [ssim]\n"
+    assert (runs / "stereo" / "metrics" / "compare.md").is_file()
+    (repo / "params.yaml").unlink()  # the copy fails midway
+    with pytest.raises(FileNotFoundError):
+        study.snapshot(repo, runs / "mono", [])
+    assert sorted(p.name for p in runs.iterdir()) == ["stereo", "stereo.tmp"]
