@@ -389,3 +389,26 @@ def test_monocular_study_scores_stereo_runs_median_scaled(study_set: Path, tmp_p
     assert [r[9] for r in rows] == ["0.5000", "2.0000"] and Path.cwd() == ROOT
     assert {len(r) for r in rows} == {12}  # table.md's columns
     assert all(cell in ("0.0000", "–") for r in rows for cell in r[3:7])  # every ROI class exact too
+
+
+def test_ab_reads_the_last_images_per_second_line() -> None:
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    try:
+        from ab import images_per_second, table
+    finally:
+        sys.path.remove(str(ROOT / "benchmarks"))
+    out = "x\nimages/s: old 1.0\n| t |\nimages/s: ssim sync 1 12.5, msssim sync 50 10.0\n"
+    assert images_per_second(out) == {"ssim sync 1": 12.5, "msssim sync 50": 10.0}
+    rows = table([({"a": 10.0}, {"a": 12.0}), ({"a": 10.0}, {"a": 8.0}), ({"a": 10.0}, {"a": 11.0})])
+    assert "| a | 10.00 | 11.00 | 1.100 | 0.800-1.200 |" in rows
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not (ROOT / ".git").exists(), reason="needs the git checkout (a worktree of the base)")
+def test_ab_benchmark_against_this_commit() -> None:
+    loop = "--batch 2 --pairs 4 --epochs 1 --repeats 1 --warmup 0".split()
+    out = _run("ab.py", "--base", "HEAD", "--rounds", "2", "--", "train_loop.py", *TINY, *loop)
+    assert "round 2/2: base {'ssim sync 1'" in out
+    assert "| msssim sync 50 |" in out and "this / base (median)" in out
+    worktrees = subprocess.run(["git", "-C", str(ROOT), "worktree", "list"], capture_output=True, text=True)
+    assert "msdepth-ab-" not in worktrees.stdout  # the base's worktree is removed
