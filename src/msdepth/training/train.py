@@ -32,7 +32,7 @@ from msdepth.losses.monocular import MonocularLoss, build_monocular_loss, monocu
 from msdepth.losses.monodepth import MonodepthLoss
 from msdepth.losses.objective import build_loss
 from msdepth.networks.common import MAX_DISPARITY
-from msdepth.networks.device import resolve_device
+from msdepth.networks.device import one_pixel_wide_strided_convs, resolve_device
 from msdepth.networks.model import (  # noqa: F401 - load_model: imported from here too
     DepthNetwork,
     depth_network,
@@ -355,6 +355,7 @@ def _set_up(
     configure_cudnn(train_cfg.cudnn_benchmark, device)
     dataset = _dataset(params, pairs, seed, cache, sequences)
     model = build_model(params).to(device)
+    _refuse_bf16_cpu_hazard(params, model, device)
     memory_format = torch.channels_last if train_cfg.channels_last else torch.contiguous_format
     model = model.to(memory_format=memory_format)
     # DDP and the compiled wrapper share the parameters of `model`, which is what is saved.
@@ -396,6 +397,21 @@ def _set_up(
         loss_keys=MONO_LOSS_KEYS if mono else LOSS_KEYS,
         pretrained_sha256=pretrained_sha256,
     )
+
+
+def _refuse_bf16_cpu_hazard(params: Params, model: torch.nn.Module, device: torch.device) -> None:
+    """A TrainingError, before any step, for bf16 on the CPU at an image size where a strided
+    convolution sees a one-pixel-wide map (see :func:`one_pixel_wide_strided_convs`)."""
+    if params.train.amp != "bf16" or device.type != "cpu":
+        return
+    height, width = params.data.height, params.data.width
+    convs = one_pixel_wide_strided_convs(model, height, width)
+    if convs:
+        raise TrainingError(
+            f"train.amp=bf16 on the CPU at data.height x data.width = {height}x{width}: the strided "
+            f"convolution {convs[0]} sees a one-pixel-wide map, whose bf16 weight gradient PyTorch's CPU "
+            "kernel returns as NaN at random; use a wider data.width or train.amp=none"
+        )
 
 
 def _dataset(
