@@ -22,6 +22,7 @@ import tempfile
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+GIT = ["git", "-C", str(ROOT)]
 RATE = re.compile(r"(.+?) ([0-9.]+)$")
 
 
@@ -80,12 +81,11 @@ def table(results: list[tuple[dict, dict]]) -> str:
 
 def this_checkout() -> str:
     """This checkout's commit, marked when the working tree differs from it."""
-    git = ["git", "-C", str(ROOT)]
     head = subprocess.run(
-        [*git, "rev-parse", "--short", "HEAD"], capture_output=True, text=True
+        [*GIT, "rev-parse", "--short", "HEAD"], capture_output=True, text=True
     ).stdout.strip()
     dirty = subprocess.run(
-        [*git, "status", "--porcelain", "--untracked-files=no"], capture_output=True, text=True
+        [*GIT, "status", "--porcelain", "--untracked-files=no"], capture_output=True, text=True
     )
     return head + (" with uncommitted changes" if dirty.stdout.strip() else "")
 
@@ -101,9 +101,8 @@ def main(argv: list[str] | None = None) -> int:
     script_args = args.args[1:] if args.args[:1] == ["--"] else args.args
     with tempfile.TemporaryDirectory(prefix="msdepth-ab-") as tmp:
         tree = Path(tmp) / "base"
-        git = ["git", "-C", str(ROOT)]
         add = subprocess.run(
-            [*git, "worktree", "add", "--detach", str(tree), args.base], capture_output=True, text=True
+            [*GIT, "worktree", "add", "--detach", str(tree), args.base], capture_output=True, text=True
         )
         if add.returncode:
             print(f"error: {args.base}: cannot check it out: {add.stderr.strip()}", file=sys.stderr)
@@ -113,7 +112,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"A/B of {command}: base {args.base}, this {this_checkout()}")
             print(table(rounds(tree, args.script, script_args, args.rounds)))
         finally:
-            subprocess.run([*git, "worktree", "remove", "--force", str(tree)], capture_output=True)
+            subprocess.run([*GIT, "worktree", "remove", "--force", str(tree)], capture_output=True)
     return 0
 
 

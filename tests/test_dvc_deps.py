@@ -7,10 +7,12 @@ dvc.yaml is what it writes, and the import tracing itself on a toy package.
 from __future__ import annotations
 
 import ast
+import subprocess
 from pathlib import Path
 
 import pytest
 import yaml
+from conftest import dvc_status
 
 from msdepth.errors import DataError
 from msdepth.pipeline import paths as pipeline
@@ -241,21 +243,20 @@ def stale_lock_entries(root: Path) -> list[str]:
     """Why ``root``'s dvc.lock is not the one `dvc repro` would commit (empty if it is): a locked dep
     that git tracks (code, split lists) or a locked param whose current value differs from the lock.
     Deps that are other stages' outputs and are simply not built here ("deleted") are not stale."""
-    import json
-    import subprocess
-
-    shell = dict(cwd=root, capture_output=True, text=True, check=False)
-    tracked = set(subprocess.run(["git", "ls-files"], **shell).stdout.split())
-    status = subprocess.run(["dvc", "status", "--json"], **shell)
-    if status.returncode != 0:
-        return [f"dvc status failed: {status.stderr.strip()[-300:]}"]
+    listed = subprocess.run(["git", "ls-files"], cwd=root, capture_output=True, text=True, check=True)
+    tracked = set(listed.stdout.split())
+    changed_deps = [
+        (stage, change["changed deps"])
+        for stage, changes in dvc_status(root).items()
+        for change in changes
+        if isinstance(change, dict) and "changed deps" in change
+    ]
     stale = []
-    for stage, changes in json.loads(status.stdout or "{}").items():
-        for change in changes if isinstance(changes, list) else []:
-            for path, state in (change.get("changed deps", {}) if isinstance(change, dict) else {}).items():
-                under_git = path in tracked or any(f.startswith(path.rstrip("/") + "/") for f in tracked)
-                if isinstance(state, dict) or (under_git and state != "deleted"):
-                    stale.append(f"{stage}: {path} {state}")
+    for stage, deps in changed_deps:
+        for path, state in deps.items():
+            under_git = path in tracked or any(f.startswith(path.rstrip("/") + "/") for f in tracked)
+            if isinstance(state, dict) or (under_git and state != "deleted"):  # dict: params.yaml's keys
+                stale.append(f"{stage}: {path} {state}")
     return stale
 
 

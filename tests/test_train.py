@@ -189,7 +189,8 @@ def test_host_sync_interval() -> None:
 
 def _bf16_params(**train) -> Params:
     # 32 x 96: the encoder's last strided convolution sees a 2-px-wide map (at 64 wide, 1 px: refused).
-    return dataclasses.replace(_params(**train), data=dataclasses.replace(_params().data, width=96))
+    params = _params(**train)
+    return dataclasses.replace(params, data=dataclasses.replace(params.data, width=96))
 
 
 def test_bf16_autocast_and_channels_last_train_on_cpu(pairs, tmp_path: Path) -> None:

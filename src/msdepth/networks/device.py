@@ -21,8 +21,8 @@ def one_pixel_wide_strided_convs(model: torch.nn.Module, height: int, width: int
     ``width`` image (found by one no-grad forward in eval mode, so no running statistic moves).
 
     Why: PyTorch 2.13's CPU kernel for the bf16 weight gradient of a 3x3 stride-2 convolution on
-    a one-pixel-wide input returns NaN at random (uninitialised memory: 15-60 % of calls measured
-    on an AVX-512-BF16 EPYC, never in fp32, never at widths of 2 or more), so a bf16 CPU run at
+    a one-pixel-wide input returns NaN at random (uninitialised memory: 10-81 % of calls, by shape,
+    measured on an AVX-512-BF16 EPYC; never in fp32, never at widths of 2 or more), so a bf16 CPU run at
     such a size ends in NaN weights.
     """
     found: list[str] = []
