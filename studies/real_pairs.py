@@ -42,11 +42,15 @@ a side, as the optimum and the cost start, it is the paired bootstrap over units
 - each ROI class (car, windshield, glass, sign): the hand-drawn boxes of
   ``data_lists/kitti2015_rois.csv`` on the KITTI 2015 frames that hold GT
   (:func:`msdepth.evaluation.suites.evaluate_roi`, cap 80 m, as ``studies/real_rois.py``);
-- ``reflective``: KITTI 2012 has two frames, too few units, so the units are the 32x32 px tiles
-  of its frames that hold at least 50 reflective GT pixels (:func:`tile_units`; a tile's abs_rel
-  over its reflective GT pixels).
+- ``reflective`` (and any exact class a pair carries): the frames that hold at least
+  ``CLASS_PIXELS`` GT pixels of it, each frame's abs_rel over those pixels. Neighbouring pixels or
+  tiles of one car are not independent samples of reflective surfaces, so the frame is the unit.
 
-A row over fewer than ``verdict.MIN_UNITS`` units is not written. ``--weights`` restricts the
+A class with fewer than ``verdict.MIN_UNITS`` units gets a row without an interval (``low`` and
+``high`` null) whose method says how many units it has. Each row records the two variants'
+settings (``settings``): the compare stage shows a row made under other settings apart. The
+networks of one seed are paired (the same seeds in both variants: the same initial weights and
+batches, :mod:`msdepth.training.pairing`) and compared seed pair by seed pair. ``--weights`` restricts the
 sweep (e.g. ``--weights 10``); ``--models`` names the trained networks' folder (the pipeline's
 ``models``)::
 
@@ -85,15 +89,23 @@ from msdepth.io import OutputPolicy, write_json, write_text  # noqa: E402
 from msdepth.optimum.sgbm import sgbm_disparity  # noqa: E402
 from msdepth.optimum.solver import optimum_disparities  # noqa: E402
 from msdepth.optimum.starts import matched_disparity  # noqa: E402
+from msdepth.reporting.compare import variant_settings  # noqa: E402
 from msdepth.reporting.stats import paired_table, seed_bootstrap  # noqa: E402
-from msdepth.reporting.verdict import FULL_FRAME, METRIC, MIN_UNITS, class_order, read_external_rows  # noqa: E402
+from msdepth.reporting.verdict import (  # noqa: E402
+    FULL_FRAME,
+    METRIC,
+    MIN_UNITS,
+    class_order,
+    read_external_rows,
+    settings_label,
+)
 
 ROOT = Path(__file__).resolve().parents[1]
 CAP, MIN_DEPTH = 80.0, 1e-3
 FRAMES = ("000000_10", "000001_10")
 REPORT, VERDICT = "real_pairs.md", "verdict.json"
 ROIS_CSV = ROOT / "data_lists" / "kitti2015_rois.csv"
-TILE, TILE_PIXELS = 32, 50  # reflective units: 32x32 px tiles with at least 50 reflective GT px
+CLASS_PIXELS = 50  # an exact class (reflective) counts a frame as its unit from this many GT px
 COST_START = "cost start"  # the matcher's instrument (the pipeline's verdict has no matcher row)
 NETWORKS = "stereo networks"  # the trained networks' instrument (as the pipeline names its own)
 MODEL_FILE = "model.pt"  # --models DIR: DIR/<variant>/seed<S>/model.pt
@@ -307,33 +319,16 @@ def score_pairs(pairs: list[RealPair], results: list[Results]) -> list[dict]:
 # --- the verdict's rows: MS-SSIM − SSIM per instrument and class, over units ---------------------
 
 
-def tile_units(
-    mask: np.ndarray, tile: int = TILE, min_pixels: int = TILE_PIXELS
-) -> list[tuple[slice, slice]]:
-    """The ``tile`` x ``tile`` px tiles of a grid from the top-left corner (those at the right and
-    bottom edges may be smaller) that hold at least ``min_pixels`` pixels of ``mask``, row by row."""
-    height, width = mask.shape
-    out = []
-    for y in range(0, height, tile):
-        for x in range(0, width, tile):
-            box = (slice(y, min(y + tile, height)), slice(x, min(x + tile, width)))
-            if int(mask[box].sum()) >= min_pixels:
-                out.append(box)
-    return out
-
-
-def tile_values(pair: RealPair, disparity: np.ndarray, cls: str) -> list[dict]:
-    """Per tile of :func:`tile_units` over ``cls``'s scored GT pixels, abs_rel on those pixels."""
+def class_values(pair: RealPair, disparity: np.ndarray, cls: str) -> list[dict]:
+    """The frame as ``cls``'s one unit: its abs_rel over the class's scored GT pixels; [] where the
+    frame holds fewer than CLASS_PIXELS of them."""
     mask = evaluated(pair, pair.classes[cls])
+    if int(mask.sum()) < CLASS_PIXELS:
+        return []
     gt_depth = disparity_to_depth(pair.gt_disp, pair.focal, pair.baseline)
     pred = clamp_depth(capped_depth(pair, disparity), MIN_DEPTH, CAP)
-    rows = []
-    for box in tile_units(mask):
-        inside = mask[box]
-        errors = compute_errors(gt_depth[box][inside], pred[box][inside])
-        unit = f"{pair.label} y{box[0].start} x{box[1].start}"
-        rows.append({"class": cls, "unit": unit, METRIC: errors[METRIC]})
-    return rows
+    errors = compute_errors(gt_depth[mask], pred[mask])
+    return [{"class": cls, "unit": pair.label, METRIC: errors[METRIC]}]
 
 
 def roi_values(pairs: list[RealPair], results: list[Results], method: str, boxes: pd.DataFrame) -> list[dict]:
@@ -361,7 +356,7 @@ def unit_table(
     pairs: list[RealPair], results: list[Results], method: str, boxes: pd.DataFrame
 ) -> pd.DataFrame:
     """``method``'s abs_rel per unit (columns class, unit, abs_rel): each pair as the full frame,
-    each box with GT under its class, each tile of every exact class (KITTI 2012's reflective)."""
+    each box with GT under its class, each frame of every exact class (KITTI 2012's reflective)."""
     rows = []
     for pair, by_method in zip(pairs, results, strict=True):
         disparity = by_method[method][0]
@@ -369,7 +364,7 @@ def unit_table(
         if found is not None:
             rows.append({"class": FULL_FRAME, "unit": pair.label, METRIC: found[METRIC]})
         for cls in pair.classes:
-            rows += tile_values(pair, disparity, cls)
+            rows += class_values(pair, disparity, cls)
     rows += roi_values(pairs, results, method, boxes)
     return pd.DataFrame(rows, columns=["class", "unit", METRIC])
 
@@ -381,22 +376,21 @@ def unit_words(cls: str, pairs: list[RealPair]) -> str:
         return f"the pairs ({names}; the object pair's GT is LiDAR)"
     if any(cls in p.classes for p in pairs):
         names = ", ".join(p.label for p in pairs if cls in p.classes)
-        return (
-            f"{TILE}x{TILE} px tiles with >= {TILE_PIXELS} {cls} GT px ({names}; two frames are too "
-            f"few units), a tile's abs_rel over its {cls} GT px"
-        )
+        return f"the frames with >= {CLASS_PIXELS} {cls} GT px ({names}), a frame's abs_rel over them"
     names = ", ".join(p.label for p in pairs if p.roi_frame is not None)
     return f"the hand-drawn ROIs with GT ({names}; {ROIS_CSV.name})"
 
 
-def unit_method(cls: str, pairs: list[RealPair], seeds: tuple[int, int] | None = None) -> str:
-    """How a verdict row of ``cls`` was made, in words (the row's ``method``): over its units, and
-    with ``seeds`` (the variant's and the reference's counts) over each side's seeds as well."""
-    if seeds is None:
-        return f"real pairs: paired bootstrap over {unit_words(cls, pairs)}"
+def unit_method(cls: str, pairs: list[RealPair], seeds: int = 0, n: int = MIN_UNITS) -> str:
+    """How a verdict row of ``cls`` was made, in words (the row's ``method``): over its units, with
+    ``seeds`` seed pairs as well (networks); with ``n`` below MIN_UNITS units, why it has no interval."""
+    units = unit_words(cls, pairs)
+    if n < MIN_UNITS:
+        return f"real pairs: no interval, {n} independent units (fewer than {MIN_UNITS}): {units}"
+    if not seeds:
+        return f"real pairs: paired bootstrap over {units}"
     return (
-        f"real pairs: paired bootstrap over units and seeds ({seeds[0]} and {seeds[1]}); "
-        f"the units: {unit_words(cls, pairs)}"
+        f"real pairs: paired by seed ({seeds} pairs), bootstrap over seed pairs and units; the units: {units}"
     )
 
 
@@ -419,12 +413,14 @@ def difference_rows(
     reference: str,
     instrument: str,
     cfg: CompareConfig,
+    settings: str = "",
 ) -> list[dict]:
     """Per class, each variant of ``runs`` minus ``reference`` in abs_rel over the class's units
-    (:func:`unit_table`) and each side's runs, by :func:`~msdepth.reporting.stats.seed_bootstrap` at
-    ``cfg``'s settings (one run each: the paired bootstrap over units, draw for draw); a class with
-    fewer than MIN_UNITS units is left out. A row is named ``instrument`` (with the variant after a
-    comma where several are compared, as the pipeline names them)."""
+    (:func:`unit_table`) and, for networks, their seed pairs (runs listed in seed order, the same
+    seeds a side): :func:`~msdepth.reporting.stats.seed_bootstrap` at ``cfg``'s settings, paired.
+    A class with fewer than MIN_UNITS units gets its mean difference without an interval. A row is
+    named ``instrument`` (with the variant after a comma where several are compared, as the
+    pipeline names them) and records ``settings``."""
     boxes = read_annotation(ROIS_CSV)
     tables = {m: unit_table(pairs, results, m, boxes) for methods in runs.values() for m in methods}
     anchor = runs[reference][0]
@@ -434,13 +430,17 @@ def difference_rows(
         ref = unit_matrix(tables, runs[reference], anchor, cls)
         for variant in others:
             values = unit_matrix(tables, runs[variant], anchor, cls)
-            if values.shape[1] < MIN_UNITS:
-                continue
-            d = seed_bootstrap(values, ref, cfg.bootstrap_samples, cfg.confidence, cfg.seed)
-            seeds = (len(values), len(ref)) if max(len(values), len(ref)) > 1 else None
             name = instrument if len(others) == 1 else f"{instrument}, {variant}"
-            rows.append({"instrument": name, "class": cls, "diff": d.mean, "low": d.low, "high": d.high,
-                         "n": int(d.n), "method": unit_method(cls, pairs, seeds)})  # fmt: skip
+            n, seeds = values.shape[1], len(values) if len(values) > 1 else 0
+            row = {"instrument": name, "class": cls, "n": int(n), "method": unit_method(cls, pairs, seeds, n)}
+            if n < MIN_UNITS:
+                row |= {"diff": float((values - ref).mean()), "low": None, "high": None}
+            else:
+                d = seed_bootstrap(values, ref, cfg.bootstrap_samples, cfg.confidence, cfg.seed, paired=True)
+                row |= {"diff": d.mean, "low": d.low, "high": d.high}
+                if d.t_low is not None:
+                    row |= {"t_low": d.t_low, "t_high": d.t_high, "seeds": seeds}
+            rows.append(row | ({"settings": settings} if settings else {}))
     return rows
 
 
@@ -451,6 +451,7 @@ def verdict_rows(
     labels: tuple[str, str],
     weights: Sequence[float],
     networks: Runs | None = None,
+    settings: str = "",
 ) -> list[dict]:
     """The rows of ``verdict.json`` (:mod:`msdepth.reporting.verdict`'s external schema): per
     instrument and class, ``labels[0]`` minus ``labels[1]`` (methods' labels) for the cost start and
@@ -459,9 +460,9 @@ def verdict_rows(
     rows = []
     for instrument in [COST_START, *(optimum_name(w) for w in weights)]:
         runs = {label: [f"{label} {instrument}"] for label in labels}
-        rows += difference_rows(pairs, results, runs, labels[1], instrument, cfg)
+        rows += difference_rows(pairs, results, runs, labels[1], instrument, cfg, settings)
     if networks:
-        rows += difference_rows(pairs, results, networks, cfg.reference, NETWORKS, cfg)
+        rows += difference_rows(pairs, results, networks, cfg.reference, NETWORKS, cfg, settings)
     return rows
 
 
@@ -557,7 +558,7 @@ def report(
         f"{torch.get_num_threads()}; load average {loads[0][0]:.1f} at the start, {loads[1][0]:.1f} at "
         "the end (seconds are indicative). Class `all`: every GT pixel; `reflective`: KITTI 2012's "
         "disp_refl_occ pixels (msdepth.data.kitti2012). The verdict's rows (MS-SSIM − SSIM per "
-        "instrument and class, over pairs, hand-drawn ROIs and reflective tiles) are in `verdict.json`, "
+        "instrument and class, over pairs, hand-drawn ROIs and reflective frames) are in `verdict.json`, "
         f"from the same disparities.{words}",
         "",
         "## Means over the pairs",
@@ -604,9 +605,10 @@ def main(argv: list[str] | None = None) -> int:
     weights = [float(w) for w in args.weights.split(",")] if args.weights else params.optimum.smoothness_sweep
     files = model_files(args.models, params.variants) if args.models else {}
     for variant, by_seed in files.items():
-        if list(by_seed) != list(params.train.seeds):
+        if list(by_seed) != list(params.train.seeds):  # the networks are compared seed pair by seed pair
             print(f"--models: {variant} has seeds {list(by_seed)}, train.seeds {list(params.train.seeds)}",
                   file=sys.stderr)  # fmt: skip
+            return 1
     pairs, absent = real_pairs(args.samples)
     if not pairs:
         print(f"{args.samples}: no real pair at hand ({', '.join(absent)} absent)", file=sys.stderr)
@@ -618,7 +620,8 @@ def main(argv: list[str] | None = None) -> int:
     words = network_words(files, params.eval.post_process)
     text = report(score_pairs(pairs, results), pairs, absent, args.size, loads, networks, words)
     write_text(args.out / REPORT, text)
-    rows = verdict_rows(pairs, results, params.compare, labels, weights, networks)
+    settings = settings_label(variant_settings(params), [params.compare.reference, "msssim"])
+    rows = verdict_rows(pairs, results, params.compare, labels, weights, networks, settings)
     write_json(args.out / VERDICT, rows)
     read_external_rows(args.out / VERDICT)  # the compare stage's reader: the schema holds
     print(text)

@@ -1,10 +1,11 @@
 """studies/real_pairs.py end to end on a tiny fake samples folder (the real-samples layout with
 tiny synthetic frames, as tests/test_matcher.py's starts study test), on the shared real pairs
 (``../shared/real-samples``; skipped where it is absent) for its verdict rows, and its reflective
-tiles on a hand-made mask."""
+units (frames) on a hand-made mask."""
 
 from __future__ import annotations
 
+import dataclasses
 import subprocess
 import sys
 from pathlib import Path
@@ -53,24 +54,20 @@ def test_real_pairs_study_on_a_tiny_fake_samples_folder(tmp_path):
     assert (out / "verdict.json").is_file()  # claimed beside the report: the second run replaced it
 
 
-def test_a_tile_is_a_unit_when_it_holds_enough_pixels_of_the_class(monkeypatch):
-    """The reflective units: 32x32 tiles from the top-left corner, the edge tiles smaller, each
-    counted when it holds at least 50 pixels of the mask."""
+def test_a_frame_is_the_unit_of_an_exact_class(monkeypatch):
+    """Reflective units are frames, never tiles of one car: a frame with at least CLASS_PIXELS
+    scored pixels of the class is one unit (its abs_rel over them), one with fewer is none."""
     monkeypatch.syspath_prepend(str(ROOT / "studies"))
-    from real_pairs import tile_units
+    from real_pairs import CLASS_PIXELS, RealPair, class_values
 
-    mask = np.zeros((70, 100), bool)  # tiles: rows at 0, 32, 64 (6 px high); columns at 0, 32, 64, 96 (4 px)
-    mask[0:5, 0:10] = True  # 50 px in tile (0, 0): a unit
-    mask[0:7, 32:39] = True  # 49 px in tile (0, 32): not one
-    mask[32:64, 64:96] = True  # a whole tile: a unit
-    mask[64:70, 0:9] = True  # 54 px in the bottom edge tile (0..32 wide, 6 high): a unit
-    mask[32:70, 96:100] = True  # 128 px over two right edge tiles, 32x4 (128) and 6x4 (24): the first
-    starts = [(box[0].start, box[1].start) for box in tile_units(mask)]
-    assert starts == [(0, 0), (32, 64), (32, 96), (64, 0)]
-    edge = tile_units(mask)[-1]
-    assert (edge[0].stop, edge[1].stop) == (70, 32)
-    assert len(tile_units(mask, min_pixels=49)) == 5
-    assert tile_units(mask, tile=100, min_pixels=2000) == []  # one 70x100 tile holds 1,329 px
+    gt = np.full((40, 60), 20.0, np.float32)  # px of disparity everywhere
+    mask = np.zeros(gt.shape, bool)
+    mask[:10, : CLASS_PIXELS // 10] = True  # exactly CLASS_PIXELS px
+    pair = RealPair("2012 x", "disp_occ+refl", gt, gt, gt, 700.0, 0.5, {"reflective": mask})
+    (unit,) = class_values(pair, gt * 1.25, "reflective")  # disparity 25 % high: depth 20 % low
+    assert unit["unit"] == "2012 x" and unit["abs_rel"] == pytest.approx(0.2, abs=1e-6)
+    mask[0, 0] = False
+    assert class_values(pair, gt, "reflective") == []
 
 
 @pytest.mark.skipif(not SAMPLES.is_dir(), reason=f"{SAMPLES} absent (a clone without ../shared)")
@@ -92,12 +89,24 @@ def test_the_verdict_rows_of_the_shared_real_pairs(tmp_path, monkeypatch):
     assert [(r.instrument, r.cls) for r in rows] == [
         (i, c) for i in ("cost start", "optimum w10") for c in classes
     ]
-    assert all(r.n >= MIN_UNITS for r in rows)
+    assert all(r.n >= MIN_UNITS and r.has_interval for r in rows if r.cls != "reflective")
     assert {r.n for r in rows if r.cls == FULL_FRAME} == {5}  # the object pair, 2 KITTI 2015 and 2 KITTI 2012
-    assert "tiles" in next(r for r in rows if r.cls == "reflective").method
+    # Reflective: the two KITTI 2012 frames are its units, too few for an interval.
+    reflective = next(r for r in rows if r.cls == "reflective")
+    assert (
+        reflective.n == 2
+        and not reflective.has_interval
+        and "no interval, 2 independent" in reflective.method
+    )
+    assert all(r.settings.startswith("msssim: kernel_size=3") for r in rows)
     assert POOLABLE.match("optimum w10") and not POOLABLE.match("cost start")
-    pipeline = Row("optimum w10", "car", 0.0, -0.01, 0.01, 9, "paired bootstrap over ROIs", "optimum")
+    same = rows[0].settings
+    pipeline = Row(
+        "optimum w10", "car", 0.0, -0.01, 0.01, 9, "paired bootstrap over ROIs", "optimum", settings=same
+    )
     assert [(r.instrument, r.cls) for r in pooled_rows([*rows, pipeline])] == [("optimum w10, pooled", "car")]
+    other = dataclasses.replace(pipeline, settings=same.replace("kernel_size=3", "kernel_size=7", 1))
+    assert pooled_rows([*rows, other]) == []  # never pooled across settings
 
 
 @pytest.mark.skipif(not SAMPLES.is_dir(), reason=f"{SAMPLES} absent (a clone without ../shared)")
@@ -114,6 +123,7 @@ def test_the_trained_networks_on_the_shared_real_pairs(tmp_path, monkeypatch):
             save_tiny_model(tmp_path / "models" / variant / f"seed{seed}" / "model.pt")
     tiny = ["optimum.iterations=2", "optimum.levels=1", "optimum.start=constant"]
     args = ["--samples", str(SAMPLES), "--size", "48x160", "--weights", "10", "--out", str(tmp_path / "out")]
+    tiny.append("train.seeds=[0,1]")
     assert main([*args, "--models", str(tmp_path / "models"), *(x for s in tiny for x in ("--set", s))]) == 0
     text = (tmp_path / "out" / "real_pairs.md").read_text(encoding="utf-8")
     for method in ("network ssim seed0", "network ssim seed1", "network msssim seed1"):
@@ -127,6 +137,7 @@ def test_the_trained_networks_on_the_shared_real_pairs(tmp_path, monkeypatch):
         r for r in read_external_rows(tmp_path / "out" / "verdict.json") if r.instrument == "stereo networks"
     ]
     assert [r.cls for r in rows] == [FULL_FRAME, "car", "windshield", "glass", "sign", "reflective"]
-    assert all(r.method.startswith("real pairs:") and "units and seeds (2 and 2)" in r.method for r in rows)
+    paired = [r for r in rows if r.has_interval]
+    assert len(paired) == 5 and all("paired by seed (2 pairs)" in r.method for r in paired)
     assert rows[0].label == "stereo networks, real pairs" and rows[0].n == 5
     assert all(r.diff == 0 for r in rows)  # the same tiny model for every variant and seed

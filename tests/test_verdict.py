@@ -3,6 +3,7 @@ reader, the pooling rule and the sentences, on hand-made numbers with known answ
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -13,12 +14,15 @@ import pytest
 from msdepth.config.params import CompareConfig
 from msdepth.errors import DataError
 from msdepth.evaluation.metrics import METRICS
+from msdepth.reporting.power import t_quantile
 from msdepth.reporting.verdict import (
     FULL_FRAME,
     MIN_UNITS,
     Row,
     class_sentence,
     display_names,
+    headline_instruments,
+    interval_cell,
     network_rows,
     optimum_rows,
     parse_monocular_table,
@@ -26,7 +30,7 @@ from msdepth.reporting.verdict import (
     read_external_rows,
     read_monocular,
     seed_rows,
-    t_quantile,
+    summary_lines,
     verdict_data,
     verdict_lines,
     welch_interval,
@@ -112,7 +116,11 @@ def test_monocular_json_per_seed_and_a_bad_table(tmp_path: Path) -> None:
     seeds = {"ssim": {"car": [0.3, 0.4, 0.5]}, "msssim": {"car": [0.2, 0.3, 0.4]}}
     path.write_text(json.dumps({"seeds": [0, 1, 2], "modes": {"mono": seeds}}))
     stats = read_monocular(path, tmp_path / "absent.md")
-    assert stats["mono"]["ssim"]["car"] == pytest.approx((0.4, 0.1, 3))
+    assert stats["mono"]["ssim"]["car"] == pytest.approx([0.3, 0.4, 0.5])
+    # Per-seed values of the same seeds are pairs: the paired t over the differences (all -0.1: 0 wide).
+    (row,) = seed_rows(stats, "ssim", 0.95)
+    assert row.method.startswith("paired by seed (3 pairs)") and row.seeds == 3
+    assert (row.diff, row.low, row.high) == pytest.approx((-0.1, -0.1, -0.1))
     assert read_monocular(tmp_path / "none.json", tmp_path / "none.md") == {}
     bad = tmp_path / "table.md"
     bad.write_text(
@@ -131,7 +139,12 @@ GOOD = {"instrument": "optimum w10", "class": "windshield", "diff": -0.02, "low"
     [
         ("{not json", "not readable as JSON"),
         ('{"rows": []}', "needs a JSON list of rows"),
-        (json.dumps([{**GOOD, "n": 3}]), "needs exactly the keys"),
+        (json.dumps([{**GOOD, "n": 3}]), "needs the keys"),
+        (json.dumps([{**GOOD, "n": 3, "method": "m", "extra": 1}]), "needs the keys"),
+        (
+            json.dumps([{**GOOD, "n": 3, "method": "m", "low": None}]),
+            "low and high are both numbers or both null",
+        ),
         (json.dumps([{**GOOD, "n": 3, "method": "m", "low": 0.0}]), "needs low <= diff <= high"),
         (json.dumps([{**GOOD, "n": 0, "method": "m"}]), "n must be a positive integer"),
         (json.dumps([{**GOOD, "n": 3, "method": "m", "diff": "x"}]), "diff must be a finite number"),
@@ -204,7 +217,7 @@ def test_sentences_from_known_rows() -> None:
     data = verdict_data(rows, 80.0, 0.95, "MS-SSIM", "SSIM")
     assert data["classes"] == ["car", "windshield"] and list(data["sentences"]) == data["classes"]
     md = "\n".join(verdict_lines(data))
-    assert "| car | optimum w30 | +0.100 [+0.040, +0.160] * | 8 | m |" in md
+    assert "| car | optimum w30 | +0.100 [+0.040, +0.160] * | – | 8 ROIs | m |" in md
 
 
 def test_the_verdict_figure_is_a_png_with_and_without_rows(tmp_path: Path) -> None:
@@ -276,3 +289,60 @@ def test_an_external_reflective_row_gets_its_panel_after_the_known_classes(tmp_p
         "intervals excluding 0: optimum w10, another study (lower)."
     )
     assert verdict_figure(data, tmp_path / "v.png").read_bytes()[:4] == b"\x89PNG"
+
+
+def test_a_row_without_an_interval_is_counted_but_never_excludes_or_pools(tmp_path: Path) -> None:
+    """A class with fewer independent units than MIN_UNITS (one real frame) has no interval: its
+    row says so, is never marked and never pooled."""
+    path = tmp_path / "verdict.json"
+    bare = {**GOOD, "class": "reflective", "low": None, "high": None, "n": 1, "method": "real pairs: 1 frame"}
+    path.write_text(json.dumps([bare]))
+    (row,) = read_external_rows(path)
+    assert not row.has_interval and not row.excludes_zero
+    assert interval_cell(row) == "\u22120.020 (no interval)"
+    pipeline = Row("optimum w10", "reflective", -0.03, -0.05, -0.01, 40, "m", "optimum")
+    assert pooled_rows([row, pipeline]) == []
+    assert "no interval (too few independent units): optimum w10, real pairs (n=1)" in class_sentence(
+        "reflective", [row]
+    )
+
+
+def test_rows_of_other_settings_are_shown_apart_and_never_pooled() -> None:
+    """After `dvc exp run -S msssim.kernel_size=7` a study's committed k=3 rows stay apart."""
+    k3, k7 = "msssim: kernel_size=3; ssim: kernel_size=3", "msssim: kernel_size=7; ssim: kernel_size=3"
+    rows = [
+        Row("optimum w10", "car", -0.02, -0.03, -0.01, 40, "m", "optimum", settings=k7),
+        Row("optimum w10", "car", -0.05, -0.06, -0.04, 16, "real pairs: ROIs", "external", settings=k3),
+        Row("mono networks", "car", -0.01, -0.02, 0.0, 3, "m", "seeds"),  # no settings recorded
+    ]
+    data = verdict_data(rows, 80.0, 0.95, "MS-SSIM", "SSIM", settings=k7)
+    kept = [Row.from_dict(d) for d in data["rows"]]
+    assert [r.apart for r in kept] == ["", f"made with {k3}", "its settings are not recorded"]
+    assert not any(r.kind == "pooled" for r in kept)  # the k=3 real row is not pooled with k=7
+    assert data["sentences"]["car"].startswith("car: MS-SSIM's error is lower in 1 of 1 instrument")
+    md = "\n".join(verdict_lines(data))
+    assert "Made under other settings" in md and f"made with {k3}" in md
+    # Under the same settings the two optimum rows pool.
+    same = verdict_data(
+        [rows[0], dataclasses.replace(rows[1], settings=k7)], 80.0, 0.95, "MS-SSIM", "SSIM", k7
+    )
+    assert [d["kind"] for d in same["rows"]][-1] == "pooled"
+
+
+def test_the_summary_table_holds_each_familys_headline_instrument() -> None:
+    rows = [
+        Row(
+            "stereo networks", "windshield", -0.036, -0.068, -0.002, 66, "paired by seed", "network", seeds=3
+        ),
+        Row("optimum w10", "windshield", -0.01, -0.03, 0.01, 66, "m", "optimum"),
+        Row("optimum w3", "windshield", -0.05, -0.07, -0.03, 66, "m", "optimum"),
+    ]
+    data = verdict_data(rows, 80.0, 0.95, "MS-SSIM", "SSIM", headline=headline_instruments(10.0))
+    cells = data["summary"]["windshield"]
+    assert cells["networks"]["diff"] == -0.036 and cells["loss's own optimum"]["instrument"] == "optimum w10"
+    assert cells["real pairs"] is None
+    lines = summary_lines(data)
+    assert lines[2] == (
+        "| windshield | \u22120.036 [\u22120.068, \u22120.002] *, n = 66 ROIs × 3 seed pairs | "
+        "\u22120.010 [\u22120.030, +0.010], n = 66 ROIs | – |"
+    )

@@ -5,9 +5,10 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
+import re
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Sequence
+from typing import Callable, Mapping, Sequence
 
 import numpy as np
 import pandas as pd
@@ -90,54 +91,106 @@ def _unit_matrix(
     return np.stack([paired_table(anchor, tables[r], keys, metric, f"{what} ({r})")[1] for r in runs])
 
 
+SEED_RUN = re.compile(r"/(seed\d+)$")  # a variant's run, "<variant>/seed<S>"
+
+
+def pairing_status(
+    groups: Mapping[str, Sequence[str]], reference: str, summaries: Mapping[str, Mapping]
+) -> dict[str, str | None]:
+    """Per group other than ``reference``: None when its runs pair seed by seed with the
+    reference's (the same seeds, and every pair's training summaries record the same initial
+    weights and first batch: :mod:`msdepth.training.pairing`), else why they do not.
+
+    Example:
+        >>> rec = {"pairing": {"initial_weights_sha256": "a", "first_batch_sha256": "b"}}
+        >>> pairing_status({"ssim": ["ssim/seed0"], "msssim": ["msssim/seed0"]}, "ssim",
+        ...                {"ssim/seed0": rec, "msssim/seed0": rec})
+        {'msssim': None}
+    """
+
+    def records(runs: Sequence[str]) -> dict[str, dict | None] | None:
+        keys = [SEED_RUN.search(r) for r in runs]
+        if not all(keys):
+            return None
+        return {k.group(1): (summaries.get(r) or {}).get("pairing") for k, r in zip(keys, runs, strict=True)}
+
+    ref = records(groups[reference])
+    out: dict[str, str | None] = {}
+    for name, runs in groups.items():
+        if name == reference:
+            continue
+        own = records(runs)
+        if own is None or ref is None:
+            out[name] = "a baseline is one deterministic run, not a seed of a variant"
+        elif sorted(own) != sorted(ref):
+            out[name] = "the two variants were trained with different seeds"
+        else:
+            out[name] = _record_mismatch(own, ref)
+    return out
+
+
+def _record_mismatch(own: Mapping[str, dict | None], ref: Mapping[str, dict | None]) -> str | None:
+    """The first seed whose two pairing records disagree, in words; None when all agree."""
+    for key in sorted(own):
+        a, b = own[key], ref[key]
+        if not a or not b:
+            return f"{key}: a training summary keeps no pairing record (trained by an older version)"
+        if a.get("initial_weights_sha256") != b.get("initial_weights_sha256"):
+            return f"{key}: the initial weights differ"
+        if a.get("first_batch_sha256") != b.get("first_batch_sha256"):
+            return f"{key}: the first training batches differ"
+    return None
+
+
 def paired_statistics(
     tables: dict[str, dict[str, pd.DataFrame]],
     groups: dict[str, Sequence[str]],
     cfg: CompareConfig,
     caps: Sequence[float],
+    pairing: Mapping[str, str | None] | None = None,
 ) -> dict:
     """``{suite: {capN: {group: {metric: PairedDifference dict}}}}`` of every group against ``cfg.reference``.
 
     ``groups`` maps a variant to its runs (one per seed) and a baseline to its one run; the
     reference's runs and each group's runs enter :func:`msdepth.reporting.stats.seed_bootstrap` as rows.
+    ``pairing`` (:func:`pairing_status`) says which groups pair seed by seed with the reference
+    (None: paired): their seed pairs are drawn jointly, the others' seeds independently. Without
+    it nothing is paired. ``stats["pairing"]`` keeps it, so every row says how it was made.
     ``tables`` holds the suites to compare (from :func:`load_unit_tables`).
     """
+    others = [g for g in groups if g != cfg.reference]
+    pairing = dict(pairing) if pairing is not None else dict.fromkeys(others, "pairing not checked")
     stats: dict = {
         "reference": cfg.reference,
         "confidence": cfg.confidence,
         "bootstrap_samples": cfg.bootstrap_samples,
+        "pairing": {g: pairing.get(g, "pairing not checked") for g in others},
     }
     for suite in tables:
         keys = UNIT_KEYS[suite]
         stats[suite] = {}
-        by_cap = {cap: {run: t[t["cap"] == cap] for run, t in tables[suite].items()} for cap in caps}
-        for cap, cap_tables in by_cap.items():
+        for cap in caps:
+            cap_tables = {run: t[t["cap"] == cap] for run, t in tables[suite].items()}
             anchor = cap_tables[groups[cfg.reference][0]]
+
+            ref_what = f"{suite} {cfg.reference}, cap {cap:g}"
             reference = {
-                metric: _unit_matrix(
-                    cap_tables,
-                    groups[cfg.reference],
-                    anchor,
-                    keys,
-                    metric,
-                    f"{suite} {cfg.reference}, cap {cap:g}",
-                )
-                for metric in METRICS
+                m: _unit_matrix(cap_tables, groups[cfg.reference], anchor, keys, m, ref_what) for m in METRICS
             }
             block: dict = {}
-            for name, runs in groups.items():
-                if name == cfg.reference:
-                    continue
+            for name in others:
                 what = f"{suite} {name} vs {cfg.reference}, cap {cap:g}"
+                paired = stats["pairing"][name] is None
                 block[name] = {
-                    metric: seed_bootstrap(
-                        _unit_matrix(cap_tables, runs, anchor, keys, metric, what),
-                        reference[metric],
+                    m: seed_bootstrap(
+                        _unit_matrix(cap_tables, groups[name], anchor, keys, m, what),
+                        reference[m],
                         cfg.bootstrap_samples,
                         cfg.confidence,
                         cfg.seed,
+                        paired=paired,
                     ).as_dict()
-                    for metric in METRICS
+                    for m in METRICS
                 }
             stats[suite][f"cap{cap:g}"] = block
     return stats

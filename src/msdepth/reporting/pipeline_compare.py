@@ -39,16 +39,20 @@ from msdepth.reporting.compare import (
     monocular_data,
     optimum_data,
     paired_statistics,
+    pairing_status,
     seed_spread,
     variant_settings,
 )
 from msdepth.reporting.verdict import (
     display_names,
+    headline_instruments,
     network_rows,
     optimum_rows,
     read_external_rows,
     read_monocular,
+    read_monocular_settings,
     seed_rows,
+    settings_label,
     verdict_data,
     verdict_lines,
 )
@@ -77,7 +81,10 @@ def compare(params: Params) -> None:
     tables = load_unit_tables(METRICS, runs)
     # Without ROIs (an empty ROI index) only the full-image suite has numbers to compare.
     compared = ("full",) if all(no_rois(suites["roi"][r]) for r in runs) else ("full", "roi")
-    stats = paired_statistics({s: tables[s] for s in compared}, groups, params.compare, params.eval.caps)
+    pairing = pairing_status(groups, params.compare.reference, load_training_summaries(runs))
+    stats = paired_statistics(
+        {s: tables[s] for s in compared}, groups, params.compare, params.eval.caps, pairing
+    )
     caps = [f"cap{c:g}" for c in params.eval.caps]
     dependence = image_dependence(suites, tables, groups, "prior", params.eval.caps[0])
     comparison = comparison_data(
@@ -95,7 +102,7 @@ def compare(params: Params) -> None:
         monocular=monocular_data(suites["full"], load_training_summaries(runs), groups, caps[0]),
     )
     result, md = build_comparison(comparison)
-    result["verdict"] = verdict_section(params, groups, compared)
+    result["verdict"] = verdict_section(params, groups, compared, pairing)
     md += "\n" + "\n".join(verdict_lines(result["verdict"]))
     for name in params.eval.extra_sets:
         result.setdefault("sets", {})[name], section = compare_set(params, name, comparison.settings_label)
@@ -133,7 +140,12 @@ def optimum_section(params: Params, groups: dict[str, list[str]], compared: Sequ
     return optimum_data(suites, runs, stats, f"cap{params.eval.caps[0]:g}", skipped)
 
 
-def verdict_section(params: Params, groups: dict[str, list[str]], compared: Sequence[str]) -> dict:
+def verdict_section(
+    params: Params,
+    groups: dict[str, list[str]],
+    compared: Sequence[str],
+    pairing: dict[str, str | None] | None = None,
+) -> dict:
     """compare.json's ``verdict`` (:func:`msdepth.reporting.verdict.verdict_data`): per surface class,
     each variant minus ``compare.reference`` in abs_rel at the headline cap, by the trained networks
     (every seed), the monocular study's networks (:data:`~msdepth.pipeline.paths.MONOCULAR_TABLE`),
@@ -141,11 +153,14 @@ def verdict_section(params: Params, groups: dict[str, list[str]], compared: Sequ
     (:data:`~msdepth.pipeline.paths.REAL_VERDICT`, where it exists)."""
     cfg, cap = params.compare, params.eval.caps[0]
     variants = {v: groups[v] for v in params.variants}
+    settings = settings_label(variant_settings(params), params.variants)
     rows = []
     if len(variants) > 1:
         tables = load_unit_tables(METRICS, [r for runs in variants.values() for r in runs], compared)
-        rows += network_rows(tables, variants, cfg, cap)
-        rows += seed_rows(read_monocular(MONOCULAR_JSON, MONOCULAR_TABLE), cfg.reference, cfg.confidence)
+        rows += network_rows(tables, variants, cfg, cap, pairing=pairing, settings=settings)
+        mono = read_monocular(MONOCULAR_JSON, MONOCULAR_TABLE)
+        mono_settings = read_monocular_settings(MONOCULAR_JSON, MONOCULAR_TABLE)
+        rows += seed_rows(mono, cfg.reference, cfg.confidence, mono_settings)
         if (suite_dir("full") / OPTIMUM).is_dir():
             by_weight: dict[str, dict[str, str]] = {}
             for label, run in optimum_runs(params, METRICS).items():
@@ -154,10 +169,11 @@ def verdict_section(params: Params, groups: dict[str, list[str]], compared: Sequ
             opt_tables = load_unit_tables(
                 METRICS, [r for w in by_weight.values() for r in w.values()], compared
             )
-            rows += optimum_rows(opt_tables, by_weight, cfg, cap)
+            rows += optimum_rows(opt_tables, by_weight, cfg, cap, settings)
     rows += read_external_rows(REAL_VERDICT)
     better, than = display_names(params.variants, cfg.reference)
-    data = verdict_data(rows, cap, cfg.confidence, better, than)
+    headline = headline_instruments(params.optimum.smoothness_weight)
+    data = verdict_data(rows, cap, cfg.confidence, better, than, settings, headline)
     # Which of the monocular study's files the rows came from: the results page says how they were made.
     source = next((p for p in (MONOCULAR_JSON, MONOCULAR_TABLE) if p.is_file()), None)
     if any(r.kind == "seeds" for r in rows) and source is not None:
@@ -194,12 +210,14 @@ def compare_set(params: Params, name: str, label: Callable[[str], str] = str) ->
     suites = load_suite_metrics(root, runs, ["full"])
     tables = load_unit_tables(root, runs, ["full"])
     caps = [f"cap{c:g}" for c in params.eval.caps]
+    # The same trained networks as KITTI 2015's: paired as there (their summaries are the pipeline's).
+    pairing = pairing_status(groups, params.compare.reference, load_training_summaries(runs))
     return build_set_section(
         name,
         group_metrics(suites, groups),
         list(params.variants),
         built,
-        paired_statistics(tables, groups, params.compare, params.eval.caps),
+        paired_statistics(tables, groups, params.compare, params.eval.caps, pairing),
         seed_spread(suites, groups, caps),
         params.train.seeds,
         missing_baselines=missing,

@@ -5,19 +5,30 @@ every run, so units are paired: the statistic is the mean over units of ``metric
 metric(reference)``. With one training run per variant its interval comes from resampling the
 units with replacement (Efron's percentile bootstrap); it covers the choice of images, not
 training noise. With several seeds per variant the bootstrap is two-level: every resample draws
-the units (shared by all runs, so still paired) and, independently for each variant, its seeds
-with replacement, and averages the chosen runs. The interval then widens with seed-to-seed
-spread, so a difference that only one lucky seed produced does not exclude 0.
+the units (shared by all runs, so still paired) and the seeds with replacement, and averages the
+chosen runs. The interval then widens with seed-to-seed spread, so a difference that only one
+lucky seed produced does not exclude 0.
+
+How the seeds are drawn follows the design. Both losses train with the same seeds, and a seed
+fixes the initial weights and the data order, so seed ``s`` of one variant and seed ``s`` of the
+other differ only in the loss: they are a *pair*. With ``paired=True`` every draw picks seed pairs
+(the same index for both sides) together with the units, and :func:`paired_t` over the per-seed
+mean differences is reported beside the bootstrap: with few seeds the bootstrap's seed draw
+underestimates the spread, and the t interval is the conservative check. Without pairing (a
+deterministic baseline, runs whose initial weights or data order differ) each side's seeds are
+drawn independently.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass
 
 import numpy as np
 import pandas as pd
 
 from msdepth.errors import DataError
+from msdepth.reporting.power import t_quantile
 
 
 @dataclass(frozen=True)
@@ -31,20 +42,66 @@ class PairedDifference:
     seeds: int  # training runs of the run (1 for a deterministic baseline)
     reference_seeds: int
     excludes_zero: bool
+    paired: bool = False  # seeds drawn as pairs (same seed, both variants)
+    per_seed: tuple[float, ...] = ()  # paired: each seed pair's mean difference over the units
+    t_low: float | None = None  # paired, >= 2 seeds: the paired t interval over per_seed
+    t_high: float | None = None
 
     def as_dict(self) -> dict:
-        return asdict(self)
+        d = asdict(self)
+        d["per_seed"] = list(self.per_seed)
+        return d
+
+
+def paired_t(differences: np.ndarray, confidence: float = 0.95) -> tuple[float, float, float]:
+    """``(mean, low, high)``: Student's t interval of the mean of paired ``differences`` (one per
+    seed pair), ``len - 1`` degrees of freedom; needs at least 2.
+
+    Args:
+        differences: per pair, ``variant − reference``.
+        confidence: the interval's level, in (0, 1).
+
+    Returns:
+        The mean and the interval's ends.
+
+    Raises:
+        ValueError: fewer than 2 differences.
+
+    Example:
+        >>> mean, low, high = paired_t(np.array([-0.039, -0.014, -0.054]))
+        >>> round(mean, 3), round(low, 3), round(high, 3)
+        (-0.036, -0.086, 0.015)
+    """
+    d = np.asarray(differences, np.float64)
+    if d.ndim != 1 or len(d) < 2:
+        raise ValueError(f"paired_t: need at least 2 paired differences, got shape {d.shape}")
+    mean = float(d.mean())
+    half = t_quantile(0.5 + confidence / 2, len(d) - 1) * float(d.std(ddof=1)) / math.sqrt(len(d))
+    return mean, mean - half, mean + half
 
 
 def seed_bootstrap(
-    values: np.ndarray, reference: np.ndarray, samples: int = 10_000, confidence: float = 0.95, seed: int = 0
+    values: np.ndarray,
+    reference: np.ndarray,
+    samples: int = 10_000,
+    confidence: float = 0.95,
+    seed: int = 0,
+    paired: bool = False,
 ) -> PairedDifference:
-    """Percentile interval of the difference of means, resampling units and each side's seeds.
+    """Percentile interval of the difference of means, resampling units and seeds.
 
     ``values`` is (seeds, units) for the run, ``reference`` (reference seeds, units): rows are
     training runs, columns the same units in the same order. With one row each this is the plain
-    paired bootstrap over units, draw for draw (:func:`paired_bootstrap`).
+    paired bootstrap over units, draw for draw (:func:`paired_bootstrap`). ``paired``: row ``i`` of
+    both is seed pair ``i`` (same shape needed), drawn jointly (:func:`paired_seed_bootstrap`).
+
+    Example:
+        >>> d = seed_bootstrap(np.array([[1.0, 2.0, 3.0]]), np.array([[0.5, 1.5, 2.5]]), samples=200)
+        >>> d.mean, d.low, d.high, d.n
+        (0.5, 0.5, 0.5, 3)
     """
+    if paired:
+        return paired_seed_bootstrap(values, reference, samples, confidence, seed)
     values, reference = np.asarray(values, np.float64), np.asarray(reference, np.float64)
     if (
         values.ndim != 2
@@ -82,6 +139,54 @@ def seed_bootstrap(
     low, high = np.quantile(means, [alpha, 1 - alpha])
     mean = float((values.mean(axis=0) - reference.mean(axis=0)).mean())
     return PairedDifference(mean, float(low), float(high), n, sv, sr, bool(low > 0 or high < 0))
+
+
+def paired_seed_bootstrap(
+    values: np.ndarray, reference: np.ndarray, samples: int = 10_000, confidence: float = 0.95, seed: int = 0
+) -> PairedDifference:
+    """The bootstrap of a paired design: ``values`` and ``reference`` are (seed pairs, units), row
+    ``i`` of both trained with the same seed. Each draw resamples the seed pairs and the units
+    (both with replacement) and averages ``values − reference`` over the chosen cells; the
+    percentile interval of those means, with :func:`paired_t` over the per-seed mean differences
+    beside it (``t_low``, ``t_high``; None with one pair).
+
+    Example:
+        >>> v = np.array([[0.50, 0.60, 0.40], [0.52, 0.61, 0.43]])
+        >>> r = v + np.array([[0.03], [0.05]])
+        >>> d = paired_seed_bootstrap(v, r, samples=500)
+        >>> round(d.mean, 3), d.paired, [round(x, 3) for x in d.per_seed], d.low < d.high < 0
+        (-0.04, True, [-0.03, -0.05], True)
+    """
+    values, reference = np.asarray(values, np.float64), np.asarray(reference, np.float64)
+    if values.ndim != 2 or values.shape != reference.shape or 0 in values.shape:
+        raise ValueError(
+            f"paired_seed_bootstrap: need two (seed pairs, units) arrays of one shape, got {values.shape} "
+            f"and {reference.shape}"
+        )
+    if not 0 < confidence < 1:
+        raise ValueError(f"paired_seed_bootstrap: confidence must be in (0, 1), got {confidence}")
+    diff = values - reference
+    pairs, n = diff.shape
+    rng = np.random.default_rng(seed)
+    means = np.empty(samples)
+    chunk = max(1, 2_000_000 // (n * pairs))
+    for start in range(0, samples, chunk):
+        stop = min(samples, start + chunk)
+        # One pair: no seed draw, so that the stream matches the one-level bootstrap's.
+        rows = diff[None] if pairs == 1 else diff[rng.integers(0, pairs, (stop - start, pairs))]
+        by_unit = rows.mean(axis=1)  # (draws, units) or (1, units)
+        units = rng.integers(0, n, (stop - start, n))
+        means[start:stop] = np.take_along_axis(np.broadcast_to(by_unit, (stop - start, n)), units, 1).mean(1)
+    alpha = (1 - confidence) / 2
+    low, high = (float(x) for x in np.quantile(means, [alpha, 1 - alpha]))
+    per_seed = tuple(float(x) for x in diff.mean(axis=1))
+    t_low = t_high = None
+    if pairs >= 2:
+        _, t_low, t_high = paired_t(np.array(per_seed), confidence)
+    mean = float(diff.mean())
+    return PairedDifference(
+        mean, low, high, n, pairs, pairs, bool(low > 0 or high < 0), True, per_seed, t_low, t_high
+    )
 
 
 def paired_bootstrap(

@@ -44,6 +44,7 @@ ROIs is 0 wide, not certain. :func:`class_sentence` states each class in one sen
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import re
@@ -57,7 +58,8 @@ import pandas as pd
 from msdepth.config.params import CompareConfig
 from msdepth.errors import DataError
 from msdepth.reporting.compare import UNIT_KEYS, paired_statistics
-from msdepth.reporting.stats import paired_bootstrap, paired_table
+from msdepth.reporting.power import t_quantile
+from msdepth.reporting.stats import paired_bootstrap, paired_t, paired_table
 
 METRIC = "abs_rel"
 VERDICT_FIGURE = "verdict.png"  # below plots/figures: the figures stage draws it (figures.verdict_figure)
@@ -65,6 +67,7 @@ FULL_FRAME = "full frame"
 CLASS_ORDER = (FULL_FRAME, "car", "windshield", "glass", "sign", "reflective")
 MIN_UNITS = 5
 EXTERNAL_FIELDS = ("instrument", "class", "diff", "low", "high", "n", "method")
+EXTERNAL_OPTIONAL = ("settings", "t_low", "t_high", "seeds")
 KINDS = ("network", "seeds", "optimum", "external", "pooled")
 DISPLAY_NAMES = {"ssim": "SSIM", "msssim": "MS-SSIM"}  # the two losses the verdict is about
 MONOCULAR_MODES = {"mono": "mono networks", "mono_stereo": "mono+stereo networks"}
@@ -73,20 +76,45 @@ POOLABLE = re.compile(r"optimum w\S+$")  # the optimum's instruments: no trainin
 
 @dataclass(frozen=True)
 class Row:
-    """One instrument's ``variant − reference`` abs_rel on one class, with its interval."""
+    """One instrument's ``variant − reference`` abs_rel on one class, with its interval.
+
+    ``low`` and ``high`` are None where the row has too few independent units for an interval
+    (fewer than :data:`MIN_UNITS`): its ``method`` says why. ``t_low`` / ``t_high``: the paired t
+    interval over seed pairs beside a network row's bootstrap. ``settings``: the two variants'
+    settings the row was made with (:func:`settings_label`); a row made under other settings than
+    the run's is shown apart (``apart``: why), never counted or pooled.
+    """
 
     instrument: str
     cls: str
     diff: float
-    low: float
-    high: float
+    low: float | None
+    high: float | None
     n: int
     method: str
     kind: str
+    t_low: float | None = None
+    t_high: float | None = None
+    seeds: int = 0  # seed pairs (paired network rows) or seeds per variant; 0 = no training noise
+    settings: str = ""
+    apart: str = ""
+
+    @property
+    def has_interval(self) -> bool:
+        return self.low is not None and self.high is not None
 
     @property
     def excludes_zero(self) -> bool:
-        return self.low > 0 or self.high < 0
+        return self.has_interval and (self.low > 0 or self.high < 0)
+
+    @property
+    def t_excludes_zero(self) -> bool:
+        return self.t_low is not None and self.t_high is not None and (self.t_low > 0 or self.t_high < 0)
+
+    @property
+    def family(self) -> str:
+        """The instrument family of the README's table: networks, the optimum, or real pairs."""
+        return FAMILIES.get(self.kind, self.kind)
 
     @property
     def label(self) -> str:
@@ -99,8 +127,8 @@ class Row:
         return f"{self.instrument}, {source}"
 
     def as_dict(self) -> dict:
-        """The row as compare.json holds it (the external schema's keys, then ``kind``)."""
-        return {
+        """The row as compare.json holds it (the external schema's keys, then the optional ones)."""
+        d = {
             "instrument": self.instrument,
             "class": self.cls,
             "diff": self.diff,
@@ -110,20 +138,59 @@ class Row:
             "method": self.method,
             "kind": self.kind,
         }
+        optional = {"t_low": self.t_low, "t_high": self.t_high, "seeds": self.seeds}
+        optional |= {"settings": self.settings, "apart": self.apart}
+        return d | {k: v for k, v in optional.items() if v not in (None, 0, "")}
 
     @classmethod
     def from_dict(cls, d: Mapping) -> Row:
         """The inverse of :meth:`as_dict` (``kind`` defaults to ``external``)."""
+
+        def number(key: str) -> float | None:
+            return None if d.get(key) is None else float(d[key])
+
         return cls(
             str(d["instrument"]),
             str(d["class"]),
             float(d["diff"]),
-            float(d["low"]),
-            float(d["high"]),
+            number("low"),
+            number("high"),
             int(d["n"]),
             str(d["method"]),
             str(d.get("kind", "external")),
+            number("t_low"),
+            number("t_high"),
+            int(d.get("seeds", 0)),
+            str(d.get("settings", "")),
+            str(d.get("apart", "")),
         )
+
+
+FAMILIES = {
+    "network": "networks",
+    "seeds": "networks",
+    "optimum": "loss's own optimum",
+    "external": "real pairs",
+    "pooled": "pooled",
+}
+
+
+def settings_label(settings: Mapping[str, Mapping], variants: Sequence[str]) -> str:
+    """The settings of ``variants`` (each its params section, e.g. compare's ``variant_settings``)
+    in one line, the variants in sorted order, so that two rows made alike have one label.
+
+    Example:
+        >>> settings_label({"msssim": {"kernel_size": 7, "levels": 4}, "ssim": {"kernel_size": 3}},
+        ...                ["ssim", "msssim"])
+        'msssim: kernel_size=7, levels=4; ssim: kernel_size=3'
+    """
+    parts = []
+    for v in sorted(variants):
+        items = ", ".join(
+            f"{k}={x:g}" if isinstance(x, float) else f"{k}={x}" for k, x in settings.get(v, {}).items()
+        )
+        parts.append(f"{v}: {items}")
+    return "; ".join(parts)
 
 
 def class_order(classes: Sequence[str]) -> list[str]:
@@ -151,23 +218,43 @@ def network_rows(
     cfg: CompareConfig,
     cap: float,
     instrument: str = "stereo networks",
+    pairing: Mapping[str, str | None] | None = None,
+    settings: str = "",
 ) -> list[Row]:
     """Per class, each variant of ``groups`` (variant -> its runs, the reference's included) minus
     ``cfg.reference``, by the comparison's bootstrap over units and seeds; ``tables`` is
-    :func:`msdepth.reporting.compare.load_unit_tables`' ``{suite: {run: table}}``."""
+    :func:`msdepth.reporting.compare.load_unit_tables`' ``{suite: {run: table}}``. ``pairing``
+    (:func:`msdepth.reporting.compare.pairing_status`): the variants whose seeds pair with the
+    reference's are compared pair by pair, with the paired t beside the bootstrap."""
     rows = []
     others = [v for v in groups if v != cfg.reference]
     for cls, suite, chosen in class_tables(tables, groups[cfg.reference][0]):
-        stats = paired_statistics({suite: chosen}, dict(groups), cfg, [cap])[suite][f"cap{cap:g}"]
+        block = paired_statistics({suite: chosen}, dict(groups), cfg, [cap], pairing)
         for variant in others:
-            d = stats[variant][METRIC]
+            d = block[suite][f"cap{cap:g}"][variant][METRIC]
             if d["n"] < MIN_UNITS:
                 continue
-            unit = "images" if suite == "full" else "ROIs"
-            method = f"paired bootstrap over {unit} and seeds ({d['seeds']} and {d['reference_seeds']})"
+            method = network_method(d, "images" if suite == "full" else "ROIs", block["pairing"][variant])
             name = instrument if len(others) == 1 else f"{instrument}, {variant}"
-            rows.append(Row(name, cls, d["mean"], d["low"], d["high"], d["n"], method, "network"))
+            seeds = d["seeds"] if d["paired"] else min(d["seeds"], d["reference_seeds"])
+            rows.append(
+                Row(
+                    name, cls, d["mean"], d["low"], d["high"], d["n"], method, "network",
+                    d.get("t_low"), d.get("t_high"), seeds, settings,
+                )
+            )  # fmt: skip
     return rows
+
+
+def network_method(d: Mapping, unit: str, unpaired: str | None) -> str:
+    """How a network row's interval was made, in words (its ``method``)."""
+    if d.get("paired"):
+        text = f"paired by seed ({d['seeds']} pairs): bootstrap over seed pairs and {unit}"
+        if d.get("t_low") is not None:
+            text += f"; paired t over the per-seed differences [{d['t_low']:+.3f}, {d['t_high']:+.3f}]"
+        return text
+    why = f"unpaired ({unpaired})" if unpaired else "unpaired"
+    return f"{why}: bootstrap over {unit} and each variant's seeds ({d['seeds']} and {d['reference_seeds']})"
 
 
 def optimum_rows(
@@ -175,6 +262,7 @@ def optimum_rows(
     runs: Mapping[str, Mapping[str, str]],
     cfg: CompareConfig,
     cap: float,
+    settings: str = "",
 ) -> list[Row]:
     """Per weight (``runs``: weight label, e.g. ``w10``, -> {variant: its optimum run}) and class,
     each variant minus ``cfg.reference``: :func:`~msdepth.reporting.stats.paired_bootstrap` over
@@ -194,32 +282,12 @@ def optimum_rows(
                 d = paired_bootstrap(values, reference, cfg.bootstrap_samples, cfg.confidence, cfg.seed)
                 name = f"optimum {weight}" if len(others) == 1 else f"optimum {weight}, {variant}"
                 unit = "images" if suite == "full" else "ROIs"
-                rows.append(
-                    Row(name, cls, d.mean, d.low, d.high, d.n, f"paired bootstrap over {unit}", "optimum")
-                )
+                method = f"paired bootstrap over {unit} (one deterministic run per variant)"
+                rows.append(Row(name, cls, d.mean, d.low, d.high, d.n, method, "optimum", settings=settings))
     return rows
 
 
 # --- the monocular study's networks: intervals over seeds -------------------------------------
-
-
-def t_quantile(p: float, df: float) -> float:
-    """Student's t quantile (``0.5 < p < 1``, ``df > 0``), by bisection on its CDF, the density
-    integrated numerically (no SciPy in the project's dependencies)."""
-    log_norm = math.lgamma((df + 1) / 2) - math.lgamma(df / 2) - 0.5 * math.log(df * math.pi)
-
-    def cdf(t: float) -> float:
-        x = np.linspace(0.0, t, 20_001)
-        density = np.exp(log_norm - (df + 1) / 2 * np.log1p(x * x / df))
-        return 0.5 + float(np.sum((density[1:] + density[:-1]) / 2) * (x[1] - x[0]))
-
-    low, high = 0.0, 1.0
-    while cdf(high) < p:  # bracket: the tails of df ~ 1 reach far
-        low, high = high, high * 2
-    for _ in range(60):
-        mid = (low + high) / 2
-        low, high = (mid, high) if cdf(mid) < p else (low, mid)
-    return (low + high) / 2
 
 
 def welch_interval(
@@ -240,7 +308,9 @@ def welch_interval(
 
 
 Spread = tuple[float, float, int]  # (mean, sd, n) over seeds
-MonocularStats = dict[str, dict[str, dict[str, Spread]]]  # {mode: {variant: {class: spread}}}
+# {mode: {variant: {class: spread, or one value per seed (the same seeds for every variant)}}}
+MonocularStats = dict[str, dict[str, dict[str, Spread | list[float]]]]
+SETTINGS_LINE = "Variant settings: "  # the monocular table's line naming what its runs were trained with
 
 
 def parse_monocular_table(path: Path) -> MonocularStats:
@@ -288,10 +358,7 @@ def read_monocular(json_path: Path, table_path: Path) -> MonocularStats:
             modes = json.loads(Path(json_path).read_text(encoding="utf-8"))["modes"]
             return {
                 mode: {
-                    variant: {
-                        cls: (float(np.mean(v)), float(np.std(v, ddof=1)), len(v))
-                        for cls, v in classes.items()
-                    }
+                    variant: {cls: [float(x) for x in v] for cls, v in classes.items()}
                     for variant, classes in variants.items()
                 }
                 for mode, variants in modes.items()
@@ -301,10 +368,48 @@ def read_monocular(json_path: Path, table_path: Path) -> MonocularStats:
     return parse_monocular_table(table_path) if Path(table_path).is_file() else {}
 
 
-def seed_rows(stats: MonocularStats, reference: str, confidence: float) -> list[Row]:
-    """Per mode of :data:`MONOCULAR_MODES` and class, each variant minus ``reference`` with
-    :func:`welch_interval` over seeds. (The study's stereo rows are the pipeline's own networks,
-    which :func:`network_rows` compares unit by unit.)"""
+def read_monocular_settings(json_path: Path, table_path: Path) -> str:
+    """The settings label (:func:`settings_label`) the monocular study's runs were trained with:
+    ``json_path``'s ``settings``, else ``table_path``'s line starting :data:`SETTINGS_LINE`; "" when
+    neither records them."""
+    if Path(json_path).is_file():
+        try:
+            return str(json.loads(Path(json_path).read_text(encoding="utf-8")).get("settings", ""))
+        except (ValueError, AttributeError):
+            return ""
+    if Path(table_path).is_file():
+        for line in Path(table_path).read_text(encoding="utf-8").splitlines():
+            if line.startswith(SETTINGS_LINE):
+                return line[len(SETTINGS_LINE) :].strip().strip("`")
+    return ""
+
+
+def _spread(v: Spread | list[float]) -> Spread:
+    return v if isinstance(v, tuple) else (float(np.mean(v)), float(np.std(v, ddof=1)), len(v))
+
+
+def seed_difference(a: Spread | list[float], b: Spread | list[float], confidence: float) -> tuple:
+    """``(diff, low, high, n, method)`` of ``a − b`` over seeds: by seed pair (paired t) where both
+    are per-seed values of the same seeds, else Welch's t from mean ± sd (unpaired)."""
+    if isinstance(a, list) and isinstance(b, list) and len(a) == len(b) >= 2:
+        diff, low, high = paired_t(np.subtract(a, b), confidence)
+        return (
+            diff,
+            low,
+            high,
+            len(a),
+            f"paired by seed ({len(a)} pairs): paired t over the per-seed differences",
+        )
+    sa, sb = _spread(a), _spread(b)
+    diff, low, high = welch_interval(sa, sb, confidence)
+    why = "the study's table keeps mean ± sd, not each seed's value"
+    return diff, low, high, min(sa[2], sb[2]), f"unpaired ({why}): Welch t over {sa[2]} and {sb[2]} seeds"
+
+
+def seed_rows(stats: MonocularStats, reference: str, confidence: float, settings: str = "") -> list[Row]:
+    """Per mode of :data:`MONOCULAR_MODES` and class, each variant minus ``reference`` over seeds
+    (:func:`seed_difference`). (The study's stereo rows are the pipeline's own networks, which
+    :func:`network_rows` compares unit by unit.)"""
     rows = []
     for mode, instrument in MONOCULAR_MODES.items():
         variants = stats.get(mode, {})
@@ -313,13 +418,13 @@ def seed_rows(stats: MonocularStats, reference: str, confidence: float) -> list[
         others = [v for v in variants if v != reference]
         for variant in others:
             for cls in class_order([c for c in variants[variant] if c in variants[reference]]):
-                a, b = variants[variant][cls], variants[reference][cls]
-                diff, low, high = welch_interval(a, b, confidence)
-                method = f"Welch t over seeds, from mean ± sd of {a[2]} and {b[2]} runs"
+                diff, low, high, n, method = seed_difference(
+                    variants[variant][cls], variants[reference][cls], confidence
+                )
                 if cls == FULL_FRAME:
                     method += " (median-scaled per image)"
                 name = instrument if len(others) == 1 else f"{instrument}, {variant}"
-                rows.append(Row(name, cls, diff, low, high, min(a[2], b[2]), method, "seeds"))
+                rows.append(Row(name, cls, diff, low, high, n, method, "seeds", seeds=n, settings=settings))
     return rows
 
 
@@ -329,17 +434,28 @@ def seed_rows(stats: MonocularStats, reference: str, confidence: float) -> list[
 def _checked_row(item: object, i: int, path: Path) -> Row:
     """One external row, checked against the schema (module docstring); a DataError names ``path``."""
     where = f"{path}: row {i}"
-    if not isinstance(item, dict) or set(item) != set(EXTERNAL_FIELDS):
+    if not isinstance(item, dict) or not set(EXTERNAL_FIELDS) <= set(item) <= {
+        *EXTERNAL_FIELDS,
+        *EXTERNAL_OPTIONAL,
+    }:
         got = sorted(item) if isinstance(item, dict) else type(item).__name__
-        raise DataError(f"{where}: needs exactly the keys {', '.join(EXTERNAL_FIELDS)}, got {got}")
+        keys, optional = ", ".join(EXTERNAL_FIELDS), ", ".join(EXTERNAL_OPTIONAL)
+        raise DataError(f"{where}: needs the keys {keys} (optional: {optional}), got {got}")
     for key in ("instrument", "class", "method"):
         if not isinstance(item[key], str) or not item[key]:
             raise DataError(f"{where}: {key} must be a non-empty string, got {item[key]!r}")
-    for key in ("diff", "low", "high"):
-        value = item[key]
+    if not isinstance(item.get("settings", ""), str):
+        raise DataError(f"{where}: settings must be a string, got {item['settings']!r}")
+    nullable = ("low", "high", "t_low", "t_high")
+    for key in ("diff", "low", "high", "t_low", "t_high"):
+        value = item.get(key)
+        if value is None and key in nullable:
+            continue
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
             raise DataError(f"{where}: {key} must be a finite number, got {value!r}")
-    if not item["low"] <= item["diff"] <= item["high"]:
+    if (item["low"] is None) != (item["high"] is None):
+        raise DataError(f"{where}: low and high are both numbers or both null")
+    if item["low"] is not None and not item["low"] <= item["diff"] <= item["high"]:
         raise DataError(
             f"{where}: needs low <= diff <= high, got {item['low']}, {item['diff']}, {item['high']}"
         )
@@ -370,21 +486,29 @@ def pooled_rows(rows: Sequence[Row], confidence: float = 0.95) -> list[Row]:
     """Per class, one pooled row per optimum instrument measured by two rows or more (the
     pipeline's and an external study's, on other frames): inverse-variance weighted mean, each
     row's standard error its interval's half-width over the normal quantile; interval ±quantile·SE.
-    Other instruments are never pooled (module docstring: why)."""
+    Only rows with an interval, made under the same settings and not shown apart, are pooled; other
+    instruments never are (module docstring: why)."""
     z = float(np.sqrt(2) * _erfinv(confidence))
-    groups: dict[tuple[str, str], list[Row]] = {}
+    groups: dict[tuple[str, str, str], list[Row]] = {}
     for r in rows:
-        if r.kind in ("optimum", "external") and POOLABLE.match(r.instrument):
-            groups.setdefault((r.cls, r.instrument), []).append(r)
+        if (
+            r.kind in ("optimum", "external")
+            and POOLABLE.match(r.instrument)
+            and r.has_interval
+            and not r.apart
+        ):
+            groups.setdefault((r.cls, r.instrument, r.settings), []).append(r)
     out = []
-    for (cls, instrument), members in groups.items():
+    for (cls, instrument, settings), members in groups.items():
         if len(members) < 2:
             continue
         se = [max((r.high - r.low) / (2 * z), 1e-12) for r in members]  # a 0-wide interval: all weight
         w = np.array([1 / s**2 for s in se])
         mean = float(np.dot(w, [r.diff for r in members]) / w.sum())
         half = z / math.sqrt(w.sum())
-        method = f"inverse-variance pool of {len(members)} independent rows"
+        sources = ", ".join(r.label for r in members)
+        method = f"inverse-variance pool of {len(members)} independent rows ({sources})"
+        n = sum(r.n for r in members)
         out.append(
             Row(
                 f"{instrument}, pooled",
@@ -392,11 +516,27 @@ def pooled_rows(rows: Sequence[Row], confidence: float = 0.95) -> list[Row]:
                 mean,
                 mean - half,
                 mean + half,
-                sum(r.n for r in members),
+                n,
                 method,
                 "pooled",
+                settings=settings,
             )
         )
+    return out
+
+
+def set_apart(rows: Sequence[Row], settings: str) -> list[Row]:
+    """``rows`` with those made under other settings than ``settings`` (the run's own) marked
+    ``apart``: a study's committed rows after `dvc exp run -S msssim.kernel_size=7`, say. Such a row
+    is shown with its settings and never counted or pooled."""
+    out = []
+    for r in rows:
+        if r.settings == settings or not settings:
+            out.append(r)
+        elif not r.settings:
+            out.append(dataclasses.replace(r, apart="its settings are not recorded"))
+        else:
+            out.append(dataclasses.replace(r, apart=f"made with {r.settings}"))
     return out
 
 
@@ -415,22 +555,35 @@ def signed(x: float, decimals: int = 3) -> str:
 
 
 def class_sentence(cls: str, rows: Sequence[Row], better: str = "MS-SSIM") -> str:
-    """One sentence from ``cls``'s rows: in how many instruments ``better``'s error (abs_rel) is
-    lower, which intervals exclude 0 (and on which side), and the pooled estimates."""
-    own = [r for r in rows if r.cls == cls and r.kind != "pooled"]
+    """One sentence from ``cls``'s rows (those shown apart left out): in how many instruments
+    ``better``'s error (abs_rel) is lower, which intervals exclude 0 (and on which side, with the
+    paired t's agreement where a row has one), and the pooled estimates."""
+    own = [r for r in rows if r.cls == cls and r.kind != "pooled" and not r.apart]
     pooled = [r for r in rows if r.cls == cls and r.kind == "pooled"]
     lower = sum(r.diff < 0 for r in own)
     noun = "instrument" if len(own) == 1 else "instruments"
     text = f"{cls}: {better}'s error is lower in {lower} of {len(own)} {noun}"
     excluding = [r for r in own if r.excludes_zero]
     if excluding:
-        parts = [f"{r.label} ({'lower' if r.diff < 0 else 'higher'})" for r in excluding]
-        text += f"; intervals excluding 0: {', '.join(parts)}"
+        text += f"; intervals excluding 0: {', '.join(_excluding_words(r) for r in excluding)}"
     else:
         text += "; no interval excludes 0"
+    bare = [r for r in own if not r.has_interval]
+    if bare:
+        text += (
+            f"; no interval (too few independent units): {', '.join(f'{r.label} (n={r.n})' for r in bare)}"
+        )
     for r in pooled:
         text += f"; {r.instrument}: {signed(r.diff)} [{signed(r.low)}, {signed(r.high)}]"
     return text + "."
+
+
+def _excluding_words(r: Row) -> str:
+    """A row whose interval excludes 0, in a sentence: its side, and whether the paired t agrees."""
+    words = f"{r.label} ({'lower' if r.diff < 0 else 'higher'}"
+    if r.t_low is not None:
+        words += "; the paired t agrees" if r.t_excludes_zero else "; the paired t includes 0"
+    return words + ")"
 
 
 def display_names(variants: Sequence[str], reference: str) -> tuple[str, str]:
@@ -444,18 +597,59 @@ def display_names(variants: Sequence[str], reference: str) -> tuple[str, str]:
     return better, DISPLAY_NAMES.get(reference, reference)
 
 
-def verdict_data(rows: Sequence[Row], cap: float, confidence: float, better: str, than: str) -> dict:
-    """compare.json's ``verdict``: the rows (with :func:`pooled_rows`), the classes in order and a
-    sentence per class (:func:`class_sentence`)."""
+def headline_instruments(weight: float) -> dict[str, tuple[str, str]]:
+    """The instrument of each family that the summary table shows: ``{family: (kind, instrument)}``:
+    the stereo networks, the optimum at its default smoothness ``weight``, and the real pairs'
+    optimum at that weight."""
+    return {
+        "networks": ("network", "stereo networks"),
+        "loss's own optimum": ("optimum", f"optimum w{weight:g}"),
+        "real pairs": ("external", f"optimum w{weight:g}"),
+    }
+
+
+def summary_table(rows: Sequence[Row], headline: Mapping[str, tuple[str, str]]) -> dict:
+    """``{class: {family: row dict or None}}``: per class, each family's headline instrument."""
+    out: dict = {}
+    for cls in class_order(sorted({r.cls for r in rows})):
+        out[cls] = {}
+        for family, (kind, instrument) in headline.items():
+            match = [
+                r
+                for r in rows
+                if r.cls == cls and r.kind == kind and r.instrument == instrument and not r.apart
+            ]
+            out[cls][family] = match[0].as_dict() if match else None
+    return out
+
+
+def verdict_data(
+    rows: Sequence[Row],
+    cap: float,
+    confidence: float,
+    better: str,
+    than: str,
+    settings: str = "",
+    headline: Mapping[str, tuple[str, str]] | None = None,
+) -> dict:
+    """compare.json's ``verdict``: the rows (those of other settings than ``settings`` marked apart:
+    :func:`set_apart`; with :func:`pooled_rows`), the summary table of ``headline``'s instruments
+    (:func:`summary_table`), the classes in order and a sentence per class (:func:`class_sentence`)."""
+    rows = set_apart(rows, settings)
     rows = [*rows, *pooled_rows(rows, confidence)]
     classes = class_order(sorted({r.cls for r in rows}))
+    headline = dict(headline or headline_instruments(10.0))
     return {
         "metric": METRIC,
         "cap": f"cap{cap:g}",
         "confidence": confidence,
         "variant": better,
         "reference": than,
+        "settings": settings,
+        "min_units": MIN_UNITS,
         "classes": classes,
+        "headline": {family: list(v) for family, v in headline.items()},
+        "summary": summary_table(rows, headline),
         "rows": [r.as_dict() for r in rows],
         "sentences": {c: class_sentence(c, rows, better) for c in classes},
     }
@@ -464,29 +658,90 @@ def verdict_data(rows: Sequence[Row], cap: float, confidence: float, better: str
 VERDICT_TITLE = "The verdict per surface class"
 
 
+def interval_cell(r: Row, decimals: int = 3) -> str:
+    """A row's difference and interval as a table cell: ``−0.036 [−0.068, −0.002] *`` (``*``: it
+    excludes 0); a row without an interval says so.
+
+    Example:
+        >>> interval_cell(Row("x", "car", -0.036, -0.068, -0.002, 66, "m", "network"))
+        '−0.036 [−0.068, −0.002] *'
+    """
+    if not r.has_interval:
+        return f"{signed(r.diff, decimals)} (no interval)"
+    star = " *" if r.excludes_zero else ""
+    return f"{signed(r.diff, decimals)} [{signed(r.low, decimals)}, {signed(r.high, decimals)}]{star}"
+
+
+def units_text(r: Row) -> str:
+    """What a row's n counts, short: ``66 ROIs × 3 seed pairs``, ``5 frames``, ``3 seeds``."""
+    unit = "images" if r.cls == FULL_FRAME else "ROIs"
+    if r.kind == "network":
+        pairs = "seed pairs" if r.method.startswith("paired") else "seeds a side"
+        return f"{r.n} {unit} × {r.seeds} {pairs}"
+    if r.kind == "seeds":
+        return f"{r.n} {'seed pairs' if r.method.startswith('paired') else 'seeds a side'}"
+    if r.kind == "external":
+        return f"{r.n} units"
+    return f"{r.n} {unit}" if r.kind == "optimum" else f"{r.n} units"
+
+
+def summary_lines(data: dict) -> list[str]:
+    """The summary table: one row per surface class, one column per instrument family (its
+    headline instrument), each cell the difference, its interval and its n."""
+    families = list(data["headline"])
+    header = " | ".join(f"{f} ({data['headline'][f][1]})" for f in families)
+    lines = [f"| class | {header} |", "|---" * (len(families) + 1) + "|"]
+    for cls in data["classes"]:
+        cells = []
+        for f in families:
+            d = data["summary"].get(cls, {}).get(f)
+            cells.append(
+                "–" if d is None else f"{interval_cell(Row.from_dict(d))}, n = {units_text(Row.from_dict(d))}"
+            )
+        lines.append(f"| {cls} | {' | '.join(cells)} |")
+    return lines
+
+
 def verdict_lines(data: dict | None) -> list[str]:
-    """compare.md's verdict section from :func:`verdict_data`'s dict: what a row is, one table row
-    per instrument and class, then the sentences."""
+    """compare.md's verdict section from :func:`verdict_data`'s dict: the summary table, what a row
+    is, one table row per instrument and class (those made under other settings apart), then the
+    sentences."""
     if not data or not data["rows"]:
         return [f"# {VERDICT_TITLE}", "", "No instrument compares two variants here.", ""]
     level = f"{data['confidence'] * 100:g} %"
+    rows = [Row.from_dict(d) for d in data["rows"]]
     lines = [
         f"# {VERDICT_TITLE}",
         "",
         f"{data['variant']} − {data['reference']} in abs_rel (cap {data['cap'][3:]} m; negative: "
         f"{data['variant']}'s error is lower), each instrument's {level} interval; `*`: it excludes 0. "
-        "n: the images, ROIs or seeds the interval is over; rows over fewer than "
-        f"{MIN_UNITS} are left out. Pooled only where rows measure one quantity independently "
-        "(src/msdepth/reporting/verdict.py). The figure: `plots/figures/verdict.png`.",
+        f"Settings: `{data.get('settings') or 'not recorded'}`.",
         "",
-        "| class | instrument | difference | n | method |",
-        "|---|---|---|---|---|",
+        *summary_lines(data),
+        "",
+        "Networks trained with the same seed are pairs (same initial weights and batches): their rows "
+        "resample seed pairs with the units and give the paired t over seeds beside the bootstrap. "
+        "n: the independent units (images, ROIs, frames, objects or seed pairs); with fewer "
+        f"than {MIN_UNITS} a row has no interval. Pooled only where rows measure one quantity "
+        "independently under one setting (src/msdepth/reporting/verdict.py). "
+        "The figure: `plots/figures/verdict.png`.",
+        "",
+        "| class | instrument | difference | paired t | n | method |",
+        "|---|---|---|---|---|---|",
     ]
     for cls in data["classes"]:
-        for r in (Row.from_dict(d) for d in data["rows"]):
-            if r.cls == cls:
-                star = " *" if r.excludes_zero else ""
-                cell = f"{r.diff:+.3f} [{r.low:+.3f}, {r.high:+.3f}]{star}"
-                lines.append(f"| {cls} | {r.label} | {cell} | {r.n} | {r.method} |")
+        for r in rows:
+            if r.cls == cls and not r.apart:
+                t = f"[{signed(r.t_low)}, {signed(r.t_high)}]" if r.t_low is not None else "–"
+                lines.append(
+                    f"| {cls} | {r.label} | {interval_cell(r)} | {t} | {units_text(r)} | {r.method} |"
+                )
+    apart = [r for r in rows if r.apart]
+    if apart:
+        lines += ["", "Made under other settings (shown apart, never counted or pooled):", ""]
+        lines += ["| class | instrument | difference | n | why apart |", "|---|---|---|---|---|"]
+        lines += [
+            f"| {r.cls} | {r.label} | {interval_cell(r)} | {units_text(r)} | {r.apart} |" for r in apart
+        ]
     lines += ["", *[f"- {data['sentences'][c]}" for c in data["classes"]], ""]
     return lines

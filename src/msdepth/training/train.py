@@ -45,6 +45,7 @@ from msdepth.networks.resnet_depth import ResNetMonodepth
 from msdepth.networks.serialization import load_weights_file, save_weights_file
 from msdepth.training import distributed
 from msdepth.training.distributed import Context, GlobalBatchSampler
+from msdepth.training.pairing import pairing_record
 
 log = logging.getLogger(__name__)
 
@@ -268,6 +269,7 @@ class _Run:
     pose_network: Callable[[torch.Tensor, torch.Tensor], tuple[torch.Tensor, torch.Tensor]] | None = None
     loss_keys: tuple[str, ...] = LOSS_KEYS
     pretrained_sha256: str | None = None  # model.pretrained's content hash; None when unset
+    pairing: dict = field(default_factory=dict)  # initial weights' and first batch's hashes
     # Progress: from the checkpoint when resumed, then advanced by every epoch.
     start_epoch: int = 0
     step: int = 0
@@ -355,6 +357,7 @@ def _set_up(
     configure_cudnn(train_cfg.cudnn_benchmark, device)
     dataset = _dataset(params, pairs, seed, cache, sequences)
     model = build_model(params).to(device)
+    pairing = _pairing(model, dataset, params, seed, ctx)
     _refuse_bf16_cpu_hazard(params, model, device)
     memory_format = torch.channels_last if train_cfg.channels_last else torch.contiguous_format
     model = model.to(memory_format=memory_format)
@@ -396,7 +399,24 @@ def _set_up(
         pose_network=DistributedDataParallel(pose_net) if pose_net and ctx.world > 1 else pose_net,
         loss_keys=MONO_LOSS_KEYS if mono else LOSS_KEYS,
         pretrained_sha256=pretrained_sha256,
+        pairing=pairing,
     )
+
+
+def _pairing(
+    model: torch.nn.Module, dataset: StereoPairs | SequenceFrames, params: Params, seed: int, ctx: Context
+) -> dict:
+    """The run's pairing record (:func:`msdepth.training.pairing.pairing_record`): the initial
+    weights and epoch 0's first batch, as the training loop will see it. Every random state is
+    restored afterwards, so that recording it leaves the trained bytes as they were."""
+    states = (torch.get_rng_state(), np.random.get_state(), random.getstate())
+    try:
+        first = next(iter(_loader(dataset, params, seed, 0, ctx)))
+        return pairing_record(model, first)
+    finally:
+        torch.set_rng_state(states[0])
+        np.random.set_state(states[1])
+        random.setstate(states[2])
 
 
 def _refuse_bf16_cpu_hazard(params: Params, model: torch.nn.Module, device: torch.device) -> None:
@@ -585,6 +605,7 @@ def _finish(
     if run.ctx.main:
         record = asdict(result)
         timing = {k: record.pop(k) for k in TIMING_KEYS}
+        record["pairing"] = run.pairing
         if summary_path is not None:
             write_json(summary_path, record)
         if timing_path is not None:
