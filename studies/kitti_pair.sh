@@ -16,4 +16,4 @@ for w in 3 10 30; do
       --focal 721.5377 --baseline 0.5327 --height 188 --width 622
   done
 done
-python studies/score_lidar.py --scan $S/lidar.bin --calib $S/calib.txt "$OUT"/*/left_depth.npy
+python studies/score_lidar.py --scan $S/lidar.bin --calib $S/calib.txt "$OUT"/*/left_*_depth.npy

@@ -9,7 +9,7 @@ clamped to that range, as the Eigen evaluation does. With an object-benchmark ``
     S=../shared/real-samples/kitti-object-pair
     msdepth optimum $S/left.png $S/right.png --variant ssim --out /tmp/opt/ssim \\
         --focal 721.5377 --baseline 0.5327
-    python studies/score_lidar.py --scan $S/lidar.bin --calib $S/calib.txt /tmp/opt/*/left_depth.npy
+    python studies/score_lidar.py --scan $S/lidar.bin --calib $S/calib.txt /tmp/opt/*/left_*_depth.npy
 """
 
 from __future__ import annotations

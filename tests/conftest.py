@@ -47,6 +47,27 @@ def stage(name: str) -> SimpleNamespace:
     return SimpleNamespace(**runpy.run_path(str(ROOT / "stages" / f"{name}.py")))
 
 
+# ------------------------------------------------------------------- the committed state
+
+
+def require_git_checkout(root: Path = ROOT) -> None:
+    """Skip the calling test unless ``root`` is the top of a git checkout with a commit: the tests
+    of what is committed read it from git's HEAD, not from a workspace a `dvc repro` may rewrite."""
+    command = ["git", "-C", str(root), "rev-parse", "--show-toplevel", "HEAD"]
+    proc = subprocess.run(command, capture_output=True)
+    lines = proc.stdout.decode(errors="replace").splitlines()
+    if proc.returncode != 0 or not lines or Path(lines[0]).resolve() != root.resolve():
+        pytest.skip(f"{root} is not a git checkout with a commit (the committed files are read from git)")
+
+
+def committed_file(root: Path, path: str) -> bytes | None:
+    """The bytes of ``path`` (relative to ``root``, the top of a git checkout) in git's HEAD, or None
+    where HEAD holds no such file: what a clone checks out, whatever a `dvc repro` rewrote since
+    (on another CPU, the trained models' bytes and dvc.lock's hashes of them differ)."""
+    proc = subprocess.run(["git", "-C", str(root), "show", f"HEAD:{path}"], capture_output=True)
+    return proc.stdout if proc.returncode == 0 else None
+
+
 # ------------------------------------------------------------------------- child processes
 
 

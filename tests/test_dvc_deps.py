@@ -239,25 +239,56 @@ def test_a_stage_that_reads_the_data_through_an_index_depends_on_the_data():
     assert [name for name in readers if "${data.root}" not in stages[name]["deps"]] == []
 
 
+def _covers(path: str, paths: set[str]) -> bool:
+    """Whether ``path`` is one of ``paths``, lies under one, or holds one (a folder dep)."""
+    path = path.rstrip("/")
+    return any(p == path or p.startswith(path + "/") or path.startswith(p + "/") for p in paths)
+
+
+def stale_entries(status: dict, tracked: set[str], outs: set[str]) -> list[str]:
+    """The stale lock entries in ``dvc status --json``'s ``status``: a changed param, or a changed dep
+    that git tracks (code, split lists) and no stage writes (``outs``). A dep that is another stage's
+    output is the pipeline's own (metrics/ is committed, and retrained on another CPU it holds other
+    bytes), and one that is simply not built here ("deleted") is not stale either."""
+    stale = []
+    for stage, changes in status.items():
+        for change in changes:
+            deps = change.get("changed deps", {}) if isinstance(change, dict) else {}
+            for path, state in deps.items():
+                if isinstance(state, dict):  # params.yaml's keys
+                    stale.append(f"{stage}: {path} {state}")
+                elif state != "deleted" and _covers(path, tracked) and not _covers(path, outs):
+                    stale.append(f"{stage}: {path} {state}")
+    return stale
+
+
 def stale_lock_entries(root: Path) -> list[str]:
     """Why ``root``'s dvc.lock is not the one `dvc repro` would commit (empty if it is): a locked dep
-    that git tracks (code, split lists) or a locked param whose current value differs from the lock.
-    Deps that are other stages' outputs and are simply not built here ("deleted") are not stale."""
+    that git tracks and no stage writes, or a locked param whose current value differs from the lock."""
     listed = subprocess.run(["git", "ls-files"], cwd=root, capture_output=True, text=True, check=True)
-    tracked = set(listed.stdout.split())
-    changed_deps = [
-        (stage, change["changed deps"])
-        for stage, changes in dvc_status(root).items()
-        for change in changes
-        if isinstance(change, dict) and "changed deps" in change
+    stages = (yaml.safe_load((root / "dvc.lock").read_text()) or {}).get("stages", {})
+    outs = {out["path"] for stage in stages.values() for out in stage.get("outs", [])}
+    return stale_entries(dvc_status(root), set(listed.stdout.split()), outs)
+
+
+def test_a_retrained_output_under_git_is_not_a_stale_lock():
+    """Issue 53: `dvc repro` on another CPU writes other bytes into committed outputs (metrics/); a
+    stage reading them is the pipeline's business, only code and params make the lock stale."""
+    tracked = {"src/msdepth/losses/ssim.py", "data_lists/eigen.txt", "metrics/train/ssim/seed0.json"}
+    outs = {"metrics/train/ssim/seed0.json", "models/ssim/seed0/model.pt"}
+    status = {
+        "compare": [{"changed deps": {"metrics/train": "modified"}}, {"changed outs": {"x": "modified"}}],
+        "infer@ssim-0": [{"changed deps": {"models/ssim/seed0/model.pt": "modified"}}],
+        "train@ssim-0": [{"changed outs": {"models/ssim/seed0/model.pt": "modified"}}, "always changed"],
+        "index": [{"changed deps": {"data_lists": "deleted"}}],
+    }
+    assert stale_entries(status, tracked, outs) == []
+    status["train@ssim-0"].append({"changed deps": {"src/msdepth/losses": "modified"}})
+    status["index"].append({"changed deps": {"params.yaml": {"data.height": "modified"}}})
+    assert stale_entries(status, tracked, outs) == [
+        "train@ssim-0: src/msdepth/losses modified",
+        "index: params.yaml {'data.height': 'modified'}",
     ]
-    stale = []
-    for stage, deps in changed_deps:
-        for path, state in deps.items():
-            under_git = path in tracked or any(f.startswith(path.rstrip("/") + "/") for f in tracked)
-            if isinstance(state, dict) or (under_git and state != "deleted"):  # dict: params.yaml's keys
-                stale.append(f"{stage}: {path} {state}")
-    return stale
 
 
 @pytest.mark.skipif(not (ROOT / ".git").exists(), reason="needs the git checkout (tracked files)")

@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import json
 import shutil
+import subprocess
+from collections.abc import Callable
 from pathlib import Path
 
 import cv2
@@ -12,6 +14,7 @@ import numpy as np
 import pytest
 import torch
 import yaml
+from conftest import committed_file, require_git_checkout
 
 from msdepth.__main__ import main as msdepth_main
 from msdepth.cli.example import FRAME, MANIFEST, OUT, disparity_name, main, md5
@@ -21,38 +24,58 @@ from msdepth.networks.model import MonodepthVGG
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def locked_md5(lock: Path, path: str) -> str | None:
-    """The md5 that ``dvc.lock`` records for the output ``path`` (None if it lists no such output)."""
-    stages = (yaml.safe_load(lock.read_text(encoding="utf-8")) or {}).get("stages", {})
+# Reads a project file (a path relative to the project) as bytes; None where it is missing.
+Reader = Callable[[str], "bytes | None"]
+
+
+def workspace(root: Path) -> Reader:
+    """A reader of the files under ``root`` as they are on disk."""
+    return lambda path: (root / path).read_bytes() if (root / path).is_file() else None
+
+
+def committed(root: Path) -> Reader:
+    """A reader of the files as git's HEAD at ``root`` holds them (the test skips outside a checkout):
+    a `dvc repro` on another CPU rewrites the models and dvc.lock's hashes, never the commit."""
+    require_git_checkout(root)
+    return lambda path: committed_file(root, path)
+
+
+def locked_md5(lock: bytes | None, path: str) -> str | None:
+    """The md5 that the dvc.lock text ``lock`` records for the output ``path`` (None if it lists no
+    such output, or there is no lock)."""
+    stages = (yaml.safe_load(lock or b"") or {}).get("stages", {})
     outs = [entry for stage in stages.values() for entry in stage.get("outs", [])]
     return next((entry.get("md5") for entry in outs if entry.get("path") == path), None)
 
 
-def stale_example(root: Path) -> list[str]:
-    """Why the example under ``root`` is not the models' that ``root``'s dvc.lock records (empty if it
+def stale_example(read: Reader) -> list[str]:
+    """Why the example that ``read`` gives is not the models' that its dvc.lock records (empty if it
     is): per image, a model hash other than dvc.lock's or a size other than the manifest's."""
-    out = root / OUT
+    name = (OUT / MANIFEST).as_posix()
     try:
-        manifest = json.loads((out / MANIFEST).read_text(encoding="utf-8"))
-    except (OSError, json.JSONDecodeError) as exc:
-        return [f"{out / MANIFEST}: not readable ({exc})"]
+        manifest = json.loads(read(name) or b"")
+    except json.JSONDecodeError as exc:
+        return [f"{name}: missing or not JSON ({exc})"]
+    lock = read("dvc.lock")
     problems = []
     for image in manifest["images"].values():
-        path = out / image["file"]
-        locked = locked_md5(root / "dvc.lock", image["model"])
+        path = (OUT / image["file"]).as_posix()
+        locked = locked_md5(lock, image["model"])
         if locked != image["model_md5"]:
             problems.append(
                 f"{path}: drawn by {image['model']} md5 {image['model_md5']}, dvc.lock has {locked}"
             )
-        if not path.is_file() or png_size(path.read_bytes()) != (image["width"], image["height"]):
+        drawn = read(path)
+        if drawn is None or png_size(drawn) != (image["width"], image["height"]):
             problems.append(f"{path}: not the {image['width']} x {image['height']} image the command wrote")
     return problems
 
 
 def test_the_committed_example_is_drawn_by_the_committed_models():
-    """Fails when dvc.lock's models change (a retrained default run) until the example is redrawn,
-    or when an image is not the size the command wrote."""
-    problems = stale_example(ROOT)
+    """Fails when the committed dvc.lock's models change (a retrained default run) until the example
+    is redrawn, or when an image is not the size the command wrote. It reads the commit, not the
+    workspace: `dvc repro` on another CPU trains other bytes and rewrites the workspace's dvc.lock."""
+    problems = stale_example(committed(ROOT))
     assert not problems, "\n".join(problems) + "\nrun `python -m msdepth.cli.example` after `dvc repro`"
 
 
@@ -115,7 +138,7 @@ def test_the_command_draws_each_variant_as_predict_does(project: Path, tmp_path_
         width, height = png_size(drawn)
         assert (image["width"], image["height"]) == (width, height) and height == 48 and width > 128
     _lock(project, manifest)
-    assert stale_example(project) == []
+    assert stale_example(workspace(project)) == []
 
 
 def test_a_retrained_model_or_a_resized_image_is_found(project: Path):
@@ -125,12 +148,36 @@ def test_a_retrained_model_or_a_resized_image_is_found(project: Path):
     _tiny_model(project / "models" / "msssim" / "seed0" / "model.pt", 7)  # retrained
     manifest["images"]["msssim"]["model_md5"] = md5(project / "models" / "msssim" / "seed0" / "model.pt")
     _lock(project, manifest)
-    problems = stale_example(project)
-    assert len(problems) == 1 and problems[0].startswith(
-        f"{project / OUT / disparity_name('msssim')}: drawn by"
-    )
+    problems = stale_example(workspace(project))
+    image = (OUT / disparity_name("msssim")).as_posix()
+    assert len(problems) == 1 and problems[0].startswith(f"{image}: drawn by")
     shutil.copy(project / OUT / f"{FRAME}.png", project / OUT / disparity_name("ssim"))  # another size
-    assert any("not the" in p and disparity_name("ssim") in p for p in stale_example(project))
+    assert any("not the" in p and disparity_name("ssim") in p for p in stale_example(workspace(project)))
+
+
+def _git(root: Path, *args: str) -> None:
+    """``git <args>`` in ``root``, with an identity of its own (a commit needs one)."""
+    identity = ["-c", "user.email=t@t", "-c", "user.name=t"]
+    subprocess.run(["git", "-C", str(root), *identity, *args], check=True, capture_output=True)
+
+
+def test_a_retrain_with_other_bytes_leaves_the_committed_example_checked(project: Path):
+    """Issue 53: after README's command 1 on another CPU, the workspace's models and dvc.lock hold
+    other bytes than the commit's; the check reads the commit, so it still passes there, and still
+    finds a commit whose models are not the example's."""
+    assert main(["--root", str(project)]) == 0
+    manifest = json.loads((project / OUT / MANIFEST).read_text())
+    _lock(project, manifest)
+    for args in (["init", "-q"], ["add", "-A"], ["commit", "-qm", "the committed run"]):
+        _git(project, *args)
+    for i, variant in enumerate(("ssim", "msssim")):  # `dvc repro` on another CPU: other bytes
+        _tiny_model(project / "models" / variant / "seed0" / "model.pt", 10 + i)
+        manifest["images"][variant]["model_md5"] = md5(project / "models" / variant / "seed0" / "model.pt")
+    _lock(project, manifest)
+    assert len(stale_example(workspace(project))) == 2  # the workspace's lock is not the example's
+    assert stale_example(committed(project)) == []
+    _git(project, "commit", "-qam", "relocked")
+    assert len(stale_example(committed(project))) == 2  # a committed relock without a redrawn example
 
 
 def test_missing_models_are_one_line(project: Path, capsys):

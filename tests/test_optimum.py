@@ -16,7 +16,7 @@ from msdepth.data.pairs import to_tensor
 from msdepth.data.synthetic import render_frame
 from msdepth.errors import ConfigError, DataError
 from msdepth.evaluation.metrics import compute_errors
-from msdepth.io import write_png
+from msdepth.io import read_manifest, write_png
 from msdepth.optimum.frames import add_cost_curves
 from msdepth.optimum.solver import (
     COST_SCALES,
@@ -261,11 +261,11 @@ def test_cli_writes_predict_s_outputs_at_the_left_image_s_resolution(tmp_path) -
         )
         == 0
     )
-    disp = np.load(out / "l_disp.npy")
+    disp = np.load(out / "l_ssim_disp.npy")
     assert disp.dtype == np.float32 and disp.shape == (H, W)
-    depth = np.load(out / "l_depth.npy")
+    depth = np.load(out / "l_ssim_depth.npy")
     np.testing.assert_allclose(depth, default_focal(W) * 0.54 / disp, rtol=1e-5)
-    assert cv2.imread(str(out / "l_disp.png")).shape == (H, W, 3)
+    assert cv2.imread(str(out / "l_ssim_disp.png")).shape == (H, W, 3)
     assert (
         cli(
             tmp_path / "l.png",
@@ -282,8 +282,31 @@ def test_cli_writes_predict_s_outputs_at_the_left_image_s_resolution(tmp_path) -
         == 0
     )
     np.testing.assert_allclose(
-        np.load(tmp_path / "o2" / "l_depth.npy") * np.load(tmp_path / "o2" / "l_disp.npy"), 50, rtol=1e-5
+        np.load(tmp_path / "o2" / "l_ssim_depth.npy") * np.load(tmp_path / "o2" / "l_ssim_disp.npy"),
+        50,
+        rtol=1e-5,
     )
+
+
+def test_cli_keeps_both_variants_results_in_one_folder(tmp_path) -> None:
+    # Issue 53: --variant ssim into the folder of a --variant msssim result replaced it unsaid.
+    left, right = plane_pair()
+    write_png(tmp_path / "l.png", left)
+    write_png(tmp_path / "r.png", right)
+    out = tmp_path / "out"
+    for variant in ("msssim", "ssim"):
+        assert cli(tmp_path / "l.png", tmp_path / "r.png", "--variant", variant, "--out", out) == 0
+    names = [
+        f"l_{v}{suffix}" for v in ("msssim", "ssim") for suffix in ("_depth.npy", "_disp.npy", "_disp.png")
+    ]
+    assert sorted(p.name for p in out.iterdir()) == sorted([".msdepth-optimum", *names])
+    assert read_manifest(out / ".msdepth-optimum") == set(names)
+    ssim, msssim = np.load(out / "l_ssim_disp.npy"), np.load(out / "l_msssim_disp.npy")
+    assert ssim.shape == msssim.shape == (H, W) and not np.array_equal(ssim, msssim)
+    # a rerun of one variant rewrites its own files only
+    before = (out / "l_msssim_disp.npy").read_bytes()
+    assert cli(tmp_path / "l.png", tmp_path / "r.png", "--variant", "ssim", "--out", out) == 0
+    assert (out / "l_msssim_disp.npy").read_bytes() == before
 
 
 def test_cli_on_folders_names_each_bad_pair_and_does_the_others(tmp_path, capsys) -> None:
@@ -316,9 +339,9 @@ def test_cli_on_folders_names_each_bad_pair_and_does_the_others(tmp_path, capsys
         assert sum(name in line for line in errors) == 1, (name, errors)
     assert sorted(p.name for p in out.iterdir()) == [
         ".msdepth-optimum",
-        "a_depth.npy",
-        "a_disp.npy",
-        "a_disp.png",
+        "a_msssim_depth.npy",
+        "a_msssim_disp.npy",
+        "a_msssim_disp.png",
     ]
 
 

@@ -180,13 +180,13 @@ def test_cli_start_flag(tmp_path, capsys) -> None:
     args = ["optimum", str(tmp_path / "l.png"), str(tmp_path / "r.png"), "--variant", "ssim", "--quiet"]
     fast = ["--set", "optimum.refine_iterations=5"]
     assert main([*args, "--out", str(tmp_path / "a"), "--start", "sgbm", *fast]) == 0
-    disp = np.load(tmp_path / "a" / "l_disp.npy")
+    disp = np.load(tmp_path / "a" / "l_ssim_disp.npy")
     assert disp.shape == (H, W) and np.median(np.abs(disp[INTERIOR] - SHIFT)) < 0.5
     assert main([*args, "--out", str(tmp_path / "b"), "--start", "nope"]) == 1
     assert "optimum.start: 'nope' is not one of ['constant', 'cost', 'sgbm']" in capsys.readouterr().err
     (tmp_path / "p.yaml").write_text("optimum:\n  start: sgbm\n  refine_iterations: 5\n")
     assert main([*args, "--out", str(tmp_path / "c"), "--params", str(tmp_path / "p.yaml")]) == 0
-    np.testing.assert_array_equal(np.load(tmp_path / "c" / "l_disp.npy"), disp)  # the key is the flag
+    np.testing.assert_array_equal(np.load(tmp_path / "c" / "l_ssim_disp.npy"), disp)  # the key is the flag
 
 
 # ----------------------------------------------------------------------------- a real KITTI 2015 frame

@@ -72,7 +72,7 @@ def _optimum(tmp: Path, out: Path, model: Path, synthetic: Path) -> tuple[list[s
     return (
         ["optimum", str(tmp / "L"), str(tmp / "R"), "--out", str(out), *FAST_OPTIMUM],
         tmp / "L",
-        out / "a_disp.npy",
+        out / "a_ssim_disp.npy",
         False,
     )
 
@@ -196,7 +196,7 @@ def test_predict_and_optimum_refuse_two_inputs_with_one_output(
         == 1
     )
     assert "L/a.png: same output name as" in capsys.readouterr().err
-    assert _tree(out) == optimum and (out / "a_disp.npy").is_file()
+    assert _tree(out) == optimum and (out / "a_ssim_disp.npy").is_file()
 
 
 def test_optimum_refuses_left_equal_to_right(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
@@ -305,7 +305,10 @@ def test_optimum_writes_each_batch_before_the_next_is_optimised(
     with pytest.raises(KeyboardInterrupt):
         main([*argv, "--set", "optimum.batch_size=1"])
     assert calls == [1, 1]
-    assert sorted(p.name for p in out.iterdir()) == [".msdepth-optimum", *(f"a{s}" for s in OPTIMUM_SUFFIXES)]
+    assert sorted(p.name for p in out.iterdir()) == [
+        ".msdepth-optimum",
+        *(f"a_ssim{s}" for s in OPTIMUM_SUFFIXES),
+    ]
 
 
 OPTIMUM_SUFFIXES = ("_depth.npy", "_disp.npy", "_disp.png")

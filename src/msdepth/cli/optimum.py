@@ -2,8 +2,9 @@
 
 Kept apart from :mod:`msdepth.optimum.solver` so that building the parser (``msdepth --help``) imports
 no torch. Writes, per pair, what ``msdepth predict`` writes for a frame (its own writer,
-:func:`msdepth.cli.predict.save_outputs`): ``<stem>_disp.npy`` (disparity in px at LEFT's
-resolution, float32), ``<stem>_disp.png`` and ``<stem>_depth.npy`` (metres).
+:func:`msdepth.cli.predict.save_outputs`), named after the variant too, so that both variants'
+results of a pair sit side by side in one folder: ``<stem>_<variant>_disp.npy`` (disparity in px at
+LEFT's resolution, float32), ``<stem>_<variant>_disp.png`` and ``<stem>_<variant>_depth.npy`` (metres).
 """
 
 from __future__ import annotations
@@ -28,9 +29,10 @@ def optimum_command(add_parser: Callable[..., argparse.ArgumentParser]) -> None:
         "optimum",
         help="the disparity a loss variant prefers for a stereo pair, optimised directly (no network)",
         description="Per stereo pair, optimise a left and a right disparity map to minimise a loss variant's "
-        "training objective (docs/optimum.md), and write what 'msdepth predict' writes: <stem>_disp.npy "
-        "(px, at LEFT's resolution), <stem>_disp.png and <stem>_depth.npy (m). LEFT and RIGHT are two "
-        "images, or two folders holding images of the same names.",
+        "training objective (docs/optimum.md), and write what 'msdepth predict' writes, named after the "
+        "variant: <stem>_<variant>_disp.npy (px, at LEFT's resolution), <stem>_<variant>_disp.png and "
+        "<stem>_<variant>_depth.npy (m). LEFT and RIGHT are two images, or two folders holding images of "
+        "the same names.",
     )
     o.add_argument("left", metavar="LEFT", help="left image, or folder of left images")
     o.add_argument("right", metavar="RIGHT", help="right image, or folder of right images of the same names")
@@ -94,6 +96,13 @@ def stereo_pairs(left: Path, right: Path, skip: Path | None = None) -> list[tupl
         if not path.exists():
             raise DataError(f"{path}: no such file or folder")
     raise DataError(f"{left} and {right}: give two images or two folders, not one of each")
+
+
+def output_stem(out: Path, stem: Path, variant: str) -> Path:
+    """Where a pair's outputs go: ``out/<stem>_<variant>`` (then ``_disp.npy`` etc.). The variant in
+    the name keeps one variant's result from replacing another's in a shared folder, the comparison
+    the command is for."""
+    return out / stem.with_name(f"{stem.name}_{variant}")
 
 
 def requested_size(args: argparse.Namespace, params: Params) -> tuple[int, int] | None:
@@ -191,8 +200,9 @@ def _optimise_and_write(
     disps = optimum_disparities(pairs, params, args.variant, size=size, progress=not args.quiet)
     for (left_path, stem, left, _), disp in zip(good, disps, strict=True):
         try:
-            policy.claim(list(output_paths(Path(args.out) / stem, options).values()), left_path)
-            save_outputs(Path(args.out) / stem, left, disp, options)
+            target = output_stem(Path(args.out), stem, args.variant)
+            policy.claim(list(output_paths(target, options).values()), left_path)
+            save_outputs(target, left, disp, options)
         except (MsdepthError, OSError) as exc:
             failed += _fail(_naming(left_path, exc))
     return failed
