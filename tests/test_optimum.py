@@ -368,6 +368,19 @@ def test_cli_reads_the_params_file_and_its_overrides(tmp_path) -> None:
     assert cli(*args, "--params", tmp_path / "p.yaml") == 0  # FAST's optimum.levels=1 wins
 
 
+def test_cli_without_a_params_file_takes_the_measured_stopping_rule(tmp_path, monkeypatch) -> None:
+    """params.yaml's optimum.iterations (50, the dataclass default too) fits the pipeline's time
+    budget; without a params file the command runs the measured rule, INSTRUMENT_ITERATIONS."""
+    from msdepth.cli.optimum import INSTRUMENT_ITERATIONS, read_params
+
+    monkeypatch.chdir(tmp_path)  # no ./params.yaml
+    assert INSTRUMENT_ITERATIONS == 100 and Params().optimum.iterations == 50
+    assert read_params(None, []).optimum.iterations == INSTRUMENT_ITERATIONS
+    assert read_params(None, ["optimum.iterations=7"]).optimum.iterations == 7
+    (tmp_path / "params.yaml").write_text("optimum: {levels: 2}\n")
+    assert read_params(None, []).optimum.iterations == 50  # a params file's own default
+
+
 @pytest.mark.parametrize(
     ("content", "expected"),
     [

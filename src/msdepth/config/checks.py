@@ -6,14 +6,21 @@ sections with these, so neither imports the other for them (and reading params i
 
 from __future__ import annotations
 
+import dataclasses
 import reprlib
+import typing
 from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Annotated, Any
 
 from msdepth.errors import ConfigError
 
 # A value echoed in a message is cut to this many characters: a params file can hold a value of any
 # size (a long list, a deep tree), and a message is one line.
 SHOWN_CHARS = 80
+
+MAX_KERNEL_SIZE = 255  # px, an SSIM-type window (the variants': 3 to 11); each must also fit the image
+MAX_SSIM_LEVELS = 5  # MS-SSIM's levels (Wang et al.'s 5 weights)
 
 _REPR = reprlib.Repr()
 _REPR.maxlevel, _REPR.maxlist, _REPR.maxtuple, _REPR.maxdict = 3, 6, 6, 4
@@ -36,11 +43,65 @@ def check(cond: bool, key: str, message: str) -> None:
         raise ConfigError(f"{key}: {message}")
 
 
+@dataclass(frozen=True)
+class Range:
+    """The range a numeric param, or each number of a list param, must lie in, declared on its
+    field's type (``Annotated[int, Range(1, 64)]``) and enforced by :func:`check_ranges`:
+    ``low``..``high``, an end excluded when ``low_open`` / ``high_open``; ``note`` says why."""
+
+    low: float
+    high: float
+    low_open: bool = False
+    high_open: bool = False
+    note: str = ""
+
+    def holds(self, value: float) -> bool:
+        """Whether ``value`` lies in the range."""
+        above = value > self.low if self.low_open else value >= self.low
+        below = value < self.high if self.high_open else value <= self.high
+        return above and below
+
+    def __str__(self) -> str:
+        ends = (self.low, self.high)
+        if all(isinstance(end, int) for end in ends) and not (self.low_open or self.high_open):
+            return f"{self.low}..{self.high}"
+        return f"{'(' if self.low_open else '['}{self.low:g}, {self.high:g}{')' if self.high_open else ']'}"
+
+
+def declared_range(tp: Any) -> Range | None:
+    """The :class:`Range` of a field's type hint (read with ``include_extras``): of
+    ``Annotated[number, Range]``, or of its items in ``tuple[Annotated[number, Range], ...]``."""
+    if typing.get_origin(tp) is tuple:
+        tp = typing.get_args(tp)[0]
+    if typing.get_origin(tp) is Annotated:
+        return next((m for m in tp.__metadata__ if isinstance(m, Range)), None)
+    return None
+
+
+def check_ranges(config: Any, key: str) -> None:
+    """Raise a ConfigError ``"key.name: must be in ..."`` for the first number of the dataclass
+    ``config`` (nested sections included) outside the :class:`Range` its field declares."""
+    hints = typing.get_type_hints(type(config), include_extras=True)
+    for f in dataclasses.fields(config):
+        value, name = getattr(config, f.name), f"{key}.{f.name}"
+        if dataclasses.is_dataclass(value):
+            check_ranges(value, name)
+            continue
+        bound = declared_range(hints[f.name])
+        if bound is None:
+            continue
+        items = enumerate(value) if isinstance(value, tuple) else [(None, value)]
+        note = f" ({bound.note})" if bound.note else ""
+        for i, number in items:
+            where = name if i is None else f"{name}[{i}]"
+            check(bound.holds(number), where, f"must be in {bound}{note}, got {shown(number)}")
+
+
 def check_levels_fit(key: str, levels: int, height: int, width: int) -> None:
     """Raise a ConfigError on ``key.levels`` unless an MS-SSIM-type pyramid of ``levels`` levels
     keeps at least one pixel at the coarsest training scale (input ``height`` x ``width`` / 8).
     Windows use "same" padding, so a level only needs to exist."""
-    check(1 <= levels <= 5, f"{key}.levels", f"must be in 1..5, got {levels}")
+    check(1 <= levels <= MAX_SSIM_LEVELS, f"{key}.levels", f"must be in 1..{MAX_SSIM_LEVELS}, got {levels}")
     check(
         min(height, width) // 8 // 2 ** (levels - 1) >= 1,
         f"{key}.levels",

@@ -11,9 +11,9 @@ import typing
 import urllib.parse
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal, Sequence, get_args, get_origin
+from typing import Annotated, Any, Literal, Sequence, get_args, get_origin
 
-from msdepth.config.checks import SHOWN_CHARS, check, check_per_pixel_costs, shown
+from msdepth.config.checks import SHOWN_CHARS, Range, check, check_per_pixel_costs, check_ranges, shown
 from msdepth.config.network_sizes import TRAINING_SIDES, sides_problem
 from msdepth.config.params_yaml import parse
 from msdepth.config.variants import (
@@ -26,6 +26,32 @@ SEED_MAX = 2**32 - 1  # numpy's legacy seeding (np.random.seed) takes seeds belo
 MAX_SIZE = 4096  # px, network input and render size (KITTI: 375 x 1242)
 MAX_WIDTH_MULTIPLIER = 4.0  # 1.0 = the dissertation's ~31 M parameters; 4.0 about 16 times that
 MAX_DIST_TIMEOUT_S = 86_400.0  # a day; Python's timedelta (torch.distributed) overflows far above
+# The outer bounds of every other number (each field declares its Range; check_ranges enforces it):
+# far beyond any sensible value, and small enough that none exhausts memory, time or the process table.
+MAX_THREADS = max(4, 4 * (os.cpu_count() or 1))  # torch.set_num_threads(10**6) broke process creation
+MAX_FRAMES = 1_000_000  # frames, pairs or drives of a set (KITTI's raw data: ~47,000 frames)
+MAX_STEPS = 1_000_000  # optimiser steps or steps between host reads
+MAX_EPOCHS = 10_000
+MAX_BATCH = 4096
+MAX_LEARNING_RATE = 10.0  # Adam moves each parameter by about the rate per step
+MAX_WEIGHT = 1e4  # a loss term's weight (the defaults: 0.1 to 30)
+MAX_DEPTH_M = 10_000.0  # metres (KITTI's GT ends at ~80 m)
+MAX_NPROC = 1024  # torchrun's processes per node
+MAX_SOURCE_OFFSET = 100  # frames between a monocular target and its sources (Monodepth2: 1)
+MAX_JOBS = 64  # parallel downloads
+MAX_BOOTSTRAP_SAMPLES = 1_000_000  # resamples x rows of float64 per interval (10^12 asked 7 TiB)
+
+Seed = Annotated[int, Range(0, SEED_MAX)]
+Threads = Annotated[int, Range(1, MAX_THREADS, note="4 per CPU core, at least 4")]
+Frames = Annotated[int, Range(0, MAX_FRAMES)]  # 0 = all or none, as each field says
+Steps = Annotated[int, Range(1, MAX_STEPS)]
+Weight = Annotated[float, Range(0, MAX_WEIGHT)]
+Fraction = Annotated[float, Range(0, 1)]
+LearningRate = Annotated[float, Range(0, MAX_LEARNING_RATE, low_open=True)]
+WidthMultiplier = Annotated[float, Range(0, MAX_WIDTH_MULTIPLIER, low_open=True)]
+InitDisparity = Annotated[float, Range(0, 0.3, low_open=True, high_open=True, note="the heads' range")]
+Depth = Annotated[float, Range(0, MAX_DEPTH_M, low_open=True, note="metres")]
+SourceOffset = Annotated[int, Range(-MAX_SOURCE_OFFSET, MAX_SOURCE_OFFSET)]
 
 
 def _speed_only(default: Any) -> Any:
@@ -48,18 +74,18 @@ def _added_later(default: Any) -> Any:
 class SyntheticConfig:
     """The generated KITTI-format stereo set."""
 
-    seed: int = 2017
-    drives: int = 12
-    train_pairs: int = 1200
-    eval_frames: int = 40
-    height: int = 125
-    width: int = 414
+    seed: Seed = 2017
+    drives: Annotated[int, Range(1, MAX_FRAMES)] = 12
+    train_pairs: Annotated[int, Range(1, MAX_FRAMES)] = 1200
+    eval_frames: Annotated[int, Range(1, MAX_FRAMES)] = 40
+    height: Annotated[int, Range(32, MAX_SIZE)] = 125
+    width: Annotated[int, Range(64, MAX_SIZE)] = 414
     # Evaluation GT beyond this depth is left invalid (0), as KITTI's LiDAR-based GT has no
     # points past its range (~80 m); 0 keeps every rendered surface.
-    gt_max_depth: float = 80.0
+    gt_max_depth: Annotated[float, Range(0, MAX_DEPTH_M, note="metres; 0 = no limit")] = 80.0
     # > 0: each drive's training frames are sequences of this many frames, each one static scene
     # seen by a rig moving forward (Monodepth2's monocular training); 0 = independent frames.
-    sequence_length: int = _added_later(0)
+    sequence_length: Frames = _added_later(0)
 
     def validate(self, key: str, params: Params) -> None:
         """Range checks of the ``key`` section; a ConfigError names the key."""
@@ -91,8 +117,8 @@ class KittiConfig:
     allow_http: bool = False  # plain http only for a mirror you trust: anyone on the path can swap archives
     # The drives fetched are those the train split and eval.extra_sets' lists name; these restrict further.
     drives: tuple[str, ...] | None = None  # None = every needed drive; or those of the list that are needed
-    drive_count: int = 0  # > 0: only the first N needed drives (to start small)
-    jobs: int = 4  # parallel connections
+    drive_count: Frames = 0  # > 0: only the first N needed drives (to start small)
+    jobs: Annotated[int, Range(1, MAX_JOBS)] = 4  # parallel connections
     jpeg: bool = False  # convert extracted PNGs to JPEG (quality 92), as Monodepth did
     download_dir: str = "data/downloads"
     archive_list: str = "data_lists/kitti_archives_to_download.txt"
@@ -112,8 +138,8 @@ class KittiConfig:
     odometry: str = _added_later("odometry")
     odometry_sequences: tuple[str, ...] = _added_later(("09", "10"))
     rois_csv: str = ""  # hand-drawn boxes (image, class, x0, y0, x1, y1) added to the obj_map cars
-    roi_min_size: int = 16  # px, both sides of an automatic car box
-    roi_min_valid: float = 0.3  # fraction of an automatic car box with valid GT
+    roi_min_size: Annotated[int, Range(1, MAX_SIZE)] = 16  # px, both sides of an automatic car box
+    roi_min_valid: Fraction = 0.3  # fraction of an automatic car box with valid GT
 
     def validate(self, key: str, params: Params) -> None:
         """Range checks of the ``key`` section; a ConfigError names the key."""
@@ -203,8 +229,8 @@ class DataConfig:
     source: Literal["synthetic", "kitti", "folder"] = "synthetic"
     # Each source its own tree (msdepth.data.roots): data/synthetic here; KITTI: data/kitti.
     root: str = "data/synthetic"
-    height: int = 64
-    width: int = 192
+    height: Annotated[int, Range(TRAINING_SIDES.minimum, MAX_SIZE)] = 64
+    width: Annotated[int, Range(TRAINING_SIDES.minimum, MAX_SIZE)] = 192
     gt: Literal["disp_noc_0", "disp_occ_0"] = "disp_noc_0"
     synthetic: SyntheticConfig = field(default_factory=SyntheticConfig)
     kitti: KittiConfig = field(default_factory=KittiConfig)
@@ -229,14 +255,14 @@ class DataConfig:
 
 @dataclass(frozen=True)
 class ModelConfig:
-    width_multiplier: float = 0.25
-    init_disparity: float = 0.04
+    width_multiplier: WidthMultiplier = 0.25
+    init_disparity: InitDisparity = 0.04
     # none = the dissertation's conv + ELU network; group = a GroupNorm after every convolution
     norm: Literal["none", "group"] = "group"
     # independent = the dissertation's heads; residual = each finer scale corrects the coarser one
     heads: Literal["independent", "residual"] = "residual"
     # The pose network's width (train.mode mono | mono_stereo); 1.0 = Monodepth2's ResNet-18.
-    pose_width_multiplier: float = _added_later(0.25)
+    pose_width_multiplier: WidthMultiplier = _added_later(0.25)
     # The depth network: vgg = the dissertation's (Monodepth's); resnet18 = Monodepth2's.
     architecture: Literal["vgg", "resnet18"] = _added_later("vgg")
     # "" = from scratch; or a torchvision resnet18 state dict a user downloaded, for every ResNet
@@ -299,16 +325,16 @@ class ModelConfig:
 @dataclass(frozen=True)
 class TrainConfig:
     # One training run per variant and seed; each seed seeds init, shuffling and augmentation.
-    seeds: tuple[int, ...] = (0, 1, 2)
-    epochs: int = 8
-    batch_size: int = 8
-    learning_rate: float = 1e-4
-    num_workers: int = _speed_only(0)
+    seeds: tuple[Seed, ...] = (0, 1, 2)
+    epochs: Annotated[int, Range(1, MAX_EPOCHS)] = 8
+    batch_size: Annotated[int, Range(1, MAX_BATCH)] = 8
+    learning_rate: LearningRate = 1e-4
+    num_workers: Annotated[int, Range(0, MAX_THREADS, note="4 per CPU core, at least 4")] = _speed_only(0)
     augment: bool = True
     device: Literal["cpu", "cuda", "auto"] = _speed_only("cpu")
     # torch's CPU threads split its reductions differently, so the count changes float rounding
     # (weights by ~1e-7, benchmarks/README.md); a checkpoint still resumes at another count.
-    threads: int = _speed_only(2)
+    threads: Threads = _speed_only(2)
     # Speed switches for a GPU (all off on the CPU default). The loss is always computed in fp32;
     # amp changes the network's arithmetic, so it is not speed-only.
     amp: Literal["none", "bf16"] = "none"
@@ -319,17 +345,18 @@ class TrainConfig:
     cudnn_benchmark: bool = _speed_only(True)
     # Steps between reads of the loss on the host (non-finite check, progress bar, epoch means);
     # 0 = automatic: every step on the CPU, every 50 on a GPU, whose queue each read drains.
-    sync_every: int = _speed_only(0)
+    sync_every: Annotated[int, Range(0, MAX_STEPS)] = _speed_only(0)
     # Data parallel: `torchrun` runs nproc processes (batch_size is per process, so nproc
     # changes the global batch and is not speed-only).
     launcher: Literal["local", "torchrun"] = _speed_only("local")
-    nproc: int = 1
-    dist_timeout_s: float = _speed_only(600.0)  # a collective waiting longer (a dead rank) is an error
+    nproc: Annotated[int, Range(1, MAX_NPROC)] = 1
+    # A collective waiting longer (a dead rank) is an error.
+    dist_timeout_s: Annotated[float, Range(0, MAX_DIST_TIMEOUT_S, low_open=True)] = _speed_only(600.0)
     # stereo = Monodepth (left-right pairs); mono / mono_stereo = Monodepth2's M / MS
     # (msdepth.losses.monocular), which need frame sequences: data.synthetic.sequence_length > 0.
     mode: Literal["stereo", "mono", "mono_stereo"] = _added_later("stereo")
     # Monodepth2's source frames of the monocular modes, as offsets from the target frame.
-    source_frames: tuple[int, ...] = _added_later((-1, 1))
+    source_frames: tuple[SourceOffset, ...] = _added_later((-1, 1))
 
     @property
     def monocular(self) -> bool:
@@ -397,9 +424,9 @@ def fingerprint_fields(cfg: Any) -> dict[str, Any]:
 
 @dataclass(frozen=True)
 class LossConfig:
-    alpha: float = 0.85  # appearance = alpha*(1-S)/2 + (1-alpha)*L1 of the SSIM-type terms
-    smoothness_weight: float = 0.1
-    lr_weight: float = 1.0
+    alpha: Fraction = 0.85  # appearance = alpha*(1-S)/2 + (1-alpha)*L1 of the SSIM-type terms
+    smoothness_weight: Weight = 0.1
+    lr_weight: Weight = 1.0
     padding_mode: Literal["border", "zeros"] = "border"
     # SSIM/MS-SSIM arithmetic: fast = msdepth.losses.ssim_kernels, reference = the written-out autograd
     # formula (same values up to rounding; a fallback, and what the fast kernels are tested against).
@@ -429,11 +456,11 @@ def _registered_sections() -> dict[str, Any]:
 
 @dataclass(frozen=True)
 class EvalConfig:
-    caps: tuple[float, ...] = (80.0, 50.0)
-    min_depth: float = 1e-3
+    caps: tuple[Depth, ...] = (80.0, 50.0)
+    min_depth: Depth = 1e-3
     mask_gt_beyond_cap: bool = False
     post_process: bool = True
-    dense_gt_fraction: float = 0.9
+    dense_gt_fraction: Annotated[float, Range(0, 1, low_open=True)] = 0.9
     # Evaluated beside KITTI 2015 (which always runs: the dissertation's tables and the ROI
     # suites), full-image suite only, each under metrics/sets/<set>/ (msdepth.data.eval_sets);
     # kitti2012's full-image summary adds its exact class "reflective" (msdepth.evaluation.classes).
@@ -456,9 +483,9 @@ class EvalConfig:
 @dataclass(frozen=True)
 class CompareConfig:
     reference: str = "ssim"  # every other run is compared with this variant
-    bootstrap_samples: int = 10_000
-    confidence: float = 0.95
-    seed: int = 0
+    bootstrap_samples: Annotated[int, Range(100, MAX_BOOTSTRAP_SAMPLES)] = 10_000
+    confidence: Annotated[float, Range(0, 1, low_open=True, high_open=True)] = 0.95
+    seed: Seed = 0
 
     def validate(self, key: str, params: Params) -> None:
         """Range checks of the ``key`` section; a ConfigError names the key."""
@@ -486,6 +513,7 @@ MAX_OPTIMUM_LEVELS = 12
 MAX_OPTIMUM_BATCH = 64
 MAX_WIDTH_DEFAULT = 640  # optimum.max_width: KITTI's 1242 px halved, the render's 414 px kept
 MIN_MAX_WIDTH = 64  # a cap below it would leave the coarsest level under SSIM's windows
+OptimumLevels = Annotated[int, Range(1, MAX_OPTIMUM_LEVELS)]
 
 
 @dataclass(frozen=True)
@@ -493,36 +521,40 @@ class OptimumConfig:
     """The losses' own optimum (:mod:`msdepth.optimum.solver`): per stereo pair, the disparity maps that
     minimise a variant's training objective, optimised directly (no network; docs/optimum.md)."""
 
-    levels: int = 3  # coarse-to-fine levels, each half the size of the next (fewer if the image is small)
-    iterations: int = 100  # Adam steps per level: the stopping rule (docs/optimum.md, measured)
-    learning_rate: float = 0.05  # Adam's, on the logit of disparity / 0.3 (the network heads' range)
-    init_disparity: float = 0.04  # the constant start, fraction of the width
+    # coarse-to-fine levels, each half the size of the next (fewer if the image is small)
+    levels: OptimumLevels = 3
+    # Adam steps per level: the stopping rule. 50 fits the pipeline's time budget; the measured rule
+    # is 100, which ``msdepth optimum`` uses without a params file (docs/optimum.md).
+    iterations: Steps = 50
+    learning_rate: LearningRate = 0.05  # Adam's, on the logit of disparity / 0.3 (the network heads' range)
+    init_disparity: InitDisparity = 0.04  # the constant start, fraction of the width
     # constant: coarse to fine from init_disparity; cost/sgbm: a matched start (msdepth.optimum.starts),
     # refined by refine_iterations Adam steps at each of the finest refine_levels levels (docs/optimum.md).
     start: OptimumStart = "cost"
-    refine_levels: int = 2
-    refine_iterations: int = 50
-    height: int = 0  # working size; 0 = data.synthetic's render size (the CLI: the image's own)
-    width: int = 0
+    refine_levels: OptimumLevels = 2
+    refine_iterations: Steps = 50
+    height: Annotated[int, Range(0, MAX_OPTIMUM_SIDE)] = 0  # working size; 0 = data.synthetic's render size
+    width: Annotated[int, Range(0, MAX_OPTIMUM_SIDE)] = 0  # (the CLI: the image's own)
     # The widest the matcher and the solver work at: a wider working size is worked at its largest
     # halving within it and the result resized back (0: no cap). At half of KITTI's 1242 px the
     # optimum agrees with full size within 0.013 abs_rel at a quarter of the time (docs/optimum.md).
-    max_width: int = MAX_WIDTH_DEFAULT
+    max_width: Annotated[int, Range(0, MAX_OPTIMUM_SIDE)] = MAX_WIDTH_DEFAULT
     # Its own weight, not loss.smoothness_weight: a network regularises implicitly, a per-pixel
     # map does not. Results are reported at every weight of smoothness_sweep (a decade or more).
-    smoothness_weight: float = 10.0
-    smoothness_sweep: tuple[float, ...] = (3.0, 10.0, 30.0)
+    smoothness_weight: Weight = 10.0
+    smoothness_sweep: tuple[Annotated[float, Range(0, MAX_WEIGHT, low_open=True)], ...] = (3.0, 10.0, 30.0)
     # 0: the weights as given at any working size. N: they hold at a working width of N px and
     # scale by W / N at width W (the smoothness term falls as 1 / W; docs/optimum.md, measured).
     # 414: the render width, where the weights were chosen, so the pipeline's results keep them.
-    smoothness_width: int = 414
-    batch_size: int = 4  # pairs optimised together (independent: each pair's gradient is its own)
+    smoothness_width: Annotated[int, Range(0, MAX_OPTIMUM_SIDE)] = 414
+    # pairs optimised together (independent: each pair's gradient is its own)
+    batch_size: Annotated[int, Range(1, MAX_OPTIMUM_BATCH)] = 4
     # The pipeline's optimum stages (docs/optimum-pipeline.md): the sweep's weights other than
     # smoothness_weight see only the first sweep_frames evaluation frames (0 = all), the cost
     # curves the ROIs of the first cost_frames; torch threads.
-    sweep_frames: int = 4
-    cost_frames: int = 8
-    threads: int = 2
+    sweep_frames: Frames = 4
+    cost_frames: Frames = 8
+    threads: Threads = 2
 
     def validate(self, key: str, params: Params) -> None:
         """Range checks of the ``key`` section; a ConfigError names the key."""
@@ -712,6 +744,13 @@ def validate(p: Params) -> Params:
     p.eval.validate("eval", p)
     p.compare.validate("compare", p)
     p.optimum.validate("optimum", p)
+    # Last, so that a value with a check of its own gets that check's message.
+    for f in dataclasses.fields(p):
+        section = getattr(p, f.name)
+        if dataclasses.is_dataclass(section):
+            check_ranges(section, f.name)
+    for name, section in p.appearance.items():
+        check_ranges(section, name)
     return p
 
 

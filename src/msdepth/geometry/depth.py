@@ -16,7 +16,21 @@ def pixel_disparity(disp_fraction: np.ndarray, height: int, width: int) -> np.nd
 
 
 def disparity_to_depth(disp_px: np.ndarray, focal: float, baseline: float) -> np.ndarray:
-    """Depth (m) = focal * baseline / disparity; pixels with disparity <= 0 get depth 0 (invalid)."""
+    """Depth (m) = focal * baseline / disparity; pixels with disparity <= 0 get depth 0 (invalid).
+
+    Args:
+        disp_px: disparity in px (GT: 0 where there is none).
+        focal: focal length in px, at the disparity map's width.
+        baseline: stereo baseline in m.
+
+    Returns:
+        float32 depth in m, the shape of ``disp_px``; 0 where the disparity is <= 0.
+
+    Example:
+        >>> import numpy as np
+        >>> disparity_to_depth(np.array([36.0, 0.0]), focal=720.0, baseline=0.5)
+        array([10.,  0.], dtype=float32)
+    """
     disp_px = np.asarray(disp_px, dtype=np.float32)
     depth = np.zeros_like(disp_px)
     valid = disp_px > 0
@@ -40,7 +54,21 @@ def predicted_depth(disp_px: np.ndarray, focal: float, baseline: float) -> np.nd
 
 def depth_to_disparity(depth: np.ndarray, focal: float, baseline: float) -> np.ndarray:
     """Disparity (px, float64) = focal * baseline / depth of depths in m; depth <= 0 gives 0 (no GT,
-    as KITTI's disparity maps mark it) and infinite depth 0 px."""
+    as KITTI's disparity maps mark it) and infinite depth 0 px.
+
+    Args:
+        depth: depth in m (0 where there is none).
+        focal: focal length in px, at the disparity map's width.
+        baseline: stereo baseline in m.
+
+    Returns:
+        float64 disparity in px, the shape of ``depth``.
+
+    Example:
+        >>> import numpy as np
+        >>> depth_to_disparity(np.array([10.0, 0.0, np.inf]), focal=720.0, baseline=0.5)
+        array([36.,  0.,  0.])
+    """
     depth = np.asarray(depth, dtype=np.float64)
     out = np.zeros_like(depth)
     valid = depth > 0

@@ -28,6 +28,20 @@ def warp(image: Tensor, disparity: Tensor, padding_mode: PaddingMode = "border")
 
     Returns:
         The warped (B, C, H, W) tensor, differentiable w.r.t. both ``image`` and ``disparity``.
+
+    Raises:
+        ValueError: an image that is not 4-D, a disparity not (B, 1, H, W), or an unknown
+            ``padding_mode``.
+
+    Example:
+        >>> import torch
+        >>> image = torch.arange(4.0).reshape(1, 1, 1, 4)
+        >>> warp(image, torch.full((1, 1, 1, 4), 0.25))  # 0.25 of 4 px: each pixel reads its right neighbour
+        tensor([[[[1., 2., 3., 3.]]]])
+        >>> warp(image, torch.full((1, 1, 1, 4), 0.25), padding_mode="zeros")
+        tensor([[[[1., 2., 3., 0.]]]])
+        >>> warp(image, torch.full((1, 1, 1, 4), 0.125))  # half a pixel: bilinear
+        tensor([[[[0.5000, 1.5000, 2.5000, 3.0000]]]])
     """
     if image.dim() != 4:
         raise ValueError(f"warp: image must be (B, C, H, W), got shape {tuple(image.shape)}")

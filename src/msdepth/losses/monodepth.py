@@ -152,13 +152,30 @@ def ssim(
     Monodepth; ``"gaussian"`` with ``sigma``, as in Wang et al. and pytorch-msssim).
 
     Args:
+        x: (B, C, H, W) image in [0, 1].
+        y: (B, C, H, W) image in [0, 1], the shape of ``x``.
+        kernel_size: odd window size in px.
         padding: ``"valid"`` (Monodepth) returns (B, C, H-k+1, W-k+1); ``"reflect"`` (Monodepth2)
             reflection-pads by k//2 first and returns the full (B, C, H, W).
+        window: ``"box"`` or ``"gaussian"``.
+        sigma: the Gaussian window's standard deviation in px.
         implementation: ``"fast"`` (:mod:`msdepth.losses.ssim_kernels`) or ``"reference"``
             (:func:`reference_ssim_terms`); the same values up to rounding.
 
     Returns:
         The SSIM map; 1 where the images agree locally, can be negative for anticorrelated ones.
+
+    Raises:
+        ValueError: shapes that differ or are not 4-D, an even or non-positive ``kernel_size``, an
+            unknown ``padding`` or ``implementation``, or an image smaller than the window.
+
+    Example:
+        >>> import torch
+        >>> x = torch.linspace(0, 1, 64).reshape(1, 1, 8, 8)
+        >>> ssim(x, x).shape  # valid padding: 8 - 3 + 1 px a side
+        torch.Size([1, 1, 6, 6])
+        >>> round(ssim(x, x).mean().item(), 4), round(ssim(x, 1 - x).mean().item(), 4)
+        (1.0, -0.6548)
     """
     _check_pair("ssim", x, y)
     _check_kernel("ssim", kernel_size)
@@ -232,12 +249,27 @@ def ms_ssim(
     the window.
 
     Args:
+        x: (B, C, H, W) image in [0, 1].
+        y: (B, C, H, W) image in [0, 1], the shape of ``x``.
         kernel_size: odd window size (dissertation: 3, 5, 7 or 11).
         levels: number of scales.
         weights: ``"wang"``, ``"equal"``, or a 1-D tensor of per-level weights (fine -> coarse).
         window: ``"box"`` (average pooling) or ``"gaussian"`` (separable, ``sigma``).
+        sigma: the Gaussian window's standard deviation in px.
         padding: ``"same"`` (keep size, average only in-image pixels) or ``"valid"``.
         implementation: ``"fast"`` or ``"reference"``, as for :func:`ssim`.
+
+    Returns:
+        (B,) MS-SSIM per image: 1 for identical images.
+
+    Raises:
+        ValueError: as :func:`ssim`, and for bad ``levels``, ``weights`` or ``window``.
+
+    Example:
+        >>> import torch
+        >>> x = torch.linspace(0, 1, 256).reshape(1, 1, 16, 16)
+        >>> round(ms_ssim(x, x).item(), 4), round(ms_ssim(x, 0.5 * x).item(), 4)
+        (1.0, 0.763)
     """
     _check_pair("ms_ssim", x, y)
     return ms_ssim_pyramid([x], [y], kernel_size, levels, weights, window, sigma, padding, implementation)[0]

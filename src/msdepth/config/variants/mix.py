@@ -5,13 +5,16 @@ whose docstring explains the defaults)."""
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, ClassVar, Literal
+from typing import TYPE_CHECKING, Annotated, ClassVar, Literal
 
-from msdepth.config.checks import check, check_levels_fit
+from msdepth.config.checks import MAX_KERNEL_SIZE, MAX_SSIM_LEVELS, Range, check, check_levels_fit
 from msdepth.config.variants import register
 
 if TYPE_CHECKING:
     from msdepth.config.params import Params
+
+
+MAX_SIGMA = 64.0  # px, the Gaussian window's sigma (0.5 by default)
 
 
 @register("mix")
@@ -19,10 +22,12 @@ if TYPE_CHECKING:
 class MixConfig:
     # No per-pixel form of its term (msdepth.optimum.cost_volume): optimum.start: cost cannot match on it.
     per_pixel_cost: ClassVar[bool] = False
-    alpha: float = 0.84  # Zhao et al.'s weight of the MS-SSIM term
-    levels: int = 4  # 5 in Zhao et al.; needs an input whose coarsest training scale has 16 px
-    sigma: float = 0.5  # px, the Gaussian window of every level (level i: sigma·2^i px of the image)
-    kernel_size: int = 5  # taps of that window (±4σ at 0.5 px)
+    alpha: Annotated[float, Range(0, 1)] = 0.84  # Zhao et al.'s weight of the MS-SSIM term
+    # 5 in Zhao et al.; needs an input whose coarsest training scale has 16 px
+    levels: Annotated[int, Range(1, MAX_SSIM_LEVELS)] = 4
+    # px, the Gaussian window of every level (level i: sigma·2^i px of the image)
+    sigma: Annotated[float, Range(0, MAX_SIGMA, low_open=True)] = 0.5
+    kernel_size: Annotated[int, Range(1, MAX_KERNEL_SIZE)] = 5  # taps of that window (±4σ at 0.5 px)
     weights: Literal["ones", "wang", "equal"] = "ones"  # ones: Zhao et al.'s exponents of 1
 
     @property

@@ -3,9 +3,9 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, ClassVar, Literal
+from typing import TYPE_CHECKING, Annotated, ClassVar, Literal
 
-from msdepth.config.checks import check, check_levels_fit
+from msdepth.config.checks import MAX_KERNEL_SIZE, MAX_SSIM_LEVELS, Range, check, check_levels_fit
 from msdepth.config.variants import register
 
 if TYPE_CHECKING:
@@ -17,8 +17,8 @@ if TYPE_CHECKING:
 class MSSSIMConfig:
     # A per-pixel form of its term exists (msdepth.optimum.cost_volume): optimum.start: cost can match on it.
     per_pixel_cost: ClassVar[bool] = True
-    kernel_size: int = 3
-    levels: int = 4
+    kernel_size: Annotated[int, Range(1, MAX_KERNEL_SIZE)] = 3
+    levels: Annotated[int, Range(1, MAX_SSIM_LEVELS)] = 4
     weights: Literal["wang", "equal", "learned"] = "wang"
 
     def validate(self, key: str, params: Params) -> None:

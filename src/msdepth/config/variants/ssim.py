@@ -3,9 +3,9 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, ClassVar, Literal
+from typing import TYPE_CHECKING, Annotated, ClassVar, Literal
 
-from msdepth.config.checks import check
+from msdepth.config.checks import MAX_KERNEL_SIZE, Range, check
 from msdepth.config.variants import register
 
 if TYPE_CHECKING:
@@ -17,7 +17,7 @@ if TYPE_CHECKING:
 class SSIMConfig:
     # A per-pixel form of its term exists (msdepth.optimum.cost_volume): optimum.start: cost can match on it.
     per_pixel_cost: ClassVar[bool] = True
-    kernel_size: int = 3
+    kernel_size: Annotated[int, Range(1, MAX_KERNEL_SIZE)] = 3
     padding: Literal["valid", "reflect"] = "valid"
 
     def validate(self, key: str, params: Params) -> None:

@@ -1,0 +1,47 @@
+"""The public science API's docstrings: structured (``Args:``, ``Returns:``) with an ``Example:`` that
+runs here as a doctest, so an example whose printed output is wrong fails the fast tier.
+
+Each ``>>>`` line is run in its module's namespace and its output compared with the docstring's.
+"""
+
+from __future__ import annotations
+
+import doctest
+import importlib
+
+import pytest
+
+# module -> its functions that must show a runnable example
+SCIENCE_API = {
+    "msdepth.losses.monodepth": ("ssim", "ms_ssim"),
+    "msdepth.evaluation.metrics": ("compute_errors", "stereo_errors"),  # stereo_errors: D1 and EPE
+    "msdepth.geometry.depth": ("disparity_to_depth", "depth_to_disparity"),
+    "msdepth.geometry.warp": ("warp",),
+}
+FUNCTIONS = [(module, name) for module, names in SCIENCE_API.items() for name in names]
+
+
+@pytest.mark.parametrize(("module", "name"), FUNCTIONS, ids=[f"{m}.{n}" for m, n in FUNCTIONS])
+def test_each_science_function_has_a_structured_docstring_with_an_example(module: str, name: str) -> None:
+    doc = getattr(importlib.import_module(module), name).__doc__ or ""
+    missing = [part for part in ("Args:", "Returns:", "Example:", ">>> ") if part not in doc]
+    assert not missing, f"{module}.{name}: its docstring lacks {missing}"
+
+
+@pytest.mark.parametrize("module", sorted(SCIENCE_API))
+def test_the_examples_print_what_their_docstrings_say(module: str) -> None:
+    tests = [t for t in doctest.DocTestFinder().find(importlib.import_module(module)) if t.examples]
+    assert tests, f"{module}: no examples found"
+    report: list[str] = []
+    runner = doctest.DocTestRunner(optionflags=doctest.NORMALIZE_WHITESPACE)
+    for test in tests:
+        runner.run(test, out=report.append)
+    assert runner.failures == 0, "".join(report)
+
+
+def test_a_wrong_output_fails() -> None:
+    """The runner above is not vacuous: an example whose output differs counts as a failure."""
+    wrong = doctest.DocTestParser().get_doctest(">>> 1 + 1\n3\n", {}, "wrong", None, 0)
+    runner = doctest.DocTestRunner()
+    runner.run(wrong, out=lambda _: None)
+    assert runner.failures == 1
