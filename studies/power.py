@@ -1,13 +1,18 @@
-"""How many seeds would a verdict at the observed MS-SSIM − SSIM differences need? (issue 39, item 5)
+"""How many seeds would a verdict at the observed MS-SSIM − SSIM differences need, paired by seed?
 
-From the committed runs only (no training): each variant's per-seed abs_rel (cap of the headline)
-on the full frame (``metrics/full/<variant>/seed<S>.json``), over all ROIs and per ROI class
-(``metrics/roi/...``). δ is the difference of the variants' means over seeds and σ the pooled
-per-seed standard deviation. The seeds per variant needed for 80 % power in a two-sided 5 %
-two-sample test come from :mod:`msdepth.reporting.power`, with the normal formula and the t-based
-size; so does the power of the design as run. Run from the repository root::
+From committed runs only (no training): each variant's per-seed abs_rel (cap of the headline) on
+the full frame (``metrics/full/<variant>/seed<S>.json``), over all ROIs and per ROI class
+(``metrics/roi/...``); or, with ``--compare``, the per-seed values a ``compare.json`` keeps
+(``seed_spread``: full frame and all ROIs). Both losses train with the same seeds, so seed ``s`` of
+each is a pair (:mod:`msdepth.training.pairing`): δ is the mean of the per-seed differences and σ_d
+their standard deviation. The seed pairs needed for 80 % power in a two-sided 5 % paired t-test,
+the power of the design as run, and the smallest difference it detects come from
+:mod:`msdepth.reporting.power`; the unpaired two-sample size is shown beside it for comparison.
+Run from the repository root::
 
     python studies/power.py --out studies/results/power.md
+    python studies/power.py --compare studies/results/seeds12/compare.json \\
+        --out studies/results/seeds12/power.md
 """
 
 from __future__ import annotations
@@ -17,11 +22,14 @@ import math
 import sys
 from pathlib import Path
 
+import numpy as np
+
+from msdepth.errors import DataError
 from msdepth.io import claim_output_file, write_text
 from msdepth.pipeline.paths import METRICS, run_name
 from msdepth.reporting.compare import load_suite_metrics
-from msdepth.reporting.power import pooled_sd, power_at, seeds_needed
-from msdepth.reporting.report import Results, load_results
+from msdepth.reporting.power import detectable_difference, pooled_sd, power_at, seeds_needed
+from msdepth.reporting.report import Results, load_results, read_json_object
 
 ALPHA, POWER = 0.05, 0.8
 CAP_SEEDS = 12  # issue 39's ceiling on extra stereo seeds
@@ -42,6 +50,16 @@ def per_seed(results: Results, variant: str, metrics_root: Path) -> dict[str, li
     return rows
 
 
+def per_seed_from_compare(data: dict, variant: str, cap: str) -> dict[str, list[float]]:
+    """``{row: [value per seed]}`` from a compare.json's ``seed_spread`` (full frame, all ROIs), the
+    runs in seed order."""
+    rows = {}
+    for suite, row in (("full", "full frame"), ("roi", "all ROIs")):
+        runs = data["seed_spread"][suite][cap][variant][METRIC]["runs"]
+        rows[row] = [runs[r] for r in sorted(runs, key=lambda r: int(r.rsplit("seed", 1)[1]))]
+    return rows
+
+
 def _signed(value: float, decimals: int) -> str:
     """``value`` with its sign, a typographic minus as in the project's reports."""
     return f"{value:+.{decimals}f}".replace("-", "\u2212")
@@ -51,74 +69,108 @@ def _size(n: float) -> str:
     return "∞" if math.isinf(n) else str(int(n))
 
 
-def table(results: Results, variant: str, metrics_root: Path) -> list[str]:
-    """The markdown table of ``variant`` against the reference, one row per class."""
-    reference = results.reference or results.variants[0]
-    ours, theirs = per_seed(results, variant, metrics_root), per_seed(results, reference, metrics_root)
-    lines = [
-        f"| class | {results.label(reference)} | {results.label(variant)} | δ | σ per seed | δ/σ "
-        f"| n seeds (normal) | n seeds (t) | power at {len(results.seeds)} seeds | at {CAP_SEEDS} | |",
-        "|---|---|---|---|---|---|---|---|---|---|---|",
-    ]
+HEADER = (
+    "| class | {ref} | {var} | δ | σ_d (pairs) | r | pairs needed (t) | power at {n} | at {cap} "
+    "| smallest δ at {n} | σ unpaired | n unpaired (t) |"
+)
+
+
+def table(labels: tuple[str, str], ours: dict, theirs: dict) -> list[str]:
+    """The markdown table of one variant (``ours``) against the reference (``theirs``), one row per
+    class, each ``{row: [value per seed]}`` over the same seeds in the same order."""
+    seeds = len(next(iter(ours.values())))
+    later = CAP_SEEDS if seeds < CAP_SEEDS else 2 * seeds  # the power a larger study would have
+    lines = [HEADER.format(ref=labels[1], var=labels[0], n=seeds, cap=later), "|---" * 12 + "|"]
     needs: dict[str, float] = {}
     for row, values in ours.items():
-        a, b = sum(theirs[row]) / len(theirs[row]), sum(values) / len(values)
-        delta, sd = b - a, pooled_sd(theirs[row], values)
-        n_normal = seeds_needed(delta, sd, ALPHA, POWER, t_based=False)
-        n_t = needs[row] = seeds_needed(delta, sd, ALPHA, POWER)
-        note = f"more than {CAP_SEEDS}" if n_t > CAP_SEEDS else f"within {CAP_SEEDS}"
-        powers = [power_at(n, delta, sd, ALPHA) for n in (len(results.seeds), CAP_SEEDS)]
+        a, b = np.array(theirs[row]), np.array(values)
+        d = b - a
+        delta, sd_d, sd = float(d.mean()), float(d.std(ddof=1)), pooled_sd(list(a), list(b))
+        r = float(np.corrcoef(a, b)[0, 1]) if a.std() > 0 and b.std() > 0 else float("nan")
+        n_t = needs[row] = seeds_needed(delta, sd_d, ALPHA, POWER, paired=True)
+        powers = [power_at(n, delta, sd_d, ALPHA, paired=True) for n in (seeds, later)]
+        smallest = detectable_difference(seeds, sd_d, ALPHA, POWER, paired=True)
         lines.append(
-            f"| {row} | {a:.4f} | {b:.4f} | {_signed(delta, 4)} | {sd:.4f} | {_signed(delta / sd, 2)} | "
-            f"{_size(n_normal)} | {_size(n_t)} | {powers[0]:.2f} | {powers[1]:.2f} | {note} |"
+            f"| {row} | {a.mean():.4f} | {b.mean():.4f} | {_signed(delta, 4)} | {sd_d:.4f} | {r:.2f} | "
+            f"{_size(n_t)} | {powers[0]:.2f} | {powers[1]:.2f} | {smallest:.4f} | {sd:.4f} | "
+            f"{_size(seeds_needed(delta, sd, ALPHA, POWER))} |"
         )
     return lines + ["", summary(needs)]
 
 
 def summary(needs: dict[str, float]) -> str:
-    """One sentence: which rows a study of up to CAP_SEEDS seeds per variant could decide."""
+    """One sentence: which rows a study of up to CAP_SEEDS seed pairs could decide."""
     within = [row for row, n in needs.items() if n <= CAP_SEEDS]
     least = min(needs, key=needs.get)
     if within:
-        return f"Within {CAP_SEEDS} seeds per variant, 80 % power is reached for: {', '.join(within)}."
+        return f"Within {CAP_SEEDS} seed pairs, 80 % power is reached for: {', '.join(within)}."
     return (
-        f"No row reaches 80 % power within {CAP_SEEDS} seeds per variant at the observed difference; "
-        f"the fewest are needed for {least} ({_size(needs[least])} per variant)."
+        f"No row reaches 80 % power within {CAP_SEEDS} seed pairs at the observed difference; "
+        f"the fewest are needed for {least} ({_size(needs[least])} pairs)."
     )
 
 
-def report(root: Path) -> str:
-    """The study's markdown, for every variant against the comparison's reference."""
+def preamble(source: str, seeds: str, cap_m: str, reference: str) -> list[str]:
+    """The study's opening paragraph: where the numbers come from and what each column is."""
+    return [
+        "# Seeds a verdict needs, paired by seed",
+        "",
+        f"Generated by `studies/power.py` from {source}: {METRIC} at cap {cap_m} m, seeds {seeds}. "
+        "Both losses train with the same seeds (the same initial weights and data order), so seed s "
+        f"of each is a pair. δ: the mean over seeds of the variant's value minus {reference}'s "
+        "(negative: lower error); σ_d: the standard deviation of those per-seed differences; r: the "
+        "two variants' correlation over seeds. Pairs needed: for a two-sided paired t-test at "
+        f"{ALPHA * 100:g} % with {POWER * 100:g} % power (`msdepth.reporting.power`: "
+        "n = (z₀.₉₇₅ + z₀.₈)²σ_d²/δ², then the smallest n whose noncentral-t power reaches 80 %, "
+        "df = n − 1). Smallest δ: the difference the seeds as run detect with 80 % power. σ and n "
+        "unpaired: the two-sample test that ignores the pairing, for comparison. With few seeds σ_d "
+        "rests on few degrees of freedom: the sizes are a rough guide.",
+    ]
+
+
+def report(root: Path, compare: Path | None = None) -> str:
+    """The study's markdown, for every variant against the comparison's reference: from the
+    committed metrics below ``root``, or from ``compare`` (a compare.json) where given."""
+    if compare is not None:
+        data = read_json_object(compare, "a compare.json of the compare stage")
+        reference = data["statistics"]["reference"]
+        cap = next(iter(data["seed_spread"]["full"]))  # the headline cap comes first
+        variants = [v for v in data["variants"] if v != reference]
+        seeds = ", ".join(map(str, data["seeds"]))
+        source = f"`{compare.as_posix()}` (its per-seed values: full frame and all ROIs)"
+        lines = preamble(source, seeds, cap[3:], reference)
+        for variant in variants:
+            ours = per_seed_from_compare(data, variant, cap)
+            theirs = per_seed_from_compare(data, reference, cap)
+            lines += ["", f"## {variant} vs {reference}", "", *table((variant, reference), ours, theirs)]
+        return "\n".join(lines) + "\n"
     results = load_results(root)
     reference = results.reference or results.variants[0]
-    lines = [
-        "# Seeds a verdict needs",
-        "",
-        "Generated by `studies/power.py` from the committed runs (`metrics/compare.json`, "
-        f"`metrics/full/`, `metrics/roi/`): {METRIC} at cap {results.cap_m} m, seeds "
-        f"{', '.join(map(str, results.seeds))} of each variant. δ: the variant's mean over seeds minus "
-        f"{results.label(reference)}'s (negative: lower error); σ: the per-seed standard deviation "
-        "pooled over the two variants; n seeds: per variant, for a two-sided two-sample test at "
-        f"{ALPHA * 100:g} % with {POWER * 100:g} % power (`msdepth.reporting.power`: "
-        "n = 2(z₀.₉₇₅ + z₀.₈)²σ²/δ², and the smallest n whose noncentral-t power reaches 80 %). "
-        "The comparison draws each variant's seeds independently, so seeds are not paired. σ rests on "
-        f"{2 * len(results.seeds) - 2} degrees of freedom: the sizes are a rough guide.",
-    ]
+    source = "the committed runs (`metrics/compare.json`, `metrics/full/`, `metrics/roi/`)"
+    lines = preamble(source, ", ".join(map(str, results.seeds)), results.cap_m, results.label(reference))
     for variant in results.variants:
         if variant != reference:
-            lines += ["", f"## {results.label(variant)} vs {results.label(reference)}", ""]
-            lines += table(results, variant, root / METRICS)
+            labels = (results.label(variant), results.label(reference))
+            ours = per_seed(results, variant, root / METRICS)
+            theirs = per_seed(results, reference, root / METRICS)
+            lines += ["", f"## {labels[0]} vs {labels[1]}", "", *table(labels, ours, theirs)]
     return "\n".join(lines) + "\n"
 
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--root", type=Path, default=Path("."), help="the project folder (committed metrics)")
+    ap.add_argument("--compare", type=Path, help="a compare.json to read the per-seed values from")
     ap.add_argument("--out", type=Path, help="the markdown table (printed if not given)")
     args = ap.parse_args(argv)
-    if not claim_output_file(args.out, "power", args.root / METRICS):  # before the work
+    if not claim_output_file(args.out, "power", args.compare or args.root / METRICS):  # before the work
         return 1
-    text = report(args.root)
+    try:
+        text = report(args.root, args.compare)
+    except (DataError, KeyError) as exc:
+        where = args.compare or args.root
+        print(f"error: {where}: not the per-seed values this study reads ({exc})", file=sys.stderr)
+        return 1
     if args.out:
         write_text(args.out, text)
     print(text)

@@ -150,7 +150,7 @@ def test_a_marked_difference_is_a_verdict_an_unmarked_one_is_not(tmp_path: Path)
     assert "**Verdict**: MS-SSIM (k=3) has an abs_rel 0.020 lower than SSIM's" in text
     assert "[−0.030, −0.010] over images and seeds, which excludes 0 (marked `*`" in text
     assert "the constant on glass" in text and "car" not in text.split("On the ROIs")[1]
-    assert "KITTI 2015 layout, cap 80 m, 10 frames, 7 ROIs; variants: mean ± sd over 3 seeds" in text
+    assert "The committed run: KITTI 2015 layout, cap 80 m, 10 frames, 7 ROIs, 3 seeds per loss." in text
 
 
 def test_with_one_seed_nothing_is_marked(tmp_path: Path):
@@ -161,7 +161,7 @@ def test_with_one_seed_nothing_is_marked(tmp_path: Path):
     text = " ".join(readme_block(load_results(_project(tmp_path, data))).split())
     assert "**No verdict yet**" in text and "**Verdict**" not in text
     assert "[−0.030, −0.010] over images, which excludes 0 but does not cover training noise" in text
-    assert "variants: one run each (seed 0)" in text
+    assert "7 ROIs, 1 seed per loss." in text
 
 
 def test_settings_that_differ_from_the_defaults_name_the_row(tmp_path: Path):
@@ -270,14 +270,17 @@ def test_the_verdict_sentences_go_into_the_readme_and_the_page(tmp_path: Path):
     data["verdict"] = verdict_data(rows, 80.0, 0.95, "MS-SSIM", "SSIM")
     r = load_results(_project(tmp_path, data))
     block = " ".join(readme_block(r).split())
+    assert block.startswith(BEGIN + " **What the study finds so far**: is MS-SSIM's depth error (abs_rel)")
+    assert "| windshield | −0.040 [−0.130, +0.060], n = 66 ROIs × 0 seeds a side |" in block
     assert (
-        "Per surface class, MS-SSIM − SSIM by every instrument ([verdict.png](plots/figures/verdict.png)):"
-        in block
+        "Per class, every instrument ([verdict.png](plots/figures/verdict.png); the full table: "
+        "`metrics/compare.md`):" in block
     )
     assert (
-        "**windshield**: MS-SSIM's error is lower in 3 of 3 instruments; intervals excluding 0: "
+        "- windshield: MS-SSIM's error is lower in 3 of 3 instruments; intervals excluding 0: "
         "optimum w10 (lower); optimum w10, pooled:" in block
     )
+    assert "*Networks*: the pipeline's stereo networks; both losses train with the same seeds" in block
     page = " ".join(results_page(r).split())
     assert "(stereo networks and optimum w10; [verdict.png](../plots/figures/verdict.png)" in page
     assert "- windshield: MS-SSIM's error is lower in 3 of 3 instruments;" in page
@@ -289,3 +292,4 @@ def test_the_verdict_sentences_go_into_the_readme_and_the_page(tmp_path: Path):
     assert "(none here: the study's results are absent)" in page
     plain = load_results(_project(tmp_path / "plain", copy.deepcopy(COMPARISON)))
     assert "verdict.png" not in readme_block(plain) and "## The verdict" not in results_page(plain)
+    assert "## What the study finds" in page and "## What the study finds" not in results_page(plain)

@@ -339,8 +339,9 @@ def test_the_summary_table_holds_each_familys_headline_instrument() -> None:
     ]
     data = verdict_data(rows, 80.0, 0.95, "MS-SSIM", "SSIM", headline=headline_instruments(10.0))
     cells = data["summary"]["windshield"]
-    assert cells["networks"]["diff"] == -0.036 and cells["loss's own optimum"]["instrument"] == "optimum w10"
-    assert cells["real pairs"] is None
+    assert cells["stereo networks"]["diff"] == -0.036
+    assert cells["loss's own optimum, w10"]["instrument"] == "optimum w10"
+    assert cells["real pairs, optimum w10"] is None
     lines = summary_lines(data)
     assert lines[2] == (
         "| windshield | \u22120.036 [\u22120.068, \u22120.002] *, n = 66 ROIs × 3 seed pairs | "

@@ -628,74 +628,98 @@ def cost_curve_figure(summaries: Mapping[str, dict], path: Path) -> Path:
 
 # The verdict's instruments by kind: colour and what the legend says of their intervals.
 VERDICT_KINDS = {
-    "network": ("tab:blue", "trained stereo networks: bootstrap over units and seeds"),
-    "seeds": ("tab:purple", "mono / MS networks: Welch t over seeds (mean ± sd)"),
-    "optimum": ("tab:orange", "the loss's own optimum: paired bootstrap over units"),
+    "network": ("tab:blue", "trained stereo networks: seed pairs × units"),
+    "seeds": ("tab:purple", "mono / MS networks: over seeds"),
+    "optimum": ("tab:orange", "the loss's own optimum: over units"),
     "external": ("tab:green", "real pairs (studies/results/real)"),
     "pooled": ("black", "pooled (inverse-variance, independent rows)"),
 }
+FAMILY_ORDER = ("network", "seeds", "optimum", "external", "pooled")  # the summary table's order
 
 
 def _verdict_panel(ax, cls: str, rows: list[Row], instruments: list[str]) -> None:
     """One class: a dot and a horizontal bar per instrument (filled where the interval excludes
-    0), a line at 0, each row's n at the right edge."""
+    0; a cross without a bar where the row has too few units for an interval), a line at 0, each
+    row's n at the right edge."""
     own = [r for r in rows if r.cls == cls]
     for r in own:
         y = instruments.index(r.label)
         color = VERDICT_KINDS.get(r.kind, ("grey", ""))[0]
-        ax.errorbar(
-            r.diff,
-            y,
-            xerr=[[r.diff - r.low], [r.high - r.diff]],
-            fmt="D" if r.kind == "pooled" else "o",
-            color=color,
-            mfc=color if r.excludes_zero else "white",
-            capsize=3,
-            markersize=5,
-        )
+        if r.has_interval:
+            ax.errorbar(
+                r.diff, y, xerr=[[r.diff - r.low], [r.high - r.diff]], fmt="D" if r.kind == "pooled" else "o",
+                color=color, mfc=color if r.excludes_zero else "white", capsize=3, markersize=5,
+            )  # fmt: skip
+        else:
+            ax.plot(r.diff, y, "x", color=color, markersize=6)
         ax.annotate(
             f"n={r.n}", (1.0, y), xycoords=("axes fraction", "data"), ha="right", va="bottom", fontsize=6
         )
     ax.axvline(0.0, color="k", linewidth=0.8)
-    lower = sum(r.diff < 0 for r in own if r.kind != "pooled")
-    ax.set_title(f"{cls}: lower in {lower} of {sum(r.kind != 'pooled' for r in own)}", fontsize=9)
+    counted = [r for r in own if r.kind != "pooled"]
+    ax.set_title(f"{cls}\nlower in {sum(r.diff < 0 for r in counted)} of {len(counted)}", fontsize=9)
     ax.grid(axis="x", alpha=0.3)
-    reach = max([abs(v) for r in own for v in (r.low, r.high)] + [1e-3]) * 1.2
+    ends = [abs(v) for r in own for v in ((r.low, r.high) if r.has_interval else (r.diff,))]
+    reach = max([*ends, 1e-3]) * 1.2
     ax.set_xlim(-reach, reach)  # 0 in the middle: left of it the variant is better, right the reference
 
 
+def _verdict_legend(ax, rows: list[Row], confidence: float) -> None:
+    """The legend in a narrow column right of the panels (``ax``, without axes of its own)."""
+    from matplotlib.lines import Line2D
+
+    handles = [
+        Line2D([], [], marker="o", color=color, linestyle="", label=text)
+        for kind, (color, text) in VERDICT_KINDS.items()
+        if any(r.kind == kind for r in rows)
+    ]
+    handles.append(
+        Line2D([], [], marker="o", color="grey", mfc="white", linestyle="", label="hollow: includes 0")
+    )
+    if any(not r.has_interval for r in rows):
+        handles.append(
+            Line2D([], [], marker="x", color="grey", linestyle="", label="too few units: no interval")
+        )
+    title = f"{confidence * 100:g} % intervals; n: units"
+    ax.legend(handles=handles, loc="center left", fontsize=7, frameon=False, title=title, title_fontsize=8)
+    ax.axis("off")
+
+
 def verdict_figure(verdict: Mapping | None, path: Path) -> Path:
-    """``verdict.png``: one panel per surface class of compare.json's ``verdict``
-    (:func:`msdepth.reporting.verdict.verdict_data`), one row per instrument, its difference and
-    interval; negative: the variant (MS-SSIM) has the lower error. A legend in the spare panel."""
+    """``verdict.png``: the summary table's structure, one panel per surface class of
+    compare.json's ``verdict`` (:func:`msdepth.reporting.verdict.verdict_data`) side by side, one
+    row per instrument grouped by family (networks, the optimum, real pairs, pooled), its
+    difference and interval; negative: the variant (MS-SSIM) has the lower error. Rows made under
+    other settings (shown apart in compare.md) are left out. The legend sits right of the panels."""
     rows = [Row.from_dict(d) for d in (verdict or {}).get("rows", [])]
+    rows = [r for r in rows if not r.apart]
     if not rows:
         fig = _new_figure(4.0, 1.5)
         ax = fig.add_subplot(1, 1, 1)
         ax.text(0.5, 0.5, "no instrument compares two variants", ha="center", va="center")
         _off(ax)
         return _save(fig, path)
-    classes, instruments = list(verdict["classes"]), list(dict.fromkeys(r.label for r in rows))
-    cols = min(3, len(classes) + 1)  # + 1: the legend's panel
-    grid = -(-(len(classes) + 1) // cols)
-    fig = _new_figure(4.2 * cols, 0.32 * len(instruments) * grid + 1.4 * grid)
-    axes = fig.subplots(grid, cols, squeeze=False, sharey=True).ravel()
+    rank = {k: i for i, k in enumerate(FAMILY_ORDER)}
+    ordered = sorted(rows, key=lambda r: rank.get(r.kind, len(rank)))
+    instruments = list(dict.fromkeys(r.label for r in ordered))
+    classes = [c for c in verdict["classes"] if any(r.cls == c for r in rows)]
+    fig = _new_figure(2.3 * len(classes) + 2.6, 0.3 * len(instruments) + 1.7)
+    widths = {"width_ratios": [1.0] * len(classes) + [1.05]}  # the last column: the legend
+    *axes, legend = fig.subplots(1, len(classes) + 1, squeeze=False, gridspec_kw=widths).ravel()
+    for ax in axes[1:]:
+        ax.sharey(axes[0])
+        ax.tick_params(labelleft=False)
     better, than = verdict["variant"], verdict["reference"]
-    for i, (ax, cls) in enumerate(zip(axes, classes, strict=False)):
+    kinds = [next(r.kind for r in ordered if r.label == i) for i in instruments]
+    breaks = [i - 0.5 for i in range(1, len(kinds)) if kinds[i] != kinds[i - 1]]
+    for ax, cls in zip(axes, classes, strict=True):
         _verdict_panel(ax, cls, rows, instruments)
-        ax.set_xlabel(f"{better} − {than} abs_rel\n(negative: {better} better)", fontsize=8)
-        if i % cols == 0:
-            ax.set_yticks(range(len(instruments)), instruments, fontsize=8)
+        for y in breaks:  # the families, as the summary table's columns
+            ax.axhline(y, color="grey", linewidth=0.5, linestyle=":")
+    axes[0].set_yticks(range(len(instruments)), instruments, fontsize=7)
     axes[0].set_ylim(len(instruments) - 0.5, -0.5)  # the first instrument on top
-    legend = axes[len(classes)]
-    for kind, (color, text) in VERDICT_KINDS.items():
-        if any(r.kind == kind for r in rows):
-            legend.plot([], [], "o", color=color, label=text)
-    legend.plot([], [], "o", color="grey", mfc="white", label="hollow: interval includes 0")
-    title = f"{verdict['confidence'] * 100:g} % intervals\nn: the images, ROIs or seeds of each"
-    legend.legend(loc="center", fontsize=7, title_fontsize=8, frameon=False, title=title)
-    for ax in axes[len(classes) :]:
-        ax.axis("off")
+    fig.supxlabel(f"{better} − {than} abs_rel (negative: {better}'s error lower)", fontsize=8)
+    _verdict_legend(legend, rows, verdict["confidence"])
     return _save(fig, path)
 
 

@@ -1,10 +1,15 @@
-"""How many seeds would a verdict need? Sample size of a two-sample test on per-seed means.
+"""How many seeds would a verdict need? Sample size of a test on per-seed means, paired or not.
 
 The unit is one training run (a seed). Its value is the run's mean metric over the images (full
-frame) or over the ROIs of one class. The comparison draws each variant's seeds independently
-(:func:`msdepth.reporting.stats.seed_bootstrap` resamples them per variant). Seed ``s`` of one loss
-and seed ``s`` of the other are not treated as a pair, so the test here is the two-sample one, with
-``n`` seeds in each variant.
+frame) or over the ROIs of one class. Both losses train with the same seeds, and a seed fixes the
+initial weights and the data order, so seed ``s`` of one loss and seed ``s`` of the other are a
+pair (:mod:`msdepth.training.pairing`). With ``paired=True`` the test is the paired t on the
+per-seed differences, whose standard deviation ``σ_d`` is what matters (small where the two
+losses' runs of a seed move together):
+
+    n = (z_{1−α/2} + z_{1−β})² σ_d² / δ²   pairs,   df = n − 1.
+
+Unpaired (runs of different seeds, or a reference without seeds), the two-sample test below.
 
 Normal approximation, per group (two-sided level α, power 1 − β):
 
@@ -65,12 +70,22 @@ def t_quantile(p: float, df: float) -> float:
 
 
 def seeds_needed(
-    delta: float, sd: float, alpha: float = 0.05, power: float = 0.8, t_based: bool = True
+    delta: float,
+    sd: float,
+    alpha: float = 0.05,
+    power: float = 0.8,
+    t_based: bool = True,
+    paired: bool = False,
 ) -> float:
-    """Seeds per variant for a two-sided two-sample test at level ``alpha`` to detect ``delta``
-    with probability ``power``, given the per-seed standard deviation ``sd`` (module docstring).
+    """Seeds per variant (``paired``: seed pairs) for a two-sided test at level ``alpha`` to detect
+    ``delta`` with probability ``power``, given the per-seed standard deviation ``sd`` (``paired``:
+    of the per-seed differences; module docstring).
 
     ``t_based`` False: the normal approximation alone. ``math.inf`` when ``delta`` is 0.
+
+    Example:
+        >>> seeds_needed(1.0, 1.0), seeds_needed(1.0, 1.0, paired=True)
+        (17, 10)
     """
     if sd < 0 or not 0 < alpha < 1 or not 0 < power < 1:
         raise ValueError(
@@ -79,16 +94,38 @@ def seeds_needed(
     if delta == 0:
         return math.inf
     z = NormalDist()
-    normal = 2 * (z.inv_cdf(1 - alpha / 2) + z.inv_cdf(power)) ** 2 * (sd / delta) ** 2
+    normal = (1 if paired else 2) * (z.inv_cdf(1 - alpha / 2) + z.inv_cdf(power)) ** 2 * (sd / delta) ** 2
     n = max(2, math.ceil(normal))
     if not t_based:
         return n
     # The t-test is never more powerful than the z-test, so the answer is not below the normal
     # n (less one for the rounding); the t-quantile iteration can cycle at df < 10, this cannot.
     n = max(2, n - 1)
-    while power_at(n, delta, sd, alpha) < power:
+    while power_at(n, delta, sd, alpha, paired) < power:
         n += 1
     return n
+
+
+def detectable_difference(
+    n: int, sd: float, alpha: float = 0.05, power: float = 0.8, paired: bool = False
+) -> float:
+    """The smallest |δ| a two-sided t-test with ``n`` seeds per variant (``paired``: ``n`` seed
+    pairs) detects with probability ``power`` at level ``alpha``, given ``sd`` (by bisection on
+    :func:`power_at`).
+
+    Example:
+        >>> round(detectable_difference(12, 1.0, paired=True), 2)
+        0.89
+    """
+    if sd == 0:
+        return 0.0
+    low, high = 0.0, sd
+    while power_at(n, high, sd, alpha, paired) < power:
+        high *= 2
+    for _ in range(50):
+        mid = (low + high) / 2
+        low, high = (mid, high) if power_at(n, mid, sd, alpha, paired) < power else (low, mid)
+    return high
 
 
 def _simpson(values: np.ndarray, step: float) -> float:
@@ -96,25 +133,28 @@ def _simpson(values: np.ndarray, step: float) -> float:
     return float(step / 3 * (values[0] + values[-1] + 4 * values[1:-1:2].sum() + 2 * values[2:-1:2].sum()))
 
 
-def power_at(n: int, delta: float, sd: float, alpha: float = 0.05) -> float:
+def power_at(n: int, delta: float, sd: float, alpha: float = 0.05, paired: bool = False) -> float:
     """Power of the two-sided two-sample t-test with ``n`` seeds per variant at a true difference
     ``delta`` and per-seed standard deviation ``sd``: P(|T'| > t_{1−α/2}) for the noncentral
     T' = (Z + λ) / sqrt(V / df), λ = |δ| / (σ √(2/n)), V ~ χ²(df), df = 2n − 2, by averaging the
-    normal tails over V's density (no SciPy)."""
+    normal tails over V's density (no SciPy). ``paired``: the paired t on ``n`` seed pairs, ``sd``
+    that of the differences: λ = |δ| / (σ_d / √n), df = n − 1."""
     if n < 2:
         raise ValueError(f"power_at: need n >= 2 seeds per variant, got {n}")
     if sd == 0:
         return 1.0 if delta else alpha
-    df = 2 * n - 2
-    shift = abs(delta) / (sd * math.sqrt(2 / n))
+    df = n - 1 if paired else 2 * n - 2
+    shift = abs(delta) / (sd / math.sqrt(n) if paired else sd * math.sqrt(2 / n))
     crit = t_quantile(1 - alpha / 2, df)
-    top = df + 40 * math.sqrt(2 * df) + 40  # far beyond χ²(df)'s mass
-    v = np.linspace(0.0, top, 2 * _SIMPSON_INTERVALS + 1)
-    log_v = np.log(np.maximum(v, np.finfo(float).tiny))  # v = 0: density 0 (df > 2) or finite (df = 2)
-    log_density = (df / 2 - 1) * log_v - v / 2 - df / 2 * math.log(2) - math.lgamma(df / 2)
+    # Over u = sqrt(V): χ²(1)'s density is infinite at V = 0 (the paired test's df = 1), while
+    # f(u²)·2u, the density of u, is smooth for every df.
+    top = math.sqrt(df + 40 * math.sqrt(2 * df) + 40)  # far beyond χ²(df)'s mass
+    u = np.linspace(0.0, top, 2 * _SIMPSON_INTERVALS + 1)
+    log_u = np.log(np.maximum(u, np.finfo(float).tiny))
+    log_density = (df - 1) * log_u - u * u / 2 - (df / 2 - 1) * math.log(2) - math.lgamma(df / 2)
     density = np.exp(log_density)
     erf = np.vectorize(math.erf)
-    edge = crit * np.sqrt(v / df)
+    edge = crit * u / math.sqrt(df)
     tails = 0.5 * (1 - erf((edge - shift) / math.sqrt(2))) + 0.5 * (1 + erf((-edge - shift) / math.sqrt(2)))
     return _simpson(density * tails, top / (2 * _SIMPSON_INTERVALS))
 

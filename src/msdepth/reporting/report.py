@@ -28,7 +28,7 @@ from msdepth.reporting.compare import (
     marks_allowed,
     settings_text,
 )
-from msdepth.reporting.verdict import MIN_UNITS, VERDICT_FIGURE
+from msdepth.reporting.verdict import MIN_UNITS, VERDICT_FIGURE, answer_sentence, summary_lines
 
 COMMAND = "python -m msdepth.reporting.report"
 BEGIN = (
@@ -139,17 +139,19 @@ def load_results(root: Path = Path(".")) -> Results:
     """The committed metrics under ``root``: ``metrics/compare.json`` and each run's
     ``metrics/train/<variant>/seed<S>.json``; one DataError line naming a missing or broken file."""
     path = root / COMPARE_JSON
-    data = _read_json(path, "run `dvc repro compare` first")
+    data = read_json_object(path, "run `dvc repro compare` first")
     train = {}
     for variant in data.get("variants", []):
         for seed in data.get("seeds", []):
             file = root / train_summary_path(run_name(variant, seed))
             if file.is_file():
-                train[run_name(variant, seed)] = _read_json(file, "")
+                train[run_name(variant, seed)] = read_json_object(file, "")
     return Results(data, train, str(path))
 
 
-def _read_json(path: Path, hint: str) -> dict:
+def read_json_object(path: Path, hint: str) -> dict:
+    """The JSON object in ``path``; one DataError line naming the file when it is missing (with
+    ``hint``), unreadable or not an object."""
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
     except FileNotFoundError:
@@ -368,20 +370,71 @@ def readme_verdict(r: Results) -> list[str]:
     return [wrap(" ".join([lead, *bold]))]
 
 
+TERMS = """Terms. *Difference*: MS-SSIM − SSIM abs_rel at cap {cap} m (negative: MS-SSIM's error is
+lower), with its {level} interval; `*`: the interval excludes 0. *n*: the independent units it is over
+(images, ROI boxes, real frames or objects) and, for networks, the seed pairs. *Networks*: the
+pipeline's stereo networks; both losses train with the same seeds (same initial weights and batches),
+so seed s of each is a pair, resampled jointly with the units; the paired t over the seeds is the
+conservative check. *Loss's own optimum (wW)*: the disparity map that minimises each loss directly
+on the frames, no network, at smoothness weight W ([docs/optimum.md]({docs}optimum.md)). *Real
+pairs*: the loss's own optimum on the real KITTI frames at hand (2 KITTI 2015 frames with
+hand-drawn ROIs, 2 KITTI 2012 frames with reflective GT, a pair with LiDAR). *Cost start*: SGM on
+the loss's own cost volume. *Pooled*: one instrument's independent rows combined by inverse
+variance. A class with fewer than {min_units} units has no interval."""
+
+
+def answer_lines(r: Results, docs: str) -> list[str]:
+    """The answer the study gives: the summary table (surface class by instrument family), the
+    sentence that reads it, one sentence per class and the terms; ``docs``: the path from the page
+    to docs/. [] without a verdict in compare.json."""
+    block = r.get("verdict", default=None) or {}
+    if not block.get("summary"):
+        return []
+    level = f"{block['confidence'] * 100:g} %"
+    lead = (
+        f"**What the study finds so far**: is {block['variant']}'s depth error (abs_rel) lower than "
+        f"{block['reference']}'s? " + answer_sentence(block)
+    )
+    items = [
+        textwrap.fill(
+            block["sentences"][c], 100, initial_indent="- ", subsequent_indent="  ", break_on_hyphens=False
+        )
+        for c in block.get("classes", [])
+        if c in block.get("sentences", {})
+    ]
+    figure = f"[{VERDICT_FIGURE}]({'../' if docs == '' else ''}{FIGURES_DIR.as_posix()}/{VERDICT_FIGURE})"
+    terms = TERMS.format(
+        cap=block["cap"][3:], level=level, docs=docs, min_units=block.get("min_units", MIN_UNITS)
+    )
+    return [
+        wrap(lead),
+        "",
+        *summary_lines(block),
+        "",
+        wrap(f"Per class, every instrument ({figure}; the full table: `metrics/compare.md`):"),
+        "",
+        *items,
+        "",
+        wrap(" ".join(terms.split())),
+        "",
+    ]
+
+
 def readme_block(r: Results) -> str:
-    """The README's generated block, markers included."""
+    """The README's generated block, markers included: the answer (:func:`answer_lines`), then
+    where the run's own numbers are."""
+    answer = answer_lines(r, "docs/")
+    if not answer:  # no verdict (one variant): the headline table is the result
+        answer = [headline_table(r), "", wrap(verdict(r))]
     return "\n".join(
         [
             BEGIN,
-            wrap(f"The committed run ({headline_caption(r)}; every table in `metrics/compare.md`):"),
-            "",
-            headline_table(r),
-            "",
+            *answer,
             wrap(
-                verdict(r) + " How to read the table, the Eigen split and the studies behind it: "
-                "[docs/results.md](docs/results.md)."
+                f"The committed run: {headline_caption(r).split('; variants')[0]}, {len(r.seeds)} "
+                f"seed{'s' if len(r.seeds) != 1 else ''} per loss. Each run's metrics, the image-blind "
+                "baselines and how to read them: [docs/results.md](docs/results.md)."
             ),
-            *readme_verdict(r),
             END,
         ]
     )
@@ -603,15 +656,20 @@ SET_NOTE = (
 )
 
 
-VERDICT_HOW = """How each row's interval is made. Trained stereo networks: the comparison's own bootstrap
-(resampling the images, or the class's ROIs, and each variant's seeds). Mono and mono+stereo
-networks: the monocular study's, Welch's t interval of the difference of the two variants' means
-over seeds{monocular}; it covers training noise with the frames held fixed, and its full frame is
-median-scaled per image, as the study scores it. The loss's own optimum at each weight: a paired
-bootstrap over the images or ROIs that weight was scored on. Real pairs: the rows of
-`studies/results/real/verdict.json`, written by the real-pairs study (the schema is in
-`src/msdepth/reporting/verdict.py`). A row over fewer than {min_units} images or ROIs is left out: a
-percentile interval over one or two units is narrow, not certain."""
+VERDICT_HOW = """How each row's interval is made. Trained stereo networks: both losses train with
+the same seeds, so seed s of SSIM and seed s of MS-SSIM start from the same weights and see the same
+batches (each run's training summary records both, `metrics/train/`; a pair whose records differ is
+compared unpaired, and the row says so). Each draw of the bootstrap resamples the seed pairs and the
+images (or the class's ROIs) together; the paired t over the per-seed differences is given beside
+it, the conservative check with few seeds. Mono and mono+stereo networks: the monocular study's
+seeds{monocular}; its full frame is median-scaled per image, as the study scores it. The loss's own
+optimum at each weight: a paired bootstrap over the images or ROIs that weight was scored on. Real
+pairs: the rows of `studies/results/real/verdict.json`, written by the real-pairs study (the schema
+is in `src/msdepth/reporting/verdict.py`), whose units are frames, hand-drawn boxes or seed pairs,
+never pixels or tiles of one object. A row over fewer than {min_units} units has no interval: a
+percentile interval over one or two units is narrow, not certain. A row made under other variant
+settings than the run's (a study's committed rows after `dvc exp run -S msssim.kernel_size=7`) is
+shown apart in `metrics/compare.md`, never counted or pooled."""
 
 POOLING = """Pooling. Rows of different instruments are not pooled: they score the same frames, so they
 are not independent of the frames' draw, and they measure different quantities (a training mode,
@@ -631,10 +689,10 @@ def _monocular_source(r: Results) -> str:
         return " (none here: the study's results are absent)"
     if source.endswith(".md"):
         return (
-            f", computed from the mean ± sd of `{source}` (that run kept no per-seed values; the study "
-            "now writes them to `table.json`, which replaces the table here once it exists)"
+            f", unpaired: Welch's t from the mean ± sd of `{source}` (that run kept no per-seed "
+            "values; the study now writes them to `table.json`, which pairs them by seed once it exists)"
         )
-    return f", from the values per seed in `{source}`"
+    return f", paired by seed: the paired t over the per-seed differences in `{source}`"
 
 
 def verdict_section(r: Results) -> str:
@@ -666,7 +724,9 @@ def results_page(r: Results) -> str:
     """``docs/results.md``: the default run, how to read it, the verdict per surface class, the
     studies, the extra sets, figures."""
     sets = r.get("sets", default={}) or {}
-    parts = [INTRO, default_run_section(r), reading_section(r)]
+    answer = answer_lines(r, "")
+    parts = [INTRO, *(["## What the study finds", "\n".join(answer)] if answer else [])]
+    parts += [default_run_section(r), reading_section(r)]
     parts += [section] if (section := verdict_section(r)) else []
     parts += [STUDIES]
     parts += [set_section(r, name, block) for name, block in sets.items()]

@@ -67,7 +67,7 @@ FULL_FRAME = "full frame"
 CLASS_ORDER = (FULL_FRAME, "car", "windshield", "glass", "sign", "reflective")
 MIN_UNITS = 5
 EXTERNAL_FIELDS = ("instrument", "class", "diff", "low", "high", "n", "method")
-EXTERNAL_OPTIONAL = ("settings", "t_low", "t_high", "seeds")
+EXTERNAL_OPTIONAL = ("settings", "t_low", "t_high", "seeds", "per_seed")
 KINDS = ("network", "seeds", "optimum", "external", "pooled")
 DISPLAY_NAMES = {"ssim": "SSIM", "msssim": "MS-SSIM"}  # the two losses the verdict is about
 MONOCULAR_MODES = {"mono": "mono networks", "mono_stereo": "mono+stereo networks"}
@@ -98,6 +98,7 @@ class Row:
     seeds: int = 0  # seed pairs (paired network rows) or seeds per variant; 0 = no training noise
     settings: str = ""
     apart: str = ""
+    per_seed: tuple[float, ...] = ()  # paired network rows: each seed pair's difference (diff is their mean)
 
     @property
     def has_interval(self) -> bool:
@@ -139,8 +140,8 @@ class Row:
             "kind": self.kind,
         }
         optional = {"t_low": self.t_low, "t_high": self.t_high, "seeds": self.seeds}
-        optional |= {"settings": self.settings, "apart": self.apart}
-        return d | {k: v for k, v in optional.items() if v not in (None, 0, "")}
+        optional |= {"settings": self.settings, "apart": self.apart, "per_seed": list(self.per_seed)}
+        return d | {k: v for k, v in optional.items() if v not in (None, 0, "", [])}
 
     @classmethod
     def from_dict(cls, d: Mapping) -> Row:
@@ -163,6 +164,7 @@ class Row:
             int(d.get("seeds", 0)),
             str(d.get("settings", "")),
             str(d.get("apart", "")),
+            tuple(float(x) for x in d.get("per_seed", ())),
         )
 
 
@@ -240,7 +242,7 @@ def network_rows(
             rows.append(
                 Row(
                     name, cls, d["mean"], d["low"], d["high"], d["n"], method, "network",
-                    d.get("t_low"), d.get("t_high"), seeds, settings,
+                    d.get("t_low"), d.get("t_high"), seeds, settings, per_seed=tuple(d.get("per_seed", ())),
                 )
             )  # fmt: skip
     return rows
@@ -453,6 +455,11 @@ def _checked_row(item: object, i: int, path: Path) -> Row:
             continue
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
             raise DataError(f"{where}: {key} must be a finite number, got {value!r}")
+    per_seed = item.get("per_seed", [])
+    if not isinstance(per_seed, list) or not all(
+        isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in per_seed
+    ):
+        raise DataError(f"{where}: per_seed must be a list of finite numbers")
     if (item["low"] is None) != (item["high"] is None):
         raise DataError(f"{where}: low and high are both numbers or both null")
     if item["low"] is not None and not item["low"] <= item["diff"] <= item["high"]:
@@ -560,6 +567,8 @@ def class_sentence(cls: str, rows: Sequence[Row], better: str = "MS-SSIM") -> st
     paired t's agreement where a row has one), and the pooled estimates."""
     own = [r for r in rows if r.cls == cls and r.kind != "pooled" and not r.apart]
     pooled = [r for r in rows if r.cls == cls and r.kind == "pooled"]
+    if not own:
+        return f"{cls}: no row under this run's settings (rows made under others: `metrics/compare.md`)."
     lower = sum(r.diff < 0 for r in own)
     noun = "instrument" if len(own) == 1 else "instruments"
     text = f"{cls}: {better}'s error is lower in {lower} of {len(own)} {noun}"
@@ -602,9 +611,9 @@ def headline_instruments(weight: float) -> dict[str, tuple[str, str]]:
     the stereo networks, the optimum at its default smoothness ``weight``, and the real pairs'
     optimum at that weight."""
     return {
-        "networks": ("network", "stereo networks"),
-        "loss's own optimum": ("optimum", f"optimum w{weight:g}"),
-        "real pairs": ("external", f"optimum w{weight:g}"),
+        "stereo networks": ("network", "stereo networks"),
+        f"loss's own optimum, w{weight:g}": ("optimum", f"optimum w{weight:g}"),
+        f"real pairs, optimum w{weight:g}": ("external", f"optimum w{weight:g}"),
     }
 
 
@@ -689,7 +698,7 @@ def summary_lines(data: dict) -> list[str]:
     """The summary table: one row per surface class, one column per instrument family (its
     headline instrument), each cell the difference, its interval and its n."""
     families = list(data["headline"])
-    header = " | ".join(f"{f} ({data['headline'][f][1]})" for f in families)
+    header = " | ".join(families)
     lines = [f"| class | {header} |", "|---" * (len(families) + 1) + "|"]
     for cls in data["classes"]:
         cells = []
@@ -700,6 +709,45 @@ def summary_lines(data: dict) -> list[str]:
             )
         lines.append(f"| {cls} | {' | '.join(cells)} |")
     return lines
+
+
+def answer_sentence(data: dict) -> str:
+    """The summary table in one sentence: per instrument family, on how many surface classes the
+    variant's error is lower and where its interval excludes 0 (with the paired t's agreement).
+
+    Example:
+        >>> rows = [Row("stereo networks", "car", -0.02, -0.03, -0.01, 91, "m", "network", -0.05, 0.01)]
+        >>> print(answer_sentence(verdict_data(rows, 80.0, 0.95, "MS-SSIM", "SSIM")))
+        stereo networks: lower on 1 of 1 surface class; its interval excludes 0 on car (the paired t
+        over seeds includes 0).
+    """
+    parts = []
+    for family in data["headline"]:
+        cells = {c: Row.from_dict(f[family]) for c, f in data["summary"].items() if f.get(family)}
+        if not cells:
+            continue
+        lower = [c for c, r in cells.items() if r.diff < 0]
+        noun = "class" if len(cells) == 1 else "classes"
+        text = f"{family}: lower on {len(lower)} of {len(cells)} surface {noun}"
+        excluding = [c for c, r in cells.items() if r.excludes_zero]
+        if excluding:
+            words = [c + _t_words(cells[c]) for c in excluding]
+            text += f"; its interval excludes 0 on {', '.join(words)}"
+            higher = [c for c in excluding if cells[c].diff > 0]
+            text += f" (higher on {', '.join(higher)})" if higher else ""
+        else:
+            text += "; no interval excludes 0"
+        parts.append(text)
+    return "; ".join(parts) + "." if parts else "No instrument compares two variants here."
+
+
+def _t_words(r: Row) -> str:
+    """`` (the paired t over seeds agrees)`` or ``... includes 0)`` where the row has a paired t."""
+    if r.t_low is None:
+        return ""
+    return (
+        " (the paired t over seeds agrees)" if r.t_excludes_zero else " (the paired t over seeds includes 0)"
+    )
 
 
 def verdict_lines(data: dict | None) -> list[str]:
@@ -718,6 +766,8 @@ def verdict_lines(data: dict | None) -> list[str]:
         f"Settings: `{data.get('settings') or 'not recorded'}`.",
         "",
         *summary_lines(data),
+        "",
+        answer_sentence(data),
         "",
         "Networks trained with the same seed are pairs (same initial weights and batches): their rows "
         "resample seed pairs with the units and give the paired t over seeds beside the bootstrap. "
