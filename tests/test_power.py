@@ -112,7 +112,8 @@ def test_the_power_study_reads_a_compare_json_and_pairs_its_seeds(tmp_path, caps
     assert main(["--compare", str(path)]) == 0
     row = next(line for line in capsys.readouterr().out.splitlines() if line.startswith("| full frame |"))
     cells = [c.strip() for c in row.strip("|").split("|")]
-    assert cells[3] == "\u22120.0275" and cells[4] == "0.0096"  # δ and σ_d of the four differences
+    # δ with its paired t interval (excluding 0: all four differences negative), and σ_d
+    assert cells[3].startswith("\u22120.0275 [") and cells[3].endswith("] *") and cells[4] == "0.0096"
     assert int(cells[6]) < int(cells[11])  # pairs needed < unpaired seeds needed
     bad = tmp_path / "bad.json"
     bad.write_text(json.dumps({"variants": []}))
