@@ -17,6 +17,10 @@ SCIENCE_API = {
     "msdepth.evaluation.metrics": ("compute_errors", "stereo_errors"),  # stereo_errors: D1 and EPE
     "msdepth.geometry.depth": ("disparity_to_depth", "depth_to_disparity"),
     "msdepth.geometry.warp": ("warp",),
+    "msdepth.reporting.stats": ("paired_t", "seed_bootstrap", "paired_seed_bootstrap"),
+    "msdepth.reporting.verdict": ("welch_interval", "pooled_rows"),
+    "msdepth.reporting.power": ("seeds_needed", "detectable_difference"),
+    "msdepth.evaluation.box_errors": ("box_medians",),
 }
 FUNCTIONS = [(module, name) for module, names in SCIENCE_API.items() for name in names]
 

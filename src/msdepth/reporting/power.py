@@ -81,7 +81,19 @@ def seeds_needed(
     ``delta`` with probability ``power``, given the per-seed standard deviation ``sd`` (``paired``:
     of the per-seed differences; module docstring).
 
-    ``t_based`` False: the normal approximation alone. ``math.inf`` when ``delta`` is 0.
+    Args:
+        delta: the true difference to detect.
+        sd: the per-seed standard deviation (paired: of the differences).
+        alpha: the test's two-sided level.
+        power: the probability of detecting ``delta``.
+        t_based: the t-test's size; False: the normal approximation alone.
+        paired: seed pairs and the paired t.
+
+    Returns:
+        The size, at least 2; ``math.inf`` when ``delta`` is 0.
+
+    Raises:
+        ValueError: a negative ``sd`` or ``alpha``, ``power`` outside (0, 1).
 
     Example:
         >>> seeds_needed(1.0, 1.0), seeds_needed(1.0, 1.0, paired=True)
@@ -112,6 +124,16 @@ def detectable_difference(
     """The smallest |δ| a two-sided t-test with ``n`` seeds per variant (``paired``: ``n`` seed
     pairs) detects with probability ``power`` at level ``alpha``, given ``sd`` (by bisection on
     :func:`power_at`).
+
+    Args:
+        n: seeds per variant, or seed pairs.
+        sd: the per-seed standard deviation (paired: of the differences).
+        alpha: the test's two-sided level.
+        power: the probability of detecting it.
+        paired: the paired t.
+
+    Returns:
+        The smallest detectable difference (0 where ``sd`` is 0).
 
     Example:
         >>> round(detectable_difference(12, 1.0, paired=True), 2)

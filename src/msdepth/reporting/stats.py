@@ -95,6 +95,17 @@ def seed_bootstrap(
     paired bootstrap over units, draw for draw (:func:`paired_bootstrap`). ``paired``: row ``i`` of
     both is seed pair ``i`` (same shape needed), drawn jointly (:func:`paired_seed_bootstrap`).
 
+    Args:
+        values: the run's metric, (seeds, units).
+        reference: the reference's, (reference seeds, units), the same units in the same order.
+        samples: bootstrap draws.
+        confidence: the interval's level.
+        seed: the draws' random seed.
+        paired: draw seed pairs jointly.
+
+    Returns:
+        The mean difference over units (and seeds) with its percentile interval.
+
     Example:
         >>> d = seed_bootstrap(np.array([[1.0, 2.0, 3.0]]), np.array([[0.5, 1.5, 2.5]]), samples=200)
         >>> d.mean, d.low, d.high, d.n
@@ -149,6 +160,19 @@ def paired_seed_bootstrap(
     (both with replacement) and averages ``values − reference`` over the chosen cells; the
     percentile interval of those means, with :func:`paired_t` over the per-seed mean differences
     beside it (``t_low``, ``t_high``; None with one pair).
+
+    Args:
+        values: the variant's metric, (seed pairs, units).
+        reference: the reference's, the same shape, row ``i`` the same seed as ``values``' row ``i``.
+        samples: bootstrap draws.
+        confidence: the interval's level.
+        seed: the draws' random seed.
+
+    Returns:
+        The mean difference, its percentile interval, the per-seed differences and the paired t.
+
+    Raises:
+        ValueError: arrays of other shapes, or a confidence outside (0, 1).
 
     Example:
         >>> v = np.array([[0.50, 0.60, 0.40], [0.52, 0.61, 0.43]])

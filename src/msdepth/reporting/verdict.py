@@ -296,7 +296,23 @@ def welch_interval(
     a: tuple[float, float, int], b: tuple[float, float, int], confidence: float = 0.95
 ) -> tuple[float, float, float]:
     """``(diff, low, high)`` of ``mean(a) − mean(b)``, each side ``(mean, sd, n)`` over independent
-    runs: Welch's t interval (Welch–Satterthwaite degrees of freedom)."""
+    runs: Welch's t interval (Welch–Satterthwaite degrees of freedom).
+
+    Args:
+        a: the variant's (mean, sd, n) over its runs.
+        b: the reference's.
+        confidence: the interval's level.
+
+    Returns:
+        The difference and its interval's ends.
+
+    Raises:
+        ValueError: fewer than 2 runs a side.
+
+    Example:
+        >>> [round(x, 4) for x in welch_interval((1.0, 0.1, 3), (0.9, 0.1, 3))]
+        [0.1, -0.1267, 0.3267]
+    """
     (ma, sa, na), (mb, sb, nb) = a, b
     if na < 2 or nb < 2:
         raise ValueError(f"welch_interval: need at least 2 runs a side, got {na} and {nb}")
@@ -494,7 +510,22 @@ def pooled_rows(rows: Sequence[Row], confidence: float = 0.95) -> list[Row]:
     pipeline's and an external study's, on other frames): inverse-variance weighted mean, each
     row's standard error its interval's half-width over the normal quantile; interval ±quantile·SE.
     Only rows with an interval, made under the same settings and not shown apart, are pooled; other
-    instruments never are (module docstring: why)."""
+    instruments never are (module docstring: why).
+
+    Args:
+        rows: the verdict's rows.
+        confidence: the level of the rows' intervals and of the pooled one.
+
+    Returns:
+        One ``pooled`` row per (class, optimum instrument, settings) measured twice or more.
+
+    Example:
+        >>> a = Row("optimum w10", "car", -0.02, -0.04, 0.0, 40, "m", "optimum")
+        >>> b = Row("optimum w10", "car", -0.04, -0.06, -0.02, 16, "real pairs: m", "external")
+        >>> (p,) = pooled_rows([a, b])
+        >>> p.instrument, round(p.diff, 3), p.n
+        ('optimum w10, pooled', -0.03, 56)
+    """
     z = float(np.sqrt(2) * _erfinv(confidence))
     groups: dict[tuple[str, str, str], list[Row]] = {}
     for r in rows:
