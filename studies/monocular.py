@@ -41,12 +41,12 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from msdepth.config.params import read_params_file
+from msdepth.config.params import params_from_dict, read_params_file
 from msdepth.errors import OutputError
 from msdepth.io import OutputPolicy, write_text
-from msdepth.reporting.compare import image_dependence, load_suite_metrics, load_unit_tables
+from msdepth.reporting.compare import image_dependence, load_suite_metrics, load_unit_tables, variant_settings
 from msdepth.reporting.figures import write_figure
-from msdepth.reporting.verdict import FULL_FRAME
+from msdepth.reporting.verdict import FULL_FRAME, SETTINGS_LINE, settings_label
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -227,6 +227,13 @@ def _json(path: Path) -> dict:
     return json.loads(path.read_text()) if path.is_file() else {}
 
 
+def study_settings(params: dict) -> str:
+    """The variants' settings the study's runs were trained with (the verdict's label): a row made
+    under other settings than a later run's is shown apart, never pooled."""
+    typed = params_from_dict(params)
+    return settings_label(variant_settings(typed), typed.variants)
+
+
 def table(out: Path, modes: list[str], params: dict, cap: float, repo: Path | None = None) -> str:
     """table.md's text from the snapshots under ``out``; with ``repo`` (its workspace holding the
     stereo runs), their median-scaled rows too (:func:`scaled_stereo_rows`)."""
@@ -256,6 +263,8 @@ def table(out: Path, modes: list[str], params: dict, cap: float, repo: Path | No
             "measures them side by side. "
             "Per-pixel prior's abs_rel: "
             f"{prior.get('abs_rel', float('nan')):.4f}.",
+            "",
+            f"{SETTINGS_LINE}`{study_settings(params)}`",
             "",
             *lines,
             "",
@@ -325,6 +334,7 @@ def main(argv: list[str] | None = None) -> int:
     write_text(out / "table.md", table(out, args.modes, used, args.cap, repo))
     modes = {m: seed_values(out / "runs" / m, used, args.cap) for m in ["stereo", *args.modes]}
     values = {"cap": args.cap, "seeds": used["train"]["seeds"], "metric": "abs_rel", "modes": modes}
+    values["settings"] = study_settings(used)
     write_text(out / "table.json", json.dumps(values, indent=1) + "\n")
     figure(out, repo, args.modes, used)
     print((out / "table.md").read_text())

@@ -347,3 +347,42 @@ def test_the_summary_table_holds_each_familys_headline_instrument() -> None:
         "| windshield | \u22120.036 [\u22120.068, \u22120.002] *, n = 66 ROIs × 3 seed pairs | "
         "\u22120.010 [\u22120.030, +0.010], n = 66 ROIs | – |"
     )
+
+
+def test_the_committed_network_rows_are_the_mean_of_the_per_seed_paired_differences() -> None:
+    """Each stereo-network row of metrics/compare.json is paired by seed: its difference is the mean
+    of the per-seed differences, each the mean over the class's ROIs (images) of MS-SSIM − SSIM in
+    the per-unit tables of the same seed (metrics/{roi,full}/<variant>/seed<S>.csv)."""
+    import pandas as pd
+
+    data = json.loads((ROOT / "metrics" / "compare.json").read_text(encoding="utf-8"))
+    rows = [Row.from_dict(d) for d in data["verdict"]["rows"] if d["kind"] == "network"]
+    assert rows and all(r.method.startswith(f"paired by seed ({len(data['seeds'])} pairs)") for r in rows)
+    for r in rows:
+        suite, key = ("full", "frame") if r.cls == FULL_FRAME else ("roi", "roi")
+        per_seed = []
+        for seed in data["seeds"]:
+            a, b = (
+                pd.read_csv(ROOT / "metrics" / suite / v / f"seed{seed}.csv", dtype={"frame": str})
+                for v in ("msssim", "ssim")
+            )
+            a, b = (t[t["cap"] == 80] for t in (a, b))
+            if suite == "roi":
+                a, b = (t[t["class"] == r.cls] for t in (a, b))
+            diff = a.set_index(key)["abs_rel"] - b.set_index(key)["abs_rel"]
+            per_seed.append(diff.mean())
+        assert r.per_seed == pytest.approx(per_seed, abs=1e-9), r.cls
+        assert r.diff == pytest.approx(np.mean(per_seed), abs=1e-9) and r.low < r.diff < r.high
+        assert r.t_low < r.diff < r.t_high
+
+
+def test_the_monocular_studys_settings_come_from_its_json_or_its_table(tmp_path: Path) -> None:
+    from msdepth.reporting.verdict import SETTINGS_LINE, read_monocular_settings
+
+    committed = read_monocular_settings(tmp_path / "absent.json", ROOT / "studies/results/monocular/table.md")
+    assert committed == "msssim: kernel_size=3, levels=4, weights=wang; ssim: kernel_size=3, padding=valid"
+    (tmp_path / "table.md").write_text(f"# t\n\n{SETTINGS_LINE}`msssim: kernel_size=7`\n")
+    assert read_monocular_settings(tmp_path / "absent.json", tmp_path / "table.md") == "msssim: kernel_size=7"
+    (tmp_path / "table.json").write_text(json.dumps({"modes": {}, "settings": "msssim: kernel_size=5"}))
+    assert read_monocular_settings(tmp_path / "table.json", tmp_path / "table.md") == "msssim: kernel_size=5"
+    assert read_monocular_settings(tmp_path / "none.json", tmp_path / "none.md") == ""
