@@ -179,6 +179,112 @@ def diagnose(
     return history
 
 
+def baseline_scores(params: Params, ev: EvalSet) -> dict[str, dict]:
+    """The image-blind baselines' scores (the constant, the per-pixel prior): the curves' floor."""
+    pairs = load_pair_list(INDEX / "train_pairs.txt")
+    gt = baselines.training_gt([left for left, _ in pairs], progress=False).maps
+    disp = baselines.baseline_disparities(gt, len(ev.frames))
+    return {name: scores(depth_maps(d, ev.frames), ev, params) for name, d in disp.items()}
+
+
+CURVES = (
+    ("car_mask", "car"),
+    ("windshield_mask", "windshield"),
+    ("glass_mask", "glass"),
+    ("sign_mask", "sign"),
+)
+
+
+def curve_figure(history: list[dict], floor: dict[str, dict], path: Path) -> None:
+    """curve.png: per class, exact-mask abs_rel against steps (the prior's dashed); the car boxes'
+    correlation with the prior; image dependence and full-frame abs_rel."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from msdepth.reporting.figures import write_figure
+
+    steps = [h["step"] for h in history]
+    fig, axes = plt.subplots(1, 3, figsize=(12, 3.4))
+    for (key, label), color in zip(CURVES, ("tab:blue", "tab:orange", "tab:green", "tab:red"), strict=True):
+        axes[0].plot(steps, [h[key] for h in history], color=color, label=label)
+        axes[0].axhline(floor["prior"][key], color=color, ls="--", lw=0.8)
+    axes[0].set_ylabel("exact-mask abs_rel (cap 80 m)")
+    axes[0].set_title("classes (dashed: the per-pixel prior)", fontsize=9)
+    axes[0].legend(fontsize=7)
+    axes[1].plot(steps, [h["car_prior_corr"] for h in history], color="k")
+    axes[1].axhline(0.3, color="grey", ls=":", lw=0.8)
+    axes[1].set_title("car boxes: corr. of log error with the prior's", fontsize=9)
+    axes[2].plot(steps, [h["abs_rel"] for h in history], label="full-frame abs_rel")
+    axes[2].plot(steps, [h["variation_ratio"] for h in history], label="image dependence")
+    axes[2].axhline(floor["prior"]["abs_rel"], color="tab:blue", ls="--", lw=0.8)
+    axes[2].legend(fontsize=7)
+    for ax in axes:
+        ax.set_xlabel("step")
+        ax.grid(alpha=0.3)
+    fig.tight_layout()
+    write_figure(path, fig, dpi=110)
+    plt.close(fig)
+
+
+def strip_figure(out: Path, ev: EvalSet, marks: list[int], path: Path) -> None:
+    """strip.png: per frame, the image, its GT disparity and the network's at each saved mark."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from msdepth.data.kitti import read_image
+    from msdepth.reporting.figures import write_figure
+
+    saved = [
+        (m, np.load(out / "work" / f"disp_{m}.npy"))
+        for m in marks
+        if (out / "work" / f"disp_{m}.npy").is_file()
+    ]
+    fig, axes = plt.subplots(
+        STRIP_FRAMES, len(saved) + 2, figsize=(2.6 * (len(saved) + 2), 1.0 * STRIP_FRAMES + 0.5)
+    )
+    for i, frame in enumerate(ev.frames[:STRIP_FRAMES]):
+        gt = np.where(
+            frame.gt_depth > 0, frame.focal * frame.baseline / np.maximum(frame.gt_depth, 1e-3), np.nan
+        )
+        gt = gt / gt.shape[1]  # as a fraction of the width, the networks' unit
+        axes[i, 0].imshow(read_image(ev.images[i]))
+        axes[i, 1].imshow(gt, cmap="magma", vmin=0, vmax=np.nanpercentile(gt, 95))
+        for j, (mark, disp) in enumerate(saved, 2):
+            axes[i, j].imshow(disp[i], cmap="magma", vmin=0, vmax=np.nanpercentile(gt, 95))
+            axes[i, j].set_title(f"step {mark}" if i == 0 else "", fontsize=8)
+        axes[i, 0].set_title("image" if i == 0 else "", fontsize=8)
+        axes[i, 1].set_title("GT" if i == 0 else "", fontsize=8)
+    for ax in axes.ravel():
+        ax.axis("off")
+    fig.tight_layout()
+    write_figure(path, fig, dpi=110)
+    plt.close(fig)
+
+
+def summary_table(history: list[dict], floor: dict[str, dict]) -> str:
+    """summary.md: one row per scored step, the baselines first."""
+    keys = (
+        "abs_rel",
+        "car_mask",
+        "windshield_mask",
+        "glass_mask",
+        "sign_mask",
+        "car_prior_corr",
+        "variation_ratio",
+    )
+    header = "| step | full abs_rel | car | windshield | glass | sign | car corr. prior | image dependence |"
+    lines = [header, "|---" * 8 + "|"]
+    for name, row in floor.items():
+        lines.append(f"| {name} | " + " | ".join(f"{row[k]:.3f}" for k in keys) + " |")
+    for h in history:
+        lines.append(f"| {h['step']} | " + " | ".join(f"{h[k]:.3f}" for k in keys) + " |")
+    return "\n".join(lines) + "\n"
+
+
 def claim(out: Path, steps: int, every: int) -> OutputPolicy:
     """Every file the study may write under ``out``, claimed before it starts (output policy)."""
     paths = [out / n for n in ("history.json", "curve.png", "strip.png", "summary.md", "baselines.json")]
@@ -199,15 +305,32 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE")
     ap.add_argument("--out", type=Path, required=True)
+    ap.add_argument("--report", action="store_true", help="only the tables and figures of a run in --out")
     args = ap.parse_args(argv)
     base = apply_overrides(read_params_file("params.yaml"), args.set)
     try:
         claim(args.out, args.steps, args.every)
-        history = diagnose(base, args.variant, args.seed, args.steps, args.every, args.out, args.threads)
+        if args.report:
+            history = _resumed_history(args.out)
+            if not history:
+                raise DataError(f"{args.out / 'history.json'}: no scored checkpoint to report")
+        else:
+            history = diagnose(base, args.variant, args.seed, args.steps, args.every, args.out, args.threads)
     except (OutputError, DataError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1
-    print(f"{len(history)} checkpoints scored into {args.out / 'history.json'}")
+    params = params_from_dict(base)
+    ev = load_eval_set(params)
+    floor = baseline_scores(params, ev)
+    write_text(args.out / "baselines.json", json.dumps(floor, indent=1))
+    text = summary_table(history, floor)
+    write_text(args.out / "summary.md", text)
+    try:
+        curve_figure(history, floor, args.out / "curve.png")
+        strip_figure(args.out, ev, checkpoint_steps(args.steps, args.every), args.out / "strip.png")
+    except ImportError:  # a GPU machine's image may have no matplotlib: the numbers are the result
+        print("matplotlib is not installed: no curve.png or strip.png", file=sys.stderr)
+    print(text)
     return 0
 
 

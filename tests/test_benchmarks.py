@@ -412,3 +412,24 @@ def test_ab_benchmark_against_this_commit() -> None:
     assert "| msssim sync 50 |" in out and "this / base (median)" in out
     worktrees = subprocess.run(["git", "-C", str(ROOT), "worktree", "list"], capture_output=True, text=True)
     assert "msdepth-ab-" not in worktrees.stdout  # the base's worktree is removed
+
+
+@pytest.mark.slow
+def test_objects_study_smoke(study_set: Path, tmp_path: Path) -> None:
+    """studies/objects.py end to end on a tiny generated set: trains past two marks, scores each
+    (exact-mask classes, the car boxes' correlation with the prior, image dependence), writes the
+    summary, curve and strip; --report redraws them from the run without training."""
+    import json
+
+    shutil.copytree(study_set, tmp_path, dirs_exist_ok=True)
+    args = ("--out", "out", "--steps", "4", "--every", "2", "--threads", "1")
+    stdout = _study("objects.py", *args, cwd=tmp_path)
+    history = json.loads((tmp_path / "out" / "history.json").read_text())
+    assert [h["step"] for h in history] == [2, 4]
+    assert {"car_mask", "windshield_mask", "car_prior_corr", "variation_ratio"} <= set(history[-1])
+    assert "| prior |" in stdout and "| 4 |" in stdout
+    for name in ("curve.png", "strip.png", "summary.md", "work/disp_2.npy", "work/disp_4.npy"):
+        assert (tmp_path / "out" / name).stat().st_size > 0, name
+    before = (tmp_path / "out" / "work" / "model.pt").stat().st_mtime_ns
+    assert "| 4 |" in _study("objects.py", *args, "--report", cwd=tmp_path)
+    assert (tmp_path / "out" / "work" / "model.pt").stat().st_mtime_ns == before  # nothing trained
