@@ -1,6 +1,6 @@
 """What msdepth's networks share: the width multiplier's channel rounding and the disparity range.
 
-Kept apart from the networks themselves so that :mod:`msdepth.networks.model` can build either depth
+Kept apart from the networks themselves so that :mod:`msdepth.networks.vgg` can build either depth
 network (its VGG one or :mod:`msdepth.networks.resnet_depth`'s) without an import cycle.
 """
 
