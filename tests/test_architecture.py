@@ -16,10 +16,11 @@ from msdepth.config.params import params_from_dict
 from msdepth.data import sequences, synthetic
 from msdepth.data.layout import MONO_SPLIT
 from msdepth.errors import ConfigError, MsdepthError
+from msdepth.networks.model_file import depth_network, save_model
 from msdepth.networks.resnet import ResNetEncoder
 from msdepth.networks.resnet_depth import DepthDecoder, ResNetMonodepth
 from msdepth.networks.serialization import load_weights_file
-from msdepth.networks.vgg import MonodepthVGG, depth_network, save_model
+from msdepth.networks.vgg import MonodepthVGG
 from msdepth.training.train import (
     build_model,
     build_pose_net,

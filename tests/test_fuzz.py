@@ -650,7 +650,7 @@ def test_load_model_on_random_metadata(base: Path, tiny_weights: dict, changes: 
     the file; never another exception, and never a network other than the weights describe."""
     import torch
 
-    from msdepth.networks.vgg import load_model
+    from msdepth.networks.model_file import load_model
 
     state = {"model": tiny_weights, "criterion": {}, "width_multiplier": 0.0625, "height": 32, "width": 96}
     state = {k: v for k, v in {**state, **changes}.items() if k not in drop}

@@ -44,7 +44,7 @@ from msdepth.evaluation.infer import network_disparity
 from msdepth.geometry.depth import disparity_to_depth, pixel_disparity
 from msdepth.io import OutputPolicy, atomic_path, save_npy, write_png
 from msdepth.networks.device import resolve_device
-from msdepth.networks.vgg import MAX_INPUT_SIDE, DepthNetwork, load_model
+from msdepth.networks.model_file import MAX_INPUT_SIDE, DepthNetwork, load_model
 
 IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp", ".ppm")
 VIDEO_EXTENSIONS = (".avi", ".mp4", ".mov", ".mkv", ".webm", ".m4v", ".mpg", ".mpeg", ".wmv")
@@ -130,7 +130,7 @@ class _Frame:
 
 
 def load_trained(path: str | os.PathLike, device: str | torch.device = "cpu") -> tuple[DepthNetwork, dict]:
-    """:func:`msdepth.networks.vgg.load_model`, with any failure turned into one MsdepthError naming
+    """:func:`msdepth.networks.model_file.load_model`, with any failure turned into one MsdepthError naming
     the file."""
     try:
         return load_model(path, device)

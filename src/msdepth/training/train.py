@@ -33,16 +33,16 @@ from msdepth.losses.monodepth import MonodepthLoss
 from msdepth.losses.objective import build_loss
 from msdepth.networks.common import MAX_DISPARITY
 from msdepth.networks.device import one_pixel_wide_strided_convs, resolve_device
-from msdepth.networks.pose import PoseNet
-from msdepth.networks.resnet import load_pretrained
-from msdepth.networks.resnet_depth import ResNetMonodepth
-from msdepth.networks.serialization import load_weights_file, save_weights_file
-from msdepth.networks.vgg import (  # noqa: F401 - load_model: imported from here too
+from msdepth.networks.model_file import (  # noqa: F401 - load_model: imported from here too
     DepthNetwork,
     depth_network,
     load_model,
     save_model,
 )
+from msdepth.networks.pose import PoseNet
+from msdepth.networks.resnet import load_pretrained
+from msdepth.networks.resnet_depth import ResNetMonodepth
+from msdepth.networks.serialization import load_weights_file, save_weights_file
 from msdepth.training import distributed
 from msdepth.training.distributed import Context, GlobalBatchSampler
 from msdepth.training.pairing import pairing_record
