@@ -130,7 +130,7 @@ def private_imports(src: Path, package: str = PACKAGE) -> list[str]:
 # Lowest first. A top-level module counts as its own package (``errors``, ``io``, ``__main__``).
 LAYERS = (
     ("errors",),  # the one-line errors every entry point prints
-    ("io",),  # the hardened file reader and the output policy
+    ("io",),  # atomic writers (JSON, text, PNG, npy) and the output policy
     ("config",),  # the typed params and each loss variant's settings (no torch)
     ("geometry", "pipeline"),  # warping, cameras, disparity <-> depth; the pipeline's paths
     ("data",),  # KITTI and the synthetic set: reading, rendering, indexes, ROIs
