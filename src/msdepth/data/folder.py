@@ -28,7 +28,7 @@ The folder is ``data.root`` (DVC tracks the data under that name); every other n
   suites then say they were skipped.
 
 ``python -m msdepth export-folder`` writes such a folder from the synthetic set
-(:mod:`msdepth.data.folder_export`). This module imports neither torch nor the index code: the
+(:mod:`msdepth.cli.folder_export`). This module imports neither torch nor the index code: the
 ``prepare_data`` stage checks a folder with it (:func:`check_folder`).
 """
 
