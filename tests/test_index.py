@@ -11,7 +11,8 @@ import pytest
 
 from msdepth.config.params import params_from_dict
 from msdepth.data import kitti, synthetic
-from msdepth.data.index import build_indexes, read_eval_index
+from msdepth.data.eval_index import read_eval_index
+from msdepth.data.indexing import build_indexes
 from msdepth.errors import DataError
 from msdepth.io import write_png
 

@@ -204,7 +204,7 @@ def test_the_cost_curves_of_a_rerun_are_the_same_bytes(tmp_path: Path):
     """issue 40: the stage's computation twice on a tiny rendered set writes identical files."""
     from msdepth.config.params import SyntheticConfig
     from msdepth.data import synthetic
-    from msdepth.data.index import build_eval_index, write_eval_index
+    from msdepth.data.eval_index import build_eval_index, write_eval_index
     from msdepth.optimum.frames import write_cost_curves
 
     root = tmp_path / "synthetic"

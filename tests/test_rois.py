@@ -12,7 +12,7 @@ import pytest
 
 from msdepth.config.params import SyntheticConfig
 from msdepth.data import kitti, synthetic
-from msdepth.data.index import build_eval_index
+from msdepth.data.eval_index import build_eval_index
 from msdepth.data.rois import (
     HEADER_HEIGHT,
     LABEL_HEIGHT,

@@ -277,7 +277,7 @@ def test_class_map_holds_the_exact_pixels_of_every_roi_class(root: Path) -> None
 
 
 def test_class_map_is_indexed_and_read_with_the_frames(root: Path) -> None:
-    from msdepth.data.index import build_eval_index
+    from msdepth.data.eval_index import build_eval_index
     from msdepth.evaluation.suites import load_frames
 
     index = build_eval_index(root / "kitti2015", root / "kitti2015" / "test_files.txt", "disp_noc_0")

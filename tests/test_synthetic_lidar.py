@@ -16,7 +16,7 @@ import pytest
 
 from msdepth.config.params import SyntheticConfig
 from msdepth.data import kitti, synthetic
-from msdepth.data.index import velodyne_path
+from msdepth.data.eval_index import velodyne_path
 from msdepth.data.synthetic import velodyne_sim
 from msdepth.data.synthetic.street import build_scene
 

@@ -195,7 +195,7 @@ def _same_size(left: Path, shape: tuple, other: Path, other_shape: tuple, what: 
 def eval_rows(
     paths: FolderLayout, camera: Camera | None = None, *, npy_is_disparity: bool = False
 ) -> list[tuple]:
-    """One row of :data:`msdepth.data.index.EVAL_COLUMNS` per evaluation frame (the DataFrame:
+    """One row of :data:`msdepth.data.eval_index.EVAL_COLUMNS` per evaluation frame (the DataFrame:
     :func:`msdepth.data.indexing.folder_eval_index`): the images, the GT and its kind (by
     suffix; ``none`` without GT), the camera at the image's width, no crop. Each GT is read once
     here, so a bad file fails the index stage, not the evaluation."""
