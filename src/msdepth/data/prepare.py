@@ -9,7 +9,7 @@ from pathlib import Path
 
 from msdepth.config.params import Params
 from msdepth.data.layout import folder_layout, layout
-from msdepth.data.roots import check_kitti_root, check_synthetic_root
+from msdepth.data.owners import check_kitti_root, check_synthetic_root
 
 log = logging.getLogger("msdepth")
 

@@ -16,7 +16,7 @@ Output layout under ``root`` (see :func:`generate`): ``raw/`` as KITTI raw data 
 ``train_files.txt``), ``kitti2015/training/`` as the KITTI 2015 stereo benchmark (evaluation
 frames with ``disp_occ_0``, ``disp_noc_0``, ``obj_map``, and ``class_map``: the exact pixels of
 every ROI class, which KITTI does not have), ``rois.csv`` and ``synthetic.json`` (which marks
-the tree as the renderer's own: :mod:`msdepth.data.roots`). The same evaluation frames also form
+the tree as the renderer's own: :mod:`msdepth.data.owners`). The same evaluation frames also form
 a raw drive with a simulated Velodyne scan per frame (:mod:`.velodyne_sim`), listed in
 ``eigen_test_files.txt``: the Eigen split's layout, for the raw-LiDAR evaluation.
 

@@ -23,7 +23,7 @@ from msdepth.data.kitti import (
     write_velodyne,
 )
 from msdepth.data.layout import MONO_SPLIT
-from msdepth.data.roots import RENDERING, SUMMARY, check_synthetic_root
+from msdepth.data.owners import RENDERING, SUMMARY, check_synthetic_root
 from msdepth.data.synthetic.frame import (
     EVAL,
     SEQUENCE_STEP,
@@ -191,7 +191,7 @@ def generate(
 
     Always regenerates from scratch (``root/raw`` and ``root/kitti2015`` are replaced), but only
     in a tree of its own: ``root`` must be empty, absent, or marked as the synthetic set's
-    (:mod:`msdepth.data.roots`); any other tree, such as KITTI's, is refused (DataError). Every
+    (:mod:`msdepth.data.owners`); any other tree, such as KITTI's, is refused (DataError). Every
     file is written atomically and the output depends only on ``cfg`` (byte-identical reruns).
     ``workers`` processes render in parallel (default: the CPUs available to this process).
 
@@ -227,7 +227,7 @@ def generate(
 
 def _clear(root: Path) -> None:
     """Remove the previous render's trees and Eigen list, after checking that ``root`` is the
-    renderer's own (:func:`~msdepth.data.roots.check_synthetic_root`, else DataError), and mark it
+    renderer's own (:func:`~msdepth.data.owners.check_synthetic_root`, else DataError), and mark it
     as such until the summary is written (an interrupted render is then still known as its own).
     A killed render's temp files go too: in raw/ and kitti2015/ with them, at the root by name."""
     check_synthetic_root(root)

@@ -1,4 +1,5 @@
-"""Which data source made the tree under a data root, so that no source deletes or writes into another's.
+"""Which data source owns the tree under a data root (the marks each leaves), so that no source
+deletes or writes into another's.
 
 Each source has a tree of its own (``data.root``: ``data/synthetic`` for the synthetic set,
 ``data/kitti`` for real KITTI). A tree says who made it:
