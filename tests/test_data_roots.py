@@ -19,9 +19,9 @@ from conftest import run_script, stage
 
 from msdepth.config.params import SyntheticConfig, params_from_dict
 from msdepth.data import owners
-from msdepth.data.synthetic import generate
 from msdepth.errors import DataError
 from msdepth.io import TEMP_MARK
+from msdepth.render import generate
 
 prepare_data = stage("prepare_data").prepare_data
 

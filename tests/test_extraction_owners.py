@@ -10,8 +10,8 @@ from pathlib import Path
 
 import pytest
 
-from msdepth.data import download as dl
 from msdepth.data import owners
+from msdepth.download import archives as dl
 from msdepth.errors import DataError
 
 CALIB = "2011_09_26/calib_cam_to_cam.txt"

@@ -24,7 +24,8 @@ from msdepth.data.kitti import (
 )
 from msdepth.data.layout import MONO_SPLIT
 from msdepth.data.owners import RENDERING, SUMMARY, check_synthetic_root
-from msdepth.data.synthetic.frame import (
+from msdepth.io import atomic_path, atomic_temps, write_json, write_png, write_text
+from msdepth.render.frame import (
     EVAL,
     SEQUENCE_STEP,
     TRAIN,
@@ -33,9 +34,8 @@ from msdepth.data.synthetic.frame import (
     sequence_frame,
     sequence_pose,
 )
-from msdepth.data.synthetic.raycast import focal_for_width
-from msdepth.data.synthetic.velodyne_sim import calib_velo_to_cam_text
-from msdepth.io import atomic_path, atomic_temps, write_json, write_png, write_text
+from msdepth.render.raycast import focal_for_width
+from msdepth.render.velodyne_sim import calib_velo_to_cam_text
 
 DATES = ("2011_09_26", "2011_09_28", "2011_09_29", "2011_09_30", "2011_10_03")
 # The raw drive holding the evaluation frames with their LiDAR scans: training drives are numbered
