@@ -137,7 +137,7 @@ LAYERS = (
     ("render", "download"),  # the synthetic set's renderer; KITTI's download
     ("prepare",),  # the prepare_data stage: render, download or check a stereo folder
     ("networks",),  # the depth and pose networks and their files
-    ("losses",),  # appearance terms, Monodepth's and Monodepth2's objectives
+    ("losses",),  # SSIM and MS-SSIM, appearance terms, Monodepth's and Monodepth2's objectives
     ("training", "evaluation"),  # training a network; inference, suites, metrics, baselines
     ("optimum",),  # the losses' own optimum, scored as a run
     ("reporting",),  # comparison, the results page, the figures
