@@ -33,7 +33,8 @@ import sys
 import torch
 from _timing import compare, device_from, table
 
-from msdepth.losses.monodepth import appearance_loss, ms_ssim, ssim
+from msdepth.losses.monodepth import appearance_loss
+from msdepth.losses.ssim import ms_ssim, ssim
 
 ALPHA = 0.85
 

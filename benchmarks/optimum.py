@@ -48,10 +48,10 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "src"))
 
 from msdepth.config.params import Params, load_params  # noqa: E402
-from msdepth.data.synthetic import EVAL, Frame, render_frame  # noqa: E402
 from msdepth.optimum.sgbm import sgbm_disparity  # noqa: E402
 from msdepth.optimum.solver import batch_start, optimum_disparities  # noqa: E402
 from msdepth.optimum.starts import capped_size  # noqa: E402
+from msdepth.render import EVAL, Frame, render_frame  # noqa: E402
 
 PATHS = ("constant", "cost", "sgbm")
 VARIANTS = ("ssim:3", "msssim:3", "msssim:11")

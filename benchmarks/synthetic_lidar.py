@@ -1,4 +1,4 @@
-"""What the simulated Velodyne scans add to ``synthetic.generate``: with scans on and off, side by side.
+"""What the simulated Velodyne scans add to ``render.generate``: with scans on and off, side by side.
 
     python benchmarks/synthetic_lidar.py                  # params.yaml's data.synthetic, 8 + 8 frames
     python benchmarks/synthetic_lidar.py --train 8 --eval 8 --repeats 5
@@ -20,8 +20,8 @@ from pathlib import Path
 import torch
 from _timing import compare, table
 
+from msdepth import render
 from msdepth.config.params import load_params
-from msdepth.data import synthetic
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -39,7 +39,7 @@ def main() -> None:
         roots = {name: Path(tmp) / name for name in ("off", "on")}
         timings = compare(
             {
-                name: (lambda r=root, on=(name == "on"): synthetic.generate(cfg, r, False, 1, lidar=on))
+                name: (lambda r=root, on=(name == "on"): render.generate(cfg, r, False, 1, lidar=on))
                 for name, root in roots.items()
             },
             torch.device("cpu"),

@@ -32,7 +32,7 @@ from _timing import Timings, compare, device_from, sync, table
 from msdepth.config.params import Params, load_params
 from msdepth.losses.appearance import build_appearance
 from msdepth.losses.monodepth import MonodepthLoss
-from msdepth.networks.model import MonodepthVGG
+from msdepth.networks.vgg import MonodepthVGG
 from msdepth.training.train import configure_cudnn, forward_and_loss
 
 

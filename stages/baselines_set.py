@@ -5,7 +5,7 @@ from __future__ import annotations
 import sys
 
 from msdepth.config.params import Params
-from msdepth.data.index import set_index_path
+from msdepth.data.eval_index import set_index_path
 from msdepth.evaluation.baselines import score_set_baselines
 from msdepth.pipeline.paths import INDEX_DIR, TRAIN_PAIRS, SetArg, checked_set, run_stage
 

@@ -9,7 +9,7 @@ from __future__ import annotations
 import sys
 
 from msdepth.config.params import Params
-from msdepth.data.index import set_index_path
+from msdepth.data.eval_index import set_index_path
 from msdepth.pipeline.paths import (
     INDEX_DIR,
     SeedArg,

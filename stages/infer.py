@@ -5,7 +5,7 @@ from __future__ import annotations
 import sys
 
 from msdepth.config.params import Params
-from msdepth.data.index import read_eval_index
+from msdepth.data.eval_index import read_eval_index
 from msdepth.io import save_npy
 from msdepth.pipeline.paths import (
     EVAL_FRAMES,

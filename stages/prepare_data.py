@@ -5,8 +5,8 @@ from __future__ import annotations
 import sys
 from typing import Annotated
 
+from msdepth import prepare
 from msdepth.config.params import Params
-from msdepth.data import prepare
 from msdepth.pipeline.paths import run_stage
 
 

@@ -20,8 +20,8 @@ from pathlib import Path
 import pandas as pd
 
 from msdepth.config.params import apply_overrides, kernel_variant, params_from_dict, read_params_file
-from msdepth.data.synthetic import render_frame
 from msdepth.optimum.frames import add_cost_curves, cost_summary
+from msdepth.render import render_frame
 
 ROOT = Path(__file__).resolve().parents[1]  # its params.yaml is the base
 

@@ -2,7 +2,7 @@
 
 ``dump`` renders frames of the synthetic set (``data.synthetic``) with whichever renderer is on
 PYTHONPATH and saves their images and disparities; ``compare`` loads two dumps and, with the
-current renderer's glass masks (:func:`msdepth.data.synthetic.glass_pixels`), counts the pixels
+current renderer's glass masks (:func:`msdepth.render.glass_pixels`), counts the pixels
 that differ outside and inside glass::
 
     cd <old checkout> && python <this file copied there> dump /tmp/before --eval 40 --train 40
@@ -19,9 +19,9 @@ from pathlib import Path
 import numpy as np
 
 from msdepth.config.params import read_params_file
-from msdepth.data.synthetic import EVAL, TRAIN, render_frame
 from msdepth.errors import OutputError
 from msdepth.io import OutputPolicy, save_npz
+from msdepth.render import EVAL, TRAIN, render_frame
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -45,7 +45,7 @@ def dump(args: argparse.Namespace, s: dict) -> None:
 
 def compare(args: argparse.Namespace, s: dict) -> int:
     """Print per-split counts of differing bytes outside and inside glass; 1 if any outside, else 0."""
-    from msdepth.data.synthetic import glass_pixels  # only the new renderer has it
+    from msdepth.render import glass_pixels  # only the new renderer has it
 
     totals = {}
     for split, i in frames(args):

@@ -33,7 +33,7 @@ import pandas as pd
 
 from msdepth.config.params import Params, apply_overrides, kernel_variant, params_from_dict, read_params_file
 from msdepth.data import kitti
-from msdepth.data.index import read_eval_index
+from msdepth.data.eval_index import read_eval_index
 from msdepth.data.pairs import build_pair_cache, load_pair_cache, load_pair_list
 from msdepth.errors import DataError, OutputError
 from msdepth.evaluation import baselines

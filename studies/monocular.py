@@ -174,7 +174,7 @@ def scaled_stereo_rows(repo: Path, params: dict, cap: float) -> list[list[str]]:
 
     from msdepth.config.params import load_params
     from msdepth.data import kitti
-    from msdepth.data.index import read_eval_index
+    from msdepth.data.eval_index import read_eval_index
     from msdepth.evaluation.suites import (
         evaluate_full,
         evaluate_roi,

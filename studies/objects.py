@@ -32,7 +32,7 @@ import numpy as np
 
 from msdepth.config.params import Params, apply_overrides, params_from_dict, read_params_file
 from msdepth.data import kitti
-from msdepth.data.index import read_eval_index
+from msdepth.data.eval_index import read_eval_index
 from msdepth.data.pairs import load_pair_cache, load_pair_list
 from msdepth.errors import DataError, OutputError
 from msdepth.evaluation import baselines

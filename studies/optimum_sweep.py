@@ -29,8 +29,8 @@ import pandas as pd
 
 from msdepth.config.params import apply_overrides, kernel_variant, params_from_dict, read_params_file
 from msdepth.data.kitti import KITTI_BASELINE
-from msdepth.data.synthetic import render_frame, within_range
 from msdepth.evaluation.suites import Frame, depth_maps, evaluate_full, evaluate_roi
+from msdepth.render import render_frame, within_range
 
 ROOT = Path(__file__).resolve().parents[1]  # its params.yaml is the base
 CAP = "cap80"

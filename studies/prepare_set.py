@@ -18,9 +18,9 @@ from pathlib import Path
 import yaml
 
 from msdepth.config.params import apply_overrides, params_from_dict, read_params_file
-from msdepth.data.synthetic import generate
 from msdepth.errors import MsdepthError
 from msdepth.io import OutputPolicy, write_text
+from msdepth.render import generate
 
 ROOT = Path(__file__).resolve().parents[1]  # its params.yaml and stages/
 

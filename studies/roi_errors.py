@@ -25,7 +25,7 @@ import numpy as np
 
 from msdepth.config.params import load_params
 from msdepth.data import kitti
-from msdepth.data.index import read_eval_index
+from msdepth.data.eval_index import read_eval_index
 from msdepth.data.pairs import load_pair_list
 from msdepth.evaluation import baselines
 from msdepth.evaluation.suites import depth_maps, load_frames, read_depth_maps

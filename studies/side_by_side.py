@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from msdepth.data.index import read_eval_index
+from msdepth.data.eval_index import read_eval_index
 from msdepth.data.kitti import read_image
 from msdepth.errors import DataError, OutputError
 from msdepth.evaluation.suites import load_frames

@@ -128,7 +128,7 @@ def save_tiny_model(path: Path) -> Path:
     32 x 96 inputs: the CLI tests' model."""
     import torch
 
-    from msdepth.networks.model import MonodepthVGG
+    from msdepth.networks.vgg import MonodepthVGG
 
     torch.manual_seed(0)
     state = {"model": MonodepthVGG(0.0625).eval().state_dict(), "criterion": {}, "width_multiplier": 0.0625}

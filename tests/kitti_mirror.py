@@ -25,8 +25,8 @@ import cv2
 import numpy as np
 
 from msdepth.data import kitti
-from msdepth.data.synthetic import focal_for_width
 from msdepth.io import write_png
+from msdepth.render import focal_for_width
 
 # KITTI's 2011_09_26 calibration: LiDAR -> camera 0 ([R|T]) and the rectifying rotation.
 VELO_TO_CAM = np.array(

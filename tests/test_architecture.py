@@ -11,15 +11,17 @@ import pytest
 import torch
 from torch import nn
 
+from msdepth import render
 from msdepth.__main__ import main
 from msdepth.config.params import params_from_dict
-from msdepth.data import sequences, synthetic
+from msdepth.data import sequences
 from msdepth.data.layout import MONO_SPLIT
 from msdepth.errors import ConfigError, MsdepthError
-from msdepth.networks.model import MonodepthVGG, depth_network, save_model
+from msdepth.networks.model_file import depth_network, save_model
 from msdepth.networks.resnet import ResNetEncoder
 from msdepth.networks.resnet_depth import DepthDecoder, ResNetMonodepth
 from msdepth.networks.serialization import load_weights_file
+from msdepth.networks.vgg import MonodepthVGG
 from msdepth.training.train import (
     build_model,
     build_pose_net,
@@ -150,7 +152,7 @@ def test_stereo_training_writes_a_resnet18_model_file_that_loads(pairs, tmp_path
 def test_monocular_training_with_resnet18(tmp_path: Path) -> None:
     root = tmp_path / "render"
     params = _params(mode="mono")
-    synthetic.generate(params.data.synthetic, root, progress=False, workers=1, lidar=False)
+    render.generate(params.data.synthetic, root, progress=False, workers=1, lidar=False)
     entries = sequences.read_mono_split(root / MONO_SPLIT)
     samples = sequences.index_sequences(root / "raw", entries, stereo=False).samples
     result = train_variant(

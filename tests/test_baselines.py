@@ -14,8 +14,9 @@ import pandas as pd
 import pytest
 from conftest import stage
 
+from msdepth import render
 from msdepth.config.params import SyntheticConfig, params_from_dict
-from msdepth.data import kitti, synthetic
+from msdepth.data import kitti
 from msdepth.evaluation import baselines
 from msdepth.evaluation.results import SUITES
 from msdepth.pipeline import paths as pipeline
@@ -27,7 +28,7 @@ SYN = SyntheticConfig(seed=5, drives=2, train_pairs=6, eval_frames=3, height=48,
 def trees(tmp_path_factory) -> tuple[Path, Path, dict[str, np.ndarray]]:
     """The renderer's tree and its KITTI-shaped mirror (with the depth each scan should give)."""
     tree = tmp_path_factory.mktemp("synthetic")
-    synthetic.generate(SYN, tree, progress=False, workers=1)
+    render.generate(SYN, tree, progress=False, workers=1)
     mirror = tmp_path_factory.mktemp("mirror")
     expected = kitti_mirror.mirror_from_synthetic(tree, mirror)
     return tree, mirror, expected
@@ -36,7 +37,7 @@ def trees(tmp_path_factory) -> tuple[Path, Path, dict[str, np.ndarray]]:
 def _lefts(root: Path) -> list[Path]:
     """Every training left image (the renderer's raw evaluation drive, which has scans but no
     disp_02, is no training drive: its frames are in no training split)."""
-    eval_drive = f"_drive_{synthetic.EVAL_DRIVE:04d}_sync"
+    eval_drive = f"_drive_{render.EVAL_DRIVE:04d}_sync"
     return sorted(p for p in (root / "raw").glob("*/*_sync/image_02/data/*.png") if eval_drive not in str(p))
 
 
@@ -56,7 +57,7 @@ def test_kitti_gt_is_the_projected_scan_as_disparity(trees) -> None:
     lefts = _lefts(mirror)
     gt = baselines.training_gt(lefts, progress=False)
     assert gt.sources == {"velodyne": SYN.train_pairs} and gt.maps.shape == (SYN.train_pairs, 48, 160)
-    focal = synthetic.focal_for_width(160)
+    focal = render.focal_for_width(160)
     for frac, left in zip(gt.maps, lefts, strict=True):
         depth = expected[left.relative_to(mirror / "raw").as_posix()]
         assert np.count_nonzero(depth) > 100

@@ -183,7 +183,7 @@ def test_roi_error_study_known_answers(study_set: Path, tmp_path: Path, monkeypa
     the GT 2.00, and both see the same prior ratios."""
     import numpy as np
 
-    from msdepth.data.index import read_eval_index
+    from msdepth.data.eval_index import read_eval_index
     from msdepth.evaluation.suites import load_frames
     from msdepth.io import save_npz
 
@@ -370,7 +370,7 @@ def test_glass_before_after_pairs_frames_rois_and_seeds(tmp_path: Path) -> None:
 def test_monocular_study_scores_stereo_runs_median_scaled(study_set: Path, tmp_path: Path, monkeypatch):
     """studies/monocular.py's stereo rows median-scaled as the monocular runs are: a run at twice
     the GT and one at half of it both score 0 after scaling, with scale ratios 0.5 and 2."""
-    from msdepth.data.index import read_eval_index
+    from msdepth.data.eval_index import read_eval_index
     from msdepth.evaluation.suites import load_frames
     from msdepth.io import save_npz
 

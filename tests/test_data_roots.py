@@ -18,10 +18,10 @@ import pytest
 from conftest import run_script, stage
 
 from msdepth.config.params import SyntheticConfig, params_from_dict
-from msdepth.data import roots
-from msdepth.data.synthetic import generate
+from msdepth.data import owners
 from msdepth.errors import DataError
 from msdepth.io import TEMP_MARK
+from msdepth.render import generate
 
 prepare_data = stage("prepare_data").prepare_data
 
@@ -95,10 +95,10 @@ def test_renderer_replaces_its_own_tree_also_after_an_interruption(tmp_path: Pat
     root = tmp_path / "synthetic"
     generate(TINY, root, progress=False, workers=1)
     first = _files(root)
-    assert roots.SUMMARY in first and roots.RENDERING not in first
+    assert owners.SUMMARY in first and owners.RENDERING not in first
     # Killed during a rerender: the summary not yet rewritten, a stale frame left behind.
-    (root / roots.SUMMARY).unlink()
-    (root / roots.RENDERING).write_text("")
+    (root / owners.SUMMARY).unlink()
+    (root / owners.RENDERING).write_text("")
     (root / "raw" / DRIVE / "stale.png").write_bytes(b"left by the killed render")
     generate(TINY, root, progress=False, workers=1)
     assert _files(root) == first
@@ -109,7 +109,7 @@ def test_renderer_removes_the_temp_files_a_killed_render_left(tmp_path: Path) ->
     root = tmp_path / "synthetic"
     generate(TINY, root, progress=False, workers=1)
     first = _files(root)
-    names = [p.name for p in root.iterdir() if p.is_file()] + [roots.RENDERING]
+    names = [p.name for p in root.iterdir() if p.is_file()] + [owners.RENDERING]
     temps = []
     for name in names:  # as io.atomic_path names them (mkstemp)
         fd, tmp = tempfile.mkstemp(prefix=f".{name}{TEMP_MARK}", suffix=Path(name).suffix, dir=root)
@@ -161,8 +161,8 @@ def test_kitti_download_refuses_the_synthetic_tree(tmp_path: Path, dry_run: bool
 def test_kitti_download_refuses_an_interrupted_render(tmp_path: Path) -> None:
     root = tmp_path / "data" / "synthetic"
     root.mkdir(parents=True)
-    (root / roots.RENDERING).write_text("")
-    with pytest.raises(DataError, match=rf"holds the synthetic set \({roots.RENDERING}\)"):
+    (root / owners.RENDERING).write_text("")
+    with pytest.raises(DataError, match=rf"holds the synthetic set \({owners.RENDERING}\)"):
         prepare_data(_kitti_params(root, tmp_path))
 
 

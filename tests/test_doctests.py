@@ -13,7 +13,7 @@ import pytest
 
 # module -> its functions that must show a runnable example
 SCIENCE_API = {
-    "msdepth.losses.monodepth": ("ssim", "ms_ssim"),
+    "msdepth.losses.ssim": ("ssim", "ms_ssim"),
     "msdepth.evaluation.metrics": ("compute_errors", "stereo_errors"),  # stereo_errors: D1 and EPE
     "msdepth.geometry.depth": ("disparity_to_depth", "depth_to_disparity"),
     "msdepth.geometry.warp": ("warp",),

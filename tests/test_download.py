@@ -32,7 +32,7 @@ from conftest import run_script
 
 from msdepth import io as dl_io
 from msdepth.config.params import Params, params_from_dict
-from msdepth.data import download as dl
+from msdepth.download import archives as dl
 from msdepth.errors import DataError
 
 SHIPPED_LIST = Path(__file__).resolve().parents[1] / "data_lists" / "kitti_archives_to_download.txt"
@@ -439,7 +439,7 @@ def test_the_shipped_splits_need_46_of_the_61_drives() -> None:
 
 
 def test_the_monocular_modes_fetch_the_monocular_splits_drives(monkeypatch: pytest.MonkeyPatch) -> None:
-    from msdepth.data.prepare import needed_splits
+    from msdepth.download.kitti import needed_splits
 
     monkeypatch.chdir(SHIPPED_LIST.parents[1])
     stereo = params_from_dict({"data": {"source": "kitti"}})
@@ -1211,7 +1211,7 @@ def test_annotated_depth_archive_unpacks_where_the_benchmark_index_looks(
 def test_every_extra_set_has_its_list_or_its_archive_for_the_download() -> None:
     """A set of raw frames has its split list (the drives to fetch); KITTI 2012 its own archive."""
     from msdepth.data.eval_sets import SETS
-    from msdepth.data.prepare import SET_SPLITS, single_archives
+    from msdepth.download.kitti import SET_SPLITS, single_archives
 
     for name in set(SETS) - set(SET_SPLITS):
         params = Params()
@@ -1228,7 +1228,7 @@ def test_kitti2012_archive_unpacks_where_the_kitti2012_index_looks(server: _Serv
     (prepare's folder for it), the set's index finds its frames, GT and reflective GT there; a
     second fetch of the complete archive asks nothing."""
     from msdepth.data.eval_sets import build_kitti2012_index
-    from msdepth.data.prepare import single_archives
+    from msdepth.download.kitti import single_archives
 
     image = cv2.imencode(".png", np.full((370, 1226, 3), 128, np.uint8))[1].tobytes()
     disp = cv2.imencode(".png", np.full((370, 1226), 256 * 20, np.uint16))[1].tobytes()

@@ -19,7 +19,7 @@ from conftest import committed_file, require_git_checkout
 from msdepth.__main__ import main as msdepth_main
 from msdepth.cli.example import FRAME, MANIFEST, OUT, disparity_name, main, md5
 from msdepth.data.imagefile import png_size
-from msdepth.networks.model import MonodepthVGG
+from msdepth.networks.vgg import MonodepthVGG
 
 ROOT = Path(__file__).resolve().parents[1]
 

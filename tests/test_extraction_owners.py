@@ -10,8 +10,8 @@ from pathlib import Path
 
 import pytest
 
-from msdepth.data import download as dl
-from msdepth.data import roots
+from msdepth.data import owners
+from msdepth.download import archives as dl
 from msdepth.errors import DataError
 
 CALIB = "2011_09_26/calib_cam_to_cam.txt"
@@ -80,12 +80,12 @@ def test_an_archive_may_replace_its_own_files_and_its_marker_lists_them(tmp_path
     assert (raw / CALIB).read_text() == "v2" and not (raw / ".c.zip.pending").exists()
 
 
-@pytest.mark.parametrize("mark", roots.FOLDER_MARKS)
+@pytest.mark.parametrize("mark", owners.FOLDER_MARKS)
 def test_the_kitti_download_refuses_a_stereo_folder(tmp_path: Path, mark: str) -> None:
     (tmp_path / "mine").mkdir()
     (tmp_path / "mine" / mark).write_text("focal_px: 700\n")
     with pytest.raises(DataError) as err:
-        roots.check_kitti_root(tmp_path / "mine")
+        owners.check_kitti_root(tmp_path / "mine")
     assert str(err.value) == (
         f"{tmp_path / 'mine'}: holds a stereo folder (data.source: folder) ({mark}): KITTI needs a "
         "data.root of its own (e.g. data/kitti); nothing was written"

@@ -12,10 +12,10 @@ from conftest import stage
 
 from msdepth.config.params import params_from_dict
 from msdepth.data import kitti
-from msdepth.data.synthetic import generate
 from msdepth.errors import DataError
 from msdepth.evaluation.results import SUITES
 from msdepth.pipeline import paths as pipeline
+from msdepth.render import generate
 from msdepth.reporting.figures import FIGURES, make_figures, roi_examples
 
 VARIANTS = ["ssim", "msssim"]

@@ -177,7 +177,7 @@ def test_a_missing_right_image_is_named(tmp_path: Path):
 
 
 def test_evaluation_index_rows_kinds_camera_and_no_gt(tmp_path: Path):
-    from msdepth.data.index import EVAL_COLUMNS
+    from msdepth.data.eval_index import EVAL_COLUMNS
     from msdepth.data.indexing import folder_eval_index
 
     root = _folder(tmp_path / "s")

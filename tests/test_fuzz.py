@@ -627,7 +627,7 @@ _ANY_VALUE = st.one_of(
 def tiny_weights() -> dict:
     import torch
 
-    from msdepth.networks.model import MonodepthVGG
+    from msdepth.networks.vgg import MonodepthVGG
 
     torch.manual_seed(0)
     return MonodepthVGG(0.0625).state_dict()
@@ -650,7 +650,7 @@ def test_load_model_on_random_metadata(base: Path, tiny_weights: dict, changes: 
     the file; never another exception, and never a network other than the weights describe."""
     import torch
 
-    from msdepth.networks.model import load_model
+    from msdepth.networks.model_file import load_model
 
     state = {"model": tiny_weights, "criterion": {}, "width_multiplier": 0.0625, "height": 32, "width": 96}
     state = {k: v for k, v in {**state, **changes}.items() if k not in drop}

@@ -130,12 +130,14 @@ def private_imports(src: Path, package: str = PACKAGE) -> list[str]:
 # Lowest first. A top-level module counts as its own package (``errors``, ``io``, ``__main__``).
 LAYERS = (
     ("errors",),  # the one-line errors every entry point prints
-    ("io",),  # the hardened file reader and the output policy
+    ("io",),  # atomic writers (JSON, text, PNG, npy) and the output policy
     ("config",),  # the typed params and each loss variant's settings (no torch)
     ("geometry", "pipeline"),  # warping, cameras, disparity <-> depth; the pipeline's paths
-    ("data",),  # KITTI and the synthetic set: reading, rendering, indexes, ROIs
+    ("data",),  # KITTI's formats and readers, stereo folders, layouts and owners, indexes, ROIs
+    ("render", "download"),  # the synthetic set's renderer; KITTI's download
+    ("prepare",),  # the prepare_data stage: render, download or check a stereo folder
     ("networks",),  # the depth and pose networks and their files
-    ("losses",),  # appearance terms, Monodepth's and Monodepth2's objectives
+    ("losses",),  # SSIM and MS-SSIM, appearance terms, Monodepth's and Monodepth2's objectives
     ("training", "evaluation"),  # training a network; inference, suites, metrics, baselines
     ("optimum",),  # the losses' own optimum, scored as a run
     ("reporting",),  # comparison, the results page, the figures

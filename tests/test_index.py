@@ -9,9 +9,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from msdepth import render
 from msdepth.config.params import params_from_dict
-from msdepth.data import kitti, synthetic
-from msdepth.data.index import build_indexes, read_eval_index
+from msdepth.data import kitti
+from msdepth.data.eval_index import read_eval_index
+from msdepth.data.indexing import build_indexes
 from msdepth.errors import DataError
 from msdepth.io import write_png
 
@@ -21,7 +23,7 @@ SYN = {"seed": 5, "drives": 2, "train_pairs": 6, "eval_frames": 3, "height": 48,
 @pytest.fixture(scope="module")
 def pristine(tmp_path_factory) -> Path:
     root = tmp_path_factory.mktemp("kitti")
-    synthetic.generate(
+    render.generate(
         params_from_dict({"data": {"synthetic": SYN}}).data.synthetic, root, progress=False, workers=1
     )
     return root

@@ -8,7 +8,7 @@ import torch
 
 from msdepth.config.params import ConfigError, Params, load_params, params_from_dict
 from msdepth.evaluation.infer import post_process_disparity
-from msdepth.networks.model import MonodepthVGG
+from msdepth.networks.vgg import MonodepthVGG
 
 
 def monodepth_post_process(disp: np.ndarray) -> np.ndarray:

@@ -142,7 +142,7 @@ def test_a_network_and_the_baselines_are_scored_on_the_shared_frames_with_their_
     reflective class's exact-mask scores and D1."""
     import torch
 
-    from msdepth.data.index import write_eval_index
+    from msdepth.data.eval_index import write_eval_index
     from msdepth.evaluation import baselines
     from msdepth.evaluation.extra_sets import evaluate_on_set
     from msdepth.training.train import build_model

@@ -24,9 +24,9 @@ import kitti_mirror
 import pytest
 from conftest import UP_TO_DATE, dvc_status, project, run_checked
 
+from msdepth import render
 from msdepth.config.params import SyntheticConfig
-from msdepth.data import synthetic
-from msdepth.data.download import KITTI_BASE_URL
+from msdepth.download.archives import KITTI_BASE_URL
 from msdepth.reporting.figures import STAGE_FIGURES
 
 # The tests here run DVC on copied projects: the second tier (`-m slow`).
@@ -138,7 +138,7 @@ def _check_run(work: Path, archives: int) -> str:
 def mirror(tmp_path_factory):
     """The renderer's output as KITTI ships it, on 127.0.0.1: archives, data_scene_flow.zip, lists."""
     tree = tmp_path_factory.mktemp("tree")
-    synthetic.generate(SYN, tree, progress=False, workers=1)
+    render.generate(SYN, tree, progress=False, workers=1)
     kitti_tree = tmp_path_factory.mktemp("kitti")
     kitti_mirror.mirror_from_synthetic(tree, kitti_tree)
     served = tmp_path_factory.mktemp("served")

@@ -21,20 +21,22 @@ from msdepth.losses import ssim_kernels as kernels
 from msdepth.losses.appearance import terms
 from msdepth.losses.appearance.msssim import msssim_similarity
 from msdepth.losses.monodepth import (
+    AppearanceTerm,
+    MonodepthLoss,
+    appearance_loss,
+    lr_consistency_loss,
+    scale_pyramid,
+    smoothness_loss,
+)
+from msdepth.losses.ssim import (
     C1,
     C2,
     WANG_WEIGHTS,
-    AppearanceTerm,
     LearnedLevelWeights,
-    MonodepthLoss,
-    appearance_loss,
     level_weights,
-    lr_consistency_loss,
     ms_ssim,
     ms_ssim_pyramid,
     reference_ssim_terms,
-    scale_pyramid,
-    smoothness_loss,
     ssim,
 )
 

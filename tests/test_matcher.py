@@ -20,7 +20,8 @@ from msdepth.data.pairs import to_tensor
 from msdepth.errors import ConfigError, DataError
 from msdepth.evaluation.metrics import stereo_errors
 from msdepth.losses.appearance import build_appearance
-from msdepth.losses.monodepth import ms_ssim, reconstruct
+from msdepth.losses.monodepth import reconstruct
+from msdepth.losses.ssim import ms_ssim
 from msdepth.optimum import cost_volume as cv
 from msdepth.optimum.sgbm import num_disparities, sgbm_disparity
 from msdepth.optimum.sgm import (

@@ -17,7 +17,8 @@ from msdepth.config.variants.ssim import SSIMConfig
 from msdepth.errors import ConfigError
 from msdepth.losses.appearance import build_appearance, terms
 from msdepth.losses.appearance.mix import MixAppearance, gaussian_l1
-from msdepth.losses.monodepth import MonodepthLoss, ms_ssim, reference_ssim_terms
+from msdepth.losses.monodepth import MonodepthLoss
+from msdepth.losses.ssim import ms_ssim, reference_ssim_terms
 from msdepth.training.train import load_model, train_variant
 
 

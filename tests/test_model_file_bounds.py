@@ -11,8 +11,9 @@ import pytest
 import torch
 
 from msdepth.errors import MsdepthError
-from msdepth.networks.model import MonodepthVGG, load_model
+from msdepth.networks.model_file import load_model
 from msdepth.networks.serialization import load_weights_file
+from msdepth.networks.vgg import MonodepthVGG
 
 MULTIPLIER = 0.0625
 

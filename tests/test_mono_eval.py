@@ -10,8 +10,8 @@ import pytest
 import torch
 from torch import nn
 
+from msdepth import render
 from msdepth.config.params import EvalConfig, SyntheticConfig, params_from_dict
-from msdepth.data import synthetic
 from msdepth.errors import DataError
 from msdepth.evaluation.pose import odometry_ates, sequence_ates
 from msdepth.evaluation.results import median_scaling
@@ -116,7 +116,7 @@ class _ConstantPose(nn.Module):
 @pytest.fixture(scope="module")
 def rendered(tmp_path_factory: pytest.TempPathFactory) -> Path:
     path = tmp_path_factory.mktemp("sequences")
-    synthetic.generate(SEQ, path, progress=False, workers=1, lidar=False)
+    render.generate(SEQ, path, progress=False, workers=1, lidar=False)
     return path
 
 

@@ -13,7 +13,6 @@ from msdepth.__main__ import main
 from msdepth.cli.predict import default_focal
 from msdepth.config.params import Params, apply_overrides, kernel_variant, params_from_dict
 from msdepth.data.pairs import to_tensor
-from msdepth.data.synthetic import render_frame
 from msdepth.errors import ConfigError, DataError
 from msdepth.evaluation.metrics import compute_errors
 from msdepth.io import read_manifest, write_png
@@ -31,6 +30,7 @@ from msdepth.optimum.solver import (
     optimise,
     optimum_disparities,
 )
+from msdepth.render import render_frame
 
 VARIANTS = ("ssim", "msssim", "mix")
 H, W, SHIFT = 48, 160, 12  # the plane: a 12 px disparity, 0.075 of the width (the start is 0.04)

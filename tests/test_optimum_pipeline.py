@@ -202,13 +202,13 @@ def test_the_optimum_stage_lists_every_optimum_key_it_reads_and_no_training_weig
 
 def test_the_cost_curves_of_a_rerun_are_the_same_bytes(tmp_path: Path):
     """issue 40: the stage's computation twice on a tiny rendered set writes identical files."""
+    from msdepth import render
     from msdepth.config.params import SyntheticConfig
-    from msdepth.data import synthetic
-    from msdepth.data.index import build_eval_index, write_eval_index
+    from msdepth.data.eval_index import build_eval_index, write_eval_index
     from msdepth.optimum.frames import write_cost_curves
 
     root = tmp_path / "synthetic"
-    synthetic.generate(
+    render.generate(
         SyntheticConfig(seed=3, drives=1, train_pairs=1, eval_frames=2, height=96, width=320),
         root,
         progress=False,
@@ -234,7 +234,7 @@ def rendered(tmp_path_factory) -> tuple[Path, object]:
     index and rois stages write them, and the params that made it."""
     from conftest import stage
 
-    from msdepth.data.synthetic import generate
+    from msdepth.render import generate
 
     root = tmp_path_factory.mktemp("match")
     raw = {

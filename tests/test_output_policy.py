@@ -22,9 +22,9 @@ from conftest import save_tiny_model
 
 from msdepth.__main__ import build_parser, main
 from msdepth.config.params import SyntheticConfig
-from msdepth.data.synthetic import generate
 from msdepth.errors import OutputError
 from msdepth.io import OutputPolicy, claim_output_file, manifest_line, read_manifest
+from msdepth.render import generate
 
 FAST_OPTIMUM = ["--variant", "ssim", "--set", "optimum.iterations=2", "--set", "optimum.levels=1", "--quiet"]
 TINY = SyntheticConfig(seed=3, drives=1, train_pairs=2, eval_frames=1, height=24, width=80)

@@ -15,7 +15,7 @@ from msdepth.data.kitti import KITTI_BASELINE, WIDTH_TO_FOCAL
 from msdepth.data.pairs import resize, to_tensor
 from msdepth.evaluation.infer import post_process_disparity
 from msdepth.io import atomic_path
-from msdepth.networks.model import MonodepthVGG
+from msdepth.networks.vgg import MonodepthVGG
 
 NET_H, NET_W = 32, 96  # the tiny model's "training" size
 IMG_H, IMG_W = 48, 128  # inputs differ from it, so resizing back is exercised

@@ -13,7 +13,7 @@ import torch
 
 from msdepth.__main__ import main
 from msdepth.io import atomic_path
-from msdepth.networks.model import MonodepthVGG
+from msdepth.networks.vgg import MonodepthVGG
 
 NET_H, NET_W = 32, 96
 

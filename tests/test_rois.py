@@ -10,9 +10,10 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from msdepth import render
 from msdepth.config.params import SyntheticConfig
-from msdepth.data import kitti, synthetic
-from msdepth.data.index import build_eval_index
+from msdepth.data import kitti
+from msdepth.data.eval_index import build_eval_index
 from msdepth.data.rois import (
     HEADER_HEIGHT,
     LABEL_HEIGHT,
@@ -33,7 +34,7 @@ CFG = SyntheticConfig(seed=3, drives=1, train_pairs=1, eval_frames=4, height=96,
 @pytest.fixture(scope="module")
 def tiny(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, pd.DataFrame]:
     root = tmp_path_factory.mktemp("rois")
-    synthetic.generate(CFG, root, progress=False, workers=1)
+    render.generate(CFG, root, progress=False, workers=1)
     k2015 = root / "kitti2015"
     return root, build_eval_index(k2015, k2015 / "test_files.txt", "disp_noc_0")
 

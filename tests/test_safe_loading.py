@@ -24,8 +24,8 @@ from conftest import PAIR_H, PAIR_W, stage
 from msdepth.config.params import params_from_dict
 from msdepth.errors import MsdepthError
 from msdepth.io import write_png
-from msdepth.networks.model import MonodepthVGG
 from msdepth.networks.serialization import load_weights_file
+from msdepth.networks.vgg import MonodepthVGG
 from msdepth.pipeline.paths import run_stage
 from msdepth.training.train import TrainingError, load_model, train_variant
 

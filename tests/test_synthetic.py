@@ -11,8 +11,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from msdepth import render
 from msdepth.config.params import SyntheticConfig
-from msdepth.data import kitti, synthetic
+from msdepth.data import kitti
 
 # Small but big enough that cars, glass and signs leave boxes of >= 6x6 px.
 CFG = SyntheticConfig(seed=11, drives=3, train_pairs=12, eval_frames=8, height=96, width=320)
@@ -21,7 +22,7 @@ CFG = SyntheticConfig(seed=11, drives=3, train_pairs=12, eval_frames=8, height=9
 @pytest.fixture(scope="module")
 def root(tmp_path_factory: pytest.TempPathFactory) -> Path:
     path = tmp_path_factory.mktemp("synthetic")
-    synthetic.generate(CFG, path, progress=False, workers=1)
+    render.generate(CFG, path, progress=False, workers=1)
     return path
 
 
@@ -67,7 +68,7 @@ def _box_mask(shape: tuple[int, int], rois, classes: set[str]) -> np.ndarray:
 
 
 def test_generation_is_deterministic(root: Path, tmp_path: Path) -> None:
-    synthetic.generate(CFG, tmp_path, progress=False, workers=2)  # in worker processes, too
+    render.generate(CFG, tmp_path, progress=False, workers=2)  # in worker processes, too
     first, second = _files(root), _files(tmp_path)
     assert first.keys() == second.keys()
     assert all(first[k] == second[k] for k in first)
@@ -78,14 +79,14 @@ def test_other_seed_other_scenes(root: Path, tmp_path: Path) -> None:
     other = SyntheticConfig(
         seed=12, drives=1, train_pairs=1, eval_frames=1, height=CFG.height, width=CFG.width
     )
-    synthetic.generate(other, tmp_path, progress=False, workers=1)
+    render.generate(other, tmp_path, progress=False, workers=1)
     name = "2011_09_26/2011_09_26_drive_0001_sync/image_02/data/0000000000.png"
     assert (root / "raw" / name).read_bytes() != (tmp_path / "raw" / name).read_bytes()
 
 
 def test_eval_seeds_disjoint_from_training() -> None:
-    a = synthetic.render_frame(CFG.seed, 0, 0, 48, 160)
-    b = synthetic.render_frame(CFG.seed, 1, 0, 48, 160)
+    a = render.render_frame(CFG.seed, 0, 0, 48, 160)
+    b = render.render_frame(CFG.seed, 1, 0, 48, 160)
     assert a.cam_height != b.cam_height and not np.array_equal(a.left, b.left)
 
 
@@ -121,9 +122,7 @@ def test_kitti2015_layout_readable(root: Path) -> None:
         assert kitti.resolve_image(k2015, left) and kitti.resolve_image(k2015, right)
         calib = kitti.kitti2015_paths(k2015, Path(left).stem)["calib"]
         focal, baseline = kitti.focal_and_baseline(CFG.width, calib)
-        assert focal == pytest.approx(synthetic.focal_for_width(CFG.width)) and baseline == pytest.approx(
-            0.54
-        )
+        assert focal == pytest.approx(render.focal_for_width(CFG.width)) and baseline == pytest.approx(0.54)
     summary = json.loads((root / "synthetic.json").read_text())
     rois = kitti.read_rois(root / "rois.csv")
     assert summary["train_pairs"] == CFG.train_pairs and summary["eval_frames"] == CFG.eval_frames
@@ -138,7 +137,7 @@ def test_disparity_matches_ground_plane_geometry() -> None:
     h, w = 60, 200
     matches = []
     for index in range(4):
-        frame = synthetic.render_frame(3, 1, index, h, w)
+        frame = render.render_frame(3, 1, index, h, w)
         f, cx, cy = frame.focal, (w - 1) / 2, (h - 1) / 2
         ray = (
             np.stack([(np.arange(w) - cx) / f, np.full(w, (h - 1 - cy) / f), np.ones(w)], axis=1)
@@ -152,9 +151,9 @@ def test_disparity_matches_ground_plane_geometry() -> None:
 
 
 def test_disparity_encoding_on_disk(root: Path) -> None:
-    frame = synthetic.render_frame(CFG.seed, 1, 0, CFG.height, CFG.width)
+    frame = render.render_frame(CFG.seed, 1, 0, CFG.height, CFG.width)
     occ = kitti.read_disparity(kitti.kitti2015_paths(root / "kitti2015", "000000_10", "disp_occ_0")["disp"])
-    in_range = synthetic.within_range(frame.disp, frame.focal, CFG.gt_max_depth)
+    in_range = render.within_range(frame.disp, frame.focal, CFG.gt_max_depth)
     assert np.abs(occ - in_range).max() <= 1 / 512 + 1e-6
     assert ((occ > 0) == (in_range > 0)).all()
     assert (occ == 0).any()  # the sky has no ground truth
@@ -164,7 +163,7 @@ def test_eval_gt_stops_at_lidar_range(root: Path) -> None:
     """Like KITTI's LiDAR GT, evaluation GT has no depth beyond gt_max_depth; nearer GT is kept."""
     dropped = 0
     for index in range(CFG.eval_frames):
-        frame = synthetic.render_frame(CFG.seed, 1, index, CFG.height, CFG.width)
+        frame = render.render_frame(CFG.seed, 1, index, CFG.height, CFG.width)
         occ = kitti.read_disparity(
             kitti.kitti2015_paths(root / "kitti2015", f"{index:06d}_10", "disp_occ_0")["disp"]
         )
@@ -175,7 +174,7 @@ def test_eval_gt_stops_at_lidar_range(root: Path) -> None:
         assert (occ[near] > 0).all()
         dropped += int(((frame.disp > 0) & (occ == 0)).sum())
     assert dropped > 0  # the road towards the horizon is rendered but has no GT
-    unlimited = synthetic.within_range(frame.disp, frame.focal, 0.0)
+    unlimited = render.within_range(frame.disp, frame.focal, 0.0)
     assert np.array_equal(unlimited, frame.disp)
 
 
@@ -277,7 +276,7 @@ def test_class_map_holds_the_exact_pixels_of_every_roi_class(root: Path) -> None
 
 
 def test_class_map_is_indexed_and_read_with_the_frames(root: Path) -> None:
-    from msdepth.data.index import build_eval_index
+    from msdepth.data.eval_index import build_eval_index
     from msdepth.evaluation.suites import load_frames
 
     index = build_eval_index(root / "kitti2015", root / "kitti2015" / "test_files.txt", "disp_noc_0")
@@ -292,7 +291,7 @@ def test_class_map_is_indexed_and_read_with_the_frames(root: Path) -> None:
 _SIMD_FRAMES = (20, 21, 32, 37)
 _RENDER_DIGEST = f"""
 import hashlib
-from msdepth.data.synthetic import EVAL, render_frame
+from msdepth.render import EVAL, render_frame
 digest = hashlib.sha256()
 for index in {_SIMD_FRAMES}:
     frame = render_frame(2017, EVAL, index, 125, 414)

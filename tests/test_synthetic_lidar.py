@@ -14,11 +14,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from msdepth import render
 from msdepth.config.params import SyntheticConfig
-from msdepth.data import kitti, synthetic
-from msdepth.data.index import velodyne_path
-from msdepth.data.synthetic import velodyne_sim
-from msdepth.data.synthetic.street import build_scene
+from msdepth.data import kitti
+from msdepth.data.eval_index import velodyne_path
+from msdepth.render import velodyne_sim
+from msdepth.render.street import build_scene
 
 CFG = SyntheticConfig(seed=11, drives=2, train_pairs=3, eval_frames=8, height=96, width=320)
 
@@ -39,13 +40,13 @@ _EIGEN_LINE = re.compile(r"(\d{4}_\d{2}_\d{2})/\1_drive_\d{4}_sync/image_0([23])
 @pytest.fixture(scope="module")
 def root(tmp_path_factory: pytest.TempPathFactory) -> Path:
     path = tmp_path_factory.mktemp("synthetic_lidar")
-    synthetic.generate(CFG, path, progress=False, workers=1)
+    render.generate(CFG, path, progress=False, workers=1)
     return path
 
 
 @pytest.fixture(scope="module")
-def frames() -> list[synthetic.Frame]:
-    return [synthetic.render_frame(CFG.seed, 1, i, CFG.height, CFG.width) for i in range(CFG.eval_frames)]
+def frames() -> list[render.Frame]:
+    return [render.render_frame(CFG.seed, 1, i, CFG.height, CFG.width) for i in range(CFG.eval_frames)]
 
 
 def _digest(root: Path, paths: list[Path]) -> tuple[str, int]:
@@ -54,14 +55,14 @@ def _digest(root: Path, paths: list[Path]) -> tuple[str, int]:
 
 
 def _scan_path(root: Path, index: int) -> Path:
-    return root / "raw" / synthetic.eval_drive() / "velodyne_points" / "data" / f"{index:010d}.bin"
+    return root / "raw" / render.eval_drive() / "velodyne_points" / "data" / f"{index:010d}.bin"
 
 
 def _calib(root: Path) -> kitti.RawCalib:
-    return kitti.read_raw_calib(root / "raw" / synthetic.EVAL_DATE)
+    return kitti.read_raw_calib(root / "raw" / render.EVAL_DATE)
 
 
-def _lidar_x(frame: synthetic.Frame, calib: kitti.RawCalib) -> np.ndarray:
+def _lidar_x(frame: render.Frame, calib: kitti.RawCalib) -> np.ndarray:
     """The dense GT as the LiDAR's forward coordinate (NaN = sky).
 
     p_cam = R p_velo + T with R's last row (1, 0, 0): the camera depth is z = x + T_z, so x = z - T_z.
@@ -79,7 +80,7 @@ def _neighbourhood(a: np.ndarray, fn) -> np.ndarray:
     return fn(np.stack([pad[dy : dy + h, dx : dx + w] for dy in range(3) for dx in range(3)]), axis=0)
 
 
-def test_scan_agrees_with_dense_gt(root: Path, frames: list[synthetic.Frame]) -> None:
+def test_scan_agrees_with_dense_gt(root: Path, frames: list[render.Frame]) -> None:
     """Away from glass, the projected scan is the rendered depth, pixel by pixel and point by point.
 
     At the pixel level a point lies up to half a pixel from the pixel's centre, and the nearest of
@@ -129,7 +130,7 @@ def test_scan_agrees_with_dense_gt(root: Path, frames: list[synthetic.Frame]) ->
 def test_beam_geometry(root: Path) -> None:
     """64 beams from +2 to -24.8 degrees, azimuths on the 0.09 degree grid within the camera's view,
     no return beyond the range or behind the sensor, reflectance in [0, 1]."""
-    half_fov = np.degrees(np.arctan(CFG.width / 2 / synthetic.focal_for_width(CFG.width)))
+    half_fov = np.degrees(np.arctan(CFG.width / 2 / render.focal_for_width(CFG.width)))
     elevations: set[float] = set()
     far = 0
     for index in range(CFG.eval_frames):
@@ -149,13 +150,13 @@ def test_beam_geometry(root: Path) -> None:
     assert far > 0  # the range limit is 120 m, not the evaluation's 80 m
 
 
-def test_glass_drops_or_sees_the_interior(root: Path, frames: list[synthetic.Frame]) -> None:
+def test_glass_drops_or_sees_the_interior(root: Path, frames: list[render.Frame]) -> None:
     """A ray whose first surface is glass returns nothing (GLASS_DROP of them) or the interior behind."""
     calib = _calib(root)
     hits = dropped = 0
     farther, glass_pixels = [], 0
     for index, frame in enumerate(frames):
-        scene = build_scene(synthetic.frame_rng(CFG.seed, 1, index))
+        scene = build_scene(render.frame_rng(CFG.seed, 1, index))
         scan = velodyne_sim.simulate(scene, frame.focal, CFG.width, velodyne_sim.scan_rng(CFG.seed, 1, index))
         clear = velodyne_sim.simulate(
             scene, frame.focal, CFG.width, velodyne_sim.scan_rng(CFG.seed, 1, index), 0.0
@@ -179,14 +180,14 @@ def test_glass_drops_or_sees_the_interior(root: Path, frames: list[synthetic.Fra
 
 
 def test_scans_are_deterministic_and_leave_the_rest_unchanged(root: Path, tmp_path: Path) -> None:
-    synthetic.generate(CFG, tmp_path, progress=False, workers=2)  # in worker processes, too
+    render.generate(CFG, tmp_path, progress=False, workers=2)  # in worker processes, too
     scans = sorted((root / "raw").rglob("*.bin"))
     assert len(scans) == CFG.eval_frames
     for path in scans:
         assert path.read_bytes() == (tmp_path / path.relative_to(root)).read_bytes()
     k2015 = [p for p in (root / "kitti2015").rglob("*") if p.is_file()]
     assert _digest(root, k2015) == KITTI2015_DIGEST
-    drive = synthetic.eval_drive()
+    drive = render.eval_drive()
     train = [
         p for p in (root / "raw").rglob("*.png") if not str(p.relative_to(root / "raw")).startswith(drive)
     ]
@@ -195,8 +196,8 @@ def test_scans_are_deterministic_and_leave_the_rest_unchanged(root: Path, tmp_pa
 
 def test_angular_culling_misses_no_ray(monkeypatch: pytest.MonkeyPatch) -> None:
     """Casting only the (beam, azimuth) window of each primitive gives what casting every ray gives."""
-    scenes = [build_scene(synthetic.frame_rng(CFG.seed, 1, i)) for i in (0, 4, 5)]
-    f = synthetic.focal_for_width(CFG.width)
+    scenes = [build_scene(render.frame_rng(CFG.seed, 1, i)) for i in (0, 4, 5)]
+    f = render.focal_for_width(CFG.width)
     culled = [velodyne_sim.simulate(s, f, CFG.width, velodyne_sim.scan_rng(0, 1, 0)) for s in scenes]
     windows = []
     monkeypatch.setattr(
@@ -211,8 +212,8 @@ def test_angular_culling_misses_no_ray(monkeypatch: pytest.MonkeyPatch) -> None:
 
 
 def test_render_frame_is_the_same_with_the_scan() -> None:
-    a = synthetic.render_frame(CFG.seed, 1, 5, 48, 160)
-    b = synthetic.render_frame(CFG.seed, 1, 5, 48, 160, lidar=True)
+    a = render.render_frame(CFG.seed, 1, 5, 48, 160)
+    b = render.render_frame(CFG.seed, 1, 5, 48, 160, lidar=True)
     assert a.scan is None and len(b.scan.points) > 1000
     for key in ("left", "right", "disp", "disp_right", "noc", "obj_map", "class_map"):
         assert np.array_equal(getattr(a, key), getattr(b, key)), key
@@ -220,20 +221,20 @@ def test_render_frame_is_the_same_with_the_scan() -> None:
 
 
 def test_eigen_list_and_raw_drive(root: Path) -> None:
-    text = (root / synthetic.EIGEN_TEST_FILES).read_text()
-    pairs = kitti.read_split(root / synthetic.EIGEN_TEST_FILES)
+    text = (root / render.EIGEN_TEST_FILES).read_text()
+    pairs = kitti.read_split(root / render.EIGEN_TEST_FILES)
     assert len(pairs) == CFG.eval_frames == len(text.splitlines())
     for index, (left, right) in enumerate(pairs):
         assert _EIGEN_LINE.fullmatch(left) and _EIGEN_LINE.fullmatch(right)
         assert right == left.replace("image_02", "image_03") and Path(left).stem == f"{index:010d}"
         drive = left.split("/")[1]
-        assert drive == f"{synthetic.EVAL_DATE}_drive_{synthetic.EVAL_DRIVE:04d}_sync"
+        assert drive == f"{render.EVAL_DATE}_drive_{render.EVAL_DRIVE:04d}_sync"
         name = f"{index:06d}_10"
         for rel, twin in ((left, "image_2"), (right, "image_3")):
             image = root / "raw" / rel
             assert image.read_bytes() == (root / "kitti2015" / "training" / twin / f"{name}.png").read_bytes()
         scan = velodyne_path(root / "raw" / left)  # where the evaluation looks for it
-        assert scan == _scan_path(root, index) and scan.parents[3] == root / "raw" / synthetic.EVAL_DATE
+        assert scan == _scan_path(root, index) and scan.parents[3] == root / "raw" / render.EVAL_DATE
     train_drives = {left.split("/")[1] for left, _ in kitti.read_split(root / "train_files.txt")}
     assert not train_drives & {left.split("/")[1] for left, _ in pairs}
 
@@ -244,7 +245,7 @@ def test_day_calibration(root: Path) -> None:
         calib = kitti.read_raw_calib(day)
         assert calib.shape == (CFG.height, CFG.width)
         np.testing.assert_array_equal(calib.rect, np.eye(3))
-        f = synthetic.focal_for_width(CFG.width)
+        f = render.focal_for_width(CFG.width)
         np.testing.assert_allclose(
             calib.proj, [[f, 0, (CFG.width + 1) / 2, 0], [0, f, (CFG.height + 1) / 2, 0], [0, 0, 1, 0]]
         )
@@ -264,7 +265,7 @@ def test_summary_lidar_statistics(root: Path) -> None:
     pixels = [
         int((kitti.velodyne_depth(_scan_path(root, i), calib) > 0).sum()) for i in range(CFG.eval_frames)
     ]
-    assert summary["drive"] == synthetic.eval_drive()
+    assert summary["drive"] == render.eval_drive()
     for key, values in (("points_per_scan", points), ("gt_pixels_per_frame", pixels)):
         assert summary[key] == {
             "mean": pytest.approx(np.mean(values)),
@@ -275,8 +276,6 @@ def test_summary_lidar_statistics(root: Path) -> None:
 
 
 def test_too_many_drives_refused(tmp_path: Path) -> None:
-    cfg = SyntheticConfig(
-        seed=1, drives=synthetic.EVAL_DRIVE, train_pairs=synthetic.EVAL_DRIVE, eval_frames=1
-    )
+    cfg = SyntheticConfig(seed=1, drives=render.EVAL_DRIVE, train_pairs=render.EVAL_DRIVE, eval_frames=1)
     with pytest.raises(ValueError, match="drive 9000"):
-        synthetic.generate(cfg, tmp_path, progress=False, workers=1)
+        render.generate(cfg, tmp_path, progress=False, workers=1)

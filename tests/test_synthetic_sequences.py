@@ -8,12 +8,13 @@ import numpy as np
 import pytest
 import torch
 
+from msdepth import render
 from msdepth.config.params import ConfigError, SyntheticConfig
-from msdepth.data import kitti, sequences, synthetic
+from msdepth.data import kitti, sequences
 from msdepth.data.layout import MONO_SPLIT
 from msdepth.data.pairs import sample_generator
-from msdepth.data.synthetic.kitti_tree import POSES
 from msdepth.geometry import camera as geometry
+from msdepth.render.kitti_tree import POSES
 
 # Two drives of 4 frames: one sequence of 3 and one of 1 frame each; frame 1 of each has both neighbours.
 CFG = SyntheticConfig(seed=5, drives=2, train_pairs=8, eval_frames=1, height=64, width=192, sequence_length=3)
@@ -22,7 +23,7 @@ CFG = SyntheticConfig(seed=5, drives=2, train_pairs=8, eval_frames=1, height=64,
 @pytest.fixture(scope="module")
 def root(tmp_path_factory: pytest.TempPathFactory) -> Path:
     path = tmp_path_factory.mktemp("sequences")
-    synthetic.generate(CFG, path, progress=False, workers=1, lidar=False)
+    render.generate(CFG, path, progress=False, workers=1, lidar=False)
     return path
 
 
@@ -37,13 +38,13 @@ def _frame(root: Path, drive: str, number: int) -> tuple[np.ndarray, np.ndarray]
     image = kitti.read_image(root / "raw" / drive / "image_02" / "data" / name).astype(np.float32) / 255
     disp = kitti.read_disparity(root / "raw" / drive / "disp_02" / "data" / name)
     with np.errstate(divide="ignore"):
-        depth = np.where(disp > 0, synthetic.focal_for_width(CFG.width) * kitti.KITTI_BASELINE / disp, np.inf)
+        depth = np.where(disp > 0, render.focal_for_width(CFG.width) * kitti.KITTI_BASELINE / disp, np.inf)
     return image, depth
 
 
 def test_split_lists_frames_with_both_neighbours(root: Path) -> None:
     entries = sequences.read_mono_split(root / MONO_SPLIT)
-    drives = [synthetic.train_drive(CFG, i)[0] for i in (0, 4)]
+    drives = [render.train_drive(CFG, i)[0] for i in (0, 4)]
     assert [(e.drive, e.frame, e.side) for e in entries] == [
         (d, 1, side) for d in drives for side in ("l", "r")
     ]
@@ -52,7 +53,7 @@ def test_split_lists_frames_with_both_neighbours(root: Path) -> None:
 
 
 def test_camera_moves_forward_by_the_step(root: Path) -> None:
-    poses = _poses(root, synthetic.train_drive(CFG, 0)[0])
+    poses = _poses(root, render.train_drive(CFG, 0)[0])
     assert poses.shape == (4, 4, 4)
     step = np.linalg.inv(poses[0]) @ poses[1]  # frame 1's camera in frame 0's
     np.testing.assert_allclose(step, [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0.8], [0, 0, 0, 1]], atol=1e-9)
@@ -62,7 +63,7 @@ def test_camera_moves_forward_by_the_step(root: Path) -> None:
 def test_exact_depth_and_pose_reproject_onto_the_next_frame(root: Path) -> None:
     """A pixel of frame 1 moved by the exact pose lands where frame 0 sees the same point at the
     depth the pose predicts, and frame 0 warped so matches frame 1's image."""
-    drive = synthetic.train_drive(CFG, 0)[0]
+    drive = render.train_drive(CFG, 0)[0]
     poses = _poses(root, drive)
     (target, depth), (source, source_depth) = _frame(root, drive, 1), _frame(root, drive, 0)
     h, w = CFG.height, CFG.width
@@ -98,7 +99,7 @@ def test_sequence_length_needs_neighbours(length: int) -> None:
 
 def test_default_renders_no_sequences(tmp_path: Path) -> None:
     cfg = SyntheticConfig(seed=5, drives=1, train_pairs=1, eval_frames=1, height=32, width=64)
-    summary = synthetic.generate(cfg, tmp_path, progress=False, workers=1, lidar=False)
+    summary = render.generate(cfg, tmp_path, progress=False, workers=1, lidar=False)
     assert "sequence_length" not in summary["config"]
     assert not (tmp_path / MONO_SPLIT).exists() and not list(tmp_path.rglob(POSES))
 
@@ -106,8 +107,8 @@ def test_default_renders_no_sequences(tmp_path: Path) -> None:
 def test_intrinsics_from_the_raw_calibration(root: Path) -> None:
     """The rendered calib (MATLAB principal point) gives the renderer's camera, scaled with the
     pixel centres when the frames are resized."""
-    calib = root / "raw" / synthetic.DATES[0] / "calib_cam_to_cam.txt"
-    f, h, w = synthetic.focal_for_width(CFG.width), CFG.height, CFG.width
+    calib = root / "raw" / render.DATES[0] / "calib_cam_to_cam.txt"
+    f, h, w = render.focal_for_width(CFG.width), CFG.height, CFG.width
     np.testing.assert_allclose(
         sequences.raw_intrinsics(calib, h, w)[:3, :3], [[f, 0, (w - 1) / 2], [0, f, (h - 1) / 2], [0, 0, 1]]
     )

@@ -13,7 +13,7 @@ import torch
 
 import msdepth.training.train as train_mod
 from msdepth.config.params import Params, params_from_dict
-from msdepth.networks.model import MonodepthVGG
+from msdepth.networks.vgg import MonodepthVGG
 from msdepth.training.train import TrainingError, load_model, train_variant
 
 H, W = 32, 64

@@ -9,8 +9,9 @@ from pathlib import Path
 import pytest
 import torch
 
+from msdepth import render
 from msdepth.config.params import SyntheticConfig, params_from_dict
-from msdepth.data import sequences, synthetic
+from msdepth.data import sequences
 from msdepth.data.layout import MONO_SPLIT, layout
 from msdepth.errors import DataError, MsdepthError
 from msdepth.training.train import load_model, train_variant
@@ -23,7 +24,7 @@ RENDER = {"seed": 3, "drives": 1, "train_pairs": 6, "eval_frames": 1, "height": 
 def raw(tmp_path_factory: pytest.TempPathFactory) -> Path:
     root = tmp_path_factory.mktemp("sequences")
     cfg = SyntheticConfig(**RENDER, sequence_length=6)
-    synthetic.generate(cfg, root, progress=False, workers=1, lidar=False)
+    render.generate(cfg, root, progress=False, workers=1, lidar=False)
     return root
 
 

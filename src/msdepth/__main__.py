@@ -171,7 +171,7 @@ def _export_onnx(args: argparse.Namespace) -> int:
 
 
 def _export_folder(args: argparse.Namespace) -> int:
-    from msdepth.data.folder_export import export_folder
+    from msdepth.cli.folder_export import export_folder
 
     report = export_folder(args.source, args.out)
     print(

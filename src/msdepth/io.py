@@ -1,7 +1,13 @@
-"""Atomic file writing: an output is either complete under its final name or absent.
+"""Atomic file writing, the writers built on it, and the output policy.
 
-Every writer goes through :func:`atomic_path`, which yields a temporary path in the
-destination folder and renames it over the final name only when the block succeeds.
+Every writer (:func:`write_json`, :func:`write_text`, :func:`write_png`, :func:`save_npy`,
+:func:`save_npz`) goes through :func:`atomic_path`, which yields a temporary path in the
+destination folder and renames it over the final name only when the block succeeds: an output is
+either complete under its final name or absent.
+
+The output policy (:class:`OutputPolicy`, :func:`output_file_policy`) decides what a command may
+write into a user's folder: never an input, and no existing file it did not write itself (its
+manifest lists those it did).
 """
 
 from __future__ import annotations

@@ -26,7 +26,7 @@ from torch import Tensor, nn
 from msdepth.cli.predict import load_trained
 from msdepth.errors import MsdepthError
 from msdepth.io import atomic_path, output_file_policy
-from msdepth.networks.model import MAX_INPUT_SIDE, DepthNetwork
+from msdepth.networks.model_file import MAX_INPUT_SIDE, DepthNetwork
 
 INPUT_NAME = "image"
 OUTPUT_NAME = "disparity"

@@ -38,13 +38,13 @@ from msdepth.config.network_sizes import sides_problem
 from msdepth.data import kitti
 from msdepth.data.imagefile import MAX_IMAGE_PIXELS, batches_by_pixels, check_pixel_limit
 from msdepth.data.pairs import resize, to_tensor
-from msdepth.data.synthetic import focal_for_width
 from msdepth.errors import DataError, MsdepthError, PixelLimitError
 from msdepth.evaluation.infer import network_disparity
 from msdepth.geometry.depth import disparity_to_depth, pixel_disparity
 from msdepth.io import OutputPolicy, atomic_path, save_npy, write_png
 from msdepth.networks.device import resolve_device
-from msdepth.networks.model import MAX_INPUT_SIDE, DepthNetwork, load_model
+from msdepth.networks.model_file import MAX_INPUT_SIDE, DepthNetwork, load_model
+from msdepth.render import focal_for_width
 
 IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp", ".ppm")
 VIDEO_EXTENSIONS = (".avi", ".mp4", ".mov", ".mkv", ".webm", ".m4v", ".mpg", ".mpeg", ".wmv")
@@ -130,7 +130,7 @@ class _Frame:
 
 
 def load_trained(path: str | os.PathLike, device: str | torch.device = "cpu") -> tuple[DepthNetwork, dict]:
-    """:func:`msdepth.networks.model.load_model`, with any failure turned into one MsdepthError naming
+    """:func:`msdepth.networks.model_file.load_model`, with any failure turned into one MsdepthError naming
     the file."""
     try:
         return load_model(path, device)

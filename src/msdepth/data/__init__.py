@@ -1,1 +1,2 @@
-"""Data: readers and writers for KITTI's on-disk formats, and the procedural stereo set."""
+"""Data: KITTI's on-disk formats, stereo folders, each source's layout, and the indexes and ROIs
+the stages read."""

@@ -10,7 +10,7 @@
 
 The Eigen sets are evaluated inside Garg's crop with GT in (min_depth, cap), KITTI 2012 on the
 whole frame as KITTI 2015 (:mod:`msdepth.evaluation.suites`). Each
-builder returns rows of :data:`msdepth.data.index.EVAL_COLUMNS`, so the suites read every set the
+builder returns rows of :data:`msdepth.data.eval_index.EVAL_COLUMNS`, so the suites read every set the
 same way (:func:`msdepth.evaluation.suites.load_frames`).
 """
 
@@ -23,7 +23,7 @@ import pandas as pd
 
 from msdepth.config.params import Params
 from msdepth.data import kitti, kitti2012
-from msdepth.data.index import EVAL_COLUMNS, velodyne_path
+from msdepth.data.eval_index import EVAL_COLUMNS, velodyne_path
 from msdepth.data.layout import layout
 from msdepth.data.pairs import check_same_size
 from msdepth.errors import DataError

@@ -28,7 +28,7 @@ The folder is ``data.root`` (DVC tracks the data under that name); every other n
   suites then say they were skipped.
 
 ``python -m msdepth export-folder`` writes such a folder from the synthetic set
-(:mod:`msdepth.data.folder_export`). This module imports neither torch nor the index code: the
+(:mod:`msdepth.cli.folder_export`). This module imports neither torch nor the index code: the
 ``prepare_data`` stage checks a folder with it (:func:`check_folder`).
 """
 
@@ -195,7 +195,7 @@ def _same_size(left: Path, shape: tuple, other: Path, other_shape: tuple, what: 
 def eval_rows(
     paths: FolderLayout, camera: Camera | None = None, *, npy_is_disparity: bool = False
 ) -> list[tuple]:
-    """One row of :data:`msdepth.data.index.EVAL_COLUMNS` per evaluation frame (the DataFrame:
+    """One row of :data:`msdepth.data.eval_index.EVAL_COLUMNS` per evaluation frame (the DataFrame:
     :func:`msdepth.data.indexing.folder_eval_index`): the images, the GT and its kind (by
     suffix; ``none`` without GT), the camera at the image's width, no crop. Each GT is read once
     here, so a bad file fails the index stage, not the evaluation."""

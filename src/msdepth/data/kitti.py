@@ -2,7 +2,7 @@
 
 Every reader raises :class:`~msdepth.errors.DataError` with one message naming the file and the
 problem, so a broken download is reported once and clearly. The same functions read the real
-KITTI tree and the synthetic one (:mod:`msdepth.data.synthetic` writes these formats).
+KITTI tree and the synthetic one (:mod:`msdepth.render` writes these formats).
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """Where each data source's files live under ``data.root``: paths only, no I/O.
 
-Apart from :mod:`msdepth.data.index` so that a stage needing only the paths (``prepare_data``)
-does not import, and so depend on, the indexing code.
+Apart from the indexes (:mod:`msdepth.data.eval_index`, :mod:`msdepth.data.indexing`) so that a
+stage needing only the paths (``prepare_data``) does not import, and so depend on, the indexing code.
 """
 
 from __future__ import annotations

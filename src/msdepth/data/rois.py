@@ -187,7 +187,7 @@ def extract_rois(
 ) -> pd.DataFrame:
     """The ROI table of the evaluation frames: automatic car boxes plus the user CSV's boxes.
 
-    ``frames`` is the evaluation index (:func:`msdepth.data.index.read_eval_index`): every frame
+    ``frames`` is the evaluation index (:func:`msdepth.data.eval_index.read_eval_index`): every frame
     with an ``obj_map`` gives its car boxes (:func:`boxes_from_obj_map` against the frame's GT);
     frames without one give none. Rows of ``user_csv`` are validated (evaluation frame, inside
     the image) and merged; exact duplicates are dropped, so re-feeding an earlier output is

@@ -127,7 +127,7 @@ def raw_intrinsics(calib_path: Path, height: int, width: int) -> np.ndarray:
     images resized to ``height`` x ``width`` (pixel centres: ``x' = (x + 0.5)·W'/W - 0.5``).
 
     ``P_rect_02``'s principal point is in KITTI's MATLAB convention (1-based pixels), as
-    :func:`msdepth.data.synthetic.calib_text` writes it; one is taken off."""
+    :func:`msdepth.render.calib_text` writes it; one is taken off."""
     calib = read_calib(calib_path)
     proj, size = calib.get("P_rect_02"), calib.get("S_rect_02")
     if proj is None or size is None or proj.size != 12 or size.size != 2 or not np.isfinite(proj).all():

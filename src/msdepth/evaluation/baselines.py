@@ -30,7 +30,7 @@ from tqdm import tqdm
 
 from msdepth.config.params import Params
 from msdepth.data import kitti
-from msdepth.data.index import read_eval_index, training_gt_path, velodyne_path
+from msdepth.data.eval_index import read_eval_index, training_gt_path, velodyne_path
 from msdepth.data.pairs import load_pair_list
 from msdepth.evaluation.results import run_suite, score_set
 from msdepth.evaluation.suites import depth_maps, load_frames

@@ -7,11 +7,11 @@ from __future__ import annotations
 from pathlib import Path
 
 from msdepth.config.params import Params
-from msdepth.data.index import read_eval_index
+from msdepth.data.eval_index import read_eval_index
 from msdepth.evaluation.infer import index_disparities
 from msdepth.evaluation.results import median_scaling, score_set
 from msdepth.evaluation.suites import depth_maps, load_frames
-from msdepth.networks.model import DepthNetwork
+from msdepth.networks.model_file import DepthNetwork
 
 
 def evaluate_on_set(

@@ -12,7 +12,7 @@ from tqdm import tqdm
 
 from msdepth.data import kitti
 from msdepth.data.pairs import resize, to_tensor
-from msdepth.networks.model import DepthNetwork
+from msdepth.networks.model_file import DepthNetwork
 
 
 def post_process_disparity(
@@ -63,7 +63,7 @@ def predict_disparities(
 
 def index_disparities(model: DepthNetwork, meta: dict, index: pd.DataFrame, post_process: bool) -> np.ndarray:
     """:func:`predict_disparities` of the left image of every frame of an evaluation index, at the
-    network's input size (``meta``: its model file's, :func:`msdepth.networks.model.load_model`)."""
+    network's input size (``meta``: its model file's, :func:`msdepth.networks.model_file.load_model`)."""
     lefts = [Path(p) for p in index["left"]]
     return predict_disparities(model, lefts, meta["height"], meta["width"], post_process)
 

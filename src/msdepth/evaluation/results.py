@@ -11,7 +11,7 @@ import numpy as np
 
 from msdepth.config.params import Params
 from msdepth.data import kitti
-from msdepth.data.index import read_eval_index
+from msdepth.data.eval_index import read_eval_index
 from msdepth.errors import ConfigError, DataError
 from msdepth.evaluation.classes import exact_class_summary
 from msdepth.evaluation.suites import (

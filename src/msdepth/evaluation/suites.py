@@ -98,7 +98,7 @@ class Frame:
 
 
 def load_frames(index: pd.DataFrame) -> list[Frame]:
-    """Read the GT of every row of an evaluation index (any set: :mod:`msdepth.data.index`)."""
+    """Read the GT of every row of an evaluation index (any set: :mod:`msdepth.data.eval_index`)."""
     frames = []
     for row in index.itertuples():
         focal, baseline = float(row.focal), float(row.baseline)

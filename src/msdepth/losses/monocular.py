@@ -31,7 +31,8 @@ from msdepth.config.params import Params
 from msdepth.geometry.camera import MAX_DEPTH, MIN_DEPTH, disp_to_depth, reproject, stereo_pose
 from msdepth.geometry.warp import PaddingMode
 from msdepth.losses.appearance import build_appearance
-from msdepth.losses.monodepth import AppearanceTerm, scale_pyramid, smoothness_loss, ssim
+from msdepth.losses.monodepth import AppearanceTerm, scale_pyramid, smoothness_loss
+from msdepth.losses.ssim import ssim
 from msdepth.networks.pose import PoseNet, relative_pose
 
 IDENTITY_TIE_BREAK = 1e-5

@@ -1,11 +1,11 @@
-"""The fast CPU/GPU kernels behind :func:`msdepth.losses.monodepth.ssim` and
-:func:`msdepth.losses.monodepth.ms_ssim`.
+"""The fast CPU/GPU kernels behind :func:`msdepth.losses.ssim.ssim` and
+:func:`msdepth.losses.ssim.ms_ssim`.
 
 Private: the loss module defines what is computed; this module computes the same values (and
 gradients) with less memory traffic: fused window moments with a hand-written backward
 (:class:`_SSIMTerms`), O(log k) box sums, cache-sized chunks, a 2x2 mean with its own backward
 (:class:`_Halve`) and a scheduler that batches same-sized MS-SSIM levels of a scale pyramid
-(:func:`ms_ssim_levels`). :mod:`msdepth.losses.monodepth` holds the plain autograd formula they are tested
+(:func:`ms_ssim_levels`). :mod:`msdepth.losses.ssim` holds the plain autograd formula they are tested
 against (``implementation="reference"``); the measurements behind each choice are in
 ``benchmarks/loss.py`` and benchmarks/README.md.
 """

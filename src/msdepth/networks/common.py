@@ -1,7 +1,7 @@
 """What msdepth's networks share: the width multiplier's channel rounding and the disparity range.
 
-Kept apart from the networks themselves so that :mod:`msdepth.networks.model` can build either depth
-network (its VGG one or :mod:`msdepth.networks.resnet_depth`'s) without an import cycle.
+Kept apart from the networks themselves so that :mod:`msdepth.networks.model_file` can build either depth
+network (:mod:`msdepth.networks.vgg`'s or :mod:`msdepth.networks.resnet_depth`'s) without an import cycle.
 """
 
 from __future__ import annotations

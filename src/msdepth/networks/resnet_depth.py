@@ -86,7 +86,7 @@ def check_input(image: Tensor, name: str) -> None:
 class ResNetMonodepth(nn.Module):
     """Monodepth2's ResNet-18 depth network with the VGG network's outputs: 4 maps, finest first
     (1/1 .. 1/8), each (B, 2, h, w) = left and right disparity as 0.3 · sigmoid, a fraction of
-    the width (:class:`msdepth.networks.model.MonodepthVGG`'s convention; the monocular loss reads the
+    the width (:class:`msdepth.networks.vgg.MonodepthVGG`'s convention; the monocular loss reads the
     left one / 0.3 as Monodepth2's sigmoid disparity). ``width_multiplier`` scales encoder and
     decoder (1.0 = Monodepth2's, the only width a torchvision state dict fits). The input sides
     must be multiples of 32 and at least 64."""

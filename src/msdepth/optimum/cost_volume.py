@@ -10,7 +10,7 @@ reproduced). ``D`` defaults to the network heads' range, ``0.3·W``
 (:data:`msdepth.networks.common.MAX_DISPARITY`), the range the optimum searches.
 
 ``ssim``: ``S`` is the variant's SSIM map (box window of ``ssim.kernel_size``, the loss's own
-:func:`msdepth.losses.monodepth.ssim`), reflect-padded so that it is full size. Training with
+:func:`msdepth.losses.ssim.ssim`), reflect-padded so that it is full size. Training with
 ``ssim.padding: valid`` averages the map's interior, where the two are equal, so
 ``α·mean_interior(SSIM part) + (1 − α)·mean(L1 part)`` of the volume's slice ``d`` is training's term
 of that reconstruction; with ``padding: reflect`` the slice's plain mean is.
@@ -32,7 +32,7 @@ Where every level's map is constant, ``M_c(p) = MS_c`` and the slice's mean is t
 exactly (U keeps a constant); elsewhere a pixel weighs the structure around it at each level's
 scale, where training's one number weighs the whole image's means (a product of means, not a
 mean of products). The maps are training's own (:func:`msdepth.losses.ssim_kernels.ssim_terms`
-and ``downsample``, the kernels :func:`msdepth.losses.monodepth.ms_ssim` runs on).
+and ``downsample``, the kernels :func:`msdepth.losses.ssim.ms_ssim` runs on).
 
 Both volumes are the finest of training's 4 scales; its scales 1–3 (the same term on the
 area-halved pair) are left out. A volume is built in blocks of disparities (and, for SSIM, rows)
@@ -55,7 +55,7 @@ from msdepth.config.variants.msssim import MSSSIMConfig
 from msdepth.config.variants.ssim import SSIMConfig
 from msdepth.errors import ConfigError, DataError
 from msdepth.losses import ssim_kernels
-from msdepth.losses.monodepth import level_weights, ssim
+from msdepth.losses.ssim import level_weights, ssim
 from msdepth.networks.common import MAX_DISPARITY
 
 # Elements of one block of a sweep's inputs (disparities x channels x rows x columns): about
@@ -63,7 +63,7 @@ from msdepth.networks.common import MAX_DISPARITY
 # (SSIM on whole-image planes measured ~1.6x slower per disparity: memory-bound passes).
 BLOCK_ELEMENTS = 1 << 20
 DISPARITIES_PER_BLOCK = 8  # the SSIM sweep's; its rows per block follow from BLOCK_ELEMENTS
-# Training's floor of a level's MS-SSIM value before the power (msdepth.losses.monodepth keeps it
+# Training's floor of a level's MS-SSIM value before the power (msdepth.losses.ssim keeps it
 # private, and a change there would stale every stage that depends on the loss's code);
 # tests/test_matcher.py checks that anticorrelated images meet the same floor as ms_ssim.
 MS_SSIM_FLOOR = 1e-6

@@ -152,7 +152,7 @@ def score_optimum(
     ``rois``), exactly as a trained run's."""
     import torch
 
-    from msdepth.data.index import read_eval_index
+    from msdepth.data.eval_index import read_eval_index
     from msdepth.evaluation.suites import depth_maps, load_frames
     from msdepth.io import save_npy, save_npz
 
@@ -209,7 +209,7 @@ def score_match(params: Params, matcher: str, eval_index: Path, rois: Path) -> N
     built does (:func:`msdepth.evaluation.baselines.write_skipped`)."""
     import torch
 
-    from msdepth.data.index import read_eval_index
+    from msdepth.data.eval_index import read_eval_index
     from msdepth.evaluation.baselines import write_skipped
     from msdepth.evaluation.suites import depth_maps, load_frames
     from msdepth.pipeline.paths import HEADLINE, METRICS, SUITE_NAMES
@@ -233,7 +233,7 @@ def write_cost_curves(params: Params, variant: str, eval_index: Path, rois: Path
     import torch
 
     from msdepth.data import kitti
-    from msdepth.data.index import read_eval_index
+    from msdepth.data.eval_index import read_eval_index
     from msdepth.io import write_json
 
     torch.set_num_threads(params.optimum.threads)

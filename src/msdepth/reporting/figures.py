@@ -56,7 +56,7 @@ from matplotlib.ticker import MaxNLocator
 
 from msdepth.config.params import EvalConfig, Params
 from msdepth.data import kitti
-from msdepth.data.index import read_eval_index
+from msdepth.data.eval_index import read_eval_index
 from msdepth.errors import DataError
 from msdepth.evaluation.suites import Frame, evaluate_roi, gradient_maps, load_frames, read_depth_maps
 from msdepth.geometry.depth import clamp_depth, pixel_disparity

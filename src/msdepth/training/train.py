@@ -33,7 +33,7 @@ from msdepth.losses.monodepth import MonodepthLoss
 from msdepth.losses.objective import build_loss
 from msdepth.networks.common import MAX_DISPARITY
 from msdepth.networks.device import one_pixel_wide_strided_convs, resolve_device
-from msdepth.networks.model import (  # noqa: F401 - load_model: imported from here too
+from msdepth.networks.model_file import (  # noqa: F401 - load_model: imported from here too
     DepthNetwork,
     depth_network,
     load_model,

@@ -20,7 +20,8 @@ from torch import Tensor
 from msdepth.config.params import LossConfig
 from msdepth.config.variants.mix import MixConfig
 from msdepth.losses.appearance import term
-from msdepth.losses.monodepth import AppearanceTerm, ms_ssim_pyramid, window_mean
+from msdepth.losses.monodepth import AppearanceTerm
+from msdepth.losses.ssim import ms_ssim_pyramid, window_mean
 
 
 def gaussian_l1(x: Tensor, y: Tensor, sigma: float) -> Tensor:

@@ -13,13 +13,8 @@ from torch import Tensor
 from msdepth.config.params import LossConfig
 from msdepth.config.variants.msssim import MSSSIMConfig
 from msdepth.losses.appearance import term
-from msdepth.losses.monodepth import (
-    AppearanceTerm,
-    LearnedLevelWeights,
-    PyramidSimilarity,
-    ms_ssim_pyramid,
-    similarity_appearance_loss,
-)
+from msdepth.losses.monodepth import AppearanceTerm, similarity_appearance_loss
+from msdepth.losses.ssim import LearnedLevelWeights, PyramidSimilarity, ms_ssim_pyramid
 
 
 def msssim_similarity(

@@ -9,7 +9,8 @@ from torch import Tensor
 from msdepth.config.params import LossConfig
 from msdepth.config.variants.ssim import SSIMConfig
 from msdepth.losses.appearance import term
-from msdepth.losses.monodepth import AppearanceTerm, similarity_appearance_loss, ssim
+from msdepth.losses.monodepth import AppearanceTerm, similarity_appearance_loss
+from msdepth.losses.ssim import ssim
 
 
 @term("ssim")

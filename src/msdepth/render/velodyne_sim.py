@@ -32,8 +32,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from msdepth.data.synthetic.raycast import first_hits
-from msdepth.data.synthetic.scene import (
+from msdepth.render.raycast import first_hits
+from msdepth.render.scene import (
     FOLIAGE,
     GLASS,
     METAL,

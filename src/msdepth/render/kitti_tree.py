@@ -23,8 +23,9 @@ from msdepth.data.kitti import (
     write_velodyne,
 )
 from msdepth.data.layout import MONO_SPLIT
-from msdepth.data.roots import RENDERING, SUMMARY, check_synthetic_root
-from msdepth.data.synthetic.frame import (
+from msdepth.data.owners import RENDERING, SUMMARY, check_synthetic_root
+from msdepth.io import atomic_path, atomic_temps, write_json, write_png, write_text
+from msdepth.render.frame import (
     EVAL,
     SEQUENCE_STEP,
     TRAIN,
@@ -33,9 +34,8 @@ from msdepth.data.synthetic.frame import (
     sequence_frame,
     sequence_pose,
 )
-from msdepth.data.synthetic.raycast import focal_for_width
-from msdepth.data.synthetic.velodyne_sim import calib_velo_to_cam_text
-from msdepth.io import atomic_path, atomic_temps, write_json, write_png, write_text
+from msdepth.render.raycast import focal_for_width
+from msdepth.render.velodyne_sim import calib_velo_to_cam_text
 
 DATES = ("2011_09_26", "2011_09_28", "2011_09_29", "2011_09_30", "2011_10_03")
 # The raw drive holding the evaluation frames with their LiDAR scans: training drives are numbered
@@ -191,7 +191,7 @@ def generate(
 
     Always regenerates from scratch (``root/raw`` and ``root/kitti2015`` are replaced), but only
     in a tree of its own: ``root`` must be empty, absent, or marked as the synthetic set's
-    (:mod:`msdepth.data.roots`); any other tree, such as KITTI's, is refused (DataError). Every
+    (:mod:`msdepth.data.owners`); any other tree, such as KITTI's, is refused (DataError). Every
     file is written atomically and the output depends only on ``cfg`` (byte-identical reruns).
     ``workers`` processes render in parallel (default: the CPUs available to this process).
 
@@ -227,7 +227,7 @@ def generate(
 
 def _clear(root: Path) -> None:
     """Remove the previous render's trees and Eigen list, after checking that ``root`` is the
-    renderer's own (:func:`~msdepth.data.roots.check_synthetic_root`, else DataError), and mark it
+    renderer's own (:func:`~msdepth.data.owners.check_synthetic_root`, else DataError), and mark it
     as such until the summary is written (an interrupted render is then still known as its own).
     A killed render's temp files go too: in raw/ and kitti2015/ with them, at the root by name."""
     check_synthetic_root(root)

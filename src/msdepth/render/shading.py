@@ -7,8 +7,8 @@ from typing import Callable
 
 import numpy as np
 
-from msdepth.data.synthetic.raycast import Camera
-from msdepth.data.synthetic.scene import (
+from msdepth.render.raycast import Camera
+from msdepth.render.scene import (
     FOLIAGE,
     GLASS,
     METAL,

@@ -12,8 +12,8 @@ from pathlib import Path
 import numpy as np
 
 from msdepth.data import kitti
+from msdepth.data.eval_index import build_eval_index
 from msdepth.data.folder import Camera, write_camera
-from msdepth.data.index import build_eval_index
 from msdepth.data.pairs import index_pairs
 from msdepth.data.pfm import write_pfm
 from msdepth.errors import DataError, OutputError

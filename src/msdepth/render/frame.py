@@ -7,11 +7,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from msdepth.data.kitti import CLASS_BITS, KITTI_BASELINE
-from msdepth.data.synthetic.raycast import Camera, camera, project, trace
-from msdepth.data.synthetic.scene import GLASS, Scene
-from msdepth.data.synthetic.shading import shade_view
-from msdepth.data.synthetic.street import build_scene
-from msdepth.data.synthetic.velodyne_sim import Scan, scan_rng, simulate
+from msdepth.render.raycast import Camera, camera, project, trace
+from msdepth.render.scene import GLASS, Scene
+from msdepth.render.shading import shade_view
+from msdepth.render.street import build_scene
+from msdepth.render.velodyne_sim import Scan, scan_rng, simulate
 
 # Seed-stream tags (render_frame's split): training frames, evaluation frames and training
 # sequences (one scene per sequence, sequence_frame) never share a seed.

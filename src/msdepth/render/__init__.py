@@ -1,4 +1,5 @@
-"""A procedural street-scene stereo set, written in KITTI's own on-disk formats.
+"""The synthetic set's renderer: a procedural street-scene stereo set, written in KITTI's own
+on-disk formats.
 
 Every frame is an independent random street (camera pose, facades, cars, poles and signs, shop
 windows, sky), ray cast with numpy over all pixels of a rectified pinhole stereo pair with
@@ -16,7 +17,7 @@ Output layout under ``root`` (see :func:`generate`): ``raw/`` as KITTI raw data 
 ``train_files.txt``), ``kitti2015/training/`` as the KITTI 2015 stereo benchmark (evaluation
 frames with ``disp_occ_0``, ``disp_noc_0``, ``obj_map``, and ``class_map``: the exact pixels of
 every ROI class, which KITTI does not have), ``rois.csv`` and ``synthetic.json`` (which marks
-the tree as the renderer's own: :mod:`msdepth.data.roots`). The same evaluation frames also form
+the tree as the renderer's own: :mod:`msdepth.data.owners`). The same evaluation frames also form
 a raw drive with a simulated Velodyne scan per frame (:mod:`.velodyne_sim`), listed in
 ``eigen_test_files.txt``: the Eigen split's layout, for the raw-LiDAR evaluation.
 
@@ -27,7 +28,7 @@ projection, first hits), :mod:`.shading` (a material's look, a table from materi
 truth) and :mod:`.kitti_tree` (writing the KITTI layout; :func:`generate`).
 """
 
-from msdepth.data.synthetic.frame import (
+from msdepth.render.frame import (
     EVAL,
     TRAIN,
     Frame,
@@ -36,7 +37,7 @@ from msdepth.data.synthetic.frame import (
     non_occluded,
     render_frame,
 )
-from msdepth.data.synthetic.kitti_tree import (
+from msdepth.render.kitti_tree import (
     DATES,
     EIGEN_TEST_FILES,
     EVAL_DATE,
@@ -49,7 +50,7 @@ from msdepth.data.synthetic.kitti_tree import (
     train_drive,
     within_range,
 )
-from msdepth.data.synthetic.raycast import focal_for_width
+from msdepth.render.raycast import focal_for_width
 
 __all__ = [
     "DATES",

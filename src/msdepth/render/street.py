@@ -10,8 +10,8 @@ from typing import Any, Callable
 
 import numpy as np
 
-from msdepth.data.synthetic.cars import add_cars
-from msdepth.data.synthetic.scene import (
+from msdepth.render.cars import add_cars
+from msdepth.render.scene import (
     FOLIAGE,
     GLASS,
     GLASS_IOR,

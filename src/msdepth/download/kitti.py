@@ -1,6 +1,6 @@
-"""The KITTI-format data tree that the prepare_data stage makes under ``data.root``: the synthetic
-set rendered (:mod:`msdepth.data.synthetic`), KITTI fetched (:mod:`msdepth.data.download`: only the
-drives the splits need), or a stereo folder checked (:mod:`msdepth.data.folder`)."""
+"""KITTI for the params: the archives the splits and evaluation sets need, fetched into the
+KITTI-format tree under ``data.root`` (:func:`fetch_kitti`, the prepare_data stage's
+``data.source: kitti``) through :mod:`msdepth.download.archives`."""
 
 from __future__ import annotations
 
@@ -8,64 +8,24 @@ import logging
 from pathlib import Path
 
 from msdepth.config.params import Params
-from msdepth.data.layout import folder_layout, layout
-from msdepth.data.roots import check_kitti_root, check_synthetic_root
+from msdepth.data.layout import layout
+from msdepth.data.owners import check_kitti_root
+from msdepth.download import archives
 
 log = logging.getLogger("msdepth")
-
-
-def prepare_data(params: Params, dry_run: bool = False) -> None:
-    """Create the KITTI-format tree under data.root: render the synthetic set, fetch KITTI (what is
-    complete is skipped) or check a stereo folder's layout (nothing written). ``dry_run``: write
-    nothing, say what would be done (for KITTI: each missing archive's size, HEAD requests only)."""
-    if params.data.source == "folder":
-        check_stereo_folder(params, dry_run)
-    elif params.data.source == "synthetic":
-        render_synthetic(params, dry_run)
-    else:
-        fetch_kitti(params, dry_run)
-
-
-def check_stereo_folder(params: Params, dry_run: bool) -> None:
-    """data.source folder: check the stereo folder's layout; nothing is written."""
-    from msdepth.data.folder import check_folder
-
-    report = check_folder(folder_layout(params))
-    if dry_run:
-        print(f"dry run: the stereo folder {params.data.root} is complete: {report}; nothing written")
-        return
-    log.info("stereo folder %s: %s", params.data.root, report)
-
-
-def render_synthetic(params: Params, dry_run: bool) -> None:
-    """data.source synthetic: render the set under data.root."""
-    s, root = params.data.synthetic, Path(params.data.root)
-    check_synthetic_root(root)  # also in a dry run: it says at once that the render would refuse
-    if dry_run:
-        print(
-            f"dry run: would render the synthetic set under {root}: {s.drives} drive(s), "
-            f"{s.train_pairs} training pairs, {s.eval_frames} evaluation frames at {s.height}x{s.width}; "
-            "nothing written"
-        )
-        return
-    from msdepth.data import synthetic
-
-    log.info("synthetic set: %s", synthetic.generate(s, root))
 
 
 def fetch_kitti(params: Params, dry_run: bool) -> None:
     """data.source kitti: fetch what the splits need (resumable); ``dry_run``: sizes only. Never
     into the synthetic set's tree (DataError)."""
-    from msdepth.data import download
-
     check_kitti_root(Path(params.data.root))
     k, paths = params.data.kitti, layout(params)
-    names = download.parse_archive_list(k.archive_list)
+    names = archives.parse_archive_list(k.archive_list)
     subset = list(k.drives) if k.drives is not None else (k.drive_count or None)
-    selection = download.select_needed(names, needed_splits(params), subset, archive_list=k.archive_list)
-    options = download.FetchOptions(jobs=k.jobs, dry_run=dry_run, jpeg=k.jpeg, allow_http=k.allow_http)
+    selection = archives.select_needed(names, needed_splits(params), subset, archive_list=k.archive_list)
+    options = archives.FetchOptions(jobs=k.jobs, dry_run=dry_run, jpeg=k.jpeg, allow_http=k.allow_http)
     reports = {
-        "raw archives": download.fetch_all(
+        "raw archives": archives.fetch_all(
             k.base_url,
             selection.archives,
             k.download_dir,
@@ -76,9 +36,9 @@ def fetch_kitti(params: Params, dry_run: bool) -> None:
         ),
     }
     for label, archive, dest in single_archives(params):
-        reports[label] = download.fetch_all(k.base_url, [archive], k.download_dir, dest, options, label=label)
+        reports[label] = archives.fetch_all(k.base_url, [archive], k.download_dir, dest, options, label=label)
     if dry_run:
-        print(download.dry_run_total(list(reports.values())))
+        print(archives.dry_run_total(list(reports.values())))
         return
     log.info(
         "kitti: %s; %s",

@@ -8,7 +8,7 @@ from typing import Callable
 import numpy as np
 
 from msdepth.data.kitti import WIDTH_TO_FOCAL
-from msdepth.data.synthetic.scene import Prim, Scene
+from msdepth.render.scene import Prim, Scene
 
 _NEAR = 0.05  # m; hits closer than this are ignored
 

@@ -6,7 +6,7 @@ from typing import Any
 
 import numpy as np
 
-from msdepth.data.synthetic.scene import (
+from msdepth.render.scene import (
     GLASS,
     GLASS_IOR,
     PAINT,

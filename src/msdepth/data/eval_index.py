@@ -1,11 +1,15 @@
-"""Where the data lives, and the indexes the training and evaluation stages read.
+"""The evaluation index: one row per frame (:data:`EVAL_COLUMNS`), the same format for every set.
 
-Both data sources share one KITTI-format layout under ``data.root``:
+KITTI 2015's is built from its split (:func:`build_eval_index`); the extra sets' by
+:mod:`msdepth.data.eval_sets`, a stereo folder's by :mod:`msdepth.data.folder`. The index stage
+writes them all (:mod:`msdepth.data.indexing`); every later stage reads them back here
+(:func:`read_eval_index`), never the source. Also the paths of a raw frame's ground truth
+(:func:`training_gt_path`, :func:`velodyne_path`).
+
+Both KITTI-format sources share one layout under ``data.root`` (:mod:`msdepth.data.layout`):
 ``raw/`` (KITTI raw: ``<date>/<drive>_sync/image_02|image_03/data``) and ``kitti2015/``
 (``training/image_2``, ``image_3``, ``disp_noc_0``, ``disp_occ_0``, ``obj_map``), plus the
-split lists. A stereo folder (``data.source: folder``) has its own layout and builders
-(:mod:`msdepth.data.folder`); its evaluation frames take KITTI 2015's place. Everything after this
-module reads only the indexes, never the source.
+split lists.
 """
 
 from __future__ import annotations
@@ -15,13 +19,11 @@ from pathlib import Path
 
 import pandas as pd
 
-from msdepth.config.params import Params
 from msdepth.data import kitti
-from msdepth.data.layout import Layout, layout  # noqa: F401 - re-exported: msdepth.data.index.layout
-from msdepth.data.pairs import PairIndex, check_same_size, index_pairs
+from msdepth.data.pairs import check_same_size
 from msdepth.errors import DataError
-from msdepth.io import atomic_path, write_json
-from msdepth.pipeline.paths import EVAL_FRAMES, INDEX_REPORT, SET_INDEXES, TRAIN_PAIRS
+from msdepth.io import atomic_path
+from msdepth.pipeline.paths import SET_INDEXES
 
 # One evaluation index format for every set (msdepth.data.eval_sets): ``gt`` is a file of kind
 # ``gt_kind`` (msdepth.data.ground_truth.GT_KINDS), ``calib`` the raw day folder of a Velodyne
@@ -96,52 +98,6 @@ def build_eval_index(kitti2015_root: Path, split_file: Path, gt: str) -> pd.Data
     return pd.DataFrame(rows, columns=list(EVAL_COLUMNS))
 
 
-def build_indexes(
-    params: Params, out_dir: str | os.PathLike, extra: dict[str, pd.DataFrame] | None = None
-) -> dict:
-    """Write ``train_pairs.txt``, ``eval_frames.csv`` (KITTI 2015), ``sets/<set>.csv`` (the extra
-    sets' indexes ``extra``, :mod:`msdepth.data.eval_sets`) and ``report.json`` to ``out_dir``.
-    A stereo folder's: :func:`msdepth.data.indexing.folder_indexes`, through :func:`write_indexes`."""
-    paths = layout(params)
-    pairs = index_pairs(paths.train_split, paths.raw_root)
-    frames = build_eval_index(paths.kitti2015_root, paths.eval_split, params.data.gt)
-    return write_indexes(params, out_dir, pairs, frames, extra, {"gt": params.data.gt})
-
-
-def write_indexes(
-    params: Params,
-    out_dir: str | os.PathLike,
-    pairs: PairIndex,
-    frames: pd.DataFrame,
-    extra: dict[str, pd.DataFrame] | None = None,
-    details: dict | None = None,
-) -> dict:
-    """Write the training pairs, the main evaluation index ``frames``, the extra sets' indexes and
-    ``report.json`` (with ``details``) to ``out_dir``; returns the report. The files have the names
-    of the pipeline's (:data:`msdepth.pipeline.paths.INDEX_DIR`), whatever ``out_dir``."""
-    out = Path(out_dir)
-    kitti.write_split(out / TRAIN_PAIRS.name, [(str(a), str(b)) for a, b in pairs.pairs])
-    write_eval_index(out / EVAL_FRAMES.name, frames)
-    extra = extra or {}
-    (out / SET_INDEXES.name).mkdir(parents=True, exist_ok=True)
-    for stale in (out / SET_INDEXES.name).glob("*.csv"):
-        if stale.stem not in extra:
-            stale.unlink()
-    for name, table in extra.items():
-        write_eval_index(set_index_path(out, name), table)
-    report = {
-        "source": params.data.source,
-        "train_pairs_listed": len(pairs.pairs) + len(pairs.missing),
-        "train_pairs_found": len(pairs.pairs),
-        "train_pairs_missing": [f"{a} {b}" for a, b in pairs.missing],
-        "eval_frames": len(frames),
-        **(details or {}),
-        "extra_sets": {name: len(table) for name, table in extra.items()},
-    }
-    write_json(out / INDEX_REPORT.name, report)
-    return report
-
-
 def set_index_path(index_dir: str | os.PathLike, name: str) -> Path:
     """The evaluation index of extra set ``name`` below the index folder."""
     return Path(index_dir) / SET_INDEXES.name / f"{name}.csv"
@@ -154,7 +110,7 @@ def write_eval_index(path: Path, frames: pd.DataFrame) -> None:
 
 
 def read_eval_index(path: str | os.PathLike) -> pd.DataFrame:
-    """Read the evaluation index written by :func:`build_indexes`."""
+    """Read the evaluation index written by :func:`msdepth.data.indexing.build_indexes`."""
     path = Path(path)
     if not path.exists():
         raise DataError(f"{path}: no evaluation index (run the index stage)")

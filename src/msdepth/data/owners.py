@@ -1,4 +1,5 @@
-"""Which data source made the tree under a data root, so that no source deletes or writes into another's.
+"""Which data source owns the tree under a data root (the marks each leaves), so that no source
+deletes or writes into another's.
 
 Each source has a tree of its own (``data.root``: ``data/synthetic`` for the synthetic set,
 ``data/kitti`` for real KITTI). A tree says who made it:
@@ -6,7 +7,7 @@ Each source has a tree of its own (``data.root``: ``data/synthetic`` for the syn
 - the synthetic set: ``synthetic.json`` (its summary, written last) or, while a render is under
   way or was interrupted, :data:`RENDERING`;
 - KITTI: the download's completion markers ``.<archive>.complete``
-  (:mod:`msdepth.data.download`) in the folders archives are extracted into (``raw/``,
+  (:mod:`msdepth.download.archives`) in the folders archives are extracted into (``raw/``,
   ``kitti2015/``, the annotated depth's).
 
 The renderer replaces only a tree it marked as its own (or an empty one), and the download
