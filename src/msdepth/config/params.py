@@ -227,7 +227,7 @@ class FolderConfig:
 @dataclass(frozen=True)
 class DataConfig:
     source: Literal["synthetic", "kitti", "folder"] = "synthetic"
-    # Each source its own tree (msdepth.data.roots): data/synthetic here; KITTI: data/kitti.
+    # Each source its own tree (msdepth.data.owners): data/synthetic here; KITTI: data/kitti.
     root: str = "data/synthetic"
     height: Annotated[int, Range(TRAINING_SIDES.minimum, MAX_SIZE)] = 64
     width: Annotated[int, Range(TRAINING_SIDES.minimum, MAX_SIZE)] = 192

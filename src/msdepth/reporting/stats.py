@@ -80,6 +80,26 @@ def paired_t(differences: np.ndarray, confidence: float = 0.95) -> tuple[float, 
     return mean, mean - half, mean + half
 
 
+def _checked_runs(
+    values: np.ndarray, reference: np.ndarray, confidence: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """The two (seeds, units) arrays as float64; a ValueError unless they share their units."""
+    values, reference = np.asarray(values, np.float64), np.asarray(reference, np.float64)
+    if (
+        values.ndim != 2
+        or reference.ndim != 2
+        or values.shape[1] != reference.shape[1]
+        or 0 in values.shape + reference.shape
+    ):
+        raise ValueError(
+            "seed_bootstrap: need two (seeds, units) arrays over the same units, "
+            f"got {values.shape} and {reference.shape}"
+        )
+    if not 0 < confidence < 1:
+        raise ValueError(f"seed_bootstrap: confidence must be in (0, 1), got {confidence}")
+    return values, reference
+
+
 def seed_bootstrap(
     values: np.ndarray,
     reference: np.ndarray,
@@ -113,19 +133,7 @@ def seed_bootstrap(
     """
     if paired:
         return paired_seed_bootstrap(values, reference, samples, confidence, seed)
-    values, reference = np.asarray(values, np.float64), np.asarray(reference, np.float64)
-    if (
-        values.ndim != 2
-        or reference.ndim != 2
-        or values.shape[1] != reference.shape[1]
-        or 0 in values.shape + reference.shape
-    ):
-        raise ValueError(
-            "seed_bootstrap: need two (seeds, units) arrays over the same units, "
-            f"got {values.shape} and {reference.shape}"
-        )
-    if not 0 < confidence < 1:
-        raise ValueError(f"seed_bootstrap: confidence must be in (0, 1), got {confidence}")
+    values, reference = _checked_runs(values, reference, confidence)
     (sv, n), sr = values.shape, reference.shape[0]
     rng = np.random.default_rng(seed)
 

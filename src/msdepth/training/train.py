@@ -372,14 +372,7 @@ def _set_up(
     optimizer = torch.optim.Adam(trainable, lr=train_cfg.learning_rate)
     global_batch = train_cfg.batch_size * ctx.world
     steps_per_epoch = len(dataset) // global_batch if len(dataset) >= global_batch else 1
-    if ctx.world > 1 and ctx.main:
-        log.info(
-            "%s: %d ranks x batch %d = global batch %d",
-            variant,
-            ctx.world,
-            train_cfg.batch_size,
-            global_batch,
-        )
+    _log_world(ctx, variant, train_cfg.batch_size)
     return _Run(
         params=params,
         variant=variant,
@@ -417,6 +410,12 @@ def _pairing(
         torch.set_rng_state(states[0])
         np.random.set_state(states[1])
         random.setstate(states[2])
+
+
+def _log_world(ctx: Context, variant: str, batch: int) -> None:
+    """Under torchrun, the global batch the ranks make together (rank 0 says it)."""
+    if ctx.world > 1 and ctx.main:
+        log.info("%s: %d ranks x batch %d = global batch %d", variant, ctx.world, batch, batch * ctx.world)
 
 
 def _refuse_bf16_cpu_hazard(params: Params, model: torch.nn.Module, device: torch.device) -> None:
