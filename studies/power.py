@@ -17,6 +17,7 @@ import math
 import sys
 from pathlib import Path
 
+from msdepth.errors import MsdepthError
 from msdepth.io import claim_output_file, write_text
 from msdepth.pipeline.paths import METRICS, run_name
 from msdepth.reporting.compare import load_suite_metrics
@@ -118,7 +119,11 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     if not claim_output_file(args.out, "power", args.root / METRICS):  # before the work
         return 1
-    text = report(args.root)
+    try:
+        text = report(args.root)
+    except MsdepthError as exc:  # e.g. --root without the committed metrics: one line, no traceback
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
     if args.out:
         write_text(args.out, text)
     print(text)
