@@ -250,3 +250,34 @@ def test_a_symlink_loop_as_out_or_an_output_name_is_one_line(
     _one_line(main(_predict(tmp_path, model, out)), capsys, "symbolic link loop")
     assert (out / "a_disp.png").is_symlink()
     _one_line(load_study("power").main(["--out", str(loop)]), capsys, "symbolic link loop")
+
+
+# --- every entry point that writes into a user-named folder goes through the policy ------------------
+
+# studies/prepare_set.py's outputs besides params.yaml (tests/test_study_outputs.py plants that one):
+# the index, rois and cache stages' files, and an extra set's index that the index stage would remove.
+PREPARED = (
+    "data/index/train_pairs.txt",
+    "data/index/eval_frames.csv",
+    "data/index/report.json",
+    "data/index/rois.csv",
+    "data/index/rois.png",
+    "data/index/sets/mine.csv",
+    "data/cache/train_pairs.npy",
+    "data/cache/train_pairs.txt",
+    "data/cache/report.json",
+)
+
+
+@pytest.mark.parametrize("name", PREPARED)
+def test_prepare_set_refuses_a_users_file_at_every_output_name(
+    name: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # Issue 56 case 1: `prepare_set.py --out DIR` replaced DIR/data/index/train_pairs.txt and
+    # eval_frames.csv with rc 0 (its manifest listed only params.yaml).
+    out = tmp_path.resolve() / "project"
+    user = _users_file(out / name)
+    code = load_study("prepare_set").main(["--out", str(out)])
+    _one_line(code, capsys, f"{user}: exists and was not written by msdepth prepare-set")
+    assert user.read_bytes() == USERS
+    assert [p for p in out.rglob("*") if p.is_file()] == [user]
