@@ -281,3 +281,29 @@ def test_prepare_set_refuses_a_users_file_at_every_output_name(
     _one_line(code, capsys, f"{user}: exists and was not written by msdepth prepare-set")
     assert user.read_bytes() == USERS
     assert [p for p in out.rglob("*") if p.is_file()] == [user]
+
+
+# --- numeric params that had no upper bound ---------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    "section, key, too_large, largest",
+    [
+        # 10^12 passed validation, then numpy was asked for 7.28 TiB.
+        ("compare", "bootstrap_samples", 10**12, 1_000_000),
+        # 10^6 passed; torch.set_num_threads(10**6) made process creation fail machine-wide.
+        ("train", "threads", 10**6, 4 * (os.cpu_count() or 1)),
+        ("optimum", "threads", 10**6, 4 * (os.cpu_count() or 1)),
+    ],
+)
+def test_unbounded_numbers_are_refused_in_one_line(
+    section: str, key: str, too_large: int, largest: int
+) -> None:
+    from msdepth.config.params import params_from_dict
+    from msdepth.errors import ConfigError
+
+    with pytest.raises(ConfigError, match=rf"^{section}\.{key}: must be in \d+\.\.[\d,]+ .*got {too_large}$"):
+        params_from_dict({section: {key: too_large}})
+    assert getattr(getattr(params_from_dict({section: {key: largest}}), section), key) == largest
+    with pytest.raises(ConfigError, match=rf"^{section}\.{key}: "):
+        params_from_dict({section: {key: largest + 1}})

@@ -26,6 +26,20 @@ SEED_MAX = 2**32 - 1  # numpy's legacy seeding (np.random.seed) takes seeds belo
 MAX_SIZE = 4096  # px, network input and render size (KITTI: 375 x 1242)
 MAX_WIDTH_MULTIPLIER = 4.0  # 1.0 = the dissertation's ~31 M parameters; 4.0 about 16 times that
 MAX_DIST_TIMEOUT_S = 86_400.0  # a day; Python's timedelta (torch.distributed) overflows far above
+# 100x the default; 10^12 passed and then asked numpy for 7.28 TiB (the resampled means are kept).
+MAX_BOOTSTRAP_SAMPLES = 1_000_000
+# torch.set_num_threads(10**6) made process creation fail machine-wide for seconds: a thread count
+# may exceed the machine's cores by this factor at most (the committed 2 passes on one core).
+THREADS_PER_CORE = 4
+
+
+def check_threads(key: str, threads: int) -> None:
+    """ConfigError unless ``threads`` is in 1..THREADS_PER_CORE x the machine's cores."""
+    cores = os.cpu_count() or 1
+    cap = THREADS_PER_CORE * cores
+    check(
+        1 <= threads <= cap, key, f"must be in 1..{cap} ({THREADS_PER_CORE} x {cores} cores), got {threads}"
+    )
 
 
 def _speed_only(default: Any) -> Any:
@@ -342,7 +356,7 @@ class TrainConfig:
         check(self.batch_size >= 1, f"{key}.batch_size", "must be >= 1")
         check(self.learning_rate > 0, f"{key}.learning_rate", f"must be > 0, got {self.learning_rate}")
         check(self.num_workers >= 0, f"{key}.num_workers", "must be >= 0")
-        check(self.threads >= 1, f"{key}.threads", "must be >= 1")
+        check_threads(f"{key}.threads", self.threads)
         check(self.nproc >= 1, f"{key}.nproc", f"must be >= 1, got {self.nproc}")
         check(
             self.sync_every >= 0, f"{key}.sync_every", f"must be >= 0 (0 = automatic), got {self.sync_every}"
@@ -468,7 +482,11 @@ class CompareConfig:
             f"{shown(self.reference)} is not a variant; configured: {list(params.variants)}",
         )
         samples = self.bootstrap_samples
-        check(samples >= 100, f"{key}.bootstrap_samples", f"must be >= 100, got {samples}")
+        check(
+            100 <= samples <= MAX_BOOTSTRAP_SAMPLES,
+            f"{key}.bootstrap_samples",
+            f"must be in 100..{MAX_BOOTSTRAP_SAMPLES:,}, got {samples}",
+        )
         check(0 < self.confidence < 1, f"{key}.confidence", f"must be in (0, 1), got {self.confidence}")
         check(0 <= self.seed <= SEED_MAX, f"{key}.seed", f"must be in 0..{SEED_MAX}, got {self.seed}")
 
@@ -553,7 +571,7 @@ class OptimumConfig:
         check(width >= 0, f"{key}.smoothness_width", f"must be 0 (not scaled) or a width in px, got {width}")
         check(self.sweep_frames >= 0, f"{key}.sweep_frames", f"must be >= 0, got {self.sweep_frames}")
         check(self.cost_frames >= 0, f"{key}.cost_frames", f"must be >= 0, got {self.cost_frames}")
-        check(self.threads >= 1, f"{key}.threads", f"must be >= 1, got {self.threads}")
+        check_threads(f"{key}.threads", self.threads)
         check_per_pixel_costs(f"{key}.start", self.start, {v: params.appearance[v] for v in params.variants})
         sweep = self.smoothness_sweep
         check(
