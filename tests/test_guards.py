@@ -307,3 +307,67 @@ def test_unbounded_numbers_are_refused_in_one_line(
     assert getattr(getattr(params_from_dict({section: {key: largest}}), section), key) == largest
     with pytest.raises(ConfigError, match=rf"^{section}\.{key}: "):
         params_from_dict({section: {key: largest + 1}})
+
+
+# --- tracebacks and hangs that are one line now --------------------------------------------------------
+
+
+def _deep_file(path: Path, depth: int = 5000) -> Path:
+    """A torch.save'd dict holding a list nested ``depth`` deep (torch.save needs the recursion)."""
+    import torch
+
+    nested: list = []
+    for _ in range(depth):
+        nested = [nested]
+    limit = sys.getrecursionlimit()
+    sys.setrecursionlimit(4 * depth)
+    try:
+        torch.save({"model": nested, "encoder.conv1.weight": torch.zeros(1)}, path)
+    finally:
+        sys.setrecursionlimit(limit)
+    return path
+
+
+def test_a_file_nested_5000_deep_is_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    # Issue 56 case 5: a RecursionError traceback from load_checkpoint / load_pretrained.
+    import torch
+
+    from msdepth.errors import MsdepthError
+    from msdepth.networks.resnet import ResNetEncoder, load_pretrained
+    from msdepth.training.train import load_checkpoint
+
+    deep = _deep_file(tmp_path / "deep.pt")
+    expected = "nest deeper than 32 levels"
+    with pytest.raises(MsdepthError, match=expected):
+        load_checkpoint(deep, torch.device("cpu"))
+    with pytest.raises(MsdepthError, match=expected):
+        load_pretrained(ResNetEncoder(), deep)
+    _one_line(main(_predict(tmp_path, deep, tmp_path / "out")), capsys, expected)
+
+
+def test_a_pretrained_path_with_a_name_too_long_is_one_line(tmp_path: Path) -> None:
+    # Issue 56 case 5: OSError: File name too long, during params validation.
+    from msdepth.config.params import params_from_dict
+    from msdepth.errors import ConfigError
+
+    model = {"architecture": "resnet18", "width_multiplier": 1.0, "pretrained": str(tmp_path / ("a" * 300))}
+    with pytest.raises(ConfigError, match=r"^model\.pretrained: no such file: "):
+        params_from_dict({"data": {"height": 64, "width": 64}, "model": model})
+
+
+def test_a_fifo_as_the_video_is_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    # Issue 56 case 6: OpenCV's open of a FIFO named clip.mp4 blocked forever.
+    from conftest import unblocking
+
+    fifo = tmp_path / "clip.mp4"
+    os.mkfifo(fifo)
+    argv = [
+        "predict",
+        str(fifo),
+        "--model",
+        str(save_tiny_model(tmp_path / "m.pt")),
+        "--out",
+        str(tmp_path / "o"),
+    ]
+    with unblocking(fifo):
+        _one_line(main([*argv, "--quiet"]), capsys, "clip.mp4: not a regular file")

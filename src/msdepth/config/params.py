@@ -293,7 +293,8 @@ class ModelConfig:
                 f"{key}.{name}",
                 f"must be 1.0 with model.pretrained (a torchvision ResNet-18's width), got {value}",
             )
-        check(Path(self.pretrained).is_file(), f"{key}.pretrained", f"no such file: {self.pretrained}")
+        # os.path.isfile: Path.is_file raises on a name too long (ENAMETOOLONG)
+        check(os.path.isfile(self.pretrained), f"{key}.pretrained", f"no such file: {self.pretrained}")
 
     def _validate_widths(self, key: str) -> None:
         """Both width multipliers in (0, MAX_WIDTH_MULTIPLIER]."""
