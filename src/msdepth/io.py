@@ -474,14 +474,16 @@ class OutputPolicy:
         with _LOCK:
             pending, self.pending = self.pending, {}
             for key in pending.values():
-                _AWAITED.pop(key, None)
+                if _AWAITED.get(key, (None,))[0] is self:
+                    del _AWAITED[key]
             _LIVE.pop(id(self), None)
         data = _manifest_bytes(self.manifest)
         if data is None:  # never created, or the folder is gone
             return
         entries = _parse_manifest(self.manifest, data)  # read again: another policy may share it
         written = {name for name, ok in entries if ok} | set(pending)
-        names = [n for n in dict.fromkeys(n for n, _ in entries) if n in written]
+        # Claim order; a pending line another policy's settle dropped meanwhile goes last.
+        names = [n for n in dict.fromkeys([*(n for n, _ in entries), *pending]) if n in written]
         text = "".join(manifest_line(n) for n in names if os.path.lexists(self.out_dir / n))
         if not text and self.created:
             self.manifest.unlink()
