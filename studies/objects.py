@@ -285,14 +285,15 @@ def summary_table(history: list[dict], floor: dict[str, dict]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def claim(out: Path, steps: int, every: int) -> OutputPolicy:
-    """Every file the study may write under ``out``, claimed before it starts (output policy)."""
-    paths = [out / n for n in ("history.json", "curve.png", "strip.png", "summary.md", "baselines.json")]
-    paths += [out / "work" / n for n in ("model.pt", "ck.pt")]
-    paths += [out / "work" / f"disp_{m}.npy" for m in checkpoint_steps(steps, every)]
-    policy = OutputPolicy(out, "objects")
-    policy.claim(sorted(set(paths)), "params.yaml")
-    return policy
+def claim(out: Path, steps: int, every: int) -> None:
+    """Every file the study may write under ``out``, claimed before it starts (output policy). The
+    run's scratch (model, checkpoint, saved disparities) has a manifest of its own in ``out/work``,
+    so that the results' manifest lists only results."""
+    results = [out / n for n in ("history.json", "curve.png", "strip.png", "summary.md", "baselines.json")]
+    scratch = [out / "work" / n for n in ("model.pt", "ck.pt")]
+    scratch += [out / "work" / f"disp_{m}.npy" for m in checkpoint_steps(steps, every)]
+    OutputPolicy(out, "objects").claim(results, "params.yaml")
+    OutputPolicy(out / "work", "objects").claim(scratch, "params.yaml")
 
 
 def main(argv: list[str] | None = None) -> int:

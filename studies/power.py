@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from msdepth.errors import DataError
+from msdepth.errors import MsdepthError
 from msdepth.io import claim_output_file, write_text
 from msdepth.pipeline.paths import METRICS, run_name
 from msdepth.reporting.compare import load_suite_metrics
@@ -173,7 +173,10 @@ def main(argv: list[str] | None = None) -> int:
         return 1
     try:
         text = report(args.root, args.compare)
-    except (DataError, KeyError) as exc:
+    except MsdepthError as exc:  # e.g. --root without the committed metrics: one line, no traceback
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
+    except KeyError as exc:
         where = args.compare or args.root
         print(f"error: {where}: not the per-seed values this study reads ({exc})", file=sys.stderr)
         return 1

@@ -17,12 +17,26 @@ from pathlib import Path
 
 import yaml
 
-from msdepth.config.params import apply_overrides, params_from_dict, read_params_file
+from msdepth.config.params import Params, apply_overrides, params_from_dict, read_params_file
 from msdepth.errors import MsdepthError
-from msdepth.io import OutputPolicy, write_text
+from msdepth.io import OutputPolicy, resolved, write_text
 from msdepth.render import generate
 
 ROOT = Path(__file__).resolve().parents[1]  # its params.yaml and stages/
+
+
+def outputs(out: Path, params: Params) -> list[Path]:
+    """Every file the study writes or replaces under ``out`` outside the data tree: params.yaml and
+    the index, rois and cache stages' outputs, with the extra sets' indexes that the index stage
+    removes (those of sets ``params`` does not list)."""
+    from msdepth.data.eval_index import set_index_path
+    from msdepth.pipeline import paths
+
+    files = [paths.TRAIN_PAIRS, paths.EVAL_FRAMES, paths.INDEX_REPORT, paths.ROIS, paths.ROI_SHEET]
+    files += [paths.PAIR_CACHE, paths.CACHED_PAIRS, paths.CACHE_REPORT]
+    files += [set_index_path(paths.INDEX_DIR, name) for name in params.eval.extra_sets]
+    removed = sorted((out / paths.SET_INDEXES).glob("*.csv"))
+    return list(dict.fromkeys([out / "params.yaml", *(out / f for f in files), *removed]))
 
 
 def prepare(out: Path, assignments: list[str]) -> None:
@@ -33,9 +47,10 @@ def prepare(out: Path, assignments: list[str]) -> None:
 
     raw = apply_overrides(read_params_file(ROOT / "params.yaml"), assignments)
     params = params_from_dict(raw)  # checked before anything is written
-    # Through the output policy (manifest out/.msdepth-prepare-set): a params.yaml the study did not
-    # write (e.g. --out naming a project) is refused in one line (OutputError) before anything is written.
-    OutputPolicy(out, "prepare-set").claim([out / "params.yaml"], ROOT / "params.yaml")
+    # Through the output policy (manifest out/.msdepth-prepare-set): a file at an output name that the
+    # study did not write (e.g. --out naming a project) is refused in one line (OutputError) before
+    # anything is written. The data tree is generate()'s to guard: it renders only into its own.
+    OutputPolicy(out, "prepare-set").claim(outputs(out, params), ROOT / "params.yaml")
     write_text(out / "params.yaml", yaml.safe_dump(raw, sort_keys=False))
     os.chdir(out)  # the pipeline's paths are relative to the project folder
     generate(params.data.synthetic, Path(params.data.root), progress=True)
@@ -49,7 +64,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE")
     args = ap.parse_args(argv)
     try:
-        prepare(args.out.resolve(), args.set)
+        prepare(resolved(args.out), args.set)
     except (MsdepthError, ValueError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1

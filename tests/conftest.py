@@ -3,6 +3,7 @@ child processes: a script of this tree, or DVC in a copy of the project (the end
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import json
 import os
@@ -10,8 +11,11 @@ import runpy
 import shutil
 import subprocess
 import sys
+import threading
+import time
 from pathlib import Path
 from types import SimpleNamespace
+from typing import Iterator
 
 import numpy as np
 import pytest
@@ -134,6 +138,31 @@ def save_tiny_model(path: Path) -> Path:
     state = {"model": MonodepthVGG(0.0625).eval().state_dict(), "criterion": {}, "width_multiplier": 0.0625}
     torch.save({**state, "height": 32, "width": 96, "variant": "tiny"}, path)
     return path
+
+
+@contextlib.contextmanager
+def unblocking(fifo: Path, after_s: float = 1.0) -> Iterator[None]:
+    """Within the block, code blocked opening ``fifo`` to read it (waiting for a writer forever) is
+    released after ``after_s`` seconds by a writer that opens and closes it, so that a test of a FIFO
+    fails on its assertions rather than hanging; code that never blocks is left alone."""
+    done = threading.Event()
+
+    def release() -> None:
+        if done.wait(after_s):
+            return
+        while not done.is_set():
+            try:  # ENXIO while no reader has the FIFO open
+                os.close(os.open(fifo, os.O_WRONLY | os.O_NONBLOCK))
+            except OSError:
+                time.sleep(0.05)
+
+    thread = threading.Thread(target=release, daemon=True)
+    thread.start()
+    try:
+        yield
+    finally:
+        done.set()
+        thread.join()
 
 
 def require_dvc() -> None:

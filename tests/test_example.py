@@ -19,6 +19,7 @@ from conftest import committed_file, require_git_checkout
 from msdepth.__main__ import main as msdepth_main
 from msdepth.cli.example import FRAME, MANIFEST, OUT, disparity_name, main, md5
 from msdepth.data.imagefile import png_size
+from msdepth.io import manifest_line, read_manifest
 from msdepth.networks.vgg import MonodepthVGG
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -122,9 +123,9 @@ def test_the_command_draws_each_variant_as_predict_does(project: Path, tmp_path_
     frame = project / "data" / "synthetic" / "kitti2015" / "training" / "image_2" / f"{FRAME}.png"
     assert (out / f"{FRAME}.png").read_bytes() == frame.read_bytes()
     manifest = json.loads((out / MANIFEST).read_text())
-    assert sorted(p.name for p in out.iterdir()) == sorted(
-        [f"{FRAME}.png", MANIFEST, disparity_name("ssim"), disparity_name("msssim")]
-    )
+    written = [f"{FRAME}.png", disparity_name("ssim"), disparity_name("msssim"), MANIFEST]
+    assert sorted(p.name for p in out.iterdir()) == sorted([*written, ".msdepth-example"])
+    assert (out / ".msdepth-example").read_text() == "".join(manifest_line(n) for n in written)
     for variant in ("ssim", "msssim"):
         image = manifest["images"][variant]
         model = project / "models" / variant / "seed0" / "model.pt"
@@ -189,3 +190,27 @@ def test_missing_models_are_one_line(project: Path, capsys):
         "trained models: run `dvc repro` first"
     ]
     assert not (project / OUT).exists()
+
+
+@pytest.mark.parametrize("name", [f"{FRAME}.png", disparity_name("msssim"), MANIFEST])
+def test_a_users_file_at_an_output_name_is_refused_in_one_line(project: Path, capsys, name: str):
+    """Issue 56 case 4: the command replaced a user's docs/example/* files; it goes through the output
+    policy now: the user's file is named in one line and left as it was, nothing else is written."""
+    user = project / OUT / name
+    user.parent.mkdir(parents=True)
+    user.write_bytes(b"the user's own file\n")
+    assert main(["--root", str(project)]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"error: {user}: exists and was not written"), err
+    assert user.read_bytes() == b"the user's own file\n"
+    assert [p.name for p in (project / OUT).iterdir()] == [name]
+
+
+def test_the_committed_example_is_listed_in_its_manifest():
+    """The committed images are the command's own: a rerun may replace them, and only them."""
+    names = {
+        f"{FRAME}.png",
+        MANIFEST,
+        *(image["file"] for image in json.loads((ROOT / OUT / MANIFEST).read_text())["images"].values()),
+    }
+    assert read_manifest(ROOT / OUT / ".msdepth-example") == names

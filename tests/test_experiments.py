@@ -6,10 +6,13 @@ its stand-in is a Python one-liner."""
 
 from __future__ import annotations
 
+import json
+import os
 import sys
 from pathlib import Path
 
 import pytest
+from conftest import unblocking
 
 from msdepth.__main__ import main
 from msdepth.reporting import experiments as exp
@@ -131,3 +134,92 @@ def test_dvc_output_is_read_from_its_stdout(
     monkeypatch.setattr(exp, "dvc_command", lambda: [sys.executable, "-c", script])
     code, out, _ = _run(capsys)
     assert code == 0 and [line.split()[0] for line in out] == ["Experiment", "workspace", "main", "fd2fe2b"]
+
+
+# Issue 56: hostile saved outputs. Each is one line on stderr, or a table whose every cell is printable.
+
+
+def _revision(name: object = "main", variants: list | None = None, revs: int = 0) -> dict:
+    params = {"params.yaml": {"data": {"variants": variants or ["ssim"]}}}
+    entries = [{"rev": f"{i:040x}", "name": f"e{i}"} for i in range(revs)]
+    return {"rev": "a" * 40, "name": name, "data": {"params": params}, "experiments": [{"revs": entries}]}
+
+
+def _saved(tmp_path: Path, text: str) -> str:
+    path = tmp_path / "show.json"
+    path.write_text(text, encoding="utf-8")
+    return str(path)
+
+
+@pytest.mark.parametrize(
+    ("text", "expected"),
+    [
+        ('[{"rev": "workspace", "x": ' + "9" * 5000 + "}]", "integer string conversion"),
+        ('[{"rev": "workspace", "name": NaN}]', "revision 1 has a name that is a float, not a string"),
+        ('[{"rev": ["a"]}]', "revision 1 has a rev that is a list, not a string"),
+        ('[{"rev": "b", "experiments": [{"revs": [{"rev": 7}]}]}]', "an experiment of revision 1 has a rev"),
+    ],
+)
+def test_a_hostile_value_is_one_line(
+    tmp_path: Path, capsys: pytest.CaptureFixture, text: str, expected: str
+) -> None:
+    # A 5,000-digit integer ended in a ValueError traceback; NaN and a list were printed as labels.
+    path = _saved(tmp_path, text)
+    code, out, err = _run(capsys, "--json", path)
+    assert code == 1 and out == [] and len(err) == 1
+    assert err[0].startswith(f"error: {path}: ") and expected in err[0], err
+
+
+@pytest.mark.parametrize("markdown", [False, True])
+def test_labels_cannot_forge_rows_or_drive_the_terminal(
+    tmp_path: Path, capsys: pytest.CaptureFixture, markdown: bool
+) -> None:
+    # A label's escape sequences and newlines were printed raw: it could clear the screen and add rows;
+    # a lone surrogate ended in a UnicodeEncodeError traceback on a UTF-8 terminal.
+    label = "\x1b[2J\nforged  1  2\u202e|\ud800"
+    code, out, err = _run(
+        capsys, "--json", _saved(tmp_path, json.dumps([_revision(label)])), *(["--md"] * markdown)
+    )
+    assert code == 0 and err == [] and len(out) == 2 + markdown
+    assert all(line.isprintable() for line in out)
+    assert "\\x1b[2J\\nforged  1  2\\u202e" + ("\\|" if markdown else "|") + "\\ud800" in out[-1]
+
+
+def test_the_distinct_variant_check_is_linear() -> None:
+    # It was a list membership test per name: 1,000 variants over 60,000 rows took 26 s.
+    calls = 0
+
+    class Counted(str):
+        __hash__ = str.__hash__
+
+        def __eq__(self, other: object) -> bool:
+            nonlocal calls
+            calls += 1
+            return str.__eq__(self, other)
+
+    names = [Counted(f"v{i}") for i in range(3000)]
+    rows = [exp.Experiment("main", {"variants": names}), exp.Experiment("w", {"variants": names[::-1]})]
+    assert exp.variants(rows) == names
+    assert calls < 3 * len(names)
+
+
+def test_a_table_over_the_cell_bound_is_one_line(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    # 1,000 variants x 60,000 rows took 2.15 GB and 26 s before a MemoryError.
+    variants = [f"v{i}" for i in range(1000)]
+    path = _saved(tmp_path, json.dumps([_revision("main", variants, revs=400)]))
+    code, out, err = _run(capsys, "--json", path)
+    assert code == 1 and out == [] and len(err) == 1
+    assert "401 experiments x 3001 columns is over 1,000,000 cells" in err[0]
+
+
+def test_a_fifo_or_a_folder_is_refused_without_blocking(
+    tmp_path: Path, capsys: pytest.CaptureFixture
+) -> None:
+    # A FIFO as --json blocked the read forever.
+    fifo = tmp_path / "show.json"
+    os.mkfifo(fifo)
+    with unblocking(fifo):
+        code, out, err = _run(capsys, "--json", str(fifo))
+    assert code == 1 and len(err) == 1 and "not a regular file" in err[0]
+    code, out, err = _run(capsys, "--json", str(tmp_path))
+    assert code == 1 and len(err) == 1 and "is a folder" in err[0]

@@ -23,7 +23,7 @@ from conftest import save_tiny_model
 from msdepth.__main__ import build_parser, main
 from msdepth.config.params import SyntheticConfig
 from msdepth.errors import OutputError
-from msdepth.io import OutputPolicy, claim_output_file, manifest_line, read_manifest
+from msdepth.io import OutputPolicy, claim_output_file, manifest_line, read_manifest, write_text
 from msdepth.render import generate
 
 FAST_OPTIMUM = ["--variant", "ssim", "--set", "optimum.iterations=2", "--set", "optimum.levels=1", "--quiet"]
@@ -268,8 +268,9 @@ def test_a_study_claims_its_one_file_or_refuses_in_one_line(
     out = tmp_path / "report.md"
     assert claim_output_file(None, "power", "metrics")  # nothing asked: nothing to claim
     assert claim_output_file(out, "power", "metrics") and not out.exists()
+    assert read_manifest(tmp_path / ".msdepth-power") == set()  # pending until written
+    write_text(out, "the study's own report\n")
     assert read_manifest(tmp_path / ".msdepth-power") == {"report.md"}
-    out.write_text("the study's own report\n")
     assert claim_output_file(out, "power", "metrics")  # its own file, listed: rewritable
     users = tmp_path / "notes.md"
     users.write_text("a user's notes\n")

@@ -11,6 +11,7 @@ from msdepth.cli.experiments import experiments_command
 from msdepth.cli.optimum import optimum_command
 from msdepth.cli.options import camera_options
 from msdepth.errors import MsdepthError
+from msdepth.io import settle_outputs
 
 # A subcommand is a function that adds its parser with ``add_parser`` (the subparsers' own method:
 # name, help, description) and sets ``run``, the function that runs it; _COMMANDS lists them in
@@ -193,6 +194,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     except OSError as exc:  # a file system failure no check foresaw: still one line naming the path
         print(f"error: {exc.filename or ''}: {exc.strerror or exc}", file=sys.stderr)
         return 1
+    finally:
+        settle_outputs()  # each output manifest lists only the files that were written
 
 
 if __name__ == "__main__":

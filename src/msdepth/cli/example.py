@@ -25,7 +25,7 @@ from msdepth.data.imagefile import png_size
 from msdepth.data.kitti import kitti2015_paths
 from msdepth.data.layout import layout
 from msdepth.errors import DataError, MsdepthError
-from msdepth.io import atomic_path, write_json
+from msdepth.io import OutputPolicy, atomic_path, settle_outputs, write_json
 from msdepth.pipeline.paths import model_path, run_name
 
 COMMAND = "python -m msdepth.cli.example"
@@ -82,7 +82,10 @@ def make_example(params: Params, root: Path = Path("."), out: Path | None = None
         disp_format="png", depth_format="none", colorbar=True, device="cpu", progress=False
     )
     manifest: dict = {"command": COMMAND, "frame": FRAME, "input": f"{FRAME}.png", "images": {}}
-    out.mkdir(parents=True, exist_ok=True)
+    # Through the output policy (manifest out/.msdepth-example): a user's file at an output name is
+    # refused in one line (OutputError) before anything is written.
+    outputs = [out / f"{FRAME}.png", *(out / disparity_name(v) for v in models), out / MANIFEST]
+    OutputPolicy(out, "example", (frame, *models.values())).claim(outputs, frame)
     with atomic_path(out / f"{FRAME}.png") as tmp:
         shutil.copyfile(frame, tmp)
     for variant, model in models.items():
@@ -92,7 +95,8 @@ def make_example(params: Params, root: Path = Path("."), out: Path | None = None
                 raise DataError(f"{frame}: {report.failed[0][1]}")
             written = Path(work) / f"{FRAME}_disp.png"
             width, height = png_size(written.read_bytes())
-            os.replace(written, out / disparity_name(variant))
+            with atomic_path(out / disparity_name(variant)) as tmp:
+                os.replace(written, tmp)
         manifest["images"][variant] = {
             "file": disparity_name(variant),
             "model": model.relative_to(root).as_posix(),
@@ -118,6 +122,8 @@ def main(argv: list[str] | None = None) -> int:
     except (MsdepthError, OSError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1
+    finally:
+        settle_outputs()  # docs/example/.msdepth-example lists only the files that were written
     for image in manifest["images"].values():
         print(f"{OUT / image['file']}: {image['width']} x {image['height']} from {image['model']}")
     return 0

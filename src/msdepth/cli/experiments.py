@@ -39,8 +39,16 @@ def experiments_command(add_parser: Callable[..., argparse.ArgumentParser]) -> N
 
 def run(args: argparse.Namespace) -> int:
     """Print the table of ``msdepth experiments`` to stdout."""
-    from msdepth.reporting.experiments import experiments, format_table, read_json, run_exp_show, table
+    from msdepth.reporting.experiments import (
+        SOURCE,
+        experiments,
+        format_table,
+        read_json,
+        run_exp_show,
+        table,
+    )
 
     records = read_json(args.json_file) if args.json_file else run_exp_show()
-    print(format_table(table(experiments(records), args.keys), markdown=args.md), end="")
+    rows = experiments(records, args.json_file or SOURCE)
+    print(format_table(table(rows, args.keys), markdown=args.md), end="")
     return 0

@@ -384,6 +384,10 @@ def input_frames(
         return _folder_frames(path, report, skip, max_pixels)
     if not path.exists():
         raise DataError(f"{path}: no such file or folder")
+    if not path.is_file():  # a FIFO given as a video blocked OpenCV's open forever
+        raise DataError(
+            f"{path}: not a regular file (a FIFO, a device or a socket); give an image, folder or video"
+        )
     suffix = path.suffix.lower()
     if suffix in IMAGE_EXTENSIONS:  # read now: an unreadable single image is a plain DataError
         frame = _read(path, Path(path.stem), max_pixels)

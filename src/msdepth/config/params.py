@@ -305,7 +305,8 @@ class ModelConfig:
                 f"{key}.{name}",
                 f"must be 1.0 with model.pretrained (a torchvision ResNet-18's width), got {value}",
             )
-        check(Path(self.pretrained).is_file(), f"{key}.pretrained", f"no such file: {self.pretrained}")
+        # os.path.isfile: Path.is_file raises on a name too long (ENAMETOOLONG)
+        check(os.path.isfile(self.pretrained), f"{key}.pretrained", f"no such file: {self.pretrained}")
 
     def _validate_widths(self, key: str) -> None:
         """Both width multipliers in (0, MAX_WIDTH_MULTIPLIER]."""
@@ -369,7 +370,6 @@ class TrainConfig:
         check(self.batch_size >= 1, f"{key}.batch_size", "must be >= 1")
         check(self.learning_rate > 0, f"{key}.learning_rate", f"must be > 0, got {self.learning_rate}")
         check(self.num_workers >= 0, f"{key}.num_workers", "must be >= 0")
-        check(self.threads >= 1, f"{key}.threads", "must be >= 1")
         check(self.nproc >= 1, f"{key}.nproc", f"must be >= 1, got {self.nproc}")
         check(
             self.sync_every >= 0, f"{key}.sync_every", f"must be >= 0 (0 = automatic), got {self.sync_every}"
@@ -494,8 +494,6 @@ class CompareConfig:
             f"{key}.reference",
             f"{shown(self.reference)} is not a variant; configured: {list(params.variants)}",
         )
-        samples = self.bootstrap_samples
-        check(samples >= 100, f"{key}.bootstrap_samples", f"must be >= 100, got {samples}")
         check(0 < self.confidence < 1, f"{key}.confidence", f"must be in (0, 1), got {self.confidence}")
         check(0 <= self.seed <= SEED_MAX, f"{key}.seed", f"must be in 0..{SEED_MAX}, got {self.seed}")
 
@@ -585,7 +583,6 @@ class OptimumConfig:
         check(width >= 0, f"{key}.smoothness_width", f"must be 0 (not scaled) or a width in px, got {width}")
         check(self.sweep_frames >= 0, f"{key}.sweep_frames", f"must be >= 0, got {self.sweep_frames}")
         check(self.cost_frames >= 0, f"{key}.cost_frames", f"must be >= 0, got {self.cost_frames}")
-        check(self.threads >= 1, f"{key}.threads", f"must be >= 1, got {self.threads}")
         check_per_pixel_costs(f"{key}.start", self.start, {v: params.appearance[v] for v in params.variants})
         sweep = self.smoothness_sweep
         check(

@@ -62,7 +62,7 @@ def load_weights_file(
     holds something other than a dict.
     """
     path = Path(path)
-    if not path.is_file():
+    if not os.path.isfile(path):  # Path.is_file raises on a name too long (ENAMETOOLONG)
         raise MsdepthError(f"{path}: no such {what} file")
     # Checked before torch sees the file: its legacy (non-zip) loader is a second unpickling path.
     with open(path, "rb") as f:  # torch's own test (_is_zipfile); zipfile.is_zipfile looks at the end
@@ -92,6 +92,11 @@ def load_weights_file(
             f"{path}: not a {what} file written by msdepth (it holds a "
             f"{type(state).__name__}, not a dict); {remedy}"
         )
+    if nested_deeper(state, MAX_NESTING):  # before nonfinite_tensors and its callers recurse into it
+        raise MsdepthError(
+            f"{path}: refused to load: its lists or dicts nest deeper than {MAX_NESTING} levels, unlike "
+            f"every {what} file written by msdepth; {remedy}"
+        )
     bad = nonfinite_tensors(state)
     if bad:
         raise MsdepthError(
@@ -99,6 +104,29 @@ def load_weights_file(
             f"which would give NaN depth; {remedy}"
         )
     return state
+
+
+# msdepth's files nest a few levels (a checkpoint: optimizer, state, parameter index, name, tensor);
+# the code that reads them recurses, so a file nested 5,000 deep ended in a RecursionError.
+MAX_NESTING = 32
+
+
+def nested_deeper(state: Any, limit: int) -> bool:
+    """Whether the dicts, lists and tuples of ``state`` nest more than ``limit`` levels deep (walked
+    with a stack, not recursion)."""
+    stack = [(state, 0)]
+    while stack:
+        value, depth = stack.pop()
+        if isinstance(value, dict):
+            children = list(value.values())
+        elif isinstance(value, (list, tuple)):
+            children = list(value)
+        else:
+            continue
+        if depth >= limit:
+            return True
+        stack += [(child, depth + 1) for child in children]
+    return False
 
 
 # A checkpoint's optimizer state is not weights: Adam's second moments may overflow in bfloat16

@@ -14,6 +14,7 @@ import importlib.util
 import json
 import os
 import shutil
+import stat
 import subprocess
 import sys
 from dataclasses import dataclass, field
@@ -26,6 +27,9 @@ MAX_JSON_BYTES = 64 << 20  # dvc exp show --json of ten experiments is about 150
 DEFAULT_KEYS = ("abs_rel", "windshield")
 PARAMS_FILE = "params.yaml"
 MISSING = "-"
+# Rows x columns of the table: 60,000 rows of 1,000 variants' columns took 2 GB and 26 s, then failed.
+MAX_CELLS = 1_000_000
+SOURCE = "dvc exp show --json"
 
 
 @dataclass(frozen=True)
@@ -50,23 +54,33 @@ def parse_json(data: bytes, source: str) -> list:
         raise DataError(f"{source}: not JSON: {exc.msg} (line {exc.lineno}, column {exc.colno})") from None
     except RecursionError:
         raise DataError(f"{source}: not JSON: nested too deeply") from None
+    except ValueError as exc:  # e.g. an integer of more digits than Python converts (4300)
+        raise DataError(f"{source}: not JSON this table can read: {_first_sentence(exc)}") from None
     if not isinstance(records, list) or not all(isinstance(r, dict) for r in records):
         raise DataError(f"{source}: expected a list of revisions, as dvc exp show --json prints")
     return records
 
 
+def _first_sentence(exc: Exception) -> str:
+    return str(exc).split(";")[0].split(": ")[0]
+
+
 def read_json(path: str | os.PathLike) -> list:
     """The revisions of a saved ``dvc exp show --json`` output, read at most :data:`MAX_JSON_BYTES`
-    (plus one byte, to tell a larger file) before parsing (:func:`parse_json`)."""
-    try:
-        with open(path, "rb") as file:
-            data = file.read(MAX_JSON_BYTES + 1)
+    (plus one byte, to tell a larger file) before parsing (:func:`parse_json`); only a regular file
+    (a FIFO would block the read forever)."""
+    try:  # O_NONBLOCK: opening a FIFO with no writer returns at once, and fstat then refuses it
+        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK)
     except FileNotFoundError:
         raise DataError(f"{path}: no such file") from None
-    except IsADirectoryError:
-        raise DataError(f"{path}: is a folder, not a file") from None
     except OSError as exc:
         raise DataError(f"{path}: cannot read: {exc.strerror or exc}") from None
+    if not stat.S_ISREG(os.fstat(fd).st_mode):
+        os.close(fd)
+        kind = "a folder" if os.path.isdir(path) else "not a regular file (a FIFO, a device)"
+        raise DataError(f"{path}: is {kind}, not a file")
+    with os.fdopen(fd, "rb") as file:
+        data = file.read(MAX_JSON_BYTES + 1)
     return parse_json(data, str(path))
 
 
@@ -117,35 +131,49 @@ def _list(value: Any) -> list:
     return value if isinstance(value, list) else []
 
 
-def experiments(records: Sequence[dict]) -> list[Experiment]:
+def _text(record: dict, key: str, source: str, where: str) -> str:
+    """``record[key]`` where it is a string ("" where absent or null); one DataError naming ``source``
+    for any other type (a number, NaN, a list): DVC writes names and revs as strings."""
+    value = record.get(key)
+    if value is None:
+        return ""
+    if not isinstance(value, str):
+        raise DataError(f"{source}: {where} has a {key} that is a {type(value).__name__}, not a string")
+    return value
+
+
+def experiments(records: Sequence[dict], source: str = SOURCE) -> list[Experiment]:
     """The rows in DVC's order: each top-level revision (``workspace``, a baseline by its branch
-    name, else its short sha), then its experiments' revisions as ``<short sha> [name]``."""
+    name, else its short sha), then its experiments' revisions as ``<short sha> [name]``. A name or
+    rev that is not a string is one DataError naming ``source``."""
     rows = []
-    for record in records:
-        rev = str(record.get("rev") or "")
-        label = record.get("name") or (rev if rev == "workspace" else rev[:7])
-        rows.append(Experiment(str(label), *_data(record)))
+    for number, record in enumerate(records, 1):
+        where = f"revision {number}"
+        rev = _text(record, "rev", source, where)
+        label = _text(record, "name", source, where) or (rev if rev == "workspace" else rev[:7])
+        rows.append(Experiment(label, *_data(record)))
         for experiment in _list(record.get("experiments")):
             if not isinstance(experiment, dict):
                 continue
+            group = _text(experiment, "name", source, f"an experiment of {where}")
             for entry in _list(experiment.get("revs")):
                 if not isinstance(entry, dict):
                     continue
-                name = entry.get("name") or experiment.get("name")
-                sha = str(entry.get("rev") or "")[:7]
+                name = _text(entry, "name", source, f"an experiment of {where}") or group
+                sha = _text(entry, "rev", source, f"an experiment of {where}")[:7]
                 rows.append(Experiment(f"{sha} [{name}]" if name else sha, *_data(entry)))
     return rows
 
 
 def variants(rows: Sequence[Experiment]) -> list[str]:
     """The variants of the rows' ``params.yaml`` (its ``variants`` list), in order of first use."""
-    found: list[str] = []
+    found: dict[str, None] = {}  # ordered, and a lookup in constant time: linear in the rows' lists
     for row in rows:
         listed = row.params.get("variants")
         for name in listed if isinstance(listed, list) else []:
-            if isinstance(name, str) and name not in found:
-                found.append(name)
-    return found
+            if isinstance(name, str):
+                found.setdefault(name)
+    return list(found)
 
 
 def cell(value: Any) -> str:
@@ -175,6 +203,11 @@ def table(rows: Sequence[Experiment], keys: Sequence[str] = DEFAULT_KEYS) -> lis
     names = variants(rows)
     files = {v: mean_path(v).as_posix() for v in names}
     header = ["Experiment", *(f"{v} k" for v in names), *(f"{k} {v}" for k in keys for v in names)]
+    if (len(rows) + 1) * len(header) > MAX_CELLS:
+        raise DataError(
+            f"{SOURCE}: {len(rows)} experiments x {len(header)} columns is over {MAX_CELLS:,} cells, "
+            "more than a table can show; pass fewer --keys or fewer experiments"
+        )
     lines = [header]
     for row in rows:
         kernels = [
@@ -186,9 +219,20 @@ def table(rows: Sequence[Experiment], keys: Sequence[str] = DEFAULT_KEYS) -> lis
     return lines
 
 
+def printable(text: str) -> str:
+    """``text`` with each character that is not printable escaped as Python writes it (``\\x1b``,
+    ``\\n``, ``\\u202e``, a lone surrogate ``\\ud800``): a label from DVC's JSON cannot move the
+    cursor, recolour the terminal, reorder the line or start a forged row."""
+    if text.isprintable():
+        return text
+    return "".join(c if c.isprintable() else c.encode("unicode_escape").decode("ascii") for c in text)
+
+
 def format_table(lines: Sequence[Sequence[str]], markdown: bool = False) -> str:
     """``lines`` (header first) as aligned text, columns two spaces apart, or as a markdown table;
-    the first column left-aligned, the others right-aligned."""
+    the first column left-aligned, the others right-aligned. Every cell is :func:`printable` (and a
+    markdown cell's ``|`` escaped)."""
+    lines = [[printable(c).replace("|", "\\|") if markdown else printable(c) for c in line] for line in lines]
     widths = [max(len(line[i]) for line in lines) for i in range(len(lines[0]))]
 
     def aligned(line: Sequence[str]) -> list[str]:
