@@ -6,6 +6,7 @@ breakage in the wiring (deps, params, outs, foreach) as well as in the code.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import re
@@ -222,8 +223,9 @@ def test_kernel_size_experiment_reruns_only_msssim_then_the_way_back_and_applyin
 ):
     """docs/user-guide.md "Experiments": `dvc exp run -S msssim.kernel_size=7` runs exactly the
     MS-SSIM variant's stages (no SSIM run, no data stage, no baseline), the workspace then holds
-    the experiment and compare.md names its kernel; `git checkout HEAD -- . && dvc checkout`
-    returns to the committed results (`dvc status` up to date), `dvc exp apply` brings it back."""
+    the experiment and compare.md names its kernel; the README's way back returns to the committed
+    results on the CPU that made them, training nothing (`dvc status` up to date), and `dvc exp
+    apply` brings the experiment back."""
     work = tmp_path / "exp"
     shutil.copytree(repo, work, symlinks=True)
     dvc = [sys.executable, "-m", "dvc"]
@@ -266,8 +268,8 @@ def test_kernel_size_experiment_reruns_only_msssim_then_the_way_back_and_applyin
     assert (change["old"], change["new"]) == (old, new) and change["diff"] == pytest.approx(new - old)
     assert "k7" in run_checked([*dvc, "exp", "show", "--md", "--only-changed"], work)
 
-    run_checked(["git", "checkout", "HEAD", "--", "."], work)
-    run_checked([*dvc, "checkout", "--quiet"], work)
+    log = run_checked(["bash", "-c", _readme_command("git checkout HEAD")], work)
+    assert "Running stage 'train@" not in log and "Running stage 'optimum@" not in log, log
     assert {run: path.read_bytes() for run, path in models.items()} == committed
     assert "k=7" not in compare.read_text()
     assert run_checked(["git", "status", "--porcelain"], work) == ""
@@ -276,6 +278,60 @@ def test_kernel_size_experiment_reruns_only_msssim_then_the_way_back_and_applyin
     run_checked([*dvc, "exp", "apply", "k7"], work)
     assert models["msssim/seed0"].read_bytes() == experiment
     assert yaml.safe_load((work / "params.yaml").read_text())["msssim"]["kernel_size"] == 7
+
+
+def _readme_command(start: str) -> str:
+    """The line of a README.md ```bash block that starts with ``start``, without its comment."""
+    blocks = re.findall(r"```bash\n(.*?)```", (ROOT / "README.md").read_text(encoding="utf-8"), re.DOTALL)
+    lines = [line for block in blocks for line in block.splitlines() if line.startswith(start)]
+    assert len(lines) == 1, f"README.md: {len(lines)} commands start with {start!r}"
+    return re.sub(r"\s+#.*$", "", lines[0])
+
+
+def _commit_another_cpus_run(work: Path) -> str:
+    """Commit ``work``'s results as if trained on another CPU: the committed dvc.lock names
+    models whose bytes were never in this cache (each train stage's model hash, wherever the lock
+    lists it, replaced by one of no file). The workspace keeps the lock of the run made here, as
+    after README command 1 in a clone on another CPU; that lock's text is returned."""
+    lock = work / "dvc.lock"
+    mine = foreign = lock.read_text()
+    for name, stage in yaml.safe_load(mine)["stages"].items():
+        for out in stage["outs"] if name.startswith("train@") else []:
+            if out["path"].startswith("models/"):
+                other = hashlib.md5(f"another CPU's {out['md5']}".encode()).hexdigest()
+                foreign = foreign.replace(out["md5"], other)
+    assert foreign != mine
+    lock.write_text(foreign)
+    run_checked(["git", "add", "-A"], work)
+    run_checked(["git", "commit", "-qm", "results trained on another CPU"], work)
+    lock.write_text(mine)
+    return mine
+
+
+def test_the_readme_experiment_and_way_back_on_another_cpu(repo: Path, tmp_path: Path):
+    """README "Usage" in a clone whose CPU trains other bytes than the committed run: the
+    experiment and the way back, run as the README writes them, exit 0; the way back retrains
+    the runs whose committed models this cache lacks (`dvc checkout` alone fails there, and DVC's
+    run cache does not hold a stage with `cache: false` outs), leaving this CPU's own results of
+    the committed params, as command 1 did, and a model for the README's `msdepth predict`."""
+    work = _copy(repo, tmp_path)
+    for key, value in (("user.email", "t@t"), ("user.name", "t")):
+        run_checked(["git", "config", key, value], work)
+    mine = _commit_another_cpus_run(work)
+    model = work / "models" / "msssim" / "seed0" / "model.pt"
+    own = model.read_bytes()
+    run_checked(["bash", "-c", _readme_command("dvc exp run -S msssim.kernel_size=7")], work)
+    assert model.read_bytes() != own
+    log = run_checked(["bash", "-c", _readme_command("git checkout HEAD")], work)
+    assert "Running stage 'train@msssim-0'" in log, log
+    assert model.read_bytes() == own  # the same CPU and params train the same bytes
+    assert (work / "dvc.lock").read_text() == mine
+    assert run_checked(["git", "status", "--porcelain"], work) == " M dvc.lock\n"
+    image = work / "data" / "synthetic" / "kitti2015" / "training" / "image_2" / "000000_10.png"
+    predict = _readme_command("msdepth predict").replace("INPUT", str(image))
+    predict = predict.replace("DIR", str(tmp_path / "out"))
+    run_checked(["bash", "-c", f"python -m {predict}"], work)
+    assert (tmp_path / "out" / "000000_10_disp.png").is_file()
 
 
 def test_dvc_metrics_show_lists_the_headline_numbers_and_fits_a_terminal(repo: Path):
