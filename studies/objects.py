@@ -38,7 +38,7 @@ from msdepth.errors import DataError, OutputError
 from msdepth.evaluation import baselines
 from msdepth.evaluation.box_errors import box_medians, prior_correlation
 from msdepth.evaluation.suites import depth_maps, evaluate_full, evaluate_roi, image_dependence, load_frames
-from msdepth.io import OutputPolicy, save_npy, write_text
+from msdepth.io import OutputPolicy, claim_output_file, save_npy, write_text
 
 INDEX = Path("data/index")
 CLASSES = ("car", "windshield", "glass", "sign")
@@ -285,6 +285,32 @@ def summary_table(history: list[dict], floor: dict[str, dict]) -> str:
     return "\n".join(lines) + "\n"
 
 
+def runs_table(root: Path) -> str:
+    """table.md: one row per run below ``root`` (each folder holding a history.json and its
+    overrides in its name): the scores at its last mark and at the mark nearest 1,200 steps."""
+    lines = [
+        "| run | steps | full abs_rel | car | windshield | glass | sign | car corr. prior "
+        "| image dependence |",
+        "|---" * 9 + "|",
+    ]
+    keys = (
+        "abs_rel",
+        "car_mask",
+        "windshield_mask",
+        "glass_mask",
+        "sign_mask",
+        "car_prior_corr",
+        "variation_ratio",
+    )
+    for path in sorted(root.rglob("history.json")):
+        history = json.loads(path.read_text(encoding="utf-8"))
+        name = path.parent.relative_to(root).as_posix()
+        near = min(history, key=lambda h: abs(h["step"] - 1200))
+        for h in [near] if near is history[-1] else [near, history[-1]]:
+            lines.append(f"| {name} | {h['step']} | " + " | ".join(f"{h[k]:.3f}" for k in keys) + " |")
+    return "\n".join(lines) + "\n"
+
+
 def claim(out: Path, steps: int, every: int) -> None:
     """Every file the study may write under ``out``, claimed before it starts (output policy). The
     run's scratch (model, checkpoint, saved disparities) has a manifest of its own in ``out/work``,
@@ -307,7 +333,15 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE")
     ap.add_argument("--out", type=Path, required=True)
     ap.add_argument("--report", action="store_true", help="only the tables and figures of a run in --out")
+    ap.add_argument("--table", action="store_true", help="only --out/table.md, a row per run below --out")
     args = ap.parse_args(argv)
+    if args.table:
+        if not claim_output_file(args.out / "table.md", "objects-table", args.out):
+            return 1
+        text = runs_table(args.out)
+        write_text(args.out / "table.md", text)
+        print(text)
+        return 0
     base = apply_overrides(read_params_file("params.yaml"), args.set)
     try:
         claim(args.out, args.steps, args.every)
