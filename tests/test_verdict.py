@@ -169,7 +169,10 @@ def test_external_rows_read_and_absent_file(tmp_path: Path) -> None:
     )
     assert read_external_rows(tmp_path / "absent.json") == []
     committed = read_external_rows(ROOT / "studies/results/real/verdict.json")  # [] before the study's run
-    assert all(r.n >= MIN_UNITS and r.method.startswith("real pairs") for r in committed)
+    assert all(r.method.startswith("real pairs") and r.settings for r in committed)
+    # A row has an interval exactly when it has enough independent units; reflective has 2 frames.
+    assert all(r.has_interval == (r.n >= MIN_UNITS) for r in committed)
+    assert {r.n for r in committed if r.cls == "reflective"} == {2}
 
 
 def test_only_one_optimum_instrument_from_independent_rows_is_pooled() -> None:
