@@ -27,6 +27,7 @@ import json
 import math
 import sys
 from pathlib import Path
+from typing import Sequence
 
 import numpy as np
 
@@ -48,33 +49,36 @@ LARGE_PX = 4.0  # a box this tall at the network's input is "large" (studies/roi
 
 @dataclasses.dataclass(frozen=True)
 class EvalSet:
-    """The evaluation frames, their left images, the ROI boxes, which are large cars, and the
-    prior's per-box medians."""
+    """The evaluation frames, their left images, the ROI boxes, which are large cars, the
+    image-blind baselines' depth maps (the constant's, the prior's) and the prior's per-box medians."""
 
     frames: list
     images: list[Path]
     boxes: object
     large_cars: np.ndarray
     prior_medians: np.ndarray
-    prior_depth: dict
+    baseline_depth: dict[str, dict]
 
 
 def load_eval_set(params: Params) -> EvalSet:
     """The pipeline's evaluation frames and ROIs (``data/index``), with the per-pixel prior."""
-    frames = load_frames(read_eval_index(INDEX / "eval_frames.csv"))
+    index = read_eval_index(INDEX / "eval_frames.csv")
+    frames = load_frames(index)
     boxes = kitti.read_rois(INDEX / "rois.csv")
     pairs = load_pair_list(INDEX / "train_pairs.txt")
     gt = baselines.training_gt([left for left, _ in pairs], progress=False).maps
     if gt is None:
         raise DataError(f"{INDEX / 'train_pairs.txt'}: no training frame has GT to build the prior")
-    prior = depth_maps(baselines.baseline_disparities(gt, len(frames))["prior"], frames)
+    disparities = baselines.baseline_disparities(gt, len(frames))
+    baseline_depth = {name: depth_maps(d, frames) for name, d in disparities.items()}
     by_name = {f.name: f for f in frames}
     scale = params.data.height / frames[0].shape[0]
     large = ((boxes["y1"] - boxes["y0"]).to_numpy() * scale >= LARGE_PX) & (
         boxes["class"] == "car"
     ).to_numpy()
-    images = [Path(p) for p in read_eval_index(INDEX / "eval_frames.csv")["left"]]
-    return EvalSet(frames, images, boxes, large, box_medians(prior, by_name, boxes), prior)
+    images = [Path(p) for p in index["left"]]
+    medians = box_medians(baseline_depth["prior"], by_name, boxes)
+    return EvalSet(frames, images, boxes, large, medians, baseline_depth)
 
 
 def scores(pred: dict, ev: EvalSet, params: Params) -> dict:
@@ -143,9 +147,9 @@ def _resumed_history(out: Path) -> list[dict]:
 
 
 def diagnose(
-    base: dict, variant: str, seed: int, steps: int, every: int, out: Path, threads: int
+    base: dict, ev: EvalSet, variant: str, seed: int, steps: int, every: int, out: Path, threads: int
 ) -> list[dict]:
-    """Train ``variant`` / ``seed`` for at least ``steps`` steps, scoring every ``every``."""
+    """Train ``variant`` / ``seed`` for at least ``steps`` steps, scoring every ``every`` on ``ev``."""
     import torch
 
     from msdepth.training.train import train_variant
@@ -161,7 +165,6 @@ def diagnose(
         params, train=dataclasses.replace(params.train, epochs=epochs, seeds=(seed,))
     )
     cache = load_pair_cache("data/cache/train_pairs.npy", len(pairs), params.data.height, params.data.width)
-    ev = load_eval_set(params)
     history = [h for h in _resumed_history(out) if h["epoch"] <= epochs]
     on_epoch = _recorder(params, ev, out, history, spe, steps, every)
     work = out / "work"
@@ -181,10 +184,7 @@ def diagnose(
 
 def baseline_scores(params: Params, ev: EvalSet) -> dict[str, dict]:
     """The image-blind baselines' scores (the constant, the per-pixel prior): the curves' floor."""
-    pairs = load_pair_list(INDEX / "train_pairs.txt")
-    gt = baselines.training_gt([left for left, _ in pairs], progress=False).maps
-    disp = baselines.baseline_disparities(gt, len(ev.frames))
-    return {name: scores(depth_maps(d, ev.frames), ev, params) for name, d in disp.items()}
+    return {name: scores(depth, ev, params) for name, depth in ev.baseline_depth.items()}
 
 
 CURVES = (
@@ -265,50 +265,45 @@ def strip_figure(out: Path, ev: EvalSet, marks: list[int], path: Path) -> None:
     plt.close(fig)
 
 
+# The tables' score columns: (key of scores(), header).
+COLUMNS = (
+    ("abs_rel", "full abs_rel"),
+    ("car_mask", "car"),
+    ("windshield_mask", "windshield"),
+    ("glass_mask", "glass"),
+    ("sign_mask", "sign"),
+    ("car_prior_corr", "car corr. prior"),
+    ("variation_ratio", "image dependence"),
+)
+
+
+def _table_lines(first: Sequence[str], rows: Sequence[tuple[Sequence[str], dict]]) -> list[str]:
+    """A markdown table: the ``first`` columns' headers, then :data:`COLUMNS`; each row its first
+    cells and a scores dict."""
+    headers = [*first, *(h for _, h in COLUMNS)]
+    lines = ["| " + " | ".join(headers) + " |", "|---" * len(headers) + "|"]
+    for cells, row in rows:
+        lines.append("| " + " | ".join([*cells, *(f"{row[k]:.3f}" for k, _ in COLUMNS)]) + " |")
+    return lines
+
+
 def summary_table(history: list[dict], floor: dict[str, dict]) -> str:
     """summary.md: one row per scored step, the baselines first."""
-    keys = (
-        "abs_rel",
-        "car_mask",
-        "windshield_mask",
-        "glass_mask",
-        "sign_mask",
-        "car_prior_corr",
-        "variation_ratio",
-    )
-    header = "| step | full abs_rel | car | windshield | glass | sign | car corr. prior | image dependence |"
-    lines = [header, "|---" * 8 + "|"]
-    for name, row in floor.items():
-        lines.append(f"| {name} | " + " | ".join(f"{row[k]:.3f}" for k in keys) + " |")
-    for h in history:
-        lines.append(f"| {h['step']} | " + " | ".join(f"{h[k]:.3f}" for k in keys) + " |")
-    return "\n".join(lines) + "\n"
+    rows = [([name], row) for name, row in floor.items()] + [([str(h["step"])], h) for h in history]
+    return "\n".join(_table_lines(["step"], rows)) + "\n"
 
 
 def runs_table(root: Path) -> str:
     """table.md: one row per run below ``root`` (each folder holding a history.json and its
     overrides in its name): the scores at its last mark and at the mark nearest 1,200 steps."""
-    lines = [
-        "| run | steps | full abs_rel | car | windshield | glass | sign | car corr. prior "
-        "| image dependence |",
-        "|---" * 9 + "|",
-    ]
-    keys = (
-        "abs_rel",
-        "car_mask",
-        "windshield_mask",
-        "glass_mask",
-        "sign_mask",
-        "car_prior_corr",
-        "variation_ratio",
-    )
+    rows = []
     for path in sorted(root.rglob("history.json")):
         history = json.loads(path.read_text(encoding="utf-8"))
         name = path.parent.relative_to(root).as_posix()
         near = min(history, key=lambda h: abs(h["step"] - 1200))
         for h in [near] if near is history[-1] else [near, history[-1]]:
-            lines.append(f"| {name} | {h['step']} | " + " | ".join(f"{h[k]:.3f}" for k in keys) + " |")
-    return "\n".join(lines) + "\n"
+            rows.append(([name, str(h["step"])], h))
+    return "\n".join(_table_lines(["run", "steps"], rows)) + "\n"
 
 
 def claim(out: Path, steps: int, every: int) -> None:
@@ -343,19 +338,21 @@ def main(argv: list[str] | None = None) -> int:
         print(text)
         return 0
     base = apply_overrides(read_params_file("params.yaml"), args.set)
+    params = params_from_dict(base)
     try:
         claim(args.out, args.steps, args.every)
+        ev = load_eval_set(params)
         if args.report:
             history = _resumed_history(args.out)
             if not history:
                 raise DataError(f"{args.out / 'history.json'}: no scored checkpoint to report")
         else:
-            history = diagnose(base, args.variant, args.seed, args.steps, args.every, args.out, args.threads)
+            history = diagnose(
+                base, ev, args.variant, args.seed, args.steps, args.every, args.out, args.threads
+            )
     except (OutputError, DataError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1
-    params = params_from_dict(base)
-    ev = load_eval_set(params)
     floor = baseline_scores(params, ev)
     write_text(args.out / "baselines.json", json.dumps(floor, indent=1))
     text = summary_table(history, floor)
