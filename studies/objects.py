@@ -26,6 +26,7 @@ import dataclasses
 import json
 import math
 import sys
+import time
 from pathlib import Path
 from typing import Sequence
 
@@ -116,17 +117,28 @@ def _recorder(params: Params, ev: EvalSet, out: Path, history: list[dict], spe: 
     from msdepth.evaluation.infer import predict_disparities
 
     strip_marks = checkpoint_steps(steps, every)
+    # Training seconds (scoring excluded) since the last mark: the recipe's step time, on a resumed
+    # run from its resumption on.
+    clock = {"since": time.perf_counter()}
 
     def on_epoch(epoch: int, model, means: dict) -> None:
         step, previous = epoch * spe, (epoch - 1) * spe
         if step // every == previous // every and epoch != params.train.epochs:
             return
+        seconds, last = time.perf_counter() - clock["since"], history[-1] if history else {"step": 0}
         disp = predict_disparities(
             model, ev.images, params.data.height, params.data.width, False, progress=False
         )
         model.train()
+        timing = {"seconds_per_step": seconds / (step - last["step"])} if step > last["step"] else {}
         history.append(
-            {"epoch": epoch, "step": step, **means, **scores(depth_maps(disp, ev.frames), ev, params)}
+            {
+                "epoch": epoch,
+                "step": step,
+                **means,
+                **timing,
+                **scores(depth_maps(disp, ev.frames), ev, params),
+            }
         )
         write_text(out / "history.json", json.dumps(history, indent=1))
         mark = step // every * every
@@ -136,6 +148,7 @@ def _recorder(params: Params, ev: EvalSet, out: Path, history: list[dict], spe: 
             json.dumps({k: round(v, 4) if isinstance(v, float) else v for k, v in history[-1].items()}),
             flush=True,
         )
+        clock["since"] = time.perf_counter()
 
     return on_epoch
 
@@ -274,7 +287,13 @@ COLUMNS = (
     ("sign_mask", "sign"),
     ("car_prior_corr", "car corr. prior"),
     ("variation_ratio", "image dependence"),
+    ("seconds_per_step", "s/step"),  # the training's own, on the machine's load of the moment
 )
+
+
+def _cell(value: float | None) -> str:
+    """A score to three decimals; a blank for none (a baseline's step time)."""
+    return "" if value is None else f"{value:.3f}"
 
 
 def _table_lines(first: Sequence[str], rows: Sequence[tuple[Sequence[str], dict]]) -> list[str]:
@@ -283,7 +302,7 @@ def _table_lines(first: Sequence[str], rows: Sequence[tuple[Sequence[str], dict]
     headers = [*first, *(h for _, h in COLUMNS)]
     lines = ["| " + " | ".join(headers) + " |", "|---" * len(headers) + "|"]
     for cells, row in rows:
-        lines.append("| " + " | ".join([*cells, *(f"{row[k]:.3f}" for k, _ in COLUMNS)]) + " |")
+        lines.append("| " + " | ".join([*cells, *(_cell(row.get(k)) for k, _ in COLUMNS)]) + " |")
     return lines
 
 

@@ -427,7 +427,8 @@ def test_objects_study_smoke(study_set: Path, tmp_path: Path) -> None:
     history = json.loads((tmp_path / "out" / "history.json").read_text())
     assert [h["step"] for h in history] == [2, 4]
     assert {"car_mask", "windshield_mask", "car_prior_corr", "variation_ratio"} <= set(history[-1])
-    assert "| prior |" in stdout and "| 4 |" in stdout
+    assert all(h["seconds_per_step"] > 0 for h in history)  # the recipe's step time, scoring excluded
+    assert "| s/step |" in stdout and "| prior |" in stdout and "| 4 |" in stdout
     for name in ("curve.png", "strip.png", "summary.md", "work/disp_2.npy", "work/disp_4.npy"):
         assert (tmp_path / "out" / name).stat().st_size > 0, name
     before = (tmp_path / "out" / "work" / "model.pt").stat().st_mtime_ns

@@ -21,6 +21,7 @@ SCIENCE_API = {
     "msdepth.reporting.verdict": ("welch_interval", "pooled_rows"),
     "msdepth.reporting.power": ("seeds_needed", "detectable_difference"),
     "msdepth.evaluation.box_errors": ("box_medians",),
+    "msdepth.training.train": ("learning_rate",),
 }
 FUNCTIONS = [(module, name) for module, names in SCIENCE_API.items() for name in names]
 

@@ -12,8 +12,10 @@ from conftest import stage
 
 from msdepth.config.params import params_from_dict
 from msdepth.data import kitti
+from msdepth.data.eval_index import read_eval_index
 from msdepth.errors import DataError
 from msdepth.evaluation.results import SUITES
+from msdepth.evaluation.suites import load_frames
 from msdepth.pipeline import paths as pipeline
 from msdepth.render import generate
 from msdepth.reporting.figures import FIGURES, make_figures, roi_examples
@@ -236,3 +238,41 @@ def test_sparse_gt_shows_the_densest_roi_of_each_class(tree: Path, tmp_path: Pat
         eval_cfg=_eval_cfg(),
     )
     assert [p.name for p in written] == list(FIGURES)
+
+
+def test_disparity_figure_shows_the_gt_and_outlines_cars_and_windshields(
+    tree: Path, tmp_path: Path, monkeypatch
+):
+    """Each row: input, GT, then one panel per variant; every panel outlines the exact pixels of the
+    row's cars and windshields from the frame's class map."""
+    import msdepth.reporting.figures as figures
+
+    drawn: list = []
+    real_write = figures.write_figure
+
+    def keep(path, fig, **kwargs):
+        if Path(path).name == "disparity.png":
+            drawn.append(
+                [(ax.get_title(), len(ax.collections)) for ax in fig.axes if ax.get_label() != "<colorbar>"]
+            )
+        return real_write(path, fig, **kwargs)
+
+    monkeypatch.setattr(figures, "write_figure", keep)
+    make_figures(
+        RUNS,
+        tmp_path / "figs",
+        **_paths(tree),
+        metrics=tree / "metrics",
+        train_plots=tree / "plots/train",
+        eval_cfg=_eval_cfg(),
+    )
+    panels = drawn[0]
+    titles = [t for t, _ in panels]
+    assert titles[:4] == [titles[0], "GT", "ssim", "msssim"] and titles[0].startswith("input ")
+    frames = load_frames(read_eval_index(tree / "data/index/eval_frames.csv"))
+    for r, frame in enumerate(frames[: len(panels) // 4]):
+        classes = sum(
+            bool(((frame.class_map & kitti.CLASS_BITS[c]) > 0).any()) for c in ("car", "windshield")
+        )
+        assert [n for _, n in panels[4 * r : 4 * r + 4]] == [classes] * 4, (frame.name, classes)
+    assert any(n > 0 for _, n in panels)

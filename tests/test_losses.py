@@ -717,3 +717,28 @@ def test_monodepth_loss_gradients_finite(case: str, appearance: str, weights: st
     assert all(torch.isfinite(v) for v in terms.values())
     terms["total"].backward()
     _assert_finite_grads(left, *disps, *loss.parameters())
+
+
+@pytest.mark.parametrize("appearance", ["ssim", "msssim"])
+def test_full_resolution_loss_of_constant_disparities_repeats_the_finest_scale(appearance: str) -> None:
+    """A constant disparity upsamples to itself, so with ``loss.full_resolution`` every scale's
+    appearance and left-right terms equal the finest scale's: 4x that scale's own loss."""
+    left, right = _stereo_pair(shift=8)
+    disps = _constant_disps(5)  # 5 px: not an integer shift at the coarse scales
+    full = _loss(appearance, full_resolution=True)(disps, left, right)
+    finest = _loss(appearance)(disps[:1], left, right)
+    assert full["appearance"].item() == pytest.approx(4 * finest["appearance"].item(), rel=1e-6)
+    per_scale = _loss(appearance)(disps, left, right)
+    assert full["smoothness"].item() == pytest.approx(per_scale["smoothness"].item(), abs=1e-9)
+    assert full["appearance"].item() != pytest.approx(per_scale["appearance"].item(), rel=1e-3)
+
+
+def test_full_resolution_loss_warps_the_upsampled_disparity() -> None:
+    """Scale 1's term at full resolution is the finest scale's loss of its bilinear upsampling."""
+    left, right = _stereo_pair(shift=8)
+    disps = [d * (1 + _rand(*d.shape, seed=i)) for i, d in enumerate(_constant_disps(8, scales=2))]
+    full = _loss("msssim", full_resolution=True)(disps, left, right)
+    up = F.interpolate(disps[1], size=left.shape[-2:], mode="bilinear", align_corners=False)
+    one = _loss("msssim")
+    expected = one([disps[0]], left, right)["appearance"] + one([up], left, right)["appearance"]
+    assert full["appearance"].item() == pytest.approx(expected.item(), rel=1e-6)

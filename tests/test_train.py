@@ -14,7 +14,7 @@ import torch
 import msdepth.training.train as train_mod
 from msdepth.config.params import Params, params_from_dict
 from msdepth.networks.vgg import MonodepthVGG
-from msdepth.training.train import TrainingError, load_model, train_variant
+from msdepth.training.train import TrainingError, learning_rate, load_model, train_variant
 
 H, W = 32, 64
 
@@ -335,7 +335,13 @@ def test_speed_only_keys_are_marked_once_and_leave_the_fingerprint_alone():
     for key, value in {"threads": 2, "sync_every": 3, "channels_last": True, "dist_timeout_s": 5.0}.items():
         changed = _params(**{key: value})
         assert fingerprint(changed, "ssim", 8, 0) == fingerprint(base, "ssim", 8, 0), key
-    for key, value in {"learning_rate": 2e-4, "amp": "bf16", "nproc": 2, "epochs": 3}.items():
+    for key, value in {
+        "learning_rate": 2e-4,
+        "amp": "bf16",
+        "nproc": 2,
+        "epochs": 3,
+        "schedule": "cosine",
+    }.items():
         changed = _params(**{key: value})
         assert fingerprint(changed, "ssim", 8, 0) != fingerprint(base, "ssim", 8, 0), key
 
@@ -360,3 +366,32 @@ def test_fingerprint_of_existing_variants_is_unchanged(monkeypatch, raw, variant
     # The kernels switch counts once it leaves its default (it changes the rounding).
     reference = params_from_dict({**raw, "loss": {"kernels": "reference"}})
     assert train_mod.fingerprint(reference, variant, 8, 0) != expected
+
+
+def test_cosine_schedule_warms_up_then_decays_to_zero_and_step_keeps_monodepths() -> None:
+    total = 1000
+    cosine = [learning_rate(3e-4, s, total, "cosine") for s in range(total)]
+    peak = cosine.index(max(cosine))
+    assert peak == 49 and cosine[peak] == pytest.approx(3e-4)  # 5 % warm-up: steps 0..49
+    assert all(a < b for a, b in zip(cosine[:peak], cosine[1 : peak + 1], strict=True))
+    assert all(a >= b for a, b in zip(cosine[peak:-1], cosine[peak + 1 :], strict=True))
+    assert cosine[-1] == pytest.approx(0.0, abs=1e-12)
+    step = [learning_rate(3e-4, s, total) for s in (0, 599, 600, 799, 800, 999)]
+    assert step == [3e-4, 3e-4, 1.5e-4, 1.5e-4, 7.5e-5, 7.5e-5]
+    with pytest.raises(ValueError, match="unknown schedule 'linear'"):
+        learning_rate(3e-4, 0, total, "linear")
+
+
+def test_the_run_follows_its_schedule(pairs, tmp_path: Path, monkeypatch) -> None:
+    """train_variant sets each step's learning rate from train.schedule."""
+    seen: list[float] = []
+    real_step = torch.optim.Adam.step
+
+    def spy(self, *args, **kwargs):
+        seen.append(self.param_groups[0]["lr"])
+        return real_step(self, *args, **kwargs)
+
+    monkeypatch.setattr(torch.optim.Adam, "step", spy)
+    _train(_params(epochs=2, schedule="cosine", learning_rate=1e-3), pairs, tmp_path)
+    assert seen == [learning_rate(1e-3, s, len(seen), "cosine") for s in range(len(seen))]
+    assert len(seen) >= 4 and max(seen) == pytest.approx(1e-3)

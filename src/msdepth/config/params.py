@@ -330,6 +330,9 @@ class TrainConfig:
     epochs: Annotated[int, Range(1, MAX_EPOCHS)] = 8
     batch_size: Annotated[int, Range(1, MAX_BATCH)] = 8
     learning_rate: LearningRate = 1e-4
+    # step = Monodepth's (lr, /2 after 3/5 of the steps, /4 after 4/5); cosine = a linear warm-up
+    # over the first 5 % of the steps, then a cosine decay to 0 (issue 52's screen).
+    schedule: Literal["step", "cosine"] = _added_later("step")
     num_workers: Annotated[int, Range(0, MAX_THREADS, note="4 per CPU core, at least 4")] = _speed_only(0)
     augment: bool = True
     device: Literal["cpu", "cuda", "auto"] = _speed_only("cpu")
@@ -431,6 +434,10 @@ class LossConfig:
     # SSIM/MS-SSIM arithmetic: fast = msdepth.losses.ssim_kernels, reference = the written-out autograd
     # formula (same values up to rounding; a fallback, and what the fast kernels are tested against).
     kernels: Literal["fast", "reference"] = _added_later("fast")
+    # Monodepth2's full-resolution multi-scale loss: each scale's disparity is upsampled to the
+    # input size before warping, so every scale's appearance and left-right terms are at full size
+    # (smoothness stays at the scale's own size).
+    full_resolution: bool = _added_later(False)
 
     def validate(self, key: str, params: Params) -> None:
         """Range checks of the ``key`` section; a ConfigError names the key."""

@@ -153,27 +153,36 @@ class MonodepthLoss(nn.Module):
         Returns:
             ``"appearance"``, ``"smoothness"`` (sum of per-scale terms / 2**s) and
             ``"lr_consistency"``, each summed over scales and both views, and ``"total"`` =
-            appearance + smoothness_weight·smoothness + lr_weight·lr_consistency.
+            appearance + smoothness_weight·smoothness + lr_weight·lr_consistency. With
+            ``loss.full_resolution`` the appearance and left-right terms of every scale are
+            computed at (H, W) on its bilinearly upsampled disparity.
         """
         cfg = self.loss_cfg
         # Both views in one batch (left then right): half the warp, pooling and similarity calls,
         # whose cost at the small scales is mostly per-call overhead.
         batch = left.shape[0]
-        targets = scale_pyramid(torch.cat((left, right)), len(disps))
+        pyramid = scale_pyramid(torch.cat((left, right)), len(disps))
+        targets = [pyramid[0]] * len(disps) if cfg.full_resolution else pyramid
         estimates = []
         smoothness = lr = left.new_zeros(())
-        for s, (disp, target) in enumerate(zip(disps, targets, strict=True)):
-            if disp.dim() != 4 or disp.shape[1] != 2 or disp.shape[-2:] != target.shape[-2:]:
+        for s, (disp, image) in enumerate(zip(disps, pyramid, strict=True)):
+            if disp.dim() != 4 or disp.shape[1] != 2 or disp.shape[-2:] != image.shape[-2:]:
                 raise ValueError(
-                    f"MonodepthLoss: scale {s} disparity must be (B, 2, {target.shape[-2]}, "
-                    f"{target.shape[-1]}), got {tuple(disp.shape)}"
+                    f"MonodepthLoss: scale {s} disparity must be (B, 2, {image.shape[-2]}, "
+                    f"{image.shape[-1]}), got {tuple(disp.shape)}"
                 )
-            left_s, right_s = target[:batch], target[batch:]
+            left_s, right_s, target = image[:batch], image[batch:], targets[s]
             disp_left, disp_right = disp[:, :1], disp[:, 1:]
-            estimates.append(reconstruct(left_s, right_s, disp_left, disp_right, cfg.padding_mode))
+            warp_left, warp_right = disp_left, disp_right
+            if cfg.full_resolution and s > 0:  # Monodepth2: warp at the input size
+                full = F.interpolate(disp, size=left.shape[-2:], mode="bilinear", align_corners=False)
+                warp_left, warp_right = full[:, :1], full[:, 1:]
+            estimates.append(
+                reconstruct(target[:batch], target[batch:], warp_left, warp_right, cfg.padding_mode)
+            )
             smooth_s = smoothness_loss(disp_left, left_s) + smoothness_loss(disp_right, right_s)
             smoothness = smoothness + smooth_s / 2**s
-            lr = lr + lr_consistency_loss(disp_left, disp_right, cfg.padding_mode)
+            lr = lr + lr_consistency_loss(warp_left, warp_right, cfg.padding_mode)
         appearance = left.new_zeros(())
         for term in self.appearance(estimates, targets):
             # Each view's term is a mean over equally many values, so their sum is 2x the joint mean.

@@ -59,7 +59,7 @@ from msdepth.data import kitti
 from msdepth.data.eval_index import read_eval_index
 from msdepth.errors import DataError
 from msdepth.evaluation.suites import Frame, evaluate_roi, gradient_maps, load_frames, read_depth_maps
-from msdepth.geometry.depth import clamp_depth, pixel_disparity
+from msdepth.geometry.depth import clamp_depth, depth_to_disparity, pixel_disparity
 from msdepth.io import atomic_path
 from msdepth.pipeline.paths import (
     COMPARE_JSON,
@@ -213,35 +213,61 @@ def _off(ax) -> None:
 # Figure 4.1: disparity maps
 
 
+# The exact-mask classes outlined on every panel of disparity.png, with their outline colours:
+# whether a network finds the cars and windshields shows against these at a glance.
+OUTLINED = (("car", "cyan"), ("windshield", "lime"))
+
+
+def _gt_disparity(frame: Frame) -> np.ma.MaskedArray:
+    """The frame's GT as disparity in pixels, masked where it has none."""
+    disp = depth_to_disparity(frame.gt_depth, frame.focal, frame.baseline)
+    return np.ma.masked_where(frame.gt_depth <= 0, disp)
+
+
+def _outline_classes(ax, frame: Frame) -> None:
+    """Outline the :data:`OUTLINED` classes' exact pixels (a frame with a class map only)."""
+    if frame.class_map is None:
+        return
+    for cls, colour in OUTLINED:
+        mask = (frame.class_map & kitti.CLASS_BITS[cls]) > 0
+        if mask.any():
+            ax.contour(mask.astype(np.float32), levels=[0.5], colors=colour, linewidths=0.6)
+
+
 def _disparity_figure(inp: _Inputs, frames: int, path: Path) -> Path:
     n = min(frames, len(inp.index))
     names = list(inp.index["frame"][:n])
     h, w = inp.frame(names[0]).shape
-    cols = 1 + len(inp.variants)
+    cols = 2 + len(inp.variants)
     panel_w = 3.2
-    fig = _new_figure(panel_w * cols + 1.0, n * (panel_w * h / w + 0.45) + 0.3)
+    fig = _new_figure(panel_w * cols + 1.0, n * (panel_w * h / w + 0.45) + 0.5)
     axes = fig.subplots(n, cols, squeeze=False)
     cmap = _cmap("plasma")
     for r, name in enumerate(names):
         frame = inp.frame(name)
         fh, fw = frame.shape
         i = int(np.flatnonzero(inp.index["frame"].to_numpy() == name)[0])
-        disp = {v: pixel_disparity(inp.disparities[v][i], fh, fw) for v in inp.variants}
-        # One scale per row so that the variants are compared colour for colour; percentiles
-        # keep a few extreme pixels from washing out the rest.
-        lo, hi = np.percentile(np.concatenate([d.ravel() for d in disp.values()]), [1, 99])
-        ax = axes[r, 0]
-        ax.imshow(inp.left_image(name))
-        ax.set_title(f"input {name}", fontsize=9)
-        _off(ax)
-        for c, v in enumerate(inp.variants, start=1):
-            im = axes[r, c].imshow(disp[v], cmap=cmap, vmin=lo, vmax=hi)
-            axes[r, c].set_title(v, fontsize=9)
-            _off(axes[r, c])
+        panels = {"GT": _gt_disparity(frame)}
+        panels.update({v: pixel_disparity(inp.disparities[v][i], fh, fw) for v in inp.variants})
+        # One scale per row (the predictions' 1st-99th percentile) so that GT and the variants are
+        # compared colour for colour, and a few extreme pixels do not wash out the rest.
+        lo, hi = np.percentile(np.concatenate([panels[v].ravel() for v in inp.variants]), [1, 99])
+        axes[r, 0].imshow(inp.left_image(name))
+        axes[r, 0].set_title(f"input {name}", fontsize=9)
+        for c, (label, disp) in enumerate(panels.items(), start=1):
+            im = axes[r, c].imshow(disp, cmap=cmap, vmin=lo, vmax=hi)
+            axes[r, c].set_title(label, fontsize=9)
+        for ax in axes[r]:
+            _outline_classes(ax, frame)
+            _off(ax)
         cb = fig.colorbar(im, ax=list(axes[r, 1:]), fraction=0.05, pad=0.01)
         cb.set_label("disparity (px)", fontsize=8)
         cb.ax.tick_params(labelsize=7)
-    fig.suptitle("Predicted disparity at ground-truth resolution", fontsize=11)
+    outlines = ", ".join(f"{cls}s {colour}" for cls, colour in OUTLINED)
+    fig.suptitle(
+        f"Predicted disparity at ground-truth resolution, beside the GT (grey: none); outlined: {outlines}",
+        fontsize=11,
+    )
     return _save(fig, path)
 
 

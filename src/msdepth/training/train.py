@@ -23,7 +23,7 @@ from torch.nn.parallel import DistributedDataParallel
 from torch.utils.data import DataLoader
 from tqdm import tqdm
 
-from msdepth.config.params import Params, fingerprint_fields, speed_only_train_keys
+from msdepth.config.params import Params, TrainConfig, fingerprint_fields, speed_only_train_keys
 from msdepth.data.pairs import StereoPairs
 from msdepth.data.sequences import SequenceFrames, SequenceSample
 from msdepth.errors import MsdepthError
@@ -49,6 +49,7 @@ from msdepth.training.pairing import pairing_record
 
 log = logging.getLogger(__name__)
 
+WARMUP_FRACTION = 0.05  # train.schedule cosine: the warm-up's share of the steps
 LOSS_KEYS = ("total", "appearance", "smoothness", "lr_consistency")
 MONO_LOSS_KEYS = ("total", "appearance", "smoothness", "automask")  # train.mode mono and mono_stereo
 
@@ -129,8 +130,36 @@ def trained_pose_net(params: Params, checkpoint_path: str | os.PathLike) -> Pose
     return net.eval()
 
 
-def learning_rate(base: float, step: int, total_steps: int) -> float:
-    """Monodepth's piecewise-constant schedule: lr, lr/2 after 3/5 of the steps, lr/4 after 4/5."""
+def learning_rate(base: float, step: int, total_steps: int, schedule: str = "step") -> float:
+    """The learning rate of one optimiser step under ``train.schedule``.
+
+    ``step`` is Monodepth's piecewise-constant schedule: lr, lr/2 after 3/5 of the steps, lr/4
+    after 4/5. ``cosine`` warms up linearly over the first 5 % of the steps (at least one), then
+    decays along a cosine from ``base`` to 0 at the last step.
+
+    Args:
+        base: the peak learning rate (``train.learning_rate``).
+        step: the 0-based step.
+        total_steps: the run's steps (epochs x steps per epoch).
+        schedule: ``"step"`` or ``"cosine"``.
+
+    Returns:
+        The learning rate of ``step``.
+
+    Example:
+        >>> learning_rate(1e-4, 700, 1000)
+        5e-05
+        >>> [round(learning_rate(1.0, s, 100, "cosine"), 3) for s in (0, 4, 5, 52, 99)]
+        [0.2, 1.0, 1.0, 0.5, 0.0]
+    """
+    if schedule == "cosine":
+        warmup = max(1, round(WARMUP_FRACTION * total_steps))
+        if step < warmup:
+            return base * (step + 1) / warmup
+        span = max(1, total_steps - 1 - warmup)
+        return base * 0.5 * (1 + math.cos(math.pi * min(1.0, (step - warmup) / span)))
+    if schedule != "step":
+        raise ValueError(f"learning_rate: unknown schedule {schedule!r} (step | cosine)")
     boundaries = (int(3 / 5 * total_steps), int(4 / 5 * total_steps))
     if step < boundaries[0]:
         return base
@@ -326,7 +355,7 @@ def train_variant(
         means = _train_epoch(run, epoch, progress)
         run.history.append({"epoch": epoch + 1, "step": run.step, **means})
         if live is not None:
-            _log_epoch(live, run.history[-1], params.train.learning_rate, run.total_steps, run.loss_keys)
+            _log_epoch(live, run.history[-1], params.train, run.total_steps, run.loss_keys)
         if run.ctx.main:
             _save_epoch_checkpoint(
                 run, checkpoint_path, epoch + 1, run.seconds_before + time.perf_counter() - started
@@ -522,7 +551,7 @@ def _open_live(run: _Run, live_dir: str | os.PathLike | None):
     live = Live(str(live_dir), resume=False, save_dvc_exp=False, dvcyaml=False)
     live.step = 0
     for entry in run.history:
-        _log_epoch(live, entry, run.params.train.learning_rate, run.total_steps, run.loss_keys)
+        _log_epoch(live, entry, run.params.train, run.total_steps, run.loss_keys)
     return live
 
 
@@ -542,7 +571,9 @@ def _train_epoch(run: _Run, epoch: int, progress: bool) -> dict[str, float]:
     )
     for batch in bar:
         for group in run.optimizer.param_groups:
-            group["lr"] = learning_rate(train_cfg.learning_rate, run.step, run.total_steps)
+            group["lr"] = learning_rate(
+                train_cfg.learning_rate, run.step, run.total_steps, train_cfg.schedule
+            )
         losses = _batch_losses(run, batch)
         unread.append((run.step, batch["index"], torch.stack([losses[k].detach() for k in run.loss_keys])))
         if len(unread) >= sync_every:  # before this step's update: with 1, a NaN never reaches the weights
@@ -695,11 +726,12 @@ def forward_and_loss(
 
 
 def _log_epoch(
-    live, entry: dict, base_lr: float, total_steps: int, keys: tuple[str, ...] = LOSS_KEYS
+    live, entry: dict, train_cfg: TrainConfig, total_steps: int, keys: tuple[str, ...] = LOSS_KEYS
 ) -> None:
     """One epoch's mean losses (a ``history`` entry, ``keys``) and the learning rate of its last
     step to dvclive."""
     for k in keys:
         live.log_metric(f"train/{k}", entry[k])
-    live.log_metric("train/learning_rate", learning_rate(base_lr, entry["step"] - 1, total_steps))
+    lr = learning_rate(train_cfg.learning_rate, entry["step"] - 1, total_steps, train_cfg.schedule)
+    live.log_metric("train/learning_rate", lr)
     live.next_step()
