@@ -38,11 +38,10 @@ from msdepth.data.pairs import resize, to_tensor
 from msdepth.io import claim_output_file, write_text
 from msdepth.optimum.solver import disparity_pyramid, level_sizes, objective, optimise, working_weight
 from msdepth.optimum.starts import start_disparity
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from optimum_starts import SAMPLES, Result, scores, working_size  # noqa: E402 - the sibling study's
+from msdepth.studies.real_samples import Result, samples_dir, scores, working_size
 
 ROOT = Path(__file__).resolve().parents[1]
+SAMPLES = samples_dir(ROOT)
 FRAMES = ("000000_10", "000001_10")
 VARIANTS = ("ssim", "msssim:3", "msssim:7")
 STARTS = ("constant", "cost", "sgbm")

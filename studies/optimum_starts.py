@@ -26,69 +26,32 @@ are then also compared per method (abs_rel and D1, reflective minus the rest). P
 from __future__ import annotations
 
 import argparse
-import copy
 import os
 import sys
 import time
-from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
 import numpy as np
 import torch
 
-from msdepth.config.params import Params, apply_overrides, load_params, params_from_dict, read_params_file
 from msdepth.data.kitti import read_disparity, read_image
 from msdepth.data.pairs import resize, to_tensor
-from msdepth.evaluation.metrics import compute_errors, stereo_errors
-from msdepth.geometry.depth import clamp_depth, disparity_to_depth
 from msdepth.io import claim_output_file, write_text
 from msdepth.optimum.cost_volume import cost_volume, matching_cost, winner_take_all
 from msdepth.optimum.sgbm import sgbm_disparity
 from msdepth.optimum.sgm import SGMConfig, sgm
 from msdepth.optimum.solver import disparity_pyramid, objective, optimise, working_weight
 from msdepth.optimum.starts import both_views
+from msdepth.studies.real_samples import Result, samples_dir, scores, variants_of, working_size
 
 ROOT = Path(__file__).resolve().parents[1]
-SAMPLES = ROOT.parent / "shared" / "real-samples"
-FOCAL, BASELINE, CAP, MIN_DEPTH = 721.5377, 0.54, 80.0, 1e-3
-# (label, set folder, left, right, GT folders): KITTI 2012's reflective GT scored on its own.
+SAMPLES = samples_dir(ROOT)
 SETS = (
     ("2015", "kitti2015-training", "image_2", "image_3", ("disp_occ_0",)),
     ("2012", "kitti2012-training", "colored_0", "colored_1", ("disp_occ", "disp_refl_occ")),
 )
 FRAMES = ("000000_10", "000001_10")
-VARIANTS = (("ssim", "ssim", []), ("msssim k3", "msssim", ["msssim.kernel_size=3"]))
-VARIANTS += (("msssim k7", "msssim", ["msssim.kernel_size=7"]),)
-
-
-@dataclass
-class Result:
-    """One method's disparity on one frame: the map (px), its pre-filling validity, seconds."""
-
-    method: str
-    disparity: np.ndarray
-    valid: np.ndarray
-    seconds: float
-    loss: float | None = None  # an optimum's: the objective at its working size
-
-
-def scores(gt_disp: np.ndarray, result: Result) -> dict[str, float]:
-    """abs_rel (depth, capped), D1 (%), EPE (px) and the valid share (%) on the GT pixels."""
-    mask = gt_disp > 0
-    floor = FOCAL * BASELINE / CAP  # px: a disparity below it is beyond the cap
-    pred = clamp_depth(
-        disparity_to_depth(np.maximum(result.disparity, floor), FOCAL, BASELINE), MIN_DEPTH, CAP
-    )
-    gt = disparity_to_depth(gt_disp, FOCAL, BASELINE)
-    stereo = stereo_errors(gt_disp, result.disparity)
-    return {
-        "abs_rel": compute_errors(gt[mask], pred[mask])["abs_rel"],
-        "d1": 100 * stereo["d1"],
-        "epe": stereo["epe"],
-        "valid": 100 * float(result.valid[mask].mean()),
-        "loss": result.loss,
-    }
 
 
 def run_frame(
@@ -202,32 +165,6 @@ def header(loads: tuple[tuple[float, ...], tuple[float, ...]], size: str | None)
         f"capped at 80 m.{refine}",
         "",
     ]
-
-
-def variants_of(params_path: Path, assignments: list[str] = ()) -> dict[str, tuple[str, Params]]:
-    """Each variant's ``(name, params)`` by label, from ``params_path`` with the ``--set``
-    ``assignments`` and the variant's overrides."""
-    raw = read_params_file(params_path)
-    out = {}
-    for label, name, overrides in VARIANTS:
-        params = (
-            params_from_dict(apply_overrides(copy.deepcopy(raw), [*assignments, *overrides]))
-            if overrides or assignments
-            else load_params(params_path)
-        )
-        out[label] = (name, params)
-    return out
-
-
-def working_size(text: str | None, shape: tuple[int, ...]) -> tuple[int, int] | None:
-    """``--refine``'s size for a frame of ``shape``: ``full``/``half``/``quarter`` of it, or ``HxW``."""
-    if text is None:
-        return None
-    named = {"full": 1, "half": 2, "quarter": 4}
-    if text in named:
-        return shape[0] // named[text], shape[1] // named[text]
-    height, _, width = text.partition("x")
-    return int(height), int(width)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -72,26 +72,22 @@ import numpy as np
 import pandas as pd
 import torch
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from optimum_starts import BASELINE, FOCAL, SAMPLES, variants_of, working_size  # noqa: E402 - sibling study
-from score_lidar import lidar_gt  # noqa: E402 - the sibling study's LiDAR GT
-
-from msdepth.cli.predict import load_trained  # noqa: E402 - the hardened loader `msdepth predict` uses
-from msdepth.config.params import CompareConfig, EvalConfig, Params  # noqa: E402
-from msdepth.data import kitti, kitti2012  # noqa: E402
-from msdepth.data.annotations import KITTI2015_SIZE, gt_density, read_annotation  # noqa: E402
-from msdepth.data.pairs import resize, to_tensor  # noqa: E402
-from msdepth.evaluation.infer import network_disparity  # noqa: E402
-from msdepth.evaluation.metrics import compute_errors, median_scale, stereo_errors  # noqa: E402
-from msdepth.evaluation.suites import Frame, evaluate_roi  # noqa: E402
-from msdepth.geometry.depth import clamp_depth, disparity_to_depth  # noqa: E402
-from msdepth.io import OutputPolicy, write_json, write_text  # noqa: E402
-from msdepth.optimum.sgbm import sgbm_disparity  # noqa: E402
-from msdepth.optimum.solver import optimum_disparities  # noqa: E402
-from msdepth.optimum.starts import matched_disparity  # noqa: E402
-from msdepth.reporting.compare import variant_settings  # noqa: E402
-from msdepth.reporting.stats import paired_table, seed_bootstrap  # noqa: E402
-from msdepth.reporting.verdict import (  # noqa: E402
+from msdepth.cli.predict import load_trained
+from msdepth.config.params import CompareConfig, EvalConfig, Params
+from msdepth.data import kitti, kitti2012
+from msdepth.data.annotations import KITTI2015_SIZE, gt_density, read_annotation
+from msdepth.data.pairs import resize, to_tensor
+from msdepth.evaluation.infer import network_disparity
+from msdepth.evaluation.metrics import compute_errors, median_scale, stereo_errors
+from msdepth.evaluation.suites import Frame, evaluate_roi
+from msdepth.geometry.depth import clamp_depth, disparity_to_depth
+from msdepth.io import OutputPolicy, write_json, write_text
+from msdepth.optimum.sgbm import sgbm_disparity
+from msdepth.optimum.solver import optimum_disparities
+from msdepth.optimum.starts import matched_disparity
+from msdepth.reporting.compare import variant_settings
+from msdepth.reporting.stats import paired_table, seed_bootstrap
+from msdepth.reporting.verdict import (
     FULL_FRAME,
     METRIC,
     MIN_UNITS,
@@ -99,9 +95,19 @@ from msdepth.reporting.verdict import (  # noqa: E402
     read_external_rows,
     settings_label,
 )
+from msdepth.studies.real_samples import (
+    BASELINE,
+    CAP,
+    FOCAL,
+    MIN_DEPTH,
+    lidar_gt,
+    samples_dir,
+    variants_of,
+    working_size,
+)
 
 ROOT = Path(__file__).resolve().parents[1]
-CAP, MIN_DEPTH = 80.0, 1e-3
+SAMPLES = samples_dir(ROOT)
 FRAMES = ("000000_10", "000001_10")
 REPORT, VERDICT = "real_pairs.md", "verdict.json"
 ROIS_CSV = ROOT / "data_lists" / "kitti2015_rois.csv"

@@ -20,23 +20,9 @@ from pathlib import Path
 
 import numpy as np
 
-from msdepth.data.kitti import lidar_depth_map, read_calib, read_velodyne
 from msdepth.evaluation.metrics import compute_errors
 from msdepth.geometry.depth import clamp_depth
-
-MIN_DEPTH = 1e-3
-
-
-def lidar_gt(scan: Path, calib: Path, shape: tuple[int, int]) -> np.ndarray:
-    """The scan's depth (m, 0 = none) in the left colour camera (``P2``) at ``shape``."""
-    c = read_calib(calib)
-    return lidar_depth_map(
-        read_velodyne(scan),
-        c["Tr_velo_to_cam"].reshape(3, 4),
-        c["R0_rect"].reshape(3, 3),
-        c["P2"].reshape(3, 4),
-        shape,
-    )
+from msdepth.studies.real_samples import MIN_DEPTH, lidar_gt
 
 
 def score(depth: np.ndarray, gt: np.ndarray, cap: float) -> dict[str, float]:

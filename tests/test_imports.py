@@ -141,7 +141,7 @@ LAYERS = (
     ("training", "evaluation"),  # training a network; inference, suites, metrics, baselines
     ("optimum",),  # the losses' own optimum, scored as a run
     ("reporting",),  # comparison, the results page, the figures
-    ("cli",),  # the msdepth command's subcommands
+    ("cli", "studies"),  # the msdepth command's subcommands; what several studies/ scripts share
     ("__main__",),  # the msdepth command
 )
 RANK = {package: rank for rank, layer in enumerate(LAYERS) for package in layer}
@@ -192,6 +192,30 @@ def test_no_import_cycle_in_src():
 def test_no_module_imports_another_modules_private_names():
     found = private_imports(SRC)
     assert found == [], "private names imported across modules:\n" + "\n".join(found)
+
+
+def study_edges(studies: Path) -> list[str]:
+    """``script: what`` for each studies/ script that imports another script of the folder or
+    changes ``sys.path`` (an edge the package graph cannot see): what they share lives in
+    :mod:`msdepth.studies`."""
+    scripts = {p.stem for p in studies.glob("*.py")}
+    found = []
+    for path in sorted(studies.glob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            names = [a.name for a in node.names] if isinstance(node, ast.Import) else []
+            names += [node.module or ""] if isinstance(node, ast.ImportFrom) and not node.level else []
+            found += [f"{path.name}: imports {n}" for n in names if n.split(".")[0] in scripts]
+            call = node.func if isinstance(node, ast.Call) else None
+            if isinstance(call, ast.Attribute) and ast.unparse(call).startswith("sys.path."):
+                found.append(f"{path.name}: {ast.unparse(call)}")
+    return found
+
+
+def test_no_study_imports_another_or_changes_the_import_path(tmp_path: Path):
+    assert study_edges(ROOT / "studies") == []
+    (tmp_path / "a.py").write_text("import sys\nsys.path.insert(0, '.')\nfrom b import f\n")
+    (tmp_path / "b.py").write_text("import a, numpy\n")
+    assert sorted(study_edges(tmp_path)) == ["a.py: imports b", "a.py: sys.path.insert", "b.py: imports a"]
 
 
 @pytest.fixture
