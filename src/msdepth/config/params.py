@@ -187,6 +187,7 @@ class FolderConfig:
     eval_list: str = "eval.txt"  # "left right [gt]" per evaluation frame; never trained on
     npy_is_disparity: bool = False  # .npy GT holds disparity in px (else depth in m)
     rois_csv: str = ""  # boxes on the evaluation frames, the format of data.kitti.rois_csv
+    class_maps: str = ""  # "" = none; a folder of <frame>.png label maps and classes.yaml naming them
 
     def validate(self, key: str, params: Params) -> None:
         """``data.source: folder``: the folder's keys, and what the folder cannot provide."""

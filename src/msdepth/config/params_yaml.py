@@ -10,15 +10,19 @@ or the line and column where there is no key yet. Types and ranges are checked a
 
 from __future__ import annotations
 
+import os
 from typing import Any
 
 import yaml
 
 from msdepth.config.checks import SHOWN_CHARS, check, shown
-from msdepth.errors import ConfigError
+from msdepth.errors import ConfigError, DataError
 
 MAX_DEPTH = 16  # params.yaml nests 3 levels (data.kitti.drives[0]); deeper is not a params file
 MAX_INT_CHARS = 32  # any params integer fits 64 bits (19 digits); Python refuses over 4300 digits
+# A data set's small YAML files (a stereo folder's camera and classes files) hold a few numbers and
+# names: anything this large is not one of them.
+MAX_DATA_FILE_BYTES = 64 * 1024
 
 _PLAIN_TAGS = {"tag:yaml.org,2002:map", "tag:yaml.org,2002:seq"}
 
@@ -62,6 +66,24 @@ def parse(text: str) -> Any:
         raise ConfigError(f"not valid YAML: {one_line(exc)}") from None
     finally:
         loader.dispose()
+
+
+def read_data_file(path: str | os.PathLike, what: str, missing: str) -> Any:
+    """The data of a data set's small YAML file ``path`` (:func:`parse`'s bounds, at most
+    :data:`MAX_DATA_FILE_BYTES`), or one DataError naming it: ``what`` it is (``camera file``),
+    ``missing`` what to say when it does not exist."""
+    try:
+        with open(path, "rb") as file:
+            data = file.read(MAX_DATA_FILE_BYTES + 1)
+        if len(data) > MAX_DATA_FILE_BYTES:
+            raise DataError(f"{path}: larger than {MAX_DATA_FILE_BYTES} bytes: not a {what}")
+        return parse(data.decode("utf-8"))
+    except FileNotFoundError:
+        raise DataError(f"{path}: {missing}") from None
+    except OSError as exc:
+        raise DataError(f"{path}: not a readable YAML {what} ({exc.strerror or exc})") from None
+    except (UnicodeDecodeError, ConfigError) as exc:
+        raise DataError(f"{path}: not a readable YAML {what} ({' '.join(str(exc).split())})") from None
 
 
 class _Builder:

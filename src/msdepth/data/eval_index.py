@@ -27,7 +27,8 @@ from msdepth.pipeline.paths import SET_INDEXES
 
 # One evaluation index format for every set (msdepth.data.eval_sets): ``gt`` is a file of kind
 # ``gt_kind`` (msdepth.data.ground_truth.GT_KINDS), ``calib`` the raw day folder of a Velodyne
-# frame, ``crop`` the set's evaluation crop ("" = none), obj_map and class_map optional ("").
+# frame, ``crop`` the set's evaluation crop ("" = none), obj_map and class_map optional (""): a
+# frame's exact classes (msdepth.data.ground_truth.read_frame_classes).
 EVAL_COLUMNS = (
     "frame", "left", "right", "gt", "gt_kind", "calib", "crop", "obj_map", "class_map", "focal", "baseline"
 )  # fmt: skip

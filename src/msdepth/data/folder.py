@@ -10,6 +10,9 @@ The folder is ``data.root`` (DVC tracks the data under that name); every other n
       eval.txt                data.folder.eval_list: "left right [gt]" per line
       gt/000123.pfm ...       the evaluation GT the list names (any place below the folder)
       rois.csv                data.folder.rois_csv (optional): boxes on the evaluation frames
+      classes/                data.folder.class_maps (optional): the evaluation frames' classes
+        classes.yaml          label: class name, e.g. "1: transparent" and "2: specular"
+        000123.png ...        one PNG of integer labels per evaluation frame, named <frame>.png
 
 - Training pairs: every left image with its right namesake, minus the evaluation list's left
   images (evaluation frames are never trained on). With ``data.folder.pairs`` (a file of
@@ -26,6 +29,10 @@ The folder is ``data.root`` (DVC tracks the data under that name); every other n
   The frame's name (ROI CSV ``image`` column, metrics tables) is its left image's file stem.
 - ROIs: only those of ``data.folder.rois_csv`` (there is no ``obj_map``); none is fine: the ROI
   suites then say they were skipped.
+- Class maps (optional): with ``data.folder.class_maps``, every evaluation frame has one, the left
+  image's size, 8- or 16-bit, 0 = no class; ``classes.yaml`` names each other label's class, one of
+  :data:`msdepth.data.kitti.CLASS_BITS` (several labels may share one). The full-image suite then
+  scores each class on its exact pixels, with D1 and EPE (:mod:`msdepth.evaluation.classes`).
 
 ``python -m msdepth export-folder`` writes such a folder from the synthetic set
 (:mod:`msdepth.cli.folder_export`). This module imports neither torch nor the index code: the
@@ -41,11 +48,11 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from msdepth.config.params_yaml import parse as parse_yaml
+from msdepth.config.params_yaml import read_data_file
 from msdepth.data import kitti
-from msdepth.data.ground_truth import read_gt_depth
+from msdepth.data.ground_truth import CLASSES_FILE, read_classes, read_gt_depth, read_label_class_map
 from msdepth.data.layout import FolderLayout
-from msdepth.errors import ConfigError, DataError
+from msdepth.errors import DataError
 from msdepth.io import write_text
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
@@ -65,25 +72,11 @@ class Camera:
         return self.focal_px * width / self.width_px
 
 
-MAX_CAMERA_BYTES = 64 * 1024  # three numbers; anything this large is not a camera file
-
-
 def read_camera(path: str | os.PathLike) -> Camera:
     """The camera file (YAML: ``focal_px``, ``width_px``, ``baseline_m``, all > 0)."""
     path = Path(path)
-    try:
-        with path.open("rb") as file:
-            data = file.read(MAX_CAMERA_BYTES + 1)
-        if len(data) > MAX_CAMERA_BYTES:
-            raise DataError(f"{path}: larger than {MAX_CAMERA_BYTES} bytes: not a camera file")
-        # the params reader's YAML parser: no aliases, duplicate keys or unbounded integers
-        raw = parse_yaml(data.decode("utf-8"))
-    except FileNotFoundError:
-        raise DataError(f"{path}: no camera file (data.folder.camera: {', '.join(CAMERA_KEYS)})") from None
-    except OSError as exc:
-        raise DataError(f"{path}: not a readable YAML camera file ({exc.strerror or exc})") from None
-    except (UnicodeDecodeError, ConfigError) as exc:
-        raise DataError(f"{path}: not a readable YAML camera file ({' '.join(str(exc).split())})") from None
+    hint = f"no camera file (data.folder.camera: {', '.join(CAMERA_KEYS)})"
+    raw = read_data_file(path, "camera file", hint)
     if not isinstance(raw, dict):
         raise DataError(f"{path}: expected a mapping with {', '.join(CAMERA_KEYS)}")
     missing, unknown = set(CAMERA_KEYS) - set(raw), set(raw) - set(CAMERA_KEYS)
@@ -197,9 +190,11 @@ def eval_rows(
 ) -> list[tuple]:
     """One row of :data:`msdepth.data.eval_index.EVAL_COLUMNS` per evaluation frame (the DataFrame:
     :func:`msdepth.data.indexing.folder_eval_index`): the images, the GT and its kind (by
-    suffix; ``none`` without GT), the camera at the image's width, no crop. Each GT is read once
-    here, so a bad file fails the index stage, not the evaluation."""
+    suffix; ``none`` without GT), the camera at the image's width, no crop, the class map if
+    ``paths.class_maps``. Each GT and class map is read once here, so a bad file fails the index
+    stage, not the evaluation."""
     camera = camera or read_camera(paths.camera)
+    classes = read_classes(paths.class_maps / CLASSES_FILE) if paths.class_maps else None
     rows, names = [], {}
     for left_rel, right_rel, gt_rel in read_eval_list(paths.eval_list):
         left = _existing(paths.root / left_rel, f"left image (listed in {paths.eval_list})")
@@ -221,7 +216,12 @@ def eval_rows(
             _same_size(left, shape, gt, depth.shape, "GT")
         else:
             gt, kind = left, "none"
-        rows.append((name, str(left), str(right), str(gt), kind, "", "", "", "", focal, baseline))
+        class_map = ""
+        if classes is not None:
+            what = f"class map of frame {name!r} (data.folder.class_maps)"
+            class_map = _existing(paths.class_maps / f"{name}.png", what)
+            _same_size(left, shape, class_map, read_label_class_map(class_map, classes).shape, "class map")
+        rows.append((name, str(left), str(right), str(gt), kind, "", "", "", str(class_map), focal, baseline))
     return rows
 
 
@@ -238,6 +238,7 @@ def check_folder(paths: FolderLayout) -> dict:
     for what, check in (
         ("camera", lambda: read_camera(paths.camera)),
         ("evaluation list", lambda: read_eval_list(paths.eval_list)),
+        ("classes", lambda: read_classes(paths.class_maps / CLASSES_FILE) if paths.class_maps else None),
     ):
         try:
             report[what] = check()
@@ -248,6 +249,9 @@ def check_folder(paths: FolderLayout) -> dict:
             for rel in (left, right, gt):
                 if rel and not (paths.root / rel).is_file():
                     problems.append(f"{paths.root / rel}: listed in {paths.eval_list} but missing")
+            class_map = paths.class_maps / f"{Path(left).stem}.png" if paths.class_maps else None
+            if class_map and not class_map.is_file():
+                problems.append(f"{class_map}: no class map for {left} (data.folder.class_maps)")
         try:
             train, excluded = build_train_pairs(paths)
             report["train_pairs"], report["eval_frames_excluded"] = len(train), excluded

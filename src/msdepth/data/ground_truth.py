@@ -4,6 +4,11 @@ One reader for every evaluation set (:func:`read_gt_depth`), so the suites see t
 model for KITTI 2015 (disparity PNGs), the Eigen split (Velodyne scans projected with the day's
 calibration), the KITTI depth benchmark (depth PNGs) and a stereo folder (msdepth.data.folder:
 PFM or .npy disparity, .npy depth, or no GT at all). The index says which form a frame has.
+
+Also each frame's exact classes (:func:`read_frame_classes`), the bits of
+:data:`msdepth.data.kitti.CLASS_BITS` whatever a set stores: the synthetic set's class map, KITTI
+2012's reflective GT, KITTI 2015's ``obj_map`` cars, a stereo folder's labelled class maps
+(:func:`read_label_class_map`, named by its classes file :func:`read_classes`).
 """
 
 from __future__ import annotations
@@ -13,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from msdepth.config.params_yaml import read_data_file
 from msdepth.data import kitti, kitti2012
 from msdepth.data.pfm import read_pfm
 from msdepth.errors import DataError
@@ -107,11 +113,66 @@ def read_gt_depth(
     raise DataError(f"{path}: unknown GT kind {kind!r}; known: {sorted(GT_KINDS)}")
 
 
-def read_class_map(kind: str, path: str | os.PathLike) -> np.ndarray:
-    """The class map (bits of :data:`msdepth.data.kitti.CLASS_BITS`) that the index's ``class_map``
-    column names for a frame of GT ``kind``: KITTI 2012's is its ``disp_refl_occ`` PNG (the
-    ``reflective`` class, :func:`msdepth.data.kitti2012.reflective_class_map`), any other a class
-    map PNG (:func:`msdepth.data.kitti.read_class_map`)."""
-    if kind == "kitti2012":
-        return kitti2012.reflective_class_map(path)
-    return kitti.read_class_map(path)
+# A stereo folder's class maps (data.folder.class_maps) are <frame>.png beside this file, which
+# names their labels: {label: class name}, e.g. {1: transparent, 2: specular}; 0 = no class.
+CLASSES_FILE = "classes.yaml"
+MAX_LABEL = 65535  # a 16-bit PNG's largest value
+
+
+def read_classes(path: str | os.PathLike) -> dict[int, str]:
+    """A classes file: ``{label: class name}``, labels 1..:data:`MAX_LABEL` (0 = no class, never listed),
+    names of :data:`msdepth.data.kitti.CLASS_BITS`; one DataError naming the file otherwise."""
+    raw = read_data_file(path, "classes file", "no classes file (label: class name, beside the class maps)")
+    if not isinstance(raw, dict) or not raw:
+        raise DataError(f"{path}: expected a mapping of labels to class names, e.g. {{1: transparent}}")
+    for label, name in raw.items():
+        if isinstance(label, bool) or not isinstance(label, int) or not 1 <= label <= MAX_LABEL:
+            raise DataError(f"{path}: label {label!r} must be an integer 1..{MAX_LABEL} (0 = no class)")
+        if name not in kitti.CLASS_BITS:
+            raise DataError(f"{path}: label {label}: unknown class {name!r}; known: {list(kitti.CLASS_BITS)}")
+    return raw
+
+
+def read_label_class_map(path: str | os.PathLike, classes: dict[int, str] | None = None) -> np.ndarray:
+    """A stereo folder's class map as bits of :data:`msdepth.data.kitti.CLASS_BITS`: its PNG of labels
+    (:func:`msdepth.data.kitti.read_label_map`) through ``classes`` (default: the :data:`CLASSES_FILE`
+    beside it). A label the classes do not name is a DataError naming the file and the labels."""
+    classes = read_classes(Path(path).parent / CLASSES_FILE) if classes is None else classes
+    labels = kitti.read_label_map(path)
+    found = np.unique(labels)
+    unknown = [int(v) for v in found if v and int(v) not in classes]
+    if unknown:
+        raise DataError(
+            f"{path}: label(s) {unknown[:10]} not in its classes file (which names {sorted(classes)}; "
+            "0 = no class)"
+        )
+    table = np.zeros(int(found.max()) + 1, np.uint8)
+    for label, name in classes.items():
+        if label < len(table):
+            table[label] = kitti.CLASS_BITS[name]
+    return table[labels]
+
+
+def read_frame_classes(kind: str, class_map: str, obj_map: str) -> tuple[np.ndarray | None, bool]:
+    """A frame's class map (bits of :data:`msdepth.data.kitti.CLASS_BITS`) from its index row (GT
+    ``kind``; ``class_map`` and ``obj_map`` paths, "" = none), and whether its classes are scored
+    over the whole frame (:func:`msdepth.evaluation.classes.exact_class_summary`, in the full-image
+    suite): every set's but the synthetic set's, whose ROI classes have exact boxes (the ROI suite).
+
+    - ``class_map`` of a KITTI 2012 frame: its ``disp_refl_occ`` PNG, the ``reflective`` class
+      (:func:`msdepth.data.kitti2012.reflective_class_map`);
+    - with a :data:`CLASSES_FILE` beside it: a stereo folder's labels (:func:`read_label_class_map`);
+    - any other: a class map PNG of bits, the synthetic set's (:func:`msdepth.data.kitti.read_class_map`);
+    - no class map but an ``obj_map`` (KITTI 2015): class ``car`` on its pixels > 0, the cars'
+      fitted CAD models. Only there: the synthetic set's class map already holds its cars.
+    """
+    if kind == "kitti2012" and class_map:
+        return kitti2012.reflective_class_map(class_map), True
+    if class_map and (Path(class_map).parent / CLASSES_FILE).is_file():
+        return read_label_class_map(class_map), True
+    if class_map:
+        return kitti.read_class_map(class_map), False
+    if obj_map:
+        car = np.uint8(kitti.CLASS_BITS["car"])
+        return np.where(kitti.read_obj_map(obj_map) > 0, car, np.uint8(0)), True
+    return None, False

@@ -405,6 +405,12 @@ def batches_by_pixels(
         yield batch
 
 
+def is_png(path: str | os.PathLike) -> bool:
+    """Whether a file starts with PNG's signature (8 bytes read)."""
+    with open(path, "rb") as file:
+        return file.read(len(_PNG_MAGIC)) == _PNG_MAGIC
+
+
 def file_pixels(path: str | os.PathLike) -> int:
     """The pixels an image file's header declares (:func:`header_size`), 0 if it cannot be read: a
     plan's estimate only; the file is checked in full when it is read."""

@@ -109,10 +109,13 @@ def read_obj_map(path: PathLike) -> np.ndarray:
     return _decode_as(path, "object map", np.uint8, 1)
 
 
-# Bits of a class map: the synthetic set's ROI classes, and KITTI 2012's reflective surfaces (the
-# pixels of its disp_refl_occ, msdepth.data.kitti2012; KITTI 2015 has no per-pixel class labels). A
-# pixel may carry several: a windshield pixel is also a car pixel.
-CLASS_BITS = {"car": 1, "windshield": 2, "glass": 4, "sign": 8, "reflective": 16}
+# Bits of a class map: the synthetic set's ROI classes, KITTI 2012's reflective surfaces (the pixels
+# of its disp_refl_occ, msdepth.data.kitti2012), KITTI 2015's cars (obj_map > 0) and the classes a
+# stereo folder's class maps may name (msdepth.data.ground_truth.read_classes: Booster-style
+# transparent and specular masks). A pixel may carry several: a windshield pixel is also a car pixel.
+CLASS_BITS = {
+    "car": 1, "windshield": 2, "glass": 4, "sign": 8, "reflective": 16, "transparent": 32, "specular": 64
+}  # fmt: skip
 
 
 def read_class_map(path: PathLike) -> np.ndarray:
@@ -120,6 +123,22 @@ def read_class_map(path: PathLike) -> np.ndarray:
     img = _decode_as(path, "class map", np.uint8, 1)
     if (img & ~np.uint8(sum(CLASS_BITS.values()))).any():
         raise DataError(f"{path}: class map has bits outside {CLASS_BITS}")
+    return img
+
+
+def read_label_map(path: PathLike) -> np.ndarray:
+    """Read a PNG of integer labels, 8- or 16-bit with one channel (a stereo folder's class map,
+    :func:`msdepth.data.ground_truth.read_label_class_map`). Any other format is refused: a JPEG's
+    compression changes labels at every edge."""
+    img = _decode(path, "class map")
+    if not imagefile.is_png(path):
+        raise DataError(f"{path}: class map: not a PNG (labels must be stored losslessly: a PNG of integers)")
+    if img.ndim != 2 or img.dtype not in (np.uint8, np.uint16):
+        found = 1 if img.ndim == 2 else img.shape[2]
+        raise DataError(
+            f"{path}: expected an 8- or 16-bit single-channel class map (integer labels), "
+            f"got {img.dtype} with {found} channel(s)"
+        )
     return img
 
 

@@ -46,7 +46,8 @@ class Layout:
 @dataclass(frozen=True)
 class FolderLayout:
     """Paths of a stereo folder (``data.source: folder``, :mod:`msdepth.data.folder`): every
-    ``data.folder.*`` path below the folder (``data.root``). ``pairs`` and ``rois_csv``: None = not given."""
+    ``data.folder.*`` path below the folder (``data.root``). ``pairs``, ``rois_csv`` and
+    ``class_maps``: None = not given."""
 
     root: Path
     left: Path
@@ -55,6 +56,7 @@ class FolderLayout:
     camera: Path
     eval_list: Path
     rois_csv: Path | None
+    class_maps: Path | None = None
 
 
 def folder_layout(params: Params) -> FolderLayout:
@@ -69,6 +71,7 @@ def folder_layout(params: Params) -> FolderLayout:
         root / f.camera,
         root / f.eval_list,
         root / f.rois_csv if f.rois_csv else None,
+        root / f.class_maps if f.class_maps else None,
     )
 
 

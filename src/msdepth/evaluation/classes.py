@@ -1,5 +1,7 @@
 """Exact-mask scores of whole frames, per pixel class: the exact-mask suite for a set whose frames
-carry class maps but no boxes (KITTI 2012's ``reflective`` class, :mod:`msdepth.data.kitti2012`).
+carry class maps but no exact boxes (KITTI 2012's ``reflective`` class, :mod:`msdepth.data.kitti2012`;
+KITTI 2015's ``car`` from ``obj_map``; a stereo folder's class maps, :mod:`msdepth.data.folder`),
+which the full-image suite adds (:func:`msdepth.evaluation.results.exact_classes`).
 
 Each frame gets one whole-frame ROI per class its class map holds, so the ROI suite's exact masks
 (:func:`msdepth.evaluation.suites.evaluate_roi`, ``summary["masks"]``) score exactly that class's

@@ -15,6 +15,7 @@ from msdepth.data.eval_index import read_eval_index
 from msdepth.errors import ConfigError, DataError
 from msdepth.evaluation.classes import exact_class_summary
 from msdepth.evaluation.suites import (
+    Frame,
     depth_maps,
     evaluate_full,
     evaluate_gradients,
@@ -110,10 +111,24 @@ def run_suite(  # noqa: ANN001 - frames, boxes
     fn = SUITES[suite]
     if suite == "full":
         summary, table = fn(pred, frames, params.eval, median_scaling=scaled)
+        summary.update(exact_classes(params, pred, frames, scaled))
     else:
         pred = median_scaled_maps(pred, frames, params.eval)[0] if scaled else pred
         summary, table = fn(pred, frames, boxes, params.eval)
     write_suite(suite, run, summary, table)
+
+
+def exact_classes(params: Params, pred: dict[str, np.ndarray], frames: list[Frame], scaled: bool) -> dict:
+    """``{"masks": ...}``, the full-image suite's scores on each exact class
+    (:func:`~msdepth.evaluation.classes.exact_class_summary`, of ``pred`` median-scaled where
+    ``scaled``), for a set whose every frame has whole-frame classes (KITTI 2012's reflective, KITTI
+    2015's obj_map cars, a stereo folder's class maps: ``Frame.whole_frame_classes``); else ``{}``:
+    the others' summaries stay as they were."""
+    if not frames or not all(f.class_map is not None and f.whole_frame_classes for f in frames):
+        return {}
+    scored = median_scaled_maps(pred, frames, params.eval)[0] if scaled else pred
+    masks = exact_class_summary(scored, frames, params.eval)
+    return {} if masks is None else {"masks": masks}
 
 
 def write_depth_maps(run: str, disparities: Path, eval_index: Path, out: Path, *, monocular: bool) -> None:
@@ -155,11 +170,5 @@ def score_set(  # noqa: ANN001 - frames
     median-scaled when ``scaled`` (default: ``eval.median_scaling``)."""
     scaled = params.eval.median_scaling if scaled is None else scaled
     summary, table = evaluate_full(pred, frames, params.eval, median_scaling=scaled)
-    # A set whose frames carry class maps (KITTI 2012) is also scored on each class's exact pixels;
-    # the others' summaries stay as they were.
-    if frames and all(f.class_map is not None for f in frames):
-        scored = median_scaled_maps(pred, frames, params.eval)[0] if scaled else pred
-        masks = exact_class_summary(scored, frames, params.eval)
-        if masks is not None:
-            summary["masks"] = masks
+    summary.update(exact_classes(params, pred, frames, scaled))
     write_suite("full", run, summary, table, root=set_metrics_dir(name), headline_root=set_headline_dir(name))

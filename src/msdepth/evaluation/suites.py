@@ -21,7 +21,7 @@ import pandas as pd
 
 from msdepth.config.params import EvalConfig
 from msdepth.data import kitti
-from msdepth.data.ground_truth import read_class_map, read_gt_depth
+from msdepth.data.ground_truth import read_frame_classes, read_gt_depth
 from msdepth.errors import DataError
 from msdepth.evaluation.metrics import (
     METRICS,
@@ -77,9 +77,12 @@ class Frame:
     gt_depth: np.ndarray
     focal: float
     baseline: float
-    class_map: np.ndarray | None = None  # bits of kitti.CLASS_BITS (synthetic set, KITTI 2012)
+    class_map: np.ndarray | None = None  # bits of kitti.CLASS_BITS (ground_truth.read_frame_classes)
     crop: np.ndarray | None = None
     gt_in_range: bool = False
+    # The full-image suite scores class_map's classes over the whole frame (evaluation.classes):
+    # every set's but the synthetic set's, whose classes the ROI suite scores inside exact boxes.
+    whole_frame_classes: bool = False
 
     @classmethod
     def from_disparity(cls, name: str, gt_disp: np.ndarray, focal: float, baseline: float, **kw) -> Frame:
@@ -107,15 +110,17 @@ def load_frames(index: pd.DataFrame) -> list[Frame]:
             raise DataError(
                 f"evaluation frame {row.frame}: unknown crop {row.crop!r}; known: {sorted(CROPS)}"
             )
+        class_map, whole_frame = read_frame_classes(row.gt_kind, row.class_map, row.obj_map)
         frames.append(
             Frame(
                 row.frame,
                 depth,
                 focal,
                 baseline,
-                read_class_map(row.gt_kind, row.class_map) if row.class_map else None,
+                class_map,
                 CROPS[row.crop](*depth.shape) if row.crop else None,
                 gt_in_range=bool(row.crop),
+                whole_frame_classes=whole_frame,
             )
         )
     return frames
