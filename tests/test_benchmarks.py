@@ -100,6 +100,15 @@ def test_train_step_benchmark_by_network() -> None:
         assert f"| {name} |" in out
 
 
+def test_recipes_benchmark_times_each_recipe_against_the_default() -> None:
+    tiny = ("data.height=64", "data.width=64", "model.width_multiplier=0.0625", "train.batch_size=2")
+    out = _run("recipes.py", "--repeats", "1", *(f"--set={kv}" for kv in tiny))
+    assert out.startswith("training step, 64x64, model x0.0625")
+    for name in ("default", "full resolution loss", "resnet18", "batch 1"):
+        assert f"| {name} |" in out
+    assert "time per image / default's: default 1.00, full resolution loss" in out
+
+
 # The studies' tests' tiny size, as --set overrides; 8 evaluation frames give roi_errors.py
 # classes with 3 boxes or more.
 TINY_STUDY = {
