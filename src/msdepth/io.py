@@ -8,6 +8,10 @@ either complete under its final name or absent.
 The output policy (:class:`OutputPolicy`, :func:`output_file_policy`) decides what a command may
 write into a user's folder: never an input, and no existing file it did not write itself (its
 manifest lists those it did).
+
+Every reader of an input file opens it with :func:`open_regular` (or reads it whole with
+:func:`read_bounded`): a regular file only, its size checked against its kind's limit before any
+byte is read, each refusal one DataError naming the file.
 """
 
 from __future__ import annotations
@@ -25,7 +29,7 @@ import tempfile
 import threading
 import zlib
 from pathlib import Path, PurePosixPath
-from typing import Any, Callable, Iterator
+from typing import Any, BinaryIO, Callable, Iterator
 
 import numpy as np
 
@@ -143,6 +147,79 @@ def file_sha256(path: str | os.PathLike) -> str:
     except OSError as exc:
         raise DataError(f"{path}: cannot read it ({exc.strerror or exc})") from None
     return digest.hexdigest()
+
+
+# Bounded reading: every reader of an input file (images, PFM, .npy, Velodyne scans, calibration and
+# list files, JSON tables) opens it through open_regular, so each refusal below is written once.
+
+
+def _size_text(nbytes: int) -> str:
+    return f"{nbytes:,} bytes" if nbytes < 1 << 20 else f"{nbytes / 2**20:,.0f} MiB"
+
+
+def open_regular(
+    path: str | os.PathLike,
+    kind: str,
+    max_bytes: int | None = None,
+    *,
+    allow_empty: bool = False,
+    prefix: str | None = None,
+) -> BinaryIO:
+    """``path`` open for reading (binary), once it is known to be a regular file of at most
+    ``max_bytes`` (its size taken with fstat on the open file, before any byte is read) and, unless
+    ``allow_empty``, not empty.
+
+    Every refusal is one DataError, ``<path>: <problem>`` (``prefix`` replaces ``<path>: ``, for a
+    reader whose caller names the file): no such file, a folder, not a regular file (a FIFO, a
+    device or a socket: reading one could block forever or never end), a symbolic link loop or any
+    other error of the open, over ``max_bytes``, empty. ``kind`` names the file in it ("PFM").
+    """
+    head = f"{path}: " if prefix is None else prefix
+    try:  # O_NONBLOCK: opening a FIFO that no one writes returns at once, and fstat refuses it
+        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC)
+    except FileNotFoundError:
+        raise DataError(f"{head}no such {kind} file") from None
+    except OSError as exc:  # a symbolic link loop, a name too long, no permission
+        raise DataError(f"{head}cannot open this {kind} file ({exc.strerror or exc})") from None
+    info, problem = os.fstat(fd), None
+    if stat.S_ISDIR(info.st_mode):
+        problem = "a folder, not a file"
+    elif not stat.S_ISREG(info.st_mode):
+        problem = "not a regular file (a FIFO, a device or a socket); nothing was read"
+    elif max_bytes is not None and info.st_size > max_bytes:
+        problem = (
+            f"the file is {_size_text(info.st_size)}, over the limit of {_size_text(max_bytes)} for {kind} "
+            "files; nothing of it was read"
+        )
+    elif info.st_size == 0 and not allow_empty:
+        problem = f"the {kind} file is empty (0 bytes)"
+    if problem is not None:
+        os.close(fd)
+        raise DataError(head + problem)
+    os.set_blocking(fd, True)
+    return os.fdopen(fd, "rb")
+
+
+def read_bounded(
+    path: str | os.PathLike,
+    kind: str,
+    max_bytes: int,
+    *,
+    allow_empty: bool = False,
+    prefix: str | None = None,
+) -> bytes:
+    """The bytes of the regular file ``path``, of at most ``max_bytes`` (:func:`open_regular`, whose
+    refusals these are); a file that changed size while it was read is refused too."""
+    head = f"{path}: " if prefix is None else prefix
+    with open_regular(path, kind, max_bytes, allow_empty=allow_empty, prefix=prefix) as file:
+        size = os.fstat(file.fileno()).st_size
+        try:  # the size, not the limit, is asked for: read() allocates what it is asked for first
+            data = file.read(size + 1)
+        except OSError as exc:  # an I/O error: still one line naming the file
+            raise DataError(f"{head}cannot read this {kind} file ({exc.strerror or exc})") from None
+    if len(data) != size:
+        raise DataError(f"{head}the {kind} file changed size while it was read ({size:,} bytes before)")
+    return data
 
 
 # One filter for every row and a fixed deflate level: the bytes depend only on the pixels and

@@ -46,7 +46,7 @@ from msdepth.data import kitti
 from msdepth.data.ground_truth import read_gt_depth
 from msdepth.data.layout import FolderLayout
 from msdepth.errors import ConfigError, DataError
-from msdepth.io import write_text
+from msdepth.io import read_bounded, write_text
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
 CAMERA_KEYS = ("focal_px", "width_px", "baseline_m")
@@ -71,17 +71,11 @@ MAX_CAMERA_BYTES = 64 * 1024  # three numbers; anything this large is not a came
 def read_camera(path: str | os.PathLike) -> Camera:
     """The camera file (YAML: ``focal_px``, ``width_px``, ``baseline_m``, all > 0)."""
     path = Path(path)
-    try:
-        with path.open("rb") as file:
-            data = file.read(MAX_CAMERA_BYTES + 1)
-        if len(data) > MAX_CAMERA_BYTES:
-            raise DataError(f"{path}: larger than {MAX_CAMERA_BYTES} bytes: not a camera file")
-        # the params reader's YAML parser: no aliases, duplicate keys or unbounded integers
+    if not os.path.lexists(path):
+        raise DataError(f"{path}: no camera file (data.folder.camera: {', '.join(CAMERA_KEYS)})")
+    data = read_bounded(path, "camera", MAX_CAMERA_BYTES, allow_empty=True)
+    try:  # the params reader's YAML parser: no aliases, duplicate keys or unbounded integers
         raw = parse_yaml(data.decode("utf-8"))
-    except FileNotFoundError:
-        raise DataError(f"{path}: no camera file (data.folder.camera: {', '.join(CAMERA_KEYS)})") from None
-    except OSError as exc:
-        raise DataError(f"{path}: not a readable YAML camera file ({exc.strerror or exc})") from None
     except (UnicodeDecodeError, ConfigError) as exc:
         raise DataError(f"{path}: not a readable YAML camera file ({' '.join(str(exc).split())})") from None
     if not isinstance(raw, dict):

@@ -34,6 +34,7 @@ import cv2
 import numpy as np
 
 from msdepth.errors import DataError, PixelLimitError
+from msdepth.io import open_regular
 
 # 120 million pixels: a 108-megapixel phone photo (12,000 x 9,000) fits; predict on one peaks at
 # about 4.3 GiB (measured, docs/user-guide.md "Security"). Raise it with read_image(max_pixels=...)
@@ -319,7 +320,8 @@ def read_file(path: str | os.PathLike, max_pixels: int = MAX_IMAGE_PIXELS) -> by
     size it declares against ``max_pixels``, and the file's size against :func:`max_file_bytes` of
     the declared pixels. Only then the whole file, which :func:`decode` walks again.
     """
-    with open(path, "rb") as file:
+    # the bound is checked below, as a PixelLimitError that names the option raising it
+    with open_regular(path, "image", prefix="") as file:
         size = os.fstat(file.fileno()).st_size
         if size > max_file_bytes(max_pixels):
             raise PixelLimitError(
@@ -409,7 +411,7 @@ def file_pixels(path: str | os.PathLike) -> int:
     """The pixels an image file's header declares (:func:`header_size`), 0 if it cannot be read: a
     plan's estimate only; the file is checked in full when it is read."""
     try:
-        with open(path, "rb") as file:
+        with open_regular(path, "image", prefix="") as file:
             width, height = header_size(file)
     except (OSError, DataError):
         return 0
