@@ -434,8 +434,9 @@ class OutputPolicy:
     The manifest lists a name only once its file is complete: a claim records it as pending, the
     rename of :func:`atomic_path` as written, and :meth:`settle` (at the end of the run) drops the
     pending ones never written and the names whose files are gone. ``inputs``: files never to
-    replace; ``input_dirs``: folders the output folder may not be. Raises OutputError (one line)
-    when ``out_dir`` is an input folder or not a folder, or its manifest is not one.
+    replace; ``input_dirs``: folders the output folder may not be or hold. Raises OutputError (one
+    line) when ``out_dir`` is the filesystem root, an input folder, holds one or is not a folder, or
+    its manifest is not one.
     """
 
     def __init__(
@@ -453,17 +454,35 @@ class OutputPolicy:
         self.created = False  # whether this run created the manifest
         check_output_folder(self.out_dir)
         out_resolved = resolved(self.out_dir)
-        for folder in input_dirs:
-            if Path(folder).is_dir() and out_resolved == resolved(folder):
-                raise OutputError(
-                    f"{self.out_dir}: the output folder is the input folder {folder}, whose files the "
-                    "outputs could replace and a later run would read as inputs; choose another output folder"
-                )
+        self._check_folder(out_resolved, input_dirs)
         entries = manifest_entries(self.manifest)
         self.ours = {name for name, written in entries if written}
         # A run killed mid-write left the temp of an output it had listed (written or pending):
         # remove those only.
         self._remove_temps({name for name, _ in entries}, out_resolved)
+
+    def _check_folder(self, out_resolved: Path, input_dirs: tuple[str | os.PathLike, ...]) -> None:
+        """OutputError (one line) when the output folder is the filesystem root, an input folder or
+        a folder holding one: checked before any input is listed, so that ``--out /`` is refused at
+        once (its inputs, all inside it, were left out as outputs: "no images", after the listing)."""
+        if out_resolved == Path(out_resolved.anchor):
+            raise OutputError(
+                f"{self.out_dir}: the filesystem root, not an output folder; choose a folder for the outputs"
+            )
+        for folder in input_dirs:
+            if not Path(folder).is_dir():
+                continue
+            folder_resolved = resolved(folder)
+            if out_resolved == folder_resolved:
+                raise OutputError(
+                    f"{self.out_dir}: the output folder is the input folder {folder}, whose files the "
+                    "outputs could replace and a later run would read as inputs; choose another output folder"
+                )
+            if folder_resolved.is_relative_to(out_resolved):
+                raise OutputError(
+                    f"{self.out_dir}: the output folder holds the input folder {folder}, whose files would "
+                    "be left out as outputs; choose an output folder outside it"
+                )
 
     def _name(self, path: Path) -> str:
         return path.relative_to(self.out_dir).as_posix()
