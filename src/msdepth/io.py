@@ -29,11 +29,12 @@ import tempfile
 import threading
 import zlib
 from pathlib import Path, PurePosixPath
-from typing import Any, BinaryIO, Callable, Iterator
-
-import numpy as np
+from typing import TYPE_CHECKING, Any, BinaryIO, Callable, Iterator
 
 from msdepth.errors import DataError, MsdepthError, OutputError
+
+if TYPE_CHECKING:  # numpy is imported by the writers that need it: the params reader opens its file
+    import numpy as np  # here (open_regular) and imports neither numpy nor torch (test_stages)
 
 
 def _file_mode() -> int:
@@ -241,6 +242,8 @@ def encode_png(image: np.ndarray) -> bytes:
     Deterministic: rows use PNG's "Up" filter (a row minus the row above, which suits smooth
     renders and 16-bit disparities alike) and deflate at a fixed level.
     """
+    import numpy as np
+
     if image.dtype not in (np.uint8, np.uint16) or not (
         image.ndim == 2 or (image.ndim == 3 and image.shape[2] == 3)
     ):
@@ -276,12 +279,16 @@ def write_png(path: str | os.PathLike, image: np.ndarray) -> None:
 
 def save_npy(path: str | os.PathLike, array: np.ndarray) -> None:
     """Write one array as ``.npy``, atomically."""
+    import numpy as np
+
     with atomic_path(path, suffix=".npy") as tmp:
         np.save(tmp, array)
 
 
 def save_npz(path: str | os.PathLike, **arrays: np.ndarray) -> None:
     """Write arrays to a compressed ``.npz`` atomically."""
+    import numpy as np
+
     with atomic_path(path, suffix=".npz") as tmp:
         np.savez_compressed(tmp, **arrays)
 
