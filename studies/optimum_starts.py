@@ -40,6 +40,7 @@ import torch
 from msdepth.config.params import Params, apply_overrides, load_params, params_from_dict, read_params_file
 from msdepth.data.kitti import read_disparity, read_image
 from msdepth.data.pairs import resize, to_tensor
+from msdepth.errors import run_main
 from msdepth.evaluation.metrics import compute_errors, stereo_errors
 from msdepth.geometry.depth import clamp_depth, disparity_to_depth
 from msdepth.io import claim_output_file, write_text
@@ -268,4 +269,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run_main("studies/optimum_starts.py", main))

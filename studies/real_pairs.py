@@ -81,6 +81,7 @@ from msdepth.config.params import CompareConfig, EvalConfig, Params  # noqa: E40
 from msdepth.data import kitti, kitti2012  # noqa: E402
 from msdepth.data.annotations import KITTI2015_SIZE, gt_density, read_annotation  # noqa: E402
 from msdepth.data.pairs import resize, to_tensor  # noqa: E402
+from msdepth.errors import run_main
 from msdepth.evaluation.infer import network_disparity  # noqa: E402
 from msdepth.evaluation.metrics import compute_errors, median_scale, stereo_errors  # noqa: E402
 from msdepth.evaluation.suites import Frame, evaluate_roi  # noqa: E402
@@ -630,4 +631,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run_main("studies/real_pairs.py", main))

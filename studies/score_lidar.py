@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from msdepth.data.kitti import lidar_depth_map, read_calib, read_velodyne
+from msdepth.errors import run_main
 from msdepth.evaluation.metrics import compute_errors
 from msdepth.geometry.depth import clamp_depth
 
@@ -70,4 +71,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run_main("studies/score_lidar.py", main))
