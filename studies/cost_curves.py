@@ -20,6 +20,7 @@ from pathlib import Path
 import pandas as pd
 
 from msdepth.config.params import apply_overrides, kernel_variant, params_from_dict, read_params_file
+from msdepth.errors import run_main
 from msdepth.optimum.frames import add_cost_curves, cost_summary
 from msdepth.render import render_frame
 
@@ -54,4 +55,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run_main("studies/cost_curves.py", main))

@@ -24,7 +24,7 @@ import sys
 import pandas as pd
 
 from msdepth.data.kitti import ROI_CLASSES as CLASSES
-from msdepth.errors import MsdepthError
+from msdepth.errors import MsdepthError, run_main
 from msdepth.reporting.revisions import CAP, optimum_run_at, optimum_settings_at, paired_cell, show
 
 HEAD = "| run | frames | abs_rel | a1 | ROI abs_rel | " + " | ".join(CLASSES) + " | mask abs_rel |"
@@ -124,4 +124,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run_main("studies/glass_before_after.py", main))

@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from msdepth.config.params import read_params_file
-from msdepth.errors import OutputError
+from msdepth.errors import OutputError, run_main
 from msdepth.io import OutputPolicy, save_npz
 from msdepth.render import EVAL, TRAIN, render_frame
 
@@ -87,4 +87,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run_main("studies/glass_check.py", main))

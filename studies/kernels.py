@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from msdepth.errors import DataError
+from msdepth.errors import DataError, run_main
 from msdepth.io import claim_output_file, write_text
 from msdepth.reporting.stats import paired_t
 from msdepth.reporting.verdict import signed
@@ -125,4 +125,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run_main("studies/kernels.py", main))

@@ -35,7 +35,7 @@ from msdepth.config.params import Params, apply_overrides, kernel_variant, param
 from msdepth.data import kitti
 from msdepth.data.eval_index import read_eval_index
 from msdepth.data.pairs import build_pair_cache, load_pair_cache, load_pair_list
-from msdepth.errors import DataError, OutputError
+from msdepth.errors import DataError, OutputError, run_main
 from msdepth.evaluation import baselines
 from msdepth.evaluation.suites import depth_maps, evaluate_full, evaluate_roi, image_dependence, load_frames
 from msdepth.io import OutputPolicy, write_text
@@ -358,4 +358,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run_main("studies/learning.py", main))

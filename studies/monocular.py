@@ -42,7 +42,7 @@ import numpy as np
 import pandas as pd
 
 from msdepth.config.params import params_from_dict, read_params_file
-from msdepth.errors import OutputError
+from msdepth.errors import OutputError, run_main
 from msdepth.io import OutputPolicy, write_text
 from msdepth.reporting.compare import image_dependence, load_suite_metrics, load_unit_tables, variant_settings
 from msdepth.reporting.figures import write_figure
@@ -342,4 +342,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run_main("studies/monocular.py", main))

@@ -36,7 +36,7 @@ from msdepth.config.params import Params, apply_overrides, params_from_dict, rea
 from msdepth.data import kitti
 from msdepth.data.eval_index import read_eval_index
 from msdepth.data.pairs import load_pair_cache, load_pair_list
-from msdepth.errors import DataError, OutputError
+from msdepth.errors import DataError, OutputError, run_main
 from msdepth.evaluation import baselines
 from msdepth.evaluation.box_errors import box_medians, prior_correlation
 from msdepth.evaluation.suites import depth_maps, evaluate_full, evaluate_roi, image_dependence, load_frames
@@ -386,4 +386,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run_main("studies/objects.py", main))

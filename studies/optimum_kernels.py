@@ -17,7 +17,7 @@ import argparse
 import sys
 
 from msdepth.data.kitti import ROI_CLASSES as CLASSES
-from msdepth.errors import MsdepthError
+from msdepth.errors import MsdepthError, run_main
 from msdepth.reporting.revisions import CAP, optimum_run_at, optimum_settings_at, paired_cell
 
 
@@ -73,4 +73,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run_main("studies/optimum_kernels.py", main))

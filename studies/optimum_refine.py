@@ -35,6 +35,7 @@ import torch
 from msdepth.config.params import Params, apply_overrides, kernel_variant, params_from_dict, read_params_file
 from msdepth.data.kitti import read_disparity, read_image
 from msdepth.data.pairs import resize, to_tensor
+from msdepth.errors import run_main
 from msdepth.io import claim_output_file, write_text
 from msdepth.optimum.solver import disparity_pyramid, level_sizes, objective, optimise, working_weight
 from msdepth.optimum.starts import start_disparity
@@ -218,4 +219,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run_main("studies/optimum_refine.py", main))

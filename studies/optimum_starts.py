@@ -37,6 +37,7 @@ import torch
 
 from msdepth.data.kitti import read_disparity, read_image
 from msdepth.data.pairs import resize, to_tensor
+from msdepth.errors import run_main
 from msdepth.io import claim_output_file, write_text
 from msdepth.optimum.cost_volume import cost_volume, matching_cost, winner_take_all
 from msdepth.optimum.sgbm import sgbm_disparity
@@ -205,4 +206,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run_main("studies/optimum_starts.py", main))

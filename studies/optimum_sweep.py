@@ -29,6 +29,7 @@ import pandas as pd
 
 from msdepth.config.params import apply_overrides, kernel_variant, params_from_dict, read_params_file
 from msdepth.data.kitti import KITTI_BASELINE
+from msdepth.errors import run_main
 from msdepth.evaluation.suites import Frame, depth_maps, evaluate_full, evaluate_roi
 from msdepth.render import render_frame, within_range
 
@@ -135,4 +136,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run_main("studies/optimum_sweep.py", main))

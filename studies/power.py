@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from msdepth.errors import MsdepthError
+from msdepth.errors import MsdepthError, run_main
 from msdepth.io import claim_output_file, write_text
 from msdepth.pipeline.paths import METRICS, run_name
 from msdepth.reporting.compare import load_suite_metrics
@@ -187,4 +187,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run_main("studies/power.py", main))

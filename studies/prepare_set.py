@@ -18,7 +18,7 @@ from pathlib import Path
 import yaml
 
 from msdepth.config.params import Params, apply_overrides, params_from_dict, read_params_file
-from msdepth.errors import MsdepthError
+from msdepth.errors import MsdepthError, run_main
 from msdepth.io import OutputPolicy, resolved, write_text
 from msdepth.render import generate
 
@@ -72,4 +72,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run_main("studies/prepare_set.py", main))

@@ -77,6 +77,7 @@ from msdepth.config.params import CompareConfig, EvalConfig, Params
 from msdepth.data import kitti, kitti2012
 from msdepth.data.annotations import KITTI2015_SIZE, gt_density, read_annotation
 from msdepth.data.pairs import resize, to_tensor
+from msdepth.errors import run_main
 from msdepth.evaluation.infer import network_disparity
 from msdepth.evaluation.metrics import compute_errors, median_scale, stereo_errors
 from msdepth.evaluation.suites import Frame, evaluate_roi
@@ -636,4 +637,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run_main("studies/real_pairs.py", main))

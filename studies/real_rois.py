@@ -25,7 +25,7 @@ import pandas as pd
 from msdepth.config.params import EvalConfig
 from msdepth.data import kitti
 from msdepth.data.annotations import gt_density, read_annotation
-from msdepth.errors import OutputError
+from msdepth.errors import OutputError, run_main
 from msdepth.evaluation.suites import Frame, evaluate_roi
 from msdepth.geometry.depth import disparity_to_depth
 from msdepth.io import OutputPolicy, output_file_policy, write_png, write_text
@@ -165,4 +165,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run_main("studies/real_rois.py", main))

@@ -27,6 +27,7 @@ from msdepth.config.params import load_params
 from msdepth.data import kitti
 from msdepth.data.eval_index import read_eval_index
 from msdepth.data.pairs import load_pair_list
+from msdepth.errors import run_main
 from msdepth.evaluation import baselines
 from msdepth.evaluation.suites import depth_maps, load_frames, read_depth_maps
 from msdepth.io import claim_output_file, write_text
@@ -105,4 +106,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run_main("studies/roi_errors.py", main))

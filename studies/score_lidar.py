@@ -20,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
+from msdepth.errors import run_main
 from msdepth.evaluation.metrics import compute_errors
 from msdepth.geometry.depth import clamp_depth
 from msdepth.studies.real_samples import MIN_DEPTH, lidar_gt
@@ -56,4 +57,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run_main("studies/score_lidar.py", main))

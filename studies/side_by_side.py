@@ -21,7 +21,7 @@ import numpy as np
 
 from msdepth.data.eval_index import read_eval_index
 from msdepth.data.kitti import read_image
-from msdepth.errors import DataError, OutputError
+from msdepth.errors import DataError, OutputError, run_main
 from msdepth.evaluation.suites import load_frames
 from msdepth.io import output_file_policy
 from msdepth.reporting.figures import write_figure
@@ -95,4 +95,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run_main("studies/side_by_side.py", main))

@@ -251,6 +251,8 @@ def test_objects_gpu_script_runs_tiny_on_the_cpu_without_matplotlib_or_dvclive(t
     assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-3000:]
     assert "ROI abs_rel per class" in proc.stdout and "| constant |" in proc.stdout
     assert (tmp_path / "out" / "ssim_seed0.json").is_file()
+    trained = yaml.safe_load((tmp_path / "work" / "params.yaml").read_text())["train"]
+    assert (trained["learning_rate"], trained["schedule"]) == (3.0e-4, "cosine")  # the screen's best recipe
     assert "no curves.png" in proc.stderr and not (tmp_path / "out" / "curves.png").exists()
 
 

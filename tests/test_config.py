@@ -116,7 +116,7 @@ def test_an_alias_bomb_is_refused_in_bounded_memory(tmp_path: Path):
 
 def test_unreadable_and_oversized_params_files(tmp_path: Path):
     (tmp_path / "folder.yaml").mkdir()
-    with pytest.raises(ConfigError, match=r"folder\.yaml: cannot read: Is a directory$"):
+    with pytest.raises(ConfigError, match=r"folder\.yaml: a folder, not a file$"):
         load_params(tmp_path / "folder.yaml")
     (tmp_path / "big.yaml").write_bytes(b"#" * (MAX_PARAMS_BYTES + 1))
     with pytest.raises(ConfigError, match=r"big\.yaml: file: larger than 1 MiB: not a params file$"):

@@ -77,7 +77,7 @@ def test_absent_values_and_other_keys() -> None:
 @pytest.mark.parametrize(
     ("content", "expected"),
     [
-        (None, "no such file"),
+        (None, "no such JSON file"),
         (b"{not json", "not JSON"),
         (b'{"rev": "workspace"}', "expected a list of revisions"),
         (b"\xff\xfe", "not UTF-8"),
@@ -101,7 +101,7 @@ def test_an_oversized_file_is_refused_before_parsing(
     path = tmp_path / "show.json"
     path.write_bytes(b"[" + b" " * 2048 + b"]")
     code, _, err = _run(capsys, "--json", str(path))
-    assert code == 1 and len(err) == 1 and "larger than" in err[0]
+    assert code == 1 and len(err) == 1 and "over the limit of 1,024 bytes for JSON files" in err[0]
 
 
 @pytest.mark.parametrize(
@@ -222,4 +222,4 @@ def test_a_fifo_or_a_folder_is_refused_without_blocking(
         code, out, err = _run(capsys, "--json", str(fifo))
     assert code == 1 and len(err) == 1 and "not a regular file" in err[0]
     code, out, err = _run(capsys, "--json", str(tmp_path))
-    assert code == 1 and len(err) == 1 and "is a folder" in err[0]
+    assert code == 1 and len(err) == 1 and "a folder, not a file" in err[0]

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import resource
 import struct
+import time
 from pathlib import Path
 
 import cv2
@@ -102,3 +103,50 @@ def test_a_jpeg_of_repeated_scans_under_the_count_bound_is_refused_as_corrupt(tm
     (tmp_path / "p.jpg").write_bytes(repeated_scans(50))
     with pytest.raises(DataError, match=r"p.jpg: image: corrupt JPEG \(libjpeg: Inconsistent progression"):
         kitti.read_image(tmp_path / "p.jpg")
+
+
+def _jpeg_after_its_frame_header(body: bytes) -> bytes:
+    """A JPEG's start, its frame header (a 1,000 x 1,000 px baseline frame), then ``body``."""
+    sof = b"\xff\xc0" + struct.pack(">HBHHB", 11, 8, 1000, 1000, 1) + b"\x01\x11\x00"
+    return b"\xff\xd8" + sof + body
+
+
+def _png_chunk(kind: bytes, data: bytes) -> bytes:
+    return struct.pack(">I", len(data)) + kind + data + b"\x00" * 4  # the walk reads no CRC
+
+
+def test_a_jpeg_of_more_markers_than_the_bound_is_refused_without_walking_them() -> None:
+    # Issue 56: a 73 MB 1 MP JPEG of empty comment segments (18 million markers) took 14 s to walk,
+    # to be refused by OpenCV; one marker more than the bound is refused by the walk.
+    comments = b"\xff\xfe\x00\x02" * imagefile.MAX_JPEG_MARKERS
+    with pytest.raises(DataError, match=r"^corrupt JPEG: more than 4,096 markers"):
+        imagefile.jpeg_size(_jpeg_after_its_frame_header(comments + b"\xff\xd9"))
+    # one fewer (the frame header is one) is walked to its end
+    fewer = comments[: 4 * (imagefile.MAX_JPEG_MARKERS - 2)]
+    assert imagefile.jpeg_size(_jpeg_after_its_frame_header(fewer + b"\xff\xd9")) == (1000, 1000)
+
+
+def test_a_png_of_more_chunks_than_the_bound_is_refused_without_walking_them() -> None:
+    # Issue 56: 72 MB of empty chunks (6 million) took 3.3 s to walk; the bound is one chunk a KiB of
+    # the file on average, plus 4,096.
+    ihdr = _png_chunk(b"IHDR", struct.pack(">IIBBBBB", 1000, 1000, 8, 0, 0, 0, 0))
+    chunks = _png_chunk(b"zzZz", b"") * (imagefile.PNG_CHUNKS_BASE + 100)
+    data = b"\x89PNG\r\n\x1a\n" + ihdr + chunks + _png_chunk(b"IEND", b"")
+    with pytest.raises(DataError, match=r"^corrupt PNG: more than 4,145 chunks"):
+        imagefile.png_size(data)
+    # image data in 8 KiB chunks, as libpng writes it: 8 times under the bound
+    idat = _png_chunk(b"IDAT", bytes(8192)) * 2000
+    assert imagefile.png_size(b"\x89PNG\r\n\x1a\n" + ihdr + idat + _png_chunk(b"IEND", b"")) == (1000, 1000)
+
+
+@pytest.mark.parametrize(
+    "body",
+    [b"\xff" * 16_000_000 + b"\xd9", b"\xff\xda\x00\x02" + b"\xff\x00" * 8_000_000 + b"\xff\xd9"],
+    ids=["fill-bytes", "stuffed-bytes-in-a-scan"],
+)
+def test_runs_of_0xff_are_searched_not_walked(body: bytes) -> None:
+    # 16 MB of fill bytes, or of 0xFF 0x00 in a scan: a Python loop over each 0xFF took seconds; the
+    # regex engine finds the next marker (the result is the same: the walk reaches the end).
+    started = time.perf_counter()
+    assert imagefile.jpeg_size(_jpeg_after_its_frame_header(body)) == (1000, 1000)
+    assert time.perf_counter() - started < 1.0

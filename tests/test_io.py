@@ -41,7 +41,7 @@ def test_failed_write_keeps_the_previous_file_and_leaves_no_temp(
         )
     else:
         monkeypatch.setattr(
-            io.np, "savez_compressed", lambda f, **a: (Path(f).write_bytes(b"PK"), _fail_midway())
+            np, "savez_compressed", lambda f, **a: (Path(f).write_bytes(b"PK"), _fail_midway())
         )
     with pytest.raises(OSError, match="No space left"):
         write()

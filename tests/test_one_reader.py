@@ -61,7 +61,7 @@ def test_no_entry_point_writes_a_file_around_the_atomic_writers() -> None:
         (b"focal_px: 700\nfocal_px: 800\nwidth_px: 1400\nbaseline_m: 0.1\n", "duplicate key"),
         (b"focal_px: &f 700\nwidth_px: *f\nbaseline_m: 0.1\n", "alias"),
         (b"focal_px: 7\xe90\nwidth_px: 1400\nbaseline_m: 0.1\n", "not a readable YAML camera file"),
-        (b"# " + b"x" * 70_000 + b"\nfocal_px: 1\n", "not a camera file"),
+        (b"# " + b"x" * 70_000 + b"\nfocal_px: 1\n", "over the limit of 65,536 bytes for camera files"),
         (b"focal_px: " + b"9" * 5000 + b"\nwidth_px: 1400\nbaseline_m: 0.1\n", "out of range"),
     ],
 )

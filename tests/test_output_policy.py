@@ -153,7 +153,26 @@ def _out_in_proc(args: list[str], source: Path, target: Path, file_out: bool) ->
     return args, "/proc/msdepth-test"
 
 
+def _out_is_the_root(args: list[str], source: Path, target: Path, file_out: bool) -> tuple[list[str], str]:
+    # Issue 56: predict and optimum listed their inputs, every one inside the output folder and so left
+    # out, then said "no images"; the policy refuses the root before any input is listed.
+    flag = "--to" if "--to" in args else "--out"
+    args[args.index(flag) + 1] = "/"
+    return args, "a folder" if file_out else "/: the filesystem root, not an output folder"
+
+
+def _out_holds_the_input(
+    args: list[str], source: Path, target: Path, file_out: bool
+) -> tuple[list[str], str]:
+    # the same inside any folder: its inputs were left out as outputs, then "no images"
+    flag = "--to" if "--to" in args else "--out"
+    args[args.index(flag) + 1] = str(source.parent)
+    return args, "a folder" if file_out else f"the output folder holds the input folder {source}"
+
+
 CASES = {
+    "out_is_the_root": _out_is_the_root,
+    "out_holds_an_input": _out_holds_the_input,
     "user_file_at_an_output_name": _user_file_at_output,
     "out_is_an_input": _out_is_the_input,
     "out_is_a_file_or_a_folder": _out_is_the_other_kind,
@@ -260,6 +279,18 @@ def test_a_policy_refuses_the_manifest_and_paths_leaving_the_folder(tmp_path: Pa
         with pytest.raises(OutputError, match="not a path msdepth predict may write"):
             policy.claim([path], "in.png")
     assert not (tmp_path / "out" / ".msdepth-predict").exists()
+
+
+def test_the_root_or_a_folder_holding_an_input_is_no_output_folder(tmp_path: Path) -> None:
+    # Issue 56: --out / for a study or a command; every path that resolves to the root counts.
+    (tmp_path / "in").mkdir()
+    (tmp_path / "up").symlink_to("/")
+    for root in ("/", tmp_path / "up", "/tmp/.."):
+        with pytest.raises(OutputError, match=r": the filesystem root, not an output folder"):
+            OutputPolicy(root, "learning")
+    with pytest.raises(OutputError, match=r": the output folder holds the input folder .*in, whose files"):
+        OutputPolicy(tmp_path, "predict", input_dirs=(tmp_path / "in",))
+    OutputPolicy(tmp_path / "in" / "out", "predict", input_dirs=(tmp_path / "in",))  # inside one: allowed
 
 
 def test_a_study_claims_its_one_file_or_refuses_in_one_line(

@@ -10,7 +10,7 @@ from typing import Callable, Sequence
 from msdepth.cli.experiments import experiments_command
 from msdepth.cli.optimum import optimum_command
 from msdepth.cli.options import camera_options
-from msdepth.errors import MsdepthError
+from msdepth.errors import MsdepthError, unexpected_error
 from msdepth.io import settle_outputs
 
 # A subcommand is a function that adds its parser with ``add_parser`` (the subparsers' own method:
@@ -193,6 +193,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 1
     except OSError as exc:  # a file system failure no check foresaw: still one line naming the path
         print(f"error: {exc.filename or ''}: {exc.strerror or exc}", file=sys.stderr)
+        return 1
+    except Exception as exc:  # a bug: one line naming the command, the traceback in a log file
+        line = unexpected_error(f"msdepth {args.command}", exc, list(argv or sys.argv[1:])[1:])
+        print(line, file=sys.stderr)
         return 1
     finally:
         settle_outputs()  # each output manifest lists only the files that were written

@@ -8,6 +8,10 @@ either complete under its final name or absent.
 The output policy (:class:`OutputPolicy`, :func:`output_file_policy`) decides what a command may
 write into a user's folder: never an input, and no existing file it did not write itself (its
 manifest lists those it did).
+
+Every reader of an input file opens it with :func:`open_regular` (or reads it whole with
+:func:`read_bounded`): a regular file only, its size checked against its kind's limit before any
+byte is read, each refusal one DataError naming the file.
 """
 
 from __future__ import annotations
@@ -25,11 +29,12 @@ import tempfile
 import threading
 import zlib
 from pathlib import Path, PurePosixPath
-from typing import Any, Callable, Iterator
-
-import numpy as np
+from typing import TYPE_CHECKING, Any, BinaryIO, Callable, Iterator
 
 from msdepth.errors import DataError, MsdepthError, OutputError
+
+if TYPE_CHECKING:  # numpy is imported by the writers that need it: the params reader opens its file
+    import numpy as np  # here (open_regular) and imports neither numpy nor torch (test_stages)
 
 
 def _file_mode() -> int:
@@ -145,6 +150,79 @@ def file_sha256(path: str | os.PathLike) -> str:
     return digest.hexdigest()
 
 
+# Bounded reading: every reader of an input file (images, PFM, .npy, Velodyne scans, calibration and
+# list files, JSON tables) opens it through open_regular, so each refusal below is written once.
+
+
+def _size_text(nbytes: int) -> str:
+    return f"{nbytes:,} bytes" if nbytes < 1 << 20 else f"{nbytes / 2**20:,.0f} MiB"
+
+
+def open_regular(
+    path: str | os.PathLike,
+    kind: str,
+    max_bytes: int | None = None,
+    *,
+    allow_empty: bool = False,
+    prefix: str | None = None,
+) -> BinaryIO:
+    """``path`` open for reading (binary), once it is known to be a regular file of at most
+    ``max_bytes`` (its size taken with fstat on the open file, before any byte is read) and, unless
+    ``allow_empty``, not empty.
+
+    Every refusal is one DataError, ``<path>: <problem>`` (``prefix`` replaces ``<path>: ``, for a
+    reader whose caller names the file): no such file, a folder, not a regular file (a FIFO, a
+    device or a socket: reading one could block forever or never end), a symbolic link loop or any
+    other error of the open, over ``max_bytes``, empty. ``kind`` names the file in it ("PFM").
+    """
+    head = f"{path}: " if prefix is None else prefix
+    try:  # O_NONBLOCK: opening a FIFO that no one writes returns at once, and fstat refuses it
+        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC)
+    except FileNotFoundError:
+        raise DataError(f"{head}no such {kind} file") from None
+    except OSError as exc:  # a symbolic link loop, a name too long, no permission
+        raise DataError(f"{head}cannot open this {kind} file ({exc.strerror or exc})") from None
+    info, problem = os.fstat(fd), None
+    if stat.S_ISDIR(info.st_mode):
+        problem = "a folder, not a file"
+    elif not stat.S_ISREG(info.st_mode):
+        problem = "not a regular file (a FIFO, a device or a socket); nothing was read"
+    elif max_bytes is not None and info.st_size > max_bytes:
+        problem = (
+            f"the file is {_size_text(info.st_size)}, over the limit of {_size_text(max_bytes)} for {kind} "
+            "files; nothing of it was read"
+        )
+    elif info.st_size == 0 and not allow_empty:
+        problem = f"the {kind} file is empty (0 bytes)"
+    if problem is not None:
+        os.close(fd)
+        raise DataError(head + problem)
+    os.set_blocking(fd, True)
+    return os.fdopen(fd, "rb")
+
+
+def read_bounded(
+    path: str | os.PathLike,
+    kind: str,
+    max_bytes: int,
+    *,
+    allow_empty: bool = False,
+    prefix: str | None = None,
+) -> bytes:
+    """The bytes of the regular file ``path``, of at most ``max_bytes`` (:func:`open_regular`, whose
+    refusals these are); a file that changed size while it was read is refused too."""
+    head = f"{path}: " if prefix is None else prefix
+    with open_regular(path, kind, max_bytes, allow_empty=allow_empty, prefix=prefix) as file:
+        size = os.fstat(file.fileno()).st_size
+        try:  # the size, not the limit, is asked for: read() allocates what it is asked for first
+            data = file.read(size + 1)
+        except OSError as exc:  # an I/O error: still one line naming the file
+            raise DataError(f"{head}cannot read this {kind} file ({exc.strerror or exc})") from None
+    if len(data) != size:
+        raise DataError(f"{head}the {kind} file changed size while it was read ({size:,} bytes before)")
+    return data
+
+
 # One filter for every row and a fixed deflate level: the bytes depend only on the pixels and
 # on zlib, not on the OpenCV/libpng build, so a rendered data tree hashes the same in DVC on
 # every machine (OpenCV's encoder changes its output between releases). Level 1: as fast as
@@ -164,6 +242,8 @@ def encode_png(image: np.ndarray) -> bytes:
     Deterministic: rows use PNG's "Up" filter (a row minus the row above, which suits smooth
     renders and 16-bit disparities alike) and deflate at a fixed level.
     """
+    import numpy as np
+
     if image.dtype not in (np.uint8, np.uint16) or not (
         image.ndim == 2 or (image.ndim == 3 and image.shape[2] == 3)
     ):
@@ -199,12 +279,16 @@ def write_png(path: str | os.PathLike, image: np.ndarray) -> None:
 
 def save_npy(path: str | os.PathLike, array: np.ndarray) -> None:
     """Write one array as ``.npy``, atomically."""
+    import numpy as np
+
     with atomic_path(path, suffix=".npy") as tmp:
         np.save(tmp, array)
 
 
 def save_npz(path: str | os.PathLike, **arrays: np.ndarray) -> None:
     """Write arrays to a compressed ``.npz`` atomically."""
+    import numpy as np
+
     with atomic_path(path, suffix=".npz") as tmp:
         np.savez_compressed(tmp, **arrays)
 
@@ -357,8 +441,9 @@ class OutputPolicy:
     The manifest lists a name only once its file is complete: a claim records it as pending, the
     rename of :func:`atomic_path` as written, and :meth:`settle` (at the end of the run) drops the
     pending ones never written and the names whose files are gone. ``inputs``: files never to
-    replace; ``input_dirs``: folders the output folder may not be. Raises OutputError (one line)
-    when ``out_dir`` is an input folder or not a folder, or its manifest is not one.
+    replace; ``input_dirs``: folders the output folder may not be or hold. Raises OutputError (one
+    line) when ``out_dir`` is the filesystem root, an input folder, holds one or is not a folder, or
+    its manifest is not one.
     """
 
     def __init__(
@@ -376,17 +461,35 @@ class OutputPolicy:
         self.created = False  # whether this run created the manifest
         check_output_folder(self.out_dir)
         out_resolved = resolved(self.out_dir)
-        for folder in input_dirs:
-            if Path(folder).is_dir() and out_resolved == resolved(folder):
-                raise OutputError(
-                    f"{self.out_dir}: the output folder is the input folder {folder}, whose files the "
-                    "outputs could replace and a later run would read as inputs; choose another output folder"
-                )
+        self._check_folder(out_resolved, input_dirs)
         entries = manifest_entries(self.manifest)
         self.ours = {name for name, written in entries if written}
         # A run killed mid-write left the temp of an output it had listed (written or pending):
         # remove those only.
         self._remove_temps({name for name, _ in entries}, out_resolved)
+
+    def _check_folder(self, out_resolved: Path, input_dirs: tuple[str | os.PathLike, ...]) -> None:
+        """OutputError (one line) when the output folder is the filesystem root, an input folder or
+        a folder holding one: checked before any input is listed, so that ``--out /`` is refused at
+        once (its inputs, all inside it, were left out as outputs: "no images", after the listing)."""
+        if out_resolved == Path(out_resolved.anchor):
+            raise OutputError(
+                f"{self.out_dir}: the filesystem root, not an output folder; choose a folder for the outputs"
+            )
+        for folder in input_dirs:
+            if not Path(folder).is_dir():
+                continue
+            folder_resolved = resolved(folder)
+            if out_resolved == folder_resolved:
+                raise OutputError(
+                    f"{self.out_dir}: the output folder is the input folder {folder}, whose files the "
+                    "outputs could replace and a later run would read as inputs; choose another output folder"
+                )
+            if folder_resolved.is_relative_to(out_resolved):
+                raise OutputError(
+                    f"{self.out_dir}: the output folder holds the input folder {folder}, whose files would "
+                    "be left out as outputs; choose an output folder outside it"
+                )
 
     def _name(self, path: Path) -> str:
         return path.relative_to(self.out_dir).as_posix()

@@ -24,7 +24,7 @@ from msdepth.config.params import Params, load_params
 from msdepth.data.imagefile import png_size
 from msdepth.data.kitti import kitti2015_paths
 from msdepth.data.layout import layout
-from msdepth.errors import DataError, MsdepthError
+from msdepth.errors import DataError, MsdepthError, unexpected_error
 from msdepth.io import OutputPolicy, atomic_path, settle_outputs, write_json
 from msdepth.pipeline.paths import model_path, run_name
 
@@ -121,6 +121,9 @@ def main(argv: list[str] | None = None) -> int:
         manifest = make_example(load_params(args.root / "params.yaml"), args.root)
     except (MsdepthError, OSError) as exc:
         print(f"error: {exc}", file=sys.stderr)
+        return 1
+    except Exception as exc:  # a bug: one line naming the command, the traceback in a log file
+        print(unexpected_error("msdepth.cli.example", exc, list(argv or sys.argv[1:])), file=sys.stderr)
         return 1
     finally:
         settle_outputs()  # docs/example/.msdepth-example lists only the files that were written

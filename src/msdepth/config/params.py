@@ -19,7 +19,8 @@ from msdepth.config.params_yaml import parse
 from msdepth.config.variants import (
     configs as variant_configs,  # light: the loss variants' configs, not their terms
 )
-from msdepth.errors import ConfigError
+from msdepth.errors import ConfigError, DataError
+from msdepth.io import open_regular
 
 # The ranges of the checks below that bound a value only so that it cannot fail later.
 SEED_MAX = 2**32 - 1  # numpy's legacy seeding (np.random.seed) takes seeds below 2^32
@@ -827,11 +828,11 @@ def read_params_file(path: str | os.PathLike = "params.yaml") -> dict:
     alias, duplicate key or long integer (:func:`msdepth.config.params_yaml.parse`), a mapping at the
     top level (empty file: ``{}``). Every refusal is one ConfigError naming the file."""
     path = Path(path)
-    try:
-        with path.open("rb") as file:
+    try:  # a regular file only (a FIFO blocked the read forever); its size is checked below
+        with open_regular(path, "params", allow_empty=True) as file:
             data = file.read(MAX_PARAMS_BYTES + 1)
-    except FileNotFoundError:
-        raise ConfigError(f"{path}: no such params file") from None
+    except DataError as exc:
+        raise ConfigError(str(exc)) from None
     except OSError as exc:
         raise ConfigError(f"{path}: cannot read: {exc.strerror or exc}") from None
     try:

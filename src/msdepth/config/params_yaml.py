@@ -17,6 +17,7 @@ import yaml
 
 from msdepth.config.checks import SHOWN_CHARS, check, shown
 from msdepth.errors import ConfigError, DataError
+from msdepth.io import read_bounded
 
 MAX_DEPTH = 16  # params.yaml nests 3 levels (data.kitti.drives[0]); deeper is not a params file
 MAX_INT_CHARS = 32  # any params integer fits 64 bits (19 digits); Python refuses over 4300 digits
@@ -72,16 +73,11 @@ def read_data_file(path: str | os.PathLike, what: str, missing: str) -> Any:
     """The data of a data set's small YAML file ``path`` (:func:`parse`'s bounds, at most
     :data:`MAX_DATA_FILE_BYTES`), or one DataError naming it: ``what`` it is (``camera file``),
     ``missing`` what to say when it does not exist."""
+    if not os.path.lexists(path):
+        raise DataError(f"{path}: {missing}")
+    data = read_bounded(path, what.removesuffix(" file"), MAX_DATA_FILE_BYTES, allow_empty=True)
     try:
-        with open(path, "rb") as file:
-            data = file.read(MAX_DATA_FILE_BYTES + 1)
-        if len(data) > MAX_DATA_FILE_BYTES:
-            raise DataError(f"{path}: larger than {MAX_DATA_FILE_BYTES} bytes: not a {what}")
         return parse(data.decode("utf-8"))
-    except FileNotFoundError:
-        raise DataError(f"{path}: {missing}") from None
-    except OSError as exc:
-        raise DataError(f"{path}: not a readable YAML {what} ({exc.strerror or exc})") from None
     except (UnicodeDecodeError, ConfigError) as exc:
         raise DataError(f"{path}: not a readable YAML {what} ({' '.join(str(exc).split())})") from None
 

@@ -15,14 +15,17 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
+from typing import BinaryIO
 
 import numpy as np
 
 from msdepth.config.params_yaml import read_data_file
 from msdepth.data import kitti, kitti2012
+from msdepth.data.imagefile import MAX_IMAGE_PIXELS, check_pixel_limit
 from msdepth.data.pfm import read_pfm
 from msdepth.errors import DataError
 from msdepth.geometry.depth import disparity_to_depth
+from msdepth.io import open_regular
 
 # The index's ``gt_kind`` column: what its ``gt`` file holds.
 GT_KINDS = {
@@ -35,6 +38,9 @@ GT_KINDS = {
     "npy_disparity": "NumPy .npy disparity in px (H, W); non-finite and <= 0 are invalid",
     "none": "no GT: every pixel invalid; the gt column names the frame's left image, for its size",
 }
+
+# The largest .npy GT read: float64 samples at the image pixel limit, with a header of up to 64 KiB.
+MAX_NPY_BYTES = 8 * MAX_IMAGE_PIXELS + (64 << 10)
 
 
 def _valid_or_zero(values: np.ndarray) -> np.ndarray:
@@ -49,19 +55,17 @@ def _disparity_depth(disp: np.ndarray, path: str | os.PathLike, focal: float, ba
     return disparity_to_depth(_valid_or_zero(disp), focal, baseline)
 
 
-def _npy_header(path: str | os.PathLike) -> tuple[tuple[int, ...], np.dtype]:
-    """Shape and dtype that a ``.npy`` header declares, checked against the file's size before any
-    array is allocated (a 128-byte header can declare terabytes): the data must be exactly that size."""
+def _npy_header(path: str | os.PathLike, f: BinaryIO) -> tuple[tuple[int, ...], np.dtype]:
+    """Shape and dtype that the ``.npy`` header of the open file ``f`` declares, checked against the
+    file's size and the image pixel limit before any array is allocated (a 128-byte header can
+    declare terabytes): the data must be exactly that size."""
     try:
-        with open(path, "rb") as f:
-            version = np.lib.format.read_magic(f)
-            read = (
-                np.lib.format.read_array_header_1_0
-                if version == (1, 0)
-                else np.lib.format.read_array_header_2_0
-            )
-            shape, _, dtype = read(f)
-            data_bytes = os.fstat(f.fileno()).st_size - f.tell()
+        version = np.lib.format.read_magic(f)
+        read = (
+            np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0
+        )
+        shape, _, dtype = read(f)
+        data_bytes = os.fstat(f.fileno()).st_size - f.tell()
     except (OSError, ValueError, SyntaxError) as exc:  # an .npz, a pickle or text named .npy: ValueError
         raise DataError(f"{path}: not a readable .npy array ({' '.join(str(exc).split())[:200]})") from None
     if len(shape) != 2 or not (np.issubdtype(dtype, np.floating) or np.issubdtype(dtype, np.integer)):
@@ -71,15 +75,23 @@ def _npy_header(path: str | os.PathLike) -> tuple[tuple[int, ...], np.dtype]:
         raise DataError(
             f"{path}: its header declares {dtype} {shape} ({needed} bytes) but it holds {data_bytes}"
         )
+    try:  # the pixels the GT map holds, as an image's (each becomes a float32 depth)
+        check_pixel_limit(shape[1], shape[0], MAX_IMAGE_PIXELS, "its .npy header")
+    except DataError as exc:
+        raise DataError(f"{path}: {exc}") from None
     return shape, dtype
 
 
 def _read_npy(path: str | os.PathLike) -> np.ndarray:
-    _npy_header(path)
-    try:
-        return np.load(path, allow_pickle=False)
-    except (OSError, ValueError) as exc:
-        raise DataError(f"{path}: not a readable .npy array ({exc})") from None
+    """A 2-D numeric GT array from a ``.npy`` file: a regular file of at most :data:`MAX_NPY_BYTES`
+    (:func:`msdepth.io.open_regular`), its header checked (:func:`_npy_header`) before its data is read."""
+    with open_regular(path, ".npy", MAX_NPY_BYTES) as f:
+        _npy_header(path, f)
+        f.seek(0)
+        try:
+            return np.lib.format.read_array(f, allow_pickle=False)
+        except (OSError, ValueError) as exc:
+            raise DataError(f"{path}: not a readable .npy array ({exc})") from None
 
 
 def read_gt_depth(

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import re
 import sys
 import tempfile
 import threading
@@ -34,6 +35,7 @@ import cv2
 import numpy as np
 
 from msdepth.errors import DataError, PixelLimitError
+from msdepth.io import open_regular
 
 # 120 million pixels: a 108-megapixel phone photo (12,000 x 9,000) fits; predict on one peaks at
 # about 4.3 GiB (measured, docs/user-guide.md "Security"). Raise it with read_image(max_pixels=...)
@@ -48,12 +50,23 @@ FILE_SLACK_BYTES = 64 * 2**20
 # progression has 10); libjpeg decodes each scan over the whole frame, so time grows with the count.
 MAX_JPEG_SCANS = 100
 JPEG_HEADER_MARKERS = 1024  # markers walked (by seeking, 4 bytes read each) to find the frame header
+# The markers a whole JPEG's walk visits (the scans' entropy-coded data is searched in C, not walked):
+# a real JPEG has tens (hundreds with 64 MiB of metadata in 64 KiB segments), and the header's walk
+# already stops at JPEG_HEADER_MARKERS; a 73 MB file of empty comment segments took 14 s to walk.
+MAX_JPEG_MARKERS = 4 * JPEG_HEADER_MARKERS
+# The chunks a PNG's walk visits: at most one per PNG_BYTES_PER_CHUNK of the file on average, plus
+# PNG_CHUNKS_BASE. Encoders write image data in chunks of 8 KiB (libpng) or more; 72 MB of empty
+# chunks (6 million) took 3.3 s.
+PNG_CHUNKS_BASE = 4096
+PNG_BYTES_PER_CHUNK = 1024
 _HEAD_BYTES = 64 * 1024  # read first: every header but a JPEG's or a TIFF's directory lies in it
 
 _PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 _JPEG_MAGIC = b"\xff\xd8"
 _JPEG_SOF = set(range(0xC0, 0xD0)) - {0xC4, 0xC8, 0xCC}  # frame headers (0xC4 etc. are tables)
 _JPEG_STANDALONE = set(range(0xD0, 0xD8)) | {0x01}  # RSTn and TEM: no length field
+_JPEG_FILL = re.compile(rb"\xff*")
+_JPEG_MARKER_AFTER_SCAN = re.compile(rb"\xff[^\x00\xd0-\xd7\xff]")
 _HEADER_LIMIT = 4096  # bytes of a PNM header searched for its size
 # libjpeg's warnings that the data is corrupt (it decodes on, with grey blocks or a wrong picture);
 # a repeated or out-of-order progressive scan is "Inconsistent progression sequence".
@@ -93,13 +106,16 @@ def _png_header_size(data: bytes) -> tuple[int, int]:
 
 
 def png_size(data: bytes) -> tuple[int, int]:
-    """(width, height) of a PNG after walking its chunks to IEND; DataError if they do not get there.
+    """(width, height) of a PNG after walking its chunks to IEND; DataError if they do not get there,
+    or if there are more than :data:`PNG_CHUNKS_BASE` plus one per :data:`PNG_BYTES_PER_CHUNK` bytes.
 
     Walking the chunk headers costs microseconds; OpenCV allocates a chunk's declared length first.
     """
     size = _png_header_size(data)
-    pos = len(_PNG_MAGIC)
-    while pos + 12 <= len(data):  # 4 length + 4 type + data + 4 CRC
+    pos, most = len(_PNG_MAGIC), PNG_CHUNKS_BASE + len(data) // PNG_BYTES_PER_CHUNK
+    for _ in range(most):
+        if pos + 12 > len(data):  # 4 length + 4 type + data + 4 CRC
+            break
         length, kind = _u32(data, pos), data[pos + 4 : pos + 8]
         if pos + 12 + length > len(data):
             raise DataError(
@@ -108,34 +124,35 @@ def png_size(data: bytes) -> tuple[int, int]:
         if kind == b"IEND":
             return size
         pos += 12 + length
+    else:
+        raise DataError(
+            f"corrupt PNG: more than {most:,} chunks (one a KiB of the file, plus {PNG_CHUNKS_BASE:,}) "
+            "before its end: refused, every chunk is walked"
+        )
     raise DataError(f"truncated PNG: no IEND chunk (the chunks stop at byte {pos})")
 
 
 def _jpeg_scan_end(data: bytes, pos: int) -> int:
-    """The position of the first marker after entropy-coded data starting at ``pos``."""
-    while True:
-        pos = data.find(b"\xff", pos)
-        if pos < 0 or pos + 1 >= len(data):
-            raise DataError("truncated JPEG (no end-of-image marker)")
-        follower = data[pos + 1]
-        if follower == 0x00 or 0xD0 <= follower <= 0xD7:  # stuffed 0xFF byte or restart marker
-            pos += 2
-        elif follower == 0xFF:  # fill byte before a marker
-            pos += 1
-        else:
-            return pos
+    """The position of the first marker after entropy-coded data starting at ``pos``: the first 0xFF
+    followed by neither 0x00 (a stuffed 0xFF byte), a restart marker 0xD0-0xD7 nor another 0xFF (a
+    fill byte), found by the regex engine (a Python loop over 0xFF bytes took seconds for megabytes)."""
+    found = _JPEG_MARKER_AFTER_SCAN.search(data, pos)
+    if found is None:
+        raise DataError("truncated JPEG (no end-of-image marker)")
+    return found.start()
 
 
 def jpeg_size(data: bytes) -> tuple[int, int]:
     """(width, height) of a JPEG's frame header, after walking its markers to the end-of-image marker.
 
     Bytes after that marker (a motion photo's video, MPF previews) are allowed and ignored; more
-    than :data:`MAX_JPEG_SCANS` scans (start-of-scan markers) are refused.
+    than :data:`MAX_JPEG_SCANS` scans (start-of-scan markers) or :data:`MAX_JPEG_MARKERS` markers
+    are refused.
     """
     pos, size, scans = 2, None, 0
-    while True:
-        while pos < len(data) and data[pos] == 0xFF and pos + 1 < len(data) and data[pos + 1] == 0xFF:
-            pos += 1  # fill bytes
+    for _ in range(MAX_JPEG_MARKERS):
+        fill = _JPEG_FILL.match(data, pos).end()  # fill bytes: a run of 0xFF, the last one the marker's
+        pos = max(pos, fill - 1)
         if pos + 2 > len(data):
             raise DataError("truncated JPEG (no end-of-image marker)")
         if data[pos] != 0xFF:
@@ -161,6 +178,10 @@ def jpeg_size(data: bytes) -> tuple[int, int]:
                     "about 20): refused, its decoding time grows with every scan"
                 )
         pos = _jpeg_scan_end(data, end) if marker == 0xDA else end
+    raise DataError(
+        f"corrupt JPEG: more than {MAX_JPEG_MARKERS:,} markers (real JPEGs have at most a few hundred): "
+        "refused, every marker is walked"
+    )
 
 
 def _pnm_size(data: bytes) -> tuple[int, int]:
@@ -319,7 +340,8 @@ def read_file(path: str | os.PathLike, max_pixels: int = MAX_IMAGE_PIXELS) -> by
     size it declares against ``max_pixels``, and the file's size against :func:`max_file_bytes` of
     the declared pixels. Only then the whole file, which :func:`decode` walks again.
     """
-    with open(path, "rb") as file:
+    # the bound is checked below, as a PixelLimitError that names the option raising it
+    with open_regular(path, "image", prefix="") as file:
         size = os.fstat(file.fileno()).st_size
         if size > max_file_bytes(max_pixels):
             raise PixelLimitError(
@@ -415,7 +437,7 @@ def file_pixels(path: str | os.PathLike) -> int:
     """The pixels an image file's header declares (:func:`header_size`), 0 if it cannot be read: a
     plan's estimate only; the file is checked in full when it is read."""
     try:
-        with open(path, "rb") as file:
+        with open_regular(path, "image", prefix="") as file:
             width, height = header_size(file)
     except (OSError, DataError):
         return 0

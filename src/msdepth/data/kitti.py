@@ -19,7 +19,7 @@ import pandas as pd
 from msdepth.data import imagefile
 from msdepth.data.imagefile import MAX_IMAGE_PIXELS
 from msdepth.errors import DataError
-from msdepth.io import atomic_path, write_png, write_text
+from msdepth.io import atomic_path, read_bounded, write_png, write_text
 
 # Monodepth's width -> focal table (px) for the four KITTI raw image widths, and its baseline (m).
 WIDTH_TO_FOCAL: dict[int, float] = {1242: 721.5377, 1241: 718.856, 1224: 707.0493, 1238: 718.3351}
@@ -30,6 +30,14 @@ ROI_COLUMNS = ("image", "class", "x0", "y0", "x1", "y1")
 
 PathLike = str | os.PathLike
 
+# What each text or binary reader here reads at most (:func:`msdepth.io.read_bounded`), far above
+# KITTI's own files: a calibration file is ~5 KB (a 600 MB one took 1.5 GB to refuse), a Velodyne
+# scan ~2 MB (about 120,000 points; the bound is 2 million), a split list ~3 MB (the bound: a
+# million lines of 64 bytes, data.synthetic's most frames).
+MAX_CALIB_BYTES = 1 << 20
+MAX_VELODYNE_BYTES = 32 << 20
+MAX_LIST_BYTES = 64 << 20
+
 
 def _decode(
     path: PathLike, what: str, flags: int = cv2.IMREAD_UNCHANGED, max_pixels: int = MAX_IMAGE_PIXELS
@@ -38,11 +46,9 @@ def _decode(
     (the file's size and header checked before its body is read), then :func:`imagefile.decode`.
     ``IMREAD_UNCHANGED`` keeps the depth and channels."""
     path = Path(path)
-    if not path.is_file():
+    if not os.path.lexists(path):
         raise DataError(f"{path}: no such {what} file")
-    if path.stat().st_size == 0:
-        raise DataError(f"{path}: {what} file is empty (0 bytes)")
-    try:
+    try:  # a folder, a FIFO, an empty or oversized file: read_file's one line
         return imagefile.decode(imagefile.read_file(path, max_pixels), flags, max_pixels)
     except DataError as exc:
         raise type(exc)(f"{path}: {what}: {exc}") from None
@@ -147,13 +153,13 @@ def read_calib(path: PathLike) -> dict[str, np.ndarray]:
 
     Reads both the raw-data ``calib_cam_to_cam.txt`` (``P_rect_02``, ``S_rect_02``, ...) and the
     object-benchmark ``calib.txt`` (``P2``, ``P3``, ...). Non-numeric entries such as
-    ``calib_time`` are skipped. Matrices stay flat (row-major); reshape as needed.
+    ``calib_time`` are skipped. Matrices stay flat (row-major); reshape as needed. Only a regular
+    file of at most :data:`MAX_CALIB_BYTES` is read (:func:`msdepth.io.read_bounded`).
     """
     path = Path(path)
-    if not path.is_file():
-        raise DataError(f"{path}: no such calibration file")
     calib: dict[str, np.ndarray] = {}
-    for line in path.read_text(errors="replace").splitlines():
+    text = read_bounded(path, "calibration", MAX_CALIB_BYTES).decode("utf-8", errors="replace")
+    for line in text.splitlines():
         key, sep, values = line.partition(":")
         if not sep or not key.strip():
             continue
@@ -220,12 +226,10 @@ def read_velodyne(path: PathLike) -> np.ndarray:
     """Read a KITTI Velodyne scan (``velodyne_points/data/*.bin``): float32 ``(N, 4)`` x, y, z, reflectance.
 
     x points forward, y left, z up (metres). A size that is not a whole number of 16-byte points
-    means a truncated or foreign file, which would otherwise shift every later point's fields.
+    means a truncated or foreign file, which would otherwise shift every later point's fields. Only
+    a regular file of at most :data:`MAX_VELODYNE_BYTES` is read (:func:`msdepth.io.read_bounded`).
     """
-    path = Path(path)
-    if not path.is_file():
-        raise DataError(f"{path}: no such Velodyne scan file")
-    data = path.read_bytes()
+    data = read_bounded(path, "Velodyne scan", MAX_VELODYNE_BYTES, allow_empty=True)  # a scan of no points
     if len(data) % 16:
         raise DataError(
             f"{path}: Velodyne scan is {len(data)} bytes, not a multiple of 16 (4 float32 per point)"
@@ -358,10 +362,10 @@ def list_lines(path: PathLike, missing: str) -> Iterator[tuple[int, str, list[st
     """``(line number, line, its whitespace-separated fields)`` of every non-blank line of a
     UTF-8 list file; ``missing`` is the error's text when the file does not exist."""
     path = Path(path)
-    if not path.is_file():
+    if not os.path.lexists(path):
         raise DataError(f"{path}: {missing}")
     try:
-        text = path.read_bytes().decode("utf-8")
+        text = read_bounded(path, "list", MAX_LIST_BYTES, allow_empty=True).decode("utf-8")
     except UnicodeDecodeError as exc:
         raise DataError(f"{path}: not a UTF-8 text file ({exc.reason} at byte {exc.start})") from None
     for number, line in enumerate(text.splitlines(), start=1):

@@ -18,8 +18,9 @@ from pathlib import Path
 
 import numpy as np
 
+from msdepth.data.imagefile import MAX_IMAGE_PIXELS
 from msdepth.errors import DataError
-from msdepth.io import atomic_path
+from msdepth.io import atomic_path, open_regular
 
 # Three whitespace-separated header fields after the magic; "\r\n" (Windows line ends) or one other
 # whitespace byte ends the scale, then the samples start (a binary sample may itself look like
@@ -29,6 +30,9 @@ from msdepth.io import atomic_path
 HEADER_LIMIT = 256
 _WHITESPACE = b" \t\r\n\x0b\x0c"
 _INTEGER = re.compile(rb"\d{1,9}")
+# The largest PFM read: a one-channel map at the image pixel limit (a three-channel one up to a third
+# of it); reading one takes twice its size (the samples, then the top-row-first copy).
+MAX_PFM_BYTES = 4 * MAX_IMAGE_PIXELS + HEADER_LIMIT + 2
 _SCALE = re.compile(rb"[-+]?[0-9]*\.?[0-9]+(?:[eE][-+]?[0-9]+)?")
 
 
@@ -61,13 +65,30 @@ def _header(data: bytes) -> tuple[bytes, int, int, float, int] | None:
 def read_pfm(path: str | os.PathLike) -> np.ndarray:
     """The samples of a PFM file as float32, top row first: ``(H, W)`` for ``Pf``, ``(H, W, 3)``
     for ``PF``. A malformed file, or a body not exactly width x height x channels float32 (short or
-    with trailing bytes), is a DataError naming it; "\\r\\n" may end the header."""
+    with trailing bytes), is a DataError naming it; "\\r\\n" may end the header.
+
+    Bounded: only a regular file of at most :data:`MAX_PFM_BYTES` is opened
+    (:func:`msdepth.io.open_regular`), its header is read first, and the body only once the file's
+    size is exactly what the header declares (a 1 GiB sparse PFM took 4.1 GB to refuse)."""
     path = Path(path)
     try:
-        data = path.read_bytes()
+        with open_regular(path, "PFM", MAX_PFM_BYTES) as file:
+            size = os.fstat(file.fileno()).st_size
+            head = file.read(HEADER_LIMIT + 1)  # the header and the byte after its end, for "\r\n"
+            shape, dtype, start = _checked_header(path, head, size)
+            file.seek(start)
+            body = np.empty(4 * int(np.prod(shape)), np.uint8)
+            if file.readinto(body) != body.size:
+                raise DataError(f"{path}: truncated PFM: the file shrank while it was read")
     except OSError as exc:
         raise DataError(f"{path}: cannot read the PFM file ({exc.strerror or exc})") from None
-    header = _header(data)
+    return np.ascontiguousarray(body.view(dtype).reshape(shape)[::-1], dtype=np.float32)
+
+
+def _checked_header(path: Path, head: bytes, size: int) -> tuple[tuple[int, ...], str, int]:
+    """(shape, sample dtype, offset of the samples) of a PFM whose first bytes are ``head`` and whose
+    size is ``size``; DataError unless the header is well formed and the samples fill the rest exactly."""
+    header = _header(head)
     if header is None:
         raise DataError(
             f"{path}: not a PFM file (expects 'PF' or 'Pf', width height, scale within its first "
@@ -82,16 +103,16 @@ def read_pfm(path: str | os.PathLike) -> np.ndarray:
     count = width * height * channels
     # "\r\n" is always the line end: a lone "\r" before a sample starting with byte 0x0a is then one
     # byte short and refused, where the other reading would shift every sample of a cut CRLF file.
-    body = data[end + 2 :] if data[end : end + 2] == b"\r\n" else data[end + 1 :]
-    if len(body) != 4 * count:
-        what = "truncated PFM" if len(body) < 4 * count else "PFM with trailing bytes"
+    start = end + 2 if head[end : end + 2] == b"\r\n" else end + 1
+    body = size - start
+    if body != 4 * count:
+        what = "truncated PFM" if body < 4 * count else "PFM with trailing bytes"
         raise DataError(
             f"{path}: {what}: {width}x{height}x{channels} float32 need exactly {4 * count} bytes, "
-            f"the file has {len(body)} after its header"
+            f"the file has {body} after its header"
         )
-    samples = np.frombuffer(body, dtype="<f4" if scale < 0 else ">f4", count=count)
     shape = (height, width) if channels == 1 else (height, width, 3)
-    return np.ascontiguousarray(samples.reshape(shape)[::-1]).astype(np.float32)
+    return shape, "<f4" if scale < 0 else ">f4", start
 
 
 def write_pfm(path: str | os.PathLike, image: np.ndarray, *, little_endian: bool = True) -> None:

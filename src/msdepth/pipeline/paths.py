@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import Annotated, Callable
 
 from msdepth.config.params import Params, load_params
-from msdepth.errors import ConfigError, MsdepthError
+from msdepth.errors import ConfigError, MsdepthError, unexpected_error
 
 log = logging.getLogger("msdepth")
 
@@ -242,8 +242,9 @@ def run_stage(fn: Callable[..., None], *args: str, params_path: str | os.PathLik
     Before the stage runs, the temp files that a stage killed mid-write left under
     :data:`STAGE_OUTPUT_ROOTS` are removed (only names of :func:`msdepth.io.atomic_path`'s form).
 
-    Returns the exit code: 0 (also for ``--help``, which runs nothing), 1 for the project's errors,
-    2 for a usage error.
+    Returns the exit code: 0 (also for ``--help``, which runs nothing), 1 for the project's errors
+    and for any other exception (one line naming the stage, its traceback in a log file:
+    :func:`msdepth.errors.unexpected_error`), 2 for a usage error.
     """
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)s", stream=sys.stderr)
     try:
@@ -262,6 +263,9 @@ def run_stage(fn: Callable[..., None], *args: str, params_path: str | os.PathLik
         fn(load_params(params_path), *positional, **parsed)
     except MsdepthError as exc:
         print(f"error: {exc}", file=sys.stderr)
+        return 1
+    except Exception as exc:  # a bug: one line naming the stage, the traceback in a log file
+        print(unexpected_error(f"stage {fn.__name__}", exc, args), file=sys.stderr)
         return 1
     log.info(
         "%s%s done in %.1f s",

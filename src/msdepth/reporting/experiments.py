@@ -14,13 +14,13 @@ import importlib.util
 import json
 import os
 import shutil
-import stat
 import subprocess
 import sys
 from dataclasses import dataclass, field
 from typing import Any, Sequence
 
 from msdepth.errors import DataError
+from msdepth.io import read_bounded
 from msdepth.pipeline.paths import mean_path
 
 MAX_JSON_BYTES = 64 << 20  # dvc exp show --json of ten experiments is about 150 KB
@@ -66,22 +66,10 @@ def _first_sentence(exc: Exception) -> str:
 
 
 def read_json(path: str | os.PathLike) -> list:
-    """The revisions of a saved ``dvc exp show --json`` output, read at most :data:`MAX_JSON_BYTES`
-    (plus one byte, to tell a larger file) before parsing (:func:`parse_json`); only a regular file
-    (a FIFO would block the read forever)."""
-    try:  # O_NONBLOCK: opening a FIFO with no writer returns at once, and fstat then refuses it
-        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK)
-    except FileNotFoundError:
-        raise DataError(f"{path}: no such file") from None
-    except OSError as exc:
-        raise DataError(f"{path}: cannot read: {exc.strerror or exc}") from None
-    if not stat.S_ISREG(os.fstat(fd).st_mode):
-        os.close(fd)
-        kind = "a folder" if os.path.isdir(path) else "not a regular file (a FIFO, a device)"
-        raise DataError(f"{path}: is {kind}, not a file")
-    with os.fdopen(fd, "rb") as file:
-        data = file.read(MAX_JSON_BYTES + 1)
-    return parse_json(data, str(path))
+    """The revisions of a saved ``dvc exp show --json`` output: a regular file of at most
+    :data:`MAX_JSON_BYTES` (:func:`msdepth.io.read_bounded`: a FIFO would block the read forever, a
+    larger file is refused before it is read), parsed by :func:`parse_json`."""
+    return parse_json(read_bounded(path, "JSON", MAX_JSON_BYTES, allow_empty=True), str(path))
 
 
 def dvc_command() -> list[str]:
