@@ -27,7 +27,7 @@ import torch
 from _timing import compare, device_from, table
 
 from msdepth.config.params import Params, load_params
-from msdepth.training.train import host_sync_interval, train_variant
+from msdepth.training.train import TrainOptions, TrainOutputs, host_sync_interval, train_variant
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -100,10 +100,8 @@ def training_run(
                 run_params,
                 variant,
                 pairs,
-                Path(tmp) / "model.pt",
-                Path(tmp) / "ck.pt",
-                progress=False,
-                cache=cache,
+                TrainOutputs(Path(tmp) / "model.pt", Path(tmp) / "ck.pt"),
+                TrainOptions(progress=False, cache=cache),
             )
 
     return train

@@ -31,7 +31,7 @@ def train(params: Params, variant: VariantArg, seed: SeedArg) -> None:
     from msdepth.evaluation.pose import add_pose_metrics
     from msdepth.training import distributed
     from msdepth.training.run import monocular_sequences, result_line
-    from msdepth.training.train import train_variant, trained_pose_net
+    from msdepth.training.train import TrainOptions, TrainOutputs, train_variant, trained_pose_net
 
     run = checked_run(params, variant, seed)
     if distributed.must_relaunch(params.train.launcher):  # its ranks come back here
@@ -44,16 +44,20 @@ def train(params: Params, variant: VariantArg, seed: SeedArg) -> None:
         params,
         variant,
         pairs,
-        model_path(run),
-        checkpoint_path(run),
-        live_dir=train_plots_dir(run),
-        cache=images,
-        seed=params.seed(seed),
-        summary_path=train_summary_path(run),
-        timing_path=train_timing_path(run),
-        sequences=sequences,
-        # The pretrained stage's hash: the fingerprint's, so that a resume never reads the weights.
-        pretrained_sha256=recorded_sha256(params.model.pretrained, PRETRAINED),
+        TrainOutputs(
+            model_path(run),
+            checkpoint_path(run),
+            live_dir=train_plots_dir(run),
+            summary_path=train_summary_path(run),
+            timing_path=train_timing_path(run),
+        ),
+        TrainOptions(
+            cache=images,
+            seed=params.seed(seed),
+            sequences=sequences,
+            # The pretrained stage's hash: the fingerprint's, so that a resume never reads the weights.
+            pretrained_sha256=recorded_sha256(params.model.pretrained, PRETRAINED),
+        ),
     )
     if sequences is not None and distributed.is_main_process():  # a monocular run: its pose net too
         net = trained_pose_net(params, checkpoint_path(run))

@@ -160,7 +160,7 @@ def _final_depth(model_path: Path, params: Params, ev: EvalSet, threads: int) ->
 
 def run_one(base: dict, spec: str, seed: int, out: str, threads: int) -> dict:
     """Train and evaluate one (variant spec, seed); the result is also written to ``out``."""
-    from msdepth.training.train import train_variant
+    from msdepth.training.train import TrainOptions, TrainOutputs, train_variant
 
     out_dir = Path(out)
     name = run_name(spec, seed)
@@ -180,12 +180,8 @@ def run_one(base: dict, spec: str, seed: int, out: str, threads: int) -> dict:
         params,
         variant,
         pairs,
-        work / "model.pt",
-        work / "ck.pt",
-        progress=False,
-        cache=cache,
-        seed=seed,
-        on_epoch=_epoch_recorder(params, ev, history),
+        TrainOutputs(work / "model.pt", work / "ck.pt"),
+        TrainOptions(progress=False, cache=cache, seed=seed, on_epoch=_epoch_recorder(params, ev, history)),
     )
     seconds = time.perf_counter() - started
     pred = _final_depth(work / "model.pt", params, ev, threads)

@@ -165,7 +165,7 @@ def diagnose(
     """Train ``variant`` / ``seed`` for at least ``steps`` steps, scoring every ``every`` on ``ev``."""
     import torch
 
-    from msdepth.training.train import train_variant
+    from msdepth.training.train import TrainOptions, TrainOutputs, train_variant
 
     torch.set_num_threads(threads)
     raw = json.loads(json.dumps(base))
@@ -185,12 +185,8 @@ def diagnose(
         params,
         variant,
         pairs,
-        work / "model.pt",
-        work / "ck.pt",
-        progress=False,
-        cache=cache,
-        seed=seed,
-        on_epoch=on_epoch,
+        TrainOutputs(work / "model.pt", work / "ck.pt"),
+        TrainOptions(progress=False, cache=cache, seed=seed, on_epoch=on_epoch),
     )
     return history
 

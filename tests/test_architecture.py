@@ -23,6 +23,8 @@ from msdepth.networks.resnet_depth import DepthDecoder, ResNetMonodepth
 from msdepth.networks.serialization import load_weights_file
 from msdepth.networks.vgg import MonodepthVGG
 from msdepth.training.train import (
+    TrainOptions,
+    TrainOutputs,
     build_model,
     build_pose_net,
     load_model,
@@ -137,7 +139,13 @@ def test_pretrained_loads_into_every_resnet_encoder_of_the_run(tmp_path: Path) -
 
 def test_stereo_training_writes_a_resnet18_model_file_that_loads(pairs, tmp_path: Path) -> None:
     params = _params()
-    train_variant(params, "msssim", pairs, tmp_path / "m.pt", tmp_path / "ck.pt", progress=False)
+    train_variant(
+        params,
+        "msssim",
+        pairs,
+        TrainOutputs(tmp_path / "m.pt", tmp_path / "ck.pt"),
+        TrainOptions(progress=False),
+    )
     model, meta = load_model(tmp_path / "m.pt")
     assert isinstance(model, ResNetMonodepth) and meta["architecture"] == "resnet18"
     x = torch.rand(1, 3, H, W)
@@ -155,9 +163,8 @@ def test_monocular_training_with_resnet18(tmp_path: Path) -> None:
     render.generate(params.data.synthetic, root, progress=False, workers=1, lidar=False)
     entries = sequences.read_mono_split(root / MONO_SPLIT)
     samples = sequences.index_sequences(root / "raw", entries, stereo=False).samples
-    result = train_variant(
-        params, "ssim", [], tmp_path / "m.pt", tmp_path / "ck.pt", progress=False, sequences=samples
-    )
+    outputs = TrainOutputs(tmp_path / "m.pt", tmp_path / "ck.pt")
+    result = train_variant(params, "ssim", [], outputs, TrainOptions(progress=False, sequences=samples))
     assert result.steps > 0
     model, meta = load_model(tmp_path / "m.pt")
     assert isinstance(model, ResNetMonodepth) and meta["architecture"] == "resnet18"

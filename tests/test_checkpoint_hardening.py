@@ -13,7 +13,7 @@ from msdepth.config.params import Params, params_from_dict
 from msdepth.errors import MsdepthError
 from msdepth.networks.resnet import ResNetEncoder, load_pretrained
 from msdepth.networks.serialization import load_weights_file, save_weights_file
-from msdepth.training.train import TrainingError, train_variant
+from msdepth.training.train import TrainingError, TrainOptions, TrainOutputs, train_variant
 
 H, W = 32, 64
 
@@ -33,7 +33,9 @@ def _params() -> Params:
 def checkpoint(pairs, tmp_path_factory: pytest.TempPathFactory) -> Path:
     """The checkpoint of a complete one-epoch run."""
     tmp = tmp_path_factory.mktemp("run")
-    train_variant(_params(), "ssim", pairs, tmp / "model.pt", tmp / "ck.pt", progress=False)
+    train_variant(
+        _params(), "ssim", pairs, TrainOutputs(tmp / "model.pt", tmp / "ck.pt"), TrainOptions(progress=False)
+    )
     return tmp / "ck.pt"
 
 
@@ -83,7 +85,7 @@ def test_a_malformed_checkpoint_is_one_line_naming_it(
     torch.save(state, bad)  # not save_weights_file: that refuses NaN weights
     model = tmp_path / "model.pt"
     with pytest.raises(TrainingError) as err:
-        train_variant(_params(), "ssim", pairs, model, bad, progress=False)
+        train_variant(_params(), "ssim", pairs, TrainOutputs(model, bad), TrainOptions(progress=False))
     message = str(err.value)
     assert "\n" not in message and message.startswith(f"{bad}: ") and expected in message, message
     assert "delete it to train this run anew" in message

@@ -48,12 +48,13 @@ CHILD = textwrap.dedent("""
     import sys
     from pathlib import Path
     sys.path.insert(0, {tests!r})
-    from msdepth.training.train import train_variant
+    from msdepth.training.train import TrainOptions, TrainOutputs, train_variant
     from test_train import _params
     pairs = [tuple(Path(p) for p in line.split()) for line in Path({pair_file!r}).read_text().splitlines()]
     out = Path({out!r})
     params = _params("learned", batch_size=2, nproc=2, launcher="torchrun", dist_timeout_s=60)
-    train_variant(params, "msssim", pairs, out / "model.pt", out / "ck.pt", progress=False)
+    outputs = TrainOutputs(out / "model.pt", out / "ck.pt")
+    train_variant(params, "msssim", pairs, outputs, TrainOptions(progress=False))
 """)
 
 
@@ -107,7 +108,8 @@ CRASH = textwrap.dedent("""
     pairs = [tuple(Path(p) for p in line.split()) for line in Path({pair_file!r}).read_text().splitlines()]
     out = Path({out!r})
     train_mod.train_variant(_params(batch_size=2, nproc=2, dist_timeout_s=30), "ssim", pairs,
-                            out / "model.pt", out / "ck.pt", progress=False)
+                            train_mod.TrainOutputs(out / "model.pt", out / "ck.pt"),
+                            train_mod.TrainOptions(progress=False))
 """)
 
 

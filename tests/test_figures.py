@@ -18,7 +18,7 @@ from msdepth.evaluation.results import SUITES
 from msdepth.evaluation.suites import load_frames
 from msdepth.pipeline import paths as pipeline
 from msdepth.render import generate
-from msdepth.reporting.figures import FIGURES, make_figures, roi_examples
+from msdepth.reporting.figures import FIGURES, FigureInputs, make_figures, roi_examples
 
 VARIANTS = ["ssim", "msssim"]
 RUNS = {v: f"{v}/seed0" for v in VARIANTS}  # label -> run, as the figures stage passes them
@@ -93,9 +93,7 @@ def test_every_figure_is_a_png_and_no_temp_file_is_left(tree: Path, tmp_path: Pa
     written = make_figures(
         RUNS,
         out,
-        **_paths(tree),
-        metrics=tree / "metrics",
-        train_plots=tree / "plots/train",
+        inputs=FigureInputs(**_paths(tree), metrics=tree / "metrics", train_plots=tree / "plots/train"),
         eval_cfg=_eval_cfg(),
     )
     assert written == [out / name for name in FIGURES]
@@ -112,9 +110,7 @@ def test_one_variant_gives_no_scatter(tree: Path, tmp_path: Path):
     written = make_figures(
         {"msssim": RUNS["msssim"]},
         tmp_path,
-        **_paths(tree),
-        metrics=tree / "metrics",
-        train_plots=tree / "plots/train",
+        inputs=FigureInputs(**_paths(tree), metrics=tree / "metrics", train_plots=tree / "plots/train"),
         eval_cfg=_eval_cfg(),
         frames=1,
     )
@@ -150,7 +146,10 @@ def test_missing_tsv_is_one_data_error_naming_it(tree: Path, tmp_path: Path):
     out = tmp_path / "figs"
     with pytest.raises(DataError, match=str(missing)):
         make_figures(
-            RUNS, out, **_paths(tree), metrics=tree / "metrics", train_plots=plots, eval_cfg=_eval_cfg()
+            RUNS,
+            out,
+            inputs=FigureInputs(**_paths(tree), metrics=tree / "metrics", train_plots=plots),
+            eval_cfg=_eval_cfg(),
         )
     assert not out.exists() or not any(out.iterdir())  # inputs are checked before any figure is drawn
 
@@ -164,9 +163,7 @@ def test_missing_depth_maps_is_a_data_error_naming_them(tree: Path, tmp_path: Pa
         make_figures(
             RUNS,
             tmp_path / "figs",
-            **paths,
-            metrics=tree / "metrics",
-            train_plots=tree / "plots/train",
+            inputs=FigureInputs(**paths, metrics=tree / "metrics", train_plots=tree / "plots/train"),
             eval_cfg=_eval_cfg(),
         )
 
@@ -189,11 +186,8 @@ def test_training_curves_draw_every_seed_and_name_a_missing_one(tree: Path, tmp_
     make_figures(
         RUNS,
         tmp_path / "figs",
-        **_paths(tree),
-        metrics=tree / "metrics",
-        train_plots=plots,
+        inputs=FigureInputs(**_paths(tree), metrics=tree / "metrics", train_plots=plots, curves=curves),
         eval_cfg=_eval_cfg(),
-        curves=curves,
     )
     for labels in drawn["training_curves.png"]:  # per panel: 2 ssim seeds, 1 msssim; one legend entry each
         assert len(labels) == 3 and labels.count("ssim (2 seeds)") == 1 and labels.count("msssim") == 1
@@ -203,11 +197,8 @@ def test_training_curves_draw_every_seed_and_name_a_missing_one(tree: Path, tmp_
         make_figures(
             RUNS,
             tmp_path / "figs2",
-            **_paths(tree),
-            metrics=tree / "metrics",
-            train_plots=plots,
+            inputs=FigureInputs(**_paths(tree), metrics=tree / "metrics", train_plots=plots, curves=curves),
             eval_cfg=_eval_cfg(),
-            curves=curves,
         )
 
 
@@ -232,9 +223,7 @@ def test_sparse_gt_shows_the_densest_roi_of_each_class(tree: Path, tmp_path: Pat
     written = make_figures(
         RUNS,
         tmp_path / "figs",
-        **_paths(sparse),
-        metrics=sparse / "metrics",
-        train_plots=sparse / "plots/train",
+        inputs=FigureInputs(**_paths(sparse), metrics=sparse / "metrics", train_plots=sparse / "plots/train"),
         eval_cfg=_eval_cfg(),
     )
     assert [p.name for p in written] == list(FIGURES)
@@ -261,9 +250,7 @@ def test_disparity_figure_shows_the_gt_and_outlines_cars_and_windshields(
     make_figures(
         RUNS,
         tmp_path / "figs",
-        **_paths(tree),
-        metrics=tree / "metrics",
-        train_plots=tree / "plots/train",
+        inputs=FigureInputs(**_paths(tree), metrics=tree / "metrics", train_plots=tree / "plots/train"),
         eval_cfg=_eval_cfg(),
     )
     panels = drawn[0]

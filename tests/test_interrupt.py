@@ -37,7 +37,8 @@ CHILD = textwrap.dedent("""
         real_save(obj, f, *a, **k)
     torch.save = save
     out = Path({out!r})
-    train_mod.train_variant(_params(epochs=3), "ssim", pairs, out / "model.pt", out / "ck.pt", progress=False)
+    outputs = train_mod.TrainOutputs(out / "model.pt", out / "ck.pt")
+    train_mod.train_variant(_params(epochs=3), "ssim", pairs, outputs, train_mod.TrainOptions(progress=False))
     print("FINISHED", flush=True)
 """)
 

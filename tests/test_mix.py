@@ -19,7 +19,7 @@ from msdepth.losses.appearance import build_appearance, terms
 from msdepth.losses.appearance.mix import MixAppearance, gaussian_l1
 from msdepth.losses.monodepth import MonodepthLoss
 from msdepth.losses.ssim import ms_ssim, reference_ssim_terms
-from msdepth.training.train import load_model, train_variant
+from msdepth.training.train import TrainOptions, TrainOutputs, load_model, train_variant
 
 
 def _rand(*shape: int, seed: int = 0) -> torch.Tensor:
@@ -153,9 +153,8 @@ def test_the_pipeline_trains_mix(tmp_path, pairs) -> None:
     assert isinstance(build_appearance(params, "mix"), MixAppearance)
     weights = []
     for run in ("a", "b"):
-        result = train_variant(
-            params, "mix", pairs, tmp_path / run / "model.pt", tmp_path / run / "ck.pt", progress=False
-        )
+        outputs = TrainOutputs(tmp_path / run / "model.pt", tmp_path / run / "ck.pt")
+        result = train_variant(params, "mix", pairs, outputs, TrainOptions(progress=False))
         assert result.steps == 4 and all(np.isfinite(v) for v in result.final_losses.values())
         model, meta = load_model(tmp_path / run / "model.pt")
         assert meta["variant"] == "mix"
@@ -163,9 +162,8 @@ def test_the_pipeline_trains_mix(tmp_path, pairs) -> None:
     assert all(torch.equal(weights[0][k], weights[1][k]) for k in weights[0])
     # Resumed only by the same mix section: another alpha trains anew.
     other = params_from_dict({**raw, "mix": {"levels": 3, "alpha": 0.5}})
-    again = train_variant(
-        other, "mix", pairs, tmp_path / "a" / "model.pt", tmp_path / "a" / "ck.pt", progress=False
-    )
+    outputs = TrainOutputs(tmp_path / "a" / "model.pt", tmp_path / "a" / "ck.pt")
+    again = train_variant(other, "mix", pairs, outputs, TrainOptions(progress=False))
     assert again.resumed_from_epoch == 0
 
 

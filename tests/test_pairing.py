@@ -18,7 +18,7 @@ import msdepth.training.train as train_mod
 from msdepth.config.params import params_from_dict
 from msdepth.reporting.compare import pairing_status
 from msdepth.training.pairing import PAIRING_KEYS, tensors_sha256
-from msdepth.training.train import load_model, train_variant
+from msdepth.training.train import TrainOptions, TrainOutputs, load_model, train_variant
 
 H, W = 32, 64
 VARIANTS = ("ssim", "msssim", "mix")
@@ -57,11 +57,8 @@ def _first_step(monkeypatch, params, pairs, tmp: Path, variant: str, seed: int =
         params,
         variant,
         pairs,
-        out / "m.pt",
-        out / "ck.pt",
-        progress=False,
-        seed=seed,
-        summary_path=out / "s.json",
+        TrainOutputs(out / "m.pt", out / "ck.pt", summary_path=out / "s.json"),
+        TrainOptions(progress=False, seed=seed),
     )
     seen["record"] = json.loads((out / "s.json").read_text())["pairing"]
     return seen
@@ -97,9 +94,21 @@ def test_recording_the_pairing_leaves_the_trained_weights_unchanged(
     params = _params()
     (tmp_path / "a").mkdir()
     (tmp_path / "b").mkdir()
-    train_variant(params, "ssim", pairs, tmp_path / "a" / "m.pt", tmp_path / "a" / "ck.pt", progress=False)
+    train_variant(
+        params,
+        "ssim",
+        pairs,
+        TrainOutputs(tmp_path / "a" / "m.pt", tmp_path / "a" / "ck.pt"),
+        TrainOptions(progress=False),
+    )
     monkeypatch.setattr(train_mod, "_pairing", lambda *a: {})
-    train_variant(params, "ssim", pairs, tmp_path / "b" / "m.pt", tmp_path / "b" / "ck.pt", progress=False)
+    train_variant(
+        params,
+        "ssim",
+        pairs,
+        TrainOutputs(tmp_path / "b" / "m.pt", tmp_path / "b" / "ck.pt"),
+        TrainOptions(progress=False),
+    )
     a, b = (load_model(tmp_path / x / "m.pt")[0].state_dict() for x in "ab")
     assert tensors_sha256(sorted(a.items())) == tensors_sha256(sorted(b.items()))
 

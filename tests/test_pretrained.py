@@ -21,7 +21,14 @@ from msdepth.io import file_sha256
 from msdepth.networks.resnet import ResNetEncoder
 from msdepth.pipeline.paths import PRETRAINED, run_stage
 from msdepth.pipeline.pretrained import recorded_sha256, write_record
-from msdepth.training.train import TrainingError, build_model, load_pretrained_encoders, train_variant
+from msdepth.training.train import (
+    TrainingError,
+    TrainOptions,
+    TrainOutputs,
+    build_model,
+    load_pretrained_encoders,
+    train_variant,
+)
 
 # A resnet18 run that may load torchvision weights (ResNet-18's width; sides multiples of 32).
 RESNET = {"data": {"height": 64, "width": 64}, "model": {"architecture": "resnet18", "width_multiplier": 1.0}}
@@ -157,9 +164,8 @@ def test_a_fresh_run_loads_the_weights_and_a_resume_never_reads_them(pairs, tmp_
         raise KeyboardInterrupt  # killed right after the first epoch's checkpoint
 
     def train(**kwargs):
-        return train_variant(
-            params, "ssim", pairs, tmp_path / "m.pt", tmp_path / "ck.pt", progress=False, **kwargs
-        )
+        outputs = TrainOutputs(tmp_path / "m.pt", tmp_path / "ck.pt")
+        return train_variant(params, "ssim", pairs, outputs, TrainOptions(progress=False, **kwargs))
 
     monkeypatch.setattr(train_mod, "save_checkpoint", save_then_die)
     with pytest.raises(KeyboardInterrupt):

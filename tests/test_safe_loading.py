@@ -27,7 +27,7 @@ from msdepth.io import write_png
 from msdepth.networks.serialization import load_weights_file
 from msdepth.networks.vgg import MonodepthVGG
 from msdepth.pipeline.paths import run_stage
-from msdepth.training.train import TrainingError, load_model, train_variant
+from msdepth.training.train import TrainingError, TrainOptions, TrainOutputs, load_model, train_variant
 
 ROOT = Path(__file__).resolve().parents[1]
 H, W = PAIR_H, PAIR_W  # the size of conftest.py's training pairs
@@ -152,7 +152,7 @@ def test_training_refuses_to_resume_a_poisoned_checkpoint(pairs, tmp_path: Path)
     marker, checkpoint, model = tmp_path / "ran", tmp_path / "ck.pt", tmp_path / "model.pt"
     torch.save({"fingerprint": Touch(marker), "epoch": 1}, checkpoint)
     with pytest.raises(TrainingError) as err:
-        train_variant(params, "ssim", pairs, model, checkpoint, progress=False)
+        train_variant(params, "ssim", pairs, TrainOutputs(model, checkpoint), TrainOptions(progress=False))
     message = _one_line(str(err.value))
     assert message.startswith(f"{checkpoint}: refused to load: the file needs code to be unpickled")
     assert "checkpoint file written by msdepth" in message and "delete it to train this run anew" in message
@@ -160,7 +160,10 @@ def test_training_refuses_to_resume_a_poisoned_checkpoint(pairs, tmp_path: Path)
     assert checkpoint.exists()  # left for inspection, not overwritten
 
     checkpoint.unlink()
-    assert train_variant(params, "ssim", pairs, model, checkpoint, progress=False).resumed_from_epoch == 0
+    result = train_variant(
+        params, "ssim", pairs, TrainOutputs(model, checkpoint), TrainOptions(progress=False)
+    )
+    assert result.resumed_from_epoch == 0
     assert load_weights_file(checkpoint, what="checkpoint")["epoch"] == 1
     assert load_model(model)[1]["variant"] == "ssim"
 

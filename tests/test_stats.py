@@ -12,6 +12,7 @@ from msdepth.config.params import CompareConfig
 from msdepth.errors import DataError
 from msdepth.evaluation.metrics import METRICS
 from msdepth.reporting.compare import (
+    ComparisonInputs,
     build_comparison,
     comparison_data,
     image_dependence,
@@ -122,7 +123,9 @@ def test_compare_reports_intervals_and_marks_clear_differences() -> None:
             for r in ("ssim", "msssim", "noise")
         },
     }
-    result, md = build_comparison(comparison_data(suites, ["ssim", "msssim"], ["noise"], stats))
+    result, md = build_comparison(
+        comparison_data(suites, ["ssim", "msssim"], ["noise"], ComparisonInputs(stats=stats))
+    )
     assert result["statistics"] is stats
     assert "Difference to ssim (30 paired images)" in md and "Difference to ssim (30 paired ROIs)" in md
     # One seed: the interval covers the images only, so even a clear difference is not marked.
@@ -162,7 +165,9 @@ def test_differences_are_marked_only_over_at_least_three_seeds() -> None:
             "roi": {g: {"cap80": {"overall": {**block, "count": 30}, "by_class": {}}} for g in groups},
             "gradients": {g: grad for g in groups},
         }
-        _, md = build_comparison(comparison_data(suites, ["ssim", "msssim"], ["prior"], stats, seeds=seeds))
+        _, md = build_comparison(
+            comparison_data(suites, ["ssim", "msssim"], ["prior"], ComparisonInputs(seeds=seeds, stats=stats))
+        )
         assert ("| msssim | -0.0500 [" in md) and ("] * |" in md) == marked, md
         # The baseline is deterministic: its mark needs only the reference's seeds.
         assert bool(re.search(r"\| prior \| \+0\.19\d\d \[[^]]+\] \*", md)) == marked
@@ -200,7 +205,9 @@ def test_an_image_blind_run_is_flagged_in_words() -> None:
         },
     }
     result, md = build_comparison(
-        comparison_data(suites, ["ssim", "msssim"], ["prior"], dependence=dependence, groups=groups)
+        comparison_data(
+            suites, ["ssim", "msssim"], ["prior"], ComparisonInputs(dependence=dependence, groups=groups)
+        )
     )
     assert "| msssim (image-blind) |" in md and "| ssim |" in md
     assert (
@@ -339,10 +346,12 @@ def test_comparison_of_several_seeds_says_so_and_shows_the_spread() -> None:
     entry = {m: {"mean": 0.3, "sd": 0.0125, "runs": {}} for m in METRICS}
     spread = {s: {"cap80": {"ssim": entry, "msssim": entry}} for s in ("full", "roi")}
     result, md = build_comparison(
-        comparison_data(suites, ["ssim", "msssim"], [], None, spread, seeds=[0, 1, 2])
+        comparison_data(suites, ["ssim", "msssim"], [], ComparisonInputs(seeds=[0, 1, 2], spread=spread))
     )
     assert "mean of 3 training runs (seeds 0, 1, 2)" in md
     assert md.count("Seed-to-seed spread") == 2 and "| msssim | 0.3000 ± 0.0125 |" in md
     assert result["seeds"] == [0, 1, 2] and result["seed_spread"] is spread
-    _, one = build_comparison(comparison_data(suites, ["ssim", "msssim"], [], None, spread, seeds=[0]))
+    _, one = build_comparison(
+        comparison_data(suites, ["ssim", "msssim"], [], ComparisonInputs(seeds=[0], spread=spread))
+    )
     assert "Seed-to-seed" not in one and "One training run per variant (seed 0)" in one

@@ -14,7 +14,14 @@ import torch
 import msdepth.training.train as train_mod
 from msdepth.config.params import Params, params_from_dict
 from msdepth.networks.vgg import MonodepthVGG
-from msdepth.training.train import TrainingError, learning_rate, load_model, train_variant
+from msdepth.training.train import (
+    TrainingError,
+    TrainOptions,
+    TrainOutputs,
+    learning_rate,
+    load_model,
+    train_variant,
+)
 
 H, W = 32, 64
 
@@ -35,9 +42,8 @@ def _weights(path: Path) -> dict[str, torch.Tensor]:
 
 
 def _train(params: Params, pairs, tmp: Path, variant: str = "ssim"):
-    return train_variant(
-        params, variant, pairs, tmp / "model.pt", tmp / "ck.pt", progress=False, live_dir=tmp / "live"
-    )
+    outputs = TrainOutputs(tmp / "model.pt", tmp / "ck.pt", live_dir=tmp / "live")
+    return train_variant(params, variant, pairs, outputs, TrainOptions(progress=False))
 
 
 def _curves(live: Path) -> dict[str, list]:
@@ -294,12 +300,13 @@ def test_each_seed_is_its_own_repeatable_run(pairs, tmp_path: Path) -> None:
             params,
             "ssim",
             pairs,
-            tmp_path / name / "model.pt",
-            tmp_path / name / "ck.pt",
-            progress=False,
-            seed=seed,
-            summary_path=tmp_path / name / "summary.json",
-            timing_path=tmp_path / name / "timing.json",
+            TrainOutputs(
+                tmp_path / name / "model.pt",
+                tmp_path / name / "ck.pt",
+                summary_path=tmp_path / name / "summary.json",
+                timing_path=tmp_path / name / "timing.json",
+            ),
+            TrainOptions(progress=False, seed=seed),
         )
     a, b, c = (_weights(tmp_path / n / "model.pt") for n in "abc")
     assert all(torch.equal(a[k], b[k]) for k in a)  # the same seed: bit-identical on CPU ...

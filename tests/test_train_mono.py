@@ -14,7 +14,7 @@ from msdepth.config.params import SyntheticConfig, params_from_dict
 from msdepth.data import sequences
 from msdepth.data.layout import MONO_SPLIT, layout
 from msdepth.errors import DataError, MsdepthError
-from msdepth.training.train import load_model, train_variant
+from msdepth.training.train import TrainOptions, TrainOutputs, load_model, train_variant
 
 H, W = 64, 192  # the pose network's ResNet-18 needs sides of 64 px or more
 RENDER = {"seed": 3, "drives": 1, "train_pairs": 6, "eval_frames": 1, "height": 64, "width": 192}
@@ -53,11 +53,8 @@ def test_trains_and_writes_the_model_and_summary(raw: Path, tmp_path: Path, mode
         params,
         "ssim",
         [],
-        tmp_path / "model.pt",
-        tmp_path / "ck.pt",
-        progress=False,
-        summary_path=summary,
-        sequences=samples,
+        TrainOutputs(tmp_path / "model.pt", tmp_path / "ck.pt", summary_path=summary),
+        TrainOptions(progress=False, sequences=samples),
     )
     assert result.steps == 4
     losses = json.loads(summary.read_text())["final_losses"]
@@ -72,9 +69,8 @@ def test_loss_decreases_over_steps(raw: Path, tmp_path: Path) -> None:
     """On the same batch again and again (batch = the whole set), the loss goes down."""
     samples = _samples(raw, False)[:2]
     params = _params("mono", epochs=6, batch_size=2, learning_rate=1e-3)
-    train_variant(
-        params, "ssim", [], tmp_path / "m.pt", tmp_path / "ck.pt", progress=False, sequences=samples
-    )
+    outputs = TrainOutputs(tmp_path / "m.pt", tmp_path / "ck.pt")
+    train_variant(params, "ssim", [], outputs, TrainOptions(progress=False, sequences=samples))
     history = torch.load(tmp_path / "ck.pt", weights_only=True)["history"]
     totals = [entry["total"] for entry in history]
     assert totals[-1] < totals[0], totals
@@ -88,17 +84,16 @@ def test_same_params_same_bytes(raw: Path, tmp_path: Path) -> None:
             _params("mono_stereo", augment=True),
             "ssim",
             [],
-            tmp_path / run / "m.pt",
-            tmp_path / run / "ck.pt",
-            progress=False,
-            sequences=samples,
+            TrainOutputs(tmp_path / run / "m.pt", tmp_path / run / "ck.pt"),
+            TrainOptions(progress=False, sequences=samples),
         )
     assert (tmp_path / "a" / "m.pt").read_bytes() == (tmp_path / "b" / "m.pt").read_bytes()
 
 
 def test_mono_without_sequences_is_one_error(tmp_path: Path) -> None:
+    outputs = TrainOutputs(tmp_path / "m.pt", tmp_path / "ck.pt")
     with pytest.raises(MsdepthError, match="train.mode mono trains on frame sequences"):
-        train_variant(_params("mono"), "ssim", [], tmp_path / "m.pt", tmp_path / "ck.pt", progress=False)
+        train_variant(_params("mono"), "ssim", [], outputs, TrainOptions(progress=False))
 
 
 def test_the_layout_names_the_rendered_split(raw: Path, tmp_path: Path) -> None:

@@ -590,35 +590,60 @@ def _roi_masks(
     return masks, {"rois": first["rois"], "excluded_rois": first["excluded_rois"]}
 
 
+@dataclass(frozen=True)
+class ComparisonInputs:
+    """The seeds and optional tables of :func:`comparison_data`; a table left None leaves its
+    section out.
+
+    - ``seeds``: the training seeds each variant's numbers average.
+    - ``stats`` (:func:`paired_statistics`): each full-image and ROI table is followed by the
+      differences to the reference variant with their bootstrap intervals.
+    - ``spread`` (:func:`seed_spread`), with more than one seed: each variant's mean ± sd over seeds.
+    - ``dependence`` (:func:`image_dependence`, per run) and ``groups`` (variant -> its runs; None:
+      each run its own): a section says for every run whether it uses the image, and image-blind
+      runs are flagged in the tables.
+    - ``missing_baselines`` (baseline -> why it could not be built, e.g. no training GT): named
+      under the header, so that a table without them is not mistaken for complete.
+    - ``optimum`` (:func:`optimum_data`): the losses' own optimum, no network.
+    - ``settings`` (:func:`variant_settings`): the header states every variant's, and a row names
+      its variant's settings that differ from the defaults.
+    - ``monocular`` (:func:`monocular_data`): scale ratios and pose ATE.
+    """
+
+    seeds: Sequence[int] = (0,)
+    stats: dict | None = None
+    spread: dict | None = None
+    dependence: dict[str, dict] | None = None
+    groups: dict[str, Sequence[str]] | None = None
+    missing_baselines: dict[str, str] | None = None
+    optimum: dict | None = None
+    settings: dict[str, dict] | None = None
+    monocular: dict[str, dict] | None = None
+
+
 def comparison_data(
     suites: dict[str, dict[str, dict]],
     variants: Sequence[str],
     baselines: Sequence[str],
-    stats: dict | None = None,
-    spread: dict | None = None,
-    seeds: Sequence[int] = (0,),
-    dependence: dict[str, dict] | None = None,
-    groups: dict[str, Sequence[str]] | None = None,
-    missing_baselines: dict[str, str] | None = None,
-    optimum: dict | None = None,
-    settings: dict[str, dict] | None = None,
-    monocular: dict[str, dict] | None = None,
+    inputs: ComparisonInputs | None = None,
 ) -> Comparison:
     """What ``compare.md`` shows, as a :class:`Comparison` (best variant per column in bold).
 
-    ``suites`` holds each variant's metrics averaged over its ``seeds`` (:func:`group_metrics`).
-    With ``stats`` (from :func:`paired_statistics`), each full-image and ROI table is followed
-    by the differences to the reference variant with their bootstrap intervals; with ``spread``
-    (:func:`seed_spread`) and more than one seed, by each variant's mean ± sd over seeds. With
-    ``dependence`` (:func:`image_dependence`, per run) and ``groups`` (variant -> its runs), a
-    section says for every run whether it uses the image, and image-blind runs are flagged in
-    the tables. ``missing_baselines`` (baseline -> why it could not be built, e.g. no training
-    GT) are named under the header, so that a table without them is not mistaken for complete.
-    Without ROIs (every ROI summary is :data:`msdepth.evaluation.suites.NO_ROIS`'s) the ROI and gradient
-    tables are replaced by one line, :data:`ROIS_SKIPPED`. With ``settings``
-    (:func:`variant_settings`) the header states every variant's, and a row names its variant's
-    settings that differ from the defaults.
+    Without ROIs (every ROI summary is :data:`msdepth.evaluation.suites.NO_ROIS`'s) the ROI and
+    gradient tables are replaced by one line, :data:`ROIS_SKIPPED`.
+
+    Args:
+        suites: each run's metrics per suite, a variant's averaged over its seeds
+            (:func:`group_metrics`).
+        variants: the loss variants compared.
+        baselines: the image-blind baselines built.
+        inputs: the seeds and the optional tables (:class:`ComparisonInputs`); None: one seed (0)
+            and no optional section.
+
+    Returns:
+        The comparison, for :func:`build_comparison`.
     """
+    extra = inputs if inputs is not None else ComparisonInputs()
     runs = [*variants, *baselines]
     caps = [k for k in suites["full"][runs[0]] if k.startswith("cap")]
     skipped = all(NO_ROIS in suites["roi"][r] for r in runs)
@@ -626,21 +651,21 @@ def comparison_data(
     return Comparison(
         variants=list(variants),
         baselines=list(baselines),
-        seeds=list(seeds),
+        seeds=list(extra.seeds),
         full=_by_cap(suites["full"], runs, caps),
         roi={} if skipped else _by_cap(suites["roi"], runs, caps),
         gradients={} if skipped else _by_cap(suites["gradients"], runs, caps),
-        groups=groups or {r: [r] for r in runs},
-        missing_baselines=dict(missing_baselines) if missing_baselines else None,
-        statistics=stats,
-        image_dependence=dependence,
-        seed_spread=spread,
+        groups=extra.groups or {r: [r] for r in runs},
+        missing_baselines=dict(extra.missing_baselines) if extra.missing_baselines else None,
+        statistics=extra.stats,
+        image_dependence=extra.dependence,
+        seed_spread=extra.spread,
         rois_skipped=suites["roi"][runs[0]][NO_ROIS] if skipped else None,
         roi_masks=masks,
         mask_counts=counts,
-        optimum=optimum,
-        settings=settings,
-        monocular=monocular,
+        optimum=extra.optimum,
+        settings=extra.settings,
+        monocular=extra.monocular,
         images={r: suites["full"][r]["images"] for r in runs if "images" in suites["full"][r]},
     )
 

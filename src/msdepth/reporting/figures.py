@@ -19,7 +19,7 @@ Files written to ``out_dir`` by :func:`make_figures`:
     Both ROI figures are left out when the ROI index is empty (a stereo folder without boxes).
 ``training_curves.png``
     Total and appearance loss per epoch of every variant (of each of its seeds, given
-    ``curves``), from the dvclive TSVs.
+    :attr:`FigureInputs.curves`), from the dvclive TSVs.
 ``error_scatter.png``
     Per-image abs rel (cap ``caps[0]``) of each other variant against the reference variant
     (``ssim`` if present, else the first); only written when there are two or more variants.
@@ -565,34 +565,58 @@ def _scatter_figure(runs: dict[str, str], metrics: Path, cap: float, path: Path)
 # ---------------------------------------------------------------------------------------------
 
 
+@dataclass(frozen=True)
+class FigureInputs:
+    """Where :func:`make_figures` reads (by default the pipeline's paths), and whose training curves
+    it draws.
+
+    - ``eval_index``, ``rois``: the evaluation index and the ROI index.
+    - ``outputs``, ``metrics``, ``train_plots``: the folders holding each run's disparities and
+      depth maps, its metrics per suite, and its dvclive curves.
+    - ``curves``: the runs whose training curves to draw per label (e.g. every seed's); None:
+      each label's own run.
+    """
+
+    eval_index: Path = EVAL_FRAMES
+    rois: Path = ROIS
+    outputs: Path = OUTPUTS
+    metrics: Path = METRICS
+    train_plots: Path = TRAIN_PLOTS
+    curves: Mapping[str, Sequence[str]] | None = None
+
+
 def make_figures(
     variants: Sequence[str] | Mapping[str, str],
     out_dir: Path,
     *,
-    eval_index: Path = EVAL_FRAMES,
-    rois: Path = ROIS,
-    outputs: Path = OUTPUTS,
-    metrics: Path = METRICS,
-    train_plots: Path = TRAIN_PLOTS,
     eval_cfg: EvalConfig,
+    inputs: FigureInputs | None = None,
     frames: int = 3,
-    curves: Mapping[str, Sequence[str]] | None = None,
 ) -> list[Path]:
     """Write the figures listed in the module docstring to ``out_dir``; returns their paths.
-
-    ``variants``: the runs to draw, as names or as ``{label: run}`` (e.g. ``{"ssim": "ssim/seed0"}``)
-    where the run is the path below ``outputs``, ``metrics/<suite>`` and ``train_plots``.
-    ``curves``: the runs whose training curves to draw per label (e.g. every seed's); default
-    each label's own run.
 
     Run from the project root: the evaluation index names images and GT relative to it, as
     every pipeline stage does. Each PNG is written atomically. A missing or malformed input raises one
     :class:`~msdepth.errors.DataError` naming the file; every input is read before the first
     figure is drawn, so a missing file leaves no figure half-made.
+
+    Args:
+        variants: the runs to draw, as names or as ``{label: run}`` (e.g. ``{"ssim": "ssim/seed0"}``)
+            where the run is the path below ``outputs``, ``metrics/<suite>`` and ``train_plots``.
+        out_dir: the folder the PNGs go to.
+        eval_cfg: the evaluation's caps and depth range.
+        inputs: where the inputs are and whose training curves to draw (:class:`FigureInputs`);
+            None: the pipeline's paths, each label's own run.
+        frames: the evaluation frames (rows) of ``disparity.png``.
+
+    Returns:
+        The paths of the figures written, in the order drawn.
     """
+    where = inputs if inputs is not None else FigureInputs()
+    curves, metrics, train_plots = where.curves, where.metrics, where.train_plots
     out_dir = Path(out_dir)
     cap = eval_cfg.caps[0]
-    inp = _load(variants, eval_index, rois, outputs, eval_cfg)
+    inp = _load(variants, where.eval_index, where.rois, where.outputs, eval_cfg)
     examples = _roi_examples(inp) if not inp.rois.empty else []  # no ROIs: no ROI figures
     # Read the remaining inputs up front too (cheap): a missing TSV or CSV fails before drawing.
     curve_runs = {v: list(curves[v]) if curves and v in curves else [run] for v, run in inp.runs.items()}
@@ -770,7 +794,10 @@ def pipeline_figures(
     """
     groups = variant_runs(params)
     paths = make_figures(
-        {v: runs[0] for v, runs in groups.items()}, Path(out_dir), eval_cfg=params.eval, curves=groups
+        {v: runs[0] for v, runs in groups.items()},
+        Path(out_dir),
+        eval_cfg=params.eval,
+        inputs=FigureInputs(curves=groups),
     )
     summaries = read_cost_curves(cost_curves, params.variants)
     paths.append(cost_curve_figure(summaries, Path(out_dir) / COST_CURVES_FIGURE))

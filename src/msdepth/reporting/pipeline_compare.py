@@ -28,6 +28,7 @@ from msdepth.pipeline.paths import (
     variant_runs,
 )
 from msdepth.reporting.compare import (
+    ComparisonInputs,
     build_comparison,
     build_set_section,
     comparison_data,
@@ -91,15 +92,17 @@ def compare(params: Params) -> None:
         group_metrics(suites, groups),
         list(params.variants),
         built,
-        stats,
-        seed_spread({s: suites[s] for s in compared}, groups, caps),
-        params.train.seeds,
-        dependence,
-        groups,
-        missing_baselines=missing,
-        optimum=optimum_section(params, groups, compared),
-        settings=variant_settings(params),
-        monocular=monocular_data(suites["full"], load_training_summaries(runs), groups, caps[0]),
+        ComparisonInputs(
+            seeds=params.train.seeds,
+            stats=stats,
+            spread=seed_spread({s: suites[s] for s in compared}, groups, caps),
+            dependence=dependence,
+            groups=groups,
+            missing_baselines=missing,
+            optimum=optimum_section(params, groups, compared),
+            settings=variant_settings(params),
+            monocular=monocular_data(suites["full"], load_training_summaries(runs), groups, caps[0]),
+        ),
     )
     result, md = build_comparison(comparison)
     result["verdict"] = verdict_section(params, groups, compared, pairing)

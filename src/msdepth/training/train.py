@@ -74,6 +74,45 @@ class TrainResult:
     final_losses: dict[str, float]
 
 
+@dataclass(frozen=True)
+class TrainOutputs:
+    """Where :func:`train_variant` writes: the final weights (``model_path``), the checkpoint it
+    writes after every epoch and resumes from (``checkpoint_path``), and, each only where given,
+    dvclive's per-epoch losses (``live_dir``), the training summary (``summary_path``: steps, final
+    losses, what the same params reproduce) and its timing (``timing_path``: seconds, examples/s,
+    the epoch it resumed from, what varies between machines and interruptions)."""
+
+    model_path: str | os.PathLike
+    checkpoint_path: str | os.PathLike
+    live_dir: str | os.PathLike | None = None
+    summary_path: str | os.PathLike | None = None
+    timing_path: str | os.PathLike | None = None
+
+
+@dataclass(frozen=True, eq=False)
+class TrainOptions:
+    """What :func:`train_variant` may be given beyond the params: every field optional.
+
+    - ``progress``: show a progress bar per epoch.
+    - ``cache``: the pairs already resized (:func:`msdepth.data.pairs.build_pair_cache`); None:
+      every sample is decoded and resized from the pairs.
+    - ``seed``: the training seed; None: the first of ``train.seeds``.
+    - ``on_epoch(epoch, model, mean_losses)``: called after each epoch trained in the call (epochs
+      count from 1), e.g. to evaluate the network as it learns.
+    - ``sequences``: the monocular modes' frame sequences (``train.mode`` mono or mono_stereo).
+    - ``pretrained_sha256``: ``model.pretrained``'s content hash, for the fingerprint (the train
+      stage's is the ``pretrained`` stage's record); None: the file is hashed by the run, so that
+      even a resume needs it (see :func:`_resume_or_start`).
+    """
+
+    progress: bool = True
+    cache: np.ndarray | None = None
+    seed: int | None = None
+    on_epoch: Callable[[int, DepthNetwork, dict[str, float]], None] | None = None
+    sequences: Sequence[SequenceSample] | None = None
+    pretrained_sha256: str | None = None
+
+
 def seed_everything(seed: int) -> None:
     """Seed Python, numpy and torch (CPU runs are then repeatable)."""
     random.seed(seed)
@@ -310,49 +349,41 @@ def train_variant(
     params: Params,
     variant: str,
     pairs: list[tuple[Path, Path]],
-    model_path: str | os.PathLike,
-    checkpoint_path: str | os.PathLike,
-    live_dir: str | os.PathLike | None = None,
-    progress: bool = True,
-    cache: np.ndarray | None = None,
-    seed: int | None = None,
-    summary_path: str | os.PathLike | None = None,
-    timing_path: str | os.PathLike | None = None,
-    on_epoch: Callable[[int, DepthNetwork, dict[str, float]], None] | None = None,
-    sequences: Sequence[SequenceSample] | None = None,
-    pretrained_sha256: str | None = None,
+    outputs: TrainOutputs,
+    options: TrainOptions | None = None,
 ) -> TrainResult:
-    """Train ``variant`` with training seed ``seed`` (default: the first of ``train.seeds``) on
-    ``pairs``; write the final weights to ``model_path``. With ``train.mode`` mono or mono_stereo
-    it trains Monodepth2's way on ``sequences`` instead (``pairs`` unused; the pose network is
-    kept in the checkpoint, the model file holds the depth network as in stereo).
+    """Train ``variant`` on ``pairs`` and write the final weights to ``outputs.model_path``.
 
-    ``cache`` holds the pairs already resized (:func:`msdepth.data.pairs.build_pair_cache`);
-    without it every sample is decoded and resized from ``pairs``.
+    With ``train.mode`` mono or mono_stereo it trains Monodepth2's way on ``options.sequences``
+    instead (``pairs`` unused; the pose network is kept in the checkpoint, the model file holds the
+    depth network as in stereo). A checkpoint is written atomically at ``outputs.checkpoint_path``
+    after every epoch and resumed from when its fingerprint matches. Under torchrun only rank 0
+    writes files.
 
-    A checkpoint is written atomically at ``checkpoint_path`` after every epoch and resumed
-    from when its fingerprint matches. Per-epoch mean losses go to dvclive in ``live_dir``, the
-    training summary (steps, final losses: what the same params reproduce) to ``summary_path``,
-    its timing (seconds, examples/s, the epoch it resumed from: what varies between machines and
-    interruptions) to ``timing_path``; under torchrun only rank 0 writes files.
-    ``on_epoch(epoch, model, mean_losses)`` is called after each epoch trained in this call
-    (epochs count from 1), e.g. to evaluate the network as it learns.
+    Args:
+        params: the run's params.
+        variant: the loss variant to train.
+        pairs: the stereo training pairs (in the order of ``options.cache``, where given).
+        outputs: where the weights, checkpoint, dvclive curves, summary and timing go.
+        options: the seed, pair cache, sequences, progress bar, per-epoch callback and pretrained
+            hash (:class:`TrainOptions`); None: every default.
 
-    ``pretrained_sha256``: ``model.pretrained``'s content hash, for the fingerprint (the train
-    stage's is the ``pretrained`` stage's record); None: the file is hashed here, so that even a
-    resume needs it (see :func:`_resume_or_start`).
+    Returns:
+        The run's steps, epochs, timing and final losses.
     """
+    opts = options if options is not None else TrainOptions()
+    pretrained_sha256 = opts.pretrained_sha256
     if params.model.pretrained and pretrained_sha256 is None:
         pretrained_sha256 = file_sha256(params.model.pretrained)
-    run_seed = params.train.seeds[0] if seed is None else seed
-    run = _set_up(params, variant, pairs, run_seed, cache, sequences, pretrained_sha256)
-    checkpoint_path = Path(checkpoint_path)
+    run_seed = params.train.seeds[0] if opts.seed is None else opts.seed
+    run = _set_up(params, variant, pairs, run_seed, opts.cache, opts.sequences, pretrained_sha256)
+    checkpoint_path = Path(outputs.checkpoint_path)
     _resume_or_start(run, checkpoint_path)
-    live = _open_live(run, live_dir)
+    live = _open_live(run, outputs.live_dir)
     started = time.perf_counter()
     resumed_from = run.start_epoch
     for epoch in range(run.start_epoch, params.train.epochs):
-        means = _train_epoch(run, epoch, progress)
+        means = _train_epoch(run, epoch, opts.progress)
         run.history.append({"epoch": epoch + 1, "step": run.step, **means})
         if live is not None:
             _log_epoch(live, run.history[-1], params.train, run.total_steps, run.loss_keys)
@@ -361,11 +392,11 @@ def train_variant(
                 run, checkpoint_path, epoch + 1, run.seconds_before + time.perf_counter() - started
             )
             log.info("%s epoch %d/%d: %s", variant, epoch + 1, params.train.epochs, json.dumps(means))
-        if on_epoch is not None:
-            on_epoch(epoch + 1, run.model, means)
+        if opts.on_epoch is not None:
+            opts.on_epoch(epoch + 1, run.model, means)
     if live is not None:
         live.end()
-    return _finish(run, model_path, resumed_from, time.perf_counter() - started, summary_path, timing_path)
+    return _finish(run, outputs, resumed_from, time.perf_counter() - started)
 
 
 def _set_up(
@@ -606,19 +637,12 @@ def _save_epoch_checkpoint(run: _Run, path: Path, epoch: int, seconds: float) ->
     save_checkpoint(path, state)
 
 
-def _finish(
-    run: _Run,
-    model_path: str | os.PathLike,
-    resumed_from: int,
-    this_run: float,
-    summary_path: str | os.PathLike | None,
-    timing_path: str | os.PathLike | None,
-) -> TrainResult:
+def _finish(run: _Run, outputs: TrainOutputs, resumed_from: int, this_run: float) -> TrainResult:
     """Check the replicas agree, save the model, leave the process group, write the summary files."""
     seconds = run.seconds_before + this_run
     distributed.check_replicas([run.model, run.criterion, *([run.pose_net] if run.pose_net else [])], run.ctx)
     if run.ctx.main:
-        save_model(model_path, run.model, run.criterion, run.params, run.variant, run.seed)
+        save_model(outputs.model_path, run.model, run.criterion, run.params, run.variant, run.seed)
     run.network = run.model  # drop the DDP wrapper: it holds the process group, which teardown() frees
     run.pose_network = run.pose_net
     distributed.teardown()
@@ -636,10 +660,10 @@ def _finish(
         record = asdict(result)
         timing = {k: record.pop(k) for k in TIMING_KEYS}
         record["pairing"] = run.pairing
-        if summary_path is not None:
-            write_json(summary_path, record)
-        if timing_path is not None:
-            write_json(timing_path, timing)
+        if outputs.summary_path is not None:
+            write_json(outputs.summary_path, record)
+        if outputs.timing_path is not None:
+            write_json(outputs.timing_path, timing)
     return result
 
 
