@@ -409,6 +409,22 @@ def class_lines(
     ]
 
 
+def stereo_lines(block: dict[str, dict], runs: Sequence[str], label: Callable[[str], str] = str) -> list[str]:
+    """KITTI's D1 (%) and EPE (px) of the whole frame per run at one cap (``block``: run -> the
+    full-image suite's numbers), as Markdown lines; none where a run has no D1."""
+    if any("d1" not in block[r] for r in runs):
+        return []
+    rows = [[label(r), f"{100 * block[r]['d1']:.1f}", f"{block[r]['epe']:.2f}"] for r in runs]
+    return ["Whole frame, KITTI's stereo metrics:", "", _table(["run", "D1 %", "EPE px"], rows), ""]
+
+
+def _unrun_lines(unrun: dict[str, str] | None) -> list[str]:
+    """The header line naming the network-free instruments without metrics on a set, and why."""
+    if not unrun:
+        return []
+    return [f"Instruments without metrics: {'; '.join(f'{k}: {r}' for k, r in unrun.items())}.", ""]
+
+
 def build_set_section(
     name: str,
     suites: dict[str, dict[str, dict]],
@@ -419,18 +435,21 @@ def build_set_section(
     seeds: Sequence[int],
     missing_baselines: dict[str, str] | None = None,
     label: Callable[[str], str] = str,
+    unrun: dict[str, str] | None = None,
 ) -> tuple[dict, str]:
     """An extra set's full-image tables for ``compare.md`` (per cap: the metrics, the differences
-    to the reference with their intervals, the seed spread), and the same as a dict. ``label``
-    names a run's row (:meth:`Comparison.settings_label`).
+    to the reference with their intervals, D1 and EPE, the seed spread), and the same as a dict.
+    ``label`` names a run's row (:meth:`Comparison.settings_label`).
 
     ``suites`` is ``{"full": {group: metrics averaged over its runs}}`` of that set,
     ``stats``/``spread`` from :func:`paired_statistics`/:func:`seed_spread` on its tables.
+    ``baselines``: the groups of one run each, the image-blind baselines and the network-free
+    instruments (SGM, SGBM, the optimum); ``unrun``: the instruments without metrics, and why.
     """
     runs = [*variants, *baselines]
     caps = [k for k in suites["full"][runs[0]] if k.startswith("cap")]
     images = suites["full"][runs[0]]["images"]
-    md = [f"# {SET_TITLES.get(name, name)}", "", *_missing_lines(missing_baselines)]
+    md = [f"# {SET_TITLES.get(name, name)}", "", *_missing_lines(missing_baselines), *_unrun_lines(unrun)]
     result: dict = {"full": {}, "statistics": stats, "seed_spread": spread, "images": images}
     scaling = suites["full"][runs[0]][caps[0]].get("median_scaling")
     pixels = SET_PIXELS.get(name, "GT in (min_depth, cap) inside Garg's crop")
@@ -452,6 +471,7 @@ def build_set_section(
             _table(["run", *METRICS], _metric_rows(block, runs, variants, label)),
             "",
         ]
+        md += stereo_lines(block, runs, label)
         md += _ci_lines(stats, "full", cap, "images", baselines, label)
         if len(seeds) > 1:
             md += _spread_lines(spread["full"][cap], variants, len(seeds), label)

@@ -23,6 +23,7 @@ from msdepth.pipeline.paths import (
     REAL_VERDICT,
     SUITE_NAMES,
     mean_path,
+    optimum_run,
     set_metrics_dir,
     suite_dir,
     variant_runs,
@@ -204,12 +205,47 @@ def mean_rows(result: dict, variants: Sequence[str], cap: str) -> dict[str, dict
     return rows
 
 
+def set_optimum_run(root: Path, variant: str, weight: float) -> str:
+    """The run of ``variant``'s optimum at ``weight`` below an extra set's metrics tree ``root``,
+    found by value as :func:`~msdepth.optimum.frames.optimum_runs` finds the default frames' (dvc.yaml
+    writes a weight as params.yaml spells it); the name params.yaml's value gives when there is none."""
+    for path in sorted((suite_dir("full", root) / OPTIMUM / variant).glob("w*.json")):
+        try:
+            if float(path.stem[1:]) == weight:
+                return optimum_run(variant, path.stem[1:])
+        except ValueError:
+            continue
+    return optimum_run(variant, f"{weight}")
+
+
+def set_instruments(params: Params, root: Path) -> tuple[dict[str, str], dict[str, str]]:
+    """The network-free instruments on an extra set (the ``match_set``, ``sgbm_set`` and
+    ``optimum_set`` stages' runs below its metrics tree ``root``): ``{label: run}`` of those with
+    metrics (``SGM (<variant> cost)``, ``SGBM``, ``optimum <variant> w<weight>``) and ``{label: why}``
+    of those without (skipped, or not run). Neither where no instrument has written anything (the
+    set's stages run alone, as the tests do)."""
+    if not (suite_dir("full", root) / OPTIMUM).is_dir():
+        return {}, {}
+    weight = params.optimum.smoothness_weight
+    runs = {
+        **matcher_runs(params),
+        **{f"{OPTIMUM} {v} w{weight:g}": set_optimum_run(root, v, weight) for v in params.variants},
+    }
+    reasons = {label: skipped_reason(root, run, ["full"]) for label, run in runs.items()}
+    found = {label: run for label, run in runs.items() if reasons[label] is None}
+    return found, {label: why for label, why in reasons.items() if why is not None}
+
+
 def compare_set(params: Params, name: str, label: Callable[[str], str] = str) -> tuple[dict, str]:
     """An extra evaluation set's full-image comparison (below its
     :func:`~msdepth.pipeline.paths.set_metrics_dir`): the same groups, reference, bootstrap and seed
-    spread as KITTI 2015's full-image tables; ``label`` names a run's row."""
+    spread as KITTI 2015's full-image tables, with the network-free instruments
+    (:func:`set_instruments`) as groups of one run beside the baselines; ``label`` names a run's row."""
     root = set_metrics_dir(name)
     missing, built, groups, runs = run_groups(params, root, ["full"])
+    instruments, unrun = set_instruments(params, root)
+    groups.update({k: [run] for k, run in instruments.items()})
+    runs += list(instruments.values())
     suites = load_suite_metrics(root, runs, ["full"])
     tables = load_unit_tables(root, runs, ["full"])
     caps = [f"cap{c:g}" for c in params.eval.caps]
@@ -219,10 +255,11 @@ def compare_set(params: Params, name: str, label: Callable[[str], str] = str) ->
         name,
         group_metrics(suites, groups),
         list(params.variants),
-        built,
+        [*built, *instruments],
         paired_statistics(tables, groups, params.compare, params.eval.caps, pairing),
         seed_spread(suites, groups, caps),
         params.train.seeds,
         missing_baselines=missing,
         label=label,
+        unrun=unrun,
     )

@@ -1,0 +1,215 @@
+"""The network-free instruments on an extra evaluation set (``eval.extra_sets``), frame by frame:
+the stages ``match_set@<set>-<variant>``, ``sgbm_set@<set>`` and ``optimum_set@<set>-<variant>``
+(stages/match_set.py, stages/optimum_set.py) call these.
+
+- The cost start (SGM on the variant's own cost volume) and OpenCV's SGBM, unrefined, exactly as
+  the optimum starts from them (:func:`msdepth.optimum.starts.start_disparity`: matched at the
+  frame's own size capped by ``optimum.max_width``, its left view resampled to the frame's size).
+  On the default frames, narrower than the cap, that is the ``match`` stages' disparity.
+- The optimum at ``optimum.smoothness_weight`` only (:func:`msdepth.optimum.solver.optimum_disparities`):
+  the sweep stays on the default frames.
+
+Each is scored with the set's full-image suite (:func:`msdepth.evaluation.results.score_set`: the
+exact classes where the set has them, D1 and EPE), as the run the default frames name it
+(:func:`~msdepth.pipeline.paths.match_run`, :func:`~msdepth.pipeline.paths.optimum_run`).
+
+One frame in memory at a time while matching or optimising: each frame's disparity goes to a
+scratch folder the stage owns (:func:`scratch_dir`, below ``checkpoints/``, not a DVC output),
+written atomically, so a killed run redoes only the frames it had not finished. The folder holds a
+key (:func:`scratch_key`: the instrument, the params it reads, the set index's hash) and is emptied
+when the key differs; it is removed once the metrics are written. Scoring then reads the set's GT
+and depth maps, as the networks' ``eval_set`` stage does.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import logging
+import shutil
+import time
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+import pandas as pd
+
+from msdepth.config.checks import has_per_pixel_cost
+from msdepth.config.params import Params
+from msdepth.errors import ConfigError
+from msdepth.optimum.frames import checked_matcher
+from msdepth.pipeline.paths import (
+    CHECKPOINTS,
+    SGBM,
+    match_run,
+    optimum_run,
+    set_headline_dir,
+    set_metrics_dir,
+)
+
+log = logging.getLogger("msdepth")
+
+SCRATCH = CHECKPOINTS / "sets"  # <set>/<run>/: a set stage's per-frame disparities until it is scored
+KEY = "key.json"  # what a scratch folder's frames were computed with (scratch_key)
+# A frame's disparity (fraction of the width, at the working size) in its scratch folder: row i of the index.
+FRAME_FILE = "frame{:06d}.npy"
+
+Disparity = Callable[[np.ndarray, np.ndarray], np.ndarray]  # (left, right) uint8 RGB -> (h, w) fraction
+
+
+def scratch_dir(name: str, run: str, root: Path = SCRATCH) -> Path:
+    """The scratch folder of run ``run`` on extra set ``name``: ``checkpoints/sets/<set>/<run>``."""
+    return Path(root) / name / run
+
+
+def scratch_key(params: Params, instrument: str, variant: str | None, set_index: Path) -> dict:
+    """What a scratch folder's frames depend on: the instrument, the ``optimum`` and ``loss`` sections,
+    the variant's own section (for SGM and the optimum) and the sha256 of the set's index, as JSON
+    reads it back (a resumed run compares it with the folder's :data:`KEY`)."""
+    from msdepth.io import file_sha256
+
+    key = {
+        "instrument": instrument,
+        "set_index_sha256": file_sha256(set_index),
+        "optimum": dataclasses.asdict(params.optimum),
+        "loss": dataclasses.asdict(params.loss),
+    }
+    if variant is not None:
+        key[variant] = dataclasses.asdict(params.appearance[variant])
+    return json.loads(json.dumps(key, default=str))
+
+
+def open_scratch(folder: Path, key: dict) -> int:
+    """Make ``folder`` hold the frames of ``key`` only: kept when its :data:`KEY` equals ``key``,
+    else removed and started anew with that key. Returns the number of frames kept."""
+    from msdepth.io import write_json
+
+    path = folder / KEY
+    try:
+        same = json.loads(path.read_text()) == key
+    except (OSError, ValueError):
+        same = False
+    if not same:
+        shutil.rmtree(folder, ignore_errors=True)
+        write_json(path, key)
+    return len(list(folder.glob(FRAME_FILE.replace("{:06d}", "*"))))
+
+
+def remove_scratch(folder: Path, root: Path = SCRATCH) -> None:
+    """Remove a finished run's scratch ``folder`` and its parents up to ``root`` left empty."""
+    shutil.rmtree(folder, ignore_errors=True)
+    for parent in folder.parents:
+        if not parent.is_relative_to(root):
+            break
+        try:
+            parent.rmdir()
+        except OSError:  # not empty: another run's scratch
+            break
+
+
+def frame_disparities(index: pd.DataFrame, folder: Path, disparity: Disparity, label: str) -> None:
+    """``disparity`` of every row ``(left, right)`` of ``index`` not yet in ``folder``, one frame at a
+    time, each saved atomically as :data:`FRAME_FILE`; progress (frame, seconds) logged per frame."""
+    from msdepth.data.kitti import read_image
+    from msdepth.io import save_npy
+
+    total = len(index)
+    done = sum((folder / FRAME_FILE.format(i)).is_file() for i in range(total))
+    if done:
+        log.info("%s: resuming, %d of %d frames done", label, done, total)
+    for i, row in enumerate(index.itertuples()):
+        path = folder / FRAME_FILE.format(i)
+        if path.is_file():
+            continue
+        started = time.perf_counter()
+        disp = disparity(read_image(row.left), read_image(row.right))
+        save_npy(path, np.asarray(disp, dtype=np.float32))
+        seconds = time.perf_counter() - started
+        log.info("%s: frame %d/%d (%s) in %.1f s", label, i + 1, total, row.frame, seconds)
+
+
+def score_scratch(params: Params, name: str, run: str, index: pd.DataFrame, folder: Path) -> None:
+    """The frames' disparities in ``folder`` as depth at each frame's GT size
+    (:func:`msdepth.evaluation.suites.depth_maps`, one frame at a time), scored on set ``name`` as run
+    ``run`` (:func:`msdepth.evaluation.results.score_set`)."""
+    from msdepth.evaluation.results import score_set
+    from msdepth.evaluation.suites import depth_maps, load_frames
+
+    frames = load_frames(index)
+    pred: dict[str, np.ndarray] = {}
+    for i, frame in enumerate(frames):
+        pred.update(depth_maps([np.load(folder / FRAME_FILE.format(i))], [frame]))
+    score_set(params, name, run, pred, frames)
+
+
+def score_set_instrument(
+    params: Params, name: str, run: str, set_index: Path, key: dict, disparity: Disparity
+) -> None:
+    """Run ``disparity`` on every frame of extra set ``name`` (its index ``set_index``) with
+    ``optimum.threads`` torch threads, resuming from its scratch folder (``key``: :func:`scratch_key`),
+    score it as run ``run`` and remove the scratch folder."""
+    import torch
+
+    from msdepth.data.eval_index import read_eval_index
+
+    torch.set_num_threads(params.optimum.threads)
+    index = read_eval_index(set_index)
+    folder = scratch_dir(name, run)
+    open_scratch(folder, key)
+    frame_disparities(index, folder, disparity, f"{run} on {name}")
+    score_scratch(params, name, run, index, folder)
+    remove_scratch(folder)
+
+
+def score_set_match(params: Params, name: str, matcher: str, set_index: Path) -> None:
+    """A matcher on extra set ``name``: SGM on variant ``matcher``'s own cost volume (the optimum's
+    ``cost`` start) or OpenCV's SGBM (``matcher`` ``sgbm``), unrefined, as run
+    :func:`~msdepth.pipeline.paths.match_run`. A variant without a per-pixel cost (``mix``) writes
+    skipped metrics, as on the default frames."""
+    from msdepth.evaluation.baselines import write_skipped
+    from msdepth.optimum.starts import start_disparity
+
+    run = match_run(checked_matcher(params, matcher))
+    if matcher != SGBM and not has_per_pixel_cost(params.appearance[matcher]):
+        reason = f"variant {matcher} has no per-pixel cost: no cost volume to match on"
+        write_skipped(set_metrics_dir(name), "full", run, reason, True, set_headline_dir(name))
+        return
+    start = SGBM if matcher == SGBM else "cost"
+
+    def disparity(left: np.ndarray, right: np.ndarray) -> np.ndarray:
+        return start_disparity(left, right, params, matcher, start)[0]
+
+    variant = None if matcher == SGBM else matcher
+    key = scratch_key(params, start, variant, set_index)
+    score_set_instrument(params, name, run, set_index, key, disparity)
+
+
+def checked_default_weight(params: Params, weight: str) -> float:
+    """``weight`` as a float, a ConfigError unless it is ``optimum.smoothness_weight`` (an extra set
+    runs the optimum at that one weight)."""
+    try:
+        value = float(weight)
+    except ValueError:
+        raise ConfigError(f"smoothness weight {weight!r} is not a number") from None
+    if value != params.optimum.smoothness_weight:
+        raise ConfigError(
+            f"smoothness weight {weight} is not optimum.smoothness_weight "
+            f"({params.optimum.smoothness_weight:g}), the one weight an extra set runs"
+        )
+    return value
+
+
+def score_set_optimum(params: Params, name: str, variant: str, weight: str, set_index: Path) -> None:
+    """``variant``'s optimum at ``optimum.smoothness_weight`` (``weight``, as dvc.yaml spells it) on
+    every frame of extra set ``name``, one pair at a time, as run
+    :func:`~msdepth.pipeline.paths.optimum_run`."""
+    from msdepth.optimum.solver import optimum_disparities
+
+    value = checked_default_weight(params, weight)
+    run = optimum_run(params.variant(variant), weight)
+
+    def disparity(left: np.ndarray, right: np.ndarray) -> np.ndarray:
+        return optimum_disparities([(left, right)], params, variant, value, progress=False)[0]
+
+    key = scratch_key(params, "optimum", variant, set_index)
+    score_set_instrument(params, name, run, set_index, key, disparity)

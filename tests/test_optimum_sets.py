@@ -1,0 +1,187 @@
+"""The network-free instruments on an extra evaluation set (msdepth.optimum.sets; stages/match_set.py,
+stages/optimum_set.py): on a tiny generated KITTI 2012 tree with a reflective class, their metric
+files (exact class, D1 and EPE), a resume after a simulated kill, their dvc.yaml entries and their
+rows in the set's section of compare.md."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pandas as pd
+import pytest
+
+from msdepth.config.params import params_from_dict
+from msdepth.data import kitti, kitti2012
+from msdepth.data.eval_index import read_eval_index, set_index_path, write_eval_index
+from msdepth.data.eval_sets import build_kitti2012_index
+from msdepth.errors import ConfigError
+from msdepth.io import write_png
+from msdepth.pipeline.paths import INDEX_DIR, SGBM_RUN, headline_path, match_run, optimum_run, suite_path
+
+ROOT = Path(__file__).resolve().parents[1]
+SET = "kitti2012"
+DISPARITY = 8  # px: every pixel's, the scene a fronto-parallel plane
+FRAMES = ("000000_10", "000001_10")
+RAW = {
+    "variants": ["ssim", "mix"],
+    "mix": {"levels": 3},
+    "eval": {"extra_sets": [SET]},
+    # mix has no per-pixel cost: the optimum starts from SGBM; a few steps keep the test short
+    "optimum": {"start": "sgbm", "threads": 1, "iterations": 4, "refine_iterations": 4, "levels": 2},
+}
+
+
+def tiny_tree(root: Path, height: int = 48, width: int = 160) -> None:
+    """A KITTI 2012 training tree of textured pairs at a disparity of :data:`DISPARITY` px, with a
+    calibration per frame (any width), GT everywhere and the reflective GT in the lower half."""
+    rng = np.random.default_rng(5)
+    for n, frame in enumerate(FRAMES):
+        noise = rng.integers(0, 255, (height // 4, (width + DISPARITY) // 4, 3), dtype=np.uint8)
+        scene = cv2.resize(noise, (width + DISPARITY, height), interpolation=cv2.INTER_CUBIC)
+        write_png(root / kitti2012.LEFT / f"{frame}.png", scene[:, :width])
+        write_png(root / kitti2012.RIGHT / f"{frame}.png", scene[:, DISPARITY:])
+        refl = np.zeros((height, width), np.float32)
+        refl[height // 2 :] = DISPARITY
+        for folder, disp in ((kitti2012.GT, np.full((height, width), DISPARITY, np.float32)),
+                             (kitti2012.REFLECTIVE_GT, refl)):  # fmt: skip
+            (root / folder).mkdir(parents=True, exist_ok=True)
+            kitti.write_disparity(root / folder / f"{frame}.png", disp)
+        (root / "calib").mkdir(exist_ok=True)
+        p2, p3 = "P2: 200 0 80 0 0 200 24 0 0 0 1 0", "P3: 200 0 80 -108 0 200 24 0 0 0 1 0"
+        (root / "calib" / f"{n:06d}.txt").write_text(f"{p2}\n{p3}\n")
+
+
+@pytest.fixture
+def project(tmp_path: Path, monkeypatch) -> Path:
+    """A project folder holding the set's index, as the index stage writes it; the working folder."""
+    tiny_tree(tmp_path / "kitti2012-training")
+    monkeypatch.chdir(tmp_path)
+    write_eval_index(set_index_path(INDEX_DIR, SET), build_kitti2012_index(tmp_path / "kitti2012-training"))
+    return tmp_path
+
+
+def _set_metrics(run: str) -> tuple[dict, dict, pd.DataFrame]:
+    """A run's full-image summary, headline and per-image table on the set."""
+    from msdepth.pipeline.paths import set_headline_dir, set_metrics_dir
+
+    root = set_metrics_dir(SET)
+    summary = json.loads(suite_path("full", run, ".json", root).read_text())
+    head = json.loads(headline_path("full", run, set_headline_dir(SET)).read_text())
+    return summary, head, pd.read_csv(suite_path("full", run, ".csv", root))
+
+
+def test_the_instruments_score_an_extra_set_with_its_class_d1_and_epe(project: Path):
+    """SGM on ssim's cost, SGBM and ssim's optimum at optimum.smoothness_weight on the set's two
+    frames: the default frames' run names below metrics/sets/kitti2012/full/, the reflective class
+    with D1 and EPE; mix (no per-pixel cost) skipped with its reason; the scratch folders gone."""
+    from conftest import stage
+
+    from msdepth.evaluation.baselines import skipped_reason
+    from msdepth.pipeline.paths import set_metrics_dir
+
+    params = params_from_dict(RAW)
+    match_set, optimum_set = stage("match_set").match_set, stage("optimum_set").optimum_set
+    for matcher in ("ssim", "sgbm", "mix"):
+        match_set(params, SET, matcher)
+    optimum_set(params, SET, "ssim", "10.0")
+    for run in (match_run("ssim"), SGBM_RUN, optimum_run("ssim", "10.0")):
+        summary, head, table = _set_metrics(run)
+        assert summary["images"] == 2 and len(table) == 2 * len(params.eval.caps), run
+        assert summary["cap80"]["abs_rel"] < 0.1 and summary["cap80"]["d1"] < 0.1, run  # matched
+        reflective = summary["masks"]["stereo"]["reflective"]
+        assert reflective["frames"] == 2 and reflective["d1"] < 10 and reflective["epe"] < 1, run
+        assert {"abs_rel", "a1", "reflective_abs_rel", "reflective_d1"} <= set(head), run
+    assert skipped_reason(set_metrics_dir(SET), match_run("mix"), ["full"]) == (
+        "variant mix has no per-pixel cost: no cost volume to match on"
+    )
+    assert not (project / "checkpoints" / "sets").exists()
+    assert not (project / "metrics" / "full").exists()  # the default frames' metrics untouched
+    with pytest.raises(ConfigError, match="not optimum.smoothness_weight"):
+        optimum_set(params, SET, "ssim", "3.0")
+    with pytest.raises(ConfigError, match="not in eval.extra_sets"):
+        match_set(params, "eigen", "sgbm")
+
+
+def test_a_killed_run_redoes_only_its_unfinished_frames(project: Path, monkeypatch):
+    """A run killed on its second frame keeps the first in its scratch folder (and no metrics); the
+    next run matches only the second, scores both and removes the folder. A changed param empties it."""
+    from msdepth.optimum import sets, starts
+
+    params = params_from_dict(RAW)
+    matched = starts.start_disparity
+    calls: list[int] = []
+
+    def killed_on_the_second(*args, **kwargs) -> np.ndarray:
+        calls.append(1)
+        if len(calls) == 2:
+            raise KeyboardInterrupt  # kill: nothing after it runs
+        return matched(*args, **kwargs)
+
+    monkeypatch.setattr(starts, "start_disparity", killed_on_the_second)
+    with pytest.raises(KeyboardInterrupt):
+        sets.score_set_match(params, SET, "sgbm", set_index_path(INDEX_DIR, SET))
+    scratch = sets.scratch_dir(SET, SGBM_RUN)
+    assert sorted(p.name for p in scratch.iterdir()) == sorted([sets.KEY, sets.FRAME_FILE.format(0)])
+    assert not (project / "metrics").exists()
+    calls.clear()
+    monkeypatch.setattr(starts, "start_disparity", lambda *a, **k: calls.append(1) or matched(*a, **k))
+    sets.score_set_match(params, SET, "sgbm", set_index_path(INDEX_DIR, SET))
+    assert len(calls) == 1 and _set_metrics(SGBM_RUN)[0]["images"] == 2
+    assert not scratch.exists()
+    key = sets.scratch_key(params, "sgbm", None, set_index_path(INDEX_DIR, SET))
+    assert sets.open_scratch(scratch, key) == 0
+    np.save(scratch / sets.FRAME_FILE.format(0), np.zeros((2, 2), np.float32))
+    assert sets.open_scratch(scratch, key) == 1  # the same key: the frame is kept
+    other = dataclasses.replace(params, optimum=dataclasses.replace(params.optimum, max_width=320))
+    changed = sets.scratch_key(other, "sgbm", None, set_index_path(INDEX_DIR, SET))
+    assert sets.open_scratch(scratch, changed) == 0 and (scratch / sets.KEY).is_file()
+
+
+def test_the_set_stages_list_what_they_read():
+    """Each set stage lists its own keys: the optimum's every key that a pair's optimum reads (not
+    the sweep's, the cost curves' or the batch size), the matchers none of the optimiser's; the
+    default frames' stages list no key of the extra sets."""
+    import yaml
+
+    from msdepth.config.params import OptimumConfig
+
+    stages = yaml.safe_load((ROOT / "dvc.yaml").read_text())["stages"]
+    suites = {"eval.caps", "eval.min_depth", "eval.mask_gt_beyond_cap", "eval.median_scaling"}
+    reads = {"optimum.threads", "optimum.max_width"}
+    assert set(stages["match_set"]["params"]) == {*reads, "loss.alpha", "${item.variant}", *suites}
+    assert set(stages["sgbm_set"]["params"]) == {*reads, *suites}
+    unread = {"sweep_frames", "cost_frames", "smoothness_sweep", "batch_size"}
+    expected = {f"optimum.{f.name}" for f in dataclasses.fields(OptimumConfig) if f.name not in unread}
+    listed = set(stages["optimum_set"]["params"])
+    assert {p for p in listed if p.startswith("optimum")} == expected
+    assert stages["optimum_set"]["cmd"].endswith("${optimum.smoothness_weight}")
+    for name in ("optimum", "match", "sgbm", "cost_curves"):
+        assert "eval.extra_sets" not in stages[name]["params"], name
+
+
+def test_the_sets_section_of_compare_shows_the_instruments_beside_the_networks(project: Path):
+    """compare_set: every instrument is a row of the set's table (D1 and EPE beside), with its
+    difference to the reference and its reflective class; a skipped one is named with the reason."""
+    from conftest import stage
+
+    from msdepth.evaluation.results import score_set
+    from msdepth.evaluation.suites import load_frames
+    from msdepth.reporting.pipeline_compare import compare_set
+
+    params = params_from_dict({**RAW, "variants": ["ssim", "msssim"], "train": {"seeds": [0]}})
+    frames = load_frames(read_eval_index(set_index_path(INDEX_DIR, SET)))
+    for k, run in enumerate(("ssim/seed0", "msssim/seed0", "constant", "prior")):
+        score_set(params, SET, run, {f.name: np.full(f.shape, 10.0 + k, np.float32) for f in frames}, frames)
+    stage("match_set").match_set(params, SET, "sgbm")
+    stage("match_set").match_set(params, SET, "ssim")
+    result, md = compare_set(params, SET)
+    rows = {"SGBM", "SGM (ssim cost)", "ssim", "msssim", "constant", "prior"}
+    assert rows <= set(result["full"]["cap80"]) and rows <= set(result["masks"])
+    assert "SGBM" in result["statistics"]["full"]["cap80"]
+    assert "| SGBM | " in md and "D1 %" in md and "| reflective | SGBM |" in md
+    assert "Instruments without metrics: SGM (msssim cost): no metrics/sets/kitti2012/full/optimum" in md
+    assert "optimum ssim w10: no " in md
