@@ -22,7 +22,8 @@ ROOT = Path(__file__).resolve().parents[1]
 LINE = re.compile(
     r"^error: (?P<called>.+): unexpected (?P<type>\w+)(: (?P<message>.*))?; traceback in (?P<log>\S+)$"
 )
-# Not yet wrapped: its owner is editing it (issue 56 names it for the next round).
+
+
 def _boom(*args: object, **kwargs: object) -> None:
     raise ZeroDivisionError("injected \x1b[31mred\x1b[0m\nsecond line")
 
