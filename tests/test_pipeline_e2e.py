@@ -64,7 +64,9 @@ def test_repro_writes_every_suite_and_the_comparison(repo: Path):
     index = (repo / "data" / "index" / "sets" / "eigen.csv").read_text()
     assert index.count(",velodyne,") == 3 and ",garg," in index
     compare = json.loads((repo / "metrics" / "compare.json").read_text())
-    assert set(compare["sets"]["eigen"]["full"]["cap80"]) == {"ssim", "msssim", "constant", "prior"}
+    # The extra set's rows: the networks, the baselines and the network-free instruments (no network).
+    instruments = {"SGM (ssim cost)", "SGM (msssim cost)", "SGBM", "optimum ssim w10", "optimum msssim w10"}
+    assert set(compare["sets"]["eigen"]["full"]["cap80"]) == {"ssim", "msssim", "constant", "prior", *instruments}
     assert set(compare["full"]["cap80"]) == {"ssim", "msssim", "constant", "prior"}
     assert (
         compare["seeds"] == [0] and compare["statistics"]["full"]["cap80"]["msssim"]["abs_rel"]["seeds"] == 1
@@ -212,6 +214,8 @@ MSSSIM_STAGES = {
     *(f"optimum@msssim-{w}" for w in SWEEP),
     "cost_curves@msssim",
     "match@msssim",  # SGM on its cost volume (SGBM's stage reads no variant's section)
+    "match_set@eigen-msssim",  # the same instruments on the extra set
+    "optimum_set@eigen-msssim",
     "compare",
     "report",
     "figures",
