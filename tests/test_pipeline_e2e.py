@@ -66,7 +66,8 @@ def test_repro_writes_every_suite_and_the_comparison(repo: Path):
     compare = json.loads((repo / "metrics" / "compare.json").read_text())
     # The extra set's rows: the networks, the baselines and the network-free instruments (no network).
     instruments = {"SGM (ssim cost)", "SGM (msssim cost)", "SGBM", "optimum ssim w10", "optimum msssim w10"}
-    assert set(compare["sets"]["eigen"]["full"]["cap80"]) == {"ssim", "msssim", "constant", "prior", *instruments}
+    rows = {"ssim", "msssim", "constant", "prior", *instruments}
+    assert set(compare["sets"]["eigen"]["full"]["cap80"]) == rows
     assert set(compare["full"]["cap80"]) == {"ssim", "msssim", "constant", "prior"}
     assert (
         compare["seeds"] == [0] and compare["statistics"]["full"]["cap80"]["msssim"]["abs_rel"]["seeds"] == 1
