@@ -72,11 +72,11 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--repeats", type=int, default=15)
     args = ap.parse_args(argv)
     raw = apply_overrides(read_params_file(args.params), args.set)
-    threads = params_from_dict(raw).train.threads
+    base = params_from_dict(raw)
+    threads = base.train.threads
     torch.set_num_threads(threads)
     steps, batches = candidates(raw)
     timings = compare(steps, torch.device("cpu"), repeats=args.repeats)
-    base = params_from_dict(raw)
     print(
         f"training step, {base.data.height}x{base.data.width}, model x{base.model.width_multiplier}, "
         f"cpu, {threads} threads, median of {args.repeats}\n"
