@@ -233,8 +233,8 @@ def test_eigen_benchmark_index_reads_the_annotated_depth(tmp_path: Path) -> None
 def test_extra_sets_config() -> None:
     assert params_from_dict({"eval": {"extra_sets": []}}).eval.extra_sets == ()
     assert params_from_dict({}).eval.extra_sets == ("eigen",)
-    with pytest.raises(ConfigError, match=r"eval.extra_sets\[0\]: 'kitti2015' is not one of"):
-        params_from_dict({"eval": {"extra_sets": ["kitti2015"]}})
+    with pytest.raises(ConfigError, match=r"eval.extra_sets\[0\]: 'kitti2016' is not one of"):
+        params_from_dict({"eval": {"extra_sets": ["kitti2016"]}})
     with pytest.raises(ConfigError, match="eval.extra_sets: must not repeat a set"):
         params_from_dict({"eval": {"extra_sets": ["eigen", "eigen"]}})
 

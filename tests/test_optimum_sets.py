@@ -185,3 +185,35 @@ def test_the_sets_section_of_compare_shows_the_instruments_beside_the_networks(p
     assert "| SGBM | " in md and "D1 %" in md and "| reflective | SGBM |" in md
     assert "Instruments without metrics: SGM (msssim cost): no metrics/sets/kitti2012/full/optimum" in md
     assert "optimum ssim w10: no " in md
+
+
+def test_the_verdict_reads_the_sets_rows_frame_by_frame(project: Path):
+    """set_verdict_rows: the networks paired by seed and the SGM cost starts paired by frame, on the
+    whole frame and the reflective class, named after the set; two frames: the known difference
+    (MS-SSIM 10 % off the GT depth, SSIM 20 %: −0.1) without an interval."""
+    from conftest import stage
+
+    from msdepth.evaluation.results import score_set
+    from msdepth.evaluation.suites import load_frames
+    from msdepth.reporting.pipeline_compare import set_verdict_rows
+
+    params = params_from_dict({**RAW, "variants": ["ssim", "msssim"], "train": {"seeds": [0, 1]}})
+    frames = load_frames(read_eval_index(set_index_path(INDEX_DIR, SET)))
+    depth = 200 * 0.54 / DISPARITY  # the tree's calibration
+    for run, off in (("ssim/seed0", 1.2), ("ssim/seed1", 1.2), ("msssim/seed0", 1.1), ("msssim/seed1", 1.1)):
+        score_set(
+            params, SET, run, {f.name: np.full(f.shape, depth * off, np.float32) for f in frames}, frames
+        )
+    for variant in ("ssim", "msssim"):
+        stage("match_set").match_set(params, SET, variant)
+    rows = {(r.instrument, r.cls): r for r in set_verdict_rows(params, SET, {"msssim": None})}
+    assert set(rows) == {
+        (f"{name} on {SET}", cls)
+        for name in ("stereo networks", "SGM cost start")
+        for cls in ("full frame", "reflective")
+    }
+    for cls in ("full frame", "reflective"):
+        net = rows[(f"stereo networks on {SET}", cls)]
+        assert net.diff == pytest.approx(-0.1, abs=1e-4) and net.n == 2 and not net.has_interval
+        assert net.unit == f"{SET} frames" and net.seeds == 2 and net.kind == "network"
+        assert rows[(f"SGM cost start on {SET}", cls)].kind == "optimum"

@@ -19,6 +19,7 @@ from msdepth.reporting.verdict import (
     FULL_FRAME,
     MIN_UNITS,
     Row,
+    RowScope,
     class_sentence,
     display_names,
     headline_instruments,
@@ -31,6 +32,7 @@ from msdepth.reporting.verdict import (
     read_monocular,
     seed_rows,
     summary_lines,
+    units_text,
     verdict_data,
     verdict_lines,
     welch_interval,
@@ -90,6 +92,40 @@ def test_optimum_rows_pair_each_weight_alone() -> None:
     assert set(rows) == {"car", "windshield"}
     assert rows["windshield"].instrument == "optimum w3" and rows["windshield"].kind == "optimum"
     assert (rows["windshield"].low, rows["windshield"].high) == pytest.approx((-0.1, -0.1))
+
+
+def class_column_table(shift: bool, frames: int) -> pd.DataFrame:
+    """A set's per-image table with a whole-frame class column: MS-SSIM 0.05 above SSIM on the
+    frame, 0.1 below it on the frames' cars; the first frame has no car (NaN)."""
+    t = full_table(shift).head(frames).copy()
+    car = 0.4 + 0.01 * np.arange(frames) - shift * 0.1
+    car[0] = np.nan
+    return t.assign(car_abs_rel=car)
+
+
+@pytest.mark.parametrize("frames", [8, 3])
+def test_an_extra_sets_class_columns_are_paired_frame_by_frame(frames: int) -> None:
+    """Whole-frame classes (RowScope.whole_frame): the class column's frames are the units (the
+    frame without a car left out), named as the scope's unit; with fewer than MIN_UNITS frames the
+    rows are kept without an interval where keep_few asks, and left out otherwise."""
+    groups = {v: [f"{v}/seed{s}" for s in (0, 1)] for v in ("ssim", "msssim")}
+    tables = {"full": {r: class_column_table(v == "msssim", frames) for v in groups for r in groups[v]}}
+    scope = RowScope(whole_frame=True, unit="kitti2015 frames", keep_few=True)
+    rows = {r.cls: r for r in network_rows(tables, groups, CFG, 80.0, pairing={"msssim": None}, scope=scope)}
+    assert list(rows) == [FULL_FRAME, "car"]
+    car = rows["car"]
+    assert car.diff == pytest.approx(-0.1) and car.n == frames - 1 and car.unit == "kitti2015 frames"
+    assert units_text(car) == f"{frames - 1} kitti2015 frames × 2 seed pairs"
+    if frames - 1 >= MIN_UNITS:
+        assert (car.low, car.high) == pytest.approx((-0.1, -0.1)) and car.excludes_zero
+    else:
+        assert not car.has_interval and "no interval" in car.method and car.t_low is None
+        assert network_rows(tables, groups, CFG, 80.0, scope=RowScope(whole_frame=True)) == []
+    runs = {"cost start": {"ssim": "ssim/seed0", "msssim": "msssim/seed0"}}
+    (_, opt_car) = optimum_rows(tables, runs, CFG, 80.0, scope=scope, instrument="SGM")
+    assert opt_car.instrument == "SGM cost start" and opt_car.diff == pytest.approx(-0.1)
+    assert Row.from_dict(opt_car.as_dict()) == opt_car
+    assert [r.cls for r in network_rows(tables, groups, CFG, 80.0)] == [FULL_FRAME] * (frames >= MIN_UNITS)
 
 
 def test_t_quantile_and_welch_interval_known_values() -> None:

@@ -472,8 +472,11 @@ class EvalConfig:
     dense_gt_fraction: Annotated[float, Range(0, 1, low_open=True)] = 0.9
     # Evaluated beside KITTI 2015 (which always runs: the dissertation's tables and the ROI
     # suites), full-image suite only, each under metrics/sets/<set>/ (msdepth.data.eval_sets);
-    # kitti2012's full-image summary adds its exact class "reflective" (msdepth.evaluation.classes).
-    extra_sets: tuple[Literal["eigen", "eigen_benchmark", "kitti2012"], ...] = _list_may_be_empty(("eigen",))
+    # kitti2012's full-image summary adds its exact class "reflective", kitti2015's "car" where it has
+    # obj_map (msdepth.evaluation.classes).
+    extra_sets: tuple[Literal["eigen", "eigen_benchmark", "kitti2012", "kitti2015"], ...] = (
+        _list_may_be_empty(("eigen",))
+    )
     median_scaling: bool = False  # per-image median scaling of the extra sets (Monodepth2's mono evaluation)
 
     def validate(self, key: str, params: Params) -> None:

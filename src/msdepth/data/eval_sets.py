@@ -6,10 +6,14 @@
   ``data_depth_annotated.zip``);
 - ``kitti2012``: KITTI 2012's stereo training frames (``data_stereo_flow.zip``'s ``training/``,
   :mod:`msdepth.data.kitti2012`), GT ``disp_occ`` with ``disp_refl_occ``'s reflective surfaces, and
-  those pixels as the exact-mask class ``reflective`` (the index's ``class_map`` column).
+  those pixels as the exact-mask class ``reflective`` (the index's ``class_map`` column);
+- ``kitti2015``: KITTI 2015's stereo training frames (``data_scene_flow.zip``'s ``training/``) beside
+  a training set of another source, GT ``disp_occ_0`` (every pixel with GT, KITTI's D1-all, as
+  ``kitti2012`` takes ``disp_occ``) and, where ``obj_map/`` has the frame, its cars (fitted CAD
+  models) as the exact-mask class ``car`` (:func:`build_kitti2015_index`).
 
-The Eigen sets are evaluated inside Garg's crop with GT in (min_depth, cap), KITTI 2012 on the
-whole frame as KITTI 2015 (:mod:`msdepth.evaluation.suites`). Each
+The Eigen sets are evaluated inside Garg's crop with GT in (min_depth, cap), KITTI 2012 and 2015 on
+the whole frame as ``data.source: kitti``'s KITTI 2015 frames (:mod:`msdepth.evaluation.suites`). Each
 builder returns rows of :data:`msdepth.data.eval_index.EVAL_COLUMNS`, so the suites read every set the
 same way (:func:`msdepth.evaluation.suites.load_frames`).
 """
@@ -151,12 +155,50 @@ def build_kitti2012_index(root: Path) -> pd.DataFrame:
     return pd.DataFrame(rows, columns=list(EVAL_COLUMNS))
 
 
+KITTI2015_GT = "disp_occ_0"  # the kitti2015 set's GT folder: every pixel with GT
+
+
+def build_kitti2015_index(root: Path) -> pd.DataFrame:
+    """KITTI 2015's frames under its ``training/`` folder ``root``: the ``*_10.png`` of ``image_2/``
+    with ``image_3/`` and ``disp_occ_0/`` (GT kind ``disparity``), ``obj_map/`` where present (class
+    ``car``, :func:`msdepth.data.ground_truth.read_frame_classes`), camera by width or
+    ``calib_cam_to_cam/`` (:func:`msdepth.data.kitti.focal_and_baseline`)."""
+    left_dir = Path(root) / "image_2"
+    if not left_dir.is_dir():
+        raise DataError(f"{root}: no image_2/ folder (expected KITTI 2015's training/ layout)")
+    names = sorted(p.stem for p in left_dir.glob("*_10.png"))
+    if not names:
+        raise DataError(f"{left_dir}: no *_10.png frame")
+    rows = []
+    for frame in names:
+        paths = {
+            key: Path(root) / path.relative_to(path.parents[1])  # below training/, whatever root's name
+            for key, path in kitti.kitti2015_paths(Path(root), frame, KITTI2015_GT).items()
+        }
+        for what in ("right", "disp"):
+            if not paths[what].is_file():
+                raise DataError(f"{paths[what]}: missing (KITTI 2015 frame {frame})")
+        shape = kitti.read_image(paths["left"]).shape
+        check_same_size(
+            paths["left"], shape, paths["right"], kitti.read_image(paths["right"]).shape, "right image"
+        )
+        check_same_size(paths["left"], shape, paths["disp"], kitti.read_disparity(paths["disp"]).shape, "GT")
+        obj_map = paths["obj_map"] if paths["obj_map"].is_file() else ""
+        if obj_map:
+            check_same_size(paths["left"], shape, obj_map, kitti.read_obj_map(obj_map).shape, "obj_map")
+        focal, baseline = kitti.focal_and_baseline(shape[1], paths["calib"])
+        row = (frame, str(paths["left"]), str(paths["right"]), str(paths["disp"]), "disparity", "", "")
+        rows.append((*row, str(obj_map), "", focal, baseline))
+    return pd.DataFrame(rows, columns=list(EVAL_COLUMNS))
+
+
 SETS: dict[str, Callable[[Params], pd.DataFrame]] = {
     "eigen": lambda p: build_eigen_index(layout(p).raw_root, layout(p).eigen_split),
     "eigen_benchmark": lambda p: build_eigen_benchmark_index(
         layout(p).raw_root, layout(p).eigen_benchmark_split, layout(p).depth_annotated
     ),
     "kitti2012": lambda p: build_kitti2012_index(layout(p).kitti2012_root),
+    "kitti2015": lambda p: build_kitti2015_index(layout(p).kitti2015_set_root),
 }
 
 

@@ -13,6 +13,9 @@ from msdepth.config.params import Params
 
 MONO_SPLIT = "train_mono_files.txt"  # below a synthetic root
 KITTI2012 = "kitti2012"  # below data.root: data_stereo_flow.zip extracted (training/, testing/)
+# eval.extra_sets' kitti2015 beside a synthetic training set: data_scene_flow.zip's training/ below
+# data.root/kitti2015_stereo, as the renderer's own kitti2015/ holds the synthetic evaluation frames.
+KITTI2015_SET = "kitti2015_stereo"
 
 
 @dataclass(frozen=True)
@@ -41,6 +44,9 @@ class Layout:
     # eval.extra_sets' kitti2012: data_stereo_flow.zip's training/ (msdepth.data.kitti2012), extracted
     # into kitti2012/ below data.root as data_scene_flow.zip is into kitti2015/.
     kitti2012_root: Path | None = None
+    # eval.extra_sets' kitti2015 (KITTI 2015's training/): data.source kitti's own kitti2015/
+    # tree; beside the synthetic set, KITTI2015_SET.
+    kitti2015_set_root: Path | None = None
 
 
 @dataclass(frozen=True)
@@ -93,6 +99,7 @@ def layout(params: Params) -> Layout:
             root / "depth_annotated",
             root / MONO_SPLIT,
             kitti2012_root=root / KITTI2012 / "training",
+            kitti2015_set_root=root / KITTI2015_SET / "training",
         )
     k = params.data.kitti
     return Layout(
@@ -107,4 +114,5 @@ def layout(params: Params) -> Layout:
         Path(k.mono_split),
         root / k.odometry,
         root / KITTI2012 / "training",
+        root / "kitti2015" / "training",
     )

@@ -8,12 +8,13 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 
 from msdepth.config.params import Params
 from msdepth.data import kitti
 from msdepth.data.eval_index import read_eval_index
 from msdepth.errors import ConfigError, DataError
-from msdepth.evaluation.classes import exact_class_summary
+from msdepth.evaluation.classes import exact_class_summary, with_class_columns
 from msdepth.evaluation.suites import (
     Frame,
     depth_maps,
@@ -110,25 +111,30 @@ def run_suite(  # noqa: ANN001 - frames, boxes
     """
     fn = SUITES[suite]
     if suite == "full":
-        summary, table = fn(pred, frames, params.eval, median_scaling=scaled)
-        summary.update(exact_classes(params, pred, frames, scaled))
+        summary, table = full_suite(params, pred, frames, scaled)
     else:
         pred = median_scaled_maps(pred, frames, params.eval)[0] if scaled else pred
         summary, table = fn(pred, frames, boxes, params.eval)
     write_suite(suite, run, summary, table)
 
 
-def exact_classes(params: Params, pred: dict[str, np.ndarray], frames: list[Frame], scaled: bool) -> dict:
-    """``{"masks": ...}``, the full-image suite's scores on each exact class
-    (:func:`~msdepth.evaluation.classes.exact_class_summary`, of ``pred`` median-scaled where
-    ``scaled``), for a set whose every frame has whole-frame classes (KITTI 2012's reflective, KITTI
-    2015's obj_map cars, a stereo folder's class maps: ``Frame.whole_frame_classes``); else ``{}``:
-    the others' summaries stay as they were."""
+def full_suite(
+    params: Params, pred: dict[str, np.ndarray], frames: list[Frame], scaled: bool
+) -> tuple[dict, pd.DataFrame]:
+    """The full-image suite (:func:`~msdepth.evaluation.suites.evaluate_full`) with, for a set whose
+    every frame has whole-frame classes (KITTI 2012's reflective, KITTI 2015's obj_map cars, a
+    stereo folder's class maps: ``Frame.whole_frame_classes``), the scores on each exact class
+    (of ``pred`` median-scaled where ``scaled``): ``summary["masks"]``
+    (:func:`~msdepth.evaluation.classes.exact_class_summary`) and per frame a column per class
+    (:func:`~msdepth.evaluation.classes.with_class_columns`). Other sets' files stay as they were."""
+    summary, table = evaluate_full(pred, frames, params.eval, median_scaling=scaled)
     if not frames or not all(f.class_map is not None and f.whole_frame_classes for f in frames):
-        return {}
+        return summary, table
     scored = median_scaled_maps(pred, frames, params.eval)[0] if scaled else pred
     masks = exact_class_summary(scored, frames, params.eval)
-    return {} if masks is None else {"masks": masks}
+    if masks is None:
+        return summary, table
+    return {**summary, "masks": masks}, with_class_columns(table, scored, frames, params.eval)
 
 
 def write_depth_maps(run: str, disparities: Path, eval_index: Path, out: Path, *, monocular: bool) -> None:
@@ -169,6 +175,5 @@ def score_set(  # noqa: ANN001 - frames
     """The full-image suite of ``pred`` on extra set ``name``, written below ``metrics/sets/<set>/``;
     median-scaled when ``scaled`` (default: ``eval.median_scaling``)."""
     scaled = params.eval.median_scaling if scaled is None else scaled
-    summary, table = evaluate_full(pred, frames, params.eval, median_scaling=scaled)
-    summary.update(exact_classes(params, pred, frames, scaled))
+    summary, table = full_suite(params, pred, frames, scaled)
     write_suite("full", run, summary, table, root=set_metrics_dir(name), headline_root=set_headline_dir(name))

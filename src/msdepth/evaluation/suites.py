@@ -328,6 +328,30 @@ def _summarise_by_class(rows: list[dict], keys: tuple[str, ...]) -> dict:
     return out
 
 
+def _exact_row(pred: dict[str, np.ndarray], found: tuple, cap: float, cfg: EvalConfig) -> dict | None:
+    """The metrics of one ROI (``found``: :func:`_boxes_for`'s item) on its box's exact pixels of its
+    class, as a row of :func:`exact_mask_table`; None where they hold no valid GT."""
+    i, roi, frame, box = found
+    exact = (frame.class_map[box] & kitti.CLASS_BITS.get(roi["class"], 0)) > 0
+    m = _metrics_in(frame, pred[frame.name][box], frame.valid[box] & exact, cap, cfg, box)
+    return None if m is None else {"roi": i, "image": roi["image"], "class": roi["class"], "cap": cap, **m}
+
+
+def exact_mask_table(
+    pred: dict[str, np.ndarray], frames: list[Frame], rois: pd.DataFrame, cfg: EvalConfig
+) -> pd.DataFrame:
+    """Per ROI and cap, the metrics on the box's exact pixels of its class (every frame needs a class
+    map): the units :func:`evaluate_roi`'s ``summary["masks"]`` averages; ROIs without valid GT there
+    are left out."""
+    rows = [
+        row
+        for cap in cfg.caps
+        for found in _boxes_for(rois, frames)
+        if (row := _exact_row(pred, found, cap, cfg)) is not None
+    ]
+    return pd.DataFrame(rows, columns=list(ROI_COLUMNS))
+
+
 def evaluate_roi(
     pred: dict[str, np.ndarray], frames: list[Frame], rois: pd.DataFrame, cfg: EvalConfig
 ) -> tuple[dict, pd.DataFrame]:
@@ -352,11 +376,8 @@ def evaluate_roi(
             m = _metrics_in(frame, pred[frame.name][box], valid, cap, cfg, box)
             if m is not None:
                 per_cap.append({"roi": i, "image": roi["image"], "class": roi["class"], "cap": cap, **m})
-            if masked:
-                exact = (frame.class_map[box] & kitti.CLASS_BITS.get(roi["class"], 0)) > 0
-                m = _metrics_in(frame, pred[frame.name][box], valid & exact, cap, cfg, box)
-                if m is not None:
-                    per_mask.append({"class": roi["class"], **m})
+            if masked and (m := _exact_row(pred, (i, roi, frame, box), cap, cfg)) is not None:
+                per_mask.append(m)
         if not per_cap:
             raise DataError("ROI evaluation: no ROI has valid ground truth")
         summary[f"cap{cap:g}"] = _summarise_by_class(per_cap, METRICS)

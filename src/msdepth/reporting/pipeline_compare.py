@@ -5,6 +5,7 @@ metrics tree the stages wrote (:mod:`msdepth.pipeline.paths`) and written as Mar
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 from typing import Callable, Sequence
 
@@ -46,6 +47,8 @@ from msdepth.reporting.compare import (
     variant_settings,
 )
 from msdepth.reporting.verdict import (
+    Row,
+    RowScope,
     display_names,
     headline_instruments,
     network_rows,
@@ -153,7 +156,8 @@ def verdict_section(
     """compare.json's ``verdict`` (:func:`msdepth.reporting.verdict.verdict_data`): per surface class,
     each variant minus ``compare.reference`` in abs_rel at the headline cap, by the trained networks
     (every seed), the monocular study's networks (:data:`~msdepth.pipeline.paths.MONOCULAR_TABLE`),
-    the optimum at every weight and the real-pairs study's rows
+    the optimum at every weight, each extra set's networks, cost starts and optimum
+    (:func:`set_verdict_rows`, frames as the units) and the real-pairs study's rows
     (:data:`~msdepth.pipeline.paths.REAL_VERDICT`, where it exists)."""
     cfg, cap = params.compare, params.eval.caps[0]
     variants = {v: groups[v] for v in params.variants}
@@ -174,6 +178,8 @@ def verdict_section(
                 METRICS, [r for w in by_weight.values() for r in w.values()], compared
             )
             rows += optimum_rows(opt_tables, by_weight, cfg, cap, settings)
+    for name in params.eval.extra_sets:
+        rows += set_verdict_rows(params, name, pairing, settings)
     rows += read_external_rows(REAL_VERDICT)
     better, than = display_names(params.variants, cfg.reference)
     headline = headline_instruments(params.optimum.smoothness_weight)
@@ -234,6 +240,36 @@ def set_instruments(params: Params, root: Path) -> tuple[dict[str, str], dict[st
     reasons = {label: skipped_reason(root, run, ["full"]) for label, run in runs.items()}
     found = {label: run for label, run in runs.items() if reasons[label] is None}
     return found, {label: why for label, why in reasons.items() if why is not None}
+
+
+def set_verdict_rows(
+    params: Params, name: str, pairing: dict[str, str | None] | None = None, settings: str = ""
+) -> list[Row]:
+    """The verdict's rows of extra set ``name``, frames as the units: the trained networks (paired
+    by seed), each variant's SGM cost start and its optimum at ``optimum.smoothness_weight`` (paired
+    by frame), on the whole frame and on each of the set's exact classes (KITTI 2012's reflective,
+    KITTI 2015's cars). Named ``<instrument> on <set>``; kept without an interval below
+    :data:`~msdepth.reporting.verdict.MIN_UNITS` frames. [] with fewer than two variants."""
+    if len(params.variants) < 2:
+        return []
+    root, cfg, cap = set_metrics_dir(name), params.compare, params.eval.caps[0]
+    scope = RowScope(whole_frame=True, unit=f"{name} frames", keep_few=True)
+    variants = {v: variant_runs(params)[v] for v in params.variants}
+    tables = load_unit_tables(root, [r for runs in variants.values() for r in runs], ["full"])
+    rows = network_rows(tables, variants, cfg, cap, pairing=pairing, settings=settings, scope=scope)
+    instruments, _ = set_instruments(params, root)
+    weight = f"w{params.optimum.smoothness_weight:g}"
+    for instrument, label, pattern in (
+        ("optimum", weight, f"{OPTIMUM} {{}} {weight}"),
+        ("SGM", "cost start", "SGM ({} cost)"),
+    ):
+        runs = {
+            v: instruments[pattern.format(v)] for v in params.variants if pattern.format(v) in instruments
+        }
+        if cfg.reference in runs and len(runs) > 1:
+            found = load_unit_tables(root, list(runs.values()), ["full"])
+            rows += optimum_rows(found, {label: runs}, cfg, cap, settings, scope, instrument)
+    return [dataclasses.replace(r, instrument=f"{r.instrument} on {name}") for r in rows]
 
 
 def compare_set(params: Params, name: str, label: Callable[[str], str] = str) -> tuple[dict, str]:

@@ -13,6 +13,12 @@ classes are the full frame (``"full frame"``) and each ROI class (car, windshiel
 - ``optimum``: the losses' own optimum at each smoothness weight (one run per variant and weight,
   no training noise): :func:`msdepth.reporting.stats.paired_bootstrap` over the images or ROIs
   that weight was scored on.
+- the same two on each extra evaluation set (``eval.extra_sets``), named ``<instrument> on <set>``
+  (:func:`msdepth.reporting.pipeline_compare.set_verdict_rows`): the frames are the units, on the
+  whole frame and on each exact class the set's frames carry (KITTI 2012's ``reflective``, KITTI
+  2015's ``car``: :class:`RowScope`), with the SGM matcher on each variant's cost volume (``SGM
+  cost start``) beside the optimum; a set of fewer than :data:`MIN_UNITS` frames shows its rows
+  without an interval.
 - ``seeds``: the monocular study's mono and mono+stereo networks (``studies/monocular.py``),
   known per seed (its ``table.json``) or, where only its ``table.md`` exists, as mean ± sd over
   ``n`` seeds (:func:`parse_monocular_table`). Welch's t interval of the difference of the two
@@ -57,6 +63,7 @@ import pandas as pd
 
 from msdepth.config.params import CompareConfig
 from msdepth.errors import DataError
+from msdepth.evaluation.classes import class_unit_tables
 from msdepth.reporting.compare import UNIT_KEYS, paired_statistics
 from msdepth.reporting.power import t_quantile
 from msdepth.reporting.stats import paired_bootstrap, paired_t, paired_table
@@ -67,7 +74,7 @@ FULL_FRAME = "full frame"
 CLASS_ORDER = (FULL_FRAME, "car", "windshield", "glass", "sign", "reflective")
 MIN_UNITS = 5
 EXTERNAL_FIELDS = ("instrument", "class", "diff", "low", "high", "n", "method")
-EXTERNAL_OPTIONAL = ("settings", "t_low", "t_high", "seeds", "per_seed")
+EXTERNAL_OPTIONAL = ("settings", "t_low", "t_high", "seeds", "per_seed", "unit")
 KINDS = ("network", "seeds", "optimum", "external", "pooled")
 DISPLAY_NAMES = {"ssim": "SSIM", "msssim": "MS-SSIM"}  # the two losses the verdict is about
 MONOCULAR_MODES = {"mono": "mono networks", "mono_stereo": "mono+stereo networks"}
@@ -99,6 +106,7 @@ class Row:
     settings: str = ""
     apart: str = ""
     per_seed: tuple[float, ...] = ()  # paired network rows: each seed pair's difference (diff is their mean)
+    unit: str = ""  # what n counts where it is not images or ROIs (an extra set's frames); "" = those
 
     @property
     def has_interval(self) -> bool:
@@ -141,6 +149,7 @@ class Row:
         }
         optional = {"t_low": self.t_low, "t_high": self.t_high, "seeds": self.seeds}
         optional |= {"settings": self.settings, "apart": self.apart, "per_seed": list(self.per_seed)}
+        optional |= {"unit": self.unit}
         return d | {k: v for k, v in optional.items() if v not in (None, 0, "", [])}
 
     @classmethod
@@ -165,6 +174,7 @@ class Row:
             str(d.get("settings", "")),
             str(d.get("apart", "")),
             tuple(float(x) for x in d.get("per_seed", ())),
+            str(d.get("unit", "")),
         )
 
 
@@ -202,16 +212,35 @@ def class_order(classes: Sequence[str]) -> list[str]:
 
 
 def class_tables(
-    tables: Mapping[str, Mapping[str, pd.DataFrame]], anchor: str
+    tables: Mapping[str, Mapping[str, pd.DataFrame]], anchor: str, whole_frame: bool = False
 ) -> list[tuple[str, str, dict]]:
     """``(class, suite, {run: table})``: the full-image tables as the full frame, then the ROI
-    tables filtered to each class that ``anchor``'s ROI table holds."""
+    tables filtered to each class that ``anchor``'s ROI table holds; with ``whole_frame`` (an
+    extra set's exact classes), each class column of the full-image tables instead
+    (:func:`msdepth.evaluation.classes.class_unit_tables`: per frame, its pixels of the class)."""
     out = [(FULL_FRAME, "full", dict(tables["full"]))] if "full" in tables else []
+    if whole_frame and "full" in tables:
+        out += [(cls, "full", chosen) for cls, chosen in class_unit_tables(dict(tables["full"]), anchor)]
     if "roi" in tables:
         roi = tables["roi"]
         for cls in class_order(list(roi[anchor]["class"].unique())):
             out.append((cls, "roi", {run: t[t["class"] == cls] for run, t in roi.items()}))
     return out
+
+
+@dataclass(frozen=True)
+class RowScope:
+    """Where rows are made: ``whole_frame``, an extra set's exact classes per frame
+    (:func:`class_tables`); ``unit``, what n counts there (:attr:`Row.unit`; "" = images or ROIs);
+    ``keep_few``, rows over fewer than :data:`MIN_UNITS` units kept without an interval (a set of a
+    few frames shows its point estimates) rather than left out."""
+
+    whole_frame: bool = False
+    unit: str = ""
+    keep_few: bool = False
+
+    def units(self, suite: str) -> str:
+        return self.unit or ("images" if suite == "full" else "ROIs")
 
 
 def network_rows(
@@ -222,6 +251,7 @@ def network_rows(
     instrument: str = "stereo networks",
     pairing: Mapping[str, str | None] | None = None,
     settings: str = "",
+    scope: RowScope = RowScope(),
 ) -> list[Row]:
     """Per class, each variant of ``groups`` (variant -> its runs, the reference's included) minus
     ``cfg.reference``, by the comparison's bootstrap over units and seeds; ``tables`` is
@@ -230,22 +260,29 @@ def network_rows(
     reference's are compared pair by pair, with the paired t beside the bootstrap."""
     rows = []
     others = [v for v in groups if v != cfg.reference]
-    for cls, suite, chosen in class_tables(tables, groups[cfg.reference][0]):
+    for cls, suite, chosen in class_tables(tables, groups[cfg.reference][0], scope.whole_frame):
         block = paired_statistics({suite: chosen}, dict(groups), cfg, [cap], pairing)
         for variant in others:
             d = block[suite][f"cap{cap:g}"][variant][METRIC]
-            if d["n"] < MIN_UNITS:
+            few = d["n"] < MIN_UNITS
+            if few and not scope.keep_few:
                 continue
-            method = network_method(d, "images" if suite == "full" else "ROIs", block["pairing"][variant])
+            method = network_method(d, scope.units(suite), block["pairing"][variant])
             name = instrument if len(others) == 1 else f"{instrument}, {variant}"
             seeds = d["seeds"] if d["paired"] else min(d["seeds"], d["reference_seeds"])
+            low, high = (None, None) if few else (d["low"], d["high"])
             rows.append(
                 Row(
-                    name, cls, d["mean"], d["low"], d["high"], d["n"], method, "network",
-                    d.get("t_low"), d.get("t_high"), seeds, settings, per_seed=tuple(d.get("per_seed", ())),
+                    name, cls, d["mean"], low, high, d["n"], method + _few_words(few), "network",
+                    None if few else d.get("t_low"), None if few else d.get("t_high"), seeds, settings,
+                    per_seed=tuple(d.get("per_seed", ())), unit=scope.unit,
                 )
             )  # fmt: skip
     return rows
+
+
+def _few_words(few: bool) -> str:
+    return f"; fewer than {MIN_UNITS} units: no interval" if few else ""
 
 
 def network_method(d: Mapping, unit: str, unpaired: str | None) -> str:
@@ -265,27 +302,37 @@ def optimum_rows(
     cfg: CompareConfig,
     cap: float,
     settings: str = "",
+    scope: RowScope = RowScope(),
+    instrument: str = "optimum",
 ) -> list[Row]:
     """Per weight (``runs``: weight label, e.g. ``w10``, -> {variant: its optimum run}) and class,
     each variant minus ``cfg.reference``: :func:`~msdepth.reporting.stats.paired_bootstrap` over
-    the units both runs were scored on."""
+    the units both runs were scored on. ``instrument``: the rows' name before the weight label
+    (``SGM`` with the label ``cost start``: the SGM matchers on each variant's cost volume)."""
     rows = []
     for weight, by_variant in runs.items():
         ref = by_variant[cfg.reference]
         others = [v for v in by_variant if v != cfg.reference]
-        for cls, suite, chosen in class_tables(tables, ref):
+        for cls, suite, chosen in class_tables(tables, ref, scope.whole_frame):
             keys = UNIT_KEYS[suite]
             for variant in others:
-                what = f"{suite} optimum {variant} vs {cfg.reference} {weight}, {cls}"
+                what = f"{suite} {instrument} {variant} vs {cfg.reference} {weight}, {cls}"
                 a, b = (chosen[by_variant[variant]], chosen[ref])
                 values, reference = paired_table(a[a["cap"] == cap], b[b["cap"] == cap], keys, METRIC, what)
-                if len(values) < MIN_UNITS:
+                few = len(values) < MIN_UNITS
+                if (few and not scope.keep_few) or not len(values):
                     continue
-                d = paired_bootstrap(values, reference, cfg.bootstrap_samples, cfg.confidence, cfg.seed)
-                name = f"optimum {weight}" if len(others) == 1 else f"optimum {weight}, {variant}"
-                unit = "images" if suite == "full" else "ROIs"
-                method = f"paired bootstrap over {unit} (one deterministic run per variant)"
-                rows.append(Row(name, cls, d.mean, d.low, d.high, d.n, method, "optimum", settings=settings))
+                name = f"{instrument} {weight}" if len(others) == 1 else f"{instrument} {weight}, {variant}"
+                method = f"paired bootstrap over {scope.units(suite)} (one deterministic run per variant)"
+                if few:
+                    diff, low, high, n = float(np.mean(values - reference)), None, None, len(values)
+                else:
+                    d = paired_bootstrap(values, reference, cfg.bootstrap_samples, cfg.confidence, cfg.seed)
+                    diff, low, high, n = d.mean, d.low, d.high, d.n
+                row = Row(
+                    name, cls, diff, low, high, n, method + _few_words(few), "optimum", settings=settings
+                )
+                rows.append(dataclasses.replace(row, unit=scope.unit))
     return rows
 
 
@@ -714,7 +761,7 @@ def interval_cell(r: Row, decimals: int = 3) -> str:
 
 def units_text(r: Row) -> str:
     """What a row's n counts, short: ``66 ROIs × 3 seed pairs``, ``5 frames``, ``3 seeds``."""
-    unit = "images" if r.cls == FULL_FRAME else "ROIs"
+    unit = r.unit or ("images" if r.cls == FULL_FRAME else "ROIs")
     if r.kind == "network":
         pairs = "seed pairs" if r.method.startswith("paired") else "seeds a side"
         return f"{r.n} {unit} × {r.seeds} {pairs}"

@@ -1,0 +1,111 @@
+"""KITTI 2015 as an extra evaluation set (eval_sets' kitti2015): its layout beside a synthetic training
+set, its GT (disp_occ_0), obj_map's cars as the exact class ``car``, bad trees refused in one line,
+and the suites on the shared two-frame sample (``../shared/real-samples/kitti2015-training``; those
+tests skip where it is absent)."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from msdepth.config.params import Params
+from msdepth.data import kitti
+from msdepth.data.eval_sets import KITTI2015_GT, build_kitti2015_index, build_set_index
+from msdepth.data.layout import KITTI2015_SET, layout
+from msdepth.errors import DataError
+from msdepth.evaluation.results import score_set
+from msdepth.evaluation.suites import load_frames
+from msdepth.io import write_png
+
+SAMPLE = Path(__file__).resolve().parents[1].parent / "shared" / "real-samples" / "kitti2015-training"
+needs_sample = pytest.mark.skipif(not SAMPLE.is_dir(), reason=f"{SAMPLE} absent (a clone without ../shared)")
+WIDTH = 1242  # a KITTI width: Monodepth's focal 721.5377 px, baseline 0.54 m
+
+
+def tiny_set(root: Path, frames: tuple[str, ...] = ("000000_10",), obj_map: bool = True) -> None:
+    """A KITTI 2015 training layout of flat frames: GT 20 px everywhere but 10 px on a car filling
+    the lower half, which obj_map marks (instance 1)."""
+    for frame in frames:
+        for folder in ("image_2", "image_3"):
+            (root / folder).mkdir(parents=True, exist_ok=True)
+            write_png(root / folder / f"{frame}.png", np.full((8, WIDTH, 3), 100, np.uint8))
+        disp = np.full((8, WIDTH), 20.0, np.float32)
+        disp[4:] = 10.0
+        (root / KITTI2015_GT).mkdir(parents=True, exist_ok=True)
+        kitti.write_disparity(root / KITTI2015_GT / f"{frame}.png", disp)
+        if obj_map:
+            (root / "obj_map").mkdir(parents=True, exist_ok=True)
+            ids = np.zeros((8, WIDTH), np.uint8)
+            ids[4:] = 1
+            write_png(root / "obj_map" / f"{frame}.png", ids)
+
+
+def scored(tmp_path: Path, monkeypatch, root: Path, depth: float) -> dict:
+    """The kitti2015 set of ``root`` scored with a constant ``depth``: its full-image summary."""
+    frames = load_frames(build_kitti2015_index(root))
+    monkeypatch.chdir(tmp_path)  # score_set writes below metrics/ of the working folder
+    pred = {f.name: np.full(f.shape, depth, np.float32) for f in frames}
+    score_set(Params(), "kitti2015", "constant", pred, frames, scaled=False)
+    path = next((tmp_path / "metrics" / "sets" / "kitti2015").rglob("constant.json"))
+    return json.loads(path.read_text())
+
+
+def test_the_set_scores_obj_maps_cars_as_the_class_car(tmp_path, monkeypatch):
+    """Depth at the background's GT (20 px): abs_rel 0 there; on the car (GT 10 px, predicted 20 px)
+    depth is half the GT's, abs_rel 0.5, D1 100 %, EPE 10 px; the whole frame half of that."""
+    tiny_set(tmp_path / "set")
+    summary = scored(tmp_path, monkeypatch, tmp_path / "set", 721.5377 * 0.54 / 20)
+    car = summary["masks"]["cap80"]["by_class"]["car"]
+    assert car["abs_rel"] == pytest.approx(0.5, abs=1e-3)
+    assert summary["masks"]["stereo"]["car"]["d1"] == pytest.approx(100.0)
+    assert summary["masks"]["stereo"]["car"]["epe"] == pytest.approx(10.0, abs=0.05)
+    assert summary["cap80"]["abs_rel"] == pytest.approx(0.25, abs=1e-3)
+
+
+def test_a_frame_without_obj_map_is_scored_without_classes(tmp_path):
+    tiny_set(tmp_path / "set", obj_map=False)
+    index = build_kitti2015_index(tmp_path / "set")
+    assert list(index["obj_map"]) == [""] and list(index["gt_kind"]) == ["disparity"]
+    (frame,) = load_frames(index)
+    assert frame.class_map is None
+
+
+def test_bad_trees_are_refused_naming_the_file(tmp_path):
+    with pytest.raises(DataError, match=r"no image_2/ folder"):
+        build_kitti2015_index(tmp_path)
+    tiny_set(tmp_path, frames=("000000_10", "000001_10"))
+    (tmp_path / "image_3" / "000001_10.png").unlink()
+    with pytest.raises(DataError, match=r"image_3/000001_10\.png: missing"):
+        build_kitti2015_index(tmp_path)
+    write_png(tmp_path / "image_3" / "000001_10.png", np.full((8, 100, 3), 100, np.uint8))
+    with pytest.raises(DataError, match=r"000001_10\.png"):
+        build_kitti2015_index(tmp_path)
+
+
+def test_the_set_sits_beside_the_rendered_frames_and_in_a_kitti_tree(tmp_path):
+    """Beside a synthetic training set, the user's tree goes below data.root/kitti2015_stereo (the
+    renderer owns kitti2015/); with data.source kitti it is the downloaded kitti2015/ itself."""
+    params = Params()
+    params = dataclasses.replace(params, eval=dataclasses.replace(params.eval, extra_sets=("kitti2015",)))
+    params.eval.validate("eval", params)
+    root = Path(params.data.root)
+    assert layout(params).kitti2015_set_root == root / KITTI2015_SET / "training"
+    assert layout(params).kitti2015_set_root != layout(params).kitti2015_root / "training"
+    data = dataclasses.replace(params.data, source="kitti", root=str(tmp_path))
+    kitti_params = dataclasses.replace(params, data=data)
+    assert layout(kitti_params).kitti2015_set_root == tmp_path / "kitti2015" / "training"
+    tiny_set(tmp_path / "kitti2015" / "training")
+    assert list(build_set_index(kitti_params, "kitti2015")["frame"]) == ["000000_10"]
+
+
+@needs_sample
+def test_the_suites_run_on_the_shared_kitti2015_frames(tmp_path, monkeypatch):
+    index = build_kitti2015_index(SAMPLE)
+    assert list(index["frame"]) == ["000000_10", "000001_10"]
+    assert list(index["focal"]) == [721.5377, 721.5377] and list(index["obj_map"]) == ["", ""]
+    summary = scored(tmp_path, monkeypatch, SAMPLE, 20.0)
+    assert summary["images"] == 2 and np.isfinite(summary["cap80"]["abs_rel"])
