@@ -237,7 +237,7 @@ def test_bad_list_content_names_the_file_and_line(tmp_path: Path) -> None:
         bad.write_text(text)
         with pytest.raises(DataError, match=pattern):
             dl.parse_archive_list(bad)
-    with pytest.raises(DataError, match="missing.txt: cannot read"):
+    with pytest.raises(DataError, match="missing.txt: no such archive list file"):
         dl.parse_archive_list(tmp_path / "missing.txt")
 
 

@@ -309,6 +309,13 @@ def test_roi_file_errors(tmp_path: Path) -> None:
         kitti.read_rois(tmp_path / "empty.csv")
     with pytest.raises(DataError, match="none.csv.*no such"):
         kitti.read_rois(tmp_path / "none.csv")
+    (tmp_path / "wide.csv").write_text("image,class,x0,y0,x1,y1\n0,car,0,0,4,4\n0,car,0,0,4,4,5,6\n")
+    with pytest.raises(DataError) as err:  # pandas' tokenizer error ends with a newline
+        kitti.read_rois(tmp_path / "wide.csv")
+    assert str(err.value) == (
+        f"{tmp_path / 'wide.csv'}: not a readable ROI CSV: Error tokenizing data. C error: Expected 6 fields "
+        "in line 3, saw 8"
+    )
     bad = _rois()
     bad.loc[1, "class"] = "tree"
     with pytest.raises(DataError, match="out.csv: row 3"):

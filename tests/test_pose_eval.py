@@ -59,3 +59,27 @@ def test_read_poses_of_a_rendered_sequence(tmp_path: Path) -> None:
     path.write_text("1 2 3\n")
     with pytest.raises(DataError, match=r"poses.txt: expected 12 finite numbers per line"):
         read_poses(path)
+
+
+_POSE = "1 0 0 0 0 1 0 0 0 0 1 0\n"
+
+
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [
+        (_POSE + "1 0 0 0 0 1 0 0 0 0 1\n", "line 2: expected 12 numbers (a 3x4 pose), got 11 field(s)"),
+        (_POSE + "# a comment\n1 0 0 0 0 1 0 0 0 0 1 x\n", "line 3: 'x' is not a number"),
+        (_POSE + _POSE.replace("1 0\n", "1 nan\n"), "pose 2 of 2 holds a NaN or an infinite number"),
+        (
+            _POSE + "1 0 0 0 0 1 0 0 0 0 1 \xe9\n",
+            "not a KITTI poses file (a byte that is not ASCII text at byte 46)",
+        ),
+        ("# no pose\n", "expected 12 finite numbers per line (a 3x4 pose), got shape (0, 1)"),
+    ],
+)
+def test_a_malformed_poses_file_is_one_line_naming_it(tmp_path: Path, text: str, message: str) -> None:
+    path = tmp_path / "poses.txt"
+    path.write_bytes(text.encode("utf-8"))
+    with pytest.raises(DataError) as err:
+        read_poses(path)
+    assert str(err.value) == f"{path}: {message}"

@@ -24,8 +24,10 @@ from conftest import unblocking
 
 from msdepth.config.params import MAX_PARAMS_BYTES, read_params_file
 from msdepth.config.params_yaml import MAX_DATA_FILE_BYTES
-from msdepth.data import folder, ground_truth, imagefile, kitti, pfm
-from msdepth.errors import MsdepthError
+from msdepth.data import eval_sets, folder, ground_truth, imagefile, kitti, pfm
+from msdepth.download import archives
+from msdepth.errors import DataError, MsdepthError
+from msdepth.evaluation import pose
 from msdepth.io import encode_png
 from msdepth.reporting import experiments
 
@@ -52,6 +54,7 @@ def _npy(array: np.ndarray) -> bytes:
 
 _CALIB = b"S_rect_02: 6 4\nR_rect_00: 1 0 0 0 1 0 0 0 1\nP_rect_02: 1 0 3 0 0 1 2 0 0 0 1 0\n"
 _VELO_TO_CAM = "R: 1 0 0 0 1 0 0 0 1\nT: 0 0 0\n"
+_POSES = b"1 0 0 0 0 1 0 0 0 0 1 0\n1 0 0 0.5 0 1 0 0 0 0 1 0.25\n"
 
 READERS = [
     Reader(
@@ -117,6 +120,36 @@ READERS = [
         experiments.MAX_JSON_BYTES,
         experiments.read_json,
     ),
+    Reader(
+        "ROI CSV",
+        "rois.csv",
+        b"image,class,x0,y0,x1,y1\n000000_10,car,0,0,4,4\n",
+        kitti.MAX_ROI_BYTES,
+        kitti.read_rois,
+    ),
+    Reader("poses", "poses.txt", _POSES, pose.MAX_POSES_BYTES, pose.read_poses, cut=6),  # 11 numbers left
+    Reader(
+        "benchmark split",
+        "eigen_benchmark_test_files.txt",
+        b"2011_09_26/2011_09_26_drive_0002_sync 69 l\n",
+        kitti.MAX_LIST_BYTES,
+        eval_sets.read_benchmark_split,
+    ),
+    Reader(
+        "archive list",
+        "archives.txt",
+        b"# KITTI raw\nraw_data/2011_09_26_calib.zip\n",
+        archives.MAX_ARCHIVE_LIST_BYTES,
+        archives.parse_archive_list,
+    ),
+    Reader(
+        "download's split list",
+        "train_files.txt",
+        b"2011_09_26/2011_09_26_drive_0001_sync 1 l\n",
+        archives.MAX_SPLIT_LIST_BYTES,
+        archives.split_drives,
+        cut=33,  # "2011_09_26" is left: names no drive
+    ),
 ]
 CASES = ["fifo", "folder", "symlink-loop", "over-limit", "truncated", "empty", "garbage"]
 
@@ -179,3 +212,23 @@ def test_each_reader_refuses_the_hostile_set_in_one_line(tmp_path: Path, reader:
     assert "\n" not in message and str(path) in message and len(message) < 400, message
     # a FIFO answers at once (unblocking releases a blocked open after 1 s); nothing big is read
     assert seconds < 0.9 and peak < 16 << 20, (message, seconds, peak)
+
+
+def test_the_download_reads_split_lists_with_the_index_stages_bound() -> None:
+    # archives keeps its own constant (importing msdepth.data.kitti would load OpenCV and pandas):
+    # this holds the two equal.
+    assert archives.MAX_SPLIT_LIST_BYTES == kitti.MAX_LIST_BYTES
+
+
+@pytest.mark.parametrize("case", ["fifo", "folder", "missing"])
+def test_the_png_signature_check_refuses_what_is_not_a_file_in_one_line(tmp_path: Path, case: str) -> None:
+    # read_label_map checks the signature after decoding: a FIFO swapped in meanwhile blocked open().
+    path = tmp_path / "labels.png"
+    if case == "fifo":
+        os.mkfifo(path)
+    elif case == "folder":
+        path.mkdir()
+    with unblocking(path) if case == "fifo" else contextlib.nullcontext(), pytest.raises(DataError) as err:
+        imagefile.is_png(path)
+    message = str(err.value)
+    assert message.startswith(f"{path}: ") and "\n" not in message, message

@@ -91,15 +91,19 @@ def build_eigen_index(raw_root: Path, split: Path) -> pd.DataFrame:
 
 
 def read_benchmark_split(path: Path) -> list[tuple[str, int]]:
-    """Monodepth2's ``<date>/<drive>_sync <frame number> l`` lines as (drive folder, frame number)."""
+    """Monodepth2's ``<date>/<drive>_sync <frame number> l`` lines as (drive folder, frame number).
+
+    Read as every list file is (:func:`msdepth.data.kitti.list_lines`: a regular UTF-8 file of at
+    most :data:`msdepth.data.kitti.MAX_LIST_BYTES`); a file listing no frame is a DataError.
+    """
     out = []
-    for i, line in enumerate(Path(path).read_text().splitlines(), 1):
-        if not line.strip():
-            continue
-        parts = line.split()
+    for i, line, parts in kitti.list_lines(path, "no such split file"):
         if len(parts) != 3 or parts[2] != "l" or not parts[1].isdigit():
-            raise DataError(f"{path}:{i}: expected '<date>/<drive>_sync <frame> l', got {line!r}")
+            # cut: one line of a hostile file can be the whole list bound long
+            raise DataError(f"{path}:{i}: expected '<date>/<drive>_sync <frame> l', got {line[:200]!r}")
         out.append((parts[0], int(parts[1])))
+    if not out:
+        raise DataError(f"{path}: split file lists no frame")
     return out
 
 

@@ -428,8 +428,10 @@ def batches_by_pixels(
 
 
 def is_png(path: str | os.PathLike) -> bool:
-    """Whether a file starts with PNG's signature (8 bytes read)."""
-    with open(path, "rb") as file:
+    """Whether a file starts with PNG's signature (8 bytes read); a DataError line names a file that
+    is not a regular one (:func:`msdepth.io.open_regular`: a FIFO put in its place would block a
+    plain open forever)."""
+    with open_regular(path, "image", allow_empty=True) as file:
         return file.read(len(_PNG_MAGIC)) == _PNG_MAGIC
 
 

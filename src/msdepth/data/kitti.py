@@ -7,6 +7,7 @@ KITTI tree and the synthetic one (:mod:`msdepth.render` writes these formats).
 
 from __future__ import annotations
 
+import io
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -33,10 +34,12 @@ PathLike = str | os.PathLike
 # What each text or binary reader here reads at most (:func:`msdepth.io.read_bounded`), far above
 # KITTI's own files: a calibration file is ~5 KB (a 600 MB one took 1.5 GB to refuse), a Velodyne
 # scan ~2 MB (about 120,000 points; the bound is 2 million), a split list ~3 MB (the bound: a
-# million lines of 64 bytes, data.synthetic's most frames).
+# million lines of 64 bytes, data.synthetic's most frames), an ROI CSV ~30 bytes a box (the bound:
+# eight million boxes, a few on each of data.synthetic's most evaluation frames).
 MAX_CALIB_BYTES = 1 << 20
 MAX_VELODYNE_BYTES = 32 << 20
 MAX_LIST_BYTES = 64 << 20
+MAX_ROI_BYTES = 256 << 20
 
 
 def _decode(
@@ -462,15 +465,19 @@ def _check_rois(df: pd.DataFrame, path: PathLike) -> pd.DataFrame:
 
 
 def read_rois(path: PathLike) -> pd.DataFrame:
-    """Read ROI boxes: columns image, class, x0, y0, x1, y1 (pixels; x1/y1 exclusive)."""
+    """Read ROI boxes: columns image, class, x0, y0, x1, y1 (pixels; x1/y1 exclusive).
+
+    Only a regular, non-empty file of at most :data:`MAX_ROI_BYTES` is read
+    (:func:`msdepth.io.read_bounded`): pandas given the path would block on a FIFO and read any size.
+    """
     path = Path(path)
-    if not path.is_file():
-        raise DataError(f"{path}: no such ROI file")
+    data = read_bounded(path, "ROI", MAX_ROI_BYTES)
     try:
         # Image names like "000000_10" must stay strings, not become numbers.
-        df = pd.read_csv(path, dtype={"image": str, "class": str}, keep_default_na=False)
+        df = pd.read_csv(io.BytesIO(data), dtype={"image": str, "class": str}, keep_default_na=False)
     except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
-        raise DataError(f"{path}: not a readable ROI CSV: {exc}") from None
+        # pandas ends a tokenizer error with a newline: the message is kept, on one line
+        raise DataError(f"{path}: not a readable ROI CSV: {' '.join(str(exc).split())}") from None
     return _check_rois(df, path)
 
 

@@ -59,7 +59,7 @@ from typing import Any
 from tqdm import tqdm
 
 from msdepth.errors import DataError
-from msdepth.io import atomic_temps, write_json
+from msdepth.io import atomic_temps, read_bounded, write_json
 
 # The host every entry of the shipped list starts with; entries are kept relative to it so that a
 # mirror (or a test server) can be used by passing another base URL to fetch_all.
@@ -83,6 +83,13 @@ MAX_EXPANSION = 100
 # at that rate would still take 5 days. Lower FetchOptions.min_rate for a slower link.
 MIN_RATE = 10 * 1024
 RATE_WINDOW_S = 60.0
+# What the list readers read at most (msdepth.io.read_bounded: a FIFO would block a plain read
+# forever, a huge file would be read whole). The archive list: the shipped one is 66 URLs, 7 KB;
+# the bound holds ~10,000 of them. The split lists: msdepth.data.kitti.MAX_LIST_BYTES, which the
+# index stage reads the same lists with (test_reader_bounds holds the two equal); not imported from
+# there so that the download imports neither OpenCV nor pandas.
+MAX_ARCHIVE_LIST_BYTES = 1 << 20
+MAX_SPLIT_LIST_BYTES = 64 << 20
 
 # Errors worth another try: the network or the server, not the request. HTTPError (a subclass of
 # URLError) is sorted by status in _open before it can reach this tuple.
@@ -155,6 +162,15 @@ class FetchOptions:
 # --------------------------------------------------------------------------- archive lists
 
 
+def _list_text(path: Path, kind: str, max_bytes: int) -> str:
+    """The UTF-8 text of the list file ``path`` (an empty file is ""), read through
+    :func:`msdepth.io.read_bounded`; each refusal one DataError line naming the file."""
+    try:
+        return read_bounded(path, kind, max_bytes, allow_empty=True).decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise DataError(f"{path}: not a UTF-8 text file ({exc.reason} at byte {exc.start})") from None
+
+
 def parse_archive_list(path: str | os.PathLike) -> list[str]:
     """Read an archive list: one URL (or URL path) of a ``.zip`` per line.
 
@@ -162,10 +178,7 @@ def parse_archive_list(path: str | os.PathLike) -> list[str]:
     relative to it (``raw_data/2011_09_26_calib.zip``); other absolute URLs are kept as they are.
     """
     path = Path(path)
-    try:
-        lines = path.read_text().splitlines()
-    except (OSError, UnicodeDecodeError) as exc:
-        raise DataError(f"{path}: cannot read the archive list ({exc})") from None
+    lines = _list_text(path, "archive list", MAX_ARCHIVE_LIST_BYTES).splitlines()
     names: list[str] = []
     seen: dict[str, int] = {}
     for number, line in enumerate(lines, 1):
@@ -174,7 +187,7 @@ def parse_archive_list(path: str | os.PathLike) -> list[str]:
             continue
         if any(c.isspace() for c in entry) or not entry.endswith(".zip"):
             raise DataError(
-                f"{path}:{number}: expected one URL of a .zip archive per line, got {line.strip()!r}"
+                f"{path}:{number}: expected one URL of a .zip archive per line, got {line.strip()[:200]!r}"
             )
         if entry.startswith(KITTI_BASE_URL):
             entry = entry[len(KITTI_BASE_URL) :]
@@ -280,12 +293,7 @@ def split_drives(path: str | os.PathLike) -> list[str]:
     DataError naming the file and line (the lists' other checks are the index stage's).
     """
     path = Path(path)
-    if not path.is_file():
-        raise DataError(f"{path}: no such split file")
-    try:
-        lines = path.read_bytes().decode("utf-8").splitlines()
-    except (OSError, UnicodeDecodeError) as exc:
-        raise DataError(f"{path}: cannot read the split file ({exc})") from None
+    lines = _list_text(path, "split", MAX_SPLIT_LIST_BYTES).splitlines()
     drives: dict[str, None] = {}
     for number, line in enumerate(lines, 1):
         if not line.strip():
@@ -298,7 +306,7 @@ def split_drives(path: str | os.PathLike) -> list[str]:
         if not named:
             raise DataError(
                 f"{path}:{number}: names no raw drive (expected paths '<date>/<drive>_sync/...'), "
-                f"got {line.strip()!r}"
+                f"got {line.strip()[:200]!r}"
             )
         drives.update(dict.fromkeys(named))
     if not drives:

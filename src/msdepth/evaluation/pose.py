@@ -11,15 +11,19 @@ camera-to-world matrix per frame, row-major, one line each (the synthetic sequen
 
 from __future__ import annotations
 
+import io
 import json
 import logging
 import os
+import re
+import warnings
 from pathlib import Path
 from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 
 from msdepth.errors import DataError
+from msdepth.io import read_bounded
 
 if TYPE_CHECKING:
     from msdepth.config.params import Params
@@ -28,18 +32,51 @@ if TYPE_CHECKING:
 log = logging.getLogger("msdepth")
 
 TRACK_LENGTH = 5  # Monodepth2's snippet length
+# The most a poses file may hold: a million poses (data.synthetic's most frames, in one drive) of 12
+# numbers as the renderer writes them (%.12e: 19 bytes and a space each), 229 MiB; KITTI odometry's
+# longest sequence (00, 4,541 poses) is under 1 MiB.
+MAX_POSES_BYTES = 256 << 20
 
 
 def read_poses(path: str | os.PathLike) -> np.ndarray:
-    """(N, 4, 4) camera-to-world poses of a KITTI odometry poses file; a DataError names a bad file."""
+    """(N, 4, 4) camera-to-world poses of a KITTI odometry poses file; a DataError names a bad file.
+
+    Only a regular, non-empty file of at most :data:`MAX_POSES_BYTES` is read
+    (:func:`msdepth.io.read_bounded`), and only ASCII text (numbers, ``#`` comments) is parsed.
+    """
+    data = read_bounded(path, "poses", MAX_POSES_BYTES)
+    if not data.isascii():  # a pose file is numbers: anything else is another file (or garbage)
+        at = re.search(rb"[\x80-\xff]", data).start()  # type: ignore[union-attr]
+        raise DataError(f"{path}: not a KITTI poses file (a byte that is not ASCII text at byte {at})")
     try:
-        rows = np.loadtxt(path, ndmin=2)
-    except (OSError, ValueError) as exc:
-        raise DataError(f"{path}: cannot read poses ({exc})") from None
-    if rows.shape[1] != 12 or not len(rows) or not np.isfinite(rows).all():
+        with warnings.catch_warnings():  # "input contained no data": refused below, by the shape
+            warnings.simplefilter("ignore", UserWarning)
+            rows = np.loadtxt(io.BytesIO(data), ndmin=2, encoding="ascii")
+    except ValueError as exc:
+        raise DataError(f"{path}: {_pose_problem(data, exc)}") from None
+    if rows.shape[1] != 12 or not len(rows):
         raise DataError(f"{path}: expected 12 finite numbers per line (a 3x4 pose), got shape {rows.shape}")
+    infinite = np.flatnonzero(~np.isfinite(rows).all(axis=1))
+    if infinite.size:  # "nan", "inf", or a number beyond float64 ("9" * 400)
+        raise DataError(f"{path}: pose {infinite[0] + 1} of {len(rows)} holds a NaN or an infinite number")
     bottom = np.tile([[[0.0, 0.0, 0.0, 1.0]]], (len(rows), 1, 1))
     return np.concatenate((rows.reshape(-1, 3, 4), bottom), axis=1)
+
+
+def _pose_problem(data: bytes, exc: ValueError) -> str:
+    """The first line of ``data`` (ASCII text that np.loadtxt refused with ``exc``) that is not 12
+    numbers, said with its line number: numpy's own message counts rows from 0 in one case and
+    from 1 in another, and suggests its ``usecols``."""
+    for number, line in enumerate(io.BytesIO(data), 1):  # lazily: no copy of a large file
+        fields = line.partition(b"#")[0].split()
+        if fields and len(fields) != 12:
+            return f"line {number}: expected 12 numbers (a 3x4 pose), got {len(fields)} field(s)"
+        for field in fields:
+            try:
+                float(field)
+            except ValueError:
+                return f"line {number}: {field[:40].decode()!r} is not a number"
+    return f"not a KITTI poses file ({str(exc).split(';')[0][:200]})"
 
 
 def local_poses(global_poses: np.ndarray) -> np.ndarray:
