@@ -27,9 +27,15 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from msdepth.config.params import apply_overrides, kernel_variant, params_from_dict, read_params_file
+from msdepth.config.params import (
+    MAX_WEIGHT,
+    apply_overrides,
+    kernel_variant,
+    params_from_dict,
+    read_params_file,
+)
 from msdepth.data.kitti import KITTI_BASELINE
-from msdepth.errors import run_main
+from msdepth.errors import ConfigError, run_main
 from msdepth.evaluation.suites import Frame, depth_maps, evaluate_full, evaluate_roi
 from msdepth.render import render_frame, within_range
 
@@ -96,6 +102,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--trace", action="store_true", help="print the mean loss per level at steps 25, 50, ...")
     ap.add_argument("--matchers", action="store_true", help="add SGM on each variant's cost and SGBM")
     args = ap.parse_args(argv)
+    if args.frames < 1:
+        raise ConfigError(f"--frames: must be at least 1, got {args.frames}")
+    if args.weights and not all(0 <= w <= MAX_WEIGHT for w in args.weights):  # NaN too
+        raise ConfigError(f"--weights: each must be in [0, {MAX_WEIGHT:g}], got {args.weights}")
     base = apply_overrides(read_params_file(ROOT / "params.yaml"), args.set)
     params = params_from_dict(base)
     pairs, frames, rois = rendered(params, args.frames)
