@@ -391,26 +391,32 @@ def test_the_summary_table_holds_each_familys_headline_instrument() -> None:
 def test_the_committed_network_rows_are_the_mean_of_the_per_seed_paired_differences() -> None:
     """Each stereo-network row of metrics/compare.json is paired by seed: its difference is the mean
     of the per-seed differences, each the mean over the class's ROIs (images) of MS-SSIM − SSIM in
-    the per-unit tables of the same seed (metrics/{roi,full}/<variant>/seed<S>.csv)."""
+    the per-unit tables of the same seed (metrics/{roi,full}/<variant>/seed<S>.csv; an extra set's
+    row, ``stereo networks on <set>``, those below metrics/sets/<set>/full/)."""
     import pandas as pd
 
     data = json.loads((ROOT / "metrics" / "compare.json").read_text(encoding="utf-8"))
     rows = [Row.from_dict(d) for d in data["verdict"]["rows"] if d["kind"] == "network"]
     assert rows and all(r.method.startswith(f"paired by seed ({len(data['seeds'])} pairs)") for r in rows)
+    assert {r.instrument for r in rows} == {"stereo networks", "stereo networks on eigen"}
     for r in rows:
         suite, key = ("full", "frame") if r.cls == FULL_FRAME else ("roi", "roi")
+        root = (
+            ROOT
+            / "metrics"
+            / (f"sets/{r.instrument.split(' on ')[1]}/full" if " on " in r.instrument else suite)
+        )
         per_seed = []
         for seed in data["seeds"]:
             a, b = (
-                pd.read_csv(ROOT / "metrics" / suite / v / f"seed{seed}.csv", dtype={"frame": str})
-                for v in ("msssim", "ssim")
+                pd.read_csv(root / v / f"seed{seed}.csv", dtype={"frame": str}) for v in ("msssim", "ssim")
             )
             a, b = (t[t["cap"] == 80] for t in (a, b))
             if suite == "roi":
                 a, b = (t[t["class"] == r.cls] for t in (a, b))
             diff = a.set_index(key)["abs_rel"] - b.set_index(key)["abs_rel"]
             per_seed.append(diff.mean())
-        assert r.per_seed == pytest.approx(per_seed, abs=1e-9), r.cls
+        assert r.per_seed == pytest.approx(per_seed, abs=1e-9), (r.instrument, r.cls)
         assert r.diff == pytest.approx(np.mean(per_seed), abs=1e-9) and r.low < r.diff < r.high
         assert r.t_low < r.diff < r.t_high
 
