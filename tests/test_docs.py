@@ -96,3 +96,17 @@ def test_constraints_pin_every_dependency() -> None:
         version = pins.get(req.name.lower().replace("_", "-"))
         assert version is not None, f"constraints.txt does not pin {req.name}"
         assert req.specifier.contains(version, prereleases=True), f"{req.name}=={version} is outside {req}"
+
+
+def test_the_results_page_lists_every_study_script_and_results_readme() -> None:
+    """docs/results.md's section "The studies" names every script in studies/ (as `name`) and links
+    each studies/results folder that has a README: a new study is not left undocumented."""
+    text = (ROOT / "docs" / "results.md").read_text(encoding="utf-8")
+    section = text[text.index("## The studies") :]
+    section = section[: section.index("\n## ", 1)]
+    scripts = sorted(p.name for p in (ROOT / "studies").iterdir() if p.suffix in (".py", ".sh"))
+    assert scripts and [s for s in scripts if f"`{s}`" not in section] == []
+    readmes = sorted((ROOT / "studies" / "results").glob("*/README.md"))
+    assert (
+        readmes and [r for r in readmes if f"studies/results/{r.parent.name}/README.md" not in section] == []
+    )

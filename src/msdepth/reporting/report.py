@@ -470,17 +470,43 @@ image dependence against the prior's line, and its final full and ROI metrics, i
 STUDIES = """## The studies
 
 The scripts in `studies/` ask what the default run cannot; `studies/results/` holds the runs
-quoted on this page.
+quoted on this page, and each results folder with a `README.md` says how it was made. Every script
+(`tests/test_docs.py` checks the list is complete):
 
-- `learning.py`: variants × seeds with overrides: does each run learn, how far apart are seeds
-  (each run's per-epoch abs_rel and image dependence, its final full and ROI metrics beside the
-  prior's).
-- `roi_errors.py`: per ROI class, the runs' errors against the prior's.
-- `side_by_side.py`: several models' disparities side by side.
-- `prepare_set.py`: a study's own project folder at other sizes (params with overrides, render,
-  index, ROIs, cache).
-- `objects_gpu.sh`: the prepared GPU run for resolving objects (larger render and input, wider
-  network, more epochs)."""
+- Training runs:
+  - `learning.py`: variants × seeds with overrides; does each run learn from the image, and how
+    far apart are seeds.
+  - `monocular.py`: Monodepth2's mono and mono+stereo training beside stereo, with both losses.
+  - `objects.py`: do the networks see objects; the object classes' error as one run trains long
+    ([objects](../studies/results/objects/README.md)).
+  - `objects_gpu.sh`: the prepared GPU run for resolving objects (larger render and input, wider
+    network, more epochs).
+  - `prepare_set.py`: a study's own project folder at other sizes (params with overrides, render,
+    index, ROIs, cache).
+- Statistics:
+  - `kernels.py`: the dissertation's kernel table with intervals.
+  - `power.py`: how many seeds a verdict needs, paired by seed
+    ([12 seeds](../studies/results/seeds12/README.md)).
+  - `roi_errors.py`: per ROI class, each run's errors against the prior's.
+- The losses' own optimum:
+  - `cost_curves.py`: where each loss wants each ROI class.
+  - `optimum_sweep.py`: the optimum at several smoothness weights.
+  - `optimum_kernels.py`: the optimum per MS-SSIM kernel size.
+  - `optimum_starts.py`, `optimum_refine.py`: global starts and their refinement, on real
+    KITTI 2015 frames.
+- Real data:
+  - `real_pairs.py`: every real pair at hand, for every variant's optimum and networks.
+  - `real_rois.py`: the hand-drawn ROIs on the real KITTI 2015 frames.
+  - `kitti_pair.sh`, `score_lidar.py`: the optimum on the real KITTI object pair, scored against
+    its Velodyne scan.
+  - The pipeline's own route to real frames is `eval.extra_sets`
+    ([real_sets](../studies/results/real_sets/README.md)).
+- Glass model:
+  - `glass_check.py`: non-glass pixels keep their bytes under a change of the glass model.
+  - `glass_before_after.py`: the default run before and after a renderer change.
+  - `glass_figure.py`: a windshield before and after the glass model.
+- Pictures:
+  - `side_by_side.py`: trained models' disparities side by side on chosen frames."""
 
 FIGURES = """## Figures and `dvc plots`
 
