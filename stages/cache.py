@@ -11,7 +11,7 @@ from msdepth.pipeline.paths import CACHE_REPORT, CACHED_PAIRS, PAIR_CACHE, TRAIN
 
 def cache(params: Params) -> None:
     """Decode and resize the training pairs once; pairs with unreadable images are left out and reported."""
-    cache_pairs(TRAIN_PAIRS, params.data.height, params.data.width, PAIR_CACHE, CACHED_PAIRS, CACHE_REPORT)
+    cache_pairs(TRAIN_PAIRS, *params.image_size, PAIR_CACHE, CACHED_PAIRS, CACHE_REPORT)
 
 
 if __name__ == "__main__":

@@ -38,7 +38,7 @@ def train(params: Params, variant: VariantArg, seed: SeedArg) -> None:
         distributed.relaunch("stages/train.py", [variant, seed], params.train.nproc, f"train {run}")
         return
     pairs = load_pair_list(CACHED_PAIRS)  # the pairs the cache holds, in its order
-    images = load_pair_cache(PAIR_CACHE, len(pairs), params.data.height, params.data.width)
+    images = load_pair_cache(PAIR_CACHE, len(pairs), *params.image_size)
     sequences = monocular_sequences(params)
     result = train_variant(
         params,

@@ -35,7 +35,7 @@ import numpy as np
 from msdepth.config.params import Params, apply_overrides, params_from_dict, read_params_file
 from msdepth.data import kitti
 from msdepth.data.eval_index import read_eval_index
-from msdepth.data.pairs import load_pair_cache, load_pair_list
+from msdepth.data.pairs import build_pair_cache, load_pair_cache, load_pair_list
 from msdepth.errors import DataError, OutputError, run_main
 from msdepth.evaluation import baselines
 from msdepth.evaluation.box_errors import box_medians, prior_correlation
@@ -126,9 +126,7 @@ def _recorder(params: Params, ev: EvalSet, out: Path, history: list[dict], spe: 
         if step // every == previous // every and epoch != params.train.epochs:
             return
         seconds, last = time.perf_counter() - clock["since"], history[-1] if history else {"step": 0}
-        disp = predict_disparities(
-            model, ev.images, params.data.height, params.data.width, False, progress=False
-        )
+        disp = predict_disparities(model, ev.images, *params.image_size, False, progress=False)
         model.train()
         timing = {"seconds_per_step": seconds / (step - last["step"])} if step > last["step"] else {}
         history.append(
@@ -177,7 +175,7 @@ def diagnose(
     params = dataclasses.replace(
         params, train=dataclasses.replace(params.train, epochs=epochs, seeds=(seed,))
     )
-    cache = load_pair_cache("data/cache/train_pairs.npy", len(pairs), params.data.height, params.data.width)
+    cache = training_cache(params, pairs, out / "work")
     history = [h for h in _resumed_history(out) if h["epoch"] <= epochs]
     on_epoch = _recorder(params, ev, out, history, spe, steps, every)
     work = out / "work"
@@ -189,6 +187,79 @@ def diagnose(
         TrainOptions(progress=False, cache=cache, seed=seed, on_epoch=on_epoch),
     )
     return history
+
+
+def crop_cache_path(work: Path, size: tuple[int, int]) -> Path:
+    """Where a run whose images are not the pipeline's cache size (``train.crop_scale`` > 1) keeps
+    its own pair cache."""
+    return work / f"pairs_{size[0]}x{size[1]}.npy"
+
+
+def training_cache(params: Params, pairs: list, work: Path) -> np.ndarray:
+    """The training pairs at ``params.image_size``: the pipeline's cache, or (``train.crop_scale``
+    > 1) a cache of the run's own, built once in ``work``."""
+    size = params.image_size
+    if size == (params.data.height, params.data.width):
+        return load_pair_cache("data/cache/train_pairs.npy", len(pairs), *size)
+    path = crop_cache_path(work, size)
+    if not path.is_file():
+        report = build_pair_cache(pairs, *size, path, progress=False)
+        if len(report.pairs) != len(pairs):
+            raise DataError(f"{path}: {len(pairs) - len(report.pairs)} training pairs are unreadable")
+    return load_pair_cache(path, len(pairs), *size)
+
+
+def window_starts(side: int, window: int, stride: int) -> list[int]:
+    """Where the windows of ``window`` px at ``stride`` start along a ``side``-px side, the last one
+    flush with the end, so that every pixel is covered.
+
+    Example:
+        >>> window_starts(384, 192, 80)
+        [0, 80, 160, 192]
+    """
+    return sorted({*range(0, side - window + 1, stride), side - window})
+
+
+def tiled_disparities(model, images: list[Path], size: tuple[int, int], crop: tuple[int, int]) -> np.ndarray:
+    """A crop-trained network's (``train.crop_scale`` > 1) disparity of each image resized to
+    ``size``: the mean of its plain predictions on the ``crop`` windows at half a crop's stride,
+    the input size it trained at, where the whole image (:func:`predict_disparities`) is not."""
+    import torch
+
+    from msdepth.data.pairs import resize, to_tensor
+    from msdepth.evaluation.infer import network_disparity
+
+    (height, width), (h, w) = size, crop
+    windows = [
+        np.s_[..., top : top + h, left : left + w]
+        for top in window_starts(height, h, h // 2)
+        for left in window_starts(width, w, w // 2)
+    ]
+    total = np.zeros((len(images), height, width), np.float32)
+    count = np.zeros((height, width), np.float32)
+    for window in windows:
+        count[window] += 1
+    for i, path in enumerate(images):
+        image = to_tensor(resize(kitti.read_image(path), height, width))[None]
+        for window in windows:
+            with torch.no_grad():
+                total[i][window] += network_disparity(model, image[window], False)[0]
+    return total / count
+
+
+def tile_scores(params: Params, ev: EvalSet, out: Path) -> dict:
+    """The final model of the run in ``out`` scored on the whole images and on tiles
+    (:func:`tiled_disparities`), for a run with ``train.crop_scale`` > 1."""
+    from msdepth.evaluation.infer import predict_disparities
+    from msdepth.networks.model_file import load_model
+
+    model, meta = load_model(out / "work" / "model.pt")
+    size, crop = (meta["height"], meta["width"]), (params.data.height, params.data.width)
+    whole = predict_disparities(model, ev.images, *size, False, progress=False)
+    tiles = tiled_disparities(model, ev.images, size, crop)
+    return {
+        name: scores(depth_maps(d, ev.frames), ev, params) for name, d in (("whole", whole), ("tiles", tiles))
+    }
 
 
 def baseline_scores(params: Params, ev: EvalSet) -> dict[str, dict]:
@@ -321,12 +392,13 @@ def runs_table(root: Path) -> str:
     return "\n".join(_table_lines(["run", "steps"], rows)) + "\n"
 
 
-def claim(out: Path, steps: int, every: int) -> None:
+def claim(out: Path, steps: int, every: int, size: tuple[int, int]) -> None:
     """Every file the study may write under ``out``, claimed before it starts (output policy). The
     run's scratch (model, checkpoint, saved disparities) has a manifest of its own in ``out/work``,
     so that the results' manifest lists only results."""
     results = [out / n for n in ("history.json", "curve.png", "strip.png", "summary.md", "baselines.json")]
-    scratch = [out / "work" / n for n in ("model.pt", "ck.pt")]
+    results.append(out / "tiles.json")
+    scratch = [out / "work" / n for n in ("model.pt", "ck.pt")] + [crop_cache_path(out / "work", size)]
     scratch += [out / "work" / f"disp_{m}.npy" for m in checkpoint_steps(steps, every)]
     OutputPolicy(out, "objects").claim(results, "params.yaml")
     OutputPolicy(out / "work", "objects").claim(scratch, "params.yaml")
@@ -344,6 +416,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", type=Path, required=True)
     ap.add_argument("--report", action="store_true", help="only the tables and figures of a run in --out")
     ap.add_argument("--table", action="store_true", help="only --out/table.md, a row per run below --out")
+    ap.add_argument(
+        "--tiles",
+        action="store_true",
+        help="train.crop_scale > 1: also score the final model on crop-sized tiles (--out/tiles.json)",
+    )
     args = ap.parse_args(argv)
     if args.table:
         if not claim_output_file(args.out / "table.md", "objects-table", args.out):
@@ -355,7 +432,7 @@ def main(argv: list[str] | None = None) -> int:
     base = apply_overrides(read_params_file("params.yaml"), args.set)
     params = params_from_dict(base)
     try:
-        claim(args.out, args.steps, args.every)
+        claim(args.out, args.steps, args.every, params.image_size)
         ev = load_eval_set(params)
         if args.report:
             history = _resumed_history(args.out)
@@ -372,6 +449,8 @@ def main(argv: list[str] | None = None) -> int:
     write_text(args.out / "baselines.json", json.dumps(floor, indent=1))
     text = summary_table(history, floor)
     write_text(args.out / "summary.md", text)
+    if args.tiles and params.train.crop_scale > 1:
+        write_text(args.out / "tiles.json", json.dumps(tile_scores(params, ev, args.out), indent=1))
     try:
         curve_figure(history, floor, args.out / "curve.png")
         strip_figure(args.out, ev, checkpoint_steps(args.steps, args.every), args.out / "strip.png")

@@ -74,6 +74,20 @@ def test_two_channels_of_monodepth2s_network_times_0_3() -> None:
             assert float(a.min()) > 0 and float(a.max()) < 0.3
 
 
+def test_init_disparity_starts_every_output_there_and_none_keeps_monodepth2s() -> None:
+    """model.init_disparity starts the ResNet network's outputs as the VGG heads' (every scale,
+    both channels, near 0.04 of the width); without it Monodepth2's sigmoid(0) start, 0.15."""
+    torch.manual_seed(0)
+    x = torch.rand(2, 3, H, W)
+    with torch.no_grad():
+        started = ResNetMonodepth(0.25, init_disparity=0.04).eval()(x)
+        plain = ResNetMonodepth(0.25).eval()(x)
+    for scale in started:
+        torch.testing.assert_close(scale, torch.full_like(scale, 0.04), rtol=0, atol=2e-3)
+    assert all(0.1 < float(p.mean()) < 0.25 for p in plain)
+    assert isinstance(depth_network("resnet18", 0.25, init_disparity=0.04), ResNetMonodepth)
+
+
 def test_width_multiplier_scales_encoder_and_decoder() -> None:
     full = sum(p.numel() for p in ResNetMonodepth().parameters())
     quarter = sum(p.numel() for p in ResNetMonodepth(0.25).parameters())

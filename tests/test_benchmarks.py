@@ -459,3 +459,14 @@ def test_objects_study_smoke(study_set: Path, tmp_path: Path) -> None:
     table = _study("objects.py", "--table", "--out", str(tmp_path), cwd=tmp_path)
     # The mark nearest 1,200 steps and the last: here both the 4th step, so one row.
     assert table.count("| out |") == 1 and "| out | 4 |" in table
+    # A crop-trained run (train.crop_scale 2): its own pair cache at twice the size, the final model
+    # scored on the whole images and on crop-sized tiles.
+    from msdepth.config.params import params_from_dict, read_params_file
+
+    data = params_from_dict(read_params_file(tmp_path / "params.yaml")).data
+    crop = ("--out", "crop", "--steps", "2", "--every", "2", "--threads", "1", "--set", "train.crop_scale=2")
+    _study("objects.py", *crop, "--tiles", cwd=tmp_path)
+    assert (tmp_path / "crop" / "work" / f"pairs_{2 * data.height}x{2 * data.width}.npy").stat().st_size > 0
+    tiles = json.loads((tmp_path / "crop" / "tiles.json").read_text())
+    assert set(tiles) == {"whole", "tiles"} and tiles["whole"] != tiles["tiles"]
+    assert all(0 < t["abs_rel"] < 10 for t in tiles.values())

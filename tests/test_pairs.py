@@ -168,3 +168,43 @@ def test_views_of_different_sizes_name_both_files(tree) -> None:
         DataError, match=r"0000000001.png is \(30, 50\) but its right image .*0000000001.png is \(31, 50\)"
     ):
         StereoPairs(pairs, 16, 24)[1]
+
+
+def test_crops_are_one_window_of_both_views_at_the_source_scale(tree, tmp_path: Path) -> None:
+    """train.crop_scale 2: the cache holds the pairs at twice the size, a sample is a 16 x 24
+    window of it at the same place in both views, drawn per (seed, epoch, index), and the
+    augmentation's own draws are those of the uncropped sample."""
+    from msdepth.data.pairs import crop_origin, sample_generator, to_tensor
+
+    _, pairs = tree
+    path = tmp_path / "cache" / "pairs2.npy"
+    build_pair_cache(pairs, 32, 48, path, progress=False)
+    cache = load_pair_cache(path, len(pairs), 32, 48)
+    plain = StereoPairs(pairs, 16, 24, seed=3, crop_scale=2)
+    cached = StereoPairs(pairs, 16, 24, seed=3, cache=cache, crop_scale=2)
+    origins = set()
+    for i in range(len(pairs)):
+        top, left = crop_origin((32, 48), (16, 24), 3, 0, i)
+        origins.add((top, left))
+        window = np.s_[top : top + 16, left : left + 24]
+        for view, key in enumerate(("left", "right")):
+            expected = to_tensor(cache[i, view][window])
+            assert torch.equal(cached[i][key], expected) and torch.equal(plain[i][key], expected)
+    assert len(origins) > 1  # not one fixed window
+    assert 0 <= min(o[0] for o in origins) and max(o[0] for o in origins) <= 16
+    cached.set_epoch(1)
+    assert any(
+        crop_origin((32, 48), (16, 24), 3, 1, i) != crop_origin((32, 48), (16, 24), 3, 0, i) for i in range(4)
+    )
+    jittered = StereoPairs(pairs, 16, 24, augment=True, seed=3, cache=cache, crop_scale=2)
+    top, left = crop_origin((32, 48), (16, 24), 3, 0, 2)
+    crop = [to_tensor(cache[2, v][top : top + 16, left : left + 24]) for v in (0, 1)]
+    expected = augment(*crop, sample_generator(3, 0, 2))
+    assert torch.equal(jittered[2]["left"], expected[0]) and torch.equal(jittered[2]["right"], expected[1])
+
+
+def test_a_crop_cache_of_the_wrong_size_is_refused(tree, tmp_path: Path) -> None:
+    _, pairs = tree
+    cache = np.zeros((len(pairs), 2, 16, 24, 3), dtype=np.uint8)  # the crop's size, not 2x it
+    with pytest.raises(DataError, match="at 32x48"):
+        StereoPairs(pairs, 16, 24, cache=cache, crop_scale=2)

@@ -6,6 +6,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
+import os
 import shutil
 import sys
 from pathlib import Path
@@ -16,7 +17,7 @@ from conftest import project, require_dvc, run_checked, stage
 
 import msdepth.training.train as train_mod
 from msdepth.config.params import Params, params_from_dict
-from msdepth.errors import DataError
+from msdepth.errors import ConfigError, DataError
 from msdepth.io import file_sha256
 from msdepth.networks.resnet import ResNetEncoder
 from msdepth.pipeline.paths import PRETRAINED, run_stage
@@ -66,28 +67,42 @@ def test_the_train_stage_reads_the_hash_back_or_stops_in_one_line(tmp_path: Path
 
 
 def test_hashing_a_missing_folder_or_unreadable_file_is_one_data_error(tmp_path: Path, monkeypatch) -> None:
-    with pytest.raises(DataError, match=r"absent.pth: no such file$"):
-        file_sha256(tmp_path / "absent.pth")
+    with pytest.raises(DataError, match=r"absent.pth: no such weights file$"):
+        file_sha256(tmp_path / "absent.pth", "weights")
     (tmp_path / "folder.pth").mkdir()
     with pytest.raises(DataError, match=r"folder.pth: a folder, not a file$"):
         file_sha256(tmp_path / "folder.pth")
     denied = tmp_path / "denied.pth"
     denied.write_bytes(b"A")
     _deny(monkeypatch, denied.name)  # chmod does not stop root, who may run the tests
-    with pytest.raises(DataError, match=r"denied.pth: cannot read it \(Permission denied\)$"):
+    with pytest.raises(DataError, match=r"denied.pth: cannot open this input file \(Permission denied\)$"):
         file_sha256(denied)
+
+
+def test_hashing_a_fifo_is_refused_at_once(tmp_path: Path) -> None:
+    """A FIFO as model.pretrained: the hash would wait forever for a writer; validate_params and the
+    hash each refuse it in one line, without opening it for a blocking read."""
+    fifo = tmp_path / "weights.pth"
+    os.mkfifo(fifo)
+    with pytest.raises(DataError, match=r"weights.pth: not a regular file \(a FIFO, a device or a socket\)"):
+        file_sha256(fifo, "weights")
+    raw = {**RESNET, "model": {**RESNET["model"], "pretrained": str(fifo)}}
+    with pytest.raises(
+        ConfigError, match=r"^model\.pretrained: not a regular file \(a FIFO, a device or a socket\): "
+    ):
+        params_from_dict(raw)
 
 
 def _deny(monkeypatch, name: str) -> None:
     """Opening a file called ``name`` fails as an unreadable file's would."""
-    real_open = Path.open
+    real_open = os.open
 
-    def open_(self, *args, **kwargs):
-        if self.name == name:
+    def open_(path, *args, **kwargs):
+        if Path(path).name == name:
             raise PermissionError(13, "Permission denied")
-        return real_open(self, *args, **kwargs)
+        return real_open(path, *args, **kwargs)
 
-    monkeypatch.setattr(Path, "open", open_)
+    monkeypatch.setattr(os, "open", open_)
 
 
 def test_the_pretrained_stage_writes_the_record_or_stops_in_one_line(
@@ -101,7 +116,7 @@ def test_the_pretrained_stage_writes_the_record_or_stops_in_one_line(
     Path("resnet18.pth").write_bytes(b"A")
     for target, message in [
         ("absent.pth", "params.yaml: model.pretrained: no such file: absent.pth"),  # validate_params' check
-        ("resnet18.pth", "model.pretrained: resnet18.pth: cannot read it (Permission denied)"),
+        ("resnet18.pth", "model.pretrained: resnet18.pth: cannot open this weights file (Permission denied)"),
     ]:
         model = {**RESNET["model"], "pretrained": target}
         Path("params.yaml").write_text(json.dumps({**RESNET, "model": model}))
@@ -175,7 +190,7 @@ def test_a_fresh_run_loads_the_weights_and_a_resume_never_reads_them(pairs, tmp_
     shutil.move(weights, tmp_path / "moved.pth")
     assert train(pretrained_sha256=digest).resumed_from_epoch == 1 and loads == [str(weights)]
     # Without the recorded hash the file is hashed here, so even a resume needs it: one line.
-    with pytest.raises(DataError, match=r"resnet18.pth: no such file$"):
+    with pytest.raises(DataError, match=r"resnet18.pth: no such weights file$"):
         train()
 
 

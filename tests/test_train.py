@@ -402,3 +402,38 @@ def test_the_run_follows_its_schedule(pairs, tmp_path: Path, monkeypatch) -> Non
     _train(_params(epochs=2, schedule="cosine", learning_rate=1e-3), pairs, tmp_path)
     assert seen == [learning_rate(1e-3, s, len(seen), "cosine") for s in range(len(seen))]
     assert len(seen) >= 4 and max(seen) == pytest.approx(1e-3)
+
+
+def test_crop_training_warps_by_the_crop_scale_and_infers_on_the_whole_image(pairs, tmp_path: Path) -> None:
+    """train.crop_scale 2: the loss of a crop sees the network's disparity (a fraction of the whole
+    image's width) times 2, the same pixel shift in the half-width crop, and the model file says the
+    network infers at twice the crop's size."""
+    from msdepth.training.train import build_loss, build_model, forward_and_loss
+
+    params = _params(crop_scale=2)
+    assert params.image_size == (2 * H, 2 * W)
+    torch.manual_seed(0)
+    net, criterion = build_model(params), build_loss(params, "ssim")
+    left, right = torch.rand(2, 3, H, W), torch.rand(2, 3, H, W)
+    cropped = forward_and_loss(net, criterion, left, right, crop_scale=2)
+    doubled = forward_and_loss(lambda x: [2 * d for d in net(x)], criterion, left, right)
+    plain = forward_and_loss(net, criterion, left, right)
+    for key, value in cropped.items():
+        assert torch.equal(value, doubled[key])
+    assert not torch.equal(cropped["total"], plain["total"])
+    _train(dataclasses.replace(params, train=dataclasses.replace(params.train, epochs=1)), pairs, tmp_path)
+    state = torch.load(tmp_path / "model.pt", weights_only=True)
+    assert (state["height"], state["width"]) == (2 * H, 2 * W)
+
+
+def test_crop_scale_is_refused_where_it_does_not_apply() -> None:
+    from msdepth.config.params import ConfigError
+
+    with pytest.raises(ConfigError, match="train.crop_scale"):
+        params_from_dict(
+            {"train": {"crop_scale": 2, "mode": "mono"}, "data": {"synthetic": {"sequence_length": 3}}}
+        )
+    with pytest.raises(ConfigError, match="train.crop_scale"):
+        params_from_dict({"train": {"crop_scale": 5}})
+    with pytest.raises(ConfigError, match="train.crop_scale"):
+        params_from_dict({"data": {"height": 2048, "width": 4096}, "train": {"crop_scale": 2}})

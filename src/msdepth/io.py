@@ -133,20 +133,17 @@ def write_text(path: str | os.PathLike, text: str) -> None:
         tmp.write_text(text)
 
 
-def file_sha256(path: str | os.PathLike) -> str:
-    """The sha256 hex digest of the file at ``path``; a DataError names a path that is missing, a
-    folder or unreadable."""
-    path, digest = Path(path), hashlib.sha256()
-    try:
-        with path.open("rb") as f:
+def file_sha256(path: str | os.PathLike, kind: str = "input") -> str:
+    """The sha256 hex digest of the file at ``path``, read through :func:`open_regular` (any size;
+    a FIFO, a device or a socket is refused before a byte is read, so hashing never blocks); a
+    DataError names a path that is missing, a folder, not a regular file or unreadable."""
+    digest = hashlib.sha256()
+    with open_regular(path, kind, allow_empty=True) as f:
+        try:
             while block := f.read(1 << 20):  # hashlib.file_digest needs Python 3.11
                 digest.update(block)
-    except FileNotFoundError:
-        raise DataError(f"{path}: no such file") from None
-    except IsADirectoryError:
-        raise DataError(f"{path}: a folder, not a file") from None
-    except OSError as exc:
-        raise DataError(f"{path}: cannot read it ({exc.strerror or exc})") from None
+        except OSError as exc:
+            raise DataError(f"{path}: cannot read this {kind} file ({exc.strerror or exc})") from None
     return digest.hexdigest()
 
 

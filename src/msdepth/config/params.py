@@ -6,6 +6,7 @@ import copy
 import dataclasses
 import math
 import os
+import stat
 import types
 import typing
 import urllib.parse
@@ -37,6 +38,7 @@ MAX_BATCH = 4096
 MAX_LEARNING_RATE = 10.0  # Adam moves each parameter by about the rate per step
 MAX_WEIGHT = 1e4  # a loss term's weight (the defaults: 0.1 to 30)
 MAX_DEPTH_M = 10_000.0  # metres (KITTI's GT ends at ~80 m)
+MAX_CROP_SCALE = 4  # train.crop_scale: 4 = 1/16 of the image per crop
 MAX_NPROC = 1024  # torchrun's processes per node
 MAX_SOURCE_OFFSET = 100  # frames between a monocular target and its sources (Monodepth2: 1)
 MAX_JOBS = 64  # parallel downloads
@@ -63,6 +65,23 @@ def _speed_only(default: Any) -> Any:
 def _list_may_be_empty(default: tuple) -> Any:
     """A tuple field whose YAML list may be empty (every other list must name something)."""
     return field(default=default, metadata={"may_be_empty": True})
+
+
+def regular_file_problem(path: str | os.PathLike) -> str | None:
+    """What keeps ``path`` from being a readable regular file ("no such file", "a folder, not a
+    file", "not a regular file ...", "cannot open it (...)"), None if it is one. ``os.stat``, not
+    ``Path.is_file``: the latter raises on a name too long; a FIFO is not opened, so never blocks."""
+    try:
+        info = os.stat(path)
+    except FileNotFoundError:
+        return "no such file"
+    except OSError as exc:  # a name too long, a symbolic link loop, no permission on a folder
+        return f"cannot open it ({exc.strerror or exc})"
+    if stat.S_ISDIR(info.st_mode):
+        return "a folder, not a file"
+    if not stat.S_ISREG(info.st_mode):
+        return "not a regular file (a FIFO, a device or a socket)"
+    return None
 
 
 def _added_later(default: Any) -> Any:
@@ -307,8 +326,8 @@ class ModelConfig:
                 f"{key}.{name}",
                 f"must be 1.0 with model.pretrained (a torchvision ResNet-18's width), got {value}",
             )
-        # os.path.isfile: Path.is_file raises on a name too long (ENAMETOOLONG)
-        check(os.path.isfile(self.pretrained), f"{key}.pretrained", f"no such file: {self.pretrained}")
+        problem = regular_file_problem(self.pretrained)
+        check(problem is None, f"{key}.pretrained", f"{problem}: {self.pretrained}")
 
     def _validate_widths(self, key: str) -> None:
         """Both width multipliers in (0, MAX_WIDTH_MULTIPLIER]."""
@@ -335,6 +354,10 @@ class TrainConfig:
     # step = Monodepth's (lr, /2 after 3/5 of the steps, /4 after 4/5); cosine = a linear warm-up
     # over the first 5 % of the steps, then a cosine decay to 0 (issue 52's screen).
     schedule: Literal["step", "cosine"] = _added_later("step")
+    # 1 = the network trains on the whole image at data.height x data.width; s > 1 = the images are
+    # resized to s times that, the network trains on random data.height x data.width crops of them
+    # (each object s times the pixels at the same cost per step) and infers on the whole image.
+    crop_scale: Annotated[int, Range(1, MAX_CROP_SCALE)] = _added_later(1)
     num_workers: Annotated[int, Range(0, MAX_THREADS, note="4 per CPU core, at least 4")] = _speed_only(0)
     augment: bool = True
     device: Literal["cpu", "cuda", "auto"] = _speed_only("cpu")
@@ -383,6 +406,16 @@ class TrainConfig:
         check(timeout > 0, f"{key}.dist_timeout_s", "must be > 0")
         check(
             timeout <= MAX_DIST_TIMEOUT_S, f"{key}.dist_timeout_s", f"must be <= {MAX_DIST_TIMEOUT_S:g} (s)"
+        )
+        check(
+            self.mode == "stereo" or self.crop_scale == 1,
+            f"{key}.crop_scale",
+            f"applies to train.mode stereo only (frame sequences are not cropped), got {self.crop_scale}",
+        )
+        check(
+            max(params.image_size) <= MAX_SIZE,
+            f"{key}.crop_scale",
+            f"data.height and data.width times {self.crop_scale} must be <= {MAX_SIZE} px",
         )
         frames = list(self.source_frames)
         check(
@@ -639,6 +672,18 @@ class Params:
         if not name.startswith("_") and name in sections:
             return sections[name]
         raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
+
+    @property
+    def image_size(self) -> tuple[int, int]:
+        """(height, width) the images are resized to: the trained network infers at it, the pair
+        cache holds it, and training crops data.height x data.width from it (``train.crop_scale``).
+
+        Example:
+            >>> Params().image_size
+            (64, 192)
+        """
+        scale = self.train.crop_scale
+        return self.data.height * scale, self.data.width * scale
 
     def variant(self, name: str) -> str:
         """The variant called ``name``, or a ConfigError listing the configured ones."""

@@ -168,7 +168,7 @@ def read_label_class_map(path: str | os.PathLike, classes: dict[int, str] | None
 def read_frame_classes(kind: str, class_map: str, obj_map: str) -> tuple[np.ndarray | None, bool]:
     """A frame's class map (bits of :data:`msdepth.data.kitti.CLASS_BITS`) from its index row (GT
     ``kind``; ``class_map`` and ``obj_map`` paths, "" = none), and whether its classes are scored
-    over the whole frame (:func:`msdepth.evaluation.classes.exact_class_summary`, in the full-image
+    over the whole frame (:func:`msdepth.evaluation.classes.exact_class_scores`, in the full-image
     suite): every set's but the synthetic set's, whose ROI classes have exact boxes (the ROI suite).
 
     - ``class_map`` of a KITTI 2012 frame: its ``disp_refl_occ`` PNG, the ``reflective`` class

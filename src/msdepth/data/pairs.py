@@ -182,12 +182,15 @@ def load_pair_cache(path: str | os.PathLike, num_pairs: int, height: int, width:
 
 
 class StereoPairs(Dataset):
-    """Rectified stereo pairs resized to the network input, optionally augmented.
+    """Rectified stereo pairs resized to the network input, optionally cropped and augmented.
 
     Images come from ``cache`` (see :func:`build_pair_cache`) when given, else are decoded
     and resized per sample. Augmentation draws from a generator seeded by (seed, epoch,
     index), so a sample is the same whatever the number of loader workers, and a resumed run
-    sees the same data.
+    sees the same data. With ``crop_scale`` s > 1 the pairs are resized (and cached) at s times
+    ``height`` x ``width`` and a sample is a random ``height`` x ``width`` window of it, the same
+    in both views (a horizontal shift within a rectified pair stays one), drawn from a generator
+    of its own so that the augmentation's draws stay those of the uncropped sample.
     """
 
     def __init__(
@@ -198,13 +201,17 @@ class StereoPairs(Dataset):
         augment: bool = False,
         seed: int = 0,
         cache: np.ndarray | None = None,
+        crop_scale: int = 1,
     ) -> None:
         if not pairs:
             raise DataError("StereoPairs: the pair list is empty")
-        if cache is not None and cache.shape != (len(pairs), 2, height, width, 3):
+        if crop_scale < 1:
+            raise DataError(f"StereoPairs: crop_scale must be >= 1, got {crop_scale}")
+        self.source = (height * crop_scale, width * crop_scale)
+        if cache is not None and cache.shape != (len(pairs), 2, *self.source, 3):
             raise DataError(
                 f"StereoPairs: cache shape {cache.shape} does not match {len(pairs)} pairs "
-                f"at {height}x{width}"
+                f"at {self.source[0]}x{self.source[1]}"
             )
         self.pairs, self.height, self.width, self.cache = pairs, height, width, cache
         self.augment, self.seed, self.epoch = augment, seed, 0
@@ -224,11 +231,33 @@ class StereoPairs(Dataset):
         if self.cache is not None:
             left_img, right_img = self.cache[i, 0], self.cache[i, 1]
         else:
-            left_img, right_img = read_resized_pair(*self.pairs[i], self.height, self.width)
+            left_img, right_img = read_resized_pair(*self.pairs[i], *self.source)
+        if self.source != (self.height, self.width):
+            top, left_x = crop_origin(self.source, (self.height, self.width), self.seed, self.epoch, i)
+            window = np.s_[top : top + self.height, left_x : left_x + self.width]
+            left_img, right_img = left_img[window], right_img[window]
         left, right = to_tensor(left_img), to_tensor(right_img)
         if self.augment:
             left, right = augment(left, right, sample_generator(self.seed, self.epoch, i))
         return {"left": left, "right": right, "index": i}
+
+
+def crop_origin(
+    source: tuple[int, int], crop: tuple[int, int], seed: int, epoch: int, index: int
+) -> tuple[int, int]:
+    """The (top, left) corner of sample ``index``'s crop in ``epoch``: uniform over every ``crop``
+    window of a ``source``-sized image, from a generator of its own (seeded by seed, epoch, index).
+
+    Example:
+        >>> crop_origin((128, 384), (64, 192), 0, 0, 0) == crop_origin((128, 384), (64, 192), 0, 0, 0)
+        True
+    """
+    gen = torch.Generator().manual_seed(
+        int(np.random.SeedSequence([seed, epoch, index, 1]).generate_state(1)[0])
+    )
+    top = int(torch.randint(source[0] - crop[0] + 1, (1,), generator=gen))
+    left = int(torch.randint(source[1] - crop[1] + 1, (1,), generator=gen))
+    return top, left
 
 
 def sample_generator(seed: int, epoch: int, index: int) -> torch.Generator:

@@ -34,7 +34,6 @@ from __future__ import annotations
 
 import errno
 import glob
-import hashlib
 import http.client
 import json
 import os
@@ -59,7 +58,7 @@ from typing import Any
 from tqdm import tqdm
 
 from msdepth.errors import DataError
-from msdepth.io import atomic_temps, read_bounded, write_json
+from msdepth.io import atomic_temps, file_sha256, read_bounded, write_json
 
 # The host every entry of the shipped list starts with; entries are kept relative to it so that a
 # mirror (or a test server) can be used by passing another base URL to fetch_all.
@@ -751,14 +750,6 @@ def verify_zip(path: str | os.PathLike) -> None:
                 raise DataError(f"{path}: member {info.filename} is corrupt ({exc})") from None
 
 
-def file_sha256(path: Path) -> str:
-    digest = hashlib.sha256()
-    with open(path, "rb") as f:
-        while chunk := f.read(CHUNK_SIZE):
-            digest.update(chunk)
-    return digest.hexdigest()
-
-
 class Manifest:
     """``manifest.json``: sha256 and size of each archive, recorded when first verified.
 
@@ -810,7 +801,7 @@ def verify_archive(path: Path, manifest: Manifest, url: str = "") -> None:
     """
     entry = manifest.get(path.name)
     if entry is not None:
-        size, sha = _size(path), file_sha256(path)
+        size, sha = _size(path), file_sha256(path, "archive")
         if size != entry.get("size") or sha != entry.get("sha256"):
             corrupt = _set_aside(path)
             manifest.record(path.name, None)
@@ -825,7 +816,7 @@ def verify_archive(path: Path, manifest: Manifest, url: str = "") -> None:
     except DataError as exc:
         corrupt = _set_aside(path)
         raise DataError(f"{exc}; moved to {corrupt.name}, the next run fetches it again") from None
-    manifest.record(path.name, {"size": _size(path), "sha256": file_sha256(path), "url": url})
+    manifest.record(path.name, {"size": _size(path), "sha256": file_sha256(path, "archive"), "url": url})
 
 
 # --------------------------------------------------------------------------- extraction

@@ -4,9 +4,9 @@ KITTI 2015's ``car`` from ``obj_map``; a stereo folder's class maps, :mod:`msdep
 which the full-image suite adds (:func:`msdepth.evaluation.results.full_suite`).
 
 Each frame gets one whole-frame ROI per class its class map holds, so the ROI suite's exact masks
-(:func:`msdepth.evaluation.suites.evaluate_roi`, ``summary["masks"]``) score exactly that class's
-GT pixels with the same caps and depth metrics as every suite; KITTI's stereo metrics D1 and EPE
-(:func:`msdepth.evaluation.metrics.stereo_errors`) are added per class, on the disparity
+(:func:`msdepth.evaluation.suites.exact_mask_table`, summarised as its ``summary["masks"]``) score
+exactly that class's GT pixels with the same caps and depth metrics as every suite; KITTI's stereo
+metrics D1 and EPE (:func:`msdepth.evaluation.metrics.stereo_errors`) are added per class, on the disparity
 ``focal·baseline / depth`` of the uncapped prediction, averaged over the frames that have the class.
 
 The per-image table of the full-image suite gets each class's abs_rel per frame as a column
@@ -23,7 +23,7 @@ import pandas as pd
 from msdepth.config.params import EvalConfig
 from msdepth.data.kitti import CLASS_BITS, ROI_COLUMNS
 from msdepth.evaluation.metrics import stereo_errors
-from msdepth.evaluation.suites import Frame, evaluate_roi, exact_mask_table
+from msdepth.evaluation.suites import Frame, exact_mask_summary, exact_mask_table
 
 CLASS_COLUMN = "{}_abs_rel"  # a class's per-frame abs_rel in the full-image suite's table
 
@@ -68,36 +68,38 @@ def stereo_by_class(pred: dict[str, np.ndarray], frames: list[Frame], cfg: EvalC
     }
 
 
-def exact_class_summary(pred: dict[str, np.ndarray], frames: list[Frame], cfg: EvalConfig) -> dict | None:
-    """The exact-mask summary of every class the frames' class maps hold (per cap, overall and by
-    class, as the ROI suite's ``masks``), with ``stereo`` (:func:`stereo_by_class`); None when no
-    frame has a class map or a class pixel."""
+def exact_class_scores(
+    pred: dict[str, np.ndarray], frames: list[Frame], cfg: EvalConfig
+) -> tuple[dict, pd.DataFrame] | None:
+    """The exact-mask scores of every class the frames' class maps hold: the summary (per cap,
+    overall and by class, as the ROI suite's ``masks``, with ``stereo``: :func:`stereo_by_class`)
+    and the per-frame rows it averages (:func:`~msdepth.evaluation.suites.exact_mask_table` of one
+    whole-frame ROI per frame and class). None when a frame has no class map or none a class pixel."""
     if not frames or any(f.class_map is None for f in frames):
         return None
     rois = whole_frame_rois(frames)
     if rois.empty:
         return None
-    masks = evaluate_roi(pred, frames, rois, cfg)[0].get("masks")
+    exact = exact_mask_table(pred, frames, rois, cfg)
+    masks = exact_mask_summary(exact, len(rois), cfg.caps)
     if masks is None:
         return None
-    return {**masks, "stereo": stereo_by_class(pred, frames, cfg)}
+    return {**masks, "stereo": stereo_by_class(pred, frames, cfg)}, exact
 
 
-def with_class_columns(
-    table: pd.DataFrame, pred: dict[str, np.ndarray], frames: list[Frame], cfg: EvalConfig
-) -> pd.DataFrame:
+def with_class_columns(table: pd.DataFrame, exact: pd.DataFrame) -> pd.DataFrame:
     """The full-image suite's per-image ``table`` (``frame``, ``cap``, metrics) with each class's
-    abs_rel on the frame's exact pixels of it as a column :data:`CLASS_COLUMN` (NaN where the frame
-    has no valid GT of the class): the units of :func:`exact_class_summary`'s means.
+    abs_rel on the frame's exact pixels of it (``exact``: :func:`exact_class_scores`' rows) as a
+    column :data:`CLASS_COLUMN` (NaN where the frame has no valid GT of the class): the units of
+    the summary's means.
 
     >>> car = np.array([[CLASS_BITS["car"], 0], [0, 0]], np.uint8)
     >>> frame = Frame("f", np.full((2, 2), 10.0), 1.0, 1.0, class_map=car, whole_frame_classes=True)
-    >>> cfg = EvalConfig(caps=(80.0,))
+    >>> _, exact = exact_class_scores({"f": np.full((2, 2), 12.0)}, [frame], EvalConfig(caps=(80.0,)))
     >>> table = pd.DataFrame({"frame": ["f"], "cap": [80.0], "abs_rel": [0.0]})
-    >>> with_class_columns(table, {"f": np.full((2, 2), 12.0)}, [frame], cfg)["car_abs_rel"].round(3).tolist()
+    >>> with_class_columns(table, exact)["car_abs_rel"].round(3).tolist()
     [0.2]
     """
-    exact = exact_mask_table(pred, frames, whole_frame_rois(frames), cfg)
     if exact.empty:
         return table
     wide = exact.pivot_table(index=["image", "cap"], columns="class", values="abs_rel", aggfunc="first")

@@ -14,7 +14,7 @@ from msdepth.config.params import Params
 from msdepth.data import kitti
 from msdepth.data.eval_index import read_eval_index
 from msdepth.errors import ConfigError, DataError
-from msdepth.evaluation.classes import exact_class_summary, with_class_columns
+from msdepth.evaluation.classes import exact_class_scores, with_class_columns
 from msdepth.evaluation.suites import (
     Frame,
     depth_maps,
@@ -124,17 +124,19 @@ def full_suite(
     """The full-image suite (:func:`~msdepth.evaluation.suites.evaluate_full`) with, for a set whose
     every frame has whole-frame classes (KITTI 2012's reflective, KITTI 2015's obj_map cars, a
     stereo folder's class maps: ``Frame.whole_frame_classes``), the scores on each exact class
-    (of ``pred`` median-scaled where ``scaled``): ``summary["masks"]``
-    (:func:`~msdepth.evaluation.classes.exact_class_summary`) and per frame a column per class
-    (:func:`~msdepth.evaluation.classes.with_class_columns`). Other sets' files stay as they were."""
+    (of ``pred`` median-scaled where ``scaled``), computed once
+    (:func:`~msdepth.evaluation.classes.exact_class_scores`): ``summary["masks"]`` and per frame a
+    column per class (:func:`~msdepth.evaluation.classes.with_class_columns`). Other sets' files stay
+    as they were."""
     summary, table = evaluate_full(pred, frames, params.eval, median_scaling=scaled)
     if not frames or not all(f.class_map is not None and f.whole_frame_classes for f in frames):
         return summary, table
     scored = median_scaled_maps(pred, frames, params.eval)[0] if scaled else pred
-    masks = exact_class_summary(scored, frames, params.eval)
-    if masks is None:
+    found = exact_class_scores(scored, frames, params.eval)
+    if found is None:
         return summary, table
-    return {**summary, "masks": masks}, with_class_columns(table, scored, frames, params.eval)
+    masks, exact = found
+    return {**summary, "masks": masks}, with_class_columns(table, exact)
 
 
 def write_depth_maps(run: str, disparities: Path, eval_index: Path, out: Path, *, monocular: bool) -> None:

@@ -14,6 +14,7 @@ import os
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
+from typing import Sequence
 
 import cv2
 import numpy as np
@@ -352,6 +353,19 @@ def exact_mask_table(
     return pd.DataFrame(rows, columns=list(ROI_COLUMNS))
 
 
+def exact_mask_summary(table: pd.DataFrame, n_rois: int, caps: Sequence[float]) -> dict | None:
+    """:func:`evaluate_roi`'s ``summary["masks"]`` from :func:`exact_mask_table`'s rows of ``n_rois``
+    ROIs: per cap, the means over the ROIs overall and by class; the ROIs scored (at the last cap
+    that has any) and excluded. None without a row."""
+    masks, kept = {}, 0
+    for cap in caps:
+        rows = table[table["cap"] == cap].to_dict("records")
+        if rows:
+            masks[f"cap{cap:g}"] = _summarise_by_class(rows, METRICS)
+            kept = len(rows)
+    return {**masks, "rois": kept, "excluded_rois": n_rois - kept} if masks else None
+
+
 def evaluate_roi(
     pred: dict[str, np.ndarray], frames: list[Frame], rois: pd.DataFrame, cfg: EvalConfig
 ) -> tuple[dict, pd.DataFrame]:
@@ -367,28 +381,25 @@ def evaluate_roi(
         return _no_roi_result(ROI_COLUMNS)
     rows, summary = [], {}
     masked = all(f.class_map is not None for f in frames)
-    masks: dict = {}
-    mask_rois = 0
+    mask_rows: list[dict] = []
     for cap in cfg.caps:
-        per_cap, per_mask = [], []
+        per_cap = []
         for i, roi, frame, box in _boxes_for(rois, frames):
             valid = frame.valid[box]
             m = _metrics_in(frame, pred[frame.name][box], valid, cap, cfg, box)
             if m is not None:
                 per_cap.append({"roi": i, "image": roi["image"], "class": roi["class"], "cap": cap, **m})
             if masked and (m := _exact_row(pred, (i, roi, frame, box), cap, cfg)) is not None:
-                per_mask.append(m)
+                mask_rows.append(m)
         if not per_cap:
             raise DataError("ROI evaluation: no ROI has valid ground truth")
         summary[f"cap{cap:g}"] = _summarise_by_class(per_cap, METRICS)
         rows += per_cap
-        if per_mask:
-            masks[f"cap{cap:g}"] = _summarise_by_class(per_mask, METRICS)
-            mask_rois = len(per_mask)
     summary["rois"] = len(rois)
     summary["excluded_rois"] = len(rois) - len(rows) // len(cfg.caps)
-    if masks:
-        summary["masks"] = {**masks, "rois": mask_rois, "excluded_rois": len(rois) - mask_rois}
+    masks = exact_mask_summary(pd.DataFrame(mask_rows, columns=list(ROI_COLUMNS)), len(rois), cfg.caps)
+    if masks is not None:
+        summary["masks"] = masks
     return summary, pd.DataFrame(rows)
 
 

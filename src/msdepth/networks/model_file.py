@@ -37,9 +37,9 @@ def depth_network(
     init_disparity: float | None = None,
 ) -> DepthNetwork:
     """The depth network of ``model.architecture``: vgg (``norm``, ``heads`` and ``init_disparity``
-    are its options) or resnet18 (Monodepth2's, with its own initialisation)."""
+    are its options) or resnet18 (Monodepth2's, its outputs started at ``init_disparity``)."""
     if architecture == "resnet18":
-        return ResNetMonodepth(width_multiplier)
+        return ResNetMonodepth(width_multiplier, init_disparity)
     return MonodepthVGG(width_multiplier, init_disparity=init_disparity, norm=norm, heads=heads)
 
 
@@ -62,8 +62,8 @@ def save_model(
         "width_multiplier": params.model.width_multiplier,
         "norm": params.model.norm,
         "heads": params.model.heads,
-        "height": params.data.height,
-        "width": params.data.width,
+        "height": params.image_size[0],  # the size it infers at (train.crop_scale x the training crop)
+        "width": params.image_size[1],
         "variant": variant,
         "seed": seed,
     }

@@ -14,6 +14,8 @@ either network unchanged.
 
 from __future__ import annotations
 
+import math
+
 import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
@@ -89,12 +91,27 @@ class ResNetMonodepth(nn.Module):
     the width (:class:`msdepth.networks.vgg.MonodepthVGG`'s convention; the monocular loss reads the
     left one / 0.3 as Monodepth2's sigmoid disparity). ``width_multiplier`` scales encoder and
     decoder (1.0 = Monodepth2's, the only width a torchvision state dict fits). The input sides
-    must be multiples of 32 and at least 64."""
+    must be multiples of 32 and at least 64.
 
-    def __init__(self, width_multiplier: float = 1.0) -> None:
+    ``init_disparity`` (``model.init_disparity``, a fraction of the width) starts every output there,
+    as the VGG network's heads: Monodepth2's own start, sigmoid(0), is 0.15 of the width (about
+    60 px on a KITTI-sized image), from which a stereo run from scratch collapsed to one constant
+    map (issue 52's screen); None keeps Monodepth2's."""
+
+    def __init__(self, width_multiplier: float = 1.0, init_disparity: float | None = None) -> None:
         super().__init__()
         self.encoder = ResNetEncoder(width_multiplier=width_multiplier)
         self.decoder = DepthDecoder(self.encoder.channels, width_multiplier, output_channels=2)
+        if init_disparity is not None:
+            self.init_outputs(init_disparity)
+
+    def init_outputs(self, disparity: float) -> None:
+        """Start every scale's output near ``disparity`` (fraction of width) with small weights."""
+        bias = math.log(disparity / (MAX_DISPARITY - disparity))  # logit(disparity / 0.3)
+        for block in self.decoder.dispconvs:
+            conv = block[1]  # after the reflection padding
+            nn.init.normal_(conv.weight, std=1e-3)
+            nn.init.constant_(conv.bias, bias)
 
     def forward(self, image: Tensor) -> list[Tensor]:
         """(B, 3, H, W) in [0, 1] -> 4 disparity maps, finest first."""

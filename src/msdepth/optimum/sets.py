@@ -70,7 +70,7 @@ def scratch_key(params: Params, instrument: str, variant: str | None, set_index:
 
     key = {
         "instrument": instrument,
-        "set_index_sha256": file_sha256(set_index),
+        "set_index_sha256": file_sha256(set_index, "index"),
         "optimum": dataclasses.asdict(params.optimum),
         "loss": dataclasses.asdict(params.loss),
     }

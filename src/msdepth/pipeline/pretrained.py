@@ -26,7 +26,7 @@ def pretrained_record(pretrained: str) -> dict[str, str | None]:
     if not pretrained:
         return {"path": "", "sha256": None}
     try:
-        return {"path": pretrained, "sha256": file_sha256(pretrained)}
+        return {"path": pretrained, "sha256": file_sha256(pretrained, "weights")}
     except DataError as exc:
         raise DataError(f"model.pretrained: {exc}") from None
 

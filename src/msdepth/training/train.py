@@ -143,7 +143,7 @@ def load_pretrained_encoders(
     With ``sha256`` the file must still hold that content, the one the checkpoint fingerprint
     names; a TrainingError says it changed since it was hashed.
     """
-    if sha256 is not None and (found := file_sha256(path)) != sha256:
+    if sha256 is not None and (found := file_sha256(path, "weights")) != sha256:
         raise TrainingError(
             f"{path}: content changed since it was hashed (sha256 {sha256[:12]}..., now {found[:12]}...); "
             "run `dvc repro` again to record and train on the new weights"
@@ -374,7 +374,7 @@ def train_variant(
     opts = options if options is not None else TrainOptions()
     pretrained_sha256 = opts.pretrained_sha256
     if params.model.pretrained and pretrained_sha256 is None:
-        pretrained_sha256 = file_sha256(params.model.pretrained)
+        pretrained_sha256 = file_sha256(params.model.pretrained, "weights")
     run_seed = params.train.seeds[0] if opts.seed is None else opts.seed
     run = _set_up(params, variant, pairs, run_seed, opts.cache, opts.sequences, pretrained_sha256)
     checkpoint_path = Path(outputs.checkpoint_path)
@@ -503,7 +503,7 @@ def _dataset(
     """The training samples of ``params.train.mode``: stereo pairs, or frame sequences."""
     t, h, w = params.train, params.data.height, params.data.width
     if t.mode == "stereo":
-        return StereoPairs(pairs, h, w, augment=t.augment, seed=seed, cache=cache)
+        return StereoPairs(pairs, h, w, augment=t.augment, seed=seed, cache=cache, crop_scale=t.crop_scale)
     if sequences is None:
         raise MsdepthError(f"train.mode {t.mode} trains on frame sequences, and none were given")
     stereo = t.mode == "mono_stereo"
@@ -716,7 +716,8 @@ def _batch_losses(run: _Run, batch: dict) -> dict[str, torch.Tensor]:
     if run.pose_network is None:
         left = batch["left"].to(device, non_blocking=True)
         right = batch["right"].to(device, non_blocking=True)
-        return forward_and_loss(run.network, run.criterion, left, right, amp, run.memory_format)
+        scale = run.params.train.crop_scale
+        return forward_and_loss(run.network, run.criterion, left, right, amp, run.memory_format, scale)
 
     def depth(image: torch.Tensor) -> list[torch.Tensor]:
         # The left-view channel of every scale as Monodepth2's sigmoid disparity in [0, 1].
@@ -741,12 +742,18 @@ def forward_and_loss(
     right: torch.Tensor,
     amp: str = "none",
     memory_format: torch.memory_format = torch.contiguous_format,
+    crop_scale: int = 1,
 ) -> dict[str, torch.Tensor]:
     """The network on ``left`` (bf16 autocast with ``amp == "bf16"``, in ``memory_format``) and the
-    loss of its disparities, always in fp32: SSIM's E[x²] - E[x]² cancels badly in bf16."""
+    loss of its disparities, always in fp32: SSIM's E[x²] - E[x]² cancels badly in bf16.
+
+    The network's disparity is a fraction of the width of the image it infers on; on crops of
+    1/``crop_scale`` of that width (``train.crop_scale``) the loss warps the crop by that many
+    times the fraction, the same shift in pixels."""
     with torch.autocast(left.device.type, dtype=torch.bfloat16, enabled=amp == "bf16"):
         disps = network(left.contiguous(memory_format=memory_format))
-    return criterion([d.float() for d in disps], left, right)
+    disps = [d.float() for d in disps]
+    return criterion([d * crop_scale for d in disps] if crop_scale != 1 else disps, left, right)
 
 
 def _log_epoch(
