@@ -10,10 +10,11 @@ from __future__ import annotations
 import dataclasses
 import types
 import typing
+from pathlib import Path
 from typing import Annotated, Any, Iterator
 
 import pytest
-from conftest import ROOT
+from conftest import ROOT, committed_file
 
 from msdepth.config.checks import Range, check_ranges, declared_range
 from msdepth.config.params import MAX_THREADS, Params, load_params, params_from_dict, read_params_file
@@ -79,9 +80,21 @@ def _lookup(raw: dict, key: str) -> tuple[bool, Any]:
     return True, node
 
 
-def test_every_dataclass_default_is_params_yaml_s_value():
-    raw = read_params_file(ROOT / "params.yaml")
-    loaded = load_params(ROOT / "params.yaml")  # typed: 600 in the file is the field's 600.0
+def _committed_params(tmp_path: Path) -> Path:
+    """params.yaml as committed (git's HEAD) where this is a git checkout, else the workspace's: a
+    user who ran command 1 with other settings (e.g. train.threads) has not made a second default."""
+    data = committed_file(ROOT, "params.yaml")
+    if data is None:
+        return ROOT / "params.yaml"
+    path = tmp_path / "params.yaml"
+    path.write_bytes(data)
+    return path
+
+
+def test_every_dataclass_default_is_params_yaml_s_value(tmp_path: Path):
+    committed = _committed_params(tmp_path)
+    raw = read_params_file(committed)
+    loaded = load_params(committed)  # typed: 600 in the file is the field's 600.0
     loaded_sections = dict(sections(loaded))
     differences = []
     for key, default in sections():
