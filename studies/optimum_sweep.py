@@ -8,7 +8,7 @@ median GT disparity). Every row has KITTI's D1 (%) and EPE (px), the full-image 
 ``--matchers`` adds the matchers, unrefined, as the pipeline's match and sgbm stages run them: SGM
 on each variant's own cost volume and OpenCV's SGBM (:func:`msdepth.optimum.starts.matched_disparity`).
 Prints a markdown table; ``--trace`` also prints the mean loss per level at steps 25, 50, 100, ...
-(the stopping rule's measurement)::
+(a level of fewer steps: at its last), the stopping rule's measurement::
 
     python studies/optimum_sweep.py --frames 8 --variants ssim msssim:3 --weights 0.3 1 3
     python studies/optimum_sweep.py --frames 8 --weights 10 --matchers --set optimum.iterations=50
@@ -137,8 +137,9 @@ def main(argv: list[str] | None = None) -> int:
             left = torch.stack([to_tensor(a) for a, _ in pairs])
             right = torch.stack([to_tensor(b) for _, b in pairs])
             optimise(left, right, objective(p, name), p.optimum, trace)
-            marks = [n for n in (25, 50, 100, 200, 400, 800) if n <= p.optimum.iterations]
             for level, steps in enumerate(trace):
+                # Steps 25, 50, 100, ... that the level reached; a shorter level, its last step.
+                marks = [n for n in (25, 50, 100, 200, 400, 800) if n <= len(steps)] or [len(steps)]
                 losses = ", ".join(f"{n}: {steps[n - 1] / len(pairs):.5f}" for n in marks)
                 print(f"{label} level {level}: {losses}")
     print(pd.DataFrame(rows).to_markdown(index=False, floatfmt=".3f"))

@@ -102,6 +102,18 @@ def test_the_sweep_defaults_to_the_params_sweep_and_adds_matchers_and_the_trace(
         assert step == "25" and 0 < float(loss) < math.inf, line
 
 
+def test_the_trace_of_levels_shorter_than_25_steps_gives_their_last_step(tmp_path: Path) -> None:
+    """--trace with optimum.iterations 3: each level's line holds its loss at step 3 (it printed an
+    empty line when no mark of 25, 50, ... was reached)."""
+    args = ["--frames", "1", "--variants", "ssim", "--weights", "10", "--trace", *SWEEP_TINY]
+    proc = run_script("studies/optimum_sweep.py", *args, cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    trace = [line for line in proc.stdout.splitlines() if line.startswith("ssim level ")]
+    assert len(trace) == 1, proc.stdout
+    step, loss = trace[0].split(": ", 1)[1].split(": ")
+    assert step == "3" and 0 < float(loss) < math.inf, trace
+
+
 def test_the_sweeps_scores_of_the_gt_itself_are_exact() -> None:
     """The sweep's scoring (its ``rendered`` frames, ``scores``): a disparity equal to the GT scores
     abs_rel, D1 and EPE 0 and a1 1 over the frame and in every box and mask class; twice the GT's
