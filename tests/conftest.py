@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import contextlib
 import functools
+import importlib.util
 import json
 import os
 import runpy
@@ -14,7 +15,7 @@ import sys
 import threading
 import time
 from pathlib import Path
-from types import SimpleNamespace
+from types import ModuleType, SimpleNamespace
 from typing import Iterator
 
 import numpy as np
@@ -62,6 +63,17 @@ def require_git_checkout(root: Path = ROOT) -> None:
     lines = proc.stdout.decode(errors="replace").splitlines()
     if proc.returncode != 0 or not lines or Path(lines[0]).resolve() != root.resolve():
         pytest.skip(f"{root} is not a git checkout with a commit (the committed files are read from git)")
+
+
+def load_study(name: str) -> ModuleType:
+    """studies/<name>.py as a module (the studies are scripts, not a package), its ``__main__`` block
+    not run; a fresh module on every call."""
+    spec = importlib.util.spec_from_file_location(f"study_{name}", ROOT / "studies" / f"{name}.py")
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module  # dataclasses look their module up there
+    spec.loader.exec_module(module)
+    return module
 
 
 def committed_file(root: Path, path: str) -> bytes | None:

@@ -8,16 +8,14 @@ user file changed.
 
 from __future__ import annotations
 
-import importlib.util
 import os
 import sys
 from pathlib import Path
-from types import ModuleType
 
 import cv2
 import numpy as np
 import pytest
-from conftest import save_tiny_model
+from conftest import load_study, save_tiny_model
 
 from msdepth.__main__ import main
 from msdepth.errors import OutputError
@@ -53,16 +51,6 @@ def _one_line(code: int, capsys: pytest.CaptureFixture[str], expected: str) -> N
     errors = [line for line in err.splitlines() if line.startswith("error:")]
     assert code == 1 and "Traceback" not in err and len(errors) == 1, err
     assert expected in errors[0], errors[0]
-
-
-def load_study(name: str) -> ModuleType:
-    """studies/<name>.py as a module (the studies are scripts, not a package)."""
-    spec = importlib.util.spec_from_file_location(f"guarded_{name}", ROOT / "studies" / f"{name}.py")
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module
-    spec.loader.exec_module(module)
-    return module
 
 
 def _predict(tmp: Path, model: Path, out: Path) -> list[str]:

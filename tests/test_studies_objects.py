@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from test_study_outputs import load_study
+from conftest import load_study
 
 from msdepth.io import write_png
 

@@ -5,12 +5,10 @@ manifests, so a rerun may replace them."""
 
 from __future__ import annotations
 
-import importlib.util
-import sys
 from pathlib import Path
-from types import ModuleType
 
 import pytest
+from conftest import load_study
 
 from msdepth.io import MANIFEST_PREFIX, read_manifest
 
@@ -34,16 +32,6 @@ CASES = {
         "disparity.png",
     ),
 }
-
-
-def load_study(name: str) -> ModuleType:
-    """studies/<name>.py as a module (the studies are scripts, not a package)."""
-    spec = importlib.util.spec_from_file_location(f"study_{name}", ROOT / "studies" / f"{name}.py")
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module  # dataclasses look their module up there
-    spec.loader.exec_module(module)
-    return module
 
 
 @pytest.mark.parametrize("name", sorted(CASES))
