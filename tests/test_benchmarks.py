@@ -77,6 +77,20 @@ def test_train_loop_benchmark() -> None:
     assert "images/s: ssim sync 1 " in out
 
 
+@pytest.mark.slow
+def test_parallel_trainings_benchmark_times_both_ways() -> None:
+    """The trainings one after the other and side by side, each in its own process, and the
+    throughput of the latter as the inverse of their per-round ratio."""
+    sizes = "--pairs 4 --epochs 1 --repeats 1 --batch 2".split()
+    out = _run("parallel_trainings.py", *TINY, *sizes)
+    assert out.startswith("trainings of ssim, msssim: 4 pairs x 1 epochs each")
+    rows = {line.split("|")[1].strip(): line for line in out.splitlines() if line.startswith("| ")}
+    assert any(name.startswith("one after the other, ") for name in rows)
+    ratio = float(rows["side by side, 1 thread each"].split("|")[3])
+    throughput = float(out.rsplit("one after the other: ", 1)[1].split("x")[0])
+    assert ratio > 0 and throughput == pytest.approx(1 / ratio, rel=0.01)
+
+
 def test_ratios_are_paired_within_rounds() -> None:
     """Each round's candidate is divided by the same round's baseline, so drift between rounds
     (here the baseline slows down 8x) does not enter the ratio; the IQR shows the rest."""
