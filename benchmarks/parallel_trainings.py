@@ -89,7 +89,6 @@ def run_children(commands: list[list[str]], at_once: bool) -> Callable[[], None]
 
 def train_one(args: argparse.Namespace) -> None:
     """``--child``: one training of ``args.child`` at ``args.threads`` threads, in this process."""
-    torch.set_num_threads(args.threads)
     args.workers, args.amp, args.channels_last = 0, "none", False  # train_loop's switches, off
     params = bench_params(args, load_params(args.params), torch.device("cpu"))
     params = dataclasses.replace(params, train=dataclasses.replace(params.train, threads=args.threads))
