@@ -25,10 +25,10 @@ from msdepth.networks.vgg import MonodepthVGG
 from msdepth.training.train import (
     TrainOptions,
     TrainOutputs,
+    _load_pretrained_encoders,
     build_model,
     build_pose_net,
     load_model,
-    load_pretrained_encoders,
     train_variant,
 )
 
@@ -138,7 +138,7 @@ def test_pretrained_loads_into_every_resnet_encoder_of_the_run(tmp_path: Path) -
     raw = {"width_multiplier": 1.0, "pose_width_multiplier": 1.0, "pretrained": str(path)}
     params = _params(raw, mode="mono")
     model, pose_net = build_model(params), build_pose_net(params)
-    load_pretrained_encoders(params.model.pretrained, model, pose_net)
+    _load_pretrained_encoders(params.model.pretrained, model, pose_net)
     depth = model.encoder.state_dict()
     assert all(torch.equal(depth[k], state[k]) for k in depth)
     pose = pose_net.encoder.state_dict()
@@ -175,8 +175,8 @@ def test_monocular_training_with_resnet18(tmp_path: Path) -> None:
     root = tmp_path / "render"
     params = _params(mode="mono")
     render.generate(params.data.synthetic, root, progress=False, workers=1, lidar=False)
-    entries = sequences.read_mono_split(root / MONO_SPLIT)
-    samples = sequences.index_sequences(root / "raw", entries, stereo=False).samples
+    entries = sequences._read_mono_split(root / MONO_SPLIT)
+    samples = sequences._index_sequences(root / "raw", entries, stereo=False).samples
     outputs = TrainOutputs(tmp_path / "m.pt", tmp_path / "ck.pt")
     result = train_variant(params, "ssim", [], outputs, TrainOptions(progress=False, sequences=samples))
     assert result.steps > 0

@@ -107,19 +107,19 @@ def test_days_of_different_sizes_meet_at_the_most_common_size(tmp_path: Path) ->
     valid = depth > 0
     np.testing.assert_allclose(gt.maps[0][valid], 721.5377 * 0.54 / depth[valid] / 1242, rtol=1e-6)
     assert np.isnan(gt.maps[0][~valid]).all()
-    prior = baselines.per_pixel_prior(gt.maps)
+    prior = baselines._per_pixel_prior(gt.maps)
     assert prior.shape == (375, 1242) and np.isfinite(prior).all()
 
 
 def test_resample_sparse_keeps_every_sample_or_the_nearest() -> None:
     frac = np.full((4, 6), np.nan, dtype=np.float32)
     frac[0, 0], frac[0, 1], frac[3, 5] = 0.1, 0.3, 0.2
-    down = baselines.resample_sparse(frac, (2, 3))
+    down = baselines._resample_sparse(frac, (2, 3))
     assert down[0, 0] == np.float32(0.3)  # two samples meet: the larger disparity (nearer) wins
     assert down[1, 2] == np.float32(0.2) and np.isnan(down).sum() == 4
-    up = baselines.resample_sparse(frac, (8, 12))
+    up = baselines._resample_sparse(frac, (8, 12))
     assert sorted(up[~np.isnan(up)].tolist()) == sorted(frac[~np.isnan(frac)].tolist())
-    np.testing.assert_array_equal(baselines.resample_sparse(frac, (4, 6)), frac)
+    np.testing.assert_array_equal(baselines._resample_sparse(frac, (4, 6)), frac)
 
 
 def test_drive_without_gt_is_counted_and_left_out(trees, tmp_path: Path) -> None:
@@ -153,7 +153,7 @@ def test_per_pixel_prior_in_bands_is_the_median_of_the_whole_stack(frames: int) 
     with pytest.warns(RuntimeWarning):  # the all-NaN pixel
         want = np.nanmedian(gt, axis=0)
     want[np.isnan(want)] = np.nanmedian(gt)
-    np.testing.assert_array_equal(baselines.per_pixel_prior(gt, rows_per_band=4), want.astype(np.float32))
+    np.testing.assert_array_equal(baselines._per_pixel_prior(gt, rows_per_band=4), want.astype(np.float32))
 
 
 # --------------------------------------------------------------------- the stages around them

@@ -20,7 +20,7 @@ from msdepth.config.params import Params, params_from_dict
 from msdepth.data import folder, kitti
 from msdepth.data.eval_index import build_eval_index, read_eval_index, write_eval_index
 from msdepth.data.ground_truth import read_frame_classes
-from msdepth.data.indexing import folder_eval_index, folder_indexes
+from msdepth.data.indexing import _folder_indexes, folder_eval_index
 from msdepth.data.layout import folder_layout
 from msdepth.errors import DataError
 from msdepth.evaluation.results import run_suite
@@ -87,7 +87,7 @@ def test_a_folder_with_class_maps_is_scored_per_class(tmp_path, monkeypatch):
     The whole frame: (0.1 + 0.25) / 2 = 0.175."""
     root = _folder(tmp_path / "set")
     params = _params(root)
-    report = folder_indexes(params, tmp_path / "index")
+    report = _folder_indexes(params, tmp_path / "index")
     assert report["eval_frames"] == 2
     index = read_eval_index(tmp_path / "index" / "eval_frames.csv")
     assert [Path(p).relative_to(root).as_posix() for p in index["class_map"]] == [

@@ -8,6 +8,7 @@ from msdepth.evaluation.metrics import METRICS
 from msdepth.evaluation.suites import NO_ROIS
 from msdepth.reporting.compare import (
     ComparisonInputs,
+    _seed_resampling,
     build_comparison,
     changed_settings,
     comparison_data,
@@ -122,3 +123,15 @@ def test_every_table_with_rois_names_the_changed_kernel():
     )
     rows = [line.split(" |")[0] for line in md.splitlines() if line.startswith("| msssim")]
     assert rows == ["| msssim (k=7)"] * 4  # full image, ROI, ROI per class, gradients
+
+
+def test_the_method_line_says_seed_pairs_only_where_the_variants_pair():
+    """compare.md's statistics line names the resampling that was done: seed pairs jointly for a
+    paired variant, per variant (with the reason) for an unpaired one, nothing for one seed."""
+    both = {"pairing": {"msssim": None, "constant": "a baseline is one deterministic run"}}
+    text = _seed_resampling(both, ["ssim", "msssim"], several=True)
+    assert "jointly with seed pairs for msssim" in text and "per variant" not in text
+    apart = {"pairing": {"msssim": "the two variants were trained with different seeds"}}
+    text = _seed_resampling(apart, ["ssim", "msssim"], several=True)
+    assert "pairs" not in text.split("(")[0] and "per variant, seeds" in text and "different seeds" in text
+    assert _seed_resampling(both, ["ssim", "msssim"], several=False) == ""

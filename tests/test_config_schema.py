@@ -16,7 +16,7 @@ from typing import Annotated, Any, Iterator
 import pytest
 from conftest import ROOT, committed_file
 
-from msdepth.config.checks import Range, check_ranges, declared_range
+from msdepth.config.checks import Range, _declared_range, check_ranges
 from msdepth.config.params import MAX_THREADS, Params, load_params, params_from_dict, read_params_file
 from msdepth.errors import ConfigError
 
@@ -66,7 +66,7 @@ def numeric_fields() -> list[tuple[str, Any, str, type, Range | None]]:
         for f in leaf_fields(config):
             kind = number_type(hints[f.name])
             if kind is not None:
-                found.append((key, config, f.name, kind, declared_range(hints[f.name])))
+                found.append((key, config, f.name, kind, _declared_range(hints[f.name])))
     return found
 
 

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import doctest
 import importlib
+from pathlib import Path
 
 import pytest
 
@@ -50,3 +51,25 @@ def test_a_wrong_output_fails() -> None:
     runner = doctest.DocTestRunner()
     runner.run(wrong, out=lambda _: None)
     assert runner.failures == 1
+
+
+def modules_with_examples() -> list[str]:
+    """Every module of src/msdepth whose text holds a ``>>>`` example."""
+    src = Path(__file__).resolve().parents[1] / "src"
+    return sorted(
+        ".".join(p.relative_to(src).with_suffix("").parts)
+        for p in (src / "msdepth").rglob("*.py")
+        if ">>> " in p.read_text(encoding="utf-8")
+    )
+
+
+@pytest.mark.parametrize("module", modules_with_examples())
+def test_every_example_in_the_package_runs(module: str) -> None:
+    """Not only the science API: any docstring example anywhere in src prints what it says."""
+    tests = [t for t in doctest.DocTestFinder().find(importlib.import_module(module)) if t.examples]
+    assert tests, f"{module}: '>>> ' in its text but no docstring example found"
+    report: list[str] = []
+    runner = doctest.DocTestRunner(optionflags=doctest.NORMALIZE_WHITESPACE)
+    for test in tests:
+        runner.run(test, out=report.append)
+    assert runner.failures == 0, "".join(report)

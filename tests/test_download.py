@@ -218,7 +218,7 @@ def test_shipped_list_parses_to_66_relative_archive_paths() -> None:
     names = dl.parse_archive_list(SHIPPED_LIST)
     assert len(names) == 66
     assert all(n.startswith("raw_data/") and n.endswith(".zip") for n in names)
-    files = [dl.archive_filename(n) for n in names]
+    files = [dl._archive_filename(n) for n in names]
     assert sum(f.endswith("_calib.zip") for f in files) == 5
     assert sum(f.endswith("_sync.zip") for f in files) == 61
     assert names[1] == "raw_data/2011_09_26_drive_0001/2011_09_26_drive_0001_sync.zip"
@@ -260,7 +260,7 @@ def test_plain_http_is_refused_without_allow_http(server: _Server, tmp_path: Pat
     with pytest.raises(DataError, match=refused):
         dl.download(server.url(DRIVE), tmp_path / "zips" / DRIVE, strict)
     with pytest.raises(DataError, match=refused):
-        dl.remote_size(server.url(DRIVE), strict)
+        dl._remote_size(server.url(DRIVE), strict)
     zips, raw = tmp_path / "zips", tmp_path / "raw"
     for dry_run in (False, True):
         with pytest.raises(DataError, match=refused):
@@ -332,16 +332,16 @@ def test_redirects_go_through_the_no_downgrade_handler(server: _Server, tmp_path
 
 def test_select_all_first_n_and_named_drives_add_their_calibration() -> None:
     names = dl.parse_archive_list(SHIPPED_LIST)
-    assert dl.select_archives(names, None) == names == dl.select_archives(names, "all")
-    first2 = [dl.archive_filename(n) for n in dl.select_archives(names, 2)]
+    assert dl._select_archives(names, None) == names == dl._select_archives(names, "all")
+    first2 = [dl._archive_filename(n) for n in dl._select_archives(names, 2)]
     assert first2 == [
         "2011_09_26_calib.zip",
         "2011_09_26_drive_0001_sync.zip",
         "2011_09_26_drive_0002_sync.zip",
     ]
     picked = [
-        dl.archive_filename(n)
-        for n in dl.select_archives(names, ["2011_09_28_drive_0001", "2011_10_03_drive_0027_sync.zip"])
+        dl._archive_filename(n)
+        for n in dl._select_archives(names, ["2011_09_28_drive_0001", "2011_10_03_drive_0027_sync.zip"])
     ]
     assert picked == [
         "2011_09_28_calib.zip",
@@ -349,11 +349,11 @@ def test_select_all_first_n_and_named_drives_add_their_calibration() -> None:
         "2011_10_03_calib.zip",
         "2011_10_03_drive_0027_sync.zip",
     ]
-    assert dl.select_archives(names, 0) == []
+    assert dl._select_archives(names, 0) == []
     with pytest.raises(DataError, match="not in the archive list: 2011_09_26_drive_9999"):
-        dl.select_archives(names, ["2011_09_26_drive_9999"])
+        dl._select_archives(names, ["2011_09_26_drive_9999"])
     with pytest.raises(DataError, match=">= 0"):
-        dl.select_archives(names, -1)
+        dl._select_archives(names, -1)
 
 
 def _pairs(drives: list[str]) -> str:
@@ -375,11 +375,11 @@ def test_the_splits_drives_in_list_order_with_their_days_calibration(tmp_path: P
     train.write_text(_pairs(["2011_10_03_drive_0027", "2011_09_26_drive_0002", "2011_10_03_drive_0027"]))
     eigen.write_text("\n" + _pairs(["2011_09_26_drive_0002", "2011_09_28_drive_0001"]))
     bench.write_text(_benchmark(["2011_09_26_drive_0009", "2011_09_26_drive_0009"]))
-    assert dl.split_drives(train) == ["2011_10_03_drive_0027", "2011_09_26_drive_0002"]
-    assert dl.split_drives(bench) == ["2011_09_26_drive_0009"]
+    assert dl._split_drives(train) == ["2011_10_03_drive_0027", "2011_09_26_drive_0002"]
+    assert dl._split_drives(bench) == ["2011_09_26_drive_0009"]
 
     def files(selection: dl.Selection) -> list[str]:
-        return [dl.archive_filename(n) for n in selection.archives]
+        return [dl._archive_filename(n) for n in selection.archives]
 
     both = dl.select_needed(names, {"the train split": train, "eigen": eigen})
     assert files(both) == [
@@ -439,14 +439,14 @@ def test_the_shipped_splits_need_46_of_the_61_drives() -> None:
 
 
 def test_the_monocular_modes_fetch_the_monocular_splits_drives(monkeypatch: pytest.MonkeyPatch) -> None:
-    from msdepth.download.kitti import needed_splits
+    from msdepth.download.kitti import _needed_splits
 
     monkeypatch.chdir(SHIPPED_LIST.parents[1])
     stereo = params_from_dict({"data": {"source": "kitti"}})
-    assert "the monocular split" not in needed_splits(stereo)
+    assert "the monocular split" not in _needed_splits(stereo)
     for mode in ("mono", "mono_stereo"):
         mono = params_from_dict({"data": {"source": "kitti"}, "train": {"mode": mode}})
-        assert needed_splits(mono)["the monocular split"] == Path("data_lists/eigen_zhou_train_files.txt")
+        assert _needed_splits(mono)["the monocular split"] == Path("data_lists/eigen_zhou_train_files.txt")
 
 
 def test_a_split_naming_drives_not_in_the_archive_list_is_one_line(tmp_path: Path) -> None:
@@ -555,7 +555,7 @@ def test_a_whole_part_left_by_a_killed_run_is_finished_without_refetching(
 def test_verify_zip_names_the_bad_member_and_the_file(tmp_path: Path) -> None:
     good = tmp_path / "good.zip"
     good.write_bytes(drive_zip("2011_09_26", 1))
-    dl.verify_zip(good)
+    dl._verify_zip(good)
     data = bytearray(good.read_bytes())
     with zipfile.ZipFile(good) as zf:
         info = zf.infolist()[1]
@@ -565,11 +565,11 @@ def test_verify_zip_names_the_bad_member_and_the_file(tmp_path: Path) -> None:
     bad = tmp_path / "bad.zip"
     bad.write_bytes(bytes(data))
     with pytest.raises(DataError, match=re.escape(f"{bad}: member {info.filename} is corrupt")):
-        dl.verify_zip(bad)
+        dl._verify_zip(bad)
     notzip = tmp_path / "notzip.zip"
     notzip.write_bytes(b"<html>rate limited</html>")
     with pytest.raises(DataError, match="notzip.zip: not a readable zip archive"):
-        dl.verify_zip(notzip)
+        dl._verify_zip(notzip)
 
 
 def _corrupt(data: bytes) -> bytes:
@@ -696,7 +696,7 @@ def test_zip_slip_member_is_rejected(tmp_path: Path, member: str) -> None:
     assert not (tmp_path / "a" / "evil.txt").exists() and not (tmp_path / "evil.txt").exists()
     assert not raw.exists()  # refused before anything was written
     with pytest.raises(DataError, match=re.escape(f"member {member!r} points outside")):
-        dl.verify_zip(archive)
+        dl._verify_zip(archive)
 
 
 def _special_zip(path: Path, kind: int, target: str = "/etc/passwd") -> Path:
@@ -728,7 +728,7 @@ def test_symlink_and_device_members_are_refused(tmp_path: Path, kind: int, what:
         dl.extract(archive, raw)
     assert not raw.exists()
     with pytest.raises(DataError, match=message):
-        dl.verify_zip(archive)
+        dl._verify_zip(archive)
 
 
 def test_members_without_a_unix_mode_or_with_a_plain_one_are_extracted(tmp_path: Path) -> None:
@@ -762,7 +762,7 @@ def test_zip_bomb_is_refused_before_anything_is_written(tmp_path: Path) -> None:
         dl.extract(archive, raw)
     assert not raw.exists()
     with pytest.raises(DataError, match=pattern):
-        dl.verify_zip(archive)  # refused without decompressing it
+        dl._verify_zip(archive)  # refused without decompressing it
 
 
 def test_expansion_up_to_the_bound_is_extracted(tmp_path: Path) -> None:
@@ -1180,7 +1180,7 @@ def test_annotated_depth_archive_unpacks_where_the_benchmark_index_looks(
 ) -> None:
     """data_depth_annotated.zip holds train/ and val/ at its top: fetched into data.root/<depth_annotated>,
     each frame's GT is where msdepth.data.eval_sets.annotated_gt_path finds it."""
-    from msdepth.data.eval_sets import annotated_gt_path
+    from msdepth.data.eval_sets import _annotated_gt_path
 
     depth = np.full((24, 40), 256 * 10, dtype=np.uint16)  # 10 m everywhere, KITTI's depth PNG scale
     ok, png = cv2.imencode(".png", depth)
@@ -1203,16 +1203,16 @@ def test_annotated_depth_archive_unpacks_where_the_benchmark_index_looks(
         [("2011_09_26/2011_09_26_drive_0001_sync", 5), ("2011_09_26/2011_09_26_drive_0002_sync", 69)],
         strict=True,
     ):
-        found = annotated_gt_path(root, drive, number)
+        found = _annotated_gt_path(root, drive, number)
         assert found == root / name and found.read_bytes() == data
-    assert annotated_gt_path(root, "2011_09_26/2011_09_26_drive_0001_sync", 6) is None
+    assert _annotated_gt_path(root, "2011_09_26/2011_09_26_drive_0001_sync", 6) is None
 
 
 def test_every_extra_set_has_its_list_or_its_archive_for_the_download() -> None:
     """A set of raw frames has its split list (the drives to fetch); KITTI 2012 its own archive;
     KITTI 2015's is the archive data.source kitti always fetches (its tree is the set's)."""
     from msdepth.data.eval_sets import SETS
-    from msdepth.download.kitti import SET_SPLITS, single_archives
+    from msdepth.download.kitti import SET_SPLITS, _single_archives
 
     for name in set(SETS) - set(SET_SPLITS):
         params = Params()
@@ -1222,15 +1222,15 @@ def test_every_extra_set_has_its_list_or_its_archive_for_the_download() -> None:
             eval=dataclasses.replace(params.eval, extra_sets=(name,)),
         )
         own = name != "kitti2015"
-        assert len(single_archives(params)) == 1 + own, name  # KITTI 2015's and the set's
+        assert len(_single_archives(params)) == 1 + own, name  # KITTI 2015's and the set's
 
 
 def test_kitti2012_archive_unpacks_where_the_kitti2012_index_looks(server: _Server, tmp_path: Path) -> None:
     """data_stereo_flow.zip holds training/ and testing/ at its top: fetched into data.root/kitti2012
     (prepare's folder for it), the set's index finds its frames, GT and reflective GT there; a
     second fetch of the complete archive asks nothing."""
-    from msdepth.data.eval_sets import build_kitti2012_index
-    from msdepth.download.kitti import single_archives
+    from msdepth.data.eval_sets import _build_kitti2012_index
+    from msdepth.download.kitti import _single_archives
 
     image = cv2.imencode(".png", np.full((370, 1226, 3), 128, np.uint8))[1].tobytes()
     disp = cv2.imencode(".png", np.full((370, 1226), 256 * 20, np.uint16))[1].tobytes()
@@ -1248,11 +1248,11 @@ def test_kitti2012_archive_unpacks_where_the_kitti2012_index_looks(server: _Serv
         data=dataclasses.replace(params.data, source="kitti", root=str(tmp_path / "kitti")),
         eval=dataclasses.replace(params.eval, extra_sets=("kitti2012",)),
     )
-    label, archive, dest = single_archives(params)[-1]
+    label, archive, dest = _single_archives(params)[-1]
     assert (label, archive, dest) == ("KITTI 2012", "data_stereo_flow.zip", tmp_path / "kitti" / "kitti2012")
     report = dl.fetch_all(server.base_url, [archive], tmp_path / "zips", dest, FAST)
     assert report["extracted"] == ["data_stereo_flow.zip"]
-    index = build_kitti2012_index(dest / "training")
+    index = _build_kitti2012_index(dest / "training")
     assert list(index["frame"]) == ["000000_10"] and index["focal"][0] == pytest.approx(707.0912)
     assert Path(index["class_map"][0]) == dest / "training" / "disp_refl_occ" / "000000_10.png"
     asked = len(server.log)

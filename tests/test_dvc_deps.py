@@ -16,7 +16,7 @@ from conftest import dvc_status
 
 from msdepth.errors import DataError
 from msdepth.pipeline import paths as pipeline
-from msdepth.pipeline.dvcyaml import COMMAND, TAGGED, code_deps, generate, import_closure, tagged_path
+from msdepth.pipeline.dvcyaml import COMMAND, TAGGED, _code_deps, _import_closure, _tagged_path, generate
 
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGE = "msdepth"
@@ -70,7 +70,7 @@ def toy(tmp_path: Path) -> Path:
 
 
 def test_closure_follows_relative_absolute_and_function_level_imports(toy: Path):
-    closure = import_closure(toy / "stages" / "run.py", toy / "src")
+    closure = _import_closure(toy / "stages" / "run.py", toy / "src")
     found = sorted(p.relative_to(toy / "src" / "msdepth").as_posix() for p in closure)
     assert found == [
         "__init__.py",
@@ -130,7 +130,7 @@ def test_generator_rewrites_only_the_code_deps(toy: Path):
         "src/msdepth/plugins",
         "src/msdepth/stages",
     ]
-    assert code_deps(toy, "stages/run.py") == code
+    assert _code_deps(toy, "stages/run.py") == code
     listed = "".join(f"      - {c}\n" for c in code)
     expected = (
         TOY_YAML.replace("      - stages/run.py\n      - src/msdepth/unused.py\n", listed)
@@ -143,13 +143,13 @@ def test_generator_rewrites_only_the_code_deps(toy: Path):
 
 
 def test_tagged_paths_come_from_the_pipeline_module():
-    assert tagged_path("EVAL_FRAMES") == "data/index/eval_frames.csv"
-    assert tagged_path("model_path(RUN)") == "models/${item.variant}/seed${item.seed}/model.pt"
-    assert tagged_path('run_dir("constant") / "x.npy"') == "outputs/constant/x.npy"
-    assert tagged_path("disparities_path(optimum_run(VARIANT, WEIGHT))") == (
+    assert _tagged_path("EVAL_FRAMES") == "data/index/eval_frames.csv"
+    assert _tagged_path("model_path(RUN)") == "models/${item.variant}/seed${item.seed}/model.pt"
+    assert _tagged_path('run_dir("constant") / "x.npy"') == "outputs/constant/x.npy"
+    assert _tagged_path("disparities_path(optimum_run(VARIANT, WEIGHT))") == (
         "outputs/optimum/${item.variant}/w${item.weight}/disparities.npy"
     )
-    assert tagged_path('suite_path("full", "prior", ".csv", set_metrics_dir(SET))') == (
+    assert _tagged_path('suite_path("full", "prior", ".csv", set_metrics_dir(SET))') == (
         "metrics/sets/${item.set}/full/prior.csv"
     )
     for bad, message in [
@@ -159,7 +159,7 @@ def test_tagged_paths_come_from_the_pipeline_module():
         ("model_path(", "was never closed"),
     ]:
         with pytest.raises(DataError, match=message):
-            tagged_path(bad)
+            _tagged_path(bad)
 
 
 def test_every_file_the_pipeline_module_defines_is_written_into_dvc_yaml():
@@ -223,7 +223,7 @@ def test_reading_params_depends_on_no_loss_code():
     MS-SSIM kernels) re-runs only the stages that train or build a model, not every stage."""
     closure = {
         p.relative_to(ROOT / "src" / PACKAGE).as_posix()
-        for p in import_closure(ROOT / "stages" / "validate_params.py", ROOT / "src")
+        for p in _import_closure(ROOT / "stages" / "validate_params.py", ROOT / "src")
     }
     assert "config/variants/ssim.py" in closure and "config/params.py" in closure
     assert not {f for f in closure if f.startswith(("losses/", "geometry/", "networks/"))}

@@ -186,7 +186,7 @@ def _raw_drive(root: Path, frames: int, size=(375, 1242), scans: bool = True) ->
 
 def test_eigen_index_reads_back_as_frames_with_lidar_gt(tmp_path: Path) -> None:
     split, _ = _raw_drive(tmp_path, 2)
-    index = eval_sets.build_eigen_index(tmp_path / "raw", split)
+    index = eval_sets._build_eigen_index(tmp_path / "raw", split)
     assert list(index["frame"]) == [
         "2011_09_26_drive_0002_sync_0000000000",
         "2011_09_26_drive_0002_sync_0000000001",
@@ -205,7 +205,7 @@ def test_eigen_index_reads_back_as_frames_with_lidar_gt(tmp_path: Path) -> None:
 def test_eigen_index_names_what_is_missing(tmp_path: Path) -> None:
     split, _ = _raw_drive(tmp_path, 2, scans=False)
     with pytest.raises(DataError, match=r"2 of 2 frame\(s\) lack images or a velodyne_points scan"):
-        eval_sets.build_eigen_index(tmp_path / "raw", split)
+        eval_sets._build_eigen_index(tmp_path / "raw", split)
 
 
 def test_eigen_benchmark_index_reads_the_annotated_depth(tmp_path: Path) -> None:
@@ -218,16 +218,16 @@ def test_eigen_benchmark_index_reads_the_annotated_depth(tmp_path: Path) -> None
         write_png(target / f"{i:010d}.png", gt)
     split = tmp_path / "bench.txt"
     split.write_text("2011_09_26/2011_09_26_drive_0002_sync 0 l\n2011_09_26/2011_09_26_drive_0002_sync 1 l\n")
-    index = eval_sets.build_eigen_benchmark_index(tmp_path / "raw", split, annotated)
+    index = eval_sets._build_eigen_benchmark_index(tmp_path / "raw", split, annotated)
     frames = load_frames(index)
     assert set(index["gt_kind"]) == {"depth"}
     np.testing.assert_array_equal(frames[0].gt_depth, gt / 256.0)
     split.write_text("2011_09_26/2011_09_26_drive_0002_sync 7 l\n")
     with pytest.raises(DataError, match="lack raw images"):
-        eval_sets.build_eigen_benchmark_index(tmp_path / "raw", split, annotated)
+        eval_sets._build_eigen_benchmark_index(tmp_path / "raw", split, annotated)
     split.write_text("2011_09_26/2011_09_26_drive_0002_sync seven l\n")
     with pytest.raises(DataError, match=r"bench.txt:1: expected"):
-        eval_sets.build_eigen_benchmark_index(tmp_path / "raw", split, annotated)
+        eval_sets._build_eigen_benchmark_index(tmp_path / "raw", split, annotated)
 
 
 def test_extra_sets_config() -> None:
@@ -245,7 +245,7 @@ def test_compare_section_of_an_extra_set(tmp_path: Path, monkeypatch: pytest.Mon
     import pandas as pd
 
     from msdepth.config.params import CompareConfig
-    from msdepth.evaluation.results import write_suite
+    from msdepth.evaluation.results import _write_suite
     from msdepth.reporting.compare import (
         build_set_section,
         group_metrics,
@@ -271,7 +271,7 @@ def test_compare_section_of_an_extra_set(tmp_path: Path, monkeypatch: pytest.Mon
             for f in frames
         }
         summary, table = evaluate_full(pred, frames, EvalConfig())
-        write_suite("full", run, summary, table, root=tmp_path / "sets", headline_root=tmp_path / "x")
+        _write_suite("full", run, summary, table, root=tmp_path / "sets", headline_root=tmp_path / "x")
     runs = [r for rs in groups.values() for r in rs]
     suites = load_suite_metrics(tmp_path / "sets", runs, ["full"])
     tables = load_unit_tables(tmp_path / "sets", runs, ["full"])

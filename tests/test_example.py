@@ -17,9 +17,9 @@ import yaml
 from conftest import committed_file, require_git_checkout
 
 from msdepth.__main__ import main as msdepth_main
-from msdepth.cli.example import FRAME, MANIFEST, OUT, disparity_name, main, md5
+from msdepth.cli.example import FRAME, MANIFEST, OUT, _disparity_name, main, md5
 from msdepth.data.imagefile import png_size
-from msdepth.io import manifest_line, read_manifest
+from msdepth.io import _manifest_line, _read_manifest
 from msdepth.networks.vgg import MonodepthVGG
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -123,9 +123,9 @@ def test_the_command_draws_each_variant_as_predict_does(project: Path, tmp_path_
     frame = project / "data" / "synthetic" / "kitti2015" / "training" / "image_2" / f"{FRAME}.png"
     assert (out / f"{FRAME}.png").read_bytes() == frame.read_bytes()
     manifest = json.loads((out / MANIFEST).read_text())
-    written = [f"{FRAME}.png", disparity_name("ssim"), disparity_name("msssim"), MANIFEST]
+    written = [f"{FRAME}.png", _disparity_name("ssim"), _disparity_name("msssim"), MANIFEST]
     assert sorted(p.name for p in out.iterdir()) == sorted([*written, ".msdepth-example"])
-    assert (out / ".msdepth-example").read_text() == "".join(manifest_line(n) for n in written)
+    assert (out / ".msdepth-example").read_text() == "".join(_manifest_line(n) for n in written)
     for variant in ("ssim", "msssim"):
         image = manifest["images"][variant]
         model = project / "models" / variant / "seed0" / "model.pt"
@@ -150,10 +150,10 @@ def test_a_retrained_model_or_a_resized_image_is_found(project: Path):
     manifest["images"]["msssim"]["model_md5"] = md5(project / "models" / "msssim" / "seed0" / "model.pt")
     _lock(project, manifest)
     problems = stale_example(workspace(project))
-    image = (OUT / disparity_name("msssim")).as_posix()
+    image = (OUT / _disparity_name("msssim")).as_posix()
     assert len(problems) == 1 and problems[0].startswith(f"{image}: drawn by")
-    shutil.copy(project / OUT / f"{FRAME}.png", project / OUT / disparity_name("ssim"))  # another size
-    assert any("not the" in p and disparity_name("ssim") in p for p in stale_example(workspace(project)))
+    shutil.copy(project / OUT / f"{FRAME}.png", project / OUT / _disparity_name("ssim"))  # another size
+    assert any("not the" in p and _disparity_name("ssim") in p for p in stale_example(workspace(project)))
 
 
 def _git(root: Path, *args: str) -> None:
@@ -192,7 +192,7 @@ def test_missing_models_are_one_line(project: Path, capsys):
     assert not (project / OUT).exists()
 
 
-@pytest.mark.parametrize("name", [f"{FRAME}.png", disparity_name("msssim"), MANIFEST])
+@pytest.mark.parametrize("name", [f"{FRAME}.png", _disparity_name("msssim"), MANIFEST])
 def test_a_users_file_at_an_output_name_is_refused_in_one_line(project: Path, capsys, name: str):
     """Issue 56 case 4: the command replaced a user's docs/example/* files; it goes through the output
     policy now: the user's file is named in one line and left as it was, nothing else is written."""
@@ -213,4 +213,4 @@ def test_the_committed_example_is_listed_in_its_manifest():
         MANIFEST,
         *(image["file"] for image in json.loads((ROOT / OUT / MANIFEST).read_text())["images"].values()),
     }
-    assert read_manifest(ROOT / OUT / ".msdepth-example") == names
+    assert _read_manifest(ROOT / OUT / ".msdepth-example") == names

@@ -114,7 +114,7 @@ def test_an_oversized_file_is_refused_before_parsing(
 def test_a_failing_dvc_is_one_line(
     capsys: pytest.CaptureFixture, monkeypatch: pytest.MonkeyPatch, script: str, expected: str
 ) -> None:
-    monkeypatch.setattr(exp, "dvc_command", lambda: [sys.executable, "-c", script])
+    monkeypatch.setattr(exp, "_dvc_command", lambda: [sys.executable, "-c", script])
     code, out, err = _run(capsys)
     assert code == 1 and out == [] and len(err) == 1
     assert err[0].startswith("error: dvc exp show --json") and expected in err[0]
@@ -131,7 +131,7 @@ def test_dvc_output_is_read_from_its_stdout(
     capsys: pytest.CaptureFixture, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     script = f"import sys; sys.stdout.write(open({str(SAMPLE)!r}).read())"
-    monkeypatch.setattr(exp, "dvc_command", lambda: [sys.executable, "-c", script])
+    monkeypatch.setattr(exp, "_dvc_command", lambda: [sys.executable, "-c", script])
     code, out, _ = _run(capsys)
     assert code == 0 and [line.split()[0] for line in out] == ["Experiment", "workspace", "main", "fd2fe2b"]
 

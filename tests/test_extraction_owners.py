@@ -73,7 +73,7 @@ def test_an_archive_may_replace_its_own_files_and_its_marker_lists_them(tmp_path
     assert dl.extract(archive, raw)
     marker = raw / ".c.zip.complete"
     assert json.loads(marker.read_text())["files"] == [CALIB]
-    assert dl.file_owners(raw) == {CALIB: "c.zip"}
+    assert dl._file_owners(raw) == {CALIB: "c.zip"}
     # A run killed mid-move: the pending record still says whose the moved files are.
     marker.rename(raw / ".c.zip.pending")
     assert dl.extract(_zip(archive, {CALIB: "v2"}), raw)

@@ -117,14 +117,14 @@ def test_png_and_npy_ground_truth(tmp_path: Path):
 
 def test_camera_file_and_focal_rescaled_to_the_width(tmp_path: Path):
     (tmp_path / "camera.yaml").write_text("focal_px: 700\nwidth_px: 1400\nbaseline_m: 0.12\n")
-    camera = folder.read_camera(tmp_path / "camera.yaml")
+    camera = folder._read_camera(tmp_path / "camera.yaml")
     assert camera.focal_at(1400) == 700.0 and camera.focal_at(700) == 350.0
     (tmp_path / "bad.yaml").write_text("focal_px: 700\nwidth: 1400\nbaseline_m: 0.12\n")
     with pytest.raises(DataError, match=r"bad\.yaml: .*missing \['width_px'\], unknown \['width'\]"):
-        folder.read_camera(tmp_path / "bad.yaml")
+        folder._read_camera(tmp_path / "bad.yaml")
     (tmp_path / "neg.yaml").write_text("focal_px: 700\nwidth_px: 1400\nbaseline_m: -1\n")
     with pytest.raises(DataError, match="baseline_m must be a number > 0"):
-        folder.read_camera(tmp_path / "neg.yaml")
+        folder._read_camera(tmp_path / "neg.yaml")
 
 
 # --------------------------------------------------------------------------- index builders
@@ -197,10 +197,10 @@ def test_evaluation_index_rows_kinds_camera_and_no_gt(tmp_path: Path):
 
 
 def test_folder_indexes_write_the_pipeline_files(tmp_path: Path):
-    from msdepth.data.indexing import folder_indexes
+    from msdepth.data.indexing import _folder_indexes
 
     root = _folder(tmp_path / "s")
-    report = folder_indexes(_params(root), tmp_path / "index")
+    report = _folder_indexes(_params(root), tmp_path / "index")
     assert report["train_pairs_found"] == 1 and report["eval_frames"] == 3
     assert report["eval_frames_without_gt"] == 1 and report["eval_frames_left_out_of_training"] == 3
     assert kitti.read_split(tmp_path / "index" / "train_pairs.txt") == [
@@ -276,10 +276,10 @@ def test_means_without_rois_have_no_roi_number():
     """The compare stage's per-variant mean rows from a comparison without ROIs: full image only."""
     from msdepth.evaluation.metrics import METRICS
     from msdepth.reporting.compare import build_comparison, comparison_data
-    from msdepth.reporting.pipeline_compare import mean_rows
+    from msdepth.reporting.pipeline_compare import _mean_rows
 
     full = {"cap80": dict.fromkeys(METRICS, 0.5), "images": 2, "excluded_images": 0}
     none = {"rois": 0, NO_ROIS: "no ROIs"}
     suites = {"full": {"ssim": full}, "roi": {"ssim": none}, "gradients": {"ssim": none}}
     result, _ = build_comparison(comparison_data(suites, ["ssim"], []))
-    assert mean_rows(result, ["ssim"], "cap80") == {"ssim": {"abs_rel": 0.5, "a1": 0.5}}
+    assert _mean_rows(result, ["ssim"], "cap80") == {"ssim": {"abs_rel": 0.5, "a1": 0.5}}

@@ -23,7 +23,7 @@ from conftest import save_tiny_model
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from msdepth.__main__ import build_parser, main
+from msdepth.__main__ import _build_parser, main
 from msdepth.config.params import apply_overrides, params_from_dict
 from msdepth.errors import ConfigError
 
@@ -94,7 +94,7 @@ def _run(argv: list[str]) -> tuple[int, str]:
 
 
 def test_every_subcommand_is_fuzzed() -> None:
-    sub = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
+    sub = next(a for a in _build_parser()._actions if isinstance(a, argparse._SubParsersAction))
     assert set(sub.choices) == set(FUZZED)
 
 

@@ -7,14 +7,14 @@ import pytest
 import torch
 
 from msdepth.geometry.camera import (
-    backproject,
+    _backproject,
+    _rotation_from_axis_angle,
+    _translation_matrix,
     disp_to_depth,
     project,
     reproject,
-    rotation_from_axis_angle,
     stereo_pose,
     transformation_from_parameters,
-    translation_matrix,
 )
 from msdepth.geometry.warp import warp
 
@@ -123,7 +123,7 @@ def test_disp_to_depth_matches_monodepth2_and_its_range() -> None:
 @pytest.mark.parametrize("scale", [0.0, 1e-9, 0.01, 1.0, 3.0])
 def test_rotation_matches_monodepth2(scale: float) -> None:
     vec = (_random(4, 3, seed=1) - 0.5) * scale
-    ours = rotation_from_axis_angle(vec)
+    ours = _rotation_from_axis_angle(vec)
     assert torch.allclose(ours, md2_rot_from_axisangle(vec[:, None]), atol=1e-12)
     # A rotation up to the 1e-7 added to the angle (the axis is 1e-7/angle short of unit length).
     r = ours[:, :3, :3]
@@ -133,7 +133,7 @@ def test_rotation_matches_monodepth2(scale: float) -> None:
 
 
 def test_rotation_known_answer_quarter_turn_about_y() -> None:
-    r = rotation_from_axis_angle(torch.tensor([[0.0, torch.pi / 2, 0.0]], dtype=torch.float64))[0, :3, :3]
+    r = _rotation_from_axis_angle(torch.tensor([[0.0, torch.pi / 2, 0.0]], dtype=torch.float64))[0, :3, :3]
     # Right-handed: +z goes to +x, +x to -z.
     assert torch.allclose(
         r @ torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64), torch.tensor([1.0, 0, 0], dtype=torch.float64)
@@ -146,7 +146,7 @@ def test_rotation_known_answer_quarter_turn_about_y() -> None:
 
 def test_zero_rotation_has_finite_gradient() -> None:
     vec = torch.zeros(1, 3, dtype=torch.float64, requires_grad=True)
-    rotation_from_axis_angle(vec).sum().backward()
+    _rotation_from_axis_angle(vec).sum().backward()
     assert torch.isfinite(vec.grad).all()
 
 
@@ -156,7 +156,7 @@ def test_transformation_matches_monodepth2(invert: bool) -> None:
     ours = transformation_from_parameters(axis_angle, translation, invert)
     ref = md2_transformation_from_parameters(axis_angle[:, None], translation[:, None], invert)
     assert torch.allclose(ours, ref, atol=1e-12)
-    assert torch.allclose(translation_matrix(translation), md2_get_translation_matrix(translation))
+    assert torch.allclose(_translation_matrix(translation), md2_get_translation_matrix(translation))
 
 
 def test_inverted_transformation_is_the_inverse() -> None:
@@ -173,7 +173,7 @@ def test_backproject_and_project_match_monodepth2(size: tuple[int, int]) -> None
     depth = 1 + 10 * _random(2, 1, h, w, seed=6)
     k = _k(2, h, w)
     inv_k = torch.linalg.inv(k)
-    points = backproject(depth, inv_k)
+    points = _backproject(depth, inv_k)
     assert torch.allclose(points, md2_backproject_depth(depth, inv_k, 2, h, w), atol=1e-12)
     pose = transformation_from_parameters(0.05 * (_random(2, 3, seed=7) - 0.5), _random(2, 3, seed=8) - 0.5)
     if h > 1:  # Monodepth2 divides by H - 1 = 0 for one row; ours keeps the row at -1
@@ -200,7 +200,7 @@ def test_x_translation_is_the_stereo_shift(baseline: float) -> None:
     # exactly the stereo warp by a disparity of f·b/Z px (as a fraction of the width).
     h, w = 9, 30
     image, depth, k = _random(2, 3, h, w, seed=11), 2 + 20 * _random(2, 1, h, w, seed=12), _k(2, h, w)
-    pose = translation_matrix(torch.tensor([[baseline, 0.0, 0.0]] * 2, dtype=torch.float64))
+    pose = _translation_matrix(torch.tensor([[baseline, 0.0, 0.0]] * 2, dtype=torch.float64))
     for mode in ("border", "zeros"):
         out = reproject(image, depth, k, torch.linalg.inv(k), pose, mode)
         shift = k[:, 0, 0].view(2, 1, 1, 1) * baseline / depth / w
@@ -222,7 +222,7 @@ def test_non_finite_depth_samples_outside_not_crash() -> None:
     h, w = 4, 6
     depth = torch.full((1, 1, h, w), float("nan"), dtype=torch.float64, requires_grad=True)
     k = _k(1, h, w)
-    pose = translation_matrix(torch.tensor([[0.5, 0.0, 0.0]], dtype=torch.float64))
+    pose = _translation_matrix(torch.tensor([[0.5, 0.0, 0.0]], dtype=torch.float64))
     out = reproject(_random(1, 3, h, w), depth, k, torch.linalg.inv(k), pose)
     out.sum().backward()  # no crash
     assert out.shape == (1, 3, h, w)
@@ -230,9 +230,9 @@ def test_non_finite_depth_samples_outside_not_crash() -> None:
 
 def test_bad_shapes_are_refused() -> None:
     with pytest.raises(ValueError, match="rotation_from_axis_angle"):
-        rotation_from_axis_angle(torch.zeros(2, 1, 3))
+        _rotation_from_axis_angle(torch.zeros(2, 1, 3))
     with pytest.raises(ValueError, match="backproject"):
-        backproject(torch.zeros(1, 2, 3, 3), torch.eye(4)[None])
+        _backproject(torch.zeros(1, 2, 3, 3), torch.eye(4)[None])
     with pytest.raises(ValueError, match="reproject"):
         reproject(
             torch.zeros(1, 3, 4, 4),

@@ -21,10 +21,10 @@ from msdepth.__main__ import main
 from msdepth.errors import OutputError
 from msdepth.io import (
     OutputPolicy,
-    manifest_entries,
-    manifest_line,
-    pending_line,
-    read_manifest,
+    _manifest_entries,
+    _manifest_line,
+    _pending_line,
+    _read_manifest,
     settle_outputs,
     write_text,
 )
@@ -111,7 +111,7 @@ def test_a_study_that_fails_before_writing_lists_nothing(
     # Issue 56 case 2: `studies/power.py --root nowhere` left power.md listed (and ended in a traceback).
     out = tmp_path / "power.md"
     _one_line(load_study("power").main(["--root", str(tmp_path / "nowhere"), "--out", str(out)]), capsys, "")
-    assert read_manifest(tmp_path / ".msdepth-power") == set()  # pending only, until the run ends
+    assert _read_manifest(tmp_path / ".msdepth-power") == set()  # pending only, until the run ends
     settle_outputs()  # as at the study's exit
     assert not (tmp_path / ".msdepth-power").exists()
     _users_file(out)
@@ -124,7 +124,11 @@ def test_a_killed_run_may_rewrite_what_it_wrote_and_nothing_else(tmp_path: Path)
     out = tmp_path / "out"
     OutputPolicy(out, "predict").claim([out / "a.txt", out / "b.txt"], "in")
     write_text(out / "a.txt", "written\n")
-    assert manifest_entries(out / ".msdepth-predict") == [("a.txt", False), ("b.txt", False), ("a.txt", True)]
+    assert _manifest_entries(out / ".msdepth-predict") == [
+        ("a.txt", False),
+        ("b.txt", False),
+        ("a.txt", True),
+    ]
     temp = out / ".b.txt.msdepth-tmp-abcd1234.txt"
     temp.write_text("half")
     _users_file(out / "b.txt")
@@ -134,7 +138,7 @@ def test_a_killed_run_may_rewrite_what_it_wrote_and_nothing_else(tmp_path: Path)
     with pytest.raises(OutputError, match="b.txt: exists and was not written"):
         rerun.claim([out / "b.txt"], "in")
     rerun.settle()
-    assert (out / ".msdepth-predict").read_text() == manifest_line("a.txt")
+    assert (out / ".msdepth-predict").read_text() == _manifest_line("a.txt")
     assert (out / "b.txt").read_bytes() == USERS
 
 
@@ -148,7 +152,7 @@ def test_a_settled_manifest_has_the_lines_a_complete_run_always_wrote(tmp_path: 
     write_text(out / "b.md", "b\n")
     policy.settle()
     assert (out / ".msdepth-learning").read_text() == "".join(
-        manifest_line(n) for n in ("b.md", "a.md", "c.md")
+        _manifest_line(n) for n in ("b.md", "a.md", "c.md")
     )
     again = OutputPolicy(out, "learning")
     again.claim([out / "a.md"], "params.yaml")
@@ -174,11 +178,11 @@ def _folder(manifest: Path, target: Path) -> None:
 
 
 def _not_manifest_lines(manifest: Path, target: Path) -> None:
-    manifest.write_text(manifest_line("a_disp.png") + '"unterminated\n')
+    manifest.write_text(_manifest_line("a_disp.png") + '"unterminated\n')
 
 
 def _a_name_outside(manifest: Path, target: Path) -> None:
-    manifest.write_text(manifest_line("../elsewhere.png"))
+    manifest.write_text(_manifest_line("../elsewhere.png"))
 
 
 def _too_large(manifest: Path, target: Path) -> None:
@@ -215,7 +219,7 @@ def test_a_manifest_that_is_not_one_is_refused_in_one_line(
 def test_pending_lines_are_never_trusted(tmp_path: Path) -> None:
     out = tmp_path / "out"
     _users_file(out / "a_disp.png")
-    (out / ".msdepth-predict").write_text(pending_line("a_disp.png"))
+    (out / ".msdepth-predict").write_text(_pending_line("a_disp.png"))
     with pytest.raises(OutputError, match="exists and was not written"):
         OutputPolicy(out, "predict").claim([out / "a_disp.png"], "a.png")
 
@@ -322,12 +326,12 @@ def test_a_file_nested_5000_deep_is_one_line(tmp_path: Path, capsys: pytest.Capt
 
     from msdepth.errors import MsdepthError
     from msdepth.networks.resnet import ResNetEncoder, load_pretrained
-    from msdepth.training.train import load_checkpoint
+    from msdepth.training.train import _load_checkpoint
 
     deep = _deep_file(tmp_path / "deep.pt")
     expected = "nest deeper than 32 levels"
     with pytest.raises(MsdepthError, match=expected):
-        load_checkpoint(deep, torch.device("cpu"))
+        _load_checkpoint(deep, torch.device("cpu"))
     with pytest.raises(MsdepthError, match=expected):
         load_pretrained(ResNetEncoder(), deep)
     _one_line(main(_predict(tmp_path, deep, tmp_path / "out")), capsys, expected)

@@ -60,7 +60,7 @@ def test_a_huge_file_under_the_bound_is_refused_after_its_header(tmp_path: Path)
 
 
 def test_the_file_bound_follows_the_pixel_limit(tmp_path: Path) -> None:
-    path = _sparse(tmp_path / "d.png", imagefile.max_file_bytes(1000) + 1)
+    path = _sparse(tmp_path / "d.png", imagefile._max_file_bytes(1000) + 1)
     with pytest.raises(PixelLimitError, match="within the limit of 0.001 megapixels"):
         kitti.read_image(path, max_pixels=1000)
 
@@ -72,7 +72,7 @@ def test_a_jpeg_frame_header_after_large_app_segments_is_found_by_seeking(tmp_pa
     app = b"\xff\xe5" + struct.pack(">H", 65535) + b"\x00" * 65533
     (tmp_path / "e.jpg").write_bytes(data[:2] + app * 3 + data[2:])
     with open(tmp_path / "e.jpg", "rb") as file:
-        assert imagefile.header_size(file) == (30, 20)
+        assert imagefile._header_size(file) == (30, 20)
     assert kitti.read_image(tmp_path / "e.jpg").shape == (20, 30, 3)
 
 
@@ -80,7 +80,7 @@ def test_a_tiff_directory_at_the_end_is_read_by_seeking(tmp_path: Path) -> None:
     image = np.random.default_rng(0).integers(0, 256, (20, 30, 3), np.uint8)
     assert cv2.imwrite(str(tmp_path / "f.tif"), image)
     with open(tmp_path / "f.tif", "rb") as file:
-        assert imagefile.header_size(file) == (30, 20)
+        assert imagefile._header_size(file) == (30, 20)
 
 
 def test_a_jpeg_of_5000_repeated_scans_is_refused_before_decoding(tmp_path: Path) -> None:
@@ -120,10 +120,10 @@ def test_a_jpeg_of_more_markers_than_the_bound_is_refused_without_walking_them()
     # to be refused by OpenCV; one marker more than the bound is refused by the walk.
     comments = b"\xff\xfe\x00\x02" * imagefile.MAX_JPEG_MARKERS
     with pytest.raises(DataError, match=r"^corrupt JPEG: more than 4,096 markers"):
-        imagefile.jpeg_size(_jpeg_after_its_frame_header(comments + b"\xff\xd9"))
+        imagefile._jpeg_size(_jpeg_after_its_frame_header(comments + b"\xff\xd9"))
     # one fewer (the frame header is one) is walked to its end
     fewer = comments[: 4 * (imagefile.MAX_JPEG_MARKERS - 2)]
-    assert imagefile.jpeg_size(_jpeg_after_its_frame_header(fewer + b"\xff\xd9")) == (1000, 1000)
+    assert imagefile._jpeg_size(_jpeg_after_its_frame_header(fewer + b"\xff\xd9")) == (1000, 1000)
 
 
 def test_a_png_of_more_chunks_than_the_bound_is_refused_without_walking_them() -> None:
@@ -148,5 +148,5 @@ def test_runs_of_0xff_are_searched_not_walked(body: bytes) -> None:
     # 16 MB of fill bytes, or of 0xFF 0x00 in a scan: a Python loop over each 0xFF took seconds; the
     # regex engine finds the next marker (the result is the same: the walk reaches the end).
     started = time.perf_counter()
-    assert imagefile.jpeg_size(_jpeg_after_its_frame_header(body)) == (1000, 1000)
+    assert imagefile._jpeg_size(_jpeg_after_its_frame_header(body)) == (1000, 1000)
     assert time.perf_counter() - started < 1.0

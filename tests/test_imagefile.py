@@ -100,7 +100,7 @@ def test_declared_size_matches_opencv_for_every_supported_format(suffix: str) ->
 
     image = _noise(37, 53)[..., :1] if suffix == ".pgm" else _noise(37, 53)
     data = cv2.imencode(suffix, image)[1].tobytes()
-    assert imagefile.declared_size(data) == (53, 37)
+    assert imagefile._declared_size(data) == (53, 37)
 
 
 def test_cache_leaves_out_the_huge_pair_and_keeps_the_good_one(tmp_path: Path) -> None:

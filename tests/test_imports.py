@@ -23,7 +23,7 @@ from pathlib import Path
 
 import pytest
 
-from msdepth.pipeline.dvcyaml import PACKAGE, imported_modules, module_file
+from msdepth.pipeline.dvcyaml import PACKAGE, _imported_modules, _module_file
 
 ROOT = Path(__file__).resolve().parents[1]
 SRC = ROOT / "src"
@@ -45,7 +45,7 @@ def import_graph(src: Path, package: str = PACKAGE) -> dict[str, set[str]]:
     graph = {}
     for name, path in modules(src, package).items():
         own = {".".join(name.split(".")[:i]) for i in range(1, name.count(".") + 1)}
-        graph[name] = {m for m in imported_modules(path, name, src, package) if m != name and m not in own}
+        graph[name] = {m for m in _imported_modules(path, name, src, package) if m != name and m not in own}
     return graph
 
 
@@ -106,7 +106,7 @@ def private_imports(src: Path, package: str = PACKAGE) -> list[str]:
                 if base != package and not base.startswith(package + "."):
                     continue
                 for alias in node.names:
-                    if module_file(f"{base}.{alias.name}", src):
+                    if _module_file(f"{base}.{alias.name}", src):
                         bound[alias.asname or alias.name] = f"{base}.{alias.name}"
                     elif alias.name.startswith("_") and base != name:
                         found.append(f"{name}: from {base} import {alias.name}")
@@ -121,7 +121,7 @@ def private_imports(src: Path, package: str = PACKAGE) -> list[str]:
                 and node.value.id in bound
                 and node.attr.startswith("_")
                 and not node.attr.startswith("__")
-                and not module_file(f"{bound[node.value.id]}.{node.attr}", src)
+                and not _module_file(f"{bound[node.value.id]}.{node.attr}", src)
             ):
                 found.append(f"{name}: {node.value.id}.{node.attr} (of {bound[node.value.id]})")
     return sorted(set(found))

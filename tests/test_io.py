@@ -114,7 +114,7 @@ def test_png_round_trips_through_opencv_in_rgb_order(tmp_path: Path, image: np.n
 def test_png_rows_are_up_filtered_and_big_endian() -> None:
     """Hand-checked layout: filter byte 2 ("Up") per row, row 0 raw, then differences mod 256."""
     image = np.array([[1, 300], [258, 44]], np.uint16)
-    header, raw = _png_rows(io.encode_png(image))
+    header, raw = _png_rows(io._encode_png(image))
     assert header == {"w": 2, "h": 2, "depth": 16, "color": 0}
     assert raw.tolist() == [
         [2, 0, 1, 1, 44],  # 1 = 0x0001, 300 = 0x012C
@@ -125,8 +125,8 @@ def test_png_rows_are_up_filtered_and_big_endian() -> None:
 def test_png_bytes_depend_only_on_the_pixels() -> None:
     rng = np.random.default_rng(0)
     image = rng.integers(0, 256, (16, 24, 3), dtype=np.uint8)
-    assert io.encode_png(image) == io.encode_png(image.copy(order="F"))
-    assert io.encode_png(image) != io.encode_png(image[::-1].copy())
+    assert io._encode_png(image) == io._encode_png(image.copy(order="F"))
+    assert io._encode_png(image) != io._encode_png(image[::-1].copy())
 
 
 @pytest.mark.parametrize(

@@ -13,7 +13,7 @@ import pytest
 
 from msdepth.config.params import Params
 from msdepth.data import kitti, kitti2012
-from msdepth.data.eval_sets import build_kitti2012_index
+from msdepth.data.eval_sets import _build_kitti2012_index
 from msdepth.errors import DataError
 from msdepth.evaluation.results import score_set
 from msdepth.evaluation.suites import load_frames
@@ -64,12 +64,12 @@ def test_an_unknown_width_without_calib_and_a_missing_image_are_one_line_errors(
     tiny_set(tmp_path)
     (tmp_path / kitti2012.RIGHT / "000000_10.png").unlink()
     with pytest.raises(DataError, match=r"colored_1/000000_10\.png: missing"):
-        build_kitti2012_index(tmp_path)
+        _build_kitti2012_index(tmp_path)
 
 
 def scored(tmp_path: Path, monkeypatch, root: Path, depth: float) -> dict:
     """The kitti2012 set of ``root`` scored with a constant ``depth``: its full-image summary."""
-    frames = load_frames(build_kitti2012_index(root))
+    frames = load_frames(_build_kitti2012_index(root))
     monkeypatch.chdir(tmp_path)  # score_set writes below metrics/ of the working folder
     pred = {f.name: np.full(f.shape, depth, np.float32) for f in frames}
     score_set(Params(), "kitti2012", "constant", pred, frames, scaled=False)
@@ -109,7 +109,7 @@ def test_disp_refl_occ_holds_the_reflective_surfaces_only_on_the_shared_frames()
 
 @needs_sample
 def test_the_suites_run_on_the_shared_kitti2012_frames(tmp_path, monkeypatch):
-    index = build_kitti2012_index(SAMPLE)
+    index = _build_kitti2012_index(SAMPLE)
     assert list(index["frame"]) == ["000000_10", "000001_10"]
     assert list(index["focal"]) == [707.0912, 707.0912]  # 1226 px wide, no calib/: the default
     summary = scored(tmp_path, monkeypatch, SAMPLE, 20.0)
@@ -150,13 +150,13 @@ def test_a_network_and_the_baselines_are_scored_on_the_shared_frames_with_their_
     params = Params()
     params = dataclasses.replace(params, eval=dataclasses.replace(params.eval, extra_sets=("kitti2012",)))
     index_path = tmp_path / "kitti2012.csv"
-    write_eval_index(index_path, build_kitti2012_index(SAMPLE))
+    write_eval_index(index_path, _build_kitti2012_index(SAMPLE))
     monkeypatch.chdir(tmp_path)
     torch.manual_seed(0)
     model = build_model(params).eval()
     evaluate_on_set(params, "kitti2012", "ssim/seed0", model, {"height": 64, "width": 192}, index_path)
     gt = np.full((4, 37, 122), 0.02, np.float32)  # fraction of width: ~25 px at 1226
-    monkeypatch.setattr(baselines, "indexed_training_gt", lambda _: baselines.TrainingGT(gt, available=4))
+    monkeypatch.setattr(baselines, "_indexed_training_gt", lambda _: baselines.TrainingGT(gt, available=4))
     baselines.score_set_baselines(params, "kitti2012", tmp_path / "unused.txt", index_path)
     summaries = set_summaries(tmp_path)
     assert set(summaries) >= {"seed0", "constant", "prior"}
@@ -169,10 +169,10 @@ def test_a_network_and_the_baselines_are_scored_on_the_shared_frames_with_their_
 def test_compare_md_has_the_reflective_class_of_the_set(tmp_path, monkeypatch):
     """compare.md's kitti2012 section: the whole frame's pixels said, and a table of the exact class
     per run (a run off by 10 % everywhere has abs_rel 0.1 there)."""
-    from msdepth.reporting.pipeline_compare import compare_set
+    from msdepth.reporting.pipeline_compare import _compare_set
 
     tiny_set(tmp_path / "set", frames=("000000_10", "000001_10"))
-    frames = load_frames(build_kitti2012_index(tmp_path / "set"))
+    frames = load_frames(_build_kitti2012_index(tmp_path / "set"))
     monkeypatch.chdir(tmp_path)
     params = Params()
     params = dataclasses.replace(params, train=dataclasses.replace(params.train, seeds=(0,)))
@@ -180,7 +180,7 @@ def test_compare_md_has_the_reflective_class_of_the_set(tmp_path, monkeypatch):
         score_set(
             params, "kitti2012", run, {f.name: f.gt_depth * scale for f in frames}, frames, scaled=False
         )
-    result, md = compare_set(params, "kitti2012")
+    result, md = _compare_set(params, "kitti2012")
     assert "every GT pixel of the whole frame" in md and "Garg" not in md
     assert "## kitti2012: exact class pixels, cap 80 m" in md
     row = next(line for line in md.splitlines() if line.startswith("| reflective | ssim"))

@@ -14,7 +14,7 @@ import pytest
 
 from msdepth.config.params import Params
 from msdepth.data import kitti
-from msdepth.data.eval_sets import KITTI2015_GT, build_kitti2015_index, build_set_index
+from msdepth.data.eval_sets import KITTI2015_GT, _build_kitti2015_index, build_set_index
 from msdepth.data.layout import KITTI2015_SET, layout
 from msdepth.errors import DataError
 from msdepth.evaluation.results import score_set
@@ -46,7 +46,7 @@ def tiny_set(root: Path, frames: tuple[str, ...] = ("000000_10",), obj_map: bool
 
 def scored(tmp_path: Path, monkeypatch, root: Path, depth: float) -> dict:
     """The kitti2015 set of ``root`` scored with a constant ``depth``: its full-image summary."""
-    frames = load_frames(build_kitti2015_index(root))
+    frames = load_frames(_build_kitti2015_index(root))
     monkeypatch.chdir(tmp_path)  # score_set writes below metrics/ of the working folder
     pred = {f.name: np.full(f.shape, depth, np.float32) for f in frames}
     score_set(Params(), "kitti2015", "constant", pred, frames, scaled=False)
@@ -68,7 +68,7 @@ def test_the_set_scores_obj_maps_cars_as_the_class_car(tmp_path, monkeypatch):
 
 def test_a_frame_without_obj_map_is_scored_without_classes(tmp_path):
     tiny_set(tmp_path / "set", obj_map=False)
-    index = build_kitti2015_index(tmp_path / "set")
+    index = _build_kitti2015_index(tmp_path / "set")
     assert list(index["obj_map"]) == [""] and list(index["gt_kind"]) == ["disparity"]
     (frame,) = load_frames(index)
     assert frame.class_map is None
@@ -76,14 +76,14 @@ def test_a_frame_without_obj_map_is_scored_without_classes(tmp_path):
 
 def test_bad_trees_are_refused_naming_the_file(tmp_path):
     with pytest.raises(DataError, match=r"no image_2/ folder"):
-        build_kitti2015_index(tmp_path)
+        _build_kitti2015_index(tmp_path)
     tiny_set(tmp_path, frames=("000000_10", "000001_10"))
     (tmp_path / "image_3" / "000001_10.png").unlink()
     with pytest.raises(DataError, match=r"image_3/000001_10\.png: missing"):
-        build_kitti2015_index(tmp_path)
+        _build_kitti2015_index(tmp_path)
     write_png(tmp_path / "image_3" / "000001_10.png", np.full((8, 100, 3), 100, np.uint8))
     with pytest.raises(DataError, match=r"000001_10\.png"):
-        build_kitti2015_index(tmp_path)
+        _build_kitti2015_index(tmp_path)
 
 
 def test_the_set_sits_beside_the_rendered_frames_and_in_a_kitti_tree(tmp_path):
@@ -104,7 +104,7 @@ def test_the_set_sits_beside_the_rendered_frames_and_in_a_kitti_tree(tmp_path):
 
 @needs_sample
 def test_the_suites_run_on_the_shared_kitti2015_frames(tmp_path, monkeypatch):
-    index = build_kitti2015_index(SAMPLE)
+    index = _build_kitti2015_index(SAMPLE)
     assert list(index["frame"]) == ["000000_10", "000001_10"]
     assert list(index["focal"]) == [721.5377, 721.5377] and list(index["obj_map"]) == ["", ""]
     summary = scored(tmp_path, monkeypatch, SAMPLE, 20.0)

@@ -10,7 +10,7 @@ import pandas as pd
 import pytest
 
 from msdepth.data import kitti
-from msdepth.data.sequences import SplitEntry, read_mono_split
+from msdepth.data.sequences import SplitEntry, _read_mono_split
 from msdepth.errors import DataError
 from msdepth.io import write_png
 
@@ -229,7 +229,7 @@ def test_shipped_split_lists_parse() -> None:
     assert len(train) == 29000 and train[0][0].endswith(".jpg")
     assert len(kitti.read_split(lists / "kitti_val_files.txt")) == 1159
     assert len(kitti.read_split(lists / "kitti_stereo_2015_test_files.txt")) == 200
-    zhou = read_mono_split(lists / "eigen_zhou_train_files.txt")  # Monodepth2's, for train.mode mono
+    zhou = _read_mono_split(lists / "eigen_zhou_train_files.txt")  # Monodepth2's, for train.mode mono
     assert len(zhou) == 39810 and zhou[0] == SplitEntry("2011_09_26/2011_09_26_drive_0022_sync", 473, "r")
     if (SHARED / "kitti").is_dir():  # unchanged copies of the reference lists
         for name in ("kitti_train_files.txt", "kitti_val_files.txt", "kitti_stereo_2015_test_files.txt"):

@@ -19,12 +19,12 @@ from msdepth.config.variants.msssim import MSSSIMConfig
 from msdepth.config.variants.ssim import SSIMConfig
 from msdepth.losses import ssim_kernels as kernels
 from msdepth.losses.appearance import terms
-from msdepth.losses.appearance.msssim import msssim_similarity
+from msdepth.losses.appearance.msssim import _msssim_similarity
 from msdepth.losses.monodepth import (
     AppearanceTerm,
     MonodepthLoss,
+    _lr_consistency_loss,
     appearance_loss,
-    lr_consistency_loss,
     scale_pyramid,
     smoothness_loss,
 )
@@ -33,10 +33,10 @@ from msdepth.losses.ssim import (
     C2,
     WANG_WEIGHTS,
     LearnedLevelWeights,
+    _reference_ssim_terms,
     level_weights,
     ms_ssim,
     ms_ssim_pyramid,
-    reference_ssim_terms,
     ssim,
 )
 
@@ -69,7 +69,7 @@ def _plain_ssim_terms(
     x: torch.Tensor, y: torch.Tensor, kernel_size: int, window: str, padding: str
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """The SSIM formula written out with autograd (the module's reference): (cs map, SSIM map)."""
-    return reference_ssim_terms(x, y, kernel_size, window, 1.5, padding)  # type: ignore[arg-type]
+    return _reference_ssim_terms(x, y, kernel_size, window, 1.5, padding)  # type: ignore[arg-type]
 
 
 @pytest.mark.parametrize("kernel_size", [1, 3, 5, 7, 9, 11])
@@ -526,7 +526,7 @@ def test_appearance_loss_zero_for_identical_images_and_combines_terms() -> None:
     assert appearance_loss(x, y, alpha=0.0).item() == pytest.approx(l1.item(), rel=1e-6)
     dssim = ((1 - ssim(x, y)) / 2).clamp(0, 1).mean()
     assert appearance_loss(x, y, alpha=1.0).item() == pytest.approx(dssim.item(), rel=1e-6)
-    pyramid = msssim_similarity(MSSSIMConfig(kernel_size=3, levels=3, weights="equal"))
+    pyramid = _msssim_similarity(MSSSIMConfig(kernel_size=3, levels=3, weights="equal"))
     msssim = lambda a, b: pyramid([a], [b])[0]  # noqa: E731
     expected = 0.85 * ((1 - ms_ssim(x, y, 3, 3, "equal")) / 2).mean() + 0.15 * l1
     assert appearance_loss(x, y, similarity=msssim).item() == pytest.approx(expected.item(), rel=1e-6)
@@ -534,7 +534,7 @@ def test_appearance_loss_zero_for_identical_images_and_combines_terms() -> None:
 
 def test_make_similarity_learned_needs_weights() -> None:
     with pytest.raises(ValueError, match="LearnedLevelWeights"):
-        msssim_similarity(MSSSIMConfig(weights="learned"))
+        _msssim_similarity(MSSSIMConfig(weights="learned"))
 
 
 def test_smoothness_zero_for_constant_disparity() -> None:
@@ -560,11 +560,11 @@ def test_smoothness_is_down_weighted_at_image_edges(transpose: bool) -> None:
 def test_lr_consistency(padding_mode: str) -> None:
     d = torch.full((2, 1, 8, 16), 2 / 16)
     if padding_mode == "border":
-        assert lr_consistency_loss(d, d.clone(), padding_mode).item() == pytest.approx(0.0, abs=1e-7)
+        assert _lr_consistency_loss(d, d.clone(), padding_mode).item() == pytest.approx(0.0, abs=1e-7)
     else:
         # Zeros mode reads 0 past the image: consistent except for the 2 border columns.
-        assert lr_consistency_loss(d, d.clone(), padding_mode).item() < 2 * d[0, 0, 0, 0].item() * 2.5 / 16
-    assert lr_consistency_loss(d, 2 * d, padding_mode).item() > 0.1
+        assert _lr_consistency_loss(d, d.clone(), padding_mode).item() < 2 * d[0, 0, 0, 0].item() * 2.5 / 16
+    assert _lr_consistency_loss(d, 2 * d, padding_mode).item() > 0.1
 
 
 def test_scale_pyramid_is_area_downsampling() -> None:

@@ -23,16 +23,16 @@ from msdepth.losses.appearance import build_appearance
 from msdepth.losses.monodepth import reconstruct
 from msdepth.losses.ssim import ms_ssim
 from msdepth.optimum import cost_volume as cv
-from msdepth.optimum.sgbm import num_disparities, sgbm_disparity
+from msdepth.optimum.sgbm import _num_disparities, sgbm_disparity
 from msdepth.optimum.sgm import (
     SGMConfig,
-    aggregate,
+    _aggregate,
+    _lr_valid,
+    _path_step,
+    _right_disparity,
+    _subpixel,
     fill_holes,
-    lr_valid,
-    path_step,
-    right_disparity,
     sgm,
-    subpixel,
 )
 
 SHARED = Path(__file__).resolve().parents[2] / "shared"
@@ -137,7 +137,7 @@ def test_volume_slices_are_the_losses_appearance_map(name, monkeypatch):
     volume = cv.cost_volume(left, right, COSTS[name], max_disparity=9)
     assert volume.shape == (37, 101, 10)
     for d in range(10):
-        expected = cv.appearance_map(COSTS[name], cv.shifted(right, [d]), left[None])[0]
+        expected = cv._appearance_map(COSTS[name], cv.shifted(right, [d]), left[None])[0]
         torch.testing.assert_close(volume[..., d], expected, atol=1e-6, rtol=0)
 
 
@@ -147,12 +147,12 @@ def test_ssim_cost_averages_to_the_training_term(padding):
     params = params_with(ssim={"padding": padding})
     cost, term = cv.matching_cost(params, "ssim"), build_appearance(params, "ssim")
     estimate, target = torch.rand(2, 3, 24, 40), torch.rand(2, 3, 24, 40)
-    similarity = cv.similarity_map(cost, estimate, target)
+    similarity = cv._similarity_map(cost, estimate, target)
     inner = (slice(None), slice(None), slice(1, -1), slice(1, -1)) if padding == "valid" else (...,)
     dissimilarity = ((1 - similarity) / 2).clamp(0, 1)[inner].mean()
     mean = cost.alpha * dissimilarity + (1 - cost.alpha) * (estimate - target).abs().mean()
     torch.testing.assert_close(mean, term([estimate], [target])[0], atol=1e-6, rtol=0)
-    whole = cv.appearance_map(cost, estimate, target).mean()
+    whole = cv._appearance_map(cost, estimate, target).mean()
     if padding == "reflect":
         torch.testing.assert_close(whole, term([estimate], [target])[0], atol=1e-6, rtol=0)
 
@@ -163,7 +163,7 @@ def test_ms_ssim_maps_are_trainings_and_constant_maps_give_its_value(name):
     product of constant maps (each level's mean) is that value at every pixel."""
     cost = COSTS[name]
     x, y = torch.rand(2, 3, 45, 70), torch.rand(2, 3, 45, 70)
-    maps = cv.level_maps(x, y, cost.kernel_size, cost.levels)
+    maps = cv._level_maps(x, y, cost.kernel_size, cost.levels)
     assert [m.shape[-2:] for m in maps] == [(45, 70), (23, 35), (12, 18), (6, 9)]
     training = ms_ssim(x, y, cost.kernel_size, cost.levels, cost.weights, padding="same")
     means = [m.mean((2, 3), keepdim=True) for m in maps]
@@ -171,7 +171,7 @@ def test_ms_ssim_maps_are_trainings_and_constant_maps_give_its_value(name):
         torch.stack([m.clamp(min=1e-6) ** w for m, w in zip(means, cost.weights, strict=True)]), 0
     )
     torch.testing.assert_close(combined.mean(1).flatten(), training, atol=1e-6, rtol=1e-5)
-    constant = cv.collapse(
+    constant = cv._collapse(
         [mean.expand_as(m).clone() for mean, m in zip(means, maps, strict=True)], cost.weights
     )
     torch.testing.assert_close(
@@ -185,9 +185,9 @@ def test_ms_ssim_floor_is_trainings():
     x = torch.rand(1, 3, 32, 48)
     y = 1 - x
     weights = (0.25, 0.25, 0.25, 0.25)
-    maps = cv.level_maps(x, y, 3, 4)
+    maps = cv._level_maps(x, y, 3, 4)
     assert all(float(m.mean()) < 0 for m in maps)
-    constant = cv.collapse([m.mean((2, 3), keepdim=True).expand_as(m).clone() for m in maps], weights)
+    constant = cv._collapse([m.mean((2, 3), keepdim=True).expand_as(m).clone() for m in maps], weights)
     training = ms_ssim(x, y, 3, 4, weights, padding="same")
     torch.testing.assert_close(constant.mean(1)[0, 0, 0], training[0], rtol=1e-6, atol=0)
     assert float(training[0]) == pytest.approx(cv.MS_SSIM_FLOOR, rel=1e-5)
@@ -199,7 +199,7 @@ def test_upsample_aligns_with_the_pooling_cells():
     for size in (20, 21):
         ramp = torch.arange(size, dtype=torch.float32).view(1, 1, 1, size).expand(1, 1, 4, size)
         coarse = cv.pyramid(ramp.contiguous(), 2)[1]
-        back = cv.upsample(coarse, (4, size))
+        back = cv._upsample(coarse, (4, size))
         torch.testing.assert_close(back[..., 2:-2], ramp[..., 2:-2], atol=1e-5, rtol=0)
 
 
@@ -217,7 +217,7 @@ def test_volume_argmin_recovers_an_integer_shift(name):
 
 def test_path_step_known_answer():
     previous = torch.tensor([[0.0, 5.0, 5.0, 5.0]])
-    step = path_step(torch.tensor([[1.0, 1.0, 1.0, 1.0]]), previous, 1.0, 3.0)
+    step = _path_step(torch.tensor([[1.0, 1.0, 1.0, 1.0]]), previous, 1.0, 3.0)
     # min(prev(d), prev(d±1) + 1, min + 3) - min, plus the cost
     torch.testing.assert_close(step, torch.tensor([[1.0, 2.0, 4.0, 4.0]]))
 
@@ -225,12 +225,12 @@ def test_path_step_known_answer():
 def test_aggregate_without_penalties_is_paths_times_cost():
     volume = torch.rand(5, 7, 4)
     for paths in (4, 8):
-        torch.testing.assert_close(aggregate(volume, 0.0, 0.0, paths), paths * volume)
+        torch.testing.assert_close(_aggregate(volume, 0.0, 0.0, paths), paths * volume)
 
 
 def test_subpixel_is_the_parabolas_vertex():
     costs = torch.tensor([[[4.0, 1.0, 2.0, 9.0], [1.0, 2.0, 3.0, 4.0], [5.0, 5.0, 5.0, 5.0]]])
-    refined = subpixel(costs, costs.argmin(-1))
+    refined = _subpixel(costs, costs.argmin(-1))
     # (c0 - c2) / (2 (c0 - 2 c1 + c2)) = 2/8; the edge and the flat row stay put
     torch.testing.assert_close(refined, torch.tensor([[1.25, 0.0, 0.0]]))
 
@@ -242,7 +242,7 @@ def test_right_disparity_reindexes_the_left_volume():
         for x in range(30):
             costs = [volume[y, x + d, d] if x + d < 30 else torch.inf for d in range(7)]
             expected[y, x] = int(np.argmin(costs))
-    assert torch.equal(right_disparity(volume), expected)
+    assert torch.equal(_right_disparity(volume), expected)
 
 
 def test_lr_valid_tolerance_and_the_image_edge():
@@ -250,8 +250,8 @@ def test_lr_valid_tolerance_and_the_image_edge():
     right = torch.tensor([[0, 1, 0, 3, 0]])
     # x=0: match 0, right 0: ok; x=1: match -1: outside; x=2: match 1 (1 vs 1); x=3: match 2 (1.4 vs 0);
     # x=4: match round(2.4) = 2 (1.6 vs 0: off by 1.6)
-    assert lr_valid(left, right, 1.0).tolist() == [[True, False, True, False, False]]
-    assert lr_valid(left, right, 1.5).tolist() == [[True, False, True, True, False]]
+    assert _lr_valid(left, right, 1.0).tolist() == [[True, False, True, False, False]]
+    assert _lr_valid(left, right, 1.5).tolist() == [[True, False, True, True, False]]
 
 
 def test_fill_holes_takes_the_lower_neighbour():
@@ -311,7 +311,7 @@ def test_sgbm_recovers_a_shifted_texture():
     disparity, valid = sgbm_disparity(left, right, max_disparity=D)
     assert disparity.shape == (H, W) and disparity.dtype == np.float32
     assert np.mean(np.abs(disparity[4:-4, 4:-4] - 6) <= 1) > 0.97 and valid[4:-4, 4:-4].mean() > 0.8
-    assert num_disparities(16) == 16 and num_disparities(17) == 32 and num_disparities(372) == 384
+    assert _num_disparities(16) == 16 and _num_disparities(17) == 32 and _num_disparities(372) == 384
 
 
 # ----------------------------------------------------------------------------- D1 and EPE
@@ -439,7 +439,7 @@ def test_starts_study_refines_from_each_start(tmp_path):
 def test_the_cost_volume_is_bounded_before_it_is_allocated() -> None:
     # Issue 42 (bounded memory): the volume grows with H·W²; the optimum CLI's own-size limit
     # (4096 x 4096 px) would have asked for ~150 GiB. Known answers: KITTI's size fits, 4096² does not.
-    assert cv.volume_bytes(375, 1242) == 375 * 1242 * 373 * cv.VOLUME_BYTES_PER_CELL
+    assert cv._volume_bytes(375, 1242) == 375 * 1242 * 373 * cv.VOLUME_BYTES_PER_CELL
     cv.check_volume_size(375, 1242)
     with pytest.raises(
         DataError, match=r"4096 x 4096 px pair at 1229 disparities would take about 153\.6 GiB"

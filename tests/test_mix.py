@@ -16,9 +16,9 @@ from msdepth.config.variants.msssim import MSSSIMConfig
 from msdepth.config.variants.ssim import SSIMConfig
 from msdepth.errors import ConfigError
 from msdepth.losses.appearance import build_appearance, terms
-from msdepth.losses.appearance.mix import MixAppearance, gaussian_l1
+from msdepth.losses.appearance.mix import MixAppearance, _gaussian_l1
 from msdepth.losses.monodepth import MonodepthLoss
-from msdepth.losses.ssim import ms_ssim, reference_ssim_terms
+from msdepth.losses.ssim import _reference_ssim_terms, ms_ssim
 from msdepth.training.train import TrainOptions, TrainOutputs, load_model, train_variant
 
 
@@ -53,11 +53,11 @@ def test_mix_of_identical_images_is_zero() -> None:
 def test_gaussian_l1_hand_computed() -> None:
     # A constant error c is c wherever the window reaches (the in-image mass is the divisor) ...
     x = _rand(1, 3, 16, 20).double() * 0.5
-    assert gaussian_l1(x, x + 0.25, 4.0).item() == pytest.approx(0.25, abs=1e-12)
+    assert _gaussian_l1(x, x + 0.25, 4.0).item() == pytest.approx(0.25, abs=1e-12)
     # ... and one pixel's error d far from the border is spread, not changed: d / (H·W) in all.
     y = torch.zeros(1, 1, 64, 64, dtype=torch.float64)
     y[0, 0, 32, 32] = 0.5
-    assert gaussian_l1(torch.zeros_like(y), y, 4.0).item() == pytest.approx(0.5 / 64**2, rel=1e-9)
+    assert _gaussian_l1(torch.zeros_like(y), y, 4.0).item() == pytest.approx(0.5 / 64**2, rel=1e-9)
 
 
 def test_mix_reduces_to_its_pieces() -> None:
@@ -65,10 +65,10 @@ def test_mix_reduces_to_its_pieces() -> None:
     y = _noisy(x, 0.1).double()
     # alpha = 0: the Gaussian-weighted L1 of the coarsest level's σ.
     (l1,) = _mix(alpha=0.0, levels=3)([x], [y])
-    assert l1.item() == pytest.approx(gaussian_l1(x, y, 0.5 * 2**2).item(), rel=1e-12)
+    assert l1.item() == pytest.approx(_gaussian_l1(x, y, 0.5 * 2**2).item(), rel=1e-12)
     # alpha = 1, one level: 1 - the mean SSIM map of a 0.5 px Gaussian window, "same" padding.
     (one_level,) = _mix(alpha=1.0, levels=1)([x], [y])
-    ssim_map = reference_ssim_terms(x, y, 5, "gaussian", 0.5, "same")[1]
+    ssim_map = _reference_ssim_terms(x, y, 5, "gaussian", 0.5, "same")[1]
     assert one_level.item() == pytest.approx(1 - ssim_map.mean().item(), rel=1e-9)
     # alpha = 1: 1 - MS-SSIM with Zhao et al.'s exponents of 1, the product of the levels.
     (msssim,) = _mix(alpha=1.0, levels=3)([x], [y])

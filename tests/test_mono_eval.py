@@ -13,11 +13,11 @@ from torch import nn
 from msdepth import render
 from msdepth.config.params import EvalConfig, SyntheticConfig, params_from_dict
 from msdepth.errors import DataError
-from msdepth.evaluation.pose import odometry_ates, sequence_ates
+from msdepth.evaluation.pose import _odometry_ates, sequence_ates
 from msdepth.evaluation.results import median_scaling
 from msdepth.evaluation.suites import Frame, depth_maps, evaluate_full, median_scaled_maps
 from msdepth.io import write_png
-from msdepth.reporting.compare import ComparisonInputs, comparison_data, monocular_data, render_comparison
+from msdepth.reporting.compare import ComparisonInputs, _render_comparison, comparison_data, monocular_data
 
 CFG = EvalConfig(caps=(80.0,))
 
@@ -90,10 +90,10 @@ def test_compare_shows_scale_ratios_and_pose_ate_of_monocular_runs_only() -> Non
         "full": {"ssim": _full(3.0), "prior": _full(None)},
         "roi": {"ssim": {"rois": 0, "no_rois": "x"}, "prior": {"rois": 0, "no_rois": "x"}},
     }
-    md = render_comparison(comparison_data(suites, ["ssim"], ["prior"], ComparisonInputs(monocular=mono)))
+    md = _render_comparison(comparison_data(suites, ["ssim"], ["prior"], ComparisonInputs(monocular=mono)))
     assert "## Monocular training: scale and pose" in md
     assert "| ssim | 3.0000 | 0.3000 | 0.2000 | 0.1000 |" in md
-    stereo = render_comparison(comparison_data(suites, ["ssim"], ["prior"]))
+    stereo = _render_comparison(comparison_data(suites, ["ssim"], ["prior"]))
     assert "Monocular training" not in stereo
 
 
@@ -160,13 +160,13 @@ def _odometry(root: Path, sequence: str, frames: int, step: float = 0.8) -> None
 
 def test_pose_ate_on_kitti_odometry_per_sequence_and_pooled(tmp_path: Path) -> None:
     _odometry(tmp_path, "09", 7)
-    assert odometry_ates(_ConstantPose((0.0, 0.0, -1.6)), tmp_path, ["10"], 24, 80) == {}  # absent
-    exact = odometry_ates(_ConstantPose((0.0, 0.0, -1.6)), tmp_path, ["09", "10"], 24, 80)
+    assert _odometry_ates(_ConstantPose((0.0, 0.0, -1.6)), tmp_path, ["10"], 24, 80) == {}  # absent
+    exact = _odometry_ates(_ConstantPose((0.0, 0.0, -1.6)), tmp_path, ["09", "10"], 24, 80)
     assert exact["snippets"] == 6 and exact["ate_mean"] == pytest.approx(0, abs=1e-6)
     assert list(exact["sequences"]) == ["09"]
     # Standing still: a snippet of F frames errs by sqrt(sum_k (0.8 k)^2) / F, k < F; snippets
     # start at frames 0..5 of 7, so they have 5, 5, 5, 4, 3 and 2 frames.
-    still = odometry_ates(_ConstantPose((0.0, 0.0, 0.0)), tmp_path, ["09"], 24, 80)
+    still = _odometry_ates(_ConstantPose((0.0, 0.0, 0.0)), tmp_path, ["09"], 24, 80)
     per_length = {f: np.sqrt(sum((0.8 * k) ** 2 for k in range(f))) / f for f in (2, 3, 4, 5)}
     expected = [per_length[f] for f in (5, 5, 5, 4, 3, 2)]
     assert still["ate_mean"] == pytest.approx(np.mean(expected), rel=1e-6)
@@ -174,18 +174,18 @@ def test_pose_ate_on_kitti_odometry_per_sequence_and_pooled(tmp_path: Path) -> N
 
 
 def test_pose_ate_on_odometry_pools_sequences_and_reads_in_chunks(tmp_path: Path) -> None:
-    from msdepth.evaluation.pose import trajectory_ates
+    from msdepth.evaluation.pose import _trajectory_ates
 
     _odometry(tmp_path, "09", 7)
     _odometry(tmp_path, "10", 4, step=0.5)
-    both = odometry_ates(_BrightnessPose(), tmp_path, ["09", "10"], 24, 80)
+    both = _odometry_ates(_BrightnessPose(), tmp_path, ["09", "10"], 24, 80)
     assert both["snippets"] == 6 + 3 and set(both["sequences"]) == {"09", "10"}
     paths = sorted((tmp_path / "sequences" / "09" / "image_2").glob("*.png"))
     truth = np.stack([np.eye(4)] * 7)
     truth[:, 2, 3] = 0.8 * np.arange(7)
-    whole = trajectory_ates(_BrightnessPose(), paths, truth, 24, 80, chunk=64)
+    whole = _trajectory_ates(_BrightnessPose(), paths, truth, 24, 80, chunk=64)
     for chunk in (1, 2, 3):  # the pair that straddles two chunks is predicted once, as in one pass
-        assert np.array_equal(trajectory_ates(_BrightnessPose(), paths, truth, 24, 80, chunk=chunk), whole)
+        assert np.array_equal(_trajectory_ates(_BrightnessPose(), paths, truth, 24, 80, chunk=chunk), whole)
     assert both["sequences"]["09"]["ate_mean"] == pytest.approx(float(whole.mean()), rel=1e-12)
 
 
@@ -193,7 +193,7 @@ def test_odometry_with_a_frame_missing_is_one_error_naming_it(tmp_path: Path) ->
     _odometry(tmp_path, "09", 5)
     (tmp_path / "sequences" / "09" / "image_2" / "000003.png").unlink()
     with pytest.raises(DataError, match=r"09\.txt: 5 poses, but 1 of their frames .* \(first: 000003\.png\)"):
-        odometry_ates(_ConstantPose((0.0, 0.0, 1.0)), tmp_path, ["09"], 24, 80)
+        _odometry_ates(_ConstantPose((0.0, 0.0, 1.0)), tmp_path, ["09"], 24, 80)
 
 
 def test_only_a_monocular_run_is_median_scaled_not_the_baselines_or_the_optimum(

@@ -9,15 +9,15 @@ import torch
 from torch import nn
 
 from msdepth.config.params import params_from_dict
-from msdepth.geometry.camera import stereo_pose, translation_matrix
+from msdepth.geometry.camera import _translation_matrix, stereo_pose
 from msdepth.losses.appearance import build_appearance, terms
 from msdepth.losses.monocular import (
     IDENTITY_TIE_BREAK,
     MonocularLoss,
-    minimum_reprojection,
+    _minimum_reprojection,
+    _partner_pose,
+    _reprojection_error,
     monocular_losses,
-    partner_pose,
-    reprojection_error,
 )
 from msdepth.networks.pose import PoseNet
 from msdepth.networks.resnet import ResNetEncoder
@@ -54,7 +54,7 @@ def _sigmoid_for_depth(depth: float, like: torch.Tensor) -> torch.Tensor:
 
 def test_reprojection_error_is_zero_for_equal_images_and_l1_on_flat_ones() -> None:
     x = _random(1, 3, 8, 8, seed=0)
-    assert reprojection_error(x, x).abs().max() < 1e-12
+    assert _reprojection_error(x, x).abs().max() < 1e-12
     # Flat images: SSIM's structure terms vanish, luminance of 0.2 vs 0.6 is what SSIM sees.
     a, b = (
         torch.full((1, 3, 5, 5), 0.2, dtype=torch.float64),
@@ -62,7 +62,7 @@ def test_reprojection_error_is_zero_for_equal_images_and_l1_on_flat_ones() -> No
     )
     lum = (2 * 0.2 * 0.6 + 0.01**2) / (0.2**2 + 0.6**2 + 0.01**2)
     assert torch.allclose(
-        reprojection_error(a, b),
+        _reprojection_error(a, b),
         torch.full((1, 1, 5, 5), 0.85 * (1 - lum) / 2 + 0.15 * 0.4, dtype=torch.float64),
     )
 
@@ -72,7 +72,7 @@ def test_minimum_reprojection_picks_the_better_source_per_pixel() -> None:
     noise = _random(1, 3, 12, 16, seed=2)
     good_left = torch.where(torch.arange(16) < 8, target, noise)  # exact in the left half
     good_right = torch.where(torch.arange(16) >= 8, target, noise)  # exact in the right half
-    composite, masked = minimum_reprojection(target, [good_left, good_right])
+    composite, masked = _minimum_reprojection(target, [good_left, good_right])
     # Away from the seam (the 3x3 SSIM window reaches one column across it), the exact one wins.
     assert torch.equal(composite[..., :7], target[..., :7]) and torch.equal(
         composite[..., 9:], target[..., 9:]
@@ -85,10 +85,10 @@ def test_automask_masks_a_static_pixel() -> None:
     # error (0) beats the reprojection, so it is masked; its composite pixel is the unwarped source.
     target = _random(1, 3, 12, 16, seed=3)
     moved = torch.roll(target, 1, dims=-1)
-    composite, masked = minimum_reprojection(target, [moved], identities=[target])
+    composite, masked = _minimum_reprojection(target, [moved], identities=[target])
     assert masked.all() and torch.equal(composite, target)
     # A tie goes to the reprojection (deterministic tie-break instead of Monodepth2's noise).
-    composite, masked = minimum_reprojection(target, [target.clone()], identities=[target])
+    composite, masked = _minimum_reprojection(target, [target.clone()], identities=[target])
     assert not masked.any() and IDENTITY_TIE_BREAK > 0
 
 
@@ -96,7 +96,7 @@ def test_gradient_flows_only_through_the_chosen_reconstruction() -> None:
     target = _random(1, 3, 6, 6, seed=4)
     good = target.clone().requires_grad_()
     bad = (1 - target).requires_grad_()
-    composite, _ = minimum_reprojection(target, [bad, good])
+    composite, _ = _minimum_reprojection(target, [bad, good])
     composite.sum().backward()
     assert good.grad.abs().sum() > 0 and bad.grad.abs().sum() == 0
 
@@ -127,7 +127,7 @@ def test_lambertian_scene_with_exact_pose_and_depth_gives_near_zero_loss(variant
     target = _render_plane(depth, camera_z=0.0)
     before, after = _render_plane(depth, camera_z=-1.0), _render_plane(depth, camera_z=-2.0)
     # Target camera points -> source camera: the sources stand 1 m and 2 m behind (they see more).
-    poses = [translation_matrix(torch.tensor([[0.0, 0.0, dz]], dtype=torch.float64)) for dz in (1.0, 2.0)]
+    poses = [_translation_matrix(torch.tensor([[0.0, 0.0, dz]], dtype=torch.float64)) for dz in (1.0, 2.0)]
     k = _k()
     loss = MonocularLoss(_term(variant), automask=False)
     shapes = [(1, 1, H >> s, W >> s) for s in range(4)]
@@ -144,7 +144,7 @@ def test_loss_terms_smoothness_and_automask_share() -> None:
     target = _random(2, 3, H, W, seed=5)
     sources = [_random(2, 3, H, W, seed=6), target.clone()]  # the second: static, so masked
     k = _k(2)
-    poses = [translation_matrix(torch.tensor([[0.3, 0.0, 0.0]] * 2, dtype=torch.float64))] * 2
+    poses = [_translation_matrix(torch.tensor([[0.3, 0.0, 0.0]] * 2, dtype=torch.float64))] * 2
     # Constant disparity: no smoothness; with a disparity ramp, smoothness is the same at any
     # overall level (mean normalisation).
     flat = [torch.full((2, 1, H >> s, W >> s), 0.4, dtype=torch.float64) for s in range(4)]
@@ -163,7 +163,7 @@ def test_loss_terms_smoothness_and_automask_share() -> None:
 def test_every_variant_trains_through_the_loss() -> None:
     target, source = _random(1, 3, H, W, seed=7), _random(1, 3, H, W, seed=8)
     k = _k()
-    pose = translation_matrix(torch.tensor([[0.1, 0.0, 0.0]], dtype=torch.float64))
+    pose = _translation_matrix(torch.tensor([[0.1, 0.0, 0.0]], dtype=torch.float64))
     for name in terms():
         disps = [
             torch.full((1, 1, H >> s, W >> s), 0.3, dtype=torch.float64, requires_grad=True) for s in range(4)
@@ -219,7 +219,7 @@ def test_a_few_steps_of_m_and_ms_training_lower_the_loss(stereo: bool) -> None:
 def test_partner_pose_per_target_side() -> None:
     """A batch of left and right targets: each partner's pose is stereo_pose of its own side."""
     target = torch.zeros(3, 3, 8, 8)
-    poses = partner_pose(torch.tensor([0, 1, 0]), target)
+    poses = _partner_pose(torch.tensor([0, 1, 0]), target)
     assert poses[:, 0, 3].tolist() == pytest.approx([-0.1, 0.1, -0.1])
     assert torch.equal(poses[1], stereo_pose("r", 1)[0]) and torch.equal(poses[0], stereo_pose("l", 1)[0])
-    assert torch.equal(partner_pose("r", target), stereo_pose("r", 3))
+    assert torch.equal(_partner_pose("r", target), stereo_pose("r", 3))

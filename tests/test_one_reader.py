@@ -68,7 +68,7 @@ def test_no_entry_point_writes_a_file_around_the_atomic_writers() -> None:
 def test_a_hostile_camera_file_is_one_line_naming_it(tmp_path: Path, content: bytes, expected: str) -> None:
     (tmp_path / "camera.yaml").write_bytes(content)
     with pytest.raises(DataError) as err:
-        folder.read_camera(tmp_path / "camera.yaml")
+        folder._read_camera(tmp_path / "camera.yaml")
     message = str(err.value)
     assert message.startswith(f"{tmp_path / 'camera.yaml'}: ") and "\n" not in message, message
     assert expected in message and len(message) < 400, message

@@ -10,20 +10,20 @@ import numpy as np
 import pytest
 
 from msdepth.__main__ import main
-from msdepth.cli.predict import default_focal
+from msdepth.cli.predict import _default_focal
 from msdepth.config.params import Params, apply_overrides, kernel_variant, params_from_dict
 from msdepth.data.pairs import to_tensor
 from msdepth.errors import ConfigError, DataError
 from msdepth.evaluation.metrics import compute_errors
-from msdepth.io import read_manifest, write_png
+from msdepth.io import _read_manifest, write_png
 from msdepth.optimum.frames import add_cost_curves
 from msdepth.optimum.solver import (
     COST_SCALES,
     S_MIN_TOLERANCE,
+    _curve_minimum,
     basin,
     class_summary,
     cost_curve,
-    curve_minimum,
     level_sizes,
     minimum_index,
     objective,
@@ -136,7 +136,7 @@ def test_a_lambertian_plane_s_cost_curve_is_lowest_at_s_1(variant: str) -> None:
     left, right = (to_tensor(x) for x in plane_pair())
     gt = np.full((H, W), float(SHIFT), np.float32)
     costs = cost_curve(left, right, gt, (60, 12, 100, 36), objective(Params(), variant))
-    assert curve_minimum(COST_SCALES, costs) == pytest.approx(1.0)
+    assert _curve_minimum(COST_SCALES, costs) == pytest.approx(1.0)
     low, high = basin(COST_SCALES, costs)
     assert 0.8 < low <= 1 <= high < 1.25  # a textured box: a narrow basin around the truth
 
@@ -158,7 +158,7 @@ def test_add_cost_curves_appends_each_box_s_curve_to_its_class() -> None:
 def test_basin_and_class_summary_on_known_curves() -> None:
     scales = np.geomspace(0.5, 2, 9)  # 0.5, 0.59, 0.71, 0.84, 1, 1.19, 1.41, 1.68, 2
     costs = np.abs(np.log(scales / 1.19))
-    assert curve_minimum(scales, costs) == pytest.approx(scales[5])
+    assert _curve_minimum(scales, costs) == pytest.approx(scales[5])
     assert basin(scales, costs) == (pytest.approx(scales[5]), pytest.approx(scales[5]))
     flat = np.array([1.0, 1.0, 0.0, 0.0, 0.0, 1.0, 1.0, 1.0, 1.0])
     assert basin(scales, flat) == (pytest.approx(scales[2]), pytest.approx(scales[4]))
@@ -183,27 +183,29 @@ def test_a_last_bit_in_a_flat_basin_does_not_move_s_min_or_the_basin(index: int)
     perturbed[index] -= 1e-12  # below float32 rounding of a cost of 0.1 (~7e-9)
     assert int(np.argmin(perturbed)) == index  # a plain argmin follows the last bit ...
     for costs in (flat, perturbed):  # ... s_min stays at the point nearest s = 1
-        assert minimum_index(COST_SCALES, costs) == 12 and curve_minimum(COST_SCALES, costs) == 1.0
+        assert minimum_index(COST_SCALES, costs) == 12 and _curve_minimum(COST_SCALES, costs) == 1.0
         assert basin(COST_SCALES, costs) == (COST_SCALES[10], COST_SCALES[14])
 
 
 def test_s_min_tolerance_is_relative_to_the_lowest_cost_and_ties_go_to_the_smaller_s() -> None:
     costs = _flat_basin()
     costs[12] = 0.1 * (1 + 2 * S_MIN_TOLERANCE)  # clearly above: the truth is no longer a minimum
-    assert curve_minimum(COST_SCALES, costs) == COST_SCALES[11]  # 0.944 and 1.059 tie: the smaller
+    assert _curve_minimum(COST_SCALES, costs) == COST_SCALES[11]  # 0.944 and 1.059 tie: the smaller
     costs[12] = 0.1 * (1 + 0.5 * S_MIN_TOLERANCE)  # within rounding of the minimum: a tie again
-    assert curve_minimum(COST_SCALES, costs) == 1.0
+    assert _curve_minimum(COST_SCALES, costs) == 1.0
     # Scaled costs keep their s_min: the tolerance is a share of the cost, not an absolute.
-    assert curve_minimum(COST_SCALES, 1e6 * costs) == 1.0 and curve_minimum(COST_SCALES, 1e-6 * costs) == 1.0
+    assert (
+        _curve_minimum(COST_SCALES, 1e6 * costs) == 1.0 and _curve_minimum(COST_SCALES, 1e-6 * costs) == 1.0
+    )
     # A curve flat within rounding: every s ties, s_min is 1 and the basin the whole grid.
     level = np.full(len(COST_SCALES), 0.1) + np.linspace(0, 1e-9, len(COST_SCALES))
-    assert curve_minimum(COST_SCALES, level) == 1.0
+    assert _curve_minimum(COST_SCALES, level) == 1.0
     assert basin(COST_SCALES, level) == (COST_SCALES[0], COST_SCALES[-1])
 
 
 def test_a_bad_cost_curve_is_one_line() -> None:
     with pytest.raises(DataError, match="expected 25 finite costs"):
-        curve_minimum(COST_SCALES, np.full(len(COST_SCALES), np.nan))
+        _curve_minimum(COST_SCALES, np.full(len(COST_SCALES), np.nan))
     with pytest.raises(DataError, match="expected 25 finite costs"):
         basin(COST_SCALES, np.ones(3))
 
@@ -264,7 +266,7 @@ def test_cli_writes_predict_s_outputs_at_the_left_image_s_resolution(tmp_path) -
     disp = np.load(out / "l_ssim_disp.npy")
     assert disp.dtype == np.float32 and disp.shape == (H, W)
     depth = np.load(out / "l_ssim_depth.npy")
-    np.testing.assert_allclose(depth, default_focal(W) * 0.54 / disp, rtol=1e-5)
+    np.testing.assert_allclose(depth, _default_focal(W) * 0.54 / disp, rtol=1e-5)
     assert cv2.imread(str(out / "l_ssim_disp.png")).shape == (H, W, 3)
     assert (
         cli(
@@ -300,7 +302,7 @@ def test_cli_keeps_both_variants_results_in_one_folder(tmp_path) -> None:
         f"l_{v}{suffix}" for v in ("msssim", "ssim") for suffix in ("_depth.npy", "_disp.npy", "_disp.png")
     ]
     assert sorted(p.name for p in out.iterdir()) == sorted([".msdepth-optimum", *names])
-    assert read_manifest(out / ".msdepth-optimum") == set(names)
+    assert _read_manifest(out / ".msdepth-optimum") == set(names)
     ssim, msssim = np.load(out / "l_ssim_disp.npy"), np.load(out / "l_msssim_disp.npy")
     assert ssim.shape == msssim.shape == (H, W) and not np.array_equal(ssim, msssim)
     # a rerun of one variant rewrites its own files only
@@ -371,14 +373,14 @@ def test_cli_reads_the_params_file_and_its_overrides(tmp_path) -> None:
 def test_cli_without_a_params_file_takes_the_measured_stopping_rule(tmp_path, monkeypatch) -> None:
     """params.yaml's optimum.iterations (50, the dataclass default too) fits the pipeline's time
     budget; without a params file the command runs the measured rule, INSTRUMENT_ITERATIONS."""
-    from msdepth.cli.optimum import INSTRUMENT_ITERATIONS, read_params
+    from msdepth.cli.optimum import INSTRUMENT_ITERATIONS, _read_params
 
     monkeypatch.chdir(tmp_path)  # no ./params.yaml
     assert INSTRUMENT_ITERATIONS == 100 and Params().optimum.iterations == 50
-    assert read_params(None, []).optimum.iterations == INSTRUMENT_ITERATIONS
-    assert read_params(None, ["optimum.iterations=7"]).optimum.iterations == 7
+    assert _read_params(None, []).optimum.iterations == INSTRUMENT_ITERATIONS
+    assert _read_params(None, ["optimum.iterations=7"]).optimum.iterations == 7
     (tmp_path / "params.yaml").write_text("optimum: {levels: 2}\n")
-    assert read_params(None, []).optimum.iterations == 50  # a params file's own default
+    assert _read_params(None, []).optimum.iterations == 50  # a params file's own default
 
 
 @pytest.mark.parametrize(

@@ -13,16 +13,16 @@ import pytest
 from msdepth.config.params import params_from_dict
 from msdepth.errors import ConfigError, DataError
 from msdepth.optimum.frames import (
+    _first_frames,
     checked_weight,
     cost_summary,
-    first_frames,
     optimum_runs,
     sweep_frames,
 )
 from msdepth.optimum.solver import COST_SCALES
 from msdepth.pipeline.paths import optimum_run
 from msdepth.reporting.compare import ComparisonInputs, build_comparison, comparison_data, optimum_data
-from msdepth.reporting.figures import cost_curve_figure, read_cost_curves
+from msdepth.reporting.figures import _read_cost_curves, cost_curve_figure
 
 METRICS = {"abs_rel": 0.2, "sq_rel": 0.2, "rmse": 0.2, "rmse_log": 0.2, "a1": 0.8, "a2": 0.8, "a3": 0.8}
 
@@ -144,7 +144,7 @@ def test_weights_frames_and_run_names(tmp_path: Path):
     index = pd.DataFrame({"frame": [f"{i:06d}_10" for i in range(12)]})
     assert len(sweep_frames(params, index, 10.0)) == 12  # the default weight: every frame
     assert list(sweep_frames(params, index, 3.0)["frame"]) == list(index["frame"][:4])
-    assert len(first_frames(index, 0)) == 12 and list(first_frames(index, 2)["frame"]) == [
+    assert len(_first_frames(index, 0)) == 12 and list(_first_frames(index, 2)["frame"]) == [
         "000000_10",
         "000001_10",
     ]
@@ -176,11 +176,11 @@ def test_cost_summary_and_its_figure(tmp_path: Path):
     assert summary["classes"]["glass"]["s_min"] == pytest.approx(0.5)
     assert summary["mean_curves"]["car"] == pytest.approx(list(1.5 * log_s**2))
     (tmp_path / "ssim.json").write_text(json.dumps(summary))
-    read = read_cost_curves(tmp_path, ["ssim"])
+    read = _read_cost_curves(tmp_path, ["ssim"])
     out = cost_curve_figure(read, tmp_path / "cost_curves.png")
     assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     with pytest.raises(DataError, match="msssim.json: cannot read the cost curves"):
-        read_cost_curves(tmp_path, ["msssim"])
+        _read_cost_curves(tmp_path, ["msssim"])
 
 
 def test_the_optimum_stage_lists_every_optimum_key_it_reads_and_no_training_weight():

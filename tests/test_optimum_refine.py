@@ -22,8 +22,8 @@ from msdepth.data.pairs import resize, to_tensor
 from msdepth.errors import ConfigError
 from msdepth.evaluation.metrics import stereo_errors
 from msdepth.io import write_png
-from msdepth.optimum.solver import objective, optimise, optimum_disparities, start_logits, working_weight
-from msdepth.optimum.starts import capped_size, right_from_left, start_disparity
+from msdepth.optimum.solver import _start_logits, objective, optimise, optimum_disparities, working_weight
+from msdepth.optimum.starts import _right_from_left, capped_size, start_disparity
 
 KITTI2015 = Path(__file__).resolve().parents[2] / "shared" / "real-samples" / "kitti2015-training"
 TRUTH = SHIFT / W  # the plane's disparity as a fraction of the width
@@ -65,7 +65,7 @@ def test_refinement_runs_the_refine_settings_at_the_finest_levels() -> None:
 
 
 def test_start_logits_keep_the_range_s_ends_off() -> None:
-    disp = 0.3 * torch.sigmoid(start_logits(torch.tensor([0.0, 0.075, 0.3, 0.5])))
+    disp = 0.3 * torch.sigmoid(_start_logits(torch.tensor([0.0, 0.075, 0.3, 0.5])))
     assert disp[0] > 0 and disp[2] < 0.3 and disp[3] == disp[2]
     assert disp[1] == pytest.approx(0.075, rel=1e-5)
 
@@ -90,9 +90,9 @@ def test_right_from_left_warps_with_occlusion() -> None:
     """A foreground at 3 px (x = 4..6) over a background at 0: the right view sees it at x = 1..3,
     and the background it uncovers (x = 4..6) takes the lower neighbour, the background."""
     left = np.array([[0, 0, 0, 0, 3, 3, 3, 0, 0, 0]], dtype=np.float32)
-    assert right_from_left(left).tolist() == [[0, 3, 3, 3, 0, 0, 0, 0, 0, 0]]
+    assert _right_from_left(left).tolist() == [[0, 3, 3, 3, 0, 0, 0, 0, 0, 0]]
     plane = np.full((4, 20), 2.5, dtype=np.float32)
-    np.testing.assert_array_equal(right_from_left(plane), plane)  # the right edge: its lower neighbour
+    np.testing.assert_array_equal(_right_from_left(plane), plane)  # the right edge: its lower neighbour
 
 
 @pytest.mark.parametrize("start", ["cost", "sgbm"])

@@ -17,7 +17,7 @@ import pytest
 from msdepth.config.params import params_from_dict
 from msdepth.data import kitti, kitti2012
 from msdepth.data.eval_index import read_eval_index, set_index_path, write_eval_index
-from msdepth.data.eval_sets import build_kitti2012_index
+from msdepth.data.eval_sets import _build_kitti2012_index
 from msdepth.errors import ConfigError
 from msdepth.io import write_png
 from msdepth.pipeline.paths import INDEX_DIR, SGBM_RUN, headline_path, match_run, optimum_run, suite_path
@@ -60,7 +60,7 @@ def project(tmp_path: Path, monkeypatch) -> Path:
     """A project folder holding the set's index, as the index stage writes it; the working folder."""
     tiny_tree(tmp_path / "kitti2012-training")
     monkeypatch.chdir(tmp_path)
-    write_eval_index(set_index_path(INDEX_DIR, SET), build_kitti2012_index(tmp_path / "kitti2012-training"))
+    write_eval_index(set_index_path(INDEX_DIR, SET), _build_kitti2012_index(tmp_path / "kitti2012-training"))
     return tmp_path
 
 
@@ -124,7 +124,7 @@ def test_a_killed_run_redoes_only_its_unfinished_frames(project: Path, monkeypat
     monkeypatch.setattr(starts, "start_disparity", killed_on_the_second)
     with pytest.raises(KeyboardInterrupt):
         sets.score_set_match(params, SET, "sgbm", set_index_path(INDEX_DIR, SET))
-    scratch = sets.scratch_dir(SET, SGBM_RUN)
+    scratch = sets._scratch_dir(SET, SGBM_RUN)
     assert sorted(p.name for p in scratch.iterdir()) == sorted([sets.KEY, sets.FRAME_FILE.format(0)])
     assert not (project / "metrics").exists()
     calls.clear()
@@ -132,13 +132,13 @@ def test_a_killed_run_redoes_only_its_unfinished_frames(project: Path, monkeypat
     sets.score_set_match(params, SET, "sgbm", set_index_path(INDEX_DIR, SET))
     assert len(calls) == 1 and _set_metrics(SGBM_RUN)[0]["images"] == 2
     assert not scratch.exists()
-    key = sets.scratch_key(params, "sgbm", None, set_index_path(INDEX_DIR, SET))
-    assert sets.open_scratch(scratch, key) == 0
+    key = sets._scratch_key(params, "sgbm", None, set_index_path(INDEX_DIR, SET))
+    assert sets._open_scratch(scratch, key) == 0
     np.save(scratch / sets.FRAME_FILE.format(0), np.zeros((2, 2), np.float32))
-    assert sets.open_scratch(scratch, key) == 1  # the same key: the frame is kept
+    assert sets._open_scratch(scratch, key) == 1  # the same key: the frame is kept
     other = dataclasses.replace(params, optimum=dataclasses.replace(params.optimum, max_width=320))
-    changed = sets.scratch_key(other, "sgbm", None, set_index_path(INDEX_DIR, SET))
-    assert sets.open_scratch(scratch, changed) == 0 and (scratch / sets.KEY).is_file()
+    changed = sets._scratch_key(other, "sgbm", None, set_index_path(INDEX_DIR, SET))
+    assert sets._open_scratch(scratch, changed) == 0 and (scratch / sets.KEY).is_file()
 
 
 def test_the_set_stages_list_what_they_read():
@@ -170,7 +170,7 @@ def test_the_sets_section_of_compare_shows_the_instruments_beside_the_networks(p
 
     from msdepth.evaluation.results import score_set
     from msdepth.evaluation.suites import load_frames
-    from msdepth.reporting.pipeline_compare import compare_set
+    from msdepth.reporting.pipeline_compare import _compare_set
 
     params = params_from_dict({**RAW, "variants": ["ssim", "msssim"], "train": {"seeds": [0]}})
     frames = load_frames(read_eval_index(set_index_path(INDEX_DIR, SET)))
@@ -178,7 +178,7 @@ def test_the_sets_section_of_compare_shows_the_instruments_beside_the_networks(p
         score_set(params, SET, run, {f.name: np.full(f.shape, 10.0 + k, np.float32) for f in frames}, frames)
     stage("match_set").match_set(params, SET, "sgbm")
     stage("match_set").match_set(params, SET, "ssim")
-    result, md = compare_set(params, SET)
+    result, md = _compare_set(params, SET)
     rows = {"SGBM", "SGM (ssim cost)", "ssim", "msssim", "constant", "prior"}
     assert rows <= set(result["full"]["cap80"]) and rows <= set(result["masks"])
     assert "SGBM" in result["statistics"]["full"]["cap80"]

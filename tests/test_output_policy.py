@@ -20,10 +20,10 @@ import numpy as np
 import pytest
 from conftest import save_tiny_model
 
-from msdepth.__main__ import build_parser, main
+from msdepth.__main__ import _build_parser, main
 from msdepth.config.params import SyntheticConfig
 from msdepth.errors import OutputError
-from msdepth.io import OutputPolicy, claim_output_file, manifest_line, read_manifest, write_text
+from msdepth.io import OutputPolicy, _manifest_line, _read_manifest, claim_output_file, write_text
 from msdepth.render import generate
 
 FAST_OPTIMUM = ["--variant", "ssim", "--set", "optimum.iterations=2", "--set", "optimum.levels=1", "--quiet"]
@@ -97,7 +97,7 @@ READ_ONLY = frozenset({"experiments"})
 
 def test_every_subcommand_is_walked() -> None:
     # A new subcommand fails here until WRITERS says how it writes, so the hostile cases reach it.
-    sub = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
+    sub = next(a for a in _build_parser()._actions if isinstance(a, argparse._SubParsersAction))
     assert set(sub.choices) == set(WRITERS) | READ_ONLY
 
 
@@ -251,7 +251,7 @@ def test_names_with_any_byte_keep_the_manifest_exact(
     argv = ["predict", str(tmp_path / "in"), "--model", str(model), "--out", str(tmp_path / "out"), "--quiet"]
     assert main(argv) == 0, capsys.readouterr().err
     assert main(argv) == 0, capsys.readouterr().err  # its own outputs, however named, may be rewritten
-    assert "scene_disp.png" not in read_manifest(tmp_path / "out" / ".msdepth-predict")
+    assert "scene_disp.png" not in _read_manifest(tmp_path / "out" / ".msdepth-predict")
     _image(tmp_path / "in" / "scene.png", 7)
     assert main(argv) == 1
     assert "scene_disp.png: exists and was not written by msdepth predict" in capsys.readouterr().err
@@ -263,11 +263,11 @@ def test_names_with_any_byte_keep_the_manifest_exact(
 def test_manifest_lines_round_trip_any_name_and_read_old_plain_manifests(tmp_path: Path) -> None:
     names = ["a\nb", "c\u2028d", "e\rf", "g\x85", os.fsdecode(b"caf\xe9"), '"quoted', "plain"]
     manifest = tmp_path / ".msdepth-predict"
-    manifest.write_text("".join(manifest_line(n) for n in names), encoding="ascii")
+    manifest.write_text("".join(_manifest_line(n) for n in names), encoding="ascii")
     assert manifest.read_bytes().count(b"\n") == len(names)
-    assert read_manifest(manifest) == set(names)
+    assert _read_manifest(manifest) == set(names)
     manifest.write_text("old_disp.png\nsub/old_depth.png\n")  # an earlier version's plain lines
-    assert read_manifest(manifest) == {"old_disp.png", "sub/old_depth.png"}
+    assert _read_manifest(manifest) == {"old_disp.png", "sub/old_depth.png"}
 
 
 def test_a_policy_refuses_the_manifest_and_paths_leaving_the_folder(tmp_path: Path) -> None:
@@ -299,9 +299,9 @@ def test_a_study_claims_its_one_file_or_refuses_in_one_line(
     out = tmp_path / "report.md"
     assert claim_output_file(None, "power", "metrics")  # nothing asked: nothing to claim
     assert claim_output_file(out, "power", "metrics") and not out.exists()
-    assert read_manifest(tmp_path / ".msdepth-power") == set()  # pending until written
+    assert _read_manifest(tmp_path / ".msdepth-power") == set()  # pending until written
     write_text(out, "the study's own report\n")
-    assert read_manifest(tmp_path / ".msdepth-power") == {"report.md"}
+    assert _read_manifest(tmp_path / ".msdepth-power") == {"report.md"}
     assert claim_output_file(out, "power", "metrics")  # its own file, listed: rewritable
     users = tmp_path / "notes.md"
     users.write_text("a user's notes\n")

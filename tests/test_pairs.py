@@ -11,11 +11,11 @@ import torch
 from msdepth.data import kitti
 from msdepth.data.pairs import (
     StereoPairs,
+    _read_resized_pair,
     augment,
     build_pair_cache,
     index_pairs,
     load_pair_cache,
-    read_resized_pair,
 )
 from msdepth.errors import DataError
 from msdepth.io import write_png
@@ -110,7 +110,7 @@ def test_cache_gives_exactly_the_decoded_samples(tree, tmp_path: Path) -> None:
     for i in range(len(pairs)):
         for key in ("left", "right"):
             assert torch.equal(plain[i][key], cached[i][key])
-    left, right = read_resized_pair(*pairs[3], 16, 24)
+    left, right = _read_resized_pair(*pairs[3], 16, 24)
     assert np.array_equal(cache[3, 0], left) and np.array_equal(cache[3, 1], right)
 
 
@@ -125,7 +125,7 @@ def test_cache_leaves_out_unreadable_pairs_and_reports_them(tree, tmp_path: Path
     assert [(left, right) for left, right, _ in report.unreadable] == [pairs[1], pairs[2]]
     assert str(pairs[1][1]) in report.unreadable[0][2] and str(pairs[2][0]) in report.unreadable[1][2]
     cache = load_pair_cache(path, 2, 16, 24)
-    assert np.array_equal(cache[1, 0], read_resized_pair(*pairs[3], 16, 24)[0])
+    assert np.array_equal(cache[1, 0], _read_resized_pair(*pairs[3], 16, 24)[0])
     assert [p.name for p in path.parent.iterdir()] == ["pairs.npy"]  # no temp file left behind
 
 

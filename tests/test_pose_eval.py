@@ -9,7 +9,7 @@ import pytest
 import torch
 
 from msdepth.errors import DataError
-from msdepth.evaluation.pose import compute_ate, dump_xyz, local_poses, read_poses, snippet_ates
+from msdepth.evaluation.pose import _compute_ate, _dump_xyz, _local_poses, _read_poses, _snippet_ates
 from msdepth.geometry.camera import transformation_from_parameters
 
 
@@ -27,38 +27,38 @@ def _trajectory(n: int = 8) -> np.ndarray:
 
 def test_compute_ate_known_answers() -> None:
     gt = np.array([[0.0, 0, 0], [1, 0, 0]])
-    assert compute_ate(gt, np.array([[0.0, 0, 0], [0, 1, 0]])) == pytest.approx(0.5)  # scale 0: |gt| / 2
-    assert compute_ate(gt, gt * 0.3 + 5) == pytest.approx(0.0, abs=1e-12)  # offset and scale removed
+    assert _compute_ate(gt, np.array([[0.0, 0, 0], [0, 1, 0]])) == pytest.approx(0.5)  # scale 0: |gt| / 2
+    assert _compute_ate(gt, gt * 0.3 + 5) == pytest.approx(0.0, abs=1e-12)  # offset and scale removed
     pred = np.array([[0.0, 0, 0], [1, 1, 0]])  # scale 1/2: error (-0.5, 0.5) -> sqrt(0.5) / 2
-    assert compute_ate(gt, pred) == pytest.approx(np.sqrt(0.5) / 2)
+    assert _compute_ate(gt, pred) == pytest.approx(np.sqrt(0.5) / 2)
 
 
 def test_dump_xyz_chains_relative_poses() -> None:
     step = np.eye(4)
     step[2, 3] = -1.0  # a camera moving 1 m forward sees the world move 1 m back
-    np.testing.assert_allclose(dump_xyz([step, step]), [[0, 0, 0], [0, 0, -1], [0, 0, -2]])
+    np.testing.assert_allclose(_dump_xyz([step, step]), [[0, 0, 0], [0, 0, -1], [0, 0, -2]])
 
 
 def test_exact_poses_give_zero_and_scaled_poses_too() -> None:
     gt = _trajectory()
-    exact = local_poses(gt)
-    ates = snippet_ates(exact, gt)
+    exact = _local_poses(gt)
+    ates = _snippet_ates(exact, gt)
     assert ates.shape == (7,) and np.abs(ates).max() < 1e-12
     scaled = exact.copy()
     scaled[:, :3, 3] *= 0.1  # a monocular network's unknown scale
-    assert np.abs(snippet_ates(scaled, gt)).max() < 1e-12
+    assert np.abs(_snippet_ates(scaled, gt)).max() < 1e-12
     wrong = np.repeat(np.eye(4)[None], 7, axis=0)  # standing still: nothing to scale
-    assert snippet_ates(wrong, gt)[0] == pytest.approx(np.sqrt((dump_xyz(exact[:4]) ** 2).sum()) / 5)
+    assert _snippet_ates(wrong, gt)[0] == pytest.approx(np.sqrt((_dump_xyz(exact[:4]) ** 2).sum()) / 5)
 
 
 def test_read_poses_of_a_rendered_sequence(tmp_path: Path) -> None:
     path = tmp_path / "poses.txt"
     rows = _trajectory(3)[:, :3].reshape(3, 12)
     np.savetxt(path, rows)
-    np.testing.assert_allclose(read_poses(path), _trajectory(3))
+    np.testing.assert_allclose(_read_poses(path), _trajectory(3))
     path.write_text("1 2 3\n")
     with pytest.raises(DataError, match=r"poses.txt: expected 12 finite numbers per line"):
-        read_poses(path)
+        _read_poses(path)
 
 
 _POSE = "1 0 0 0 0 1 0 0 0 0 1 0\n"
@@ -81,5 +81,5 @@ def test_a_malformed_poses_file_is_one_line_naming_it(tmp_path: Path, text: str,
     path = tmp_path / "poses.txt"
     path.write_bytes(text.encode("utf-8"))
     with pytest.raises(DataError) as err:
-        read_poses(path)
+        _read_poses(path)
     assert str(err.value) == f"{path}: {message}"

@@ -10,7 +10,7 @@ import pytest
 import torch
 
 from msdepth.__main__ import main
-from msdepth.cli.predict import PredictReport, input_frames
+from msdepth.cli.predict import PredictReport, _input_frames
 from msdepth.data.kitti import KITTI_BASELINE, WIDTH_TO_FOCAL
 from msdepth.data.pairs import resize, to_tensor
 from msdepth.evaluation.infer import post_process_disparity
@@ -264,7 +264,7 @@ def test_folder_recursive_sorted_with_a_bad_file(tiny, tmp_path, capsys):
     (root / "sub" / "bad.png").write_bytes(b"\x89PNG\r\n\x1a\nnot really a png")
     (root / "notes.txt").write_text("not an image")
 
-    frames, total = input_frames(root, report := PredictReport())
+    frames, total = _input_frames(root, report := PredictReport())
     assert total == 5 and report.ignored == [root / "notes.txt"]
     assert [f.stem.as_posix() for f in frames] == ["a", "b", "sub/bad", "sub/c", "sub/deeper/d"]
 

@@ -26,8 +26,8 @@ from msdepth.training.train import (
     TrainingError,
     TrainOptions,
     TrainOutputs,
+    _load_pretrained_encoders,
     build_model,
-    load_pretrained_encoders,
     train_variant,
 )
 
@@ -130,7 +130,7 @@ def test_the_pretrained_stage_writes_the_record_or_stops_in_one_line(
 
 
 def test_the_fingerprint_hashes_the_content_not_the_path(tmp_path: Path, monkeypatch) -> None:
-    monkeypatch.setattr(train_mod, "code_digest", lambda: "fixed")
+    monkeypatch.setattr(train_mod, "_code_digest", lambda: "fixed")
     a, b = tmp_path / "a.pth", tmp_path / "b.pth"
     a.write_bytes(b"A")
     b.write_bytes(b"A")
@@ -151,7 +151,7 @@ def test_weights_changed_since_they_were_hashed_are_refused(tmp_path: Path) -> N
     with pytest.raises(
         TrainingError, match=r"resnet18.pth: content changed since it was hashed \(sha256 0000"
     ):
-        load_pretrained_encoders(weights, model, None, sha256="0" * 64)
+        _load_pretrained_encoders(weights, model, None, sha256="0" * 64)
 
 
 def test_a_fresh_run_loads_the_weights_and_a_resume_never_reads_them(pairs, tmp_path: Path, monkeypatch):
@@ -169,7 +169,7 @@ def test_a_fresh_run_loads_the_weights_and_a_resume_never_reads_them(pairs, tmp_
     torch.save(ResNetEncoder(width_multiplier=0.0625).state_dict(), weights)
     params = dataclasses.replace(base, model=dataclasses.replace(base.model, pretrained=str(weights)))
     digest, loads = file_sha256(weights), []
-    real_load, real_save = train_mod.load_pretrained, train_mod.save_checkpoint
+    real_load, real_save = train_mod.load_pretrained, train_mod._save_checkpoint
     monkeypatch.setattr(
         train_mod, "load_pretrained", lambda enc, path: (loads.append(path), real_load(enc, path))
     )
@@ -182,11 +182,11 @@ def test_a_fresh_run_loads_the_weights_and_a_resume_never_reads_them(pairs, tmp_
         outputs = TrainOutputs(tmp_path / "m.pt", tmp_path / "ck.pt")
         return train_variant(params, "ssim", pairs, outputs, TrainOptions(progress=False, **kwargs))
 
-    monkeypatch.setattr(train_mod, "save_checkpoint", save_then_die)
+    monkeypatch.setattr(train_mod, "_save_checkpoint", save_then_die)
     with pytest.raises(KeyboardInterrupt):
         train(pretrained_sha256=digest)
     assert loads == [str(weights)]  # the fresh start
-    monkeypatch.setattr(train_mod, "save_checkpoint", real_save)
+    monkeypatch.setattr(train_mod, "_save_checkpoint", real_save)
     shutil.move(weights, tmp_path / "moved.pth")
     assert train(pretrained_sha256=digest).resumed_from_epoch == 1 and loads == [str(weights)]
     # Without the recorded hash the file is hashed here, so even a resume needs it: one line.

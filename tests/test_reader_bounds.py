@@ -28,7 +28,7 @@ from msdepth.data import eval_sets, folder, ground_truth, imagefile, kitti, pfm
 from msdepth.download import archives
 from msdepth.errors import DataError, MsdepthError
 from msdepth.evaluation import pose
-from msdepth.io import encode_png
+from msdepth.io import _encode_png
 from msdepth.reporting import experiments
 
 
@@ -60,8 +60,8 @@ READERS = [
     Reader(
         "image",
         "a.png",
-        encode_png(np.arange(24, dtype=np.uint8).reshape(4, 6)),
-        imagefile.max_file_bytes(imagefile.MAX_IMAGE_PIXELS),
+        _encode_png(np.arange(24, dtype=np.uint8).reshape(4, 6)),
+        imagefile._max_file_bytes(imagefile.MAX_IMAGE_PIXELS),
         kitti.read_image,
     ),
     Reader("PFM", "d.pfm", b"Pf\n2 2\n-1.0\n" + np.ones(4, "<f4").tobytes(), pfm.MAX_PFM_BYTES, pfm.read_pfm),
@@ -102,7 +102,7 @@ READERS = [
         "camera.yaml",
         b"focal_px: 700\nwidth_px: 1400\nbaseline_m: 0.1\n",
         MAX_DATA_FILE_BYTES,
-        folder.read_camera,
+        folder._read_camera,
         cut=16,
     ),
     Reader(
@@ -127,13 +127,13 @@ READERS = [
         kitti.MAX_ROI_BYTES,
         kitti.read_rois,
     ),
-    Reader("poses", "poses.txt", _POSES, pose.MAX_POSES_BYTES, pose.read_poses, cut=6),  # 11 numbers left
+    Reader("poses", "poses.txt", _POSES, pose.MAX_POSES_BYTES, pose._read_poses, cut=6),  # 11 numbers left
     Reader(
         "benchmark split",
         "eigen_benchmark_test_files.txt",
         b"2011_09_26/2011_09_26_drive_0002_sync 69 l\n",
         kitti.MAX_LIST_BYTES,
-        eval_sets.read_benchmark_split,
+        eval_sets._read_benchmark_split,
     ),
     Reader(
         "archive list",
@@ -147,7 +147,7 @@ READERS = [
         "train_files.txt",
         b"2011_09_26/2011_09_26_drive_0001_sync 1 l\n",
         archives.MAX_SPLIT_LIST_BYTES,
-        archives.split_drives,
+        archives._split_drives,
         cut=33,  # "2011_09_26" is left: names no drive
     ),
 ]

@@ -15,13 +15,13 @@ from msdepth.errors import DataError
 from msdepth.reporting.report import (
     BEGIN,
     END,
-    headline_table,
+    _headline_table,
+    _readme_block,
+    _replace_block,
+    _results_page,
     load_results,
     main,
-    readme_block,
     rendered,
-    replace_block,
-    results_page,
     stale,
     write_report,
 )
@@ -127,7 +127,7 @@ def _project(tmp_path: Path, data: dict, readme: str | None = None) -> Path:
 
 def test_headline_table_known_answers(tmp_path: Path):
     r = load_results(_project(tmp_path, COMPARISON))
-    lines = headline_table(r).splitlines()
+    lines = _headline_table(r).splitlines()
     assert lines[0] == (
         "| run | abs_rel | sq_rel | rmse (m) | a1 | ROI abs_rel | exact masks | glass | car |"
     )  # classes: glass-like first
@@ -144,7 +144,7 @@ def test_headline_table_known_answers(tmp_path: Path):
 
 def test_a_marked_difference_is_a_verdict_an_unmarked_one_is_not(tmp_path: Path):
     r = load_results(_project(tmp_path, COMPARISON))
-    block = readme_block(r)
+    block = _readme_block(r)
     assert block.startswith(BEGIN + "\n") and block.endswith("\n" + END)
     text = " ".join(block.split())
     assert "**Verdict**: MS-SSIM (k=3) has an abs_rel 0.020 lower than SSIM's" in text
@@ -158,7 +158,7 @@ def test_with_one_seed_nothing_is_marked(tmp_path: Path):
     data["seeds"] = [0]
     for block in data["statistics"]["full"]["cap80"].values():
         block["abs_rel"]["seeds"] = block["abs_rel"]["reference_seeds"] = 1
-    text = " ".join(readme_block(load_results(_project(tmp_path, data))).split())
+    text = " ".join(_readme_block(load_results(_project(tmp_path, data))).split())
     assert "**No verdict yet**" in text and "**Verdict**" not in text
     assert "[−0.030, −0.010] over images, which excludes 0 but does not cover training noise" in text
     assert "7 ROIs, 1 seed per loss." in text
@@ -167,7 +167,7 @@ def test_with_one_seed_nothing_is_marked(tmp_path: Path):
 def test_settings_that_differ_from_the_defaults_name_the_row(tmp_path: Path):
     data = copy.deepcopy(COMPARISON)
     data["settings"]["msssim"].update(kernel_size=7, levels=3)
-    table = headline_table(load_results(_project(tmp_path, data)))
+    table = _headline_table(load_results(_project(tmp_path, data)))
     assert "| MS-SSIM (k=7, levels=3) |" in table and "| SSIM |" in table
 
 
@@ -176,9 +176,9 @@ def test_image_blind_runs_are_flagged(tmp_path: Path):
     data["image_dependence"]["msssim/seed0"].update(variation_ratio=0.1, image_blind=True)
     data["image_dependence"]["msssim/seed1"] = {"variation_ratio": 0.5, "image_blind": False}
     r = load_results(_project(tmp_path, data))
-    assert "| MS-SSIM (k=3) (1 of 2 runs image-blind) |" in headline_table(r)
+    assert "| MS-SSIM (k=3) (1 of 2 runs image-blind) |" in _headline_table(r)
     assert "msssim/seed0 is image-blind (variation below 0.25 of the GT's)" in " ".join(
-        results_page(r).split()
+        _results_page(r).split()
     )
 
 
@@ -188,8 +188,8 @@ def test_without_rois_or_extra_sets_their_parts_are_left_out(tmp_path: Path):
         del data[key]
     del data["statistics"]["roi"]
     r = load_results(_project(tmp_path, data))
-    assert headline_table(r).splitlines()[0] == "| run | abs_rel | sq_rel | rmse (m) | a1 |"
-    page = results_page(r)
+    assert _headline_table(r).splitlines()[0] == "| run | abs_rel | sq_rel | rmse (m) | a1 |"
+    page = _results_page(r)
     assert "on the ROIs" not in page and "Per ROI class" not in page
     assert "## The Eigen split" not in page
 
@@ -198,7 +198,7 @@ def test_results_page_known_answers(tmp_path: Path):
     data = copy.deepcopy(COMPARISON)
     data["sets"] = {"eigen": copy.deepcopy({k: data[k] for k in ("full", "statistics", "seed_spread")})}
     data["sets"]["eigen"]["images"] = 10
-    page = " ".join(results_page(load_results(_project(tmp_path, data))).split())
+    page = " ".join(_results_page(load_results(_project(tmp_path, data))).split())
     assert "3 training runs per variant (seeds 0, 1, 2), each 1,200 steps over 8 epochs" in page
     assert "Every trained run follows the image (variation 0.60–0.70 of the GT's" in page
     assert (
@@ -213,12 +213,12 @@ def test_results_page_known_answers(tmp_path: Path):
 def test_replace_block_keeps_the_rest_and_needs_both_markers(tmp_path: Path):
     text = f"# title\n\n{BEGIN}\nold\n{END}\n\n## next\n"
     assert (
-        replace_block(text, f"{BEGIN}\nnew\n{END}", Path("README.md"))
+        _replace_block(text, f"{BEGIN}\nnew\n{END}", Path("README.md"))
         == f"# title\n\n{BEGIN}\nnew\n{END}\n\n## next\n"
     )
     for broken in ("# no block\n", f"{END}\n{BEGIN}\n", f"{BEGIN}\n{BEGIN}\n{END}\n"):
         with pytest.raises(DataError, match=r"^README\.md: needs one generated block"):
-            replace_block(broken, "x", Path("README.md"))
+            _replace_block(broken, "x", Path("README.md"))
 
 
 def test_write_then_check_and_a_hand_edit_is_found(tmp_path: Path, capsys):
@@ -269,7 +269,7 @@ def test_the_verdict_sentences_go_into_the_readme_and_the_page(tmp_path: Path):
     data = copy.deepcopy(COMPARISON)
     data["verdict"] = verdict_data(rows, 80.0, 0.95, "MS-SSIM", "SSIM")
     r = load_results(_project(tmp_path, data))
-    block = " ".join(readme_block(r).split())
+    block = " ".join(_readme_block(r).split())
     assert block.startswith(BEGIN + " **What the study finds so far**: is MS-SSIM's depth error (abs_rel)")
     assert "| windshield | −0.040 [−0.130, +0.060], n = 66 ROIs × 0 seeds a side |" in block
     assert (
@@ -281,7 +281,7 @@ def test_the_verdict_sentences_go_into_the_readme_and_the_page(tmp_path: Path):
         "optimum w10 (lower); optimum w10, pooled:" in block
     )
     assert "*Networks*: the pipeline's stereo networks; both losses train with the same seeds" in block
-    page = " ".join(results_page(r).split())
+    page = " ".join(_results_page(r).split())
     assert "(stereo networks and optimum w10; [verdict.png](../plots/figures/verdict.png)" in page
     assert "- windshield: MS-SSIM's error is lower in 3 of 3 instruments;" in page
     assert (
@@ -291,5 +291,5 @@ def test_the_verdict_sentences_go_into_the_readme_and_the_page(tmp_path: Path):
     assert "Pooled here: optimum w10, pooled (windshield)." in page
     assert "(none here: the study's results are absent)" in page
     plain = load_results(_project(tmp_path / "plain", copy.deepcopy(COMPARISON)))
-    assert "verdict.png" not in readme_block(plain) and "## The verdict" not in results_page(plain)
-    assert "## What the study finds" in page and "## What the study finds" not in results_page(plain)
+    assert "verdict.png" not in _readme_block(plain) and "## The verdict" not in _results_page(plain)
+    assert "## What the study finds" in page and "## What the study finds" not in _results_page(plain)

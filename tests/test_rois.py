@@ -18,10 +18,10 @@ from msdepth.data.rois import (
     HEADER_HEIGHT,
     LABEL_HEIGHT,
     PAD,
+    _boxes_from_obj_map,
+    _contact_sheet,
+    _extract_rois,
     _letterbox,
-    boxes_from_obj_map,
-    contact_sheet,
-    extract_rois,
 )
 from msdepth.errors import DataError
 from msdepth.io import write_png
@@ -67,10 +67,10 @@ def test_boxes_exact_and_filtered() -> None:
     gt[25:30, 0:20] = 1
     obj[0:20, 70:86] = 12  # GT on 6 of its 20 rows, exactly 30 % -> kept (the bound is inclusive)
     gt[6:20, 70:86] = 0
-    assert boxes_from_obj_map(obj, gt) == [(7, 5, 2, 21, 20), (12, 70, 0, 86, 20), (200, 60, 10, 96, 45)]
+    assert _boxes_from_obj_map(obj, gt) == [(7, 5, 2, 21, 20), (12, 70, 0, 86, 20), (200, 60, 10, 96, 45)]
     # Looser thresholds bring the others back; ids stay sorted and non-contiguous.
-    assert [b[0] for b in boxes_from_obj_map(obj, gt, min_size=1, min_valid=0.0)] == [3, 7, 9, 12, 200]
-    assert boxes_from_obj_map(obj, gt, min_size=15, min_valid=0.2)[:2] == [
+    assert [b[0] for b in _boxes_from_obj_map(obj, gt, min_size=1, min_valid=0.0)] == [3, 7, 9, 12, 200]
+    assert _boxes_from_obj_map(obj, gt, min_size=15, min_valid=0.2)[:2] == [
         (3, 40, 30, 55, 50),
         (7, 5, 2, 21, 20),
     ]
@@ -78,17 +78,17 @@ def test_boxes_exact_and_filtered() -> None:
 
 def test_boxes_edge_cases() -> None:
     obj = np.zeros((20, 20), np.uint8)
-    assert boxes_from_obj_map(obj, np.ones((20, 20))) == []  # background only
+    assert _boxes_from_obj_map(obj, np.ones((20, 20))) == []  # background only
     obj[:, :] = 1  # a car filling the frame: the box is the whole image, x1/y1 exclusive
-    assert boxes_from_obj_map(obj, np.ones((20, 20)), min_size=20) == [(1, 0, 0, 20, 20)]
+    assert _boxes_from_obj_map(obj, np.ones((20, 20)), min_size=20) == [(1, 0, 0, 20, 20)]
     gt_nan = np.full((20, 20), np.nan)  # NaN is no GT
-    assert boxes_from_obj_map(obj, gt_nan, min_size=1) == []
+    assert _boxes_from_obj_map(obj, gt_nan, min_size=1) == []
     with pytest.raises(DataError, match=r"\(20, 20\).*\(20, 21\)"):
-        boxes_from_obj_map(obj, np.ones((20, 21)))
+        _boxes_from_obj_map(obj, np.ones((20, 21)))
     with pytest.raises(DataError, match="integer"):
-        boxes_from_obj_map(obj.astype(np.float32), np.ones((20, 20)))
+        _boxes_from_obj_map(obj.astype(np.float32), np.ones((20, 20)))
     with pytest.raises(ValueError, match="min_valid"):
-        boxes_from_obj_map(obj, np.ones((20, 20)), min_valid=1.5)
+        _boxes_from_obj_map(obj, np.ones((20, 20)), min_valid=1.5)
 
 
 # --------------------------------------------------------------------------------------------
@@ -106,7 +106,7 @@ def test_car_boxes_match_the_generator(tiny, min_size: int) -> None:
     root, frames = tiny
     gen = kitti.read_rois(root / "rois.csv")
     gen = gen[gen["class"] == "car"]
-    rois = extract_rois(frames, min_size=min_size, progress=False)
+    rois = _extract_rois(frames, min_size=min_size, progress=False)
     assert set(rois["class"]) == {"car"} and len(rois) == (4 if min_size == 16 else 8)
     for roi in rois.itertuples(index=False):
         box = (roi.x0, roi.y0, roi.x1, roi.y1)
@@ -138,7 +138,7 @@ def test_user_rows_are_merged_sorted_and_round_trip(tiny, tmp_path: Path) -> Non
             ("000001_10", "car", 180, 45, 199, 60),  # a hand-drawn car where obj_map is missing
         ],
     )
-    rois = extract_rois(frames, user_csv=user, progress=False)
+    rois = _extract_rois(frames, user_csv=user, progress=False)
     report = rois.attrs["report"]
     assert report["frames"] == 4 and report["frames_without_obj_map"] == 1
     assert report["car_boxes_from_obj_map"] == 4 and report["user_boxes"] == 4 and report["rois"] == 7
@@ -168,24 +168,24 @@ def test_bad_user_rows_name_csv_and_row(tiny, tmp_path: Path, row: tuple, proble
     _, frames = tiny
     user = _write_csv(tmp_path / "hand.csv", [("000000_10", "car", 0, 0, 5, 5), row])
     with pytest.raises(DataError, match=rf"hand\.csv: row 3: .*{problem}"):
-        extract_rois(frames, user_csv=user, progress=False)
+        _extract_rois(frames, user_csv=user, progress=False)
 
 
 def test_missing_user_csv_and_bad_obj_map(tiny, tmp_path: Path) -> None:
     _, frames = tiny
     with pytest.raises(DataError, match="nope.csv: no such ROI file"):
-        extract_rois(frames, user_csv=tmp_path / "nope.csv", progress=False)
+        _extract_rois(frames, user_csv=tmp_path / "nope.csv", progress=False)
     wrong = tmp_path / "obj.png"
     write_png(wrong, np.zeros((CFG.height, CFG.width - 1), np.uint8))
     bad = frames.copy()
     bad.loc[0, "obj_map"] = str(wrong)
     with pytest.raises(DataError, match=r"obj\.png: .*GT disparity"):
-        extract_rois(bad, progress=False)
+        _extract_rois(bad, progress=False)
 
 
 def test_empty_result_is_an_empty_table(tiny, tmp_path: Path) -> None:
     _, frames = tiny
-    rois = extract_rois(frames, min_size=1000, progress=False)
+    rois = _extract_rois(frames, min_size=1000, progress=False)
     assert rois.empty and list(rois.columns) == list(kitti.ROI_COLUMNS)
     kitti.write_rois(tmp_path / "empty.csv", rois)
     assert kitti.read_rois(tmp_path / "empty.csv").empty
@@ -200,7 +200,7 @@ def test_contact_sheet_layout_and_content(tiny, tmp_path: Path) -> None:
     gen = kitti.read_rois(root / "rois.csv")  # car, windshield, glass and sign boxes
     per_class = gen["class"].value_counts()
     tile, columns, cap = 24, 3, 4  # 24 px: the bigger cars shrink, the small boxes grow
-    out = contact_sheet(gen, frames, tmp_path / "sheet.png", tile=tile, columns=columns, max_per_class=cap)
+    out = _contact_sheet(gen, frames, tmp_path / "sheet.png", tile=tile, columns=columns, max_per_class=cap)
     sheet = kitti.read_image(out)
     cell_w, cell_h = tile + 2 * PAD, tile + LABEL_HEIGHT + 2 * PAD
     height = sum(HEADER_HEIGHT + math.ceil(min(n, cap) / columns) * cell_h for n in per_class)
@@ -218,10 +218,10 @@ def test_contact_sheet_layout_and_content(tiny, tmp_path: Path) -> None:
 
 def test_contact_sheet_empty_and_unknown_frame(tiny, tmp_path: Path) -> None:
     _, frames = tiny
-    empty = extract_rois(frames, min_size=1000, progress=False)
-    sheet = cv2.imread(str(contact_sheet(empty, frames, tmp_path / "empty.png", columns=2)))
+    empty = _extract_rois(frames, min_size=1000, progress=False)
+    sheet = cv2.imread(str(_contact_sheet(empty, frames, tmp_path / "empty.png", columns=2)))
     assert sheet.shape == (HEADER_HEIGHT, 2 * (96 + 2 * PAD), 3)
     rois = pd.DataFrame([("999999_10", "car", 0, 0, 4, 4)], columns=list(kitti.ROI_COLUMNS))
     with pytest.raises(DataError, match="999999_10"):
-        contact_sheet(rois, frames, tmp_path / "bad.png")
+        _contact_sheet(rois, frames, tmp_path / "bad.png")
     assert not (tmp_path / "bad.png").exists()

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from msdepth.data.sequences import SplitEntry, index_sequences, read_mono_split
+from msdepth.data.sequences import SplitEntry, _index_sequences, _read_mono_split
 from msdepth.errors import DataError
 
 DRIVE = "2011_09_26/2011_09_26_drive_0001_sync"
@@ -29,7 +29,7 @@ def _tree(root: Path) -> None:
 def test_read_split(tmp_path: Path) -> None:
     split = tmp_path / "train_files.txt"
     split.write_text(f"{DRIVE} 1 l\n\n{OTHER}/ 6 r\n")
-    assert read_mono_split(split) == [SplitEntry(DRIVE, 1, "l"), SplitEntry(OTHER, 6, "r")]
+    assert _read_mono_split(split) == [SplitEntry(DRIVE, 1, "l"), SplitEntry(OTHER, 6, "r")]
 
 
 @pytest.mark.parametrize(
@@ -46,15 +46,15 @@ def test_bad_lines_name_file_and_line(tmp_path: Path, line: str, message: str) -
     split = tmp_path / "split.txt"
     split.write_text(f"{DRIVE} 1 l\n{line}\n")
     with pytest.raises(DataError, match=rf"split\.txt:2: .*{message}"):
-        read_mono_split(split)
+        _read_mono_split(split)
 
 
 def test_empty_or_missing_split_is_refused(tmp_path: Path) -> None:
     (tmp_path / "empty.txt").write_text("\n")
     with pytest.raises(DataError, match="empty.txt: split file lists no frames"):
-        read_mono_split(tmp_path / "empty.txt")
+        _read_mono_split(tmp_path / "empty.txt")
     with pytest.raises(DataError, match="absent.txt: no such split file"):
-        read_mono_split(tmp_path / "absent.txt")
+        _read_mono_split(tmp_path / "absent.txt")
 
 
 def test_frames_without_both_neighbours_are_skipped_and_counted(tmp_path: Path) -> None:
@@ -68,7 +68,7 @@ def test_frames_without_both_neighbours_are_skipped_and_counted(tmp_path: Path) 
         SplitEntry(DRIVE, 2, "r"),  # ok, right camera, jpg
         SplitEntry(OTHER, 6, "l"),  # no frame 7
     ]
-    index = index_sequences(tmp_path, entries)
+    index = _index_sequences(tmp_path, entries)
     assert (index.missing_frame, index.missing_neighbour) == (1, 3)
     targets = [s.target.relative_to(tmp_path).as_posix() for s in index.samples]
     assert targets == [
@@ -84,13 +84,13 @@ def test_frames_without_both_neighbours_are_skipped_and_counted(tmp_path: Path) 
 def test_stereo_partner_required_in_mono_stereo(tmp_path: Path) -> None:
     _tree(tmp_path)
     entries = [SplitEntry(DRIVE, 3, "l"), SplitEntry(DRIVE, 2, "l")]  # right frame 3 exists, 4 not needed
-    assert len(index_sequences(tmp_path, entries, stereo=True).samples) == 2
+    assert len(_index_sequences(tmp_path, entries, stereo=True).samples) == 2
     late = [SplitEntry(DRIVE, 3, "l")]
     # With offsets (-2, +1) frame 3 needs 1 and 4: present; its partner (right 3) is present too.
-    assert len(index_sequences(tmp_path, late, offsets=(-2, 1), stereo=True).samples) == 1
+    assert len(_index_sequences(tmp_path, late, offsets=(-2, 1), stereo=True).samples) == 1
     # Left frame 4's partner (right 4) is missing: skipped in stereo, kept without.
     entry = [SplitEntry(DRIVE, 4, "l")]
-    assert index_sequences(tmp_path, entry, offsets=(-1,), stereo=True).missing_neighbour == 1
-    assert index_sequences(tmp_path, entry, offsets=(-1,)).samples[0].stereo is None
+    assert _index_sequences(tmp_path, entry, offsets=(-1,), stereo=True).missing_neighbour == 1
+    assert _index_sequences(tmp_path, entry, offsets=(-1,)).samples[0].stereo is None
     with pytest.raises(ValueError, match="non-zero"):
-        index_sequences(tmp_path, entry, offsets=(0,))
+        _index_sequences(tmp_path, entry, offsets=(0,))

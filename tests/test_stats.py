@@ -13,10 +13,10 @@ from msdepth.errors import DataError
 from msdepth.evaluation.metrics import METRICS
 from msdepth.reporting.compare import (
     ComparisonInputs,
+    _mean_over_runs,
     build_comparison,
     comparison_data,
     image_dependence,
-    mean_over_runs,
     paired_statistics,
     seed_spread,
 )
@@ -320,12 +320,12 @@ def test_runs_are_averaged_leaf_by_leaf() -> None:
         "images": 40,
         "note": None,
     }
-    mean = mean_over_runs([a, b])
+    mean = _mean_over_runs([a, b])
     assert mean["cap80"]["overall"] == {"abs_rel": pytest.approx(0.3), "count": 10}
     assert mean["cap80"]["by_class"]["car"]["abs_rel"] == pytest.approx(0.2)
     assert mean["images"] == 40 and isinstance(mean["images"], int) and mean["note"] is None
     with pytest.raises(DataError, match="different entries"):
-        mean_over_runs([a, {**b, "extra": 1}])
+        _mean_over_runs([a, {**b, "extra": 1}])
 
 
 def test_comparison_of_several_seeds_says_so_and_shows_the_spread() -> None:

@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 from conftest import load_study
 
-from msdepth.io import MANIFEST_PREFIX, read_manifest
+from msdepth.io import MANIFEST_PREFIX, _read_manifest
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "studies" / "results"
@@ -58,7 +58,7 @@ def test_the_committed_results_are_listed_in_their_studies_manifests() -> None:
     manifests = sorted(RESULTS.rglob(f"{MANIFEST_PREFIX}*"))
     listed = set()
     for manifest in manifests:
-        names = read_manifest(manifest)
+        names = _read_manifest(manifest)
         assert names and all((manifest.parent / n).is_file() for n in names), manifest
         listed |= {manifest.parent / n for n in names}
     for path in ("grid/summary.md", "monocular/table.md", "optimum/sizes.md", "optimum/starts.md"):

@@ -43,12 +43,12 @@ def _frame(root: Path, drive: str, number: int) -> tuple[np.ndarray, np.ndarray]
 
 
 def test_split_lists_frames_with_both_neighbours(root: Path) -> None:
-    entries = sequences.read_mono_split(root / MONO_SPLIT)
+    entries = sequences._read_mono_split(root / MONO_SPLIT)
     drives = [render.train_drive(CFG, i)[0] for i in (0, 4)]
     assert [(e.drive, e.frame, e.side) for e in entries] == [
         (d, 1, side) for d in drives for side in ("l", "r")
     ]
-    index = sequences.index_sequences(root / "raw", entries, stereo=True)
+    index = sequences._index_sequences(root / "raw", entries, stereo=True)
     assert len(index.samples) == 4 and index.missing_frame == index.missing_neighbour == 0
 
 
@@ -68,12 +68,12 @@ def test_exact_depth_and_pose_reproject_onto_the_next_frame(root: Path) -> None:
     (target, depth), (source, source_depth) = _frame(root, drive, 1), _frame(root, drive, 0)
     h, w = CFG.height, CFG.width
     calib = (root / "raw" / drive).parent / "calib_cam_to_cam.txt"
-    k = torch.from_numpy(sequences.raw_intrinsics(calib, h, w))[None]  # what training reads, float64
+    k = torch.from_numpy(sequences._raw_intrinsics(calib, h, w))[None]  # what training reads, float64
     pose = torch.from_numpy(np.linalg.inv(poses[0]) @ poses[1])[None]  # target camera -> source
     finite = np.isfinite(depth) & (depth < 60)
     z = torch.from_numpy(np.where(finite, depth, 1.0).astype(np.float64))[None, None]
-    points = pose @ geometry.backproject(z, torch.linalg.inv(k))
-    grid = geometry.project(geometry.backproject(z, torch.linalg.inv(k)), k, pose, h, w)[0].numpy()
+    points = pose @ geometry._backproject(z, torch.linalg.inv(k))
+    grid = geometry.project(geometry._backproject(z, torch.linalg.inv(k)), k, pose, h, w)[0].numpy()
     u, v = np.rint((grid[..., 0] + 1) / 2 * (w - 1)), np.rint((grid[..., 1] + 1) / 2 * (h - 1))
     inside = finite & (u >= 0) & (u < w) & (v >= 0) & (v < h)
     seen = source_depth[v[inside].astype(int), u[inside].astype(int)]
@@ -110,9 +110,9 @@ def test_intrinsics_from_the_raw_calibration(root: Path) -> None:
     calib = root / "raw" / render.DATES[0] / "calib_cam_to_cam.txt"
     f, h, w = render.focal_for_width(CFG.width), CFG.height, CFG.width
     np.testing.assert_allclose(
-        sequences.raw_intrinsics(calib, h, w)[:3, :3], [[f, 0, (w - 1) / 2], [0, f, (h - 1) / 2], [0, 0, 1]]
+        sequences._raw_intrinsics(calib, h, w)[:3, :3], [[f, 0, (w - 1) / 2], [0, f, (h - 1) / 2], [0, 0, 1]]
     )
-    half = sequences.raw_intrinsics(calib, h // 2, w // 2)
+    half = sequences._raw_intrinsics(calib, h // 2, w // 2)
     np.testing.assert_allclose(
         half[[0, 1, 0, 1], [0, 1, 2, 2]], [f / 2, f / 2, (w / 2 - 1) / 2, (h / 2 - 1) / 2]
     )
@@ -121,8 +121,8 @@ def test_intrinsics_from_the_raw_calibration(root: Path) -> None:
 def test_a_mirrored_sample_swaps_the_partner_side(root: Path) -> None:
     """Augmentation that mirrors the frames mirrors the principal point and puts the stereo
     partner on the other side; without augmentation a left target's partner is on the right."""
-    samples = sequences.index_sequences(
-        root / "raw", sequences.read_mono_split(root / MONO_SPLIT), stereo=True
+    samples = sequences._index_sequences(
+        root / "raw", sequences._read_mono_split(root / MONO_SPLIT), stereo=True
     )
     plain = sequences.SequenceFrames(samples.samples, (-1, 1), 32, 96, stereo=True)
     augmented = sequences.SequenceFrames(samples.samples, (-1, 1), 32, 96, stereo=True, augment=True, seed=1)

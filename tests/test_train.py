@@ -66,18 +66,18 @@ def test_interrupted_run_resumes_to_the_same_weights(
     (tmp_path / "b").mkdir()
     full = _train(params, pairs, tmp_path / "a", variant)
 
-    real_save = train_mod.save_checkpoint
+    real_save = train_mod._save_checkpoint
 
     def save_then_die(path, state):
         real_save(path, state)
         raise KeyboardInterrupt  # killed right after the first epoch's checkpoint
 
-    monkeypatch.setattr(train_mod, "save_checkpoint", save_then_die)
+    monkeypatch.setattr(train_mod, "_save_checkpoint", save_then_die)
     with pytest.raises(KeyboardInterrupt):
         _train(params, pairs, tmp_path / "b", variant)
     assert not (tmp_path / "b" / "model.pt").exists()
     shutil.rmtree(tmp_path / "b" / "live")  # DVC deletes a stage's outputs before it reruns it
-    monkeypatch.setattr(train_mod, "save_checkpoint", real_save)
+    monkeypatch.setattr(train_mod, "_save_checkpoint", real_save)
     resumed = _train(params, pairs, tmp_path / "b", variant)
 
     assert resumed.resumed_from_epoch == 1 and full.resumed_from_epoch == 0
@@ -107,7 +107,7 @@ def test_checkpoint_of_other_training_code_is_not_resumed(pairs, tmp_path: Path,
     """A code change that makes DVC rerun the stage trains anew (the model then matches the code)."""
     _train(_params(epochs=1), pairs, tmp_path)
     assert _train(_params(epochs=1), pairs, tmp_path).resumed_from_epoch == 1  # same code: resumed
-    monkeypatch.setattr(train_mod, "code_digest", lambda: "edited losses.py")
+    monkeypatch.setattr(train_mod, "_code_digest", lambda: "edited losses.py")
     assert _train(_params(epochs=1), pairs, tmp_path).resumed_from_epoch == 0
 
 
@@ -120,8 +120,8 @@ def test_code_digest_covers_the_train_stage_source_deps(tmp_path: Path, monkeypa
     # part that shapes a run, so every digested module must be a dep (a change to it reruns DVC).
     assert all(any(m == d or m.startswith(d + "/") for d in src) for m in train_mod.TRAINING_MODULES)
     # Every listed file's bytes count (every .py file of a listed package).
-    package, real = Path(train_mod.__file__).resolve().parents[1], train_mod.code_digest()
-    names = [p.relative_to(package).as_posix() for p in train_mod.training_files()]
+    package, real = Path(train_mod.__file__).resolve().parents[1], train_mod._code_digest()
+    names = [p.relative_to(package).as_posix() for p in train_mod._training_files()]
     expected = {"losses/appearance/__init__.py", "losses/appearance/msssim.py", "config/variants/mix.py"}
     assert expected <= set(names)
     fake = tmp_path / "msdepth"
@@ -129,14 +129,14 @@ def test_code_digest_covers_the_train_stage_source_deps(tmp_path: Path, monkeypa
         (fake / name).parent.mkdir(parents=True, exist_ok=True)
         (fake / name).write_bytes((package / name).read_bytes())
     monkeypatch.setattr(train_mod, "__file__", str(fake / "training" / "train.py"))
-    before = train_mod.code_digest()
+    before = train_mod._code_digest()
     assert before == real  # the same bytes elsewhere: the same digest
     for name in names:
         original = (fake / name).read_bytes()
         (fake / name).write_bytes(original + b"# edited\n")
-        assert train_mod.code_digest() != before, name
+        assert train_mod._code_digest() != before, name
         (fake / name).write_bytes(original)
-    assert train_mod.code_digest() == before
+    assert train_mod._code_digest() == before
 
 
 @pytest.mark.parametrize("sync_every", [0, 3])
@@ -367,7 +367,7 @@ PREVIOUS_FINGERPRINTS = [
 
 @pytest.mark.parametrize(("raw", "variant", "expected"), PREVIOUS_FINGERPRINTS)
 def test_fingerprint_of_existing_variants_is_unchanged(monkeypatch, raw, variant, expected) -> None:
-    monkeypatch.setattr(train_mod, "code_digest", lambda: "fixed")
+    monkeypatch.setattr(train_mod, "_code_digest", lambda: "fixed")
     params = params_from_dict(raw)
     assert train_mod.fingerprint(params, variant, 8, 0) == expected
     # The kernels switch counts once it leaves its default (it changes the rounding).

@@ -39,8 +39,8 @@ def _params(mode: str, **train):
 
 
 def _samples(raw: Path, stereo: bool) -> list[sequences.SequenceSample]:
-    entries = sequences.read_mono_split(raw / MONO_SPLIT)
-    return sequences.index_sequences(raw / "raw", entries, stereo=stereo).samples
+    entries = sequences._read_mono_split(raw / MONO_SPLIT)
+    return sequences._index_sequences(raw / "raw", entries, stereo=stereo).samples
 
 
 @pytest.mark.parametrize("mode", ["mono", "mono_stereo"])

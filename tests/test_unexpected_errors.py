@@ -73,7 +73,7 @@ def test_the_example_command_reports_an_unexpected_exception_in_one_line(
     tmp_path: Path, logs: Path, monkeypatch: pytest.MonkeyPatch, capsys
 ) -> None:
     (tmp_path / "params.yaml").write_text("")  # the defaults
-    monkeypatch.setattr(example, "make_example", _boom)
+    monkeypatch.setattr(example, "_make_example", _boom)
     assert example.main(["--root", str(tmp_path)]) == 1
     _one_line(capsys.readouterr().err, f"msdepth.cli.example --root {tmp_path}", logs)
 

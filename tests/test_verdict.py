@@ -20,19 +20,19 @@ from msdepth.reporting.verdict import (
     MIN_UNITS,
     Row,
     RowScope,
-    class_sentence,
+    _class_sentence,
+    _parse_monocular_table,
+    _units_text,
     display_names,
     headline_instruments,
     interval_cell,
     network_rows,
     optimum_rows,
-    parse_monocular_table,
     pooled_rows,
     read_external_rows,
     read_monocular,
     seed_rows,
     summary_lines,
-    units_text,
     verdict_data,
     verdict_lines,
     welch_interval,
@@ -115,7 +115,7 @@ def test_an_extra_sets_class_columns_are_paired_frame_by_frame(frames: int) -> N
     assert list(rows) == [FULL_FRAME, "car"]
     car = rows["car"]
     assert car.diff == pytest.approx(-0.1) and car.n == frames - 1 and car.unit == "kitti2015 frames"
-    assert units_text(car) == f"{frames - 1} kitti2015 frames × 2 seed pairs"
+    assert _units_text(car) == f"{frames - 1} kitti2015 frames × 2 seed pairs"
     if frames - 1 >= MIN_UNITS:
         assert (car.low, car.high) == pytest.approx((-0.1, -0.1)) and car.excludes_zero
     else:
@@ -139,7 +139,7 @@ def test_t_quantile_and_welch_interval_known_values() -> None:
 
 
 def test_the_committed_monocular_table_parses_to_its_numbers() -> None:
-    stats = parse_monocular_table(ROOT / "studies/results/monocular/table.md")
+    stats = _parse_monocular_table(ROOT / "studies/results/monocular/table.md")
     assert stats["mono"]["ssim"]["windshield"] == (0.4897, 0.0643, 3)
     assert stats["mono_stereo"]["msssim"][FULL_FRAME] == (0.2020, 0.0041, 3)
     rows = {(r.instrument, r.cls): r for r in seed_rows(stats, "ssim", 0.95)}
@@ -164,7 +164,7 @@ def test_monocular_json_per_seed_and_a_bad_table(tmp_path: Path) -> None:
         "| mono | ssim | 0.2 ± x |\n"
     )
     with pytest.raises(DataError, match=r"table\.md: row \['mono', 'ssim'\], column 'abs_rel'"):
-        parse_monocular_table(bad)
+        _parse_monocular_table(bad)
 
 
 GOOD = {"instrument": "optimum w10", "class": "windshield", "diff": -0.02, "low": -0.05, "high": 0.01}
@@ -235,21 +235,21 @@ def test_sentences_from_known_rows() -> None:
         Row("optimum w3", "car", -0.1, -0.16, -0.05, 8, "m", "optimum"),
         Row("optimum w30", "car", 0.1, 0.04, 0.16, 8, "m", "optimum"),
     ]
-    assert class_sentence("windshield", rows) == (
+    assert _class_sentence("windshield", rows) == (
         "windshield: MS-SSIM's error is lower in 2 of 3 instruments; no interval excludes 0."
     )
-    assert class_sentence("car", rows) == (
+    assert _class_sentence("car", rows) == (
         "car: MS-SSIM's error is lower in 1 of 2 instruments; intervals excluding 0: "
         "optimum w3 (lower), optimum w30 (higher)."
     )
     pooled = Row("optimum w10, pooled", "windshield", -0.012, -0.02, -0.004, 80, "m", "pooled")
-    assert class_sentence("windshield", [*rows, pooled]).endswith(
+    assert _class_sentence("windshield", [*rows, pooled]).endswith(
         "no interval excludes 0; optimum w10, pooled: \u22120.012 [\u22120.020, \u22120.004]."
     )
     # Another study's row of the same instrument is named with its source (the method before ":").
     real = Row("optimum w3", "car", -0.02, -0.03, -0.01, 16, "real pairs: over ROIs", "external")
     assert (real.label, rows[3].label) == ("optimum w3, real pairs", "optimum w3")
-    assert class_sentence("car", [*rows, real]).endswith(
+    assert _class_sentence("car", [*rows, real]).endswith(
         "optimum w3 (lower), optimum w30 (higher), optimum w3, real pairs (lower)."
     )
     assert Row("x", "car", 0, -1, 1, 5, "no colon", "external").label == "x, another study"
@@ -260,7 +260,7 @@ def test_sentences_from_known_rows() -> None:
 
 
 def test_the_verdict_figure_is_a_png_with_and_without_rows(tmp_path: Path) -> None:
-    from msdepth.reporting.figures import read_verdict, verdict_figure
+    from msdepth.reporting.figures import _read_verdict, verdict_figure
 
     rows = [
         Row("stereo networks", FULL_FRAME, -0.002, -0.012, 0.008, 40, "m", "network"),
@@ -270,14 +270,14 @@ def test_the_verdict_figure_is_a_png_with_and_without_rows(tmp_path: Path) -> No
     ]
     compare_json = tmp_path / "compare.json"
     compare_json.write_text(json.dumps({"verdict": verdict_data(rows, 80.0, 0.95, "MS-SSIM", "SSIM")}))
-    data = read_verdict(compare_json)
+    data = _read_verdict(compare_json)
     assert any(r["kind"] == "pooled" for r in data["rows"])  # the two optimum w10 rows
     for name, verdict in (("verdict.png", data), ("empty.png", None)):
         path = verdict_figure(verdict, tmp_path / name)
         assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["compare.json", "empty.png", "verdict.png"]
     with pytest.raises(DataError, match="absent.json: cannot read the comparison"):
-        read_verdict(tmp_path / "absent.json")
+        _read_verdict(tmp_path / "absent.json")
 
 
 def test_the_monocular_study_writes_per_seed_values_the_verdict_reads(tmp_path: Path) -> None:
@@ -341,7 +341,7 @@ def test_a_row_without_an_interval_is_counted_but_never_excludes_or_pools(tmp_pa
     assert interval_cell(row) == "\u22120.020 (no interval)"
     pipeline = Row("optimum w10", "reflective", -0.03, -0.05, -0.01, 40, "m", "optimum")
     assert pooled_rows([row, pipeline]) == []
-    assert "no interval (too few independent units): optimum w10, real pairs (n=1)" in class_sentence(
+    assert "no interval (too few independent units): optimum w10, real pairs (n=1)" in _class_sentence(
         "reflective", [row]
     )
 

@@ -121,7 +121,7 @@ _COMMANDS: tuple[Callable[[AddParser], None], ...] = (
 )
 
 
-def build_parser() -> argparse.ArgumentParser:
+def _build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="msdepth", description="Use a trained msdepth model.")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for add_command in _COMMANDS:
@@ -185,7 +185,7 @@ def _export_folder(args: argparse.Namespace) -> int:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line; returns the exit code (0 ok, 1 error or failed frames, 2 usage)."""
-    args = build_parser().parse_args(argv)
+    args = _build_parser().parse_args(argv)
     try:
         return args.run(args)
     except MsdepthError as exc:

@@ -155,6 +155,23 @@ def _size_text(nbytes: int) -> str:
     return f"{nbytes:,} bytes" if nbytes < 1 << 20 else f"{nbytes / 2**20:,.0f} MiB"
 
 
+def not_regular_file(mode: int) -> str | None:
+    """Why a file of ``st_mode`` ``mode`` is not a regular file ("a folder, not a file", "not a
+    regular file (a FIFO, a device or a socket)"), None if it is one: the one classification of
+    :func:`open_regular` and of the params' checks of named files.
+
+    Example:
+        >>> import stat
+        >>> not_regular_file(stat.S_IFREG | 0o644) is None, not_regular_file(stat.S_IFDIR | 0o755)
+        (True, 'a folder, not a file')
+    """
+    if stat.S_ISDIR(mode):
+        return "a folder, not a file"
+    if not stat.S_ISREG(mode):
+        return "not a regular file (a FIFO, a device or a socket)"
+    return None
+
+
 def open_regular(
     path: str | os.PathLike,
     kind: str,
@@ -179,11 +196,10 @@ def open_regular(
         raise DataError(f"{head}no such {kind} file") from None
     except OSError as exc:  # a symbolic link loop, a name too long, no permission
         raise DataError(f"{head}cannot open this {kind} file ({exc.strerror or exc})") from None
-    info, problem = os.fstat(fd), None
-    if stat.S_ISDIR(info.st_mode):
-        problem = "a folder, not a file"
-    elif not stat.S_ISREG(info.st_mode):
-        problem = "not a regular file (a FIFO, a device or a socket); nothing was read"
+    info = os.fstat(fd)
+    problem = not_regular_file(info.st_mode)
+    if problem is not None:
+        problem += "" if stat.S_ISDIR(info.st_mode) else "; nothing was read"
     elif max_bytes is not None and info.st_size > max_bytes:
         problem = (
             f"the file is {_size_text(info.st_size)}, over the limit of {_size_text(max_bytes)} for {kind} "
@@ -232,7 +248,7 @@ def _png_chunk(kind: bytes, data: bytes) -> bytes:
     return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
 
 
-def encode_png(image: np.ndarray) -> bytes:
+def _encode_png(image: np.ndarray) -> bytes:
     """PNG bytes of a uint8 or uint16 gray/RGB ``(h, w[, 3])`` image (RGB order; KITTI's flow
     maps are 16-bit RGB).
 
@@ -265,9 +281,9 @@ def encode_png(image: np.ndarray) -> bytes:
 
 
 def write_png(path: str | os.PathLike, image: np.ndarray) -> None:
-    """Write a uint8 or uint16 RGB/gray image as PNG, atomically (see :func:`encode_png`)."""
+    """Write a uint8 or uint16 RGB/gray image as PNG, atomically (see :func:`_encode_png`)."""
     try:
-        data = encode_png(image)
+        data = _encode_png(image)
     except DataError as err:
         raise DataError(f"{path}: {err}") from None
     with atomic_path(path, suffix=".png") as tmp:
@@ -298,14 +314,14 @@ MANIFEST_PREFIX = ".msdepth-"  # the manifest of command C is "<output folder>/.
 MAX_MANIFEST_BYTES = 64 << 20
 
 
-def manifest_line(name: str) -> str:
+def _manifest_line(name: str) -> str:
     """One manifest line for ``name``, a file the command wrote completely: a JSON string in ASCII,
     so any character of a file name (a newline, U+2028, a byte that is not UTF-8 as Python's
     surrogate escape) stays on its one line."""
     return json.dumps(name, ensure_ascii=True) + "\n"
 
 
-def pending_line(name: str) -> str:
+def _pending_line(name: str) -> str:
     """The manifest line of ``name`` claimed and not yet written: ``{"pending": name}``. Never
     trusted as the command's own file (a run killed before writing it leaves it), it only lets the
     next run remove that write's temp file; the end of the run drops it (:meth:`OutputPolicy.settle`)."""
@@ -357,10 +373,10 @@ def _manifest_entry(line: str) -> tuple[str, bool] | None:
     return name, written
 
 
-def manifest_entries(path: str | os.PathLike) -> list[tuple[str, bool]]:
+def _manifest_entries(path: str | os.PathLike) -> list[tuple[str, bool]]:
     """``(name, written)`` per manifest line, in file order (split on ``\\n`` only); a missing
     manifest has none. OutputError (one line) for a manifest that is a symlink, not a regular file,
-    too large, or has a line that is not a manifest line (:func:`manifest_line`, :func:`pending_line`
+    too large, or has a line that is not a manifest line (:func:`_manifest_line`, :func:`_pending_line`
     or a plain name), so a file put there is never taken for a list of the command's own files."""
     return _parse_manifest(Path(path), _manifest_bytes(Path(path)) or b"")
 
@@ -376,9 +392,9 @@ def _parse_manifest(path: Path, data: bytes) -> list[tuple[str, bool]]:
     return entries
 
 
-def read_manifest(path: str | os.PathLike) -> set[str]:
-    """The names a manifest lists as written (not those only pending); see :func:`manifest_entries`."""
-    return {name for name, written in manifest_entries(path) if written}
+def _read_manifest(path: str | os.PathLike) -> set[str]:
+    """The names a manifest lists as written (not those only pending); see :func:`_manifest_entries`."""
+    return {name for name, written in _manifest_entries(path) if written}
 
 
 def resolved(path: str | os.PathLike) -> Path:
@@ -456,10 +472,10 @@ class OutputPolicy:
         self.claimed: dict[Path, str] = {}  # resolved output -> the input it is the output of
         self.pending: dict[str, Path] = {}  # name -> resolved path, claimed and not yet written
         self.created = False  # whether this run created the manifest
-        check_output_folder(self.out_dir)
+        _check_output_folder(self.out_dir)
         out_resolved = resolved(self.out_dir)
         self._check_folder(out_resolved, input_dirs)
-        entries = manifest_entries(self.manifest)
+        entries = _manifest_entries(self.manifest)
         self.ours = {name for name, written in entries if written}
         # A run killed mid-write left the temp of an output it had listed (written or pending):
         # remove those only.
@@ -540,7 +556,7 @@ class OutputPolicy:
                 new[name] = key
         if new:
             self.prepare()
-            self._append("".join(pending_line(name) for name in new))
+            self._append("".join(_pending_line(name) for name in new))
             with _LOCK:
                 self.pending.update(new)
                 _AWAITED.update((key, (self, name)) for name, key in new.items())
@@ -569,7 +585,7 @@ class OutputPolicy:
                 return
         self.ours.add(name)
         try:
-            self._append(manifest_line(name))
+            self._append(_manifest_line(name))
         except OutputError:  # settle() records it by its file, which exists
             self.pending[name] = resolved(self.out_dir / name)
 
@@ -590,7 +606,7 @@ class OutputPolicy:
         written = {name for name, ok in entries if ok} | set(pending)
         # Claim order; a pending line another policy's settle dropped meanwhile goes last.
         names = [n for n in dict.fromkeys([*(n for n, _ in entries), *pending]) if n in written]
-        text = "".join(manifest_line(n) for n in names if os.path.lexists(self.out_dir / n))
+        text = "".join(_manifest_line(n) for n in names if os.path.lexists(self.out_dir / n))
         if not text and self.created:
             self.manifest.unlink()
         elif text.encode("ascii") != data:
@@ -615,7 +631,7 @@ class OutputPolicy:
             )
 
 
-def check_output_folder(out_dir: str | os.PathLike) -> None:
+def _check_output_folder(out_dir: str | os.PathLike) -> None:
     """OutputError (one line) when ``out_dir`` exists and is not a folder, or lies under a file."""
     out_dir = Path(out_dir)
     existing = _nearest_existing(out_dir)

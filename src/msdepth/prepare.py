@@ -19,16 +19,16 @@ def prepare_data(params: Params, dry_run: bool = False) -> None:
     complete is skipped) or check a stereo folder's layout (nothing written). ``dry_run``: write
     nothing, say what would be done (for KITTI: each missing archive's size, HEAD requests only)."""
     if params.data.source == "folder":
-        check_stereo_folder(params, dry_run)
+        _check_stereo_folder(params, dry_run)
     elif params.data.source == "synthetic":
-        render_synthetic(params, dry_run)
+        _render_synthetic(params, dry_run)
     else:
         from msdepth.download.kitti import fetch_kitti
 
         fetch_kitti(params, dry_run)
 
 
-def check_stereo_folder(params: Params, dry_run: bool) -> None:
+def _check_stereo_folder(params: Params, dry_run: bool) -> None:
     """data.source folder: check the stereo folder's layout; nothing is written."""
     from msdepth.data.folder import check_folder
 
@@ -39,7 +39,7 @@ def check_stereo_folder(params: Params, dry_run: bool) -> None:
     log.info("stereo folder %s: %s", params.data.root, report)
 
 
-def render_synthetic(params: Params, dry_run: bool) -> None:
+def _render_synthetic(params: Params, dry_run: bool) -> None:
     """data.source synthetic: render the set under data.root."""
     s, root = params.data.synthetic, Path(params.data.root)
     check_synthetic_root(root)  # also in a dry run: it says at once that the render would refuse

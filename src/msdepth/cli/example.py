@@ -34,7 +34,7 @@ OUT = Path("docs/example")
 MANIFEST = "example.json"
 
 
-def disparity_name(variant: str) -> str:
+def _disparity_name(variant: str) -> str:
     """The example image of ``variant``'s model."""
     return f"{FRAME}_disp_{variant}.png"
 
@@ -48,7 +48,7 @@ def md5(path: Path) -> str:
     return digest.hexdigest()
 
 
-def example_models(params: Params, root: Path) -> dict[str, Path]:
+def _example_models(params: Params, root: Path) -> dict[str, Path]:
     """Each variant's first-seed model under ``root``; DataError naming the first one missing."""
     models = {v: root / model_path(run_name(v, params.train.seeds[0])) for v in params.variants}
     for path in models.values():
@@ -59,7 +59,7 @@ def example_models(params: Params, root: Path) -> dict[str, Path]:
     return models
 
 
-def example_frame(params: Params, root: Path) -> Path:
+def _example_frame(params: Params, root: Path) -> Path:
     """The left image of :data:`FRAME` in the data tree (KITTI 2015 layout)."""
     if params.data.source == "folder":
         raise DataError(
@@ -71,20 +71,20 @@ def example_frame(params: Params, root: Path) -> Path:
     return frame
 
 
-def make_example(params: Params, root: Path = Path("."), out: Path | None = None) -> dict:
+def _make_example(params: Params, root: Path = Path("."), out: Path | None = None) -> dict:
     """Write the example into ``out`` (default ``root/docs/example``): the frame, each variant's
     disparity and the manifest; return the manifest. Every file is written whole (temp, rename)."""
     from msdepth.cli.predict import PredictOptions, predict
 
     out = root / OUT if out is None else out
-    frame, models = example_frame(params, root), example_models(params, root)
+    frame, models = _example_frame(params, root), _example_models(params, root)
     options = PredictOptions(
         disp_format="png", depth_format="none", colorbar=True, device="cpu", progress=False
     )
     manifest: dict = {"command": COMMAND, "frame": FRAME, "input": f"{FRAME}.png", "images": {}}
     # Through the output policy (manifest out/.msdepth-example): a user's file at an output name is
     # refused in one line (OutputError) before anything is written.
-    outputs = [out / f"{FRAME}.png", *(out / disparity_name(v) for v in models), out / MANIFEST]
+    outputs = [out / f"{FRAME}.png", *(out / _disparity_name(v) for v in models), out / MANIFEST]
     OutputPolicy(out, "example", (frame, *models.values())).claim(outputs, frame)
     with atomic_path(out / f"{FRAME}.png") as tmp:
         shutil.copyfile(frame, tmp)
@@ -95,10 +95,10 @@ def make_example(params: Params, root: Path = Path("."), out: Path | None = None
                 raise DataError(f"{frame}: {report.failed[0][1]}")
             written = Path(work) / f"{FRAME}_disp.png"
             width, height = png_size(written.read_bytes())
-            with atomic_path(out / disparity_name(variant)) as tmp:
+            with atomic_path(out / _disparity_name(variant)) as tmp:
                 os.replace(written, tmp)
         manifest["images"][variant] = {
-            "file": disparity_name(variant),
+            "file": _disparity_name(variant),
             "model": model.relative_to(root).as_posix(),
             "model_md5": md5(model),
             "width": width,
@@ -118,7 +118,7 @@ def main(argv: list[str] | None = None) -> int:
     )
     args = ap.parse_args(argv)
     try:
-        manifest = make_example(load_params(args.root / "params.yaml"), args.root)
+        manifest = _make_example(load_params(args.root / "params.yaml"), args.root)
     except (MsdepthError, OSError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1

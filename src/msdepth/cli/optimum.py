@@ -68,7 +68,7 @@ def optimum_command(add_parser: Callable[..., argparse.ArgumentParser]) -> None:
     o.set_defaults(run=run)
 
 
-def read_params(path: str | None, assignments: list[str]) -> Params:
+def _read_params(path: str | None, assignments: list[str]) -> Params:
     """``path`` (or ./params.yaml, or the defaults with ``optimum.iterations``
     :data:`INSTRUMENT_ITERATIONS`) with the ``--set`` assignments, validated: the hardened reader
     and checks of every params file (:func:`msdepth.config.params.load_params`)."""
@@ -78,7 +78,7 @@ def read_params(path: str | None, assignments: list[str]) -> Params:
     return params_from_dict(apply_overrides({"optimum": {"iterations": INSTRUMENT_ITERATIONS}}, assignments))
 
 
-def stereo_pairs(left: Path, right: Path, skip: Path | None = None) -> list[tuple[Path, Path, Path]]:
+def _stereo_pairs(left: Path, right: Path, skip: Path | None = None) -> list[tuple[Path, Path, Path]]:
     """``(left image, right image, output stem)`` of two images or two folders (recursive,
     sorted; a right image is expected at the left one's relative path; files under ``skip``, the
     output folder, are not listed). LEFT and RIGHT the same file or folder is refused."""
@@ -105,14 +105,14 @@ def stereo_pairs(left: Path, right: Path, skip: Path | None = None) -> list[tupl
     raise DataError(f"{left} and {right}: give two images or two folders, not one of each")
 
 
-def output_stem(out: Path, stem: Path, variant: str) -> Path:
+def _output_stem(out: Path, stem: Path, variant: str) -> Path:
     """Where a pair's outputs go: ``out/<stem>_<variant>`` (then ``_disp.npy`` etc.). The variant in
     the name keeps one variant's result from replacing another's in a shared folder, the comparison
     the command is for."""
     return out / stem.with_name(f"{stem.name}_{variant}")
 
 
-def requested_size(args: argparse.Namespace, params: Params) -> tuple[int, int] | None:
+def _requested_size(args: argparse.Namespace, params: Params) -> tuple[int, int] | None:
     """The working size asked for, checked: ``--height``/``--width``, else ``optimum.height``/``width``,
     else None (each image's own; :func:`msdepth.optimum.solver.working_size` resolves it per pair)."""
     height, width = args.height or params.optimum.height, args.width or params.optimum.width
@@ -137,14 +137,14 @@ def run(args: argparse.Namespace) -> int:
     from msdepth.optimum.solver import objective
 
     # --start is optimum.start's override, checked (one line) as the params file's value is.
-    params = read_params(args.params, [*args.set, *([f"optimum.start={args.start}"] if args.start else [])])
-    size = requested_size(args, params)
+    params = _read_params(args.params, [*args.set, *([f"optimum.start={args.start}"] if args.start else [])])
+    size = _requested_size(args, params)
     objective(params, args.variant)  # an unknown variant fails before any image is read
     given = {k: v for k, v in (("focal", args.focal), ("baseline", args.baseline)) if v is not None}
     options = PredictOptions(disp_format="both", depth_format="npy", progress=False, **given)
     left, right, out = Path(args.left), Path(args.right), Path(args.out)
     policy = OutputPolicy(out, "optimum", input_dirs=(left, right))
-    pairs = stereo_pairs(left, right, out)
+    pairs = _stereo_pairs(left, right, out)
     policy.protect([p for pair in pairs for p in pair[:2]])
     policy.prepare()
     failed = 0
@@ -207,7 +207,7 @@ def _optimise_and_write(
     disps = optimum_disparities(pairs, params, args.variant, size=size, progress=not args.quiet)
     for (left_path, stem, left, _), disp in zip(good, disps, strict=True):
         try:
-            target = output_stem(Path(args.out), stem, args.variant)
+            target = _output_stem(Path(args.out), stem, args.variant)
             policy.claim(list(output_paths(target, options).values()), left_path)
             save_outputs(target, left, disp, options)
         except (MsdepthError, OSError) as exc:

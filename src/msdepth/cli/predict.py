@@ -62,7 +62,7 @@ class PredictOptions:
     height: int | None = None  # network input size; None = the size saved in the model file
     width: int | None = None
     post_process: bool = True
-    focal: float | None = None  # px at the input image's resolution; None = KITTI's (default_focal)
+    focal: float | None = None  # px at the input image's resolution; None = KITTI's (_default_focal)
     baseline: float = kitti.KITTI_BASELINE  # m
     cx: float | None = None  # principal point (px); None = the image centre
     cy: float | None = None
@@ -141,7 +141,7 @@ def load_trained(path: str | os.PathLike, device: str | torch.device = "cpu") ->
         raise MsdepthError(f"{path}: cannot load the model ({first_line})") from None
 
 
-def default_focal(width: int) -> float:
+def _default_focal(width: int) -> float:
     """Monodepth's focal (px) for a KITTI image width, else KITTI's focal scaled to ``width``.
 
     A KITTI frame resized to another width keeps its field of view, so its focal scales with
@@ -150,14 +150,14 @@ def default_focal(width: int) -> float:
     return kitti.WIDTH_TO_FOCAL.get(width) or focal_for_width(width)
 
 
-def metric_depth(disp_px: np.ndarray, focal: float, baseline: float, max_depth: float) -> np.ndarray:
+def _metric_depth(disp_px: np.ndarray, focal: float, baseline: float, max_depth: float) -> np.ndarray:
     """Depth in metres from disparity in pixels; 0 where disparity <= 0 or depth > ``max_depth``."""
     depth = disparity_to_depth(disp_px, focal, baseline)
     depth[~np.isfinite(depth) | (depth > max_depth)] = 0.0
     return depth
 
 
-def depth_to_png16(depth: np.ndarray) -> np.ndarray:
+def _depth_to_png16(depth: np.ndarray) -> np.ndarray:
     """Depth (m, 0 = invalid) -> uint16 millimetres; saturates at 65535 (65.535 m).
 
     A valid depth under 0.5 mm is stored as 1 so it never reads as the invalid code 0.
@@ -168,7 +168,7 @@ def depth_to_png16(depth: np.ndarray) -> np.ndarray:
     return code.astype(np.uint16)
 
 
-def colorize_disparity(disp_px: np.ndarray, colorbar: bool = False) -> np.ndarray:
+def _colorize_disparity(disp_px: np.ndarray, colorbar: bool = False) -> np.ndarray:
     """Disparity -> uint8 RGB (plasma, min .. 95th percentile), optionally with a labelled colour bar."""
     vmin = float(disp_px.min())
     vmax = float(np.percentile(disp_px, COLOR_PERCENTILE))
@@ -201,7 +201,7 @@ def _colorbar(height: int, vmin: float, vmax: float) -> np.ndarray:
     return panel
 
 
-def point_cloud(
+def _point_cloud(
     depth: np.ndarray, rgb: np.ndarray, focal: float, cx: float | None = None, cy: float | None = None
 ) -> tuple[np.ndarray, np.ndarray]:
     """Back-project valid pixels (depth > 0) with a pinhole camera, fx = fy = ``focal``.
@@ -218,7 +218,7 @@ def point_cloud(
     return points, rgb[v, u].astype(np.uint8)
 
 
-def write_ply(path: str | os.PathLike, points: np.ndarray, colors: np.ndarray, binary: bool = True) -> None:
+def _write_ply(path: str | os.PathLike, points: np.ndarray, colors: np.ndarray, binary: bool = True) -> None:
     """Write a coloured point cloud as PLY (binary little-endian or ASCII), atomically."""
     header = (
         "ply\n"
@@ -262,20 +262,20 @@ def save_outputs(stem: Path, rgb: np.ndarray, disp_fraction: np.ndarray, options
     h, w = rgb.shape[:2]
     disp = pixel_disparity(disp_fraction, h, w)
     if "disp_png" in paths:
-        write_png(paths["disp_png"], colorize_disparity(disp, options.colorbar))
+        write_png(paths["disp_png"], _colorize_disparity(disp, options.colorbar))
     if "disp_npy" in paths:
         save_npy(paths["disp_npy"], disp)
     if options.depth_format == "none" and options.ply == "none":
         return
-    focal = options.focal or default_focal(w)
-    depth = metric_depth(disp, focal, options.baseline, options.max_depth)
+    focal = options.focal or _default_focal(w)
+    depth = _metric_depth(disp, focal, options.baseline, options.max_depth)
     if "depth_png" in paths:
-        write_png(paths["depth_png"], depth_to_png16(depth))
+        write_png(paths["depth_png"], _depth_to_png16(depth))
     if "depth_npy" in paths:
         save_npy(paths["depth_npy"], depth)
     if "ply" in paths:
-        points, colors = point_cloud(depth, rgb, focal, options.cx, options.cy)
-        write_ply(paths["ply"], points, colors, binary=options.ply == "binary")
+        points, colors = _point_cloud(depth, rgb, focal, options.cx, options.cy)
+        _write_ply(paths["ply"], points, colors, binary=options.ply == "binary")
 
 
 def _read(path: Path, stem: Path, max_pixels: int) -> _Frame:
@@ -366,7 +366,7 @@ def _size_changed(size: tuple[int, int], bgr: np.ndarray) -> str:
     )
 
 
-def input_frames(
+def _input_frames(
     path: str | os.PathLike,
     report: PredictReport,
     skip: Path | None = None,
@@ -457,7 +457,7 @@ def predict(
     policy = OutputPolicy(out_dir, "predict", (model_path, *single), (input_path,))
     max_pixels = int(options.max_megapixels * 1e6)
     # bad input fails before the model loads
-    frames, total = input_frames(input_path, report, out_dir if input_path.is_dir() else None, max_pixels)
+    frames, total = _input_frames(input_path, report, out_dir if input_path.is_dir() else None, max_pixels)
     device = resolve_device(options.device)
     model, meta = load_trained(model_path, device)
     height, width = options.height or int(meta["height"]), options.width or int(meta["width"])

@@ -68,7 +68,7 @@ class Range:
         return f"{'(' if self.low_open else '['}{self.low:g}, {self.high:g}{')' if self.high_open else ']'}"
 
 
-def declared_range(tp: Any) -> Range | None:
+def _declared_range(tp: Any) -> Range | None:
     """The :class:`Range` of a field's type hint (read with ``include_extras``): of
     ``Annotated[number, Range]``, or of its items in ``tuple[Annotated[number, Range], ...]``."""
     if typing.get_origin(tp) is tuple:
@@ -87,7 +87,7 @@ def check_ranges(config: Any, key: str) -> None:
         if dataclasses.is_dataclass(value):
             check_ranges(value, name)
             continue
-        bound = declared_range(hints[f.name])
+        bound = _declared_range(hints[f.name])
         if bound is None:
             continue
         items = enumerate(value) if isinstance(value, tuple) else [(None, value)]

@@ -6,7 +6,6 @@ import copy
 import dataclasses
 import math
 import os
-import stat
 import types
 import typing
 import urllib.parse
@@ -21,7 +20,7 @@ from msdepth.config.variants import (
     configs as variant_configs,  # light: the loss variants' configs, not their terms
 )
 from msdepth.errors import ConfigError, DataError
-from msdepth.io import open_regular
+from msdepth.io import not_regular_file, open_regular
 
 # The ranges of the checks below that bound a value only so that it cannot fail later.
 SEED_MAX = 2**32 - 1  # numpy's legacy seeding (np.random.seed) takes seeds below 2^32
@@ -67,7 +66,7 @@ def _list_may_be_empty(default: tuple) -> Any:
     return field(default=default, metadata={"may_be_empty": True})
 
 
-def regular_file_problem(path: str | os.PathLike) -> str | None:
+def _regular_file_problem(path: str | os.PathLike) -> str | None:
     """What keeps ``path`` from being a readable regular file ("no such file", "a folder, not a
     file", "not a regular file ...", "cannot open it (...)"), None if it is one. ``os.stat``, not
     ``Path.is_file``: the latter raises on a name too long; a FIFO is not opened, so never blocks."""
@@ -77,11 +76,7 @@ def regular_file_problem(path: str | os.PathLike) -> str | None:
         return "no such file"
     except OSError as exc:  # a name too long, a symbolic link loop, no permission on a folder
         return f"cannot open it ({exc.strerror or exc})"
-    if stat.S_ISDIR(info.st_mode):
-        return "a folder, not a file"
-    if not stat.S_ISREG(info.st_mode):
-        return "not a regular file (a FIFO, a device or a socket)"
-    return None
+    return not_regular_file(info.st_mode)
 
 
 def _added_later(default: Any) -> Any:
@@ -326,7 +321,7 @@ class ModelConfig:
                 f"{key}.{name}",
                 f"must be 1.0 with model.pretrained (a torchvision ResNet-18's width), got {value}",
             )
-        problem = regular_file_problem(self.pretrained)
+        problem = _regular_file_problem(self.pretrained)
         check(problem is None, f"{key}.pretrained", f"{problem}: {self.pretrained}")
 
     def _validate_widths(self, key: str) -> None:

@@ -44,7 +44,7 @@ class _BoundedLoader(yaml.SafeLoader):
             self.depth -= 1
 
 
-def one_line(exc: yaml.YAMLError) -> str:
+def _one_line(exc: yaml.YAMLError) -> str:
     """A YAML error as one line: where (line, column) and what, without the source excerpt."""
     if isinstance(exc, yaml.MarkedYAMLError) and exc.problem_mark is not None:
         mark = exc.problem_mark
@@ -59,12 +59,12 @@ def parse(text: str) -> Any:
         # the reader checks the characters when it is built: a control character raises there
         loader = _BoundedLoader(text)
     except yaml.YAMLError as exc:
-        raise ConfigError(f"not valid YAML: {one_line(exc)}") from None
+        raise ConfigError(f"not valid YAML: {_one_line(exc)}") from None
     try:
         node = loader.get_single_node()
         return None if node is None else _Builder(loader).build(node, "")
     except yaml.YAMLError as exc:
-        raise ConfigError(f"not valid YAML: {one_line(exc)}") from None
+        raise ConfigError(f"not valid YAML: {_one_line(exc)}") from None
     finally:
         loader.dispose()
 

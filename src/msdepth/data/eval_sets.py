@@ -10,7 +10,7 @@
 - ``kitti2015``: KITTI 2015's stereo training frames (``data_scene_flow.zip``'s ``training/``) beside
   a training set of another source, GT ``disp_occ_0`` (every pixel with GT, KITTI's D1-all, as
   ``kitti2012`` takes ``disp_occ``) and, where ``obj_map/`` has the frame, its cars (fitted CAD
-  models) as the exact-mask class ``car`` (:func:`build_kitti2015_index`).
+  models) as the exact-mask class ``car`` (:func:`_build_kitti2015_index`).
 
 The Eigen sets are evaluated inside Garg's crop with GT in (min_depth, cap), KITTI 2012 and 2015 on
 the whole frame as ``data.source: kitti``'s KITTI 2015 frames (:mod:`msdepth.evaluation.suites`). Each
@@ -70,7 +70,7 @@ def _finish(rows: list[tuple], missing: list[str], split: Path, what: str) -> pd
     return pd.DataFrame(rows, columns=list(EVAL_COLUMNS))
 
 
-def build_eigen_index(raw_root: Path, split: Path) -> pd.DataFrame:
+def _build_eigen_index(raw_root: Path, split: Path) -> pd.DataFrame:
     """The Eigen split's frames: left/right images, Velodyne scan, day folder, camera."""
     rows, missing = [], []
     for left_rel, right_rel in kitti.read_split(split):
@@ -90,7 +90,7 @@ def build_eigen_index(raw_root: Path, split: Path) -> pd.DataFrame:
     return _finish(rows, missing, split, "images or a velodyne_points scan under " + str(raw_root))
 
 
-def read_benchmark_split(path: Path) -> list[tuple[str, int]]:
+def _read_benchmark_split(path: Path) -> list[tuple[str, int]]:
     """Monodepth2's ``<date>/<drive>_sync <frame number> l`` lines as (drive folder, frame number).
 
     Read as every list file is (:func:`msdepth.data.kitti.list_lines`: a regular UTF-8 file of at
@@ -107,7 +107,7 @@ def read_benchmark_split(path: Path) -> list[tuple[str, int]]:
     return out
 
 
-def annotated_gt_path(annotated_root: Path, drive: str, number: int) -> Path | None:
+def _annotated_gt_path(annotated_root: Path, drive: str, number: int) -> Path | None:
     """The depth benchmark's GT of a frame, None if absent:
     ``{train,val}/<drive>_sync/proj_depth/groundtruth/image_02/<n:010d>.png``."""
     for part in ("train", "val"):
@@ -118,13 +118,13 @@ def annotated_gt_path(annotated_root: Path, drive: str, number: int) -> Path | N
     return None
 
 
-def build_eigen_benchmark_index(raw_root: Path, split: Path, annotated_root: Path) -> pd.DataFrame:
+def _build_eigen_benchmark_index(raw_root: Path, split: Path, annotated_root: Path) -> pd.DataFrame:
     """The Eigen benchmark frames: raw images, annotated depth GT, day folder, camera."""
     rows, missing = [], []
-    for drive, number in read_benchmark_split(split):
+    for drive, number in _read_benchmark_split(split):
         name = f"{number:010d}.png"
         found = _raw_row(raw_root, f"{drive}/image_02/data/{name}", f"{drive}/image_03/data/{name}")
-        gt = annotated_gt_path(annotated_root, drive, number)
+        gt = _annotated_gt_path(annotated_root, drive, number)
         if found is None or gt is None:
             missing.append(f"{drive} {number}")
             continue
@@ -138,7 +138,7 @@ def build_eigen_benchmark_index(raw_root: Path, split: Path, annotated_root: Pat
     )
 
 
-def build_kitti2012_index(root: Path) -> pd.DataFrame:
+def _build_kitti2012_index(root: Path) -> pd.DataFrame:
     """KITTI 2012's frames under its ``training/`` folder ``root``: images, GT (kind ``kitti2012``),
     the ``disp_refl_occ`` PNG as the class map (class ``reflective``), camera
     (:func:`msdepth.data.kitti2012.camera`: ``calib/`` or the default by width)."""
@@ -162,7 +162,7 @@ def build_kitti2012_index(root: Path) -> pd.DataFrame:
 KITTI2015_GT = "disp_occ_0"  # the kitti2015 set's GT folder: every pixel with GT
 
 
-def build_kitti2015_index(root: Path) -> pd.DataFrame:
+def _build_kitti2015_index(root: Path) -> pd.DataFrame:
     """KITTI 2015's frames under its ``training/`` folder ``root``: the ``*_10.png`` of ``image_2/``
     with ``image_3/`` and ``disp_occ_0/`` (GT kind ``disparity``), ``obj_map/`` where present (class
     ``car``, :func:`msdepth.data.ground_truth.read_frame_classes`), camera by width or
@@ -197,12 +197,12 @@ def build_kitti2015_index(root: Path) -> pd.DataFrame:
 
 
 SETS: dict[str, Callable[[Params], pd.DataFrame]] = {
-    "eigen": lambda p: build_eigen_index(layout(p).raw_root, layout(p).eigen_split),
-    "eigen_benchmark": lambda p: build_eigen_benchmark_index(
+    "eigen": lambda p: _build_eigen_index(layout(p).raw_root, layout(p).eigen_split),
+    "eigen_benchmark": lambda p: _build_eigen_benchmark_index(
         layout(p).raw_root, layout(p).eigen_benchmark_split, layout(p).depth_annotated
     ),
-    "kitti2012": lambda p: build_kitti2012_index(layout(p).kitti2012_root),
-    "kitti2015": lambda p: build_kitti2015_index(layout(p).kitti2015_set_root),
+    "kitti2012": lambda p: _build_kitti2012_index(layout(p).kitti2012_root),
+    "kitti2015": lambda p: _build_kitti2015_index(layout(p).kitti2015_set_root),
 }
 
 

@@ -72,7 +72,7 @@ class Camera:
         return self.focal_px * width / self.width_px
 
 
-def read_camera(path: str | os.PathLike) -> Camera:
+def _read_camera(path: str | os.PathLike) -> Camera:
     """The camera file (YAML: ``focal_px``, ``width_px``, ``baseline_m``, all > 0)."""
     path = Path(path)
     hint = f"no camera file (data.folder.camera: {', '.join(CAMERA_KEYS)})"
@@ -118,7 +118,7 @@ def gt_kind(path: str | os.PathLike, *, npy_is_disparity: bool = False) -> str:
     )
 
 
-def read_eval_list(path: str | os.PathLike) -> list[tuple[str, str, str]]:
+def _read_eval_list(path: str | os.PathLike) -> list[tuple[str, str, str]]:
     """The evaluation list's ``left right [gt]`` lines as (left, right, gt or "")."""
     rows = []
     missing = "no evaluation list (data.folder.eval_list: 'left right [gt]' per line)"
@@ -149,7 +149,7 @@ def build_train_pairs(paths: FolderLayout) -> tuple[list[tuple[Path, Path]], int
     The left folder's images with their right namesakes, or ``paths.pairs``'s lines; either way
     without the evaluation list's left images. A missing right (or listed) image is a DataError.
     """
-    eval_lefts = {(paths.root / left).resolve() for left, _, _ in read_eval_list(paths.eval_list)}
+    eval_lefts = {(paths.root / left).resolve() for left, _, _ in _read_eval_list(paths.eval_list)}
     if paths.pairs is None:
         lefts = _image_files(paths.left)
         if not lefts:
@@ -193,10 +193,10 @@ def eval_rows(
     suffix; ``none`` without GT), the camera at the image's width, no crop, the class map if
     ``paths.class_maps``. Each GT and class map is read once here, so a bad file fails the index
     stage, not the evaluation."""
-    camera = camera or read_camera(paths.camera)
+    camera = camera or _read_camera(paths.camera)
     classes = read_classes(paths.class_maps / CLASSES_FILE) if paths.class_maps else None
     rows, names = [], {}
-    for left_rel, right_rel, gt_rel in read_eval_list(paths.eval_list):
+    for left_rel, right_rel, gt_rel in _read_eval_list(paths.eval_list):
         left = _existing(paths.root / left_rel, f"left image (listed in {paths.eval_list})")
         right = _existing(paths.root / right_rel, f"right image (listed in {paths.eval_list})")
         name = left.stem
@@ -236,8 +236,8 @@ def check_folder(paths: FolderLayout) -> dict:
         )
     problems, report = [], {}
     for what, check in (
-        ("camera", lambda: read_camera(paths.camera)),
-        ("evaluation list", lambda: read_eval_list(paths.eval_list)),
+        ("camera", lambda: _read_camera(paths.camera)),
+        ("evaluation list", lambda: _read_eval_list(paths.eval_list)),
         ("classes", lambda: read_classes(paths.class_maps / CLASSES_FILE) if paths.class_maps else None),
     ):
         try:

@@ -11,7 +11,7 @@ previews) is allowed. libjpeg reports corrupt entropy-coded data only as a warni
 (and decodes grey blocks): that warning is caught and turned into a refusal.
 
 A file is read only after its size and header pass (:func:`read_file`): its size on disk is
-bounded by the pixel limit (:func:`max_file_bytes`), its header (a PNG's IHDR, a JPEG's markers up
+bounded by the pixel limit (:func:`_max_file_bytes`), its header (a PNG's IHDR, a JPEG's markers up
 to the frame header, read by seeking, at most :data:`JPEG_HEADER_MARKERS` of them) declares at most
 that many pixels, and its size is bounded again by the pixels it declares. So a sparse 2 GB file
 named ``b.png`` (4 KB on disk) costs a stat and no read. A JPEG of more than
@@ -82,7 +82,7 @@ ReadAt = Callable[[int, int], bytes]
 Item = TypeVar("Item")  # (position, count) -> at most count bytes from position
 
 
-def max_file_bytes(pixels: int) -> int:
+def _max_file_bytes(pixels: int) -> int:
     """The largest file accepted for an image of ``pixels`` pixels: :data:`MAX_BYTES_PER_PIXEL` a
     pixel, plus :data:`FILE_SLACK_BYTES` of metadata."""
     return MAX_BYTES_PER_PIXEL * pixels + FILE_SLACK_BYTES
@@ -142,7 +142,7 @@ def _jpeg_scan_end(data: bytes, pos: int) -> int:
     return found.start()
 
 
-def jpeg_size(data: bytes) -> tuple[int, int]:
+def _jpeg_size(data: bytes) -> tuple[int, int]:
     """(width, height) of a JPEG's frame header, after walking its markers to the end-of-image marker.
 
     Bytes after that marker (a motion photo's video, MPF previews) are allowed and ignored; more
@@ -268,20 +268,20 @@ def _other_size(data: bytes, at: ReadAt) -> tuple[int, int]:
     )
 
 
-def declared_size(data: bytes) -> tuple[int, int]:
+def _declared_size(data: bytes) -> tuple[int, int]:
     """(width, height) that an image file's header declares, read without decoding any pixel.
 
     PNG, JPEG, BMP, TIFF, WebP and PNM (P1-P6); DataError for any other format, a header that is
-    cut off or inconsistent, a truncated PNG/JPEG (see :func:`png_size`, :func:`jpeg_size`).
+    cut off or inconsistent, a truncated PNG/JPEG (see :func:`png_size`, :func:`_jpeg_size`).
     """
     if data.startswith(_PNG_MAGIC):
         return png_size(data)
     if data.startswith(_JPEG_MAGIC):
-        return jpeg_size(data)
+        return _jpeg_size(data)
     return _other_size(data, lambda pos, count: data[pos : pos + count])
 
 
-def header_size(file: BinaryIO) -> tuple[int, int]:
+def _header_size(file: BinaryIO) -> tuple[int, int]:
     """(width, height) that an open image file's header declares, reading only the header: the
     first 64 KiB, a JPEG's markers up to its frame header and a TIFF's first directory."""
     file.seek(0)
@@ -298,9 +298,9 @@ def header_size(file: BinaryIO) -> tuple[int, int]:
     return _other_size(head, at)
 
 
-def check_declared_size(data: bytes, max_pixels: int = MAX_IMAGE_PIXELS) -> tuple[int, int]:
-    """:func:`declared_size`, and a DataError unless it is non-empty and at most ``max_pixels``."""
-    return check_pixel_limit(*declared_size(data), max_pixels)
+def _check_declared_size(data: bytes, max_pixels: int = MAX_IMAGE_PIXELS) -> tuple[int, int]:
+    """:func:`_declared_size`, and a DataError unless it is non-empty and at most ``max_pixels``."""
+    return check_pixel_limit(*_declared_size(data), max_pixels)
 
 
 def megapixels(pixels: int) -> str:
@@ -335,25 +335,25 @@ def _mib(nbytes: int) -> str:
 def read_file(path: str | os.PathLike, max_pixels: int = MAX_IMAGE_PIXELS) -> bytes:
     """The bytes of an image file, read only after its size and header pass the bounds.
 
-    Before any read: the file's size against :func:`max_file_bytes` of ``max_pixels`` (a
-    PixelLimitError: raising the limit raises it). Then only the header (:func:`header_size`): the
-    size it declares against ``max_pixels``, and the file's size against :func:`max_file_bytes` of
+    Before any read: the file's size against :func:`_max_file_bytes` of ``max_pixels`` (a
+    PixelLimitError: raising the limit raises it). Then only the header (:func:`_header_size`): the
+    size it declares against ``max_pixels``, and the file's size against :func:`_max_file_bytes` of
     the declared pixels. Only then the whole file, which :func:`decode` walks again.
     """
     # the bound is checked below, as a PixelLimitError that names the option raising it
     with open_regular(path, "image", prefix="") as file:
         size = os.fstat(file.fileno()).st_size
-        if size > max_file_bytes(max_pixels):
+        if size > _max_file_bytes(max_pixels):
             raise PixelLimitError(
                 f"the file is {_mib(size)}, more than any image within the limit of {max_pixels / 1e6:g} "
-                f"megapixels takes ({_mib(max_file_bytes(max_pixels))}: {MAX_BYTES_PER_PIXEL} bytes a "
+                f"megapixels takes ({_mib(_max_file_bytes(max_pixels))}: {MAX_BYTES_PER_PIXEL} bytes a "
                 "pixel and 64 MiB of metadata); nothing of it was read"
             )
-        width, height = check_pixel_limit(*header_size(file), max_pixels)
-        if size > max_file_bytes(width * height):
+        width, height = check_pixel_limit(*_header_size(file), max_pixels)
+        if size > _max_file_bytes(width * height):
             raise DataError(
                 f"the file is {_mib(size)}, more than its header's {width} x {height} px can take "
-                f"({_mib(max_file_bytes(width * height))}); only its header was read"
+                f"({_mib(_max_file_bytes(width * height))}); only its header was read"
             )
         file.seek(0)
         return file.read(size)
@@ -381,13 +381,13 @@ def _stderr_captured() -> Iterator[list[bytes]]:
 
 
 def decode(data: bytes, flags: int = cv2.IMREAD_UNCHANGED, max_pixels: int = MAX_IMAGE_PIXELS) -> np.ndarray:
-    """Decode an image file's bytes with OpenCV after :func:`check_declared_size`.
+    """Decode an image file's bytes with OpenCV after :func:`_check_declared_size`.
 
     ``flags``: OpenCV's, e.g. ``IMREAD_COLOR`` (8-bit BGR, the EXIF orientation applied). Every
     failure is a DataError: the header checks, OpenCV's own errors, running out of memory, and a
     JPEG whose data libjpeg found corrupt.
     """
-    check_declared_size(data, max_pixels)
+    _check_declared_size(data, max_pixels)
     is_jpeg = data.startswith(_JPEG_MAGIC)
     buffer = np.frombuffer(data, np.uint8)
     try:
@@ -436,11 +436,11 @@ def is_png(path: str | os.PathLike) -> bool:
 
 
 def file_pixels(path: str | os.PathLike) -> int:
-    """The pixels an image file's header declares (:func:`header_size`), 0 if it cannot be read: a
+    """The pixels an image file's header declares (:func:`_header_size`), 0 if it cannot be read: a
     plan's estimate only; the file is checked in full when it is read."""
     try:
         with open_regular(path, "image", prefix="") as file:
-            width, height = header_size(file)
+            width, height = _header_size(file)
     except (OSError, DataError):
         return 0
     return max(width, 0) * max(height, 0)

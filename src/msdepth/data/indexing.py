@@ -1,7 +1,7 @@
 """The index stage: the training pairs, the evaluation indexes and a report of any data source,
 written to the index folder. KITTI and the synthetic set through :func:`build_indexes` (with the
 extra sets of :mod:`msdepth.data.eval_sets`), a stereo folder through :mod:`msdepth.data.folder`;
-both written by :func:`write_indexes`. The evaluation index's format, and its reader for the later
+both written by :func:`_write_indexes`. The evaluation index's format, and its reader for the later
 stages, are :mod:`msdepth.data.eval_index`'s."""
 
 from __future__ import annotations
@@ -29,14 +29,14 @@ def build_indexes(
 ) -> dict:
     """Write ``train_pairs.txt``, ``eval_frames.csv`` (KITTI 2015), ``sets/<set>.csv`` (the extra
     sets' indexes ``extra``, :mod:`msdepth.data.eval_sets`) and ``report.json`` to ``out_dir``.
-    A stereo folder's: :func:`folder_indexes`, through :func:`write_indexes`."""
+    A stereo folder's: :func:`_folder_indexes`, through :func:`_write_indexes`."""
     paths = layout(params)
     pairs = index_pairs(paths.train_split, paths.raw_root)
     frames = build_eval_index(paths.kitti2015_root, paths.eval_split, params.data.gt)
-    return write_indexes(params, out_dir, pairs, frames, extra, {"gt": params.data.gt})
+    return _write_indexes(params, out_dir, pairs, frames, extra, {"gt": params.data.gt})
 
 
-def write_indexes(
+def _write_indexes(
     params: Params,
     out_dir: str | os.PathLike,
     pairs: PairIndex,
@@ -78,7 +78,7 @@ def folder_eval_index(params: Params) -> pd.DataFrame:
     return pd.DataFrame(rows, columns=list(EVAL_COLUMNS))
 
 
-def folder_indexes(params: Params, out_dir: str | os.PathLike) -> dict:
+def _folder_indexes(params: Params, out_dir: str | os.PathLike) -> dict:
     """``data.source: folder``: the folder's training pairs (without the evaluation frames) and
     its evaluation list, which takes KITTI 2015's place as the main evaluation set."""
     from msdepth.data import folder
@@ -90,14 +90,14 @@ def folder_indexes(params: Params, out_dir: str | os.PathLike) -> dict:
         "eval_frames_left_out_of_training": excluded,
         "eval_frames_without_gt": int((frames["gt_kind"] == "none").sum()),
     }
-    return write_indexes(params, out_dir, PairIndex(pairs, []), frames, {}, details)
+    return _write_indexes(params, out_dir, PairIndex(pairs, []), frames, {}, details)
 
 
 def index_data(params: Params, out_dir: str | os.PathLike) -> dict:
     """Index the training pairs and evaluation frames of ``params``' data source found on disk into
     ``out_dir`` (a stereo folder has no extra sets: config.validate); logs and returns the report."""
     if params.data.source == "folder":
-        report = folder_indexes(params, out_dir)
+        report = _folder_indexes(params, out_dir)
     else:
         extra = {name: build_set_index(params, name) for name in params.eval.extra_sets}
         report = build_indexes(params, out_dir, extra)

@@ -39,7 +39,7 @@ DEFAULT_FOCAL = {1226: 707.0912, 1224: 707.0493, 1241: 718.856, 1242: 721.5377, 
 ARCHIVE = "data_stereo_flow.zip"  # KITTI's download (about 2 GB); its training/ is the set's root
 
 
-def reflective_path(gt_path: str | os.PathLike) -> Path:
+def _reflective_path(gt_path: str | os.PathLike) -> Path:
     """The ``disp_refl_occ`` PNG beside a frame's ``disp_occ`` PNG (same name, sibling folder)."""
     gt_path = Path(gt_path)
     return gt_path.parent.parent / REFLECTIVE_GT / gt_path.name
@@ -50,7 +50,7 @@ def read_gt_disparity(gt_path: str | os.PathLike) -> tuple[np.ndarray, np.ndarra
     ``disp_occ`` PNG and the sibling ``disp_refl_occ`` one, which replaces it where it has a value
     (module docstring: the reflective surface, not the LiDAR point behind the glass)."""
     occ = kitti.read_disparity(gt_path)
-    refl_path = reflective_path(gt_path)
+    refl_path = _reflective_path(gt_path)
     refl = kitti.read_disparity(refl_path)
     if refl.shape != occ.shape:
         raise DataError(f"{refl_path}: {refl.shape} but {gt_path} is {occ.shape}")

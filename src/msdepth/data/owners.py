@@ -31,7 +31,7 @@ FOLDER_MARKS = ("camera.yaml", "eval.txt", ".msdepth-export-folder")
 _KITTI_MARKERS = ".*.complete"  # download.py's completion markers, one folder below the root
 
 
-def synthetic_mark(root: Path) -> Path | None:
+def _synthetic_mark(root: Path) -> Path | None:
     """The file that marks ``root`` as the synthetic set's tree, or None."""
     for name in (SUMMARY, RENDERING):
         if (root / name).is_file():
@@ -39,7 +39,7 @@ def synthetic_mark(root: Path) -> Path | None:
     return None
 
 
-def kitti_mark(root: Path) -> Path | None:
+def _kitti_mark(root: Path) -> Path | None:
     """A completion marker of KITTI's download under ``root`` (one folder down), or None."""
     if not root.is_dir():
         return None
@@ -55,12 +55,12 @@ def check_synthetic_root(root: Path) -> None:
     ``root``: nothing there yet, or a tree it marked as its own that holds no KITTI download."""
     root = Path(root)
     advice = "the synthetic set needs a data.root of its own (default data/synthetic); nothing was deleted"
-    kitti = kitti_mark(root)
+    kitti = _kitti_mark(root)
     if kitti is not None:
         raise DataError(f"{root}: holds KITTI's download ({kitti.relative_to(root)}): {advice}")
     if root.exists() and not root.is_dir():
         raise DataError(f"{root}: is a file, not a folder: {advice}")
-    if not root.is_dir() or synthetic_mark(root) is not None:
+    if not root.is_dir() or _synthetic_mark(root) is not None:
         return
     entries = sorted(p.name for p in root.iterdir())
     if entries:
@@ -68,7 +68,7 @@ def check_synthetic_root(root: Path) -> None:
         raise DataError(f"{root}: holds files the synthetic renderer did not write ({found}): {advice}")
 
 
-def folder_mark(root: Path) -> Path | None:
+def _folder_mark(root: Path) -> Path | None:
     """The file that marks ``root`` as a stereo folder (data.source: folder), or None."""
     for name in FOLDER_MARKS:
         if (root / name).is_file():
@@ -80,10 +80,10 @@ def check_kitti_root(root: Path) -> None:
     """Refuse (DataError, one line naming ``root``) to put KITTI into the synthetic set's tree or a
     stereo folder's (data.source: folder): a member of the same name would replace its file."""
     root = Path(root)
-    mark = synthetic_mark(root)
+    mark = _synthetic_mark(root)
     what = "the synthetic set"
     if mark is None:
-        mark, what = folder_mark(root), "a stereo folder (data.source: folder)"
+        mark, what = _folder_mark(root), "a stereo folder (data.source: folder)"
     if mark is not None:
         raise DataError(
             f"{root}: holds {what} ({mark.name}): KITTI needs a data.root of its own "

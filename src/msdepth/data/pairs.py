@@ -101,7 +101,7 @@ def check_same_size(
         raise DataError(f"{path} is {tuple(shape[:2])} but its {what} {other} is {tuple(other_shape[:2])}")
 
 
-def read_resized_pair(left: Path, right: Path, height: int, width: int) -> tuple[np.ndarray, np.ndarray]:
+def _read_resized_pair(left: Path, right: Path, height: int, width: int) -> tuple[np.ndarray, np.ndarray]:
     """Decode a stereo pair and resize both views to the network input (uint8 RGB)."""
     left_img, right_img = kitti.read_image(left), kitti.read_image(right)
     check_same_size(left, left_img.shape, right, right_img.shape, "right image")
@@ -231,7 +231,7 @@ class StereoPairs(Dataset):
         if self.cache is not None:
             left_img, right_img = self.cache[i, 0], self.cache[i, 1]
         else:
-            left_img, right_img = read_resized_pair(*self.pairs[i], *self.source)
+            left_img, right_img = _read_resized_pair(*self.pairs[i], *self.source)
         if self.source != (self.height, self.width):
             top, left_x = crop_origin(self.source, (self.height, self.width), self.seed, self.epoch, i)
             window = np.s_[top : top + self.height, left_x : left_x + self.width]

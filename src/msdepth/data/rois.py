@@ -4,7 +4,7 @@ KITTI 2015 ships an ``obj_map`` per training frame (uint8 car instance ids, 0 = 
 the car boxes of the ROI suite can be derived instead of drawn: one tight box per instance. The
 dissertation's other boxes (windshields, glass, signs, and any cars drawn by hand) come in as a
 user CSV in the ROI format of :func:`msdepth.data.kitti.read_rois` and are checked against the
-evaluation frames before they are merged. :func:`contact_sheet` renders the crops on one image,
+evaluation frames before they are merged. :func:`_contact_sheet` renders the crops on one image,
 to see at a glance that the boxes land on the objects.
 """
 
@@ -48,7 +48,7 @@ _LABEL_SCALE = 0.36  # Hershey below ~0.3 is no longer legible
 _MIN_SCALE = 0.3
 
 
-def boxes_from_obj_map(
+def _boxes_from_obj_map(
     obj_map: np.ndarray, gt_disp: np.ndarray, *, min_size: int = 16, min_valid: float = 0.3
 ) -> list[Box]:
     """One tight box per instance id > 0 of ``obj_map``, as ``(id, x0, y0, x1, y1)`` sorted by id.
@@ -139,7 +139,7 @@ def _car_rows(
     obj_map = kitti.read_obj_map(obj_path)
     gt = kitti.read_disparity(frame.gt)
     try:
-        boxes = boxes_from_obj_map(obj_map, gt, min_size=min_size, min_valid=min_valid)
+        boxes = _boxes_from_obj_map(obj_map, gt, min_size=min_size, min_valid=min_valid)
     except DataError as exc:
         raise DataError(f"{obj_path}: {exc} ({frame.gt})") from None
     return [(name, "car", x0, y0, x1, y1) for _, x0, y0, x1, y1 in boxes]
@@ -156,7 +156,7 @@ def _merge_rois(auto: pd.DataFrame, user: pd.DataFrame) -> pd.DataFrame:
 def _report(
     frames: pd.DataFrame, without: list[str], auto: pd.DataFrame, user: pd.DataFrame, rois: pd.DataFrame
 ) -> dict:
-    """:func:`extract_rois`' summary (frame and box counts), logged as well."""
+    """:func:`_extract_rois`' summary (frame and box counts), logged as well."""
     report = {
         "frames": len(frames),
         "frames_without_obj_map": len(without),
@@ -177,7 +177,7 @@ def _report(
     return report
 
 
-def extract_rois(
+def _extract_rois(
     frames: pd.DataFrame,
     *,
     user_csv: Path | None = None,
@@ -188,7 +188,7 @@ def extract_rois(
     """The ROI table of the evaluation frames: automatic car boxes plus the user CSV's boxes.
 
     ``frames`` is the evaluation index (:func:`msdepth.data.eval_index.read_eval_index`): every frame
-    with an ``obj_map`` gives its car boxes (:func:`boxes_from_obj_map` against the frame's GT);
+    with an ``obj_map`` gives its car boxes (:func:`_boxes_from_obj_map` against the frame's GT);
     frames without one give none. Rows of ``user_csv`` are validated (evaluation frame, inside
     the image) and merged; exact duplicates are dropped, so re-feeding an earlier output is
     harmless. Returns ROI_COLUMNS sorted by image, class, x0, y0 (possibly empty). A summary
@@ -216,20 +216,20 @@ def extract_rois(
     return rois
 
 
-def pipeline_rois(params: Params, frames: pd.DataFrame) -> pd.DataFrame:
+def _pipeline_rois(params: Params, frames: pd.DataFrame) -> pd.DataFrame:
     """The ROI boxes of the evaluation frames ``frames`` (the evaluation index): the synthetic set's
     exact ones, KITTI's obj_map cars plus the user's CSV, or a stereo folder's data.folder.rois_csv.
     No ROI at all is allowed (warned: the ROI suites then say they were skipped)."""
     if params.data.source == "folder":  # the user's boxes only: a folder has no obj_map
-        boxes = extract_rois(frames, user_csv=folder_layout(params).rois_csv)
+        boxes = _extract_rois(frames, user_csv=folder_layout(params).rois_csv)
     elif (source := layout(params).rois) is not None:
         boxes = kitti.read_rois(source)
         unknown = sorted(set(boxes["image"]) - set(frames["frame"]))
         if unknown:
             raise DataError(f"{source}: boxes name images that are not evaluation frames: {unknown[:10]}")
-    else:  # extract_rois checks the user's boxes against the frames itself
+    else:  # _extract_rois checks the user's boxes against the frames itself
         k = params.data.kitti
-        boxes = extract_rois(
+        boxes = _extract_rois(
             frames,
             user_csv=Path(k.rois_csv) if k.rois_csv else None,
             min_size=k.roi_min_size,
@@ -247,11 +247,11 @@ def pipeline_rois(params: Params, frames: pd.DataFrame) -> pd.DataFrame:
 
 
 def write_roi_index(params: Params, frames: pd.DataFrame, out: Path, sheet: Path) -> pd.DataFrame:
-    """:func:`pipeline_rois` of ``frames`` written as the ROI index ``out`` and its
-    :func:`contact_sheet` ``sheet``; returns the boxes."""
-    boxes = pipeline_rois(params, frames)
+    """:func:`_pipeline_rois` of ``frames`` written as the ROI index ``out`` and its
+    :func:`_contact_sheet` ``sheet``; returns the boxes."""
+    boxes = _pipeline_rois(params, frames)
     kitti.write_rois(out, boxes)
-    contact_sheet(boxes, frames, sheet)
+    _contact_sheet(boxes, frames, sheet)
     log.info("rois: %d boxes, %s", len(boxes), boxes["class"].value_counts().to_dict())
     return boxes
 
@@ -384,7 +384,7 @@ def _class_block(
     return block
 
 
-def contact_sheet(
+def _contact_sheet(
     rois: pd.DataFrame,
     frames: pd.DataFrame,
     out_path: Path,

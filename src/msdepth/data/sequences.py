@@ -53,7 +53,7 @@ class SequenceIndex:
     missing_neighbour: int = 0  # a source frame (or, when required, the stereo partner) is not
 
 
-def read_mono_split(path: str | Path) -> list[SplitEntry]:
+def _read_mono_split(path: str | Path) -> list[SplitEntry]:
     """The entries of a Monodepth2 split file; a DataError names the file and line of a bad one."""
     entries = []
     for number, line, fields in list_lines(path, "no such split file"):
@@ -78,7 +78,7 @@ def frame_path(raw_root: Path, drive: str, frame: int, side: str) -> Path | None
     return resolve_image(Path(raw_root), f"{drive}/{CAMERAS[side]}/data/{frame:010d}.png")
 
 
-def index_sequences(
+def _index_sequences(
     raw_root: str | Path,
     entries: Sequence[SplitEntry],
     offsets: Sequence[int] = (-1, 1),
@@ -106,9 +106,9 @@ def index_sequences(
 def training_sequences(
     split: Path, raw_root: Path, offsets: Sequence[int], stereo: bool
 ) -> list[SequenceSample]:
-    """The usable samples of the split file ``split`` below ``raw_root`` (:func:`index_sequences`);
+    """The usable samples of the split file ``split`` below ``raw_root`` (:func:`_index_sequences`);
     a DataError names the split when none is usable."""
-    index = index_sequences(raw_root, read_mono_split(split), offsets, stereo)
+    index = _index_sequences(raw_root, _read_mono_split(split), offsets, stereo)
     if not index.samples:
         raise DataError(
             f"{split}: no usable frame below {raw_root} ({index.missing_frame} missing, "
@@ -117,12 +117,12 @@ def training_sequences(
     return index.samples
 
 
-def sample_side(sample: SequenceSample) -> str:
+def _sample_side(sample: SequenceSample) -> str:
     """``l`` or ``r``: the camera of the sample's target frame (``.../image_02/data/N.png`` is ``l``)."""
     return "l" if sample.target.parent.parent.name == CAMERAS["l"] else "r"
 
 
-def raw_intrinsics(calib_path: Path, height: int, width: int) -> np.ndarray:
+def _raw_intrinsics(calib_path: Path, height: int, width: int) -> np.ndarray:
     """The (4, 4) intrinsics of camera 02 from a raw day's ``calib_cam_to_cam.txt``, scaled to
     images resized to ``height`` x ``width`` (pixel centres: ``x' = (x + 0.5)·W'/W - 0.5``).
 
@@ -145,7 +145,7 @@ def raw_intrinsics(calib_path: Path, height: int, width: int) -> np.ndarray:
 class SequenceFrames(Dataset):
     """Monodepth2's training samples: a target frame, its source frames (in ``offsets`` order) and,
     with ``stereo``, its stereo partner, resized to ``height`` x ``width``, with the intrinsics of
-    the target's raw day (:func:`raw_intrinsics`).
+    the target's raw day (:func:`_raw_intrinsics`).
 
     Augmentation (Monodepth2's, with Monodepth's colour change of :func:`colour_jitter`): with
     p = 0.5 every frame is mirrored, which puts the partner on the other side (``side`` flips and
@@ -186,7 +186,7 @@ class SequenceFrames(Dataset):
         """The (4, 4) intrinsics of ``sample``'s raw day at the training size (read once per day)."""
         calib = sample.target.parents[3] / "calib_cam_to_cam.txt"
         if calib not in self._intrinsics:
-            self._intrinsics[calib] = raw_intrinsics(calib, self.height, self.width)
+            self._intrinsics[calib] = _raw_intrinsics(calib, self.height, self.width)
         return self._intrinsics[calib]
 
     def __getitem__(self, i: int) -> dict:
@@ -197,7 +197,7 @@ class SequenceFrames(Dataset):
         for path, image in zip(paths[1:], decoded[1:], strict=True):  # a neighbour of another size
             check_same_size(path, image.shape, sample.target, decoded[0].shape, "target frame")
         images = [to_tensor(resize(image, self.height, self.width)) for image in decoded]
-        k, side = self.intrinsics(sample).copy(), sample_side(sample)
+        k, side = self.intrinsics(sample).copy(), _sample_side(sample)
         if self.augment:
             gen = sample_generator(self.seed, self.epoch, i)
             u = torch.rand(2, generator=gen)

@@ -8,7 +8,7 @@ takes for complete:
 - :func:`download` streams to ``<archive>.part`` and resumes it with an HTTP ``Range`` request;
   the final name appears only when the size is right. The size is declared (HEAD and GET must
   agree), nothing past it is kept, and an attempt slower than :data:`MIN_RATE` is cut off.
-- :func:`verify_zip` reads every member (CRC check); ``manifest.json`` in the download folder
+- :func:`_verify_zip` reads every member (CRC check); ``manifest.json`` in the download folder
   records the sha256 of each archive once verified, and later runs compare against it.
 - :func:`extract` unpacks into a temp folder beside the destination, moves it into place and
   writes a completion marker last. A member that would replace a folder by a file (or a file by
@@ -25,7 +25,7 @@ takes for complete:
   refused, no route) is not retried: the first such error stops every archive with one line
   (:class:`NetworkUnreachable`).
 - :func:`select_needed` picks the archives that the chosen split lists need (their drives and
-  those days' calibration archives), :func:`select_archives` a count or named drives of a list.
+  those days' calibration archives), :func:`_select_archives` a count or named drives of a list.
 
 Standard library only (``urllib``, ``zipfile``, ``hashlib``); tqdm for progress bars.
 """
@@ -143,7 +143,7 @@ class FetchOptions:
     (seconds, doubled per retry) and ``timeout`` (seconds per read) as :func:`download` uses them;
     an attempt slower than ``min_rate`` bytes/s over ``rate_window`` seconds is cut off (see
     :data:`MIN_RATE`); ``allow_http`` lets plain http through, for a mirror you trust
-    (:func:`check_url`).
+    (:func:`_check_url`).
     """
 
     jobs: int = 4
@@ -193,7 +193,7 @@ def parse_archive_list(path: str | os.PathLike) -> list[str]:
         problem = _entry_problem(entry)
         if problem:
             raise DataError(f"{path}:{number}: archive {entry!r}: {problem}")
-        name = archive_filename(entry)
+        name = _archive_filename(entry)
         if name in seen:
             # Two entries would download to the same file, concurrently.
             raise DataError(f"{path}:{number}: archive {name} is listed twice (first on line {seen[name]})")
@@ -204,7 +204,7 @@ def parse_archive_list(path: str | os.PathLike) -> list[str]:
     return names
 
 
-def archive_filename(name: str) -> str:
+def _archive_filename(name: str) -> str:
     """The file name an archive entry downloads to (last component of its URL path)."""
     return PurePosixPath(urllib.parse.urlsplit(name).path).name
 
@@ -219,7 +219,7 @@ def _entry_problem(entry: str) -> str | None:
     """
     if "?" in entry or "#" in entry:
         return "has a query or fragment ('?' or '#'); list the archive's own URL"
-    name = archive_filename(entry)
+    name = _archive_filename(entry)
     if name.startswith(".") or not name.endswith(".zip"):
         return "names no archive file (the URL path must end in <name>.zip)"
     return None
@@ -230,7 +230,7 @@ def _date_of(filename: str) -> str:
     return filename[:10]
 
 
-def select_archives(names: Sequence[str], subset: int | str | Iterable[str] | None = None) -> list[str]:
+def _select_archives(names: Sequence[str], subset: int | str | Iterable[str] | None = None) -> list[str]:
     """Pick the archives to fetch from a parsed list, in list order.
 
     ``subset`` is ``None`` or ``"all"`` (everything), an int ``N`` (the first N drive archives), or
@@ -239,7 +239,7 @@ def select_archives(names: Sequence[str], subset: int | str | Iterable[str] | No
     """
     if subset is None or subset == "all":
         return list(names)
-    drives = [n for n in names if "_drive_" in archive_filename(n)]
+    drives = [n for n in names if "_drive_" in _archive_filename(n)]
     if isinstance(subset, bool) or not isinstance(subset, (int, str, Iterable)):
         raise DataError(f"archive subset: expected 'all', a count or drive names, got {subset!r}")
     if isinstance(subset, int):
@@ -249,17 +249,17 @@ def select_archives(names: Sequence[str], subset: int | str | Iterable[str] | No
     else:
         if isinstance(subset, str):
             subset = [subset]
-        by_drive = {_drive_of(archive_filename(n)): n for n in names}
+        by_drive = {_drive_of(_archive_filename(n)): n for n in names}
         wanted = [_drive_of(str(s).strip()) for s in subset]
         unknown = [w for w in wanted if w not in by_drive]
         if unknown:
             raise DataError(f"archive subset: not in the archive list: {', '.join(unknown)}")
         chosen = {by_drive[w] for w in wanted}
-    days = {_date_of(archive_filename(n)) for n in chosen}
+    days = {_date_of(_archive_filename(n)) for n in chosen}
     calib = {
         n
         for n in names
-        if archive_filename(n).endswith("_calib.zip") and _date_of(archive_filename(n)) in days
+        if _archive_filename(n).endswith("_calib.zip") and _date_of(_archive_filename(n)) in days
     }
     return [n for n in names if n in chosen or n in calib]
 
@@ -283,7 +283,7 @@ def _joined(words: Sequence[str]) -> str:
     return words[0] if len(words) == 1 else ", ".join(words[:-1]) + " and " + words[-1]
 
 
-def split_drives(path: str | os.PathLike) -> list[str]:
+def _split_drives(path: str | os.PathLike) -> list[str]:
     """The raw drives a split list names (``2011_09_26_drive_0001``), in the order first named.
 
     Both list formats are read: image pairs (``<date>/<drive>_sync/image_02/data/<n>.jpg`` and its
@@ -357,19 +357,19 @@ def select_needed(
     archive_list: str | os.PathLike = "the archive list",
 ) -> Selection:
     """The archives that the split lists ``splits`` (what names them, e.g. ``"the train split"``
-    or ``"eigen"`` -> list file; read by :func:`split_drives`) need, in the order of ``names``:
+    or ``"eigen"`` -> list file; read by :func:`_split_drives`) need, in the order of ``names``:
     the drives they name and the calibration archives of those drives' days.
 
     A split naming a drive that ``names`` lacks is a DataError naming the split file and (a few
-    of) the drives. ``subset`` restricts further, as in :func:`select_archives` and with its
+    of) the drives. ``subset`` restricts further, as in :func:`_select_archives` and with its
     errors: a count takes the first N of the needed drives, drive names keep those of them the
     splits need (the others are reported in :attr:`Selection.unneeded`, not fetched).
     """
-    drive_of = {n: _drive_of(archive_filename(n)) for n in names if "_drive_" in archive_filename(n)}
+    drive_of = {n: _drive_of(_archive_filename(n)) for n in names if "_drive_" in _archive_filename(n)}
     listed = set(drive_of.values())
     wanted: dict[str, None] = {}
     for source, path in splits.items():
-        drives = split_drives(path)
+        drives = _split_drives(path)
         unknown = [d for d in drives if d not in listed]
         if unknown:
             raise DataError(
@@ -377,7 +377,7 @@ def select_needed(
             )
         wanted.update(dict.fromkeys(drives))
     needed = [n for n, d in drive_of.items() if d in wanted]
-    restricted = select_archives(names, subset)  # its checks and errors for the subset
+    restricted = _select_archives(names, subset)  # its checks and errors for the subset
     unneeded: list[str] = []
     if subset is None or subset == "all":
         chosen, restriction = needed, ""
@@ -387,7 +387,7 @@ def select_needed(
         kept = set(restricted)
         chosen, restriction = [n for n in needed if n in kept], "drives"
         unneeded = [drive_of[n] for n in restricted if n in drive_of and drive_of[n] not in wanted]
-    archives = select_archives(names, [drive_of[n] for n in chosen]) if chosen else []
+    archives = _select_archives(names, [drive_of[n] for n in chosen]) if chosen else []
     return Selection(
         archives=archives,
         drives=len(chosen),
@@ -403,7 +403,7 @@ def select_needed(
 # --------------------------------------------------------------------------- HTTP
 
 
-def check_url(url: str, allow_http: bool = False) -> None:
+def _check_url(url: str, allow_http: bool = False) -> None:
     """Refuse a URL that is not https (or, with ``allow_http``, http): over plain http anyone on
     the path can swap an archive, and the manifest would then record the swapped bytes as good."""
     scheme = urllib.parse.urlsplit(url).scheme.lower()
@@ -448,10 +448,10 @@ def _open(
     """Send one request; return the response, or raise DataError (permanent) / _Transient.
 
     A 416 (range past the end) is returned like a response: the caller decides what it means.
-    A URL that :func:`check_url` refuses, a redirect that :class:`NoDowngradeRedirect` refuses,
+    A URL that :func:`_check_url` refuses, a redirect that :class:`NoDowngradeRedirect` refuses,
     or a redirect to a host that cannot be reached, is a DataError (that archive's alone).
     """
-    check_url(url, allow_http)
+    _check_url(url, allow_http)
     headers = {"User-Agent": USER_AGENT}
     if offset:
         headers["Range"] = f"bytes={offset}-"
@@ -652,12 +652,12 @@ def download(
     neither gives is refused, and nothing past the size is kept. Only a complete ``.part`` is
     renamed to ``dest``, so an existing ``dest`` is taken as complete. ``on_bytes`` is called
     with each chunk's length (for an overall count). Only https is fetched, http too with
-    ``options.allow_http`` (:func:`check_url`); nothing is written for a refused URL.
+    ``options.allow_http`` (:func:`_check_url`); nothing is written for a refused URL.
     """
     dest = Path(dest)
     if dest.exists():
         return dest
-    check_url(url, options.allow_http)
+    _check_url(url, options.allow_http)
     dest.parent.mkdir(parents=True, exist_ok=True)
     part = dest.with_suffix(dest.suffix + ".part")
     with tqdm(
@@ -706,7 +706,7 @@ def _describe(exc: BaseException) -> str:
     return f"{type(exc).__name__}: {exc}" if not isinstance(exc, _Transient) else str(exc)
 
 
-def remote_size(url: str, options: FetchOptions = FetchOptions()) -> int | None:
+def _remote_size(url: str, options: FetchOptions = FetchOptions()) -> int | None:
     """Content-Length of ``url`` from a HEAD request (None if the server does not say)."""
     for attempt in range(options.retries + 1):
         try:
@@ -724,12 +724,12 @@ def remote_size(url: str, options: FetchOptions = FetchOptions()) -> int | None:
 # --------------------------------------------------------------------------- verification
 
 
-def verify_zip(path: str | os.PathLike) -> None:
+def _verify_zip(path: str | os.PathLike) -> None:
     """Check that ``path`` is a readable zip whose every member decompresses with the right CRC.
 
     This is ``ZipFile.testzip()``'s loop, but catching every way a damaged member fails (a bad
     deflate stream raises zlib.error, which testzip lets through without the member's name).
-    Members that :func:`check_members` refuses fail first, before anything is decompressed.
+    Members that :func:`_check_members` refuses fail first, before anything is decompressed.
     """
     path = Path(path)
     try:
@@ -740,7 +740,7 @@ def verify_zip(path: str | os.PathLike) -> None:
         members = zf.infolist()
         if not members:
             raise DataError(f"{path}: zip archive has no members")
-        check_members(zf, path)  # a zip bomb is not even decompressed
+        _check_members(zf, path)  # a zip bomb is not even decompressed
         for info in members:
             try:
                 with zf.open(info) as member:
@@ -793,7 +793,7 @@ def _set_aside(path: Path) -> Path:
     return corrupt
 
 
-def verify_archive(path: Path, manifest: Manifest, url: str = "") -> None:
+def _verify_archive(path: Path, manifest: Manifest, url: str = "") -> None:
     """Compare ``path`` with its manifest record, or verify it and record it if it has none.
 
     A mismatch or a damaged zip moves the archive aside (see :func:`_set_aside`), drops its
@@ -812,7 +812,7 @@ def verify_archive(path: Path, manifest: Manifest, url: str = "") -> None:
             )
         return
     try:
-        verify_zip(path)
+        _verify_zip(path)
     except DataError as exc:
         corrupt = _set_aside(path)
         raise DataError(f"{exc}; moved to {corrupt.name}, the next run fetches it again") from None
@@ -832,7 +832,7 @@ def _pending(zip_path: Path, dest_dir: Path) -> Path:
     return dest_dir / f".{zip_path.name}.pending"
 
 
-def file_owners(dest_dir: Path) -> dict[str, str]:
+def _file_owners(dest_dir: Path) -> dict[str, str]:
     """Which archive wrote each file under ``dest_dir`` (relative POSIX path -> archive name), from
     the ``files`` of its completion markers and pending records. Markers written before the list
     was kept own nothing: their files are treated as files no archive wrote."""
@@ -861,13 +861,13 @@ def _replacement(zip_path: Path, member: str, target: Path, owners: dict[str, st
     return f"member {member!r} would replace {target} ({whose})"
 
 
-def check_replacements(zf: zipfile.ZipFile, zip_path: Path, dest_dir: Path, jpeg: bool = False) -> None:
+def _check_replacements(zf: zipfile.ZipFile, zip_path: Path, dest_dir: Path, jpeg: bool = False) -> None:
     """Refuse, before anything is extracted, an archive whose member would replace a file under
-    ``dest_dir`` that this archive did not write (:func:`file_owners`); with ``jpeg`` the JPEG a PNG
+    ``dest_dir`` that this archive did not write (:func:`_file_owners`); with ``jpeg`` the JPEG a PNG
     member becomes is checked too. :func:`_publish` checks the extracted tree again, under the lock."""
     if not dest_dir.is_dir():
         return
-    owners = file_owners(dest_dir)
+    owners = _file_owners(dest_dir)
     for info in zf.infolist():
         if info.is_dir():
             continue
@@ -881,7 +881,7 @@ def check_replacements(zf: zipfile.ZipFile, zip_path: Path, dest_dir: Path, jpeg
                 raise DataError(f"{zip_path}: {problem}; refusing to extract, nothing was changed")
 
 
-def check_members(zf: zipfile.ZipFile, zip_path: Path) -> int:
+def _check_members(zf: zipfile.ZipFile, zip_path: Path) -> int:
     """Refuse an archive with a member that must not be unpacked; return the declared total size.
 
     Refused: a path outside the destination (``..``, absolute, a drive letter or a leading
@@ -965,7 +965,7 @@ def _publish(zip_path: Path, tmp: Path, dest_dir: Path) -> list[str]:
     files = sorted(p.relative_to(tmp).as_posix() for p in tmp.rglob("*") if not p.is_dir())
     with _MOVE_LOCK:
         collision = _collision(tmp, dest_dir, tmp)
-        owners = file_owners(dest_dir)
+        owners = _file_owners(dest_dir)
         replaced = (
             _replacement(zip_path, f, dest_dir / f, owners) for f in files if (dest_dir / f).is_file()
         )
@@ -1036,12 +1036,12 @@ def extract(
     half-extracted drive is never taken as complete and is simply redone. With ``jpeg`` the PNGs
     are converted to JPEG (``jpeg_quality``) before anything is moved into place.
 
-    Nothing at all is written (not even ``dest_dir``) for an archive that :func:`check_members`
-    or :func:`check_replacements` refuses or whose declared size exceeds the free space at
+    Nothing at all is written (not even ``dest_dir``) for an archive that :func:`_check_members`
+    or :func:`_check_replacements` refuses or whose declared size exceeds the free space at
     ``dest_dir``, and nothing is moved into place for one with a member that would replace a
     folder by a file, a file by a folder, or a file this archive did not write (:func:`_publish`):
     that is another archive's, whose marker would still say complete, or the user's. The marker
-    lists the files the archive wrote (:func:`file_owners`).
+    lists the files the archive wrote (:func:`_file_owners`).
     """
     zip_path, dest_dir = Path(zip_path), Path(dest_dir)
     marker = _marker(zip_path, dest_dir)
@@ -1052,8 +1052,8 @@ def extract(
     except (zipfile.BadZipFile, OSError) as exc:
         raise DataError(f"{zip_path}: not a readable zip archive ({exc})") from None
     with zf:
-        _check_free_space(zip_path, dest_dir, check_members(zf, zip_path))
-        check_replacements(zf, zip_path, dest_dir, jpeg)
+        _check_free_space(zip_path, dest_dir, _check_members(zf, zip_path))
+        _check_replacements(zf, zip_path, dest_dir, jpeg)
         tmp = None
         try:
             dest_dir.mkdir(parents=True, exist_ok=True)
@@ -1118,7 +1118,7 @@ def plan(
 
     Every entry must name a plain ``<name>.zip`` (no query or fragment, see
     :func:`_entry_problem`), every URL must be https, or http with ``allow_http``
-    (:func:`check_url`), and no two entries may download to the same file: the first entry
+    (:func:`_check_url`), and no two entries may download to the same file: the first entry
     refused is a DataError, and nothing is asked or written. One bad entry stops the whole list:
     the list itself is wrong, and its other entries are suspect too.
     """
@@ -1128,11 +1128,11 @@ def plan(
         problem = _entry_problem(name)
         if problem:
             raise DataError(f"archive {name!r}: {problem}")
-    urls = {archive_filename(n): urllib.parse.urljoin(base_url, n) for n in names}
+    urls = {_archive_filename(n): urllib.parse.urljoin(base_url, n) for n in names}
     if len(urls) != len(names):
         raise DataError("fetch_all: two archives in the list share a file name")
     for url in urls.values():
-        check_url(url, allow_http)
+        _check_url(url, allow_http)
     return Plan(urls, Path(download_dir), Path(extract_dir), label, header)
 
 
@@ -1248,10 +1248,10 @@ class _Fetching:
             return
         present = archive.exists()
         if not present:  # HEAD's size bounds the GET: a stream without a length is cut off there
-            size = remote_size(url, self.options)
+            size = _remote_size(url, self.options)
             download(url, archive, self.options, expected_size=size, on_bytes=self._count)
         try:
-            verify_archive(archive, self.manifest, url)
+            _verify_archive(archive, self.manifest, url)
         except DataError:
             # The archive was set aside: forget its extraction too, so that the next run fetches
             # and unpacks it again rather than taking the deleted archive for "extracted, removed".
@@ -1357,7 +1357,7 @@ def _ask_sizes(planned: Plan, options: FetchOptions, missing: list[str], report:
         if stop.is_set():
             return None
         try:
-            return remote_size(planned.urls[name], options)
+            return _remote_size(planned.urls[name], options)
         except NetworkUnreachable:
             stop.set()
             raise

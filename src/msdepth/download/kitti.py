@@ -22,7 +22,7 @@ def fetch_kitti(params: Params, dry_run: bool) -> None:
     k, paths = params.data.kitti, layout(params)
     names = archives.parse_archive_list(k.archive_list)
     subset = list(k.drives) if k.drives is not None else (k.drive_count or None)
-    selection = archives.select_needed(names, needed_splits(params), subset, archive_list=k.archive_list)
+    selection = archives.select_needed(names, _needed_splits(params), subset, archive_list=k.archive_list)
     options = archives.FetchOptions(jobs=k.jobs, dry_run=dry_run, jpeg=k.jpeg, allow_http=k.allow_http)
     reports = {
         "raw archives": archives.fetch_all(
@@ -35,7 +35,7 @@ def fetch_kitti(params: Params, dry_run: bool) -> None:
             header=selection.describe(),
         ),
     }
-    for label, archive, dest in single_archives(params):
+    for label, archive, dest in _single_archives(params):
         reports[label] = archives.fetch_all(k.base_url, [archive], k.download_dir, dest, options, label=label)
     if dry_run:
         print(archives.dry_run_total(list(reports.values())))
@@ -47,7 +47,7 @@ def fetch_kitti(params: Params, dry_run: bool) -> None:
     )
 
 
-def single_archives(params: Params) -> list[tuple[str, str, Path]]:
+def _single_archives(params: Params) -> list[tuple[str, str, Path]]:
     """``(label, archive, folder it is extracted into)`` of each one-archive KITTI download the
     params need: KITTI 2015 always; the annotated depth for eval.extra_sets' eigen_benchmark
     (``train/``, ``val/``); KITTI 2012's stereo/flow archive for its kitti2012 (``training/``,
@@ -67,7 +67,7 @@ def single_archives(params: Params) -> list[tuple[str, str, Path]]:
 SET_SPLITS = {"eigen": "eigen_split", "eigen_benchmark": "eigen_benchmark_split"}
 
 
-def needed_splits(params: Params) -> dict[str, Path]:
+def _needed_splits(params: Params) -> dict[str, Path]:
     """The split lists whose drives KITTI's download must fetch: the training split, the list of
     each set of eval.extra_sets (KITTI 2015, always evaluated, is an archive of its own) and, for
     train.mode mono | mono_stereo, the monocular split (data.kitti.mono_split)."""

@@ -73,7 +73,7 @@ class TrainingGT:
     resampled: int = 0
 
 
-def gt_source(left_image: Path) -> tuple[str, Path] | None:
+def _gt_source(left_image: Path) -> tuple[str, Path] | None:
     """``("disp_02", png)``, else ``("velodyne", bin)``, for a training frame; None if it has neither."""
     disp = training_gt_path(left_image)
     if disp.is_file():
@@ -117,7 +117,7 @@ class _GTReader:
         return frac
 
 
-def resample_sparse(frac: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+def _resample_sparse(frac: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
     """A disparity map (fraction of width, NaN = none) on another grid: every valid sample moves to
     the pixel whose area holds its centre; where several meet the largest (nearest) wins.
 
@@ -147,7 +147,7 @@ def training_gt(
     found: list[tuple[str, Path]] = []
     missing: Counter[str] = Counter()
     for left in map(Path, left_images):
-        source = gt_source(left)
+        source = _gt_source(left)
         if source is None:
             missing[str(left.parent.parent.parent)] += 1
         else:
@@ -168,19 +168,19 @@ def training_gt(
         kind, path = found[i]
         frac = reader.read(kind, path)
         if frac.shape != target:
-            frac = resample_sparse(frac, target)
+            frac = _resample_sparse(frac, target)
             resampled += 1
         maps[slot] = frac
         sources[kind] += 1
     return TrainingGT(maps, dict(sources), dict(missing), len(found), resampled)
 
 
-def constant_prior(gt: np.ndarray) -> float:
+def _constant_prior(gt: np.ndarray) -> float:
     """Median valid training disparity (fraction of width)."""
     return float(np.nanmedian(gt))
 
 
-def per_pixel_prior(gt: np.ndarray, rows_per_band: int = 16) -> np.ndarray:
+def _per_pixel_prior(gt: np.ndarray, rows_per_band: int = 16) -> np.ndarray:
     """Per-pixel median of the valid training disparities; pixels never valid get the global median.
 
     Computed a band of rows at a time: the same medians, without a second copy of the whole stack.
@@ -190,15 +190,15 @@ def per_pixel_prior(gt: np.ndarray, rows_per_band: int = 16) -> np.ndarray:
         prior = np.concatenate(
             [np.nanmedian(gt[:, r : r + rows_per_band], axis=0) for r in range(0, gt.shape[1], rows_per_band)]
         )
-    prior[np.isnan(prior)] = constant_prior(gt)
+    prior[np.isnan(prior)] = _constant_prior(gt)
     return prior.astype(np.float32)
 
 
 def baseline_disparities(gt: np.ndarray, num_frames: int) -> dict[str, np.ndarray]:
     """Predictions of both baselines for ``num_frames`` frames, in the layout of inference output."""
-    prior = per_pixel_prior(gt)
+    prior = _per_pixel_prior(gt)
     return {
-        "constant": np.full((num_frames, *prior.shape), constant_prior(gt), dtype=np.float32),
+        "constant": np.full((num_frames, *prior.shape), _constant_prior(gt), dtype=np.float32),
         "prior": np.broadcast_to(prior, (num_frames, *prior.shape)).copy(),
     }
 
@@ -215,7 +215,7 @@ def skipped_reason(metrics_dir: str | Path, run: str, suites: Sequence[str]) -> 
     return None
 
 
-def indexed_training_gt(train_pairs: Path) -> TrainingGT:
+def _indexed_training_gt(train_pairs: Path) -> TrainingGT:
     """The GT of the indexed training frames (the pair list ``train_pairs``, the index stage's)
     that the stages build the baselines from, logged, with a warning per drive without."""
     pairs = load_pair_list(train_pairs)
@@ -237,7 +237,7 @@ def indexed_training_gt(train_pairs: Path) -> TrainingGT:
     return gt
 
 
-def skip_reason(gt: TrainingGT) -> str:
+def _skip_reason(gt: TrainingGT) -> str:
     """Why the baselines are not built when no training frame has GT (also logged)."""
     reason = f"no training frame has GT (disp_02 or a Velodyne scan) in {len(gt.missing)} drive(s)"
     log.warning("baselines: %s: %s not built", reason, " and ".join(BASELINES))
@@ -268,8 +268,8 @@ def score_baselines(params: Params, train_pairs: Path, eval_index: Path, rois: P
         reason = FOLDER_REASON
         log.warning("baselines: %s: %s not built", reason, " and ".join(BASELINES))
     else:
-        gt = indexed_training_gt(train_pairs)
-        reason = skip_reason(gt) if gt.maps is None else None
+        gt = _indexed_training_gt(train_pairs)
+        reason = _skip_reason(gt) if gt.maps is None else None
     if reason is not None:
         for run in BASELINES:
             for suite in SUITE_NAMES:
@@ -287,9 +287,9 @@ def score_set_baselines(params: Params, name: str, train_pairs: Path, set_index:
     """Both baselines of the GT of the training frames of ``train_pairs`` scored on extra set
     ``name``'s full images (its index ``set_index``); skipped, with the reason in their JSON, when
     no training frame has GT."""
-    gt = indexed_training_gt(train_pairs)
+    gt = _indexed_training_gt(train_pairs)
     if gt.maps is None:
-        reason = skip_reason(gt)
+        reason = _skip_reason(gt)
         for run in BASELINES:
             write_skipped(
                 set_metrics_dir(name),

@@ -28,7 +28,7 @@ from msdepth.evaluation.suites import Frame, exact_mask_summary, exact_mask_tabl
 CLASS_COLUMN = "{}_abs_rel"  # a class's per-frame abs_rel in the full-image suite's table
 
 
-def whole_frame_rois(frames: list[Frame]) -> pd.DataFrame:
+def _whole_frame_rois(frames: list[Frame]) -> pd.DataFrame:
     """One box over the whole frame per class whose bit a frame's class map has, as ROI rows."""
     rows = []
     for frame in frames:
@@ -43,7 +43,7 @@ def whole_frame_rois(frames: list[Frame]) -> pd.DataFrame:
     return pd.DataFrame(rows, columns=list(ROI_COLUMNS))
 
 
-def stereo_by_class(pred: dict[str, np.ndarray], frames: list[Frame], cfg: EvalConfig) -> dict:
+def _stereo_by_class(pred: dict[str, np.ndarray], frames: list[Frame], cfg: EvalConfig) -> dict:
     """Per class: D1 (%) and EPE (px) on the class's GT pixels, mean over the frames that have some,
     and their count."""
     per_class: dict[str, list[dict[str, float]]] = {}
@@ -72,19 +72,19 @@ def exact_class_scores(
     pred: dict[str, np.ndarray], frames: list[Frame], cfg: EvalConfig
 ) -> tuple[dict, pd.DataFrame] | None:
     """The exact-mask scores of every class the frames' class maps hold: the summary (per cap,
-    overall and by class, as the ROI suite's ``masks``, with ``stereo``: :func:`stereo_by_class`)
+    overall and by class, as the ROI suite's ``masks``, with ``stereo``: :func:`_stereo_by_class`)
     and the per-frame rows it averages (:func:`~msdepth.evaluation.suites.exact_mask_table` of one
     whole-frame ROI per frame and class). None when a frame has no class map or none a class pixel."""
     if not frames or any(f.class_map is None for f in frames):
         return None
-    rois = whole_frame_rois(frames)
+    rois = _whole_frame_rois(frames)
     if rois.empty:
         return None
     exact = exact_mask_table(pred, frames, rois, cfg)
     masks = exact_mask_summary(exact, len(rois), cfg.caps)
     if masks is None:
         return None
-    return {**masks, "stereo": stereo_by_class(pred, frames, cfg)}, exact
+    return {**masks, "stereo": _stereo_by_class(pred, frames, cfg)}, exact
 
 
 def with_class_columns(table: pd.DataFrame, exact: pd.DataFrame) -> pd.DataFrame:

@@ -38,7 +38,7 @@ TRACK_LENGTH = 5  # Monodepth2's snippet length
 MAX_POSES_BYTES = 256 << 20
 
 
-def read_poses(path: str | os.PathLike) -> np.ndarray:
+def _read_poses(path: str | os.PathLike) -> np.ndarray:
     """(N, 4, 4) camera-to-world poses of a KITTI odometry poses file; a DataError names a bad file.
 
     Only a regular, non-empty file of at most :data:`MAX_POSES_BYTES` is read
@@ -79,7 +79,7 @@ def _pose_problem(data: bytes, exc: ValueError) -> str:
     return f"not a KITTI poses file ({str(exc).split(';')[0][:200]})"
 
 
-def local_poses(global_poses: np.ndarray) -> np.ndarray:
+def _local_poses(global_poses: np.ndarray) -> np.ndarray:
     """(N - 1, 4, 4) poses from each frame's camera to the next one's, of (N, 4, 4) camera-to-world
     poses (Monodepth2's ``gt_local_poses``: ``inv(inv(G[i-1]) · G[i])``)."""
     return np.stack(
@@ -90,9 +90,9 @@ def local_poses(global_poses: np.ndarray) -> np.ndarray:
     )
 
 
-def dump_xyz(transformations: Sequence[np.ndarray]) -> np.ndarray:
+def _dump_xyz(transformations: Sequence[np.ndarray]) -> np.ndarray:
     """(len + 1, 3) camera positions of a chain of relative poses, the first at the origin
-    (Monodepth2's ``dump_xyz``)."""
+    (Monodepth2's ``_dump_xyz``)."""
     cam_to_world = np.eye(4)
     xyzs = [cam_to_world[:3, 3]]
     for transformation in transformations:
@@ -101,8 +101,8 @@ def dump_xyz(transformations: Sequence[np.ndarray]) -> np.ndarray:
     return np.array(xyzs)
 
 
-def compute_ate(gt_xyz: np.ndarray, pred_xyz: np.ndarray) -> float:
-    """Monodepth2's ``compute_ate``: RMSE-like error of ``pred_xyz`` (F, 3) against ``gt_xyz`` after
+def _compute_ate(gt_xyz: np.ndarray, pred_xyz: np.ndarray) -> float:
+    """Monodepth2's ``_compute_ate``: RMSE-like error of ``pred_xyz`` (F, 3) against ``gt_xyz`` after
     moving its first position onto the ground truth's and the least-squares scale. A prediction
     that stays at one point gets scale 0 (Monodepth2's division gives NaN there)."""
     aligned = pred_xyz + (gt_xyz[0] - pred_xyz[0])[None, :]
@@ -111,7 +111,7 @@ def compute_ate(gt_xyz: np.ndarray, pred_xyz: np.ndarray) -> float:
     return float(np.sqrt(np.sum((aligned * scale - gt_xyz) ** 2)) / gt_xyz.shape[0])
 
 
-def snippet_ates(
+def _snippet_ates(
     predicted: np.ndarray, ground_truth: np.ndarray, track_length: int = TRACK_LENGTH
 ) -> np.ndarray:
     """The ATE of every snippet of ``track_length`` frames: ``predicted`` (N - 1, 4, 4) relative
@@ -122,15 +122,15 @@ def snippet_ates(
             f"snippet_ates: need N >= 2 ground-truth poses and N - 1 predicted, got "
             f"{len(ground_truth)} and {len(predicted)}"
         )
-    gt_local = local_poses(ground_truth)
+    gt_local = _local_poses(ground_truth)
     ates = []
     for i in range(len(ground_truth) - 1):
         snippet = slice(i, i + track_length - 1)
-        ates.append(compute_ate(dump_xyz(gt_local[snippet]), dump_xyz(predicted[snippet])))
+        ates.append(_compute_ate(_dump_xyz(gt_local[snippet]), _dump_xyz(predicted[snippet])))
     return np.array(ates)
 
 
-def trajectory_ates(
+def _trajectory_ates(
     net: PoseNet,
     paths: Sequence[Path],
     truth: np.ndarray,
@@ -139,7 +139,7 @@ def trajectory_ates(
     track_length: int = TRACK_LENGTH,
     chunk: int = 64,
 ) -> np.ndarray:
-    """:func:`snippet_ates` of ``net``'s relative poses between consecutive frames of ``paths``
+    """:func:`_snippet_ates` of ``net``'s relative poses between consecutive frames of ``paths``
     (resized to ``height`` x ``width`` as training sees them) against the camera-to-world poses
     ``truth`` of the same frames; ``chunk`` frames are decoded at a time."""
     import torch
@@ -157,7 +157,7 @@ def trajectory_ates(
         frames = torch.stack([to_tensor(resize(read_image(p), height, width)) for p in span]).to(device)
         with torch.no_grad():
             predicted.append(relative_pose(net, frames[:-1], frames[1:], 1).cpu().double().numpy())
-    return snippet_ates(np.concatenate(predicted), truth, track_length)
+    return _snippet_ates(np.concatenate(predicted), truth, track_length)
 
 
 def summary(ates: np.ndarray) -> dict:
@@ -178,7 +178,7 @@ def sequence_ates(
     Every drive with a ``poses.txt`` (the synthetic set's, ``data.synthetic.sequence_length``
     frames per sequence, the last one maybe shorter) is cut into its sequences; each sequence's
     camera-02 frames give the relative poses of consecutive frames, scored against the exact poses
-    (:func:`trajectory_ates`). Returns the snippets' :func:`summary`.
+    (:func:`_trajectory_ates`). Returns the snippets' :func:`summary`.
     """
     from msdepth.data.sequences import frame_path
 
@@ -188,7 +188,7 @@ def sequence_ates(
         raise DataError(f"{raw_root}: no rendered sequences (poses.txt) to evaluate poses on")
     ates = []
     for file in files:
-        drive, truth = file.parent.relative_to(raw_root).as_posix(), read_poses(file)
+        drive, truth = file.parent.relative_to(raw_root).as_posix(), _read_poses(file)
         for start in range(0, len(truth) - 1, sequence_length):
             span = range(start, min(start + sequence_length, len(truth)))
             if len(span) < 2:
@@ -197,11 +197,11 @@ def sequence_ates(
             if any(p is None for p in paths):
                 raise DataError(f"{file}: a frame of its sequence at {start} is missing")
             truth_span = truth[span.start : span.stop]
-            ates.append(trajectory_ates(net, paths, truth_span, height, width, track_length))  # type: ignore[arg-type]
+            ates.append(_trajectory_ates(net, paths, truth_span, height, width, track_length))  # type: ignore[arg-type]
     return summary(np.concatenate(ates))
 
 
-def odometry_ates(
+def _odometry_ates(
     net: PoseNet,
     root: str | os.PathLike,
     sequences: Sequence[str],
@@ -222,7 +222,7 @@ def odometry_ates(
         poses = root / "poses" / f"{seq}.txt"
         if not poses.is_file():
             continue
-        truth = read_poses(poses)
+        truth = _read_poses(poses)
         paths = [resolve_image(root, f"sequences/{seq}/image_2/{n:06d}.png") for n in range(len(truth))]
         missing = [n for n, p in enumerate(paths) if p is None]
         if missing:
@@ -230,7 +230,7 @@ def odometry_ates(
                 f"{poses}: {len(truth)} poses, but {len(missing)} of their frames are not in "
                 f"{root / 'sequences' / seq / 'image_2'} (first: {missing[0]:06d}.png)"
             )
-        ates.append(trajectory_ates(net, paths, truth, height, width, track_length))  # type: ignore[arg-type]
+        ates.append(_trajectory_ates(net, paths, truth, height, width, track_length))  # type: ignore[arg-type]
         found[seq] = summary(ates[-1])
     return {**summary(np.concatenate(ates)), "sequences": found} if found else {}
 
@@ -238,7 +238,7 @@ def odometry_ates(
 def add_pose_metrics(params: Params, net: PoseNet, run: str, summary_path: Path) -> None:
     """Monocular run ``run``'s pose ATE by its pose network ``net``, added to its training summary
     ``summary_path`` as ``pose``: on the rendered sequences (:func:`sequence_ates`), or on the KITTI
-    odometry sequences that are on disk (:func:`odometry_ates`, each one's also under
+    odometry sequences that are on disk (:func:`_odometry_ates`, each one's also under
     ``pose.sequences``; none is fetched, so with none there the summary has no ``pose``)."""
     from msdepth.data.layout import layout
     from msdepth.io import write_json
@@ -246,7 +246,7 @@ def add_pose_metrics(params: Params, net: PoseNet, run: str, summary_path: Path)
     paths, h, w = layout(params), params.data.height, params.data.width
     if params.data.source == "kitti":
         assert paths.odometry is not None  # the KITTI layout always names it
-        pose = odometry_ates(net, paths.odometry, params.data.kitti.odometry_sequences, h, w)
+        pose = _odometry_ates(net, paths.odometry, params.data.kitti.odometry_sequences, h, w)
         if not pose:
             log.info("train %s: no KITTI odometry poses below %s: pose not evaluated", run, paths.odometry)
             return

@@ -58,7 +58,7 @@ def headline(suite: str, summary: dict) -> dict[str, float] | None:
         out = {"abs_rel": m["abs_rel"], "a1": m["a1"]}
         if "median_scaling" in m:  # a monocular run's depth, median-scaled per image
             out["scale_ratio"] = m["median_scaling"]["ratio_median"]
-        return {**out, **class_headline(summary, cap)}
+        return {**out, **_class_headline(summary, cap)}
     if suite == "roi":
         m = summary[cap]["overall"]
         out = {"roi": m["abs_rel"]}
@@ -68,7 +68,7 @@ def headline(suite: str, summary: dict) -> dict[str, float] | None:
     return None
 
 
-def class_headline(summary: dict, cap: str) -> dict[str, float]:
+def _class_headline(summary: dict, cap: str) -> dict[str, float]:
     """An extra set's exact classes in its full-image headline (KITTI 2012's ``reflective``): each
     class's abs_rel at ``cap`` and its D1 (%); nothing for a set without classes."""
     masks = summary.get("masks", {})
@@ -80,7 +80,7 @@ def class_headline(summary: dict, cap: str) -> dict[str, float]:
     return out
 
 
-def write_suite(
+def _write_suite(
     suite: str,
     run: str,
     summary: dict,
@@ -115,7 +115,7 @@ def run_suite(  # noqa: ANN001 - frames, boxes
     else:
         pred = median_scaled_maps(pred, frames, params.eval)[0] if scaled else pred
         summary, table = fn(pred, frames, boxes, params.eval)
-    write_suite(suite, run, summary, table)
+    _write_suite(suite, run, summary, table)
 
 
 def full_suite(
@@ -178,4 +178,6 @@ def score_set(  # noqa: ANN001 - frames
     median-scaled when ``scaled`` (default: ``eval.median_scaling``)."""
     scaled = params.eval.median_scaling if scaled is None else scaled
     summary, table = full_suite(params, pred, frames, scaled)
-    write_suite("full", run, summary, table, root=set_metrics_dir(name), headline_root=set_headline_dir(name))
+    _write_suite(
+        "full", run, summary, table, root=set_metrics_dir(name), headline_root=set_headline_dir(name)
+    )

@@ -39,7 +39,7 @@ def disp_to_depth(
     return scaled, 1 / scaled
 
 
-def rotation_from_axis_angle(axis_angle: Tensor) -> Tensor:
+def _rotation_from_axis_angle(axis_angle: Tensor) -> Tensor:
     """(B, 3) axis-angle vectors (direction = axis, norm = angle in radians) -> (B, 4, 4) rotations.
 
     Rodrigues' formula, with Monodepth2's ``1e-7`` added to the angle before normalising the
@@ -59,7 +59,7 @@ def rotation_from_axis_angle(axis_angle: Tensor) -> Tensor:
     return _homogeneous(rotation, axis_angle.new_zeros(axis_angle.shape[0], 3))
 
 
-def translation_matrix(translation: Tensor) -> Tensor:
+def _translation_matrix(translation: Tensor) -> Tensor:
     """(B, 3) translations -> (B, 4, 4) homogeneous matrices ``[I t; 0 1]``."""
     if translation.dim() != 2 or translation.shape[1] != 3:
         raise ValueError(f"translation_matrix: expected (B, 3), got {tuple(translation.shape)}")
@@ -77,10 +77,10 @@ def _homogeneous(rotation: Tensor, translation: Tensor) -> Tensor:
 def transformation_from_parameters(axis_angle: Tensor, translation: Tensor, invert: bool = False) -> Tensor:
     """The pose network's output -> (B, 4, 4) pose: ``T·R``, or with ``invert`` its inverse
     ``Rᵀ·T(-t)`` (Monodepth2 inverts the pose predicted for a frame before the target)."""
-    rotation = rotation_from_axis_angle(axis_angle)
+    rotation = _rotation_from_axis_angle(axis_angle)
     if not invert:
-        return translation_matrix(translation) @ rotation
-    return rotation.transpose(1, 2) @ translation_matrix(-translation)
+        return _translation_matrix(translation) @ rotation
+    return rotation.transpose(1, 2) @ _translation_matrix(-translation)
 
 
 def stereo_pose(side: str, batch: int, baseline: float = 0.1, dtype: torch.dtype = torch.float32) -> Tensor:
@@ -90,10 +90,10 @@ def stereo_pose(side: str, batch: int, baseline: float = 0.1, dtype: torch.dtype
     if side not in ("l", "r"):
         raise ValueError(f"stereo_pose: side must be 'l' or 'r', got {side!r}")
     x = -baseline if side == "l" else baseline
-    return translation_matrix(torch.tensor([[x, 0.0, 0.0]], dtype=dtype).expand(batch, 3))
+    return _translation_matrix(torch.tensor([[x, 0.0, 0.0]], dtype=dtype).expand(batch, 3))
 
 
-def pixel_grid(height: int, width: int, like: Tensor) -> Tensor:
+def _pixel_grid(height: int, width: int, like: Tensor) -> Tensor:
     """(3, H·W) homogeneous pixel coordinates ``(x, y, 1)``, row-major (x fastest)."""
     ys, xs = torch.meshgrid(
         torch.arange(height, dtype=like.dtype, device=like.device),
@@ -103,13 +103,13 @@ def pixel_grid(height: int, width: int, like: Tensor) -> Tensor:
     return torch.stack((xs.reshape(-1), ys.reshape(-1), torch.ones_like(xs).reshape(-1)))
 
 
-def backproject(depth: Tensor, inv_k: Tensor) -> Tensor:
+def _backproject(depth: Tensor, inv_k: Tensor) -> Tensor:
     """(B, 1, H, W) depth and (B, 4, 4) inverse intrinsics -> (B, 4, H·W) homogeneous camera points
     ``Z · K⁻¹ (x, y, 1)`` (Monodepth2's ``BackprojectDepth``)."""
     if depth.dim() != 4 or depth.shape[1] != 1:
         raise ValueError(f"backproject: depth must be (B, 1, H, W), got {tuple(depth.shape)}")
     b, _, h, w = depth.shape
-    rays = inv_k[:, :3, :3] @ pixel_grid(h, w, depth)
+    rays = inv_k[:, :3, :3] @ _pixel_grid(h, w, depth)
     points = depth.reshape(b, 1, -1) * rays
     return torch.cat((points, torch.ones_like(points[:, :1])), dim=1)
 
@@ -140,7 +140,7 @@ def reproject(
             f"reproject: source must be (B, C, H, W) matching depth {tuple(depth.shape)}, "
             f"got {tuple(source.shape)}"
         )
-    grid = project(backproject(depth, inv_k), k, pose, h, w)
+    grid = project(_backproject(depth, inv_k), k, pose, h, w)
     # As in msdepth.geometry.warp: non-finite coordinates (a NaN step) crash grid_sample's CPU backward in
     # border mode, so they go outside the image; finite ones are untouched.
     with torch.no_grad():

@@ -6,7 +6,7 @@ the target view with its pose (:func:`msdepth.geometry.camera.reproject`). In MS
 one more source, with its fixed stereo pose.
 
 Per pixel, the candidate with the smallest Monodepth2 reprojection error (``0.85·(1 - SSIM)/2 +
-0.15·L1``, 3x3 SSIM with reflection padding, :func:`reprojection_error`) is chosen among the
+0.15·L1``, 3x3 SSIM with reflection padding, :func:`_reprojection_error`) is chosen among the
 reprojected sources and, with auto-masking, the unwarped sources themselves (a pixel that the
 identity explains best is static relative to the camera, and learns nothing). The chosen pixels
 make one composite reconstruction per scale, and the variant's appearance term
@@ -40,7 +40,7 @@ SMOOTHNESS_WEIGHT = 1e-3  # Monodepth2's
 MEAN_EPS = 1e-7  # Monodepth2's, in the mean normalisation of the disparity
 
 
-def reprojection_error(estimate: Tensor, target: Tensor, alpha: float = 0.85) -> Tensor:
+def _reprojection_error(estimate: Tensor, target: Tensor, alpha: float = 0.85) -> Tensor:
     """Monodepth2's per-pixel photometric error, (B, 1, H, W): ``alpha·clip((1 - SSIM)/2, 0, 1) +
     (1 - alpha)·|estimate - target|``, both averaged over channels, 3x3 SSIM, reflection padding."""
     dissimilarity = ((1 - ssim(estimate, target, 3, padding="reflect")) / 2).clamp(0, 1)
@@ -48,10 +48,10 @@ def reprojection_error(estimate: Tensor, target: Tensor, alpha: float = 0.85) ->
     return (alpha * dissimilarity + (1 - alpha) * l1).mean(1, keepdim=True)
 
 
-def minimum_reprojection(
+def _minimum_reprojection(
     target: Tensor, reconstructions: Sequence[Tensor], identities: Sequence[Tensor] = ()
 ) -> tuple[Tensor, Tensor]:
-    """Per pixel, the candidate with the smallest :func:`reprojection_error` against ``target``.
+    """Per pixel, the candidate with the smallest :func:`_reprojection_error` against ``target``.
 
     Args:
         reconstructions: the target view reprojected from each source, (B, C, H, W) each.
@@ -71,7 +71,7 @@ def minimum_reprojection(
             f"target {tuple(target.shape)}"
         )
     with torch.no_grad():  # the choice is not differentiated, as torch.min's index in Monodepth2
-        errors = torch.cat([reprojection_error(c, target) for c in candidates.unbind(1)], dim=1)
+        errors = torch.cat([_reprojection_error(c, target) for c in candidates.unbind(1)], dim=1)
         errors[:, : len(identities)] += IDENTITY_TIE_BREAK
         choice = errors.argmin(dim=1, keepdim=True)  # (B, 1, H, W)
     index = choice.unsqueeze(2).expand(-1, -1, target.shape[1], -1, -1)
@@ -148,7 +148,7 @@ class MonocularLoss(nn.Module):
                 reproject(src, depth, k, inv_k, pose, self.padding_mode)
                 for src, pose in zip(sources, poses, strict=True)
             ]
-            composite, won = minimum_reprojection(target, warped, identities)
+            composite, won = _minimum_reprojection(target, warped, identities)
             composites.append(composite)
             masked = masked + won.to(target.dtype).mean()
             normalised = disp / (disp.mean((2, 3), keepdim=True) + MEAN_EPS)
@@ -172,17 +172,17 @@ def monocular_losses(
 ) -> dict[str, Tensor]:
     """One batch of Monodepth2's M (``partner`` None) or MS training: the target's disparities
     (``depth_net``: image -> sigmoid disparities, finest first), the pose of every neighbour (by
-    frame offset) from ``pose_net``, and in MS the stereo partner with :func:`partner_pose`."""
+    frame offset) from ``pose_net``, and in MS the stereo partner with :func:`_partner_pose`."""
     disps = depth_net(target)
     sources = list(neighbours.values())
     poses = [relative_pose(pose_net, target, source, offset) for offset, source in neighbours.items()]
     if partner is not None:
         sources.append(partner)
-        poses.append(partner_pose(side, target))
+        poses.append(_partner_pose(side, target))
     return criterion(disps, target, sources, poses, k, torch.linalg.inv(k))
 
 
-def partner_pose(side: str | Tensor, target: Tensor) -> Tensor:
+def _partner_pose(side: str | Tensor, target: Tensor) -> Tensor:
     """(B, 4, 4) :func:`stereo_pose` of every target of the batch ``target``: ``side`` is ``l`` or
     ``r`` for all, or per target a (B,) tensor, non-zero for a right camera's frame."""
     batch = target.shape[0]

@@ -1,6 +1,6 @@
 """Monodepth's self-supervised training loss, with a registered appearance term (SSIM, MS-SSIM, ...).
 
-Functional core: :func:`appearance_loss`, :func:`smoothness_loss`, :func:`lr_consistency_loss`,
+Functional core: :func:`appearance_loss`, :func:`smoothness_loss`, :func:`_lr_consistency_loss`,
 :func:`reconstruct` and :func:`scale_pyramid` are plain functions on tensors; the similarities
 they compare with (SSIM, MS-SSIM) are :mod:`msdepth.losses.ssim`'s. Modules hold state:
 :class:`AppearanceTerm` (the base of the appearance terms in :mod:`msdepth.losses.appearance`) and
@@ -61,7 +61,7 @@ def smoothness_loss(disp: Tensor, image: Tensor) -> Tensor:
     return (d_dx * w_x).mean() + (d_dy * w_y).mean()
 
 
-def lr_consistency_loss(
+def _lr_consistency_loss(
     disp_left: Tensor, disp_right: Tensor, padding_mode: PaddingMode = "border"
 ) -> Tensor:
     """Left-right disparity consistency ``mean|d_l - warp(d_r, -d_l)| + mean|d_r - warp(d_l, d_r)|``.
@@ -182,7 +182,7 @@ class MonodepthLoss(nn.Module):
             )
             smooth_s = smoothness_loss(disp_left, left_s) + smoothness_loss(disp_right, right_s)
             smoothness = smoothness + smooth_s / 2**s
-            lr = lr + lr_consistency_loss(warp_left, warp_right, cfg.padding_mode)
+            lr = lr + _lr_consistency_loss(warp_left, warp_right, cfg.padding_mode)
         appearance = left.new_zeros(())
         for term in self.appearance(estimates, targets):
             # Each view's term is a mean over equally many values, so their sum is 2x the joint mean.

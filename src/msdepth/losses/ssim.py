@@ -3,7 +3,7 @@
 :func:`ssim` (a per-pixel map) and :func:`ms_ssim` (one value per image; :func:`ms_ssim_pyramid`
 for every scale of a pyramid at once) run on the fast kernels of :mod:`msdepth.losses.ssim_kernels`
 by default, or with ``implementation="reference"`` on the written-out autograd formula here
-(:func:`reference_ssim_terms`, :func:`window_mean`), which the fast kernels are tested against.
+(:func:`_reference_ssim_terms`, :func:`window_mean`), which the fast kernels are tested against.
 :func:`level_weights` resolves MS-SSIM's per-level weights; :class:`LearnedLevelWeights` holds
 trainable ones. The objective that uses them is :mod:`msdepth.losses.monodepth`'s.
 
@@ -84,7 +84,7 @@ def window_mean(
     return smooth(t) / smooth(torch.ones_like(t))
 
 
-def reference_ssim_terms(
+def _reference_ssim_terms(
     x: Tensor,
     y: Tensor,
     kernel_size: int,
@@ -122,7 +122,7 @@ def _reference_ms_ssim_levels(
                 f"ms_ssim: level {level} is {tuple(x.shape[-2:])} px, smaller than the "
                 f"{kernel_size} px window; use padding='same' or fewer levels"
             )
-        cs, full = reference_ssim_terms(x, y, kernel_size, window, sigma, padding)
+        cs, full = _reference_ssim_terms(x, y, kernel_size, window, sigma, padding)
         values.append((full if level == levels - 1 else cs).mean((2, 3)))
         h, w = x.shape[-2:]
         x = F.avg_pool2d(x, kernel_size=2, padding=[h % 2, w % 2])
@@ -156,7 +156,7 @@ def ssim(
         window: ``"box"`` or ``"gaussian"``.
         sigma: the Gaussian window's standard deviation in px.
         implementation: ``"fast"`` (:mod:`msdepth.losses.ssim_kernels`) or ``"reference"``
-            (:func:`reference_ssim_terms`); the same values up to rounding.
+            (:func:`_reference_ssim_terms`); the same values up to rounding.
 
     Returns:
         The SSIM map; 1 where the images agree locally, can be negative for anticorrelated ones.
@@ -185,7 +185,7 @@ def ssim(
     if min(x.shape[-2:]) < kernel_size:
         raise ValueError(f"ssim: image {tuple(x.shape[-2:])} is smaller than the {kernel_size} px window")
     if implementation == "reference":
-        return reference_ssim_terms(x, y, kernel_size, window, sigma, "valid")[1]
+        return _reference_ssim_terms(x, y, kernel_size, window, sigma, "valid")[1]
     return kernels.ssim_terms(x, y, kernel_size, window, sigma, "valid", luminance=True)[1]
 
 

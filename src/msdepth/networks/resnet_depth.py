@@ -28,7 +28,7 @@ DECODER_CHANNELS = (16, 32, 64, 128, 256)  # Monodepth2's num_ch_dec, finest fir
 SCALES = 4
 
 
-def conv_block(in_ch: int, out_ch: int, activation: bool = True) -> nn.Sequential:
+def _conv_block(in_ch: int, out_ch: int, activation: bool = True) -> nn.Sequential:
     """Reflection padding, 3x3 convolution and (Monodepth2's ``ConvBlock``) ELU."""
     layers: list[nn.Module] = [nn.ReflectionPad2d(1), nn.Conv2d(in_ch, out_ch, 3)]
     if activation:
@@ -53,11 +53,11 @@ class DepthDecoder(nn.Module):
         self.upconvs0 = nn.ModuleList()
         self.upconvs1 = nn.ModuleList()
         for i in range(5):  # index i = the decoder level of dec[i]; run coarse (4) to fine (0)
-            self.upconvs0.append(conv_block(encoder_channels[-1] if i == 4 else dec[i + 1], dec[i]))
+            self.upconvs0.append(_conv_block(encoder_channels[-1] if i == 4 else dec[i + 1], dec[i]))
             skip = encoder_channels[i - 1] if i > 0 else 0
-            self.upconvs1.append(conv_block(dec[i] + skip, dec[i]))
+            self.upconvs1.append(_conv_block(dec[i] + skip, dec[i]))
         self.dispconvs = nn.ModuleList(
-            conv_block(dec[s], output_channels, activation=False) for s in range(SCALES)
+            _conv_block(dec[s], output_channels, activation=False) for s in range(SCALES)
         )
 
     def forward(self, features: list[Tensor]) -> list[Tensor]:
@@ -74,7 +74,7 @@ class DepthDecoder(nn.Module):
         return disps[::-1]
 
 
-def check_input(image: Tensor, name: str) -> None:
+def _check_input(image: Tensor, name: str) -> None:
     """A ValueError unless ``image`` is (B, 3, H, W) with sides the resnet18 network runs at
     (:data:`msdepth.config.network_sizes.NETWORK_SIDES`: multiples of 32, at least 64)."""
     rule = NETWORK_SIDES["resnet18"]
@@ -115,5 +115,5 @@ class ResNetMonodepth(nn.Module):
 
     def forward(self, image: Tensor) -> list[Tensor]:
         """(B, 3, H, W) in [0, 1] -> 4 disparity maps, finest first."""
-        check_input(image, type(self).__name__)
+        _check_input(image, type(self).__name__)
         return [MAX_DISPARITY * d for d in self.decoder(self.encoder(image))]

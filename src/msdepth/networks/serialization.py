@@ -38,7 +38,7 @@ def save_weights_file(path: str | os.PathLike, state: dict[str, Any]) -> None:
     A state holding a NaN or infinite float tensor is a MsdepthError, and nothing is written."""
     # Through an open file: torch.save names the zip's root folder after a path it is given (here
     # the random temp name), so equal weights would give different bytes (and DVC hashes) per run.
-    bad = nonfinite_tensors(state)
+    bad = _nonfinite_tensors(state)
     if bad:
         raise MsdepthError(
             f"{path}: not written: {bad[0]} holds NaN or infinite values ({len(bad)} tensor(s) in all); "
@@ -71,7 +71,7 @@ def load_weights_file(
                 f"{path}: refused to load: not a {what} file written by msdepth (no zip archive from its "
                 f"first byte: truncated, corrupt, torch's legacy format or another); {remedy}"
             )
-    problem = zip_problem(path)
+    problem = _zip_problem(path)
     if problem:
         raise MsdepthError(
             f"{path}: refused to load: {problem}, unlike every {what} file written by msdepth; {remedy}"
@@ -92,12 +92,12 @@ def load_weights_file(
             f"{path}: not a {what} file written by msdepth (it holds a "
             f"{type(state).__name__}, not a dict); {remedy}"
         )
-    if nested_deeper(state, MAX_NESTING):  # before nonfinite_tensors and its callers recurse into it
+    if _nested_deeper(state, MAX_NESTING):  # before _nonfinite_tensors and its callers recurse into it
         raise MsdepthError(
             f"{path}: refused to load: its lists or dicts nest deeper than {MAX_NESTING} levels, unlike "
             f"every {what} file written by msdepth; {remedy}"
         )
-    bad = nonfinite_tensors(state)
+    bad = _nonfinite_tensors(state)
     if bad:
         raise MsdepthError(
             f"{path}: refused to load: {bad[0]} holds NaN or infinite values ({len(bad)} tensor(s) in all), "
@@ -111,7 +111,7 @@ def load_weights_file(
 MAX_NESTING = 32
 
 
-def nested_deeper(state: Any, limit: int) -> bool:
+def _nested_deeper(state: Any, limit: int) -> bool:
     """Whether the dicts, lists and tuples of ``state`` nest more than ``limit`` levels deep (walked
     with a stack, not recursion)."""
     stack = [(state, 0)]
@@ -134,7 +134,7 @@ def nested_deeper(state: Any, limit: int) -> bool:
 NOT_WEIGHTS = ("optimizer",)
 
 
-def nonfinite_tensors(state: Any, prefix: str = "") -> list[str]:
+def _nonfinite_tensors(state: Any, prefix: str = "") -> list[str]:
     """The names (``model.conv1.weight``) of the floating-point tensors in ``state`` (nested dicts,
     lists and tuples; not its top-level :data:`NOT_WEIGHTS` entries) that hold a NaN or an infinity."""
     if isinstance(state, torch.Tensor):
@@ -150,7 +150,7 @@ def nonfinite_tensors(state: Any, prefix: str = "") -> list[str]:
     for key, value in items:
         if not prefix and key in NOT_WEIGHTS:
             continue
-        found += nonfinite_tensors(value, f"{prefix}.{key}" if prefix else str(key)[:80])
+        found += _nonfinite_tensors(value, f"{prefix}.{key}" if prefix else str(key)[:80])
     return found
 
 
@@ -165,7 +165,7 @@ MAX_PICKLE_BYTES = 16 * 2**20  # msdepth's pickles hold names and shapes only: ~
 _ZIP_LOCAL_HEADER = b"PK\x03\x04"  # torch.serialization._is_zipfile compares exactly these bytes
 
 
-def zip_problem(path: Path) -> str | None:
+def _zip_problem(path: Path) -> str | None:
     """Why the zip ``path`` is not one as ``torch.save`` writes it, read without unpickling; None if it is."""
     with open(path, "rb") as f:
         if f.read(4) != _ZIP_LOCAL_HEADER:  # torch's own test; zipfile.is_zipfile looks at the end

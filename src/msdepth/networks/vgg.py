@@ -28,7 +28,7 @@ Heads = Literal["independent", "residual"]
 HEADS = ("independent", "residual")
 
 
-def group_count(channels: int) -> int:
+def _group_count(channels: int) -> int:
     """GroupNorm groups for a layer: about 4 channels per group, at most 32 (Wu & He 2018's
     default), and a divisor of ``channels``."""
     return math.gcd(channels, min(32, max(1, channels // 4)))
@@ -42,7 +42,7 @@ def _conv(in_ch: int, out_ch: int, kernel: int, stride: int = 1, norm: Norm = "n
         return nn.Sequential(nn.Conv2d(in_ch, out_ch, kernel, stride, pad), nn.ELU(inplace=True))
     return nn.Sequential(
         nn.Conv2d(in_ch, out_ch, kernel, stride, pad, bias=False),
-        nn.GroupNorm(group_count(out_ch), out_ch),
+        nn.GroupNorm(_group_count(out_ch), out_ch),
         nn.ELU(inplace=True),
     )
 

@@ -27,7 +27,7 @@ coarse to fine like a Laplacian pyramid:
     P_{L-1} = max(ε, m_{L-1})^{w_{L-1}},   P_l = max(ε, m_l)^{w_l} · U(P_{l+1}),   M_c = P_0,
 
 where U resamples a level to the next finer one bilinearly at the true centres of its 2×2 cells
-(:func:`upsample`). The cost is ``mean_c[α·clip((1 − M_c(p))/2, 0, 1) + (1 − α)·|Î_c(p) − I_c(p)|]``.
+(:func:`_upsample`). The cost is ``mean_c[α·clip((1 − M_c(p))/2, 0, 1) + (1 − α)·|Î_c(p) − I_c(p)|]``.
 Where every level's map is constant, ``M_c(p) = MS_c`` and the slice's mean is training's term
 exactly (U keeps a constant); elsewhere a pixel weighs the structure around it at each level's
 scale, where training's one number weighs the whole image's means (a product of means, not a
@@ -112,7 +112,7 @@ def default_max_disparity(width: int) -> int:
     return int(math.floor(MAX_DISPARITY * width))
 
 
-def upsample(image: Tensor, size: tuple[int, int]) -> Tensor:
+def _upsample(image: Tensor, size: tuple[int, int]) -> Tensor:
     """A map of MS-SSIM level l + 1 resampled to level l's ``size``: bilinear ×2 at the true centres
     of the 2×2 cells (pytorch-msssim pads ``n % 2`` px on both sides before pooling, so cell i covers
     level-l pixels ``2i - p`` and ``2i + 1 - p``: the ×2 grid, cropped by ``p``)."""
@@ -129,7 +129,7 @@ def pyramid(image: Tensor, levels: int) -> list[Tensor]:
     return out
 
 
-def level_maps(
+def _level_maps(
     x: Tensor, y: Tensor, kernel_size: int, levels: int, y_levels: Sequence[Tensor] = ()
 ) -> list[Tensor]:
     """Training's MS-SSIM maps of (B, C, H, W) images, each at its level's size (fine -> coarse): the
@@ -150,45 +150,45 @@ def level_maps(
     return maps
 
 
-def collapse(maps: Sequence[Tensor], weights: Sequence[float]) -> Tensor:
+def _collapse(maps: Sequence[Tensor], weights: Sequence[float]) -> Tensor:
     """The per-pixel product of the module docstring, at the finest map's size: each level's map
     floored and raised to its weight, multiplied coarse to fine, each product resampled to the
-    next finer level (:func:`upsample`). Changes ``maps`` in place."""
+    next finer level (:func:`_upsample`). Changes ``maps`` in place."""
     terms = [m.clamp_(min=MS_SSIM_FLOOR).pow_(w) for m, w in zip(maps, weights, strict=True)]
     out = terms.pop()
     while terms:
         finer = terms.pop()
-        out = finer.mul_(upsample(out, finer.shape[-2:]))
+        out = finer.mul_(_upsample(out, finer.shape[-2:]))
     return out
 
 
-def ms_ssim_map(
+def _ms_ssim_map(
     x: Tensor, y: Tensor, kernel_size: int, weights: Sequence[float], y_levels: Sequence[Tensor] = ()
 ) -> Tensor:
-    """The per-pixel MS-SSIM of the module docstring, (B, C, H, W): :func:`collapse` of
-    :func:`level_maps`."""
-    return collapse(level_maps(x, y, kernel_size, len(weights), y_levels), weights)
+    """The per-pixel MS-SSIM of the module docstring, (B, C, H, W): :func:`_collapse` of
+    :func:`_level_maps`."""
+    return _collapse(_level_maps(x, y, kernel_size, len(weights), y_levels), weights)
 
 
-def similarity_map(cost: MatchingCost, x: Tensor, y: Tensor) -> Tensor:
+def _similarity_map(cost: MatchingCost, x: Tensor, y: Tensor) -> Tensor:
     """The variant's per-pixel similarity ``S`` of (B, C, H, W) images, (B, C, H, W)."""
     if not cost.weights:
         return ssim(x, y, kernel_size=cost.kernel_size, padding="reflect")
-    return ms_ssim_map(x, y, cost.kernel_size, cost.weights)
+    return _ms_ssim_map(x, y, cost.kernel_size, cost.weights)
 
 
-def appearance_map(cost: MatchingCost, estimate: Tensor, target: Tensor) -> Tensor:
+def _appearance_map(cost: MatchingCost, estimate: Tensor, target: Tensor) -> Tensor:
     """The per-pixel appearance cost (B, H, W): ``mean_c[α·clip((1 - S)/2, 0, 1) + (1 - α)·|Î - I|]``."""
-    return combined(cost, similarity_map(cost, estimate, target), estimate, target)
+    return combined(cost, _similarity_map(cost, estimate, target), estimate, target)
 
 
 def combined(cost: MatchingCost, similarity: Tensor, estimate: Tensor, target: Tensor) -> Tensor:
-    """:func:`appearance_map` given the similarity map ``S`` (consumed: changed in place)."""
+    """:func:`_appearance_map` given the similarity map ``S`` (consumed: changed in place)."""
     dissimilarity = similarity.neg_().add_(1).mul_(0.5).clamp_(0, 1).mul_(cost.alpha)
     return dissimilarity.add_((estimate - target).abs_().mul_(1 - cost.alpha)).mean(1)
 
 
-def shift_index(width: int, disparities: Sequence[int], pad: int = 0) -> Tensor:
+def _shift_index(width: int, disparities: Sequence[int], pad: int = 0) -> Tensor:
     """(n, width + 2·pad) column indices into the right image of its shift by each disparity,
     reflect-padded by ``pad``: padded column j reads ``max(reflect(j - pad) - d, 0)``."""
     columns = torch.arange(-pad, width + pad)
@@ -200,7 +200,7 @@ def shift_index(width: int, disparities: Sequence[int], pad: int = 0) -> Tensor:
 def shifted(right: Tensor, disparities: Sequence[int]) -> Tensor:
     """(n, C, H, W): ``right`` (C, H, W) shifted right by each disparity, ``out[d][..., x] =
     right[..., max(x - d, 0)]`` (training's border reconstruction of the left view)."""
-    return right[..., shift_index(right.shape[-1], disparities).to(right.device)].permute(2, 0, 1, 3)
+    return right[..., _shift_index(right.shape[-1], disparities).to(right.device)].permute(2, 0, 1, 3)
 
 
 # Peak bytes per cell of an (H, W, D + 1) volume on the cost start's path: the float32 volume, SGM's
@@ -211,7 +211,7 @@ VOLUME_BYTES_PER_CELL = 8
 MAX_VOLUME_BYTES = 8 << 30  # KITTI's 375 x 1242 px at D = 372: 1.3 GiB
 
 
-def volume_bytes(height: int, width: int, max_disparity: int | None = None) -> int:
+def _volume_bytes(height: int, width: int, max_disparity: int | None = None) -> int:
     """The cost start's estimated peak bytes for an ``height`` x ``width`` pair (D as in
     :func:`cost_volume`): (H·W·(D + 1)) cells of :data:`VOLUME_BYTES_PER_CELL`."""
     top = default_max_disparity(width) if max_disparity is None else int(max_disparity)
@@ -220,8 +220,8 @@ def volume_bytes(height: int, width: int, max_disparity: int | None = None) -> i
 
 def check_volume_size(height: int, width: int, max_disparity: int | None = None) -> None:
     """A DataError, before any allocation, when the cost volume of an ``height`` x ``width`` pair
-    would take more than :data:`MAX_VOLUME_BYTES` (:func:`volume_bytes`)."""
-    need = volume_bytes(height, width, max_disparity)
+    would take more than :data:`MAX_VOLUME_BYTES` (:func:`_volume_bytes`)."""
+    need = _volume_bytes(height, width, max_disparity)
     if need > MAX_VOLUME_BYTES:
         top = default_max_disparity(width) if max_disparity is None else int(max_disparity)
         raise DataError(
@@ -269,7 +269,7 @@ def _ssim_sweep(left: Tensor, right: Tensor, cost: MatchingCost, volume: Tensor)
     rows = max(1, BLOCK_ELEMENTS // (chunk * channels * (width + 2 * pad)))
     for start in range(0, count, chunk):
         ds = range(start, min(count, start + chunk))
-        index = shift_index(width, ds, pad).to(left.device)
+        index = _shift_index(width, ds, pad).to(left.device)
         for top in range(0, height, rows):
             bottom = min(height, top + rows)
             target = left_p[:, top : bottom + 2 * pad].expand(len(ds), -1, -1, -1)
@@ -290,7 +290,7 @@ def _ms_ssim_sweep(left: Tensor, right: Tensor, cost: MatchingCost, volume: Tens
         ds = range(start, min(count, start + chunk))
         estimate = shifted(right, ds)
         target = left.expand_as(estimate)
-        similarity = ms_ssim_map(estimate, target, cost.kernel_size, cost.weights, targets)
+        similarity = _ms_ssim_map(estimate, target, cost.kernel_size, cost.weights, targets)
         block = combined(cost, similarity, estimate, target)
         volume[..., start : start + len(ds)] = block.permute(1, 2, 0)
 

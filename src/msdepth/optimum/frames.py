@@ -39,10 +39,10 @@ def sweep_frames(params: Params, index: pd.DataFrame, weight: float) -> pd.DataF
     the first ``optimum.sweep_frames`` (0 = all) at the sweep's other weights, to bound the time."""
     if weight == params.optimum.smoothness_weight:
         return index
-    return first_frames(index, params.optimum.sweep_frames)
+    return _first_frames(index, params.optimum.sweep_frames)
 
 
-def first_frames(index: pd.DataFrame, n: int) -> pd.DataFrame:
+def _first_frames(index: pd.DataFrame, n: int) -> pd.DataFrame:
     """The first ``n`` rows of an evaluation index (0 = all)."""
     return index if n <= 0 else index.iloc[:n].reset_index(drop=True)
 
@@ -62,18 +62,18 @@ def frame_disparities(params: Params, variant: str, weight: float, index: pd.Dat
     return np.stack(optimum_disparities(pairs, params, variant, weight))
 
 
-def boxes_of(rois: pd.DataFrame, names: Sequence[str]) -> pd.DataFrame:
+def _boxes_of(rois: pd.DataFrame, names: Sequence[str]) -> pd.DataFrame:
     """The ROIs of the frames ``names`` (a sweep's subset of the evaluation frames)."""
     return rois[rois["image"].isin(set(names))].reset_index(drop=True)
 
 
-def gt_disparity_px(frame) -> np.ndarray:  # noqa: ANN001 - an evaluate.Frame
+def _gt_disparity_px(frame) -> np.ndarray:  # noqa: ANN001 - an evaluate.Frame
     """A frame's GT as disparity in px (0 where there is no GT, read by the cost curve as infinitely far)."""
     depth = frame.gt_depth
     return np.where(depth > 0, frame.focal * frame.baseline / np.maximum(depth, 1e-6), 0.0).astype(np.float32)
 
 
-def roi_cost_curves(params: Params, variant: str, index: pd.DataFrame, rois: pd.DataFrame) -> dict:
+def _roi_cost_curves(params: Params, variant: str, index: pd.DataFrame, rois: pd.DataFrame) -> dict:
     """Per ROI class, the cost curve (:func:`msdepth.optimum.solver.cost_curve`) of every ROI whose GT is
     dense (valid fraction >= ``eval.dense_gt_fraction``), on the whole frame at the GT's size."""
     from msdepth.data.kitti import read_image
@@ -96,7 +96,7 @@ def roi_cost_curves(params: Params, variant: str, index: pd.DataFrame, rois: pd.
             if frame.valid[box[1] : box[3], box[0] : box[2]].mean() < params.eval.dense_gt_fraction:
                 continue
             dense.append((b["class"], box))
-        add_cost_curves(curves, criterion, left, right, gt_disparity_px(frame), dense)
+        add_cost_curves(curves, criterion, left, right, _gt_disparity_px(frame), dense)
     return curves
 
 
@@ -163,17 +163,17 @@ def score_optimum(
     frames = load_frames(index)
     pred = depth_maps(disp, frames)
     save_npz(depth, **pred)
-    score_depth(params, run, pred, frames, rois)
+    _score_depth(params, run, pred, frames, rois)
 
 
-def score_depth(params: Params, run: str, pred: dict[str, np.ndarray], frames: list, rois: Path) -> None:
+def _score_depth(params: Params, run: str, pred: dict[str, np.ndarray], frames: list, rois: Path) -> None:
     """Every suite on ``pred`` (frame -> depth at GT size) of ``frames`` as run ``run``, the ROI
     suites on the boxes of ``rois`` that lie on those frames: what a trained run's eval stages do."""
     from msdepth.data import kitti
     from msdepth.evaluation.results import run_suite
     from msdepth.pipeline.paths import SUITE_NAMES
 
-    boxes = boxes_of(kitti.read_rois(rois), [f.name for f in frames])
+    boxes = _boxes_of(kitti.read_rois(rois), [f.name for f in frames])
     for suite in SUITE_NAMES:
         run_suite(params, suite, run, pred, frames, None if suite == "full" else boxes)
 
@@ -183,7 +183,7 @@ def checked_matcher(params: Params, matcher: str) -> str:
     return matcher if matcher == SGBM else params.variant(matcher)
 
 
-def match_disparities(params: Params, matcher: str, index: pd.DataFrame) -> list[np.ndarray]:
+def _match_disparities(params: Params, matcher: str, index: pd.DataFrame) -> list[np.ndarray]:
     """The left disparity (h, w; fraction of the width, as the infer stage writes a network's) of
     every row ``(left, right)`` of an evaluation index, at the pair's own size: OpenCV's SGBM
     (``matcher`` ``sgbm``) or SGM on the variant ``matcher``'s own cost volume, winner-take-all with
@@ -202,7 +202,7 @@ def match_disparities(params: Params, matcher: str, index: pd.DataFrame) -> list
 
 
 def score_match(params: Params, matcher: str, eval_index: Path, rois: Path) -> None:
-    """A matcher (:func:`match_disparities`) on every frame of ``eval_index``, with
+    """A matcher (:func:`_match_disparities`) on every frame of ``eval_index``, with
     ``optimum.threads`` torch threads, converted to depth and scored by every suite as run
     :func:`~msdepth.pipeline.paths.match_run` (metrics only: no disparities or depth kept). A
     variant without a per-pixel cost (``mix``) writes skipped metrics, as a baseline that cannot be
@@ -223,7 +223,7 @@ def score_match(params: Params, matcher: str, eval_index: Path, rois: Path) -> N
     torch.set_num_threads(params.optimum.threads)
     index = read_eval_index(eval_index)
     frames = load_frames(index)
-    score_depth(params, run, depth_maps(match_disparities(params, matcher, index), frames), frames, rois)
+    _score_depth(params, run, depth_maps(_match_disparities(params, matcher, index), frames), frames, rois)
 
 
 def write_cost_curves(params: Params, variant: str, eval_index: Path, rois: Path, out: Path) -> None:
@@ -237,10 +237,10 @@ def write_cost_curves(params: Params, variant: str, eval_index: Path, rois: Path
     from msdepth.io import write_json
 
     torch.set_num_threads(params.optimum.threads)
-    curves = roi_cost_curves(
+    curves = _roi_cost_curves(
         params,
         params.variant(variant),
-        first_frames(read_eval_index(eval_index), params.optimum.cost_frames),
+        _first_frames(read_eval_index(eval_index), params.optimum.cost_frames),
         kitti.read_rois(rois),
     )
     write_json(out, cost_summary(curves))

@@ -14,9 +14,9 @@ exact classes where the set has them, D1 and EPE), as the run the default frames
 (:func:`~msdepth.pipeline.paths.match_run`, :func:`~msdepth.pipeline.paths.optimum_run`).
 
 One frame in memory at a time while matching or optimising: each frame's disparity goes to a
-scratch folder the stage owns (:func:`scratch_dir`, below ``checkpoints/``, not a DVC output),
+scratch folder the stage owns (:func:`_scratch_dir`, below ``checkpoints/``, not a DVC output),
 written atomically, so a killed run redoes only the frames it had not finished. The folder holds a
-key (:func:`scratch_key`: the instrument, the params it reads, the set index's hash) and is emptied
+key (:func:`_scratch_key`: the instrument, the params it reads, the set index's hash) and is emptied
 when the key differs; it is removed once the metrics are written. Scoring then reads the set's GT
 and depth maps, as the networks' ``eval_set`` stage does.
 """
@@ -50,19 +50,19 @@ from msdepth.pipeline.paths import (
 log = logging.getLogger("msdepth")
 
 SCRATCH = CHECKPOINTS / "sets"  # <set>/<run>/: a set stage's per-frame disparities until it is scored
-KEY = "key.json"  # what a scratch folder's frames were computed with (scratch_key)
+KEY = "key.json"  # what a scratch folder's frames were computed with (_scratch_key)
 # A frame's disparity (fraction of the width, at the working size) in its scratch folder: row i of the index.
 FRAME_FILE = "frame{:06d}.npy"
 
 Disparity = Callable[[np.ndarray, np.ndarray], np.ndarray]  # (left, right) uint8 RGB -> (h, w) fraction
 
 
-def scratch_dir(name: str, run: str, root: Path = SCRATCH) -> Path:
+def _scratch_dir(name: str, run: str, root: Path = SCRATCH) -> Path:
     """The scratch folder of run ``run`` on extra set ``name``: ``checkpoints/sets/<set>/<run>``."""
     return Path(root) / name / run
 
 
-def scratch_key(params: Params, instrument: str, variant: str | None, set_index: Path) -> dict:
+def _scratch_key(params: Params, instrument: str, variant: str | None, set_index: Path) -> dict:
     """What a scratch folder's frames depend on: the instrument, the ``optimum`` and ``loss`` sections,
     the variant's own section (for SGM and the optimum) and the sha256 of the set's index, as JSON
     reads it back (a resumed run compares it with the folder's :data:`KEY`)."""
@@ -79,7 +79,7 @@ def scratch_key(params: Params, instrument: str, variant: str | None, set_index:
     return json.loads(json.dumps(key, default=str))
 
 
-def open_scratch(folder: Path, key: dict) -> int:
+def _open_scratch(folder: Path, key: dict) -> int:
     """Make ``folder`` hold the frames of ``key`` only: kept when its :data:`KEY` equals ``key``,
     else removed and started anew with that key. Returns the number of frames kept."""
     from msdepth.io import write_json
@@ -95,7 +95,7 @@ def open_scratch(folder: Path, key: dict) -> int:
     return len(list(folder.glob(FRAME_FILE.replace("{:06d}", "*"))))
 
 
-def remove_scratch(folder: Path, root: Path = SCRATCH) -> None:
+def _remove_scratch(folder: Path, root: Path = SCRATCH) -> None:
     """Remove a finished run's scratch ``folder`` and its parents up to ``root`` left empty."""
     shutil.rmtree(folder, ignore_errors=True)
     for parent in folder.parents:
@@ -128,7 +128,7 @@ def frame_disparities(index: pd.DataFrame, folder: Path, disparity: Disparity, l
         log.info("%s: frame %d/%d (%s) in %.1f s", label, i + 1, total, row.frame, seconds)
 
 
-def score_scratch(params: Params, name: str, run: str, index: pd.DataFrame, folder: Path) -> None:
+def _score_scratch(params: Params, name: str, run: str, index: pd.DataFrame, folder: Path) -> None:
     """The frames' disparities in ``folder`` as depth at each frame's GT size
     (:func:`msdepth.evaluation.suites.depth_maps`, one frame at a time), scored on set ``name`` as run
     ``run`` (:func:`msdepth.evaluation.results.score_set`)."""
@@ -142,11 +142,11 @@ def score_scratch(params: Params, name: str, run: str, index: pd.DataFrame, fold
     score_set(params, name, run, pred, frames)
 
 
-def score_set_instrument(
+def _score_set_instrument(
     params: Params, name: str, run: str, set_index: Path, key: dict, disparity: Disparity
 ) -> None:
     """Run ``disparity`` on every frame of extra set ``name`` (its index ``set_index``) with
-    ``optimum.threads`` torch threads, resuming from its scratch folder (``key``: :func:`scratch_key`),
+    ``optimum.threads`` torch threads, resuming from its scratch folder (``key``: :func:`_scratch_key`),
     score it as run ``run`` and remove the scratch folder."""
     import torch
 
@@ -154,11 +154,11 @@ def score_set_instrument(
 
     torch.set_num_threads(params.optimum.threads)
     index = read_eval_index(set_index)
-    folder = scratch_dir(name, run)
-    open_scratch(folder, key)
+    folder = _scratch_dir(name, run)
+    _open_scratch(folder, key)
     frame_disparities(index, folder, disparity, f"{run} on {name}")
-    score_scratch(params, name, run, index, folder)
-    remove_scratch(folder)
+    _score_scratch(params, name, run, index, folder)
+    _remove_scratch(folder)
 
 
 def score_set_match(params: Params, name: str, matcher: str, set_index: Path) -> None:
@@ -180,11 +180,11 @@ def score_set_match(params: Params, name: str, matcher: str, set_index: Path) ->
         return start_disparity(left, right, params, matcher, start)[0]
 
     variant = None if matcher == SGBM else matcher
-    key = scratch_key(params, start, variant, set_index)
-    score_set_instrument(params, name, run, set_index, key, disparity)
+    key = _scratch_key(params, start, variant, set_index)
+    _score_set_instrument(params, name, run, set_index, key, disparity)
 
 
-def checked_default_weight(params: Params, weight: str) -> float:
+def _checked_default_weight(params: Params, weight: str) -> float:
     """``weight`` as a float, a ConfigError unless it is ``optimum.smoothness_weight`` (an extra set
     runs the optimum at that one weight)."""
     try:
@@ -205,11 +205,11 @@ def score_set_optimum(params: Params, name: str, variant: str, weight: str, set_
     :func:`~msdepth.pipeline.paths.optimum_run`."""
     from msdepth.optimum.solver import optimum_disparities
 
-    value = checked_default_weight(params, weight)
+    value = _checked_default_weight(params, weight)
     run = optimum_run(params.variant(variant), weight)
 
     def disparity(left: np.ndarray, right: np.ndarray) -> np.ndarray:
         return optimum_disparities([(left, right)], params, variant, value, progress=False)[0]
 
-    key = scratch_key(params, "optimum", variant, set_index)
-    score_set_instrument(params, name, run, set_index, key, disparity)
+    key = _scratch_key(params, "optimum", variant, set_index)
+    _score_set_instrument(params, name, run, set_index, key, disparity)

@@ -39,7 +39,7 @@ LR_MAX_DIFF = 1
 SUBPIXEL = 16  # OpenCV's disparities are fixed point, 1/16 px
 
 
-def num_disparities(max_disparity: int) -> int:
+def _num_disparities(max_disparity: int) -> int:
     """OpenCV's ``numDisparities`` for disparities up to ``max_disparity``: a multiple of 16, at least 16."""
     return max(16, 16 * math.ceil(max_disparity / 16))
 
@@ -52,7 +52,7 @@ def sgbm_disparity(
     if left.shape != right.shape or left.ndim != 3 or left.shape[-1] != CHANNELS or left.dtype != np.uint8:
         raise ValueError(f"SGBM: expected two uint8 (H, W, 3) images, got {left.shape} and {right.shape}")
     top = default_max_disparity(left.shape[1]) if max_disparity is None else int(max_disparity)
-    count = num_disparities(top)
+    count = _num_disparities(top)
     matcher = cv2.StereoSGBM_create(
         minDisparity=0,
         numDisparities=count,

@@ -12,12 +12,12 @@ aggregated cost is ``S = Σ_r L_r``. A path starts at the image's edge with ``L_
 one loop along its direction, vectorised over a whole row (or column) and all disparities.
 
 Penalties in the cost's own units: ``P = p · s`` with ``s`` the median over pixels of
-``mean_d C - min_d C`` (:func:`cost_scale`), how far a typical wrong disparity's cost lies above the
+``mean_d C - min_d C`` (:func:`_cost_scale`), how far a typical wrong disparity's cost lies above the
 best; so one ``p1``, ``p2`` serve costs of any range (an SSIM term, an MS-SSIM term, an L1). The
 defaults, ``p1 = 0.25`` and ``p2 = 4`` (P2 = 16·P1; OpenCV's SGBM uses 4·P1 on its block costs),
 were chosen on the two KITTI 2015 frames of ../shared/real-samples with the SSIM cost at
 D = 0.3·W: D1 10.2 % and 7.8 %; the 14 other pairs tried (p1 0.1–1, p2 0.4–16) gave 10.8–37 % and
-8.0–32 %, SGBM 10.3 % and 6.8 %. SGM runs on the volume in int16 steps (:func:`quantise`), as
+8.0–32 %, SGBM 10.3 % and 6.8 %. SGM runs on the volume in int16 steps (:func:`_quantise`), as
 OpenCV's does; its D1 there is that of float32 to 0.05 points.
 
 Disparity: winner-take-all on S, refined to sub-pixel by the parabola through the minimum and
@@ -43,7 +43,7 @@ PATHS_4 = ((0, 1), (0, -1), (1, 0), (-1, 0))
 PATHS_8 = PATHS_4 + ((1, 1), (1, -1), (-1, 1), (-1, -1))
 ROWS_PER_CHUNK = 16  # rows of the right view's re-indexed volume held at once
 # SGM runs on int16 costs, as OpenCV's does: half the memory traffic of float32 and twice the SIMD
-# lanes (about 2x faster). A cost_scale is UNITS integer steps, fine beside the penalties (16 and
+# lanes (about 2x faster). A _cost_scale is UNITS integer steps, fine beside the penalties (16 and
 # more steps); costs are capped so that 8 paths' sums stay within int16 (L_r <= C + P2).
 UNITS = 64
 INT16_MAX = 32767
@@ -52,7 +52,7 @@ INT16_MAX = 32767
 @dataclass(frozen=True)
 class SGMConfig:
     """Semi-global matching's settings: path count (4 or 8), penalties as multiples of
-    :func:`cost_scale`, and the left-right check's tolerance (px)."""
+    :func:`_cost_scale`, and the left-right check's tolerance (px)."""
 
     paths: int = 8
     p1: float = 0.25
@@ -66,14 +66,14 @@ class SGMConfig:
             raise ValueError(f"SGM: need 0 <= p1 <= p2, got p1={self.p1}, p2={self.p2}")
 
 
-def cost_scale(volume: Tensor) -> float:
+def _cost_scale(volume: Tensor) -> float:
     """The median over pixels of ``mean_d C - min_d C`` of an (H, W, D + 1) volume (1 if 0)."""
     spread = volume.mean(-1) - volume.amin(-1)
     scale = float(spread.median())
     return scale if scale > 0 else 1.0
 
 
-def path_step(cost: Tensor, previous: Tensor, p1: float, p2: float, out: Tensor | None = None) -> Tensor:
+def _path_step(cost: Tensor, previous: Tensor, p1: float, p2: float, out: Tensor | None = None) -> Tensor:
     """``L_r`` of a slice of pixels (..., D + 1) given their predecessors' ``L_r`` (into ``out``)."""
     low = previous.amin(-1, keepdim=True)
     best = torch.minimum(previous, low + p2, out=out)
@@ -98,7 +98,7 @@ def _walk_rows(volume: Tensor, total: Tensor, p1: float, p2: float, dy: int, dx:
     read = {1: slice(0, width), -1: slice(1, None), 0: own}[dx]
     for i, y in enumerate(range(height) if dy > 0 else range(height - 1, -1, -1)):
         current, previous = buffers[i % 2], buffers[1 - i % 2]
-        step = path_step(volume[y], previous[read], p1, p2, out=current[own])
+        step = _path_step(volume[y], previous[read], p1, p2, out=current[own])
         total[y] += step
 
 
@@ -107,13 +107,13 @@ def _walk_columns(volume: Tensor, total: Tensor, p1: float, p2: float, dx: int) 
     width = volume.shape[1]
     buffers = [torch.zeros_like(volume[:, 0]) for _ in range(2)]
     for i, x in enumerate(range(width) if dx > 0 else range(width - 1, -1, -1)):
-        step = path_step(volume[:, x], buffers[1 - i % 2], p1, p2, out=buffers[i % 2])
+        step = _path_step(volume[:, x], buffers[1 - i % 2], p1, p2, out=buffers[i % 2])
         total[:, x] += step
 
 
-def aggregate(volume: Tensor, p1: float, p2: float, paths: int = 8) -> Tensor:
+def _aggregate(volume: Tensor, p1: float, p2: float, paths: int = 8) -> Tensor:
     """``S = Σ_r L_r`` over 4 or 8 paths of an (H, W, D + 1) volume (float, or int16 steps with
-    integer penalties: :func:`quantise`), penalties in its units."""
+    integer penalties: :func:`_quantise`), penalties in its units."""
     if volume.dim() != 3:
         raise ValueError(f"SGM: expected an (H, W, D + 1) volume, got shape {tuple(volume.shape)}")
     if paths not in (4, 8):
@@ -128,7 +128,7 @@ def aggregate(volume: Tensor, p1: float, p2: float, paths: int = 8) -> Tensor:
     return total
 
 
-def subpixel(aggregated: Tensor, best: Tensor) -> Tensor:
+def _subpixel(aggregated: Tensor, best: Tensor) -> Tensor:
     """(H, W) float disparity: the integer minimum ``best`` moved to the vertex of the parabola
     through its cost and its two neighbours' (unchanged at 0 and D, or where the cost is flat)."""
     top = aggregated.shape[-1] - 1
@@ -142,7 +142,7 @@ def subpixel(aggregated: Tensor, best: Tensor) -> Tensor:
     return best.float() + offset.clamp(-0.5, 0.5).float()
 
 
-def right_disparity(aggregated: Tensor) -> Tensor:
+def _right_disparity(aggregated: Tensor) -> Tensor:
     """(H, W) long: the right view's winner-take-all disparity from the left view's volume,
     ``argmin_d S(y, x + d, d)`` (disparities reaching past the left image's edge left out).
 
@@ -163,7 +163,7 @@ def right_disparity(aggregated: Tensor) -> Tensor:
     return out
 
 
-def lr_valid(left: Tensor, right: Tensor, tolerance: float = 1.0) -> Tensor:
+def _lr_valid(left: Tensor, right: Tensor, tolerance: float = 1.0) -> Tensor:
     """(H, W) bool: left disparities (float px) whose match ``x - d`` (rounded) is in the right
     image and has a right disparity within ``tolerance`` px."""
     width = left.shape[-1]
@@ -189,7 +189,7 @@ def fill_holes(disparity: np.ndarray, valid: np.ndarray) -> np.ndarray:
     return np.where(valid, disparity, nearest).astype(np.float32)
 
 
-def quantise(volume: Tensor, scale: float, p2: float, paths: int) -> Tensor:
+def _quantise(volume: Tensor, scale: float, p2: float, paths: int) -> Tensor:
     """An (H, W, D + 1) volume as int16 steps of ``scale / UNITS`` above its minimum (SGM's result
     does not change with a constant added to the cost), capped so that ``paths`` paths' sums of
     ``L_r <= C + P2`` (P2 = ``p2`` steps) fit int16."""
@@ -207,12 +207,12 @@ def quantise(volume: Tensor, scale: float, p2: float, paths: int) -> Tensor:
 def sgm(volume: Tensor, config: SGMConfig = SGMConfig()) -> tuple[np.ndarray, np.ndarray]:
     """Semi-global matching of an (H, W, D + 1) cost volume: the left view's disparity (px, float32,
     holes filled) and its validity before filling (the left-right check), both (H, W). Runs on the
-    volume in int16 steps of ``cost_scale / UNITS`` (:func:`quantise`)."""
+    volume in int16 steps of ``_cost_scale / UNITS`` (:func:`_quantise`)."""
     p1, p2 = round(config.p1 * UNITS), round(config.p2 * UNITS)
-    steps = quantise(volume, cost_scale(volume), p2, config.paths)
-    aggregated = aggregate(steps, p1, p2, config.paths)
+    steps = _quantise(volume, _cost_scale(volume), p2, config.paths)
+    aggregated = _aggregate(steps, p1, p2, config.paths)
     del steps
     best = aggregated.argmin(-1)
-    left = subpixel(aggregated, best)
-    valid = lr_valid(left, right_disparity(aggregated), config.lr_tolerance)
+    left = _subpixel(aggregated, best)
+    valid = _lr_valid(left, _right_disparity(aggregated), config.lr_tolerance)
     return fill_holes(left.numpy(), valid.numpy()), valid.numpy()

@@ -100,7 +100,7 @@ def _logit(disparity: float) -> float:
     return math.log(disparity / (MAX_DISPARITY - disparity))
 
 
-def start_logits(start: Tensor) -> Tensor:
+def _start_logits(start: Tensor) -> Tensor:
     """The logits of a (B, 2, H, W) start disparity (fractions of width): ``logit(start / 0.3)``,
     the ratio clamped to [:data:`START_MARGIN`, 1 - :data:`START_MARGIN`] so that a start on the
     range's edge (a matcher's 0 in a row with no match) keeps a usable gradient."""
@@ -142,18 +142,18 @@ def optimise(
         if start.shape != (batch, 2, height, width):
             raise ValueError(f"optimum: a start of shape {tuple(start.shape)} for pairs {tuple(left.shape)}")
         sizes = level_sizes(height, width, cfg.refine_levels)
-        logits = start_logits(F.interpolate(start.to(left), size=sizes[0], mode="area"))
+        logits = _start_logits(F.interpolate(start.to(left), size=sizes[0], mode="area"))
         steps = cfg.refine_iterations
     for size in sizes:
         logits = F.interpolate(logits, size=size, mode="bilinear", align_corners=False)
         # The objective on the pair at this level's size (area: the filter of the image pyramid).
         left_l, right_l = (F.interpolate(x, size=size, mode="area") for x in (left, right))
-        logits = descend(logits, left_l, right_l, criterion, steps, cfg.learning_rate, trace, observe)
+        logits = _descend(logits, left_l, right_l, criterion, steps, cfg.learning_rate, trace, observe)
     with torch.no_grad():
         return MAX_DISPARITY * torch.sigmoid(logits)
 
 
-def descend(
+def _descend(
     logits: Tensor,
     left: Tensor,
     right: Tensor,
@@ -328,7 +328,7 @@ def minimum_index(scales: Sequence[float], costs: np.ndarray, tolerance: float =
     return int(near[np.lexsort((scales[near], distance))[0]])
 
 
-def curve_minimum(scales: Sequence[float], costs: np.ndarray) -> float:
+def _curve_minimum(scales: Sequence[float], costs: np.ndarray) -> float:
     """``s_min``: the ``s`` of the lowest cost, rounding-proof (:func:`minimum_index`)."""
     return float(np.asarray(scales)[minimum_index(scales, costs)])
 
@@ -368,7 +368,7 @@ def class_summary(
         low, high = basin(scales, mean)
         out[cls] = {
             "rois": len(rows),
-            "s_min": curve_minimum(scales, mean),
+            "s_min": _curve_minimum(scales, mean),
             "basin_low": low,
             "basin_high": high,
             "basin_ratio": high / low,

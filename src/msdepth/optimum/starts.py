@@ -13,7 +13,7 @@ does not depend on the size, so one match serves every working size and the refi
 can be compared across sizes from the same start. The map is then area-resampled to the working
 size (the images' own filter).
 
-The right view's disparity is derived from the left one by warping (:func:`right_from_left`), not
+The right view's disparity is derived from the left one by warping (:func:`_right_from_left`), not
 by a second, right-view match: left pixel x at disparity d is right pixel x − d; where several left
 pixels land on one right pixel the largest disparity (the nearest surface) wins, and right pixels
 no left pixel lands on (seen only from the right: the right of near objects) are filled with the
@@ -62,7 +62,7 @@ def matched_disparity(
     raise ConfigError(f"optimum.start: {start!r} is not a matcher; one of {list(OPTIMUM_STARTS[1:])}")
 
 
-def right_from_left(left_px: np.ndarray) -> np.ndarray:
+def _right_from_left(left_px: np.ndarray) -> np.ndarray:
     """The right view's disparity (px, float32, (H, W)) of a left-view disparity map (px), by
     forward warping: left pixel x lands on right pixel round(x − d), the largest disparity wins,
     and the right pixels none lands on take the lower neighbour along the row."""
@@ -89,7 +89,7 @@ def start_disparity(
 
     Matched at the pair's own size capped by ``optimum.max_width`` (:func:`capped_size`; the pair
     area-resized to it) and area-resampled to ``size``; the right channel warped from the left
-    (:func:`right_from_left`). ``constant``: ``optimum.init_disparity`` in both.
+    (:func:`_right_from_left`). ``constant``: ``optimum.init_disparity`` in both.
     """
     if start not in OPTIMUM_STARTS:
         raise ConfigError(f"optimum.start: unknown start {start!r}; one of {list(OPTIMUM_STARTS)}")
@@ -104,9 +104,9 @@ def start_disparity(
 def both_views(left_px: np.ndarray, size: tuple[int, int]) -> np.ndarray:
     """A matched start (2, h, w) float32, fractions of the width in [0, 0.3], from the left view's
     disparity (px, (H, W), at the pair's own size): the right view warped from it
-    (:func:`right_from_left`), both area-resampled to ``size``."""
+    (:func:`_right_from_left`), both area-resampled to ``size``."""
     height, width = size
-    both = np.stack((left_px, right_from_left(left_px)), axis=-1) / left_px.shape[1]
+    both = np.stack((left_px, _right_from_left(left_px)), axis=-1) / left_px.shape[1]
     if both.shape[:2] != (height, width):
         both = cv2.resize(both, (width, height), interpolation=cv2.INTER_AREA)
     return np.ascontiguousarray(np.clip(both, 0.0, MAX_DISPARITY).transpose(2, 0, 1), dtype=np.float32)

@@ -38,7 +38,7 @@ CODE_PREFIXES = ("stages/", "src/")
 COMMAND = "python -m msdepth.pipeline.dvcyaml"
 
 
-def module_file(name: str, src: Path) -> Path | None:
+def _module_file(name: str, src: Path) -> Path | None:
     """The file of module ``name`` (``a.b`` -> ``src/a/b.py`` or ``src/a/b/__init__.py``), if any."""
     base = src.joinpath(*name.split("."))
     for path in (base.with_suffix(".py"), base / "__init__.py"):
@@ -58,7 +58,7 @@ def _skipped_nodes(tree: ast.AST) -> set[int]:
     }
 
 
-def imported_modules(path: Path, module: str | None, src: Path, package: str = PACKAGE) -> set[str]:
+def _imported_modules(path: Path, module: str | None, src: Path, package: str = PACKAGE) -> set[str]:
     """The ``package`` modules that the file ``path`` (module ``module``; None for a script) imports.
 
     ``from X import y`` counts ``X`` and, when ``y`` is a submodule, ``X.y`` too; relative imports
@@ -89,22 +89,22 @@ def imported_modules(path: Path, module: str | None, src: Path, package: str = P
             else:
                 base = node.module or ""
             found.add(base)
-            found.update(f"{base}.{a.name}" for a in node.names if module_file(f"{base}.{a.name}", src))
+            found.update(f"{base}.{a.name}" for a in node.names if _module_file(f"{base}.{a.name}", src))
     return {m for m in found if m == package or m.startswith(package + ".")}
 
 
-def import_closure(script: Path, src: Path, package: str = PACKAGE) -> set[Path]:
+def _import_closure(script: Path, src: Path, package: str = PACKAGE) -> set[Path]:
     """Every source file that running ``script`` executes from ``package``: the modules it imports,
     theirs in turn, and each one's parent packages' ``__init__.py``."""
     files: set[Path] = set()
     todo: list[tuple[Path, str | None]] = [(script, None)]
     while todo:
         path, module = todo.pop()
-        for name in imported_modules(path, module, src, package):
+        for name in _imported_modules(path, module, src, package):
             parts = name.split(".")
             for i in range(1, len(parts) + 1):  # importing a.b.c runs a/__init__ and a/b/__init__ first
                 sub = ".".join(parts[:i])
-                file = module_file(sub, src)
+                file = _module_file(sub, src)
                 if file is None:
                     raise DataError(f"{path}: imports {sub}, which has no file under {src}")
                 if file not in files:
@@ -113,7 +113,7 @@ def import_closure(script: Path, src: Path, package: str = PACKAGE) -> set[Path]
     return files
 
 
-def stage_scripts(dvc_yaml: dict) -> dict[str, str]:
+def _stage_scripts(dvc_yaml: dict) -> dict[str, str]:
     """``{stage name: its script}`` for every stage; each stage's cmd must run ``python stages/<x>.py``."""
     scripts = {}
     for name, stage in dvc_yaml["stages"].items():
@@ -124,11 +124,11 @@ def stage_scripts(dvc_yaml: dict) -> dict[str, str]:
     return scripts
 
 
-def code_deps(root: Path, script: str, package: str = PACKAGE) -> list[str]:
+def _code_deps(root: Path, script: str, package: str = PACKAGE) -> list[str]:
     """A stage's code deps: its script, then the files it imports (sorted, relative to ``root``),
     a folder below the package standing for its files when the stage imports every one of them."""
     src = root / "src"
-    files = import_closure(root / script, src, package)
+    files = _import_closure(root / script, src, package)
     folders = sorted(
         {d for f in files for d in f.parents if src / package in d.parents}, key=lambda d: len(d.parts)
     )
@@ -220,7 +220,7 @@ ITEMS = {
 PARAM_VALUES = {"SMOOTHNESS_WEIGHT": "${optimum.smoothness_weight}"}
 
 
-def tagged_path(expr: str) -> str:
+def _tagged_path(expr: str) -> str:
     """The path that a dvc.yaml line's ``# = EXPR`` names: EXPR is a public name of
     :mod:`msdepth.pipeline.paths`, a call of one of its functions on :data:`ITEMS` (``RUN``: a matrix
     stage's run, as dvc.yaml spells it; ``VARIANT``, ``SEED``, ``SET``, ``WEIGHT``: a matrix item) or on
@@ -260,7 +260,7 @@ def _rewrite_tagged(lines: list[str]) -> list[str]:
         match = TAGGED.match(line)
         if match:
             try:
-                path = tagged_path(match.group(5))
+                path = _tagged_path(match.group(5))
             except DataError as exc:
                 raise DataError(f"dvc.yaml, line {number}: {exc}") from None
             line = f"{match.group(1)}{path}{match.group(3)}{match.group(4)}{match.group(5)}\n"
@@ -278,12 +278,12 @@ def generate(root: Path) -> str:
     except yaml.YAMLError as exc:
         raise DataError(f"{path}: not valid YAML: {str(exc).splitlines()[0]}") from None
     lines = text.splitlines(keepends=True)
-    for name, script in stage_scripts(dvc_yaml).items():
-        lines = _rewrite_stage(lines, name, code_deps(root, script))
+    for name, script in _stage_scripts(dvc_yaml).items():
+        lines = _rewrite_stage(lines, name, _code_deps(root, script))
     return "".join(_rewrite_tagged(lines))
 
 
-def changed_stages(old: str, new: str) -> list[str]:
+def _changed_stages(old: str, new: str) -> list[str]:
     """The stages that differ between two versions of dvc.yaml."""
     before, after = yaml.safe_load(old)["stages"], yaml.safe_load(new)["stages"]
     return [n for n in after if before.get(n) != after[n]]
@@ -306,7 +306,7 @@ def main(argv: list[str] | None = None) -> int:
     except (MsdepthError, OSError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1
-    stages = changed_stages(old, new) if old != new else []
+    stages = _changed_stages(old, new) if old != new else []
     if args.check:
         if old != new:
             print(

@@ -84,7 +84,7 @@ def write_checked(path: Path = CHECKED) -> None:
         path.write_text(CHECKED_TEXT)
 
 
-# The command-line arguments of the per-run stages (see stage_parser).
+# The command-line arguments of the per-run stages (see _stage_parser).
 VariantArg = Annotated[str, "a loss variant listed in params.yaml's variants (e.g. ssim, msssim)"]
 SeedArg = Annotated[str, "a training seed listed in train.seeds"]
 
@@ -212,7 +212,7 @@ def cost_curves_path(variant: str, root: Path = COST_CURVES) -> Path:
     return Path(root) / f"{variant}.json"
 
 
-def stage_parser(fn: Callable[..., None]) -> argparse.ArgumentParser:
+def _stage_parser(fn: Callable[..., None]) -> argparse.ArgumentParser:
     """The command line of stage function ``fn(params, ...)``, built from its signature.
 
     Positional parameters after ``params`` become positional arguments (``VARIANT``); keyword-only
@@ -248,7 +248,7 @@ def run_stage(fn: Callable[..., None], *args: str, params_path: str | os.PathLik
     """
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)s", stream=sys.stderr)
     try:
-        parsed = vars(stage_parser(fn).parse_args(args))
+        parsed = vars(_stage_parser(fn).parse_args(args))
     except SystemExit as exc:  # --help (0) or a usage error (2), already printed by argparse
         return int(exc.code or 0)
     parameters = list(inspect.signature(fn).parameters.values())[1:]

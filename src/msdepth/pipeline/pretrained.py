@@ -20,7 +20,7 @@ from msdepth.io import file_sha256, write_text
 SHA256 = re.compile(r"[0-9a-f]{64}")
 
 
-def pretrained_record(pretrained: str) -> dict[str, str | None]:
+def _pretrained_record(pretrained: str) -> dict[str, str | None]:
     """``{"path": pretrained, "sha256": its content's hex digest}``; ``{"path": "", "sha256": None}``
     when unset. A DataError names a file that is missing, a folder or unreadable."""
     if not pretrained:
@@ -34,7 +34,7 @@ def pretrained_record(pretrained: str) -> dict[str, str | None]:
 def write_record(pretrained: str, out: Path) -> bool:
     """Write ``pretrained``'s record to ``out`` unless ``out`` holds those bytes already (its mtime
     then stays too); returns whether it wrote."""
-    text = json.dumps(pretrained_record(pretrained), indent=2) + "\n"
+    text = json.dumps(_pretrained_record(pretrained), indent=2) + "\n"
     if out.is_file() and out.read_text() == text:
         return False
     write_text(out, text)

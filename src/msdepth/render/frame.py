@@ -99,7 +99,7 @@ def render_frame(seed: int, split: int, index: int, height: int, width: int, lid
     """
     rng = frame_rng(seed, split, index)
     scene = build_scene(rng)
-    frame = view_scene(scene, height, width, 0.0, rng)
+    frame = _view_scene(scene, height, width, 0.0, rng)
     if lidar:
         frame.scan = simulate(scene, frame.focal, width, scan_rng(seed, split, index))
     return frame
@@ -113,7 +113,7 @@ def sequence_frame(
     own sensor noise per frame (:func:`sequence_pose` is the left camera's pose)."""
     scene = build_scene(np.random.default_rng([seed, SEQUENCE, *run]))
     noise = np.random.default_rng([seed, SEQUENCE, *run, position + 1])  # + 1: never the scene's seed
-    return view_scene(scene, height, width, position * step, noise)
+    return _view_scene(scene, height, width, position * step, noise)
 
 
 def sequence_pose(rotation: np.ndarray, forward: float) -> np.ndarray:
@@ -121,24 +121,24 @@ def sequence_pose(rotation: np.ndarray, forward: float) -> np.ndarray:
     (world of the scene: x right, y down, z forward; the first frame's camera at the origin)."""
     pose = np.eye(4)
     pose[:3, :3] = rotation
-    pose[:3, 3] = camera_origin(rotation, 0.0, forward)
+    pose[:3, 3] = _camera_origin(rotation, 0.0, forward)
     return pose
 
 
-def camera_origin(rotation: np.ndarray, offset: float, forward: float) -> np.ndarray:
+def _camera_origin(rotation: np.ndarray, offset: float, forward: float) -> np.ndarray:
     """The centre of the rig's camera ``offset`` metres right of the left one (0: the left camera,
     the baseline: the right), the rig ``forward`` metres along its optical axis, in world coordinates."""
     return rotation @ np.array([offset, 0.0, forward])
 
 
-def view_scene(scene: Scene, height: int, width: int, forward: float, rng: np.random.Generator) -> Frame:
+def _view_scene(scene: Scene, height: int, width: int, forward: float, rng: np.random.Generator) -> Frame:
     """The stereo frame of ``scene`` seen by the rig ``forward`` metres along its optical axis,
     sensor noise drawn from ``rng``; no LiDAR scan."""
     cam = camera(height, width, scene.rot)
     f = cam.f
     views, depths, faces = [], [], []
     for offset in (0.0, KITTI_BASELINE):
-        origin = camera_origin(scene.rot, offset, forward)
+        origin = _camera_origin(scene.rot, offset, forward)
         depth, face = trace(scene, cam, origin)
         views.append(shade_view(scene, cam, origin, depth, face))
         depths.append(depth)

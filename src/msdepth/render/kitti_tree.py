@@ -82,7 +82,7 @@ def calib_text(height: int, width: int, raw: bool = False) -> str:
     return text
 
 
-def drive_position(cfg: SyntheticConfig, index: int) -> tuple[int, int]:
+def _drive_position(cfg: SyntheticConfig, index: int) -> tuple[int, int]:
     """``(drive index from 0, frame number in the drive)`` of training pair ``index``."""
     drive = index * cfg.drives // cfg.train_pairs
     first = -(-drive * cfg.train_pairs // cfg.drives)  # first index mapped to this drive
@@ -91,7 +91,7 @@ def drive_position(cfg: SyntheticConfig, index: int) -> tuple[int, int]:
 
 def train_drive(cfg: SyntheticConfig, index: int) -> tuple[str, int]:
     """``(drive folder relative to raw/, frame number)`` of training pair ``index``."""
-    drive, number = drive_position(cfg, index)
+    drive, number = _drive_position(cfg, index)
     date = DATES[drive % len(DATES)]
     return f"{date}/{date}_drive_{drive + 1:04d}_sync", number
 
@@ -101,7 +101,7 @@ def _train_frame(cfg: SyntheticConfig, index: int) -> Frame:
     ``number % sequence_length`` of its drive's sequence ``number // sequence_length``."""
     if not cfg.sequence_length:
         return render_frame(cfg.seed, TRAIN, index, cfg.height, cfg.width)
-    drive, number = drive_position(cfg, index)
+    drive, number = _drive_position(cfg, index)
     run, position = (drive, number // cfg.sequence_length), number % cfg.sequence_length
     return sequence_frame(cfg.seed, run, position, cfg.height, cfg.width)
 

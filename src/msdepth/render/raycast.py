@@ -65,7 +65,7 @@ def _window(prim: Prim, rot: np.ndarray, origin: np.ndarray, cam: Camera) -> tup
     return slice(v0, v1), slice(u0, u1)
 
 
-def prim_hits(prim: Prim, origin: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _prim_hits(prim: Prim, origin: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Entry depth (inf = miss) and entry plane index of rays ``origin + t d`` into ``prim``."""
     shape = d.shape[:-1]
     t_in = np.full(shape, -np.inf, np.float32)
@@ -89,7 +89,7 @@ def prim_hits(prim: Prim, origin: np.ndarray, d: np.ndarray) -> tuple[np.ndarray
     return np.where(hit, t_in, np.inf), plane
 
 
-def ground_hits(scene: Scene, dirs: np.ndarray, origin: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _ground_hits(scene: Scene, dirs: np.ndarray, origin: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Ray length to the ground plane (inf = none) and face id (0 = ground, -1 = none) of rays
     ``origin + t dirs`` (dirs (..., 3), y down): where tracing starts before the primitives."""
     shape = dirs.shape[:-1]
@@ -114,12 +114,12 @@ def first_hits(
     """Ray length (inf = nothing) and face id (-1 = none) of the first hit of every ray
     ``origin + t dirs`` (dirs (H, W, 3)): the ground plane, then each primitive, cast only along
     the rays that ``window`` says can reach it (the camera's pixels or the LiDAR's beams)."""
-    depth, face = ground_hits(scene, dirs, origin)
+    depth, face = _ground_hits(scene, dirs, origin)
     for prim in scene.prims:
         win = window(prim)
         if win is None:
             continue
-        t, plane = prim_hits(prim, origin, dirs[win])
+        t, plane = _prim_hits(prim, origin, dirs[win])
         closer = t < depth[win]
         depth[win] = np.where(closer, t, depth[win])
         face[win] = np.where(closer, plane.astype(np.int32) + prim.face0, face[win])

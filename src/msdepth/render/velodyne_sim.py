@@ -95,7 +95,7 @@ class Scan:
     glass_dropped: int  # of those, the rays that returned nothing
 
 
-def elevations() -> np.ndarray:
+def _elevations() -> np.ndarray:
     """The beams' elevations (radians, top beam first)."""
     return np.radians(np.linspace(ELEVATION_TOP_DEG, ELEVATION_BOTTOM_DEG, N_BEAMS))
 
@@ -168,7 +168,7 @@ def simulate(
     ``rng`` (see :func:`scan_rng`) decides the glass drops: one uniform draw per ray cast, so the
     scan depends only on the scene, the image geometry and the generator's seed.
     """
-    elev, az = elevations(), azimuths(focal, width)
+    elev, az = _elevations(), azimuths(focal, width)
     e, a = np.meshgrid(elev, az, indexing="ij")
     d_velo = np.stack([np.cos(e) * np.cos(a), np.cos(e) * np.sin(a), np.sin(e)], axis=-1)
     velo_to_world = scene.rot @ VELO_TO_CAM_R  # world: x right, y down, z forward (as the renderer)

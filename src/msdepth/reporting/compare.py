@@ -196,14 +196,14 @@ def paired_statistics(
     return stats
 
 
-def mean_over_runs(trees: Sequence[dict]) -> dict:
+def _mean_over_runs(trees: Sequence[dict]) -> dict:
     """The runs' metric JSONs (same layout) averaged leaf by leaf; counts and labels must agree."""
     first = trees[0]
     if isinstance(first, dict):
         keys = set(first)
         if any(set(t) != keys for t in trees):
             raise DataError(f"cannot average runs whose metrics have different entries: {sorted(keys)}")
-        return {k: mean_over_runs([t[k] for t in trees]) for k in first}
+        return {k: _mean_over_runs([t[k] for t in trees]) for k in first}
     if first is None or isinstance(first, (str, bool)) or (isinstance(first, int) and len(set(trees)) == 1):
         if len(set(map(repr, trees))) != 1:
             raise DataError(
@@ -218,7 +218,7 @@ def group_metrics(
 ) -> dict[str, dict[str, dict]]:
     """``{suite: {group: metrics averaged over the group's runs}}``."""
     return {
-        suite: {g: mean_over_runs([runs_metrics[r] for r in runs]) for g, runs in groups.items()}
+        suite: {g: _mean_over_runs([runs_metrics[r] for r in runs]) for g, runs in groups.items()}
         for suite, runs_metrics in suites.items()
     }
 
@@ -389,7 +389,7 @@ SET_PIXELS = {
 }
 
 
-def class_lines(
+def _class_lines(
     name: str, groups: dict[str, dict], runs: Sequence[str], cap: str, label: Callable
 ) -> list[str]:
     """An extra set's exact classes at ``cap`` (KITTI 2012's ``reflective``, the summaries' ``masks``,
@@ -413,7 +413,9 @@ def class_lines(
     ]
 
 
-def stereo_lines(block: dict[str, dict], runs: Sequence[str], label: Callable[[str], str] = str) -> list[str]:
+def _stereo_lines(
+    block: dict[str, dict], runs: Sequence[str], label: Callable[[str], str] = str
+) -> list[str]:
     """KITTI's D1 (%) and EPE (px) of the whole frame per run at one cap (``block``: run -> the
     full-image suite's numbers), as Markdown lines; none where a run has no D1."""
     if any("d1" not in block[r] for r in runs):
@@ -475,11 +477,11 @@ def build_set_section(
             _table(["run", *METRICS], _metric_rows(block, runs, variants, label)),
             "",
         ]
-        md += stereo_lines(block, runs, label)
+        md += _stereo_lines(block, runs, label)
         md += _ci_lines(stats, "full", cap, "images", baselines, label)
         if len(seeds) > 1:
             md += _spread_lines(spread["full"][cap], variants, len(seeds), label)
-        md += class_lines(name, suites["full"], runs, cap, label)
+        md += _class_lines(name, suites["full"], runs, cap, label)
     masks = {r: suites["full"][r]["masks"] for r in runs if "masks" in suites["full"][r]}
     if masks:  # KITTI 2012's reflective class (msdepth.evaluation.classes)
         result["masks"] = masks
@@ -724,24 +726,46 @@ def _header_lines(c: Comparison) -> list[str]:
     ]
 
 
+def _seed_resampling(statistics: dict, variants: Sequence[str], several: bool) -> str:
+    """How the seeds enter the intervals: as pairs where a variant pairs with the reference's
+    seeds (:func:`pairing_status`), else per variant, with the reason."""
+    if not several:
+        return ""
+    pairing = statistics.get("pairing", {})
+    paired = [g for g in variants if g in pairing and pairing[g] is None]
+    unpaired = [f"{g}: {pairing[g]}" for g in variants if pairing.get(g) is not None]
+    parts = []
+    if paired:
+        parts.append(
+            f" jointly with seed pairs for {', '.join(paired)} (the same seed of both variants: the same "
+            "initial weights and batches, so only the loss differs; the paired t over the per-seed "
+            "differences is in compare.json and the verdict)"
+        )
+    if unpaired:
+        parts.append(
+            f"{',' if paired else ' and'} per variant, seeds for the unpaired ({'; '.join(unpaired)})"
+        )
+    return "".join(parts)
+
+
 def _statistics_lines(c: Comparison) -> list[str]:
     """How the differences' intervals were computed and what they cover."""
     if c.statistics is None:
         return []
     seeds, several = len(c.seeds), len(c.seeds) > 1
+    s = c.statistics
+    resampled = f"resampling images (ROIs){_seed_resampling(s, c.variants, several)}"
     if seeds >= MIN_SEEDS_FOR_MARKS:
         covers = (
-            "resampling images (ROIs) and, per variant, seeds: the intervals cover the choice of "
-            "images and training noise. `*`: the interval excludes 0."
+            f"{resampled}: the intervals cover the choice of images and training noise. "
+            "`*`: the interval excludes 0."
         )
     else:
         covers = (
-            f"resampling images (ROIs){' and seeds' if several else ''}. With {seeds} "
-            f"seed{'s' if several else ''} per variant the intervals cover the choice of images "
-            f"{'and barely any' if several else 'only, not'} training noise, so no difference is "
-            f"marked (that takes at least {MIN_SEEDS_FOR_MARKS} seeds, see docs/user-guide.md)."
+            f"{resampled}. With {seeds} seed{'s' if several else ''} per variant the intervals cover the "
+            f"choice of images {'and barely any' if several else 'only, not'} training noise, so no "
+            f"difference is marked (that takes at least {MIN_SEEDS_FOR_MARKS} seeds, see docs/user-guide.md)."
         )
-    s = c.statistics
     return [
         f"Differences are `run − {s['reference']}` (mean over images or ROIs) with a "
         f"bootstrap {s['confidence']:.0%} interval ({s['bootstrap_samples']} resamples) {covers}",
@@ -1106,11 +1130,11 @@ SECTIONS: tuple[Callable[[Comparison], list[str]], ...] = (
 )
 
 
-def render_comparison(comparison: Comparison) -> str:
+def _render_comparison(comparison: Comparison) -> str:
     """``compare.md``'s text: :data:`SECTIONS` in order."""
     return "\n".join(line for section in SECTIONS for line in section(comparison)) + "\n"
 
 
 def build_comparison(comparison: Comparison) -> tuple[dict, str]:
     """``comparison`` (:func:`comparison_data`) as ``compare.json``'s dict and ``compare.md``'s text."""
-    return comparison.as_json(), render_comparison(comparison)
+    return comparison.as_json(), _render_comparison(comparison)

@@ -41,7 +41,7 @@ class Experiment:
     metrics: dict = field(default_factory=dict)
 
 
-def parse_json(data: bytes, source: str) -> list:
+def _parse_json(data: bytes, source: str) -> list:
     """``dvc exp show --json``'s output ``data`` as a list of revisions; one DataError naming ``source``
     when it is larger than :data:`MAX_JSON_BYTES`, not UTF-8 JSON, or not a list of records."""
     if len(data) > MAX_JSON_BYTES:
@@ -68,11 +68,11 @@ def _first_sentence(exc: Exception) -> str:
 def read_json(path: str | os.PathLike) -> list:
     """The revisions of a saved ``dvc exp show --json`` output: a regular file of at most
     :data:`MAX_JSON_BYTES` (:func:`msdepth.io.read_bounded`: a FIFO would block the read forever, a
-    larger file is refused before it is read), parsed by :func:`parse_json`."""
-    return parse_json(read_bounded(path, "JSON", MAX_JSON_BYTES, allow_empty=True), str(path))
+    larger file is refused before it is read), parsed by :func:`_parse_json`."""
+    return _parse_json(read_bounded(path, "JSON", MAX_JSON_BYTES, allow_empty=True), str(path))
 
 
-def dvc_command() -> list[str]:
+def _dvc_command() -> list[str]:
     """The command line that runs DVC: ``dvc`` on the PATH, else this Python's ``dvc`` module; one
     DataError when neither is there."""
     found = shutil.which("dvc")
@@ -86,7 +86,7 @@ def dvc_command() -> list[str]:
 def run_exp_show() -> list:
     """The revisions ``dvc exp show --json`` prints in the current folder; one DataError when DVC is
     missing, fails (its last line of error output) or prints no such JSON."""
-    command = [*dvc_command(), "exp", "show", "--json"]
+    command = [*_dvc_command(), "exp", "show", "--json"]
     try:
         proc = subprocess.run(command, capture_output=True)
     except OSError as exc:
@@ -94,7 +94,7 @@ def run_exp_show() -> list:
     if proc.returncode:
         lines = proc.stderr.decode("utf-8", "replace").strip().splitlines() or ["no error output"]
         raise DataError(f"dvc exp show --json failed (exit {proc.returncode}): {lines[-1].strip()}")
-    return parse_json(proc.stdout, "dvc exp show --json")
+    return _parse_json(proc.stdout, "dvc exp show --json")
 
 
 def _data(record: dict) -> tuple[dict, dict]:
@@ -207,7 +207,7 @@ def table(rows: Sequence[Experiment], keys: Sequence[str] = DEFAULT_KEYS) -> lis
     return lines
 
 
-def printable(text: str) -> str:
+def _printable(text: str) -> str:
     """``text`` with each character that is not printable escaped as Python writes it (``\\x1b``,
     ``\\n``, ``\\u202e``, a lone surrogate ``\\ud800``): a label from DVC's JSON cannot move the
     cursor, recolour the terminal, reorder the line or start a forged row."""
@@ -218,9 +218,11 @@ def printable(text: str) -> str:
 
 def format_table(lines: Sequence[Sequence[str]], markdown: bool = False) -> str:
     """``lines`` (header first) as aligned text, columns two spaces apart, or as a markdown table;
-    the first column left-aligned, the others right-aligned. Every cell is :func:`printable` (and a
+    the first column left-aligned, the others right-aligned. Every cell is :func:`_printable` (and a
     markdown cell's ``|`` escaped)."""
-    lines = [[printable(c).replace("|", "\\|") if markdown else printable(c) for c in line] for line in lines]
+    lines = [
+        [_printable(c).replace("|", "\\|") if markdown else _printable(c) for c in line] for line in lines
+    ]
     widths = [max(len(line[i]) for line in lines) for i in range(len(lines[0]))]
 
     def aligned(line: Sequence[str]) -> list[str]:

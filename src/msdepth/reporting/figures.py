@@ -637,7 +637,7 @@ def make_figures(
     return written
 
 
-def read_cost_curves(directory: Path, variants: Sequence[str]) -> dict[str, dict]:
+def _read_cost_curves(directory: Path, variants: Sequence[str]) -> dict[str, dict]:
     """``{variant: its cost_curves stage summary}`` from ``directory/<variant>.json``; a DataError
     names a missing or unreadable file."""
     out = {}
@@ -773,7 +773,7 @@ def verdict_figure(verdict: Mapping | None, path: Path) -> Path:
     return _save(fig, path)
 
 
-def read_verdict(path: Path) -> dict | None:
+def _read_verdict(path: Path) -> dict | None:
     """compare.json's ``verdict`` (None where it has none); a DataError names a missing or
     unreadable file."""
     try:
@@ -799,8 +799,8 @@ def pipeline_figures(
         eval_cfg=params.eval,
         inputs=FigureInputs(curves=groups),
     )
-    summaries = read_cost_curves(cost_curves, params.variants)
+    summaries = _read_cost_curves(cost_curves, params.variants)
     paths.append(cost_curve_figure(summaries, Path(out_dir) / COST_CURVES_FIGURE))
-    paths.append(verdict_figure(read_verdict(compare_json), Path(out_dir) / VERDICT_FIGURE))
+    paths.append(verdict_figure(_read_verdict(compare_json), Path(out_dir) / VERDICT_FIGURE))
     log.info("figures: %s", ", ".join(p.name for p in paths))
     return paths

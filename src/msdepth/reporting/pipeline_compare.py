@@ -63,7 +63,7 @@ from msdepth.reporting.verdict import (
 )
 
 
-def run_groups(
+def _run_groups(
     params: Params, root: Path, suites: Sequence[str]
 ) -> tuple[dict[str, str], tuple[str, ...], dict[str, list[str]], list[str]]:
     """What is compared below ``root``: the baselines missing (with why), those built, the groups
@@ -81,7 +81,7 @@ def compare(params: Params) -> None:
 
     A baseline the baselines stage could not build is listed as missing, with the reason.
     """
-    missing, built, groups, runs = run_groups(params, METRICS, SUITE_NAMES)
+    missing, built, groups, runs = _run_groups(params, METRICS, SUITE_NAMES)
     suites = load_suite_metrics(METRICS, runs)
     tables = load_unit_tables(METRICS, runs)
     # Without ROIs (an empty ROI index) only the full-image suite has numbers to compare.
@@ -103,7 +103,7 @@ def compare(params: Params) -> None:
             dependence=dependence,
             groups=groups,
             missing_baselines=missing,
-            optimum=optimum_section(params, groups, compared),
+            optimum=_optimum_section(params, groups, compared),
             settings=variant_settings(params),
             monocular=monocular_data(suites["full"], load_training_summaries(runs), groups, caps[0]),
         ),
@@ -112,15 +112,15 @@ def compare(params: Params) -> None:
     result["verdict"] = verdict_section(params, groups, compared, pairing)
     md += "\n" + "\n".join(verdict_lines(result["verdict"]))
     for name in params.eval.extra_sets:
-        result.setdefault("sets", {})[name], section = compare_set(params, name, comparison.settings_label)
+        result.setdefault("sets", {})[name], section = _compare_set(params, name, comparison.settings_label)
         md += "\n" + section
     write_json(COMPARE_JSON, result)
     write_text(COMPARE_MD, md)
-    for variant, row in mean_rows(result, params.variants, caps[0]).items():
+    for variant, row in _mean_rows(result, params.variants, caps[0]).items():
         write_json(mean_path(variant), row)
 
 
-def optimum_section(params: Params, groups: dict[str, list[str]], compared: Sequence[str]) -> dict | None:
+def _optimum_section(params: Params, groups: dict[str, list[str]], compared: Sequence[str]) -> dict | None:
     """The optimum runs' and the matchers' numbers and, at the default weight (every frame) and for
     the matchers (every frame), their paired differences to the reference variant over images and
     ROIs (the sweep's other weights see a subset). A matcher without metrics (skipped: a variant
@@ -191,7 +191,7 @@ def verdict_section(
     return data
 
 
-def mean_rows(result: dict, variants: Sequence[str], cap: str) -> dict[str, dict[str, float]]:
+def _mean_rows(result: dict, variants: Sequence[str], cap: str) -> dict[str, dict[str, float]]:
     """Per variant its mean over seeds at ``cap`` (the headline cap), taken from the comparison
     (``result``, what compare.json holds): the per-seed headline files' ``abs_rel``, ``a1``,
     ``roi`` and ``masks`` (ROI and exact-mask abs_rel), then each ROI class's abs_rel under the
@@ -211,7 +211,7 @@ def mean_rows(result: dict, variants: Sequence[str], cap: str) -> dict[str, dict
     return rows
 
 
-def set_optimum_run(root: Path, variant: str, weight: float) -> str:
+def _set_optimum_run(root: Path, variant: str, weight: float) -> str:
     """The run of ``variant``'s optimum at ``weight`` below an extra set's metrics tree ``root``,
     found by value as :func:`~msdepth.optimum.frames.optimum_runs` finds the default frames' (dvc.yaml
     writes a weight as params.yaml spells it); the name params.yaml's value gives when there is none."""
@@ -224,7 +224,7 @@ def set_optimum_run(root: Path, variant: str, weight: float) -> str:
     return optimum_run(variant, f"{weight}")
 
 
-def set_instruments(params: Params, root: Path) -> tuple[dict[str, str], dict[str, str]]:
+def _set_instruments(params: Params, root: Path) -> tuple[dict[str, str], dict[str, str]]:
     """The network-free instruments on an extra set (the ``match_set``, ``sgbm_set`` and
     ``optimum_set`` stages' runs below its metrics tree ``root``): ``{label: run}`` of those with
     metrics (``SGM (<variant> cost)``, ``SGBM``, ``optimum <variant> w<weight>``) and ``{label: why}``
@@ -235,7 +235,7 @@ def set_instruments(params: Params, root: Path) -> tuple[dict[str, str], dict[st
     weight = params.optimum.smoothness_weight
     runs = {
         **matcher_runs(params),
-        **{f"{OPTIMUM} {v} w{weight:g}": set_optimum_run(root, v, weight) for v in params.variants},
+        **{f"{OPTIMUM} {v} w{weight:g}": _set_optimum_run(root, v, weight) for v in params.variants},
     }
     reasons = {label: skipped_reason(root, run, ["full"]) for label, run in runs.items()}
     found = {label: run for label, run in runs.items() if reasons[label] is None}
@@ -257,7 +257,7 @@ def set_verdict_rows(
     variants = {v: variant_runs(params)[v] for v in params.variants}
     tables = load_unit_tables(root, [r for runs in variants.values() for r in runs], ["full"])
     rows = network_rows(tables, variants, cfg, cap, pairing=pairing, settings=settings, scope=scope)
-    instruments, _ = set_instruments(params, root)
+    instruments, _ = _set_instruments(params, root)
     weight = f"w{params.optimum.smoothness_weight:g}"
     for instrument, label, pattern in (
         ("optimum", weight, f"{OPTIMUM} {{}} {weight}"),
@@ -272,14 +272,14 @@ def set_verdict_rows(
     return [dataclasses.replace(r, instrument=f"{r.instrument} on {name}") for r in rows]
 
 
-def compare_set(params: Params, name: str, label: Callable[[str], str] = str) -> tuple[dict, str]:
+def _compare_set(params: Params, name: str, label: Callable[[str], str] = str) -> tuple[dict, str]:
     """An extra evaluation set's full-image comparison (below its
     :func:`~msdepth.pipeline.paths.set_metrics_dir`): the same groups, reference, bootstrap and seed
     spread as KITTI 2015's full-image tables, with the network-free instruments
-    (:func:`set_instruments`) as groups of one run beside the baselines; ``label`` names a run's row."""
+    (:func:`_set_instruments`) as groups of one run beside the baselines; ``label`` names a run's row."""
     root = set_metrics_dir(name)
-    missing, built, groups, runs = run_groups(params, root, ["full"])
-    instruments, unrun = set_instruments(params, root)
+    missing, built, groups, runs = _run_groups(params, root, ["full"])
+    instruments, unrun = _set_instruments(params, root)
     groups.update({k: [run] for k, run in instruments.items()})
     runs += list(instruments.values())
     suites = load_suite_metrics(root, runs, ["full"])

@@ -38,7 +38,7 @@ import numpy as np
 _SIMPSON_INTERVALS = 4000  # t CDF by Simpson's rule: error far below the 4 decimals that matter here
 
 
-def t_cdf(x: float, df: float) -> float:
+def _t_cdf(x: float, df: float) -> float:
     """Student's t cumulative distribution at ``x`` with ``df`` > 0 degrees of freedom.
 
     Integrates the density from 0 to |x| by Simpson's rule; no SciPy dependency for one quantile.
@@ -61,11 +61,11 @@ def t_quantile(p: float, df: float) -> float:
     if p < 0.5:
         return -t_quantile(1 - p, df)
     low, high = 0.0, 1.0
-    while t_cdf(high, df) < p:  # heavy tails at small df: widen until the quantile is bracketed
+    while _t_cdf(high, df) < p:  # heavy tails at small df: widen until the quantile is bracketed
         high *= 2
     for _ in range(60):
         mid = (low + high) / 2
-        low, high = (mid, high) if t_cdf(mid, df) < p else (low, mid)
+        low, high = (mid, high) if _t_cdf(mid, df) < p else (low, mid)
     return (low + high) / 2
 
 

@@ -195,7 +195,7 @@ def _roi_cells(r: Results, run: str, classes: Sequence[str]) -> list[str]:
     ]
 
 
-def headline_table(r: Results) -> str:
+def _headline_table(r: Results) -> str:
     """The README's table: each variant (mean ± sd over seeds) and baseline on the full image and,
     with ROIs, over the ROIs, their exact masks and per class; best variant per full-image column
     in bold."""
@@ -218,7 +218,7 @@ def headline_table(r: Results) -> str:
     return "\n".join(lines)
 
 
-def headline_caption(r: Results) -> str:
+def _headline_caption(r: Results) -> str:
     """What the table shows: the cap, how many frames and ROIs, how variants are averaged."""
     parts = [f"KITTI 2015 layout, cap {r.cap_m} m"]
     if (frames := r.frames()) is not None:
@@ -252,7 +252,7 @@ def _than(r: Results, run: str, d: dict, metric: str = "abs_rel") -> str:
     return f"{subject} has an {metric} {_num(abs(d['mean']), 3)} {way} than {other}'s"
 
 
-def difference_clause(r: Results, suite: str, run: str) -> str:
+def _difference_clause(r: Results, suite: str, run: str) -> str:
     """One run's difference to the reference with its interval, and whether compare.md marks it."""
     d = r.difference(suite, run)
     if d is None:
@@ -284,13 +284,13 @@ def verdict(r: Results) -> str:
         return "**No comparison**: one variant, or no paired statistics in `metrics/compare.json`."
     marked = any(r.marked(r.difference("full", v), v) for v in others)
     lead = "**Verdict**" if marked else "**No verdict yet**"
-    text = f"{lead}: " + "; ".join(difference_clause(r, "full", v) for v in others) + "."
+    text = f"{lead}: " + "; ".join(_difference_clause(r, "full", v) for v in others) + "."
     if r.rois():
-        text += " " + baseline_classes_sentence(r)
+        text += " " + _baseline_classes_sentence(r)
     return text
 
 
-def class_standing(r: Results) -> dict[str, tuple[str, float, float, float]]:
+def _class_standing(r: Results) -> dict[str, tuple[str, float, float, float]]:
     """Per ROI class: the best image-blind baseline, its abs_rel, and the variants' lowest and
     highest abs_rel (box, headline cap)."""
     rois, out = r.rois(), {}
@@ -309,10 +309,10 @@ def _join(items: Sequence[str]) -> str:
     return items[0] if len(items) == 1 else f"{', '.join(items[:-1])} and {items[-1]}"
 
 
-def baseline_classes_sentence(r: Results) -> str:
+def _baseline_classes_sentence(r: Results) -> str:
     """Which ROI classes an image-blind baseline still wins against every variant."""
     wins: dict[str, list[str]] = {}
-    for c, (baseline, value, low, _) in class_standing(r).items():
+    for c, (baseline, value, low, _) in _class_standing(r).items():
         if value <= low:
             wins.setdefault(baseline, []).append(c)
     if not wins:
@@ -326,14 +326,14 @@ def wrap(text: str, width: int = 100) -> str:
     return textwrap.fill(text, width, break_long_words=False, break_on_hyphens=False)
 
 
-def verdict_sentences(r: Results) -> list[str]:
+def _verdict_sentences(r: Results) -> list[str]:
     """compare.json's sentence per surface class (:mod:`msdepth.reporting.verdict`), in its order;
     [] where the comparison has no verdict."""
     block = r.get("verdict", default=None) or {}
     return [block["sentences"][c] for c in block.get("classes", []) if c in block.get("sentences", {})]
 
 
-def verdict_lead(r: Results, figure: str) -> str:
+def _verdict_lead(r: Results, figure: str) -> str:
     """The line before the per-class sentences: what the instruments are, the figure at ``figure``
     (a path relative to the page)."""
     block = r.get("verdict")
@@ -344,19 +344,19 @@ def verdict_lead(r: Results, figure: str) -> str:
     )
 
 
-def verdict_list(r: Results, figure: str) -> list[str]:
-    """The per-class sentences as a Markdown list under :func:`verdict_lead`; [] without a verdict."""
-    sentences = verdict_sentences(r)
+def _verdict_list(r: Results, figure: str) -> list[str]:
+    """The per-class sentences as a Markdown list under :func:`_verdict_lead`; [] without a verdict."""
+    sentences = _verdict_sentences(r)
     if not sentences:
         return []
     items = [
         textwrap.fill(s, 100, initial_indent="- ", subsequent_indent="  ", break_on_hyphens=False)
         for s in sentences
     ]
-    return [wrap(verdict_lead(r, figure)), "", *items]
+    return [wrap(_verdict_lead(r, figure)), "", *items]
 
 
-def readme_verdict(r: Results) -> list[str]:
+def _readme_verdict(r: Results) -> list[str]:
     """The README's per-class sentences, continuing the verdict's paragraph (the README is kept
     within tests/test_docs.py's line limit); [] without a verdict."""
     block = r.get("verdict", default=None) or {}
@@ -383,7 +383,7 @@ the loss's own cost volume. *Pooled*: one instrument's independent rows combined
 variance. A class with fewer than {min_units} units has no interval."""
 
 
-def answer_lines(r: Results, docs: str) -> list[str]:
+def _answer_lines(r: Results, docs: str) -> list[str]:
     """The answer the study gives: the summary table (surface class by instrument family), the
     sentence that reads it, one sentence per class and the terms; ``docs``: the path from the page
     to docs/. [] without a verdict in compare.json."""
@@ -420,18 +420,18 @@ def answer_lines(r: Results, docs: str) -> list[str]:
     ]
 
 
-def readme_block(r: Results) -> str:
-    """The README's generated block, markers included: the answer (:func:`answer_lines`), then
+def _readme_block(r: Results) -> str:
+    """The README's generated block, markers included: the answer (:func:`_answer_lines`), then
     where the run's own numbers are."""
-    answer = answer_lines(r, "docs/")
+    answer = _answer_lines(r, "docs/")
     if not answer:  # no verdict (one variant): the headline table is the result
-        answer = [headline_table(r), "", wrap(verdict(r))]
+        answer = [_headline_table(r), "", wrap(verdict(r))]
     return "\n".join(
         [
             BEGIN,
             *answer,
             wrap(
-                f"The committed run: {headline_caption(r).split('; variants')[0]}, {len(r.seeds)} "
+                f"The committed run: {_headline_caption(r).split('; variants')[0]}, {len(r.seeds)} "
                 f"seed{'s' if len(r.seeds) != 1 else ''} per loss. Each run's metrics, the image-blind "
                 "baselines and how to read them: [docs/results.md](docs/results.md)."
             ),
@@ -535,7 +535,7 @@ def _training_text(r: Results) -> str:
     return text
 
 
-def default_run_section(r: Results) -> str:
+def _default_run_section(r: Results) -> str:
     """The setting in a paragraph, then the headline table."""
     settings = r.get("settings", default={}) or {}
     stated = "; ".join(
@@ -549,7 +549,7 @@ def default_run_section(r: Results) -> str:
         "[benchmarks/README.md](../benchmarks/README.md#the-default-run)."
     )
     return "\n\n".join(
-        ["## Default run", wrap(setting), wrap(f"The headline ({headline_caption(r)}):"), headline_table(r)]
+        ["## Default run", wrap(setting), wrap(f"The headline ({_headline_caption(r)}):"), _headline_table(r)]
     )
 
 
@@ -605,7 +605,7 @@ def _baselines_text(r: Results) -> str:
 
 def _classes_text(r: Results) -> str:
     """Per ROI class, the variants against the best image-blind baseline."""
-    standing = class_standing(r)
+    standing = _class_standing(r)
     if not standing:
         return ""
     cells, ahead, behind = [], [], []
@@ -625,12 +625,12 @@ def _classes_text(r: Results) -> str:
     return text
 
 
-def reading_section(r: Results) -> str:
+def _reading_section(r: Results) -> str:
     """ "How to read it": the differences between the losses, whether they are a verdict, whether
     the runs use the image, and where the image-blind baselines still win."""
     others = _compared(r)
-    clauses = [f"on the full image {difference_clause(r, 'full', v)}" for v in others]
-    clauses += [f"on the ROIs {difference_clause(r, 'roi', v)}" for v in others if r.difference("roi", v)]
+    clauses = [f"on the full image {_difference_clause(r, 'full', v)}" for v in others]
+    clauses += [f"on the ROIs {_difference_clause(r, 'roi', v)}" for v in others if r.difference("roi", v)]
     first = "How to read it. " + (
         "; ".join(clauses)[0].upper() + "; ".join(clauses)[1:] + ". " if clauses else ""
     )
@@ -653,7 +653,7 @@ def _set_results(r: Results, name: str, block: dict) -> Results:
     return Results(data, source=f"{r.source} (sets.{name})")
 
 
-def set_section(r: Results, name: str, block: dict) -> str:
+def _set_section(r: Results, name: str, block: dict) -> str:
     """An extra evaluation set's paragraph: its abs_rel per run, the differences, rmse and a1."""
     s = _set_results(r, name, block)
     full = s.get("full", s.cap)
@@ -663,7 +663,7 @@ def set_section(r: Results, name: str, block: dict) -> str:
         "within (min_depth, cap), Monodepth2's protocol without median scaling. "
         f"At cap {s.cap_m} m, abs_rel {_join(variants)}"
     )
-    text += "".join(f"; {difference_clause(s, 'full', v)}" for v in _compared(s))
+    text += "".join(f"; {_difference_clause(s, 'full', v)}" for v in _compared(s))
     if len(s.variants) > 1:
         text += (
             f"; rmse {_join([_num(full[v]['rmse'], 2) for v in s.variants])} m and a1 "
@@ -724,7 +724,7 @@ def _monocular_source(r: Results) -> str:
 def verdict_section(r: Results) -> str:
     """The verdict per surface class: the figure, the sentences, how the intervals are made and
     which rows are pooled; empty without a verdict in compare.json."""
-    sentences = verdict_list(r, f"../{FIGURES_DIR.as_posix()}/{VERDICT_FIGURE}")
+    sentences = _verdict_list(r, f"../{FIGURES_DIR.as_posix()}/{VERDICT_FIGURE}")
     if not sentences:
         return ""
     rows = r.get("verdict", "rows")
@@ -746,23 +746,23 @@ def verdict_section(r: Results) -> str:
     )
 
 
-def results_page(r: Results) -> str:
+def _results_page(r: Results) -> str:
     """``docs/results.md``: the default run, how to read it, the verdict per surface class, the
     studies, the extra sets, figures."""
     sets = r.get("sets", default={}) or {}
-    answer = answer_lines(r, "")
+    answer = _answer_lines(r, "")
     parts = [INTRO, *(["## What the study finds", "\n".join(answer)] if answer else [])]
-    parts += [default_run_section(r), reading_section(r)]
+    parts += [_default_run_section(r), _reading_section(r)]
     parts += [section] if (section := verdict_section(r)) else []
     parts += [STUDIES]
-    parts += [set_section(r, name, block) for name, block in sets.items()]
+    parts += [_set_section(r, name, block) for name, block in sets.items()]
     return "\n\n".join([*parts, FIGURES]) + "\n"
 
 
 # --- writing and checking ------------------------------------------------------------------------
 
 
-def replace_block(text: str, block: str, path: Path) -> str:
+def _replace_block(text: str, block: str, path: Path) -> str:
     """``text`` with the part from :data:`BEGIN` to :data:`END` (inclusive) replaced by ``block``;
     DataError naming ``path`` unless each marker is there once, in order."""
     if text.count(BEGIN) != 1 or text.count(END) != 1 or text.index(BEGIN) > text.index(END):
@@ -777,10 +777,10 @@ def rendered(root: Path = Path(".")) -> dict[Path, str]:
     """What the report writes under ``root``: ``docs/results.md`` and, where ``README.md`` exists
     (a project copy may have none), the README with its block rewritten."""
     r = load_results(root)
-    out = {root / RESULTS: results_page(r)}
+    out = {root / RESULTS: _results_page(r)}
     readme = root / README
     if readme.is_file():
-        out[readme] = replace_block(readme.read_text(encoding="utf-8"), readme_block(r), readme)
+        out[readme] = _replace_block(readme.read_text(encoding="utf-8"), _readme_block(r), readme)
     return out
 
 

@@ -21,7 +21,7 @@ classes are the full frame (``"full frame"``) and each ROI class (car, windshiel
   without an interval.
 - ``seeds``: the monocular study's mono and mono+stereo networks (``studies/monocular.py``),
   known per seed (its ``table.json``) or, where only its ``table.md`` exists, as mean ± sd over
-  ``n`` seeds (:func:`parse_monocular_table`). Welch's t interval of the difference of the two
+  ``n`` seeds (:func:`_parse_monocular_table`). Welch's t interval of the difference of the two
   variants' means over seeds (:func:`welch_interval`): it covers training noise, with the images
   held fixed. Their full-frame abs_rel is median-scaled per image, as the study scores it.
 - ``external``: rows another study wrote, read from a JSON file (:func:`read_external_rows`),
@@ -45,7 +45,7 @@ classes are the full frame (``"full frame"``) and each ROI class (car, windshiel
   variance from its interval's half-width, normal approximation).
 
 A row over fewer than :data:`MIN_UNITS` units is left out: a percentile interval over one or two
-ROIs is 0 wide, not certain. :func:`class_sentence` states each class in one sentence.
+ROIs is 0 wide, not certain. :func:`_class_sentence` states each class in one sentence.
 """
 
 from __future__ import annotations
@@ -211,7 +211,7 @@ def class_order(classes: Sequence[str]) -> list[str]:
     return known + sorted(set(classes) - set(CLASS_ORDER))
 
 
-def class_tables(
+def _class_tables(
     tables: Mapping[str, Mapping[str, pd.DataFrame]], anchor: str, whole_frame: bool = False
 ) -> list[tuple[str, str, dict]]:
     """``(class, suite, {run: table})``: the full-image tables as the full frame, then the ROI
@@ -231,7 +231,7 @@ def class_tables(
 @dataclass(frozen=True)
 class RowScope:
     """Where rows are made: ``whole_frame``, an extra set's exact classes per frame
-    (:func:`class_tables`); ``unit``, what n counts there (:attr:`Row.unit`; "" = images or ROIs);
+    (:func:`_class_tables`); ``unit``, what n counts there (:attr:`Row.unit`; "" = images or ROIs);
     ``keep_few``, rows over fewer than :data:`MIN_UNITS` units kept without an interval (a set of a
     few frames shows its point estimates) rather than left out."""
 
@@ -260,14 +260,14 @@ def network_rows(
     reference's are compared pair by pair, with the paired t beside the bootstrap."""
     rows = []
     others = [v for v in groups if v != cfg.reference]
-    for cls, suite, chosen in class_tables(tables, groups[cfg.reference][0], scope.whole_frame):
+    for cls, suite, chosen in _class_tables(tables, groups[cfg.reference][0], scope.whole_frame):
         block = paired_statistics({suite: chosen}, dict(groups), cfg, [cap], pairing)
         for variant in others:
             d = block[suite][f"cap{cap:g}"][variant][METRIC]
             few = d["n"] < MIN_UNITS
             if few and not scope.keep_few:
                 continue
-            method = network_method(d, scope.units(suite), block["pairing"][variant])
+            method = _network_method(d, scope.units(suite), block["pairing"][variant])
             name = instrument if len(others) == 1 else f"{instrument}, {variant}"
             seeds = d["seeds"] if d["paired"] else min(d["seeds"], d["reference_seeds"])
             low, high = (None, None) if few else (d["low"], d["high"])
@@ -285,7 +285,7 @@ def _few_words(few: bool) -> str:
     return f"; fewer than {MIN_UNITS} units: no interval" if few else ""
 
 
-def network_method(d: Mapping, unit: str, unpaired: str | None) -> str:
+def _network_method(d: Mapping, unit: str, unpaired: str | None) -> str:
     """How a network row's interval was made, in words (its ``method``)."""
     if d.get("paired"):
         text = f"paired by seed ({d['seeds']} pairs): bootstrap over seed pairs and {unit}"
@@ -313,7 +313,7 @@ def optimum_rows(
     for weight, by_variant in runs.items():
         ref = by_variant[cfg.reference]
         others = [v for v in by_variant if v != cfg.reference]
-        for cls, suite, chosen in class_tables(tables, ref, scope.whole_frame):
+        for cls, suite, chosen in _class_tables(tables, ref, scope.whole_frame):
             keys = UNIT_KEYS[suite]
             for variant in others:
                 what = f"{suite} {instrument} {variant} vs {cfg.reference} {weight}, {cls}"
@@ -378,7 +378,7 @@ MonocularStats = dict[str, dict[str, dict[str, Spread | list[float]]]]
 SETTINGS_LINE = "Variant settings: "  # the monocular table's line naming what its runs were trained with
 
 
-def parse_monocular_table(path: Path) -> MonocularStats:
+def _parse_monocular_table(path: Path) -> MonocularStats:
     """The monocular study's ``table.md``, read as written by ``studies/monocular.py``'s ``table``:
     ``n`` from its line "Mean ± sd over seeds [s, ...]", then per row of its table (``mode``,
     ``variant``) the cells ``mean ± sd`` of the columns ``abs_rel`` (the full frame) and ``ROI
@@ -417,7 +417,7 @@ def parse_monocular_table(path: Path) -> MonocularStats:
 def read_monocular(json_path: Path, table_path: Path) -> MonocularStats:
     """The monocular study's numbers: per seed from ``json_path`` (``{"seeds": [...], "modes":
     {mode: {variant: {class: [one value per seed]}}}}``, what ``studies/monocular.py`` writes),
-    else :func:`parse_monocular_table` of ``table_path``; {} when neither exists."""
+    else :func:`_parse_monocular_table` of ``table_path``; {} when neither exists."""
     if Path(json_path).is_file():
         try:
             modes = json.loads(Path(json_path).read_text(encoding="utf-8"))["modes"]
@@ -430,7 +430,7 @@ def read_monocular(json_path: Path, table_path: Path) -> MonocularStats:
             }
         except (ValueError, KeyError, TypeError, AttributeError) as exc:
             raise DataError(f"{json_path}: not the monocular study's per-seed values ({exc})") from None
-    return parse_monocular_table(table_path) if Path(table_path).is_file() else {}
+    return _parse_monocular_table(table_path) if Path(table_path).is_file() else {}
 
 
 def read_monocular_settings(json_path: Path, table_path: Path) -> str:
@@ -453,7 +453,7 @@ def _spread(v: Spread | list[float]) -> Spread:
     return v if isinstance(v, tuple) else (float(np.mean(v)), float(np.std(v, ddof=1)), len(v))
 
 
-def seed_difference(a: Spread | list[float], b: Spread | list[float], confidence: float) -> tuple:
+def _seed_difference(a: Spread | list[float], b: Spread | list[float], confidence: float) -> tuple:
     """``(diff, low, high, n, method)`` of ``a − b`` over seeds: by seed pair (paired t) where both
     are per-seed values of the same seeds, else Welch's t from mean ± sd (unpaired)."""
     if isinstance(a, list) and isinstance(b, list) and len(a) == len(b) >= 2:
@@ -473,7 +473,7 @@ def seed_difference(a: Spread | list[float], b: Spread | list[float], confidence
 
 def seed_rows(stats: MonocularStats, reference: str, confidence: float, settings: str = "") -> list[Row]:
     """Per mode of :data:`MONOCULAR_MODES` and class, each variant minus ``reference`` over seeds
-    (:func:`seed_difference`). (The study's stereo rows are the pipeline's own networks, which
+    (:func:`_seed_difference`). (The study's stereo rows are the pipeline's own networks, which
     :func:`network_rows` compares unit by unit.)"""
     rows = []
     for mode, instrument in MONOCULAR_MODES.items():
@@ -483,7 +483,7 @@ def seed_rows(stats: MonocularStats, reference: str, confidence: float, settings
         others = [v for v in variants if v != reference]
         for variant in others:
             for cls in class_order([c for c in variants[variant] if c in variants[reference]]):
-                diff, low, high, n, method = seed_difference(
+                diff, low, high, n, method = _seed_difference(
                     variants[variant][cls], variants[reference][cls], confidence
                 )
                 if cls == FULL_FRAME:
@@ -610,7 +610,7 @@ def pooled_rows(rows: Sequence[Row], confidence: float = 0.95) -> list[Row]:
     return out
 
 
-def set_apart(rows: Sequence[Row], settings: str) -> list[Row]:
+def _set_apart(rows: Sequence[Row], settings: str) -> list[Row]:
     """``rows`` with those made under other settings than ``settings`` (the run's own) marked
     ``apart``: a study's committed rows after `dvc exp run -S msssim.kernel_size=7`, say. Such a row
     is shown with its settings and never counted or pooled."""
@@ -639,7 +639,7 @@ def signed(x: float, decimals: int = 3) -> str:
     return f"{x:+.{decimals}f}".replace("-", "\u2212")
 
 
-def class_sentence(cls: str, rows: Sequence[Row], better: str = "MS-SSIM") -> str:
+def _class_sentence(cls: str, rows: Sequence[Row], better: str = "MS-SSIM") -> str:
     """One sentence from ``cls``'s rows (those shown apart left out): in how many instruments
     ``better``'s error (abs_rel) is lower, which intervals exclude 0 (and on which side, with the
     paired t's agreement where a row has one), and the pooled estimates."""
@@ -720,9 +720,9 @@ def verdict_data(
     headline: Mapping[str, tuple[str, str]] | None = None,
 ) -> dict:
     """compare.json's ``verdict``: the rows (those of other settings than ``settings`` marked apart:
-    :func:`set_apart`; with :func:`pooled_rows`), the summary table of ``headline``'s instruments
-    (:func:`summary_table`), the classes in order and a sentence per class (:func:`class_sentence`)."""
-    rows = set_apart(rows, settings)
+    :func:`_set_apart`; with :func:`pooled_rows`), the summary table of ``headline``'s instruments
+    (:func:`summary_table`), the classes in order and a sentence per class (:func:`_class_sentence`)."""
+    rows = _set_apart(rows, settings)
     rows = [*rows, *pooled_rows(rows, confidence)]
     classes = class_order(sorted({r.cls for r in rows}))
     headline = dict(headline or headline_instruments(10.0))
@@ -738,7 +738,7 @@ def verdict_data(
         "headline": {family: list(v) for family, v in headline.items()},
         "summary": summary_table(rows, headline),
         "rows": [r.as_dict() for r in rows],
-        "sentences": {c: class_sentence(c, rows, better) for c in classes},
+        "sentences": {c: _class_sentence(c, rows, better) for c in classes},
     }
 
 
@@ -759,7 +759,7 @@ def interval_cell(r: Row, decimals: int = 3) -> str:
     return f"{signed(r.diff, decimals)} [{signed(r.low, decimals)}, {signed(r.high, decimals)}]{star}"
 
 
-def units_text(r: Row) -> str:
+def _units_text(r: Row) -> str:
     """What a row's n counts, short: ``66 ROIs × 3 seed pairs``, ``5 frames``, ``3 seeds``."""
     unit = r.unit or ("images" if r.cls == FULL_FRAME else "ROIs")
     if r.kind == "network":
@@ -783,7 +783,9 @@ def summary_lines(data: dict) -> list[str]:
         for f in families:
             d = data["summary"].get(cls, {}).get(f)
             cells.append(
-                "–" if d is None else f"{interval_cell(Row.from_dict(d))}, n = {units_text(Row.from_dict(d))}"
+                "–"
+                if d is None
+                else f"{interval_cell(Row.from_dict(d))}, n = {_units_text(Row.from_dict(d))}"
             )
         lines.append(f"| {cls} | {' | '.join(cells)} |")
     return lines
@@ -862,14 +864,14 @@ def verdict_lines(data: dict | None) -> list[str]:
             if r.cls == cls and not r.apart:
                 t = f"[{signed(r.t_low)}, {signed(r.t_high)}]" if r.t_low is not None else "–"
                 lines.append(
-                    f"| {cls} | {r.label} | {interval_cell(r)} | {t} | {units_text(r)} | {r.method} |"
+                    f"| {cls} | {r.label} | {interval_cell(r)} | {t} | {_units_text(r)} | {r.method} |"
                 )
     apart = [r for r in rows if r.apart]
     if apart:
         lines += ["", "Made under other settings (shown apart, never counted or pooled):", ""]
         lines += ["| class | instrument | difference | n | why apart |", "|---|---|---|---|---|"]
         lines += [
-            f"| {r.cls} | {r.label} | {interval_cell(r)} | {units_text(r)} | {r.apart} |" for r in apart
+            f"| {r.cls} | {r.label} | {interval_cell(r)} | {_units_text(r)} | {r.apart} |" for r in apart
         ]
     lines += ["", *[f"- {data['sentences'][c]}" for c in data["classes"]], ""]
     return lines

@@ -113,7 +113,7 @@ class TrainOptions:
     pretrained_sha256: str | None = None
 
 
-def seed_everything(seed: int) -> None:
+def _seed_everything(seed: int) -> None:
     """Seed Python, numpy and torch (CPU runs are then repeatable)."""
     random.seed(seed)
     np.random.seed(seed)
@@ -122,7 +122,7 @@ def seed_everything(seed: int) -> None:
 
 def build_model(params: Params) -> DepthNetwork:
     """The depth network of ``params.model`` initialised for training (the VGG heads at
-    ``init_disparity``); ``model.pretrained`` is loaded by :func:`load_pretrained_encoders`, only
+    ``init_disparity``); ``model.pretrained`` is loaded by :func:`_load_pretrained_encoders`, only
     into a run that starts fresh."""
     m = params.model
     return depth_network(m.architecture, m.width_multiplier, m.norm, m.heads, m.init_disparity)
@@ -130,11 +130,11 @@ def build_model(params: Params) -> DepthNetwork:
 
 def build_pose_net(params: Params) -> PoseNet:
     """The pose network of the monocular modes (Monodepth2's separate ResNet-18 pose network),
-    initialised anew (``model.pretrained``: :func:`load_pretrained_encoders`)."""
+    initialised anew (``model.pretrained``: :func:`_load_pretrained_encoders`)."""
     return PoseNet(params.model.pose_width_multiplier)
 
 
-def load_pretrained_encoders(
+def _load_pretrained_encoders(
     path: str | os.PathLike, model: DepthNetwork, pose_net: PoseNet | None = None, sha256: str | None = None
 ) -> None:
     """Load the torchvision resnet18 state dict at ``path`` (``model.pretrained``) into every ResNet
@@ -157,7 +157,7 @@ def load_pretrained_encoders(
 def trained_pose_net(params: Params, checkpoint_path: str | os.PathLike) -> PoseNet:
     """The pose network of a monocular run's last checkpoint (the model file holds only the depth
     network), on the CPU, in eval mode; a TrainingError names a checkpoint without one."""
-    state = load_checkpoint(Path(checkpoint_path), torch.device("cpu"))
+    state = _load_checkpoint(Path(checkpoint_path), torch.device("cpu"))
     if "pose" not in state:
         raise TrainingError(f"{checkpoint_path}: no pose network (not a train.mode mono | mono_stereo run)")
     net = build_pose_net(params)
@@ -225,7 +225,7 @@ TRAINING_MODULES = (
 )
 
 
-def training_files() -> list[Path]:
+def _training_files() -> list[Path]:
     """The source files of :data:`TRAINING_MODULES`, packages expanded to their sorted .py files."""
     root = Path(__file__).resolve().parents[1]
     files: list[Path] = []
@@ -235,10 +235,10 @@ def training_files() -> list[Path]:
     return files
 
 
-def code_digest() -> str:
+def _code_digest() -> str:
     """Hash of the source of :data:`TRAINING_MODULES` (each file under its path in the package)."""
     root, digest = Path(__file__).resolve().parents[1], hashlib.sha256()
-    for path in training_files():
+    for path in _training_files():
         digest.update(path.relative_to(root).as_posix().encode() + b"\0" + path.read_bytes() + b"\0")
     return digest.hexdigest()[:16]
 
@@ -247,7 +247,7 @@ def fingerprint(
     params: Params, variant: str, num_pairs: int, seed: int, pretrained_sha256: str | None = None
 ) -> str:
     """Hash of everything that shapes the training run, so a checkpoint is only resumed by its own
-    run: parameters, seed, data size and the training code (:func:`code_digest`).
+    run: parameters, seed, data size and the training code (:func:`_code_digest`).
 
     With ``model.pretrained`` set, ``pretrained_sha256`` (its content's hash, required then) stands
     for its path: weights replaced under the same name train anew, moved ones still resume.
@@ -261,7 +261,7 @@ def fingerprint(
             raise TrainingError("model.pretrained is set: the fingerprint needs its content's sha256")
         model["pretrained"] = f"sha256:{pretrained_sha256}"
     relevant = {
-        "code": code_digest(),
+        "code": _code_digest(),
         "seed": seed,
         "data": [params.data.height, params.data.width, num_pairs],
         "model": model,
@@ -273,7 +273,7 @@ def fingerprint(
     return hashlib.sha256(json.dumps(relevant, sort_keys=True).encode()).hexdigest()[:16]
 
 
-def save_checkpoint(path: Path, state: dict) -> None:
+def _save_checkpoint(path: Path, state: dict) -> None:
     """``torch.save`` through a temp file and rename: never a truncated checkpoint.
 
     A failed write (disk full, quota) is a TrainingError; the previous checkpoint is untouched.
@@ -287,7 +287,7 @@ def save_checkpoint(path: Path, state: dict) -> None:
         ) from exc
 
 
-def load_checkpoint(path: Path, device: torch.device) -> dict:
+def _load_checkpoint(path: Path, device: torch.device) -> dict:
     """A checkpoint read weights-only (:func:`msdepth.networks.serialization.load_weights_file`); one that
     is corrupt or needs code is a TrainingError: refused, never silently trained over."""
     try:
@@ -412,7 +412,7 @@ def _set_up(
     (without ``model.pretrained``'s weights: only a fresh start, not a resume, loads them)."""
     train_cfg = params.train
     torch.set_num_threads(train_cfg.threads)
-    seed_everything(seed)  # the same seed on every rank: identical initial weights
+    _seed_everything(seed)  # the same seed on every rank: identical initial weights
     ctx, device = distributed.setup(resolve_device(train_cfg.device), train_cfg.dist_timeout_s)
     configure_cudnn(train_cfg.cudnn_benchmark, device)
     dataset = _dataset(params, pairs, seed, cache, sequences)
@@ -516,7 +516,7 @@ def _resume_or_start(run: _Run, checkpoint_path: Path) -> None:
     have moved since)."""
     if not _resume(run, checkpoint_path) and run.params.model.pretrained:
         pretrained = run.params.model.pretrained
-        load_pretrained_encoders(pretrained, run.model, run.pose_net, run.pretrained_sha256)
+        _load_pretrained_encoders(pretrained, run.model, run.pose_net, run.pretrained_sha256)
 
 
 def _resume(run: _Run, checkpoint_path: Path) -> bool:
@@ -524,7 +524,7 @@ def _resume(run: _Run, checkpoint_path: Path) -> bool:
     fingerprint); returns whether it did."""
     if not checkpoint_path.exists():
         return False
-    state = load_checkpoint(checkpoint_path, run.device)
+    state = _load_checkpoint(checkpoint_path, run.device)
     if state.get("fingerprint") != run.fingerprint:
         log.info("ignoring checkpoint %s: it belongs to other parameters or training code", checkpoint_path)
         return False
@@ -634,7 +634,7 @@ def _save_epoch_checkpoint(run: _Run, path: Path, epoch: int, seconds: float) ->
     }
     if run.pose_net is not None:
         state["pose"] = run.pose_net.state_dict()
-    save_checkpoint(path, state)
+    _save_checkpoint(path, state)
 
 
 def _finish(run: _Run, outputs: TrainOutputs, resumed_from: int, this_run: float) -> TrainResult:

@@ -24,7 +24,7 @@ from msdepth.losses.monodepth import AppearanceTerm
 from msdepth.losses.ssim import ms_ssim_pyramid, window_mean
 
 
-def gaussian_l1(x: Tensor, y: Tensor, sigma: float) -> Tensor:
+def _gaussian_l1(x: Tensor, y: Tensor, sigma: float) -> Tensor:
     """``mean(G_σ ⊛ |x - y|)``: every pixel's L1 error averaged over its Gaussian neighbourhood
     (±3σ window, "same" padding divided by the in-image mass)."""
     kernel_size = 2 * math.ceil(3 * sigma) + 1
@@ -55,6 +55,6 @@ class MixAppearance(AppearanceTerm):
             self.implementation,  # type: ignore[arg-type]
         )
         return [
-            cfg.alpha * (1 - value).mean() + (1 - cfg.alpha) * gaussian_l1(x, y, cfg.l1_sigma)
+            cfg.alpha * (1 - value).mean() + (1 - cfg.alpha) * _gaussian_l1(x, y, cfg.l1_sigma)
             for value, x, y in zip(msssim, estimates, targets, strict=True)
         ]

@@ -17,7 +17,7 @@ from msdepth.losses.monodepth import AppearanceTerm, similarity_appearance_loss
 from msdepth.losses.ssim import LearnedLevelWeights, PyramidSimilarity, ms_ssim_pyramid
 
 
-def msssim_similarity(
+def _msssim_similarity(
     cfg: MSSSIMConfig, learned_weights: LearnedLevelWeights | None = None, implementation: str = "fast"
 ) -> PyramidSimilarity:
     """``(xs, ys) -> [MS-SSIM(xs[i], ys[i]) per image]`` of a scale pyramid, all scales together.
@@ -58,7 +58,7 @@ class MSSSIMAppearance(AppearanceTerm):
         """Per scale, the appearance loss of ``estimates[s]`` against ``targets[s]``."""
         # Built per call (cheap) rather than stored, so copies of this module never keep a
         # closure over another copy's level weights.
-        similarity = msssim_similarity(self.cfg, getattr(self, "level_weights", None), self.implementation)
+        similarity = _msssim_similarity(self.cfg, getattr(self, "level_weights", None), self.implementation)
         return [
             similarity_appearance_loss(sim, x, y, self.alpha)
             for sim, x, y in zip(similarity(estimates, targets), estimates, targets, strict=True)
