@@ -88,3 +88,102 @@ def test_the_kitti_jpeg_conversion_bounds_an_image_before_decoding_it(tmp_path: 
         archives._to_jpeg(tmp_path, 90)
     assert (tmp_path / "image_02" / "0000000000.png").read_bytes() == bomb
     assert not list(tmp_path.rglob("*.jpg"))
+
+
+# Reads of files the pipeline wrote itself, allowed outside msdepth.io's readers, with why.
+PIPELINE_READ_ALLOWED = {
+    # the package's own source, hashed and parsed (no user file)
+    ("src/msdepth/pipeline/dvcyaml.py", "text = path.read_text()"),
+    ("src/msdepth/training/train.py", "path.read_bytes()"),
+    # a PNG this command wrote a moment ago in its own temporary folder
+    ("src/msdepth/cli/example.py", "png_size(written.read_bytes())"),
+    # the pair cache is memory-mapped after open_regular has checked it
+    ("src/msdepth/data/pairs.py", 'cache = np.load(path, mmap_mode="r")'),
+    # git's output and bytes already read through read_bounded, not a file
+    ("src/msdepth/reporting/revisions.py", "pd.read_csv(io.StringIO("),
+    ("src/msdepth/data/kitti.py", "pd.read_csv(io.BytesIO(data)"),
+}
+
+
+def test_src_reads_its_own_outputs_through_the_bounded_readers() -> None:
+    """Metrics JSON and CSV, disparities and depth maps, records and pages the pipeline wrote are
+    read back through msdepth.io's readers (a FIFO or a huge file at an output's path: one line)."""
+    pattern = r"\.read_text\(|\.read_bytes\(|\bnp\.load\(|\bpd\.read_csv\(|\bjson\.load\("
+    found = []
+    for path in SOURCES:
+        name = path.relative_to(ROOT).as_posix()
+        if not name.startswith("src/") or name == "src/msdepth/io.py":
+            continue
+        for number, line in enumerate(path.read_text(encoding="utf-8").splitlines(), 1):
+            if re.search(pattern, line) and not any(
+                name == f and part in line for f, part in PIPELINE_READ_ALLOWED
+            ):
+                found.append(f"{name}:{number}: {line.strip()}")
+    assert found == []
+
+
+def _npz_bomb(path: Path) -> None:
+    """An .npz whose one member declares 1 GiB of zeros (it compresses to about 1 MB)."""
+    import zipfile
+
+    header = b"\x93NUMPY\x01\x00" + b"v\x00{'descr': '<f4', 'fortran_order': False, 'shape': (268435456,), }"
+    header = header[:8] + struct.pack("<H", 118) + header[10:].ljust(118 - 1) + b"\n"
+    with (
+        zipfile.ZipFile(path, "w", zipfile.ZIP_DEFLATED) as archive,
+        archive.open("x.npy", "w", force_zip64=True) as m,
+    ):
+        m.write(header)
+        for _ in range(1024):
+            m.write(bytes(1 << 20))
+
+
+def _hostile(tmp_path: Path, case: str) -> Path:
+    import os
+
+    import numpy as np
+
+    path = tmp_path / f"{case}.bin"
+    if case == "fifo":
+        os.mkfifo(path)
+    elif case == "folder":
+        path.mkdir()
+    elif case == "huge":
+        path.write_bytes(b"0" * 5000)
+    elif case == "truncated_npy":
+        np.save(tmp_path / "t.npy", np.zeros((4, 5), np.float32))
+        path.write_bytes((tmp_path / "t.npy").read_bytes()[:-3])
+    elif case == "object_npy":
+        np.save(tmp_path / "o.npy", np.array([{}], dtype=object), allow_pickle=True)
+        path.write_bytes((tmp_path / "o.npy").read_bytes())
+    elif case == "deep_json":
+        path.write_text("[" * 200_000)
+    elif case == "not_utf8":
+        path.write_bytes(b'{"a": "\xe9"}')
+    elif case == "npz_bomb":
+        _npz_bomb(path)
+    return path
+
+
+@pytest.mark.parametrize(
+    ("reader", "cases"),
+    [
+        ("read_json_file", ["fifo", "folder", "missing", "huge", "deep_json", "not_utf8"]),
+        ("read_text_file", ["fifo", "folder", "missing", "huge", "not_utf8"]),
+        ("read_table_file", ["fifo", "folder", "missing", "huge"]),
+        ("read_npy_file", ["fifo", "folder", "missing", "huge", "truncated_npy", "object_npy"]),
+        ("read_npz_file", ["fifo", "folder", "missing", "huge", "truncated_npy", "npz_bomb"]),
+    ],
+)
+def test_each_reader_of_pipeline_outputs_refuses_the_hostile_set_in_one_line(
+    tmp_path: Path, reader: str, cases: list[str]
+) -> None:
+    from msdepth import io
+
+    read = getattr(io, reader)
+    for case in cases:
+        path = _hostile(tmp_path, case)
+        limit = 1000 if case == "huge" else 64 << 20
+        with pytest.raises(DataError) as err:
+            read(path, "metrics", limit)
+        message = str(err.value)
+        assert message.startswith(str(path)) and "\n" not in message and len(message) < 400, (case, message)

@@ -62,7 +62,8 @@ def test_the_train_stage_reads_the_hash_back_or_stops_in_one_line(tmp_path: Path
     with pytest.raises(DataError, match=r"record.json: records '', not model.pretrained 'w.pth'; run"):
         recorded_sha256("w.pth", record)
     record.write_text("{")
-    with pytest.raises(DataError, match=r"record.json: unreadable \(.*\); run `dvc repro pretrained`"):
+    unreadable = r"record.json: this pretrained record file is not JSON \(.*\); run `dvc repro pretrained`"
+    with pytest.raises(DataError, match=unreadable):
         recorded_sha256("w.pth", record)
 
 

@@ -173,7 +173,7 @@ GOOD = {"instrument": "optimum w10", "class": "windshield", "diff": -0.02, "low"
 @pytest.mark.parametrize(
     "content, message",
     [
-        ("{not json", "not readable as JSON"),
+        ("{not json", "verdict rows file is not JSON"),
         ('{"rows": []}', "needs a JSON list of rows"),
         (json.dumps([{**GOOD, "n": 3}]), "needs the keys"),
         (json.dumps([{**GOOD, "n": 3, "method": "m", "extra": 1}]), "needs the keys"),
@@ -276,7 +276,7 @@ def test_the_verdict_figure_is_a_png_with_and_without_rows(tmp_path: Path) -> No
         path = verdict_figure(verdict, tmp_path / name)
         assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["compare.json", "empty.png", "verdict.png"]
-    with pytest.raises(DataError, match="absent.json: cannot read the comparison"):
+    with pytest.raises(DataError, match="absent.json: no comparison; run the compare stage first"):
         _read_verdict(tmp_path / "absent.json")
 
 

@@ -236,6 +236,120 @@ def read_bounded(
     return data
 
 
+# Limits of the files the pipeline itself writes and reads back, against a hostile stand-in (a
+# FIFO, a folder, a huge file) at an output's path. compare.json is ~0.3 MB, a KITTI-sized
+# per-ROI table tens of MB, Eigen's 697 disparity maps at 256 x 512 float32 365 MB.
+MAX_JSON_BYTES = 256 << 20
+MAX_TABLE_BYTES = 1 << 30
+MAX_ARRAY_BYTES = 64 << 30
+
+
+def read_text_file(path: str | os.PathLike, kind: str, max_bytes: int = MAX_JSON_BYTES) -> str:
+    """The UTF-8 text of the regular file ``path`` (:func:`read_bounded`); one DataError line
+    naming the file when it is refused or not UTF-8."""
+    try:
+        return read_bounded(path, kind, max_bytes, allow_empty=True).decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise DataError(f"{path}: this {kind} file is not UTF-8 text (byte {exc.start})") from None
+
+
+def read_json_file(path: str | os.PathLike, kind: str, max_bytes: int = MAX_JSON_BYTES) -> Any:
+    """The JSON value in the regular file ``path`` (:func:`read_text_file`); one DataError line
+    naming the file when it is refused or not JSON (nesting too deep for the parser included).
+
+    Example:
+        >>> import tempfile
+        >>> with tempfile.TemporaryDirectory() as d:
+        ...     _ = Path(d, "m.json").write_text('{"abs_rel": 0.1}')
+        ...     read_json_file(Path(d, "m.json"), "metrics")
+        {'abs_rel': 0.1}
+    """
+    text = read_text_file(path, kind, max_bytes)
+    try:
+        return json.loads(text)
+    except (ValueError, RecursionError) as exc:
+        raise DataError(f"{path}: this {kind} file is not JSON ({str(exc).splitlines()[0][:200]})") from None
+
+
+def read_table_file(path: str | os.PathLike, kind: str, max_bytes: int = MAX_TABLE_BYTES, **options: Any):
+    """``pandas.read_csv`` of the regular file ``path``, read whole through :func:`read_bounded`
+    (``options`` go to read_csv); one DataError line naming the file when it is refused or not a
+    table."""
+    import io as _bytes_io
+
+    import pandas as pd  # here: most commands never read a table
+
+    data = read_bounded(path, kind, max_bytes, allow_empty=True)
+    try:
+        return pd.read_csv(_bytes_io.BytesIO(data), **options)
+    except (ValueError, UnicodeDecodeError, pd.errors.EmptyDataError) as exc:  # ParserError is a ValueError
+        raise DataError(f"{path}: not a readable {kind} table ({str(exc).splitlines()[0][:200]})") from None
+
+
+def _npy_array(file: BinaryIO, size: int, where: str) -> np.ndarray:
+    """The array of an ``.npy`` stream of ``size`` bytes, its header checked before any allocation:
+    no pickled objects, and the declared shape exactly the bytes that follow (a 128-byte header can
+    declare terabytes)."""
+    import numpy as np
+
+    try:
+        version = np.lib.format.read_magic(file)
+        read = (
+            np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0
+        )
+        shape, fortran, dtype = read(file)
+    except (OSError, ValueError, SyntaxError) as exc:
+        raise DataError(f"{where}: not a readable .npy array ({' '.join(str(exc).split())[:200]})") from None
+    if dtype.hasobject:
+        raise DataError(f"{where}: an .npy array of Python objects is refused (it would unpickle)")
+    needed = dtype.itemsize * int(np.prod(shape, dtype=np.int64))
+    if needed != size - file.tell():
+        raise DataError(
+            f"{where}: its header declares {dtype} {shape} ({needed} bytes) but it holds {size - file.tell()}"
+        )
+    data = bytearray(needed)  # bytearray, not bytes: the array is writable, as np.load's is
+    got = file.readinto(data)
+    if got != needed:
+        raise DataError(f"{where}: the .npy data ended early ({got} of {needed} bytes)")
+    return np.frombuffer(data, dtype).reshape(shape, order="F" if fortran else "C")
+
+
+def read_npy_file(path: str | os.PathLike, kind: str, max_bytes: int = MAX_ARRAY_BYTES) -> np.ndarray:
+    """The array in the regular ``.npy`` file ``path`` of at most ``max_bytes``: its header checked
+    against the file's size before the data is read; each refusal one DataError naming the file."""
+    with open_regular(path, kind, max_bytes) as file:
+        return _npy_array(file, os.fstat(file.fileno()).st_size, str(path))
+
+
+def read_npz_file(
+    path: str | os.PathLike, kind: str, max_bytes: int = MAX_ARRAY_BYTES
+) -> dict[str, np.ndarray]:
+    """``{name: array}`` of the regular ``.npz`` file ``path``: at most ``max_bytes`` on disk and,
+    summed over its members as the archive declares them, uncompressed (a zip bomb is refused before
+    it inflates); each member read as :func:`read_npy_file` reads a file."""
+    import zipfile
+
+    with open_regular(path, kind, max_bytes) as file:
+        try:
+            with zipfile.ZipFile(file) as archive:
+                members = archive.infolist()
+                if sum(m.file_size for m in members) > max_bytes:
+                    raise DataError(
+                        f"{path}: its members inflate to over {_size_text(max_bytes)}; nothing was read"
+                    )
+                if any(not m.filename.endswith(".npy") for m in members):
+                    raise DataError(f"{path}: not an .npz of arrays (a member is not .npy)")
+                out = {}
+                for m in members:
+                    with archive.open(m) as member:
+                        out[m.filename[: -len(".npy")]] = _npy_array(
+                            member, m.file_size, f"{path}[{m.filename}]"
+                        )
+                return out
+        except (zipfile.BadZipFile, OSError, EOFError, zlib.error) as exc:
+            raise DataError(f"{path}: not a readable .npz archive ({exc})") from None
+
+
 # One filter for every row and a fixed deflate level: the bytes depend only on the pixels and
 # on zlib, not on the OpenCV/libpng build, so a rendered data tree hashes the same in DVC on
 # every machine (OpenCV's encoder changes its output between releases). Level 1: as fast as

@@ -22,7 +22,7 @@ import pandas as pd
 from msdepth.data import kitti
 from msdepth.data.pairs import check_same_size
 from msdepth.errors import DataError
-from msdepth.io import atomic_path
+from msdepth.io import atomic_path, read_table_file
 from msdepth.pipeline.paths import SET_INDEXES
 
 # One evaluation index format for every set (msdepth.data.eval_sets): ``gt`` is a file of kind
@@ -116,7 +116,7 @@ def read_eval_index(path: str | os.PathLike) -> pd.DataFrame:
     if not path.exists():
         raise DataError(f"{path}: no evaluation index (run the index stage)")
     text = {c: str for c in EVAL_COLUMNS if c not in ("focal", "baseline")}
-    frames = pd.read_csv(path, dtype=text, keep_default_na=False)
+    frames = read_table_file(path, "evaluation index", dtype=text, keep_default_na=False)
     missing = set(EVAL_COLUMNS) - set(frames.columns)
     if missing:
         raise DataError(

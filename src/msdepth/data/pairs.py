@@ -17,7 +17,7 @@ from torch.utils.data import Dataset
 
 from msdepth.data import kitti
 from msdepth.errors import DataError
-from msdepth.io import atomic_path
+from msdepth.io import MAX_ARRAY_BYTES, atomic_path, open_regular
 
 
 @dataclass(frozen=True)
@@ -168,6 +168,8 @@ def build_pair_cache(
 
 def load_pair_cache(path: str | os.PathLike, num_pairs: int, height: int, width: int) -> np.ndarray:
     """Memory-map a cache written by :func:`build_pair_cache`, checking it fits the index and size."""
+    with open_regular(path, "pair cache", MAX_ARRAY_BYTES):  # a FIFO or a folder: one line, no hang
+        pass
     try:
         cache = np.load(path, mmap_mode="r")
     except (OSError, ValueError) as exc:

@@ -35,7 +35,6 @@ from __future__ import annotations
 import errno
 import glob
 import http.client
-import json
 import os
 import re
 import shutil
@@ -58,7 +57,7 @@ from typing import Any
 from tqdm import tqdm
 
 from msdepth.errors import DataError
-from msdepth.io import atomic_temps, file_sha256, read_bounded, write_json
+from msdepth.io import atomic_temps, file_sha256, read_bounded, read_json_file, write_json
 
 # The host every entry of the shipped list starts with; entries are kept relative to it so that a
 # mirror (or a test server) can be used by passing another base URL to fetch_all.
@@ -763,9 +762,11 @@ class Manifest:
         self.archives: dict[str, dict[str, Any]] = {}
         if path.exists():
             try:
-                data = json.loads(path.read_text())
+                data = read_json_file(path, "download manifest")
                 self.archives = dict(data["archives"])
-            except (OSError, ValueError, KeyError, TypeError) as exc:
+            except DataError as exc:
+                raise DataError(f"{exc}; delete it to re-verify every archive") from None
+            except (KeyError, TypeError, ValueError) as exc:
                 raise DataError(
                     f"{path}: not a download manifest ({exc}); delete it to re-verify every archive"
                 ) from None
@@ -840,8 +841,8 @@ def _file_owners(dest_dir: Path) -> dict[str, str]:
     records = [*dest_dir.glob(".*.zip.complete"), *dest_dir.glob(".*.zip.pending")]
     for record in sorted(records):
         try:
-            data = json.loads(record.read_text(encoding="utf-8"))
-        except (OSError, UnicodeDecodeError, ValueError):
+            data = read_json_file(record, "download record")
+        except DataError:
             continue  # unreadable: owns nothing, so its files are refused rather than replaced
         files = data.get("files") if isinstance(data, dict) else None
         archive = record.name[1:].rsplit(".", 1)[0]

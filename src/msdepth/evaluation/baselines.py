@@ -17,7 +17,6 @@ fractions of the width and need no rescaling.
 
 from __future__ import annotations
 
-import json
 import logging
 import warnings
 from collections import Counter
@@ -34,7 +33,7 @@ from msdepth.data.eval_index import read_eval_index, training_gt_path, velodyne_
 from msdepth.data.pairs import load_pair_list
 from msdepth.evaluation.results import run_suite, score_set
 from msdepth.evaluation.suites import depth_maps, load_frames
-from msdepth.io import write_json, write_text
+from msdepth.io import read_json_file, write_json, write_text
 from msdepth.pipeline.paths import (
     HEADLINE,
     METRICS,
@@ -209,7 +208,7 @@ def skipped_reason(metrics_dir: str | Path, run: str, suites: Sequence[str]) -> 
         path = suite_path(suite, run, ".json", Path(metrics_dir))
         if not path.is_file():
             return f"no {path}"
-        data = json.loads(path.read_text())
+        data = read_json_file(path, "metrics")
         if isinstance(data, dict) and SKIPPED in data:
             return str(data[SKIPPED])
     return None

@@ -12,7 +12,6 @@ camera-to-world matrix per frame, row-major, one line each (the synthetic sequen
 from __future__ import annotations
 
 import io
-import json
 import logging
 import os
 import re
@@ -23,7 +22,7 @@ from typing import TYPE_CHECKING, Sequence
 import numpy as np
 
 from msdepth.errors import DataError
-from msdepth.io import read_bounded
+from msdepth.io import read_bounded, read_json_file
 
 if TYPE_CHECKING:
     from msdepth.config.params import Params
@@ -252,7 +251,7 @@ def add_pose_metrics(params: Params, net: PoseNet, run: str, summary_path: Path)
             return
     else:
         pose = sequence_ates(net, paths.raw_root, params.data.synthetic.sequence_length, h, w)
-    write_json(summary_path, {**json.loads(summary_path.read_text()), "pose": pose})
+    write_json(summary_path, {**read_json_file(summary_path, "training summary"), "pose": pose})
     for name, values in {"": pose, **pose.get("sequences", {})}.items():
         log.info(
             "train %s: pose ATE%s %.4f ± %.4f over %d snippets",

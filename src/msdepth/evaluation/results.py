@@ -26,7 +26,7 @@ from msdepth.evaluation.suites import (
     no_rois,
     read_depth_maps,
 )
-from msdepth.io import atomic_path, save_npz, write_json
+from msdepth.io import atomic_path, read_npy_file, save_npz, write_json
 from msdepth.pipeline.paths import (
     HEADLINE,
     METRICS,
@@ -146,7 +146,7 @@ def write_depth_maps(run: str, disparities: Path, eval_index: Path, out: Path, *
     if not disparities.exists():
         raise DataError(f"{disparities}: no disparities for run {run!r}")
     frames = load_frames(read_eval_index(eval_index))
-    save_npz(out, **depth_maps(np.load(disparities), frames, monocular=monocular))
+    save_npz(out, **depth_maps(read_npy_file(disparities, "disparities"), frames, monocular=monocular))
 
 
 def checked_suite(suite: str) -> str:

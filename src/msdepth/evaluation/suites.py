@@ -39,6 +39,7 @@ from msdepth.geometry.depth import (
     pixel_disparity,
     predicted_depth,
 )
+from msdepth.io import read_npz_file
 from msdepth.pipeline.paths import ROIS
 
 GRADIENTS = ("sobel_x", "sobel_y", "laplacian")
@@ -477,5 +478,4 @@ def read_depth_maps(path: str | os.PathLike) -> dict[str, np.ndarray]:
     path = Path(path)
     if not path.exists():
         raise DataError(f"{path}: no depth maps (run the depth stage)")
-    with np.load(path) as data:
-        return {k: data[k] for k in data.files}
+    return read_npz_file(path, "depth maps")

@@ -36,7 +36,8 @@ import pandas as pd
 
 from msdepth.config.checks import has_per_pixel_cost
 from msdepth.config.params import Params
-from msdepth.errors import ConfigError
+from msdepth.errors import ConfigError, DataError
+from msdepth.io import read_json_file, read_npy_file
 from msdepth.optimum.frames import checked_matcher
 from msdepth.pipeline.paths import (
     CHECKPOINTS,
@@ -86,8 +87,8 @@ def _open_scratch(folder: Path, key: dict) -> int:
 
     path = folder / KEY
     try:
-        same = json.loads(path.read_text()) == key
-    except (OSError, ValueError):
+        same = read_json_file(path, "scratch key") == key
+    except DataError:
         same = False
     if not same:
         shutil.rmtree(folder, ignore_errors=True)
@@ -138,7 +139,7 @@ def _score_scratch(params: Params, name: str, run: str, index: pd.DataFrame, fol
     frames = load_frames(index)
     pred: dict[str, np.ndarray] = {}
     for i, frame in enumerate(frames):
-        pred.update(depth_maps([np.load(folder / FRAME_FILE.format(i))], [frame]))
+        pred.update(depth_maps([read_npy_file(folder / FRAME_FILE.format(i), "disparity")], [frame]))
     score_set(params, name, run, pred, frames)
 
 

@@ -32,6 +32,7 @@ from pathlib import Path
 import yaml
 
 from msdepth.errors import DataError, MsdepthError
+from msdepth.io import read_text_file
 
 PACKAGE = "msdepth"
 CODE_PREFIXES = ("stages/", "src/")
@@ -272,7 +273,7 @@ def generate(root: Path) -> str:
     """dvc.yaml under ``root`` with every stage's code deps written from its imports and every
     tagged path from its definition in :mod:`msdepth.pipeline.paths`."""
     path = root / "dvc.yaml"
-    text = path.read_text()
+    text = read_text_file(path, "pipeline")
     try:
         dvc_yaml = yaml.safe_load(text)
     except yaml.YAMLError as exc:
@@ -302,7 +303,7 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     path = args.root / "dvc.yaml"
     try:
-        old, new = path.read_text(), generate(args.root)
+        old, new = read_text_file(path, "pipeline"), generate(args.root)
     except (MsdepthError, OSError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1

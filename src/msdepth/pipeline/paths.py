@@ -21,6 +21,7 @@ from typing import Annotated, Callable
 
 from msdepth.config.params import Params, load_params
 from msdepth.errors import ConfigError, MsdepthError, unexpected_error
+from msdepth.io import read_text_file
 
 log = logging.getLogger("msdepth")
 
@@ -79,7 +80,7 @@ CHECKED_TEXT = (
 
 def write_checked(path: Path = CHECKED) -> None:
     """Write :data:`CHECKED_TEXT` to ``path`` unless it holds it already (then it is left alone)."""
-    if not path.is_file() or path.read_text() != CHECKED_TEXT:
+    if not path.is_file() or read_text_file(path, "stage mark") != CHECKED_TEXT:
         path.parent.mkdir(parents=True, exist_ok=True)
         path.write_text(CHECKED_TEXT)
 

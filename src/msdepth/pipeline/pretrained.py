@@ -15,7 +15,7 @@ import re
 from pathlib import Path
 
 from msdepth.errors import DataError
-from msdepth.io import file_sha256, write_text
+from msdepth.io import file_sha256, read_json_file, read_text_file, write_text
 
 SHA256 = re.compile(r"[0-9a-f]{64}")
 
@@ -35,7 +35,7 @@ def write_record(pretrained: str, out: Path) -> bool:
     """Write ``pretrained``'s record to ``out`` unless ``out`` holds those bytes already (its mtime
     then stays too); returns whether it wrote."""
     text = json.dumps(_pretrained_record(pretrained), indent=2) + "\n"
-    if out.is_file() and out.read_text() == text:
+    if out.is_file() and read_text_file(out, "pretrained record") == text:
         return False
     write_text(out, text)
     return True
@@ -49,11 +49,11 @@ def recorded_sha256(pretrained: str, record: Path) -> str | None:
         return None
     remedy = "run `dvc repro pretrained` (it records model.pretrained's content hash)"
     try:
-        data = json.loads(record.read_text())
-    except FileNotFoundError:
-        raise DataError(f"{record}: missing; {remedy}") from None
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise DataError(f"{record}: unreadable ({exc}); {remedy}") from None
+        if not record.exists():
+            raise DataError(f"{record}: missing; {remedy}")
+        data = read_json_file(record, "pretrained record")
+    except DataError as exc:
+        raise DataError(f"{exc}; {remedy}" if remedy not in str(exc) else str(exc)) from None
     if not isinstance(data, dict) or data.get("path") != pretrained:
         found = data.get("path") if isinstance(data, dict) else data
         raise DataError(f"{record}: records {found!r}, not model.pretrained {pretrained!r}; {remedy}")

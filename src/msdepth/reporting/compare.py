@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import dataclasses
-import json
 import os
 import re
 from dataclasses import dataclass
@@ -18,6 +17,7 @@ from msdepth.config.variants import configs as variant_configs
 from msdepth.errors import DataError
 from msdepth.evaluation.metrics import HIGHER_IS_BETTER, METRICS, STEREO_METRICS
 from msdepth.evaluation.suites import GRADIENTS, NO_ROIS
+from msdepth.io import read_json_file, read_table_file
 from msdepth.pipeline.paths import suite_path, train_summary_path
 from msdepth.reporting.stats import paired_table, seed_bootstrap
 
@@ -51,14 +51,14 @@ def load_suite_metrics(
     metrics_dir: str | os.PathLike, runs: Sequence[str], suites: Sequence[str] = SUITES
 ) -> dict[str, dict[str, dict]]:
     """``{suite: {run: metrics}}`` from ``metrics_dir/<suite>/<run>.json``."""
-    return _load_runs(metrics_dir, suites, runs, ".json", lambda p: json.loads(p.read_text()), "metrics")
+    return _load_runs(metrics_dir, suites, runs, ".json", lambda p: read_json_file(p, "metrics"), "metrics")
 
 
 def load_training_summaries(runs: Sequence[str], root: str | os.PathLike = ".") -> dict[str, dict]:
     """``{run: its training summary}`` (:func:`~msdepth.pipeline.paths.train_summary_path` below the
     project folder ``root``) of the runs that have one (the baselines were not trained)."""
     paths = {r: Path(root) / train_summary_path(r) for r in runs}
-    return {r: json.loads(p.read_text()) for r, p in paths.items() if p.is_file()}
+    return {r: read_json_file(p, "training summary") for r, p in paths.items() if p.is_file()}
 
 
 # Per-unit tables of the suites that are compared statistically, and the column pairing units.
@@ -74,7 +74,7 @@ def load_unit_tables(
         suites,
         runs,
         ".csv",
-        lambda p: pd.read_csv(p, dtype={"frame": str, "image": str}),
+        lambda p: read_table_file(p, "per-unit metrics", dtype={"frame": str, "image": str}),
         "per-unit metrics",
     )
 

@@ -37,7 +37,6 @@ returns those numbers for checking.
 from __future__ import annotations
 
 import dataclasses
-import json
 import logging
 import os
 from dataclasses import dataclass, field
@@ -60,7 +59,7 @@ from msdepth.data.eval_index import read_eval_index
 from msdepth.errors import DataError
 from msdepth.evaluation.suites import Frame, evaluate_roi, gradient_maps, load_frames, read_depth_maps
 from msdepth.geometry.depth import clamp_depth, depth_to_disparity, pixel_disparity
-from msdepth.io import atomic_path
+from msdepth.io import atomic_path, read_json_file, read_npy_file, read_table_file
 from msdepth.pipeline.paths import (
     COMPARE_JSON,
     COST_CURVES,
@@ -162,7 +161,7 @@ def _load(
         path = disparities_path(run, Path(outputs))
         if not path.exists():
             raise DataError(f"{path}: no disparities for run {run!r} (run the infer stage)")
-        disp = np.load(path)
+        disp = read_npy_file(path, "disparities")
         if disp.ndim != 3 or len(disp) != len(index):
             raise DataError(
                 f"{path}: expected ({len(index)}, h, w) disparities for {eval_index}, got {disp.shape}"
@@ -470,10 +469,7 @@ def _roi_gradient_figure(inp: _Inputs, examples: list[RoiExample], path: Path) -
 def _read_curve(path: Path, name: str) -> pd.DataFrame:
     if not path.exists():
         raise DataError(f"{path}: no training curve {name!r} (run the train stage)")
-    try:
-        df = pd.read_csv(path, sep="\t")
-    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
-        raise DataError(f"{path}: not a readable dvclive TSV: {exc}") from None
+    df = read_table_file(path, "dvclive TSV", sep="\t")
     if not {"step", name} <= set(df.columns) or df.empty:
         raise DataError(
             f"{path}: expected columns 'step' and {name!r} with at least one row, got {list(df.columns)}"
@@ -526,7 +522,7 @@ def _read_full(metrics: Path, variant: str, cap: float) -> pd.DataFrame:
     path = suite_path("full", variant, ".csv", Path(metrics))
     if not path.exists():
         raise DataError(f"{path}: no per-image metrics of run {variant!r} (run the eval_full stage)")
-    df = pd.read_csv(path, dtype={"frame": str})
+    df = read_table_file(path, "per-image metrics", dtype={"frame": str})
     if not {"frame", "cap", "abs_rel"} <= set(df.columns):
         raise DataError(f"{path}: expected columns frame, cap, abs_rel; got {list(df.columns)}")
     df = df[np.isclose(df["cap"], cap)]
@@ -644,9 +640,10 @@ def _read_cost_curves(directory: Path, variants: Sequence[str]) -> dict[str, dic
     for v in variants:
         path = cost_curves_path(v, Path(directory))
         try:
-            out[v] = json.loads(path.read_text())
-        except (OSError, ValueError) as exc:
-            raise DataError(f"{path}: cannot read the cost curves of {v!r} ({exc})") from None
+            out[v] = read_json_file(path, "cost curves")
+        except DataError as exc:
+            why = str(exc).removeprefix(f"{path}: ")
+            raise DataError(f"{path}: cannot read the cost curves of {v!r} ({why})") from None
     return out
 
 
@@ -776,10 +773,12 @@ def verdict_figure(verdict: Mapping | None, path: Path) -> Path:
 def _read_verdict(path: Path) -> dict | None:
     """compare.json's ``verdict`` (None where it has none); a DataError names a missing or
     unreadable file."""
-    try:
-        return json.loads(Path(path).read_text()).get("verdict")
-    except (OSError, ValueError) as exc:
-        raise DataError(f"{path}: cannot read the comparison ({exc}); run the compare stage first") from None
+    if not Path(path).exists():
+        raise DataError(f"{path}: no comparison; run the compare stage first")
+    data = read_json_file(path, "comparison")
+    if not isinstance(data, dict):
+        raise DataError(f"{path}: the comparison is not a JSON object")
+    return data.get("verdict")
 
 
 def pipeline_figures(

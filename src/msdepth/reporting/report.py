@@ -19,7 +19,7 @@ from typing import Any, Sequence
 
 from msdepth.errors import DataError, MsdepthError
 from msdepth.evaluation.metrics import HIGHER_IS_BETTER
-from msdepth.io import write_text
+from msdepth.io import read_json_file, read_text_file, write_text
 from msdepth.pipeline.paths import COMPARE_JSON, FIGURES_DIR, README, RESULTS, run_name, train_summary_path
 from msdepth.reporting.compare import (
     MIN_SEEDS_FOR_MARKS,
@@ -153,7 +153,9 @@ def read_json_object(path: Path, hint: str) -> dict:
     """The JSON object in ``path``; one DataError line naming the file when it is missing (with
     ``hint``), unreadable or not an object."""
     try:
-        data = json.loads(path.read_text(encoding="utf-8"))
+        if not path.exists():
+            raise FileNotFoundError(path)
+        data = read_json_file(path, "JSON")
     except FileNotFoundError:
         raise DataError(f"{path}: missing{'; ' + hint if hint else ''}") from None
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
@@ -780,7 +782,7 @@ def rendered(root: Path = Path(".")) -> dict[Path, str]:
     out = {root / RESULTS: _results_page(r)}
     readme = root / README
     if readme.is_file():
-        out[readme] = _replace_block(readme.read_text(encoding="utf-8"), _readme_block(r), readme)
+        out[readme] = _replace_block(read_text_file(readme, "README"), _readme_block(r), readme)
     return out
 
 
@@ -789,7 +791,7 @@ def write_report(root: Path = Path(".")) -> list[Path]:
     written."""
     written = []
     for path, text in rendered(root).items():
-        if not path.is_file() or path.read_text(encoding="utf-8") != text:
+        if not path.is_file() or read_text_file(path, "generated text") != text:
             write_text(path, text)
             written.append(path)
     return written
@@ -798,7 +800,9 @@ def write_report(root: Path = Path(".")) -> list[Path]:
 def stale(root: Path = Path(".")) -> list[Path]:
     """The files whose text differs from what the committed metrics give."""
     return [
-        p for p, text in rendered(root).items() if not p.is_file() or p.read_text(encoding="utf-8") != text
+        p
+        for p, text in rendered(root).items()
+        if not p.is_file() or read_text_file(p, "generated text") != text
     ]
 
 

@@ -51,7 +51,6 @@ ROIs is 0 wide, not certain. :func:`_class_sentence` states each class in one se
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
 import re
 from dataclasses import dataclass
@@ -64,6 +63,7 @@ import pandas as pd
 from msdepth.config.params import CompareConfig
 from msdepth.errors import DataError
 from msdepth.evaluation.classes import class_unit_tables
+from msdepth.io import read_json_file, read_text_file
 from msdepth.reporting.compare import UNIT_KEYS, paired_statistics
 from msdepth.reporting.power import t_quantile
 from msdepth.reporting.stats import paired_bootstrap, paired_t, paired_table
@@ -384,7 +384,7 @@ def _parse_monocular_table(path: Path) -> MonocularStats:
     ``variant``) the cells ``mean ± sd`` of the columns ``abs_rel`` (the full frame) and ``ROI
     <class>``; cells without `` ± `` (``–``) are skipped. A DataError names the file when the line
     or the table is not there or a cell is not two numbers."""
-    text = Path(path).read_text(encoding="utf-8")
+    text = read_text_file(path, "monocular table")
     seeds = re.search(r"over seeds \[([^\]]*)\]", text)
     lines = [x.strip() for x in text.splitlines() if x.strip().startswith("| ")]
     if not seeds or not lines or not lines[0].startswith("| mode | variant |"):
@@ -420,7 +420,7 @@ def read_monocular(json_path: Path, table_path: Path) -> MonocularStats:
     else :func:`_parse_monocular_table` of ``table_path``; {} when neither exists."""
     if Path(json_path).is_file():
         try:
-            modes = json.loads(Path(json_path).read_text(encoding="utf-8"))["modes"]
+            modes = read_json_file(json_path, "monocular per-seed values")["modes"]
             return {
                 mode: {
                     variant: {cls: [float(x) for x in v] for cls, v in classes.items()}
@@ -439,11 +439,11 @@ def read_monocular_settings(json_path: Path, table_path: Path) -> str:
     neither records them."""
     if Path(json_path).is_file():
         try:
-            return str(json.loads(Path(json_path).read_text(encoding="utf-8")).get("settings", ""))
-        except (ValueError, AttributeError):
+            return str(read_json_file(json_path, "monocular per-seed values").get("settings", ""))
+        except AttributeError:  # not an object: read_monocular names the file
             return ""
     if Path(table_path).is_file():
-        for line in Path(table_path).read_text(encoding="utf-8").splitlines():
+        for line in read_text_file(table_path, "monocular table").splitlines():
             if line.startswith(SETTINGS_LINE):
                 return line[len(SETTINGS_LINE) :].strip().strip("`")
     return ""
@@ -540,10 +540,7 @@ def read_external_rows(path: Path) -> list[Row]:
     path = Path(path)
     if not path.is_file():
         return []
-    try:
-        items = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, ValueError) as exc:
-        raise DataError(f"{path}: not readable as JSON ({str(exc).splitlines()[0]})") from None
+    items = read_json_file(path, "verdict rows")
     if not isinstance(items, list):
         raise DataError(f"{path}: needs a JSON list of rows, got {type(items).__name__}")
     return [_checked_row(item, i, path) for i, item in enumerate(items)]
