@@ -23,9 +23,9 @@ M and MS), ROI abs_rel per class, the image-dependence measure (variation; the p
 is 0) and its correlation with the prior, the pose ATE, and the training time per run against
 stereo's. table.json, written with it: the same runs' values per seed, ``{"cap", "seeds",
 "metric": "abs_rel", "modes": {mode: {variant: {"full frame" | ROI class: [one value per
-seed]}}}}``, which the compare stage's verdict reads (msdepth.reporting.verdict.read_monocular;
-the committed results predate it, so the verdict parses table.md's mean ± sd until the study is
-run again: the per-seed values were not kept).
+seed]}}}}``, in the verdict's row format (msdepth.reporting.verdict.read_monocular and
+seed_rows; the committed results predate it: their table.md keeps mean ± sd only). The pipeline's
+compare stage reads neither: its verdict holds only what ``dvc repro`` computes.
 """
 
 from __future__ import annotations

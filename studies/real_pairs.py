@@ -28,10 +28,11 @@ scale out of. Writes ``<out>/real_pairs.md`` through the output policy: the mean
 (each variant's networks also over their seeds, ``network <variant> (<n> seeds)``), then every row.
 
 From the same disparities it also writes ``<out>/verdict.json``, the real pairs' rows of the
-verdict (:mod:`msdepth.reporting.verdict`, whose schema it follows and which the compare stage
-reads): MS-SSIM at ``msssim.kernel_size`` minus ``compare.reference`` (SSIM) in abs_rel, per
-instrument (``optimum w<weight>``, the pipeline's names, so the compare stage pools them with its
-own optimum rows; ``cost start``, SGM on each variant's own cost volume; with ``--models``,
+verdict (:mod:`msdepth.reporting.verdict`, whose external schema it follows; the pipeline's
+compare stage does not read it: the same instruments on real frames come from
+``eval.extra_sets``): MS-SSIM at ``msssim.kernel_size`` minus ``compare.reference`` (SSIM) in
+abs_rel, per instrument (``optimum w<weight>``, the pipeline's names; ``cost start``, SGM on each
+variant's own cost volume; with ``--models``,
 ``stereo networks``, the pipeline's name, which the verdict labels "stereo networks, real pairs":
 each non-reference variant of ``variants`` minus ``compare.reference``) and class, each with a
 :func:`msdepth.reporting.stats.seed_bootstrap` interval (``compare``'s samples, confidence and
@@ -630,7 +631,7 @@ def main(argv: list[str] | None = None) -> int:
     settings = settings_label(variant_settings(params), [params.compare.reference, "msssim"])
     rows = verdict_rows(pairs, results, params.compare, labels, weights, networks, settings)
     write_json(args.out / VERDICT, rows)
-    read_external_rows(args.out / VERDICT)  # the compare stage's reader: the schema holds
+    read_external_rows(args.out / VERDICT)  # the verdict module reads it back: the schema holds
     print(text)
     print(f"{args.out / VERDICT}: {len(rows)} rows")
     return 0

@@ -135,8 +135,6 @@ TINY = {
 }
 # What a copy holds of this project: the pipeline, its code and lists, DVC's and git's settings.
 PROJECT_FILES = ("dvc.yaml", "stages", "src", "data_lists", ".dvc", ".dvcignore", ".gitignore")
-# ... and the studies' results that the compare stage reads into the verdict (dvc.yaml deps).
-PROJECT_FILES += ("studies/results/monocular/table.md", "studies/results/real/verdict.json")
 
 
 def save_tiny_model(path: Path) -> Path:

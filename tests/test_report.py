@@ -289,7 +289,9 @@ def test_the_verdict_sentences_go_into_the_readme_and_the_page(tmp_path: Path):
         in page
     )
     assert "Pooled here: optimum w10, pooled (windshield)." in page
-    assert "(none here: the study's results are absent)" in page
+    assert "Every row is computed by this pipeline: the studies' results" in page
+    assert "[real frames](studies/results/real_sets/README.md)" in block
+    assert "[real frames](../studies/results/real_sets/README.md)" in page
     plain = load_results(_project(tmp_path / "plain", copy.deepcopy(COMPARISON)))
     assert "verdict.png" not in _readme_block(plain) and "## The verdict" not in _results_page(plain)
     assert "## What the study finds" in page and "## What the study finds" not in _results_page(plain)

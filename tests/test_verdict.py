@@ -375,14 +375,18 @@ def test_the_summary_table_holds_each_familys_headline_instrument() -> None:
         ),
         Row("optimum w10", "windshield", -0.01, -0.03, 0.01, 66, "m", "optimum"),
         Row("optimum w3", "windshield", -0.05, -0.07, -0.03, 66, "m", "optimum"),
+        Row("optimum w10 on kitti2015", "car", -0.02, -0.04, 0.0, 9, "m", "optimum"),
     ]
-    data = verdict_data(rows, 80.0, 0.95, "MS-SSIM", "SSIM", headline=headline_instruments(10.0))
+    headline = headline_instruments(10.0, ["kitti2015"])
+    data = verdict_data(rows, 80.0, 0.95, "MS-SSIM", "SSIM", headline=headline)
     cells = data["summary"]["windshield"]
     assert cells["stereo networks"]["diff"] == -0.036
     assert cells["loss's own optimum, w10"]["instrument"] == "optimum w10"
-    assert cells["real pairs, optimum w10"] is None
+    assert cells["optimum w10, kitti2015 frames"] is None
+    assert data["summary"]["car"]["optimum w10, kitti2015 frames"]["instrument"] == "optimum w10 on kitti2015"
     lines = summary_lines(data)
-    assert lines[2] == (
+    assert lines[2] == "| car | – | – | \u22120.020 [\u22120.040, +0.000], n = 9 ROIs |"
+    assert lines[3] == (
         "| windshield | \u22120.036 [\u22120.068, \u22120.002] *, n = 66 ROIs × 3 seed pairs | "
         "\u22120.010 [\u22120.030, +0.010], n = 66 ROIs | – |"
     )

@@ -58,12 +58,6 @@ TRAIN_PLOTS = PLOTS / "train"  # <run>/: each run's dvclive curves
 FIGURES_DIR = PLOTS / "figures"
 TRAIN_LOGS = Path("logs/train")  # <run>.json: training timings (untracked: they vary between machines)
 RESULTS = Path("docs/results.md")
-# Studies' results the compare stage reads into the verdict (msdepth.reporting.verdict): the monocular
-# study's table (studies/monocular.py writes table.md and table.json together, so the table stands
-# for both as a dvc.yaml dep) and the real-pairs study's rows (a JSON list; `[]` for none).
-MONOCULAR_TABLE = Path("studies/results/monocular/table.md")
-MONOCULAR_JSON = MONOCULAR_TABLE.with_suffix(".json")
-REAL_VERDICT = Path("studies/results/real/verdict.json")
 README = Path("README.md")  # not a DVC output: the report stage rewrites only its generated block
 # The folders that only the stages write: a stage removes the temp files that a stage killed
 # mid-write (kill -9) left there before it runs. The data roots are not walked (a KITTI tree is

@@ -18,10 +18,7 @@ from msdepth.pipeline.paths import (
     COMPARE_JSON,
     COMPARE_MD,
     METRICS,
-    MONOCULAR_JSON,
-    MONOCULAR_TABLE,
     OPTIMUM,
-    REAL_VERDICT,
     SUITE_NAMES,
     mean_path,
     optimum_run,
@@ -53,10 +50,6 @@ from msdepth.reporting.verdict import (
     headline_instruments,
     network_rows,
     optimum_rows,
-    read_external_rows,
-    read_monocular,
-    read_monocular_settings,
-    seed_rows,
     settings_label,
     verdict_data,
     verdict_lines,
@@ -155,10 +148,9 @@ def verdict_section(
 ) -> dict:
     """compare.json's ``verdict`` (:func:`msdepth.reporting.verdict.verdict_data`): per surface class,
     each variant minus ``compare.reference`` in abs_rel at the headline cap, by the trained networks
-    (every seed), the monocular study's networks (:data:`~msdepth.pipeline.paths.MONOCULAR_TABLE`),
-    the optimum at every weight, each extra set's networks, cost starts and optimum
-    (:func:`set_verdict_rows`, frames as the units) and the real-pairs study's rows
-    (:data:`~msdepth.pipeline.paths.REAL_VERDICT`, where it exists)."""
+    (every seed), the optimum at every weight, and each extra set's networks, cost starts and
+    optimum (:func:`set_verdict_rows`, frames as the units): only what this pipeline computed, so
+    every row is reproduced by ``dvc repro`` (real KITTI frames enter as extra sets)."""
     cfg, cap = params.compare, params.eval.caps[0]
     variants = {v: groups[v] for v in params.variants}
     settings = settings_label(variant_settings(params), params.variants)
@@ -166,9 +158,6 @@ def verdict_section(
     if len(variants) > 1:
         tables = load_unit_tables(METRICS, [r for runs in variants.values() for r in runs], compared)
         rows += network_rows(tables, variants, cfg, cap, pairing=pairing, settings=settings)
-        mono = read_monocular(MONOCULAR_JSON, MONOCULAR_TABLE)
-        mono_settings = read_monocular_settings(MONOCULAR_JSON, MONOCULAR_TABLE)
-        rows += seed_rows(mono, cfg.reference, cfg.confidence, mono_settings)
         if (suite_dir("full") / OPTIMUM).is_dir():
             by_weight: dict[str, dict[str, str]] = {}
             for label, run in optimum_runs(params, METRICS).items():
@@ -180,15 +169,9 @@ def verdict_section(
             rows += optimum_rows(opt_tables, by_weight, cfg, cap, settings)
     for name in params.eval.extra_sets:
         rows += set_verdict_rows(params, name, pairing, settings)
-    rows += read_external_rows(REAL_VERDICT)
     better, than = display_names(params.variants, cfg.reference)
-    headline = headline_instruments(params.optimum.smoothness_weight)
-    data = verdict_data(rows, cap, cfg.confidence, better, than, settings, headline)
-    # Which of the monocular study's files the rows came from: the results page says how they were made.
-    source = next((p for p in (MONOCULAR_JSON, MONOCULAR_TABLE) if p.is_file()), None)
-    if any(r.kind == "seeds" for r in rows) and source is not None:
-        data["monocular_source"] = source.as_posix()
-    return data
+    headline = headline_instruments(params.optimum.smoothness_weight, params.eval.extra_sets)
+    return verdict_data(rows, cap, cfg.confidence, better, than, settings, headline)
 
 
 def _mean_rows(result: dict, variants: Sequence[str], cap: str) -> dict[str, dict[str, float]]:

@@ -378,11 +378,13 @@ lower), with its {level} interval; `*`: the interval excludes 0. *n*: the indepe
 pipeline's stereo networks; both losses train with the same seeds (same initial weights and batches),
 so seed s of each is a pair, resampled jointly with the units; the paired t over the seeds is the
 conservative check. *Loss's own optimum (wW)*: the disparity map that minimises each loss directly
-on the frames, no network, at smoothness weight W ([docs/optimum.md]({docs}optimum.md)). *Real
-pairs*: the loss's own optimum on the real KITTI frames at hand (2 KITTI 2015 frames with
-hand-drawn ROIs, 2 KITTI 2012 frames with reflective GT, a pair with LiDAR). *Cost start*: SGM on
-the loss's own cost volume. *Pooled*: one instrument's independent rows combined by inverse
-variance. A class with fewer than {min_units} units has no interval."""
+on the frames, no network, at smoothness weight W ([docs/optimum.md]({docs}optimum.md)). *X
+frames*: an extra evaluation set (`eval.extra_sets`; Eigen's LiDAR frames by default, your real
+KITTI 2012 and 2015 frames once linked in: [docs/user-guide.md]({docs}user-guide.md)). *Cost
+start*: SGM on the loss's own cost volume. *Pooled*: one instrument's independent rows combined by
+inverse variance. A class with fewer than {min_units} units has no interval. Real KITTI sample
+frames and the monocular networks are studies, on their own pages
+([real frames]({studies}real_sets/README.md), [monocular]({studies}monocular/table.md))."""
 
 
 def _answer_lines(r: Results, docs: str) -> list[str]:
@@ -406,7 +408,11 @@ def _answer_lines(r: Results, docs: str) -> list[str]:
     ]
     figure = f"[{VERDICT_FIGURE}]({'../' if docs == '' else ''}{FIGURES_DIR.as_posix()}/{VERDICT_FIGURE})"
     terms = TERMS.format(
-        cap=block["cap"][3:], level=level, docs=docs, min_units=block.get("min_units", MIN_UNITS)
+        cap=block["cap"][3:],
+        level=level,
+        docs=docs,
+        studies="../studies/results/" if docs == "" else "studies/results/",
+        min_units=block.get("min_units", MIN_UNITS),
     )
     return [
         wrap(lead),
@@ -689,38 +695,24 @@ the same seeds, so seed s of SSIM and seed s of MS-SSIM start from the same weig
 batches (each run's training summary records both, `metrics/train/`; a pair whose records differ is
 compared unpaired, and the row says so). Each draw of the bootstrap resamples the seed pairs and the
 images (or the class's ROIs) together; the paired t over the per-seed differences is given beside
-it, the conservative check with few seeds. Mono and mono+stereo networks: the monocular study's
-seeds{monocular}; its full frame is median-scaled per image, as the study scores it. The loss's own
-optimum at each weight: a paired bootstrap over the images or ROIs that weight was scored on. Real
-pairs: the rows of `studies/results/real/verdict.json`, written by the real-pairs study (the schema
-is in `src/msdepth/reporting/verdict.py`), whose units are frames, hand-drawn boxes or seed pairs,
-never pixels or tiles of one object. A row over fewer than {min_units} units has no interval: a
-percentile interval over one or two units is narrow, not certain. A row made under other variant
-settings than the run's (a study's committed rows after `dvc exp run -S msssim.kernel_size=7`) is
-shown apart in `metrics/compare.md`, never counted or pooled."""
+it, the conservative check with few seeds. The loss's own optimum at each weight: a paired
+bootstrap over the images or ROIs that weight was scored on. An extra evaluation set
+(`eval.extra_sets`: Eigen's LiDAR frames here; your KITTI 2012 and 2015 frames once linked in, see
+docs/user-guide.md): the same instruments with its frames as the units, never pixels or tiles of one
+object. Every row is computed by this pipeline: the studies' results (monocular training, the real
+sample pairs, the kernel grid) are on their own pages, linked below, and never enter these rows. A
+row over fewer than {min_units} units has no interval: a percentile interval over one or two units
+is narrow, not certain."""
 
 POOLING = """Pooling. Rows of different instruments are not pooled: they score the same frames, so they
 are not independent of the frames' draw, and they measure different quantities (a training mode,
 an optimum weight), whose average estimates nothing in particular. Rows of one network instrument
 are not pooled either: each scores the same trained networks, whose seed noise they share. Only
-one optimum instrument (`optimum w10`, say) measured on other frames, such as the real pairs', is
-pooled with the pipeline's row: the optimum has no training noise, so rows on disjoint frames are
+one optimum instrument (`optimum w10`, say) measured on other frames, such as an extra set's, is
+pooled with the default frames' row: the optimum has no training noise, so rows on disjoint frames are
 independent. They are combined by inverse-variance weighting (a fixed effect: one common
 difference assumed; each row's standard error is its interval's half-width over the normal
 quantile)."""
-
-
-def _monocular_source(r: Results) -> str:
-    """Where the verdict's mono and MS rows come from, as a clause of :data:`VERDICT_HOW`."""
-    source = r.get("verdict", "monocular_source", default=None)
-    if source is None:
-        return " (none here: the study's results are absent)"
-    if source.endswith(".md"):
-        return (
-            f", unpaired: Welch's t from the mean ± sd of `{source}` (that run kept no per-seed "
-            "values; the study now writes them to `table.json`, which pairs them by seed once it exists)"
-        )
-    return f", paired by seed: the paired t over the per-seed differences in `{source}`"
 
 
 def verdict_section(r: Results) -> str:
@@ -742,7 +734,7 @@ def verdict_section(r: Results) -> str:
             "## The verdict per surface class",
             image,
             "\n".join(sentences),
-            wrap(VERDICT_HOW.format(min_units=MIN_UNITS, monocular=_monocular_source(r))),
+            wrap(VERDICT_HOW.format(min_units=MIN_UNITS)),
             wrap(POOLING + pooled_text),
         ]
     )

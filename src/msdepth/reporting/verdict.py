@@ -681,15 +681,22 @@ def display_names(variants: Sequence[str], reference: str) -> tuple[str, str]:
     return better, DISPLAY_NAMES.get(reference, reference)
 
 
-def headline_instruments(weight: float) -> dict[str, tuple[str, str]]:
+def headline_instruments(weight: float, sets: Sequence[str] = ()) -> dict[str, tuple[str, str]]:
     """The instrument of each family that the summary table shows: ``{family: (kind, instrument)}``:
-    the stereo networks, the optimum at its default smoothness ``weight``, and the real pairs'
-    optimum at that weight."""
-    return {
+    the stereo networks, the optimum at its default smoothness ``weight``, and that optimum on each
+    extra evaluation set of ``sets`` (its rows are named ``<instrument> on <set>``).
+
+    Example:
+        >>> list(headline_instruments(10, ["kitti2012"]))
+        ['stereo networks', "loss's own optimum, w10", 'optimum w10, kitti2012 frames']
+    """
+    families = {
         "stereo networks": ("network", "stereo networks"),
         f"loss's own optimum, w{weight:g}": ("optimum", f"optimum w{weight:g}"),
-        f"real pairs, optimum w{weight:g}": ("external", f"optimum w{weight:g}"),
     }
+    for name in sets:
+        families[f"optimum w{weight:g}, {name} frames"] = ("optimum", f"optimum w{weight:g} on {name}")
+    return families
 
 
 def summary_table(rows: Sequence[Row], headline: Mapping[str, tuple[str, str]]) -> dict:
