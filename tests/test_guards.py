@@ -193,10 +193,10 @@ def _too_large(manifest: Path, target: Path) -> None:
 HOSTILE_MANIFESTS = {
     "symlink": (_symlink_to_a_file, "symbolic link"),
     "fifo": (_fifo, "not a regular file"),
-    "folder": (_folder, "not a regular file"),
+    "folder": (_folder, "a folder, not a file"),
     "bad_line": (_not_manifest_lines, "line 2 is not an output manifest line"),
     "name_outside": (_a_name_outside, "line 1 is not an output manifest line"),
-    "too_large": (_too_large, "MiB, not an output manifest"),
+    "too_large": (_too_large, "over the limit of 64 MiB for output manifest files"),
 }
 
 

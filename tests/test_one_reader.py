@@ -187,3 +187,16 @@ def test_each_reader_of_pipeline_outputs_refuses_the_hostile_set_in_one_line(
             read(path, "metrics", limit)
         message = str(err.value)
         assert message.startswith(str(path)) and "\n" not in message and len(message) < 400, (case, message)
+
+
+def test_one_opening_for_reading_in_src() -> None:
+    """open_regular is the one place src opens a file by descriptor for reading (the output
+    manifest included, through follow_symlinks=False); the other os.open is the manifest's append."""
+    found = [
+        f"{path.relative_to(ROOT).as_posix()}:{n}"
+        for path in SOURCES
+        if path.is_relative_to(ROOT / "src")
+        for n, line in enumerate(path.read_text(encoding="utf-8").splitlines(), 1)
+        if re.search(r"\bos\.open\(", line)
+    ]
+    assert len(found) == 2 and all(f.startswith("src/msdepth/io.py:") for f in found), found

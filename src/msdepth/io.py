@@ -179,6 +179,7 @@ def open_regular(
     *,
     allow_empty: bool = False,
     prefix: str | None = None,
+    follow_symlinks: bool = True,
 ) -> BinaryIO:
     """``path`` open for reading (binary), once it is known to be a regular file of at most
     ``max_bytes`` (its size taken with fstat on the open file, before any byte is read) and, unless
@@ -188,13 +189,20 @@ def open_regular(
     reader whose caller names the file): no such file, a folder, not a regular file (a FIFO, a
     device or a socket: reading one could block forever or never end), a symbolic link loop or any
     other error of the open, over ``max_bytes``, empty. ``kind`` names the file in it ("PFM").
+    ``follow_symlinks=False``: a symbolic link at ``path`` is refused, never followed (a file the
+    project wrote itself, which a link could redirect to someone else's).
     """
     head = f"{path}: " if prefix is None else prefix
+    flags = os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC | (0 if follow_symlinks else os.O_NOFOLLOW)
     try:  # O_NONBLOCK: opening a FIFO that no one writes returns at once, and fstat refuses it
-        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC)
+        fd = os.open(path, flags)
     except FileNotFoundError:
         raise DataError(f"{head}no such {kind} file") from None
     except OSError as exc:  # a symbolic link loop, a name too long, no permission
+        if not follow_symlinks and os.path.islink(path):
+            raise DataError(
+                f"{head}a symbolic link, not the {kind} file itself; it is not followed"
+            ) from None
         raise DataError(f"{head}cannot open this {kind} file ({exc.strerror or exc})") from None
     info = os.fstat(fd)
     problem = not_regular_file(info.st_mode)
@@ -221,11 +229,15 @@ def read_bounded(
     *,
     allow_empty: bool = False,
     prefix: str | None = None,
+    follow_symlinks: bool = True,
 ) -> bytes:
     """The bytes of the regular file ``path``, of at most ``max_bytes`` (:func:`open_regular`, whose
     refusals these are); a file that changed size while it was read is refused too."""
     head = f"{path}: " if prefix is None else prefix
-    with open_regular(path, kind, max_bytes, allow_empty=allow_empty, prefix=prefix) as file:
+    opened = open_regular(
+        path, kind, max_bytes, allow_empty=allow_empty, prefix=prefix, follow_symlinks=follow_symlinks
+    )
+    with opened as file:
         size = os.fstat(file.fileno()).st_size
         try:  # the size, not the limit, is asked for: read() allocates what it is asked for first
             data = file.read(size + 1)
@@ -443,27 +455,16 @@ def _pending_line(name: str) -> str:
 
 
 def _manifest_bytes(path: Path) -> bytes | None:
-    """The manifest's bytes (None if there is none), read only from a regular file of bounded size."""
-    try:  # O_NOFOLLOW: a symlink is refused, never followed; O_NONBLOCK: a FIFO cannot hang the open
-        fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK)
-    except FileNotFoundError:
+    """The manifest's bytes (None if there is none), read only from a regular file of bounded size
+    and never through a symbolic link (:func:`read_bounded`)."""
+    if not os.path.lexists(path):
         return None
-    except OSError as exc:
-        if os.path.islink(path):
-            raise OutputError(
-                f"{path}: the output manifest is a symbolic link, not a file msdepth wrote; remove it"
-            ) from None
-        raise OutputError(f"{path}: cannot read this output manifest ({exc.strerror or exc})") from None
-    if not stat.S_ISREG(os.fstat(fd).st_mode):
-        os.close(fd)
-        raise OutputError(f"{path}: the output manifest is not a regular file; remove it")
-    with os.fdopen(fd, "rb") as f:
-        data = f.read(MAX_MANIFEST_BYTES + 1)
-    if len(data) > MAX_MANIFEST_BYTES:
-        raise OutputError(
-            f"{path}: over {MAX_MANIFEST_BYTES >> 20} MiB, not an output manifest msdepth wrote"
+    try:
+        return read_bounded(
+            path, "output manifest", MAX_MANIFEST_BYTES, allow_empty=True, follow_symlinks=False
         )
-    return data
+    except DataError as exc:  # an output-policy refusal: the file is in the way, not bad input
+        raise OutputError(f"{exc}; it is not a manifest msdepth wrote: remove it") from None
 
 
 def _manifest_entry(line: str) -> tuple[str, bool] | None:
