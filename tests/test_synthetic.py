@@ -14,6 +14,7 @@ import pytest
 from msdepth import render
 from msdepth.config.params import SyntheticConfig
 from msdepth.data import kitti
+from msdepth.data.kitti import KITTI_BASELINE
 
 # Small but big enough that cars, glass and signs leave boxes of >= 6x6 px.
 CFG = SyntheticConfig(seed=11, drives=3, train_pairs=12, eval_frames=8, height=96, width=320)
@@ -316,3 +317,38 @@ def test_the_render_is_the_same_bytes_at_every_simd_level() -> None:
     if not dispatched:
         pytest.skip("this CPU runs numpy's baseline kernels only: nothing to compare")
     assert _digest_with_numpy_kernels_off([]) == _digest_with_numpy_kernels_off(dispatched)
+
+
+def test_more_and_nearer_training_cars_leave_the_evaluation_frames_as_they_are(
+    root: Path, tmp_path: Path
+) -> None:
+    """data.synthetic.train_cars / train_car_depth (issue 52's composition screen) change only the
+    training frames: more car instances, nearer; every evaluation file is byte-identical."""
+    import dataclasses
+
+    busy = dataclasses.replace(CFG, train_cars=(6, 8), train_car_depth=(4.0, 15.0))
+    render.generate(busy, tmp_path, progress=False, workers=1)
+    before, after = _files(root), _files(tmp_path)
+    evals = [k for k in before if k.startswith("kitti2015/") or "drive_9000" in k or k.endswith("rois.csv")]
+    assert evals and all(before[k] == after[k] for k in evals)
+    assert before.keys() == after.keys()
+    counts, near, default = [], [], []
+    for index in range(4):
+        frame = render.render_frame(CFG.seed, 0, index, 96, 320, cars=(busy.train_cars, busy.train_car_depth))
+        ids = [i for i in np.unique(frame.obj_map) if i > 0]  # the cars seen, one instance id each
+        counts.append(len(ids))
+        # each car's nearest visible point: its centre is <= 15 m ahead, half a car length nearer
+        near += [float(frame.disp[frame.obj_map == i].max()) for i in ids]
+        default.append(len(np.unique(render.render_frame(CFG.seed, 0, index, 96, 320).obj_map)) - 1)
+    assert min(counts) >= 3 and sum(counts) > sum(default)
+    assert near and min(near) > frame.focal * KITTI_BASELINE / 18.0
+
+
+def test_car_ranges_are_checked_in_one_line() -> None:
+    import dataclasses
+
+    from msdepth.errors import ConfigError
+
+    for name, bad in (("train_cars", (6, 2)), ("train_cars", (1, 2, 3)), ("train_car_depth", (30.0, 10.0))):
+        with pytest.raises(ConfigError, match=rf"{name}.*min <= max"):
+            dataclasses.replace(CFG, **{name: bad}).validate("data.synthetic", None)  # type: ignore[arg-type]

@@ -31,6 +31,7 @@ MAX_DIST_TIMEOUT_S = 86_400.0  # a day; Python's timedelta (torch.distributed) o
 # far beyond any sensible value, and small enough that none exhausts memory, time or the process table.
 MAX_THREADS = max(4, 4 * (os.cpu_count() or 1))  # torch.set_num_threads(10**6) broke process creation
 MAX_FRAMES = 1_000_000  # frames, pairs or drives of a set (KITTI's raw data: ~47,000 frames)
+MAX_CARS = 12  # cars a rendered street draws (each tried 20 times for a free spot)
 MAX_STEPS = 1_000_000  # optimiser steps or steps between host reads
 MAX_EPOCHS = 10_000
 MAX_BATCH = 4096
@@ -101,9 +102,20 @@ class SyntheticConfig:
     # > 0: each drive's training frames are sequences of this many frames, each one static scene
     # seen by a rig moving forward (Monodepth2's monocular training); 0 = independent frames.
     sequence_length: Frames = _added_later(0)
+    # The training frames' cars (the evaluation frames keep these defaults, so scores stay
+    # comparable): how many a frame draws, [min, max], and how far ahead their centres lie, metres.
+    train_cars: tuple[Annotated[int, Range(0, MAX_CARS)], ...] = _added_later((0, 6))
+    train_car_depth: tuple[Annotated[float, Range(4, MAX_DEPTH_M)], ...] = _added_later((4.0, 40.0))
 
     def validate(self, key: str, params: Params) -> None:
         """Range checks of the ``key`` section; a ConfigError names the key."""
+        for name in ("train_cars", "train_car_depth"):
+            low_high = getattr(self, name)
+            check(
+                len(low_high) == 2 and low_high[0] <= low_high[1],
+                f"{key}.{name}",
+                f"must be [min, max] with min <= max, got {list(low_high)}",
+            )
         check(
             self.sequence_length == 0 or self.sequence_length >= 3,
             f"{key}.sequence_length",

@@ -30,8 +30,21 @@ _CAR_COLOURS = [
 ]
 
 
-def add_cars(scene: Scene, rng: np.random.Generator, sides: dict, road: dict) -> None:
-    """0-6 cars (parked at the kerb or in a lane): body, cabin with windshields and side glass, wheels."""
+# The default street's cars: 0-6 of them, their centres 4-40 m ahead.
+CAR_COUNT, CAR_DEPTH = (0, 6), (4.0, 40.0)
+
+
+def add_cars(
+    scene: Scene,
+    rng: np.random.Generator,
+    sides: dict,
+    road: dict,
+    count: tuple[int, int] = CAR_COUNT,
+    depth: tuple[float, float] = CAR_DEPTH,
+) -> None:
+    """``count`` (min, max) cars, parked at the kerb or in a lane, their centres ``depth`` (min, max)
+    metres ahead: body, cabin with windshields and side glass, wheels. The defaults draw exactly
+    what the renderer always drew."""
     u = rng.uniform
     cam_h = scene.cam_height
     placed: list[tuple[float, float, float, float]] = []
@@ -39,7 +52,7 @@ def add_cars(scene: Scene, rng: np.random.Generator, sides: dict, road: dict) ->
         np.diff(np.concatenate([[road["left"]], road["lines"], [road["right"]]]))
     )
     instance = 0
-    for _ in range(int(rng.integers(0, 7))):
+    for _ in range(int(rng.integers(count[0], count[1] + 1))):
         for _attempt in range(20):
             length, width = u(3.8, 4.9), u(1.65, 1.95)
             if rng.random() < 0.5:
@@ -49,7 +62,7 @@ def add_cars(scene: Scene, rng: np.random.Generator, sides: dict, road: dict) ->
             else:
                 x = float(rng.choice(lane_centres)) + u(-0.4, 0.4)
                 yaw = np.radians(u(-4, 4)) + (np.pi if x < -1.5 and rng.random() < 0.7 else 0.0)
-            zc = u(4, 40)
+            zc = u(*depth)
             near = zc - length / 2
             if abs(x) < width / 2 + 1.2 and near < 5:
                 continue  # nothing sits on top of the camera car

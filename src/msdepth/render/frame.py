@@ -7,6 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from msdepth.data.kitti import CLASS_BITS, KITTI_BASELINE
+from msdepth.render.cars import CAR_COUNT, CAR_DEPTH
 from msdepth.render.raycast import Camera, camera, project, trace
 from msdepth.render.scene import GLASS, Scene
 from msdepth.render.shading import shade_view
@@ -91,14 +92,23 @@ def _class_map(scene: Scene, face: np.ndarray) -> np.ndarray:
     return out
 
 
-def render_frame(seed: int, split: int, index: int, height: int, width: int, lidar: bool = False) -> Frame:
+def render_frame(
+    seed: int,
+    split: int,
+    index: int,
+    height: int,
+    width: int,
+    lidar: bool = False,
+    cars: tuple[tuple[int, int], tuple[float, float]] = (CAR_COUNT, CAR_DEPTH),
+) -> Frame:
     """Render frame ``index`` of ``split`` (0 = training, 1 = evaluation) deterministically.
 
     ``lidar``: also scan the scene with the simulated Velodyne (``Frame.scan``); the scan has its
-    own generator, so everything else is the same either way.
+    own generator, so everything else is the same either way. ``cars``: the scene's car count and
+    depth ranges (:func:`~msdepth.render.cars.add_cars`).
     """
     rng = frame_rng(seed, split, index)
-    scene = build_scene(rng)
+    scene = build_scene(rng, *cars)
     frame = _view_scene(scene, height, width, 0.0, rng)
     if lidar:
         frame.scan = simulate(scene, frame.focal, width, scan_rng(seed, split, index))
@@ -106,12 +116,18 @@ def render_frame(seed: int, split: int, index: int, height: int, width: int, lid
 
 
 def sequence_frame(
-    seed: int, run: tuple[int, int], position: int, height: int, width: int, step: float = SEQUENCE_STEP
+    seed: int,
+    run: tuple[int, int],
+    position: int,
+    height: int,
+    width: int,
+    step: float = SEQUENCE_STEP,
+    cars: tuple[tuple[int, int], tuple[float, float]] = (CAR_COUNT, CAR_DEPTH),
 ) -> Frame:
     """Frame ``position`` (0, 1, ...) of the training sequence ``run`` (drive, sequence in the
     drive): one static scene, the rig moved ``position * step`` metres along its optical axis, its
     own sensor noise per frame (:func:`sequence_pose` is the left camera's pose)."""
-    scene = build_scene(np.random.default_rng([seed, SEQUENCE, *run]))
+    scene = build_scene(np.random.default_rng([seed, SEQUENCE, *run]), *cars)
     noise = np.random.default_rng([seed, SEQUENCE, *run, position + 1])  # + 1: never the scene's seed
     return _view_scene(scene, height, width, position * step, noise)
 

@@ -99,11 +99,12 @@ def train_drive(cfg: SyntheticConfig, index: int) -> tuple[str, int]:
 def _train_frame(cfg: SyntheticConfig, index: int) -> Frame:
     """Training pair ``index``: an independent frame, or with ``sequence_length`` frame
     ``number % sequence_length`` of its drive's sequence ``number // sequence_length``."""
+    cars = (tuple(cfg.train_cars), tuple(cfg.train_car_depth))
     if not cfg.sequence_length:
-        return render_frame(cfg.seed, TRAIN, index, cfg.height, cfg.width)
+        return render_frame(cfg.seed, TRAIN, index, cfg.height, cfg.width, cars=cars)
     drive, number = _drive_position(cfg, index)
     run, position = (drive, number // cfg.sequence_length), number % cfg.sequence_length
-    return sequence_frame(cfg.seed, run, position, cfg.height, cfg.width)
+    return sequence_frame(cfg.seed, run, position, cfg.height, cfg.width, cars=cars)
 
 
 def _write_train(job: tuple[SyntheticConfig, str, int]) -> tuple[str, str, np.ndarray]:

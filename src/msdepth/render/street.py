@@ -10,7 +10,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from msdepth.render.cars import add_cars
+from msdepth.render.cars import CAR_COUNT, CAR_DEPTH, add_cars
 from msdepth.render.scene import (
     FOLIAGE,
     GLASS,
@@ -33,8 +33,13 @@ from msdepth.render.scene import (
 _UP = np.array([0.0, -1.0, 0.0])
 
 
-def build_scene(rng: np.random.Generator) -> Scene:
-    """Draw one random street scene (all randomness of the frame's layout comes from ``rng``)."""
+def build_scene(
+    rng: np.random.Generator,
+    car_count: tuple[int, int] = CAR_COUNT,
+    car_depth: tuple[float, float] = CAR_DEPTH,
+) -> Scene:
+    """Draw one random street scene (all randomness of the frame's layout comes from ``rng``);
+    ``car_count`` and ``car_depth``: its cars' (:func:`~msdepth.render.cars.add_cars`)."""
     u = rng.uniform
     cam_h = u(1.4, 1.9)
     rot = camera_rotation(np.radians(u(-4, 4)), np.radians(u(-3, 3)), np.radians(u(-1, 1)))
@@ -73,7 +78,7 @@ def build_scene(rng: np.random.Generator) -> Scene:
     if rng.random() < 0.45:
         _add_far_building(scene, rng, ground, box)
 
-    add_cars(scene, rng, sides, road)
+    add_cars(scene, rng, sides, road, car_count, car_depth)
     _add_poles(scene, rng, sides, ground, box)
     scene.finalise()
     return scene
