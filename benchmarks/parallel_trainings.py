@@ -27,7 +27,7 @@ from typing import Callable
 
 import torch
 from _timing import compare, table
-from train_loop import bench_params, random_pairs, training_run
+from train_loop import bench_params, random_pairs, size_arguments, training_run
 
 from msdepth.config.params import load_params
 
@@ -35,11 +35,7 @@ from msdepth.config.params import load_params
 def parser() -> argparse.ArgumentParser:
     """The command line: sizes default to params.yaml's."""
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--params", default=str(Path(__file__).resolve().parents[1] / "params.yaml"))
-    ap.add_argument("--batch", type=int, default=None, help="default: train.batch_size")
-    ap.add_argument("--height", type=int, default=None, help="default: data.height")
-    ap.add_argument("--width", type=int, default=None, help="default: data.width")
-    ap.add_argument("--width-multiplier", type=float, default=None, help="default: model.width_multiplier")
+    size_arguments(ap)
     ap.add_argument("--pairs", type=int, default=800)
     ap.add_argument("--epochs", type=int, default=1)
     ap.add_argument("--variants", default="ssim,msssim", help="one training each, comma-separated")

@@ -30,15 +30,21 @@ from msdepth.config.params import Params, load_params
 from msdepth.training.train import TrainOptions, TrainOutputs, host_sync_interval, train_variant
 
 
-def _parser() -> argparse.ArgumentParser:
-    """The command line: sizes default to params.yaml's."""
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+def size_arguments(ap: argparse.ArgumentParser) -> None:
+    """``--params`` and the training sizes, each defaulting to params.yaml's (this benchmark's and
+    parallel_trainings.py's)."""
     ap.add_argument("--params", default=str(Path(__file__).resolve().parents[1] / "params.yaml"))
-    ap.add_argument("--device", default="cpu", help="cpu | cuda | auto")
     ap.add_argument("--batch", type=int, default=None, help="default: train.batch_size")
     ap.add_argument("--height", type=int, default=None, help="default: data.height")
     ap.add_argument("--width", type=int, default=None, help="default: data.width")
     ap.add_argument("--width-multiplier", type=float, default=None, help="default: model.width_multiplier")
+
+
+def _parser() -> argparse.ArgumentParser:
+    """The command line: sizes default to params.yaml's."""
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    size_arguments(ap)
+    ap.add_argument("--device", default="cpu", help="cpu | cuda | auto")
     ap.add_argument("--pairs", type=int, default=200)
     ap.add_argument("--epochs", type=int, default=2)
     ap.add_argument("--workers", type=int, default=None, help="default: train.num_workers")
