@@ -80,12 +80,20 @@ class _Handler(BaseHTTPRequestHandler):
     def _serve(self, head: bool) -> None:
         srv = self.server
         name = self.path.rsplit("/", 1)[-1]
-        mode = srv.modes.get(name, "normal")
         entry = {"name": name, "method": self.command, "range": self.headers.get("Range"), "sent": 0}
+        entry["done"] = threading.Event()
         with srv.lock:
             earlier_gets = sum(e["name"] == name and e["method"] == "GET" for e in srv.log)
             srv.log.append(entry)
-        first = earlier_gets == 0
+        try:
+            self._answer(head, entry, first=earlier_gets == 0)
+        finally:
+            # The client may hold every byte before this thread records "sent": gets() waits.
+            entry["done"].set()
+
+    def _answer(self, head: bool, entry: dict, first: bool) -> None:
+        srv, name = self.server, entry["name"]
+        mode = srv.modes.get(name, "normal")
         if name in srv.redirects:
             self.send_response(302)
             self.send_header("Location", srv.redirects[name])
@@ -189,7 +197,10 @@ class _Server(ThreadingHTTPServer):
         return self.base_url + "raw_data/" + name
 
     def gets(self, name: str) -> list[dict]:
-        return [e for e in self.log if e["name"] == name and e["method"] == "GET"]
+        """The GETs of `name`, once each handler has finished (and so recorded what it sent)."""
+        found = [e for e in self.log if e["name"] == name and e["method"] == "GET"]
+        assert all(e["done"].wait(10) for e in found), "a handler did not finish in 10 s"
+        return found
 
 
 @pytest.fixture
