@@ -111,6 +111,33 @@ def test_checkpoint_of_other_training_code_is_not_resumed(pairs, tmp_path: Path,
     assert _train(_params(epochs=1), pairs, tmp_path).resumed_from_epoch == 0
 
 
+def test_checkpoint_of_other_training_data_is_not_resumed(pairs, tmp_path: Path) -> None:
+    """Re-rendered images of the same count and size (e.g. data.synthetic.train_cars) train anew:
+    the fingerprint holds the pair cache's pixels, or each uncached file's size and time."""
+    from msdepth.data.pairs import build_pair_cache, load_pair_cache
+
+    params = _params(epochs=1)
+    build_pair_cache(pairs, H, W, tmp_path / "cache.npy", progress=False)
+    cache = np.array(load_pair_cache(tmp_path / "cache.npy", len(pairs), H, W))
+
+    def run(images: np.ndarray | None) -> int:
+        outputs = TrainOutputs(tmp_path / "model.pt", tmp_path / "ck.pt")
+        return train_variant(params, "ssim", pairs, outputs, TrainOptions(progress=False, cache=images))
+
+    assert run(cache).resumed_from_epoch == 0
+    assert run(cache.copy()).resumed_from_epoch == 1  # the same pixels: resumed
+    changed = cache.copy()
+    changed[5, 1, 3, 7, 0] ^= 1  # one bit of one pixel of one right view
+    assert run(changed).resumed_from_epoch == 0
+    assert run(None).resumed_from_epoch == 0  # decoded per sample: the files stand for the data
+    assert run(None).resumed_from_epoch == 1
+    copy = tmp_path / "l3.png"  # the same bytes in another file: trained anew, never a wrong resume
+    shutil.copy(pairs[3][0], copy)
+    moved = [*pairs[:3], (copy, pairs[3][1]), *pairs[4:]]
+    outputs = TrainOutputs(tmp_path / "model.pt", tmp_path / "ck.pt")
+    assert train_variant(params, "ssim", moved, outputs, TrainOptions(progress=False)).resumed_from_epoch == 0
+
+
 def test_code_digest_covers_the_train_stage_source_deps(tmp_path: Path, monkeypatch) -> None:
     import yaml
 

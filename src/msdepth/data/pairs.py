@@ -6,7 +6,9 @@ sample is read, resized and augmented is the same code for both.
 
 from __future__ import annotations
 
+import hashlib
 import os
+from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -17,7 +19,7 @@ from torch.utils.data import Dataset
 
 from msdepth.data import kitti
 from msdepth.errors import DataError
-from msdepth.io import MAX_ARRAY_BYTES, atomic_path, open_regular
+from msdepth.io import MAX_ARRAY_BYTES, atomic_path, open_regular, read_npy_header
 
 
 @dataclass(frozen=True)
@@ -167,20 +169,52 @@ def build_pair_cache(
 
 
 def load_pair_cache(path: str | os.PathLike, num_pairs: int, height: int, width: int) -> np.ndarray:
-    """Memory-map a cache written by :func:`build_pair_cache`, checking it fits the index and size."""
-    with open_regular(path, "pair cache", MAX_ARRAY_BYTES):  # a FIFO or a folder: one line, no hang
-        pass
-    try:
-        cache = np.load(path, mmap_mode="r")
-    except (OSError, ValueError) as exc:
-        raise DataError(f"{path}: not a readable pair cache ({exc}); re-run the cache stage") from exc
+    """Memory-map a cache written by :func:`build_pair_cache`, checking it fits the index and size.
+
+    One open (:func:`msdepth.io.open_regular`: a FIFO or a folder is one line, never a hang); the
+    header is checked against the file's size before the map is made."""
     expected = (num_pairs, 2, height, width, 3)
-    if cache.shape != expected or cache.dtype != np.uint8:
-        raise DataError(
-            f"{path}: pair cache is {cache.dtype} {cache.shape}, expected uint8 {expected} for this "
-            "index and data.height/width; re-run the cache stage"
-        )
-    return cache
+    with open_regular(path, "pair cache", MAX_ARRAY_BYTES) as file:
+        try:
+            shape, fortran, dtype = read_npy_header(file, os.fstat(file.fileno()).st_size, str(path))
+        except DataError as exc:
+            raise DataError(f"{exc}; re-run the cache stage") from None
+        if shape != expected or dtype != np.uint8 or fortran:
+            raise DataError(
+                f"{path}: pair cache is {dtype} {shape}, expected uint8 {expected} for this "
+                "index and data.height/width; re-run the cache stage"
+            )
+        return np.memmap(file, dtype=np.uint8, mode="r", shape=expected, offset=file.tell())
+
+
+def training_data_sha256(cache: np.ndarray | None, files: Iterable[Path]) -> str:
+    """sha256 (hex, 16 digits) of the data a training run learns from: the pair cache's pixels
+    where there is one (88 MB at the default size: well under a second), else each file's path,
+    size and modification time (reading every image of a real split at each start would cost
+    minutes; a file rewritten with the same bytes then only trains anew, never resumes wrongly).
+
+    Part of the checkpoint fingerprint: re-rendered or re-downloaded training images of the same
+    count and size must not resume a checkpoint that learned from the old ones.
+
+    Example:
+        >>> a = np.zeros((2, 2, 4, 6, 3), np.uint8)
+        >>> b = a.copy(); b[1, 0, 3, 5, 2] = 1
+        >>> training_data_sha256(a, []) == training_data_sha256(b, [])
+        False
+    """
+    digest = hashlib.sha256()
+    if cache is not None:
+        digest.update(f"cache {cache.dtype} {tuple(cache.shape)}\0".encode())
+        for start in range(0, len(cache), 256):  # a memory map: a slice at a time, never all of it
+            digest.update(np.ascontiguousarray(cache[start : start + 256]).tobytes())
+        return digest.hexdigest()[:16]
+    for path in files:
+        try:
+            info = os.stat(path)
+            digest.update(f"{path}\0{info.st_size}\0{info.st_mtime_ns}\0".encode())
+        except OSError:  # the loader names a missing file when it reaches it
+            digest.update(f"{path}\0missing\0".encode())
+    return digest.hexdigest()[:16]
 
 
 class StereoPairs(Dataset):

@@ -24,7 +24,7 @@ from torch.utils.data import DataLoader
 from tqdm import tqdm
 
 from msdepth.config.params import Params, TrainConfig, fingerprint_fields, speed_only_train_keys
-from msdepth.data.pairs import StereoPairs
+from msdepth.data.pairs import StereoPairs, training_data_sha256
 from msdepth.data.sequences import SequenceFrames, SequenceSample
 from msdepth.errors import MsdepthError
 from msdepth.io import file_sha256, write_json
@@ -244,10 +244,17 @@ def _code_digest() -> str:
 
 
 def fingerprint(
-    params: Params, variant: str, num_pairs: int, seed: int, pretrained_sha256: str | None = None
+    params: Params,
+    variant: str,
+    num_pairs: int,
+    seed: int,
+    pretrained_sha256: str | None = None,
+    data_sha256: str | None = None,
 ) -> str:
     """Hash of everything that shapes the training run, so a checkpoint is only resumed by its own
-    run: parameters, seed, data size and the training code (:func:`_code_digest`).
+    run: parameters, seed, data size, the training code (:func:`_code_digest`) and, given
+    ``data_sha256`` (:func:`msdepth.data.pairs.training_data_sha256`; :func:`train_variant` always
+    gives it), the training data itself.
 
     With ``model.pretrained`` set, ``pretrained_sha256`` (its content's hash, required then) stands
     for its path: weights replaced under the same name train anew, moved ones still resume.
@@ -270,6 +277,8 @@ def fingerprint(
         "appearance": appearance,
         appearance: asdict(params.appearance[appearance]),
     }
+    if data_sha256 is not None:
+        relevant["data_sha256"] = data_sha256
     return hashlib.sha256(json.dumps(relevant, sort_keys=True).encode()).hexdigest()[:16]
 
 
@@ -431,6 +440,7 @@ def _set_up(
     trainable = [*model.parameters(), *criterion.parameters(), *(pose_net.parameters() if pose_net else ())]
     optimizer = torch.optim.Adam(trainable, lr=train_cfg.learning_rate)
     global_batch = train_cfg.batch_size * ctx.world
+    data_sha256 = _data_sha256(params, pairs, cache, sequences)
     steps_per_epoch = len(dataset) // global_batch if len(dataset) >= global_batch else 1
     _log_world(ctx, variant, train_cfg.batch_size)
     return _Run(
@@ -447,7 +457,7 @@ def _set_up(
         memory_format=memory_format,
         global_batch=global_batch,
         total_steps=steps_per_epoch * train_cfg.epochs,
-        fingerprint=fingerprint(params, variant, len(dataset), seed, pretrained_sha256),
+        fingerprint=fingerprint(params, variant, len(dataset), seed, pretrained_sha256, data_sha256),
         pose_net=pose_net,
         pose_network=DistributedDataParallel(pose_net) if pose_net and ctx.world > 1 else pose_net,
         loss_keys=MONO_LOSS_KEYS if mono else LOSS_KEYS,
@@ -508,6 +518,24 @@ def _dataset(
         raise MsdepthError(f"train.mode {t.mode} trains on frame sequences, and none were given")
     stereo = t.mode == "mono_stereo"
     return SequenceFrames(sequences, t.source_frames, h, w, stereo=stereo, augment=t.augment, seed=seed)
+
+
+def _data_sha256(
+    params: Params,
+    pairs: list[tuple[Path, Path]],
+    cache: np.ndarray | None,
+    sequences: Sequence[SequenceSample] | None,
+) -> str:
+    """:func:`training_data_sha256` of what ``params.train.mode`` trains on: the pair cache (or
+    the pairs' files), or every frame of the sequences."""
+    if params.train.mode == "stereo":
+        return training_data_sha256(cache, [] if cache is not None else [p for pair in pairs for p in pair])
+    files = [
+        path
+        for s in sequences or ()
+        for path in (s.target, *(s.sources[k] for k in sorted(s.sources)), *([s.stereo] if s.stereo else []))
+    ]
+    return training_data_sha256(None, files)
 
 
 def _resume_or_start(run: _Run, checkpoint_path: Path) -> None:
