@@ -25,11 +25,11 @@ from pathlib import Path
 import numpy as np
 
 from msdepth.errors import MsdepthError, run_main
-from msdepth.io import claim_output_file, write_text
+from msdepth.io import claim_output_file, read_json_object, write_text
 from msdepth.pipeline.paths import METRICS, run_name
 from msdepth.reporting.compare import load_suite_metrics
 from msdepth.reporting.power import detectable_difference, pooled_sd, power_at, seeds_needed
-from msdepth.reporting.report import Results, load_results, read_json_object
+from msdepth.reporting.report import Results, load_results
 from msdepth.reporting.stats import paired_t
 
 ALPHA, POWER = 0.05, 0.8
@@ -138,7 +138,7 @@ def report(root: Path, compare: Path | None = None) -> str:
     """The study's markdown, for every variant against the comparison's reference: from the
     committed metrics below ``root``, or from ``compare`` (a compare.json) where given."""
     if compare is not None:
-        data = read_json_object(compare, "a compare.json of the compare stage")
+        data = read_json_object(compare, "comparison", "a compare.json of the compare stage")
         reference = data["statistics"]["reference"]
         cap = next(iter(data["seed_spread"]["full"]))  # the headline cap comes first
         variants = [v for v in data["variants"] if v != reference]

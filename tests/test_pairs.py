@@ -157,7 +157,7 @@ def test_load_cache_rejects_a_stale_or_foreign_file(tree, tmp_path: Path) -> Non
         load_pair_cache(path, 5, 16, 24)
     junk = tmp_path / "junk.npy"
     junk.write_bytes(b"not numpy")
-    with pytest.raises(DataError, match="junk.npy: not a readable pair cache"):
+    with pytest.raises(DataError, match=r"junk.npy: not a readable .npy array .*; re-run the cache stage"):
         load_pair_cache(junk, 4, 16, 24)
 
 

@@ -260,7 +260,8 @@ def test_sentences_from_known_rows() -> None:
 
 
 def test_the_verdict_figure_is_a_png_with_and_without_rows(tmp_path: Path) -> None:
-    from msdepth.reporting.figures import _read_verdict, verdict_figure
+    from msdepth.io import read_json_object
+    from msdepth.reporting.figures import verdict_figure
 
     rows = [
         Row("stereo networks", FULL_FRAME, -0.002, -0.012, 0.008, 40, "m", "network"),
@@ -270,14 +271,17 @@ def test_the_verdict_figure_is_a_png_with_and_without_rows(tmp_path: Path) -> No
     ]
     compare_json = tmp_path / "compare.json"
     compare_json.write_text(json.dumps({"verdict": verdict_data(rows, 80.0, 0.95, "MS-SSIM", "SSIM")}))
-    data = _read_verdict(compare_json)
+    data = read_json_object(compare_json, "comparison")["verdict"]
     assert any(r["kind"] == "pooled" for r in data["rows"])  # the two optimum w10 rows
     for name, verdict in (("verdict.png", data), ("empty.png", None)):
         path = verdict_figure(verdict, tmp_path / name)
         assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["compare.json", "empty.png", "verdict.png"]
-    with pytest.raises(DataError, match="absent.json: no comparison; run the compare stage first"):
-        _read_verdict(tmp_path / "absent.json")
+    with pytest.raises(DataError, match="absent.json: missing; run the compare stage first"):
+        read_json_object(tmp_path / "absent.json", "comparison", "run the compare stage first")
+    compare_json.write_text("[1]")
+    with pytest.raises(DataError, match="compare.json: expected a JSON object, got list"):
+        read_json_object(compare_json, "comparison")
 
 
 def test_the_monocular_study_writes_per_seed_values_the_verdict_reads(tmp_path: Path) -> None:

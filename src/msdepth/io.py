@@ -283,6 +283,27 @@ def read_json_file(path: str | os.PathLike, kind: str, max_bytes: int = MAX_JSON
         raise DataError(f"{path}: this {kind} file is not JSON ({str(exc).splitlines()[0][:200]})") from None
 
 
+def read_json_object(path: str | os.PathLike, kind: str, hint: str = "") -> dict:
+    """The JSON object in ``path`` (:func:`read_json_file`); one DataError line naming the file
+    when it is missing (with ``hint``: what would write it), refused, not JSON or not an object.
+
+    Example:
+        >>> import tempfile
+        >>> with tempfile.TemporaryDirectory() as d:
+        ...     try:
+        ...         read_json_object(Path(d, "compare.json"), "comparison", "run `dvc repro compare` first")
+        ...     except DataError as exc:
+        ...         print(str(exc).split("/")[-1])
+        compare.json: missing; run `dvc repro compare` first
+    """
+    if not os.path.lexists(path):
+        raise DataError(f"{path}: missing{'; ' + hint if hint else ''}")
+    data = read_json_file(path, kind)
+    if not isinstance(data, dict):
+        raise DataError(f"{path}: expected a JSON object, got {type(data).__name__}")
+    return data
+
+
 def read_table_file(path: str | os.PathLike, kind: str, max_bytes: int = MAX_TABLE_BYTES, **options: Any):
     """``pandas.read_csv`` of the regular file ``path``, read whole through :func:`read_bounded`
     (``options`` go to read_csv); one DataError line naming the file when it is refused or not a
@@ -298,10 +319,17 @@ def read_table_file(path: str | os.PathLike, kind: str, max_bytes: int = MAX_TAB
         raise DataError(f"{path}: not a readable {kind} table ({str(exc).splitlines()[0][:200]})") from None
 
 
-def _npy_array(file: BinaryIO, size: int, where: str) -> np.ndarray:
-    """The array of an ``.npy`` stream of ``size`` bytes, its header checked before any allocation:
-    no pickled objects, and the declared shape exactly the bytes that follow (a 128-byte header can
-    declare terabytes)."""
+def read_npy_header(file: BinaryIO, size: int, where: str) -> tuple[tuple[int, ...], bool, np.dtype]:
+    """(shape, fortran order, dtype) of the ``.npy`` stream ``file`` of ``size`` bytes, read up to
+    its data: refused in one DataError naming ``where`` unless the header parses, holds no pickled
+    objects and declares exactly the bytes that follow (a 128-byte header can declare terabytes).
+
+    Example:
+        >>> import io, numpy as np
+        >>> buffer = io.BytesIO(); np.save(buffer, np.zeros((2, 3), np.uint8))
+        >>> _ = buffer.seek(0); read_npy_header(buffer, len(buffer.getvalue()), "a.npy")
+        ((2, 3), False, dtype('uint8'))
+    """
     import numpy as np
 
     try:
@@ -319,6 +347,16 @@ def _npy_array(file: BinaryIO, size: int, where: str) -> np.ndarray:
         raise DataError(
             f"{where}: its header declares {dtype} {shape} ({needed} bytes) but it holds {size - file.tell()}"
         )
+    return shape, fortran, dtype
+
+
+def _npy_array(file: BinaryIO, size: int, where: str) -> np.ndarray:
+    """The array of an ``.npy`` stream of ``size`` bytes, its header checked before any allocation
+    (:func:`read_npy_header`)."""
+    import numpy as np
+
+    shape, fortran, dtype = read_npy_header(file, size, where)
+    needed = size - file.tell()
     data = bytearray(needed)  # bytearray, not bytes: the array is writable, as np.load's is
     got = file.readinto(data)
     if got != needed:

@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
-from typing import BinaryIO
 
 import numpy as np
 
@@ -25,7 +24,7 @@ from msdepth.data.imagefile import MAX_IMAGE_PIXELS, check_pixel_limit
 from msdepth.data.pfm import read_pfm
 from msdepth.errors import DataError
 from msdepth.geometry.depth import disparity_to_depth
-from msdepth.io import open_regular
+from msdepth.io import read_npy_file
 
 # The index's ``gt_kind`` column: what its ``gt`` file holds.
 GT_KINDS = {
@@ -55,43 +54,19 @@ def _disparity_depth(disp: np.ndarray, path: str | os.PathLike, focal: float, ba
     return disparity_to_depth(_valid_or_zero(disp), focal, baseline)
 
 
-def _npy_header(path: str | os.PathLike, f: BinaryIO) -> tuple[tuple[int, ...], np.dtype]:
-    """Shape and dtype that the ``.npy`` header of the open file ``f`` declares, checked against the
-    file's size and the image pixel limit before any array is allocated (a 128-byte header can
-    declare terabytes): the data must be exactly that size."""
+def _read_npy(path: str | os.PathLike) -> np.ndarray:
+    """A 2-D numeric GT array from a ``.npy`` file: read by :func:`msdepth.io.read_npy_file` (a
+    regular file of at most :data:`MAX_NPY_BYTES`, its header checked against its size before the
+    data is read), then held to the image pixel limit, as each value becomes a float32 depth."""
+    values = read_npy_file(path, ".npy", MAX_NPY_BYTES)
+    dtype = values.dtype
+    if values.ndim != 2 or not (np.issubdtype(dtype, np.floating) or np.issubdtype(dtype, np.integer)):
+        raise DataError(f"{path}: GT must be a 2-D numeric array, got {dtype} of shape {values.shape}")
     try:
-        version = np.lib.format.read_magic(f)
-        read = (
-            np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0
-        )
-        shape, _, dtype = read(f)
-        data_bytes = os.fstat(f.fileno()).st_size - f.tell()
-    except (OSError, ValueError, SyntaxError) as exc:  # an .npz, a pickle or text named .npy: ValueError
-        raise DataError(f"{path}: not a readable .npy array ({' '.join(str(exc).split())[:200]})") from None
-    if len(shape) != 2 or not (np.issubdtype(dtype, np.floating) or np.issubdtype(dtype, np.integer)):
-        raise DataError(f"{path}: GT must be a 2-D numeric array, got {dtype} of shape {shape}")
-    needed = dtype.itemsize * shape[0] * shape[1]
-    if needed != data_bytes:  # short, or trailing bytes np.load would ignore: not the file it claims
-        raise DataError(
-            f"{path}: its header declares {dtype} {shape} ({needed} bytes) but it holds {data_bytes}"
-        )
-    try:  # the pixels the GT map holds, as an image's (each becomes a float32 depth)
-        check_pixel_limit(shape[1], shape[0], MAX_IMAGE_PIXELS, "its .npy header")
+        check_pixel_limit(values.shape[1], values.shape[0], MAX_IMAGE_PIXELS, "its .npy header")
     except DataError as exc:
         raise DataError(f"{path}: {exc}") from None
-    return shape, dtype
-
-
-def _read_npy(path: str | os.PathLike) -> np.ndarray:
-    """A 2-D numeric GT array from a ``.npy`` file: a regular file of at most :data:`MAX_NPY_BYTES`
-    (:func:`msdepth.io.open_regular`), its header checked (:func:`_npy_header`) before its data is read."""
-    with open_regular(path, ".npy", MAX_NPY_BYTES) as f:
-        _npy_header(path, f)
-        f.seek(0)
-        try:
-            return np.lib.format.read_array(f, allow_pickle=False)
-        except (OSError, ValueError) as exc:
-            raise DataError(f"{path}: not a readable .npy array ({exc})") from None
+    return values
 
 
 def read_gt_depth(

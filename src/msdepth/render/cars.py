@@ -32,6 +32,8 @@ _CAR_COLOURS = [
 
 # The default street's cars: 0-6 of them, their centres 4-40 m ahead.
 CAR_COUNT, CAR_DEPTH = (0, 6), (4.0, 40.0)
+# A street's cars: (min, max) count and (min, max) metres ahead of their centres.
+CarRanges = tuple[tuple[int, int], tuple[float, float]]
 
 
 def add_cars(

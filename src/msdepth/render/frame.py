@@ -7,7 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from msdepth.data.kitti import CLASS_BITS, KITTI_BASELINE
-from msdepth.render.cars import CAR_COUNT, CAR_DEPTH
+from msdepth.render.cars import CAR_COUNT, CAR_DEPTH, CarRanges
 from msdepth.render.raycast import Camera, camera, project, trace
 from msdepth.render.scene import GLASS, Scene
 from msdepth.render.shading import shade_view
@@ -99,7 +99,7 @@ def render_frame(
     height: int,
     width: int,
     lidar: bool = False,
-    cars: tuple[tuple[int, int], tuple[float, float]] = (CAR_COUNT, CAR_DEPTH),
+    cars: CarRanges = (CAR_COUNT, CAR_DEPTH),
 ) -> Frame:
     """Render frame ``index`` of ``split`` (0 = training, 1 = evaluation) deterministically.
 
@@ -122,7 +122,7 @@ def sequence_frame(
     height: int,
     width: int,
     step: float = SEQUENCE_STEP,
-    cars: tuple[tuple[int, int], tuple[float, float]] = (CAR_COUNT, CAR_DEPTH),
+    cars: CarRanges = (CAR_COUNT, CAR_DEPTH),
 ) -> Frame:
     """Frame ``position`` (0, 1, ...) of the training sequence ``run`` (drive, sequence in the
     drive): one static scene, the rig moved ``position * step`` metres along its optical axis, its

@@ -59,7 +59,7 @@ from msdepth.data.eval_index import read_eval_index
 from msdepth.errors import DataError
 from msdepth.evaluation.suites import Frame, evaluate_roi, gradient_maps, load_frames, read_depth_maps
 from msdepth.geometry.depth import clamp_depth, depth_to_disparity, pixel_disparity
-from msdepth.io import atomic_path, read_json_file, read_npy_file, read_table_file
+from msdepth.io import atomic_path, read_json_file, read_json_object, read_npy_file, read_table_file
 from msdepth.pipeline.paths import (
     COMPARE_JSON,
     COST_CURVES,
@@ -770,17 +770,6 @@ def verdict_figure(verdict: Mapping | None, path: Path) -> Path:
     return _save(fig, path)
 
 
-def _read_verdict(path: Path) -> dict | None:
-    """compare.json's ``verdict`` (None where it has none); a DataError names a missing or
-    unreadable file."""
-    if not Path(path).exists():
-        raise DataError(f"{path}: no comparison; run the compare stage first")
-    data = read_json_file(path, "comparison")
-    if not isinstance(data, dict):
-        raise DataError(f"{path}: the comparison is not a JSON object")
-    return data.get("verdict")
-
-
 def pipeline_figures(
     params: Params, out_dir: Path, cost_curves: Path = COST_CURVES, compare_json: Path = COMPARE_JSON
 ) -> list[Path]:
@@ -800,6 +789,7 @@ def pipeline_figures(
     )
     summaries = _read_cost_curves(cost_curves, params.variants)
     paths.append(cost_curve_figure(summaries, Path(out_dir) / COST_CURVES_FIGURE))
-    paths.append(verdict_figure(_read_verdict(compare_json), Path(out_dir) / VERDICT_FIGURE))
+    comparison = read_json_object(compare_json, "comparison", "run the compare stage first")
+    paths.append(verdict_figure(comparison.get("verdict"), Path(out_dir) / VERDICT_FIGURE))
     log.info("figures: %s", ", ".join(p.name for p in paths))
     return paths

@@ -11,7 +11,6 @@ both; ``python -m msdepth.reporting.report --check`` compares them (tests/test_r
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import textwrap
 from pathlib import Path
@@ -19,7 +18,7 @@ from typing import Any, Sequence
 
 from msdepth.errors import DataError, MsdepthError
 from msdepth.evaluation.metrics import HIGHER_IS_BETTER
-from msdepth.io import read_json_file, read_text_file, write_text
+from msdepth.io import read_json_object, read_text_file, write_text
 from msdepth.pipeline.paths import COMPARE_JSON, FIGURES_DIR, README, RESULTS, run_name, train_summary_path
 from msdepth.reporting.compare import (
     MIN_SEEDS_FOR_MARKS,
@@ -139,30 +138,14 @@ def load_results(root: Path = Path(".")) -> Results:
     """The committed metrics under ``root``: ``metrics/compare.json`` and each run's
     ``metrics/train/<variant>/seed<S>.json``; one DataError line naming a missing or broken file."""
     path = root / COMPARE_JSON
-    data = read_json_object(path, "run `dvc repro compare` first")
+    data = read_json_object(path, "comparison", "run `dvc repro compare` first")
     train = {}
     for variant in data.get("variants", []):
         for seed in data.get("seeds", []):
             file = root / train_summary_path(run_name(variant, seed))
             if file.is_file():
-                train[run_name(variant, seed)] = read_json_object(file, "")
+                train[run_name(variant, seed)] = read_json_object(file, "training summary")
     return Results(data, train, str(path))
-
-
-def read_json_object(path: Path, hint: str) -> dict:
-    """The JSON object in ``path``; one DataError line naming the file when it is missing (with
-    ``hint``), unreadable or not an object."""
-    try:
-        if not path.exists():
-            raise FileNotFoundError(path)
-        data = read_json_file(path, "JSON")
-    except FileNotFoundError:
-        raise DataError(f"{path}: missing{'; ' + hint if hint else ''}") from None
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise DataError(f"{path}: not readable JSON ({exc})") from None
-    if not isinstance(data, dict):
-        raise DataError(f"{path}: expected a JSON object, got {type(data).__name__}")
-    return data
 
 
 # --- the headline table ---------------------------------------------------------------------
