@@ -359,7 +359,9 @@ class TrainConfig:
     seeds: tuple[Seed, ...] = (0, 1, 2)
     epochs: Annotated[int, Range(1, MAX_EPOCHS)] = 8
     batch_size: Annotated[int, Range(1, MAX_BATCH)] = 8
-    learning_rate: LearningRate = 1e-4
+    # 3e-4, not the dissertation's 1e-4: over the default's 1,200 steps it lowers the car error on
+    # every seed screened (studies/results/objects/); 1e-4 suits Monodepth's ~180k steps.
+    learning_rate: LearningRate = 3e-4
     # step = Monodepth's (lr, /2 after 3/5 of the steps, /4 after 4/5); cosine = a linear warm-up
     # over the first 5 % of the steps, then a cosine decay to 0 (issue 52's screen).
     schedule: Literal["step", "cosine"] = _added_later("step")
