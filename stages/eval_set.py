@@ -1,7 +1,8 @@
 """Stage ``eval_set@<set>-<variant>-<seed>``: one run on an extra evaluation set (the Eigen split).
 
-Inference, depth conversion and the full-image suite in one stage: a set's disparities serve
-nothing else. The ROI suites stay on KITTI 2015, the set with boxes.
+Inference, depth conversion, the full-image suite and the ROI suite on the set's boxes
+(``data/index/set_rois/<set>.csv``, each box a unit) in one stage: a set's disparities serve
+nothing else.
 """
 
 from __future__ import annotations
@@ -9,7 +10,7 @@ from __future__ import annotations
 import sys
 
 from msdepth.config.params import Params
-from msdepth.data.eval_index import set_index_path
+from msdepth.data.eval_index import set_index_path, set_rois_path
 from msdepth.pipeline.paths import (
     INDEX_DIR,
     SeedArg,
@@ -32,7 +33,9 @@ def eval_set(params: Params, set_name: SetArg, variant: VariantArg, seed: SeedAr
     name, run = checked_set(params, set_name), checked_run(params, variant, seed)
     torch.set_num_threads(params.train.threads)
     model, meta = load_model(model_path(run))
-    evaluate_on_set(params, name, run, model, meta, set_index_path(INDEX_DIR, name))
+    evaluate_on_set(
+        params, name, run, model, meta, set_index_path(INDEX_DIR, name), set_rois_path(INDEX_DIR, name)
+    )
 
 
 if __name__ == "__main__":

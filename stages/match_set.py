@@ -8,7 +8,7 @@ from __future__ import annotations
 import sys
 
 from msdepth.config.params import Params
-from msdepth.data.eval_index import set_index_path
+from msdepth.data.eval_index import set_index_path, set_rois_path
 from msdepth.optimum.sets import score_set_match
 from msdepth.pipeline.paths import INDEX_DIR, MatcherArg, SetArg, checked_set, run_stage
 
@@ -16,7 +16,7 @@ from msdepth.pipeline.paths import INDEX_DIR, MatcherArg, SetArg, checked_set, r
 def match_set(params: Params, set_name: SetArg, matcher: MatcherArg) -> None:
     """Match every frame of an extra set, convert to depth, and run the full-image suite."""
     name = checked_set(params, set_name)
-    score_set_match(params, name, matcher, set_index_path(INDEX_DIR, name))
+    score_set_match(params, name, matcher, set_index_path(INDEX_DIR, name), set_rois_path(INDEX_DIR, name))
 
 
 if __name__ == "__main__":

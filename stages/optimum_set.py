@@ -9,7 +9,7 @@ import sys
 from typing import Annotated
 
 from msdepth.config.params import Params
-from msdepth.data.eval_index import set_index_path
+from msdepth.data.eval_index import set_index_path, set_rois_path
 from msdepth.optimum.sets import score_set_optimum
 from msdepth.pipeline.paths import INDEX_DIR, SetArg, VariantArg, checked_set, run_stage
 
@@ -22,7 +22,9 @@ def optimum_set(
 ) -> None:
     """Optimise every frame of an extra set, convert to depth, and run the full-image suite."""
     name = checked_set(params, set_name)
-    score_set_optimum(params, name, variant, weight, set_index_path(INDEX_DIR, name))
+    score_set_optimum(
+        params, name, variant, weight, set_index_path(INDEX_DIR, name), set_rois_path(INDEX_DIR, name)
+    )
 
 
 if __name__ == "__main__":

@@ -109,3 +109,57 @@ def test_the_suites_run_on_the_shared_kitti2015_frames(tmp_path, monkeypatch):
     assert list(index["focal"]) == [721.5377, 721.5377] and list(index["obj_map"]) == ["", ""]
     summary = scored(tmp_path, monkeypatch, SAMPLE, 20.0)
     assert summary["images"] == 2 and np.isfinite(summary["cap80"]["abs_rel"])
+
+
+def test_the_sets_boxes_are_obj_maps_cars_and_the_users_scored_as_objects(tmp_path, monkeypatch):
+    """rois stage on the set: the obj_map's car (min size 2 px here) plus the user's windshield box
+    (data.kitti.rois_csv); scored at the background's depth, the car box (GT 10 px, predicted 20 px)
+    has abs_rel 0.5, D1 100 %, EPE 10 px, the windshield (on the background) 0; the exact car mask
+    the same 0.5. A box on a frame the set lacks is refused naming the CSV; the Eigen sets get none."""
+    from msdepth.config.params import params_from_dict
+    from msdepth.data.rois import set_roi_boxes, write_set_rois
+
+    tiny_set(tmp_path / "set")
+    index = _build_kitti2015_index(tmp_path / "set")
+    csv = tmp_path / "boxes.csv"
+    csv.write_text("image,class,x0,y0,x1,y1\n000000_10,windshield,100,0,200,4\n")
+    params = params_from_dict({"data": {"kitti": {"roi_min_size": 2, "rois_csv": str(csv)}}})
+    rois = tmp_path / "set_rois" / "kitti2015.csv"
+    boxes = write_set_rois(params, "kitti2015", index, rois)
+    assert boxes[["class", "x0", "y0", "x1", "y1"]].values.tolist() == [
+        ["car", 0, 4, WIDTH, 8],
+        ["windshield", 100, 0, 200, 4],
+    ]
+    assert rois.with_suffix(".png").is_file()
+    frames = load_frames(index)
+    monkeypatch.chdir(tmp_path)
+    pred = {f.name: np.full(f.shape, 721.5377 * 0.54 / 20, np.float32) for f in frames}
+    score_set(params, "kitti2015", "constant", pred, frames, scaled=False, rois=rois)
+    roi = json.loads((tmp_path / "metrics" / "sets" / "kitti2015" / "roi" / "constant.json").read_text())
+    car, glass = roi["cap80"]["by_class"]["car"], roi["cap80"]["by_class"]["windshield"]
+    assert car["abs_rel"] == pytest.approx(0.5, abs=1e-3) and car["d1"] == pytest.approx(1.0)
+    assert car["epe"] == pytest.approx(10.0, abs=0.05) and glass["abs_rel"] == pytest.approx(0.0, abs=1e-4)
+    assert roi["masks"]["cap80"]["by_class"]["car"]["abs_rel"] == pytest.approx(0.5, abs=1e-3)
+    csv.write_text("image,class,x0,y0,x1,y1\n000009_10,sign,0,0,4,4\n")
+    with pytest.raises(DataError, match=r"boxes\.csv: row 2: image '000009_10' is not an evaluation frame"):
+        set_roi_boxes(params, "kitti2015", index)
+    assert set_roi_boxes(params, "eigen", index).empty
+
+
+def test_a_set_without_boxes_writes_the_explicit_no_rois_summary(tmp_path, monkeypatch):
+    """An empty ROI file (the Eigen sets', or KITTI 2015 without obj_map or CSV): the ROI suite's
+    summary says so, its headline is {"rois": 0}; the file is named in the reason."""
+    from msdepth.data.rois import write_set_rois
+
+    tiny_set(tmp_path / "set", obj_map=False)
+    index = _build_kitti2015_index(tmp_path / "set")
+    rois = tmp_path / "set_rois" / "kitti2015.csv"
+    assert write_set_rois(Params(), "kitti2015", index, rois).empty
+    monkeypatch.chdir(tmp_path)
+    frames = load_frames(index)
+    score_set(Params(), "kitti2015", "prior", {f.name: np.ones(f.shape, np.float32) for f in frames}, frames,
+              rois=rois)  # fmt: skip
+    summary = json.loads((tmp_path / "metrics" / "sets" / "kitti2015" / "roi" / "prior.json").read_text())
+    assert summary["rois"] == 0 and "lists no box on set kitti2015" in summary["no_rois"]
+    head = tmp_path / "metrics" / "headline" / "sets" / "kitti2015" / "roi" / "prior.json"
+    assert json.loads(head.read_text()) == {"rois": 0}

@@ -16,7 +16,7 @@ import pytest
 
 from msdepth.config.params import params_from_dict
 from msdepth.data import kitti, kitti2012
-from msdepth.data.eval_index import read_eval_index, set_index_path, write_eval_index
+from msdepth.data.eval_index import read_eval_index, set_index_path, set_rois_path, write_eval_index
 from msdepth.data.eval_sets import _build_kitti2012_index
 from msdepth.errors import ConfigError
 from msdepth.io import write_png
@@ -32,7 +32,10 @@ RAW = {
     "eval": {"extra_sets": [SET]},
     # mix has no per-pixel cost: the optimum starts from SGBM; a few steps keep the test short
     "optimum": {"start": "sgbm", "threads": 1, "iterations": 4, "refine_iterations": 4, "levels": 2},
+    "data": {"kitti": {"kitti2012_rois_csv": "boxes.csv"}},
 }
+# The user's boxes on the set (data.kitti.kitti2012_rois_csv): 2 cars and a pane of glass.
+BOXES = "image,class,x0,y0,x1,y1\n000000_10,car,0,24,80,48\n000000_10,glass,80,24,160,48\n000001_10,car,0,0,80,24\n"
 
 
 def tiny_tree(root: Path, height: int = 48, width: int = 160) -> None:
@@ -57,21 +60,27 @@ def tiny_tree(root: Path, height: int = 48, width: int = 160) -> None:
 
 @pytest.fixture
 def project(tmp_path: Path, monkeypatch) -> Path:
-    """A project folder holding the set's index, as the index stage writes it; the working folder."""
+    """A project folder holding the set's index and boxes, as the index and rois stages write them;
+    the working folder."""
+    from msdepth.data.rois import write_set_rois
+
     tiny_tree(tmp_path / "kitti2012-training")
     monkeypatch.chdir(tmp_path)
-    write_eval_index(set_index_path(INDEX_DIR, SET), _build_kitti2012_index(tmp_path / "kitti2012-training"))
+    index = _build_kitti2012_index(tmp_path / "kitti2012-training")
+    write_eval_index(set_index_path(INDEX_DIR, SET), index)
+    (tmp_path / "boxes.csv").write_text(BOXES)
+    write_set_rois(params_from_dict(RAW), SET, index, set_rois_path(INDEX_DIR, SET))
     return tmp_path
 
 
-def _set_metrics(run: str) -> tuple[dict, dict, pd.DataFrame]:
-    """A run's full-image summary, headline and per-image table on the set."""
+def _set_metrics(run: str, suite: str = "full") -> tuple[dict, dict, pd.DataFrame]:
+    """A run's summary, headline and per-unit table of ``suite`` on the set."""
     from msdepth.pipeline.paths import set_headline_dir, set_metrics_dir
 
     root = set_metrics_dir(SET)
-    summary = json.loads(suite_path("full", run, ".json", root).read_text())
-    head = json.loads(headline_path("full", run, set_headline_dir(SET)).read_text())
-    return summary, head, pd.read_csv(suite_path("full", run, ".csv", root))
+    summary = json.loads(suite_path(suite, run, ".json", root).read_text())
+    head = json.loads(headline_path(suite, run, set_headline_dir(SET)).read_text())
+    return summary, head, pd.read_csv(suite_path(suite, run, ".csv", root))
 
 
 def test_the_instruments_score_an_extra_set_with_its_class_d1_and_epe(project: Path):
@@ -95,7 +104,12 @@ def test_the_instruments_score_an_extra_set_with_its_class_d1_and_epe(project: P
         reflective = summary["masks"]["stereo"]["reflective"]
         assert reflective["frames"] == 2 and reflective["d1"] < 10 and reflective["epe"] < 1, run
         assert {"abs_rel", "a1", "reflective_abs_rel", "reflective_d1"} <= set(head), run
-    assert skipped_reason(set_metrics_dir(SET), match_run("mix"), ["full"]) == (
+        roi, head, table = _set_metrics(run, "roi")  # each of the user's boxes a unit, D1 and EPE beside
+        assert roi["rois"] == 3 and roi["excluded_rois"] == 0 and len(table) == 3 * len(params.eval.caps)
+        assert roi["cap80"]["by_class"]["car"]["count"] == 2 and roi["cap80"]["by_class"]["glass"]["count"] == 1
+        assert roi["cap80"]["overall"]["d1"] < 0.1 and set(table.columns) >= {"roi", "class", "d1", "epe"}
+        assert head["roi"] == pytest.approx(roi["cap80"]["overall"]["abs_rel"]), run
+    assert skipped_reason(set_metrics_dir(SET), match_run("mix"), ["full", "roi"]) == (
         "variant mix has no per-pixel cost: no cost volume to match on"
     )
     assert not (project / "checkpoints" / "sets").exists()
@@ -165,7 +179,8 @@ def test_the_set_stages_list_what_they_read():
 
 def test_the_sets_section_of_compare_shows_the_instruments_beside_the_networks(project: Path):
     """compare_set: every instrument is a row of the set's table (D1 and EPE beside), with its
-    difference to the reference and its reflective class; a skipped one is named with the reason."""
+    difference to the reference and its reflective class; a skipped one is named with the reason;
+    the set's boxes get their own table (D1, EPE, abs_rel per class) and intervals over the boxes."""
     from conftest import stage
 
     from msdepth.evaluation.results import score_set
@@ -175,7 +190,8 @@ def test_the_sets_section_of_compare_shows_the_instruments_beside_the_networks(p
     params = params_from_dict({**RAW, "variants": ["ssim", "msssim"], "train": {"seeds": [0]}})
     frames = load_frames(read_eval_index(set_index_path(INDEX_DIR, SET)))
     for k, run in enumerate(("ssim/seed0", "msssim/seed0", "constant", "prior")):
-        score_set(params, SET, run, {f.name: np.full(f.shape, 10.0 + k, np.float32) for f in frames}, frames)
+        pred = {f.name: np.full(f.shape, 10.0 + k, np.float32) for f in frames}
+        score_set(params, SET, run, pred, frames, rois=set_rois_path(INDEX_DIR, SET))
     stage("match_set").match_set(params, SET, "sgbm")
     stage("match_set").match_set(params, SET, "ssim")
     result, md = _compare_set(params, SET)
@@ -185,12 +201,16 @@ def test_the_sets_section_of_compare_shows_the_instruments_beside_the_networks(p
     assert "| SGBM | " in md and "D1 %" in md and "| reflective | SGBM |" in md
     assert "Instruments without metrics: SGM (msssim cost): no metrics/sets/kitti2012/full/optimum" in md
     assert "optimum ssim w10: no " in md
+    assert "## kitti2012: ROI boxes, cap 80 m (3 boxes: car 2, glass 1)" in md
+    assert "Difference to ssim (3 paired kitti2012 boxes)" in md and "| glass abs_rel |" in md
+    assert rows <= set(result["roi"]) and "SGBM" in result["statistics"]["roi"]["cap80"]
 
 
 def test_the_verdict_reads_the_sets_rows_frame_by_frame(project: Path):
     """set_verdict_rows: the networks paired by seed and the SGM cost starts paired by frame, on the
-    whole frame and the reflective class, named after the set; two frames: the known difference
-    (MS-SSIM 10 % off the GT depth, SSIM 20 %: −0.1) without an interval."""
+    whole frame and the reflective class, named after the set, and on the boxes' classes, named
+    after the set's boxes; two frames and three boxes: the known difference (MS-SSIM 10 % off the GT
+    depth, SSIM 20 %: −0.1) without an interval."""
     from conftest import stage
 
     from msdepth.evaluation.results import score_set
@@ -201,19 +221,21 @@ def test_the_verdict_reads_the_sets_rows_frame_by_frame(project: Path):
     frames = load_frames(read_eval_index(set_index_path(INDEX_DIR, SET)))
     depth = 200 * 0.54 / DISPARITY  # the tree's calibration
     for run, off in (("ssim/seed0", 1.2), ("ssim/seed1", 1.2), ("msssim/seed0", 1.1), ("msssim/seed1", 1.1)):
-        score_set(
-            params, SET, run, {f.name: np.full(f.shape, depth * off, np.float32) for f in frames}, frames
-        )
+        pred = {f.name: np.full(f.shape, depth * off, np.float32) for f in frames}
+        score_set(params, SET, run, pred, frames, rois=set_rois_path(INDEX_DIR, SET))
     for variant in ("ssim", "msssim"):
         stage("match_set").match_set(params, SET, variant)
     rows = {(r.instrument, r.cls): r for r in set_verdict_rows(params, SET, {"msssim": None})}
     assert set(rows) == {
-        (f"{name} on {SET}", cls)
+        (f"{name} on {where}", cls)
         for name in ("stereo networks", "SGM cost start")
-        for cls in ("full frame", "reflective")
+        for where, classes in ((SET, ("full frame", "reflective")), (f"{SET} boxes", ("car", "glass")))
+        for cls in classes
     }
-    for cls in ("full frame", "reflective"):
-        net = rows[(f"stereo networks on {SET}", cls)]
-        assert net.diff == pytest.approx(-0.1, abs=1e-4) and net.n == 2 and not net.has_interval
-        assert net.unit == f"{SET} frames" and net.seeds == 2 and net.kind == "network"
-        assert rows[(f"SGM cost start on {SET}", cls)].kind == "optimum"
+    for where, cls, n in ((SET, "full frame", 2), (SET, "reflective", 2), (f"{SET} boxes", "car", 2)):
+        net = rows[(f"stereo networks on {where}", cls)]
+        assert net.diff == pytest.approx(-0.1, abs=1e-4) and net.n == n and not net.has_interval
+        unit = f"{SET} frames" if where == SET else where
+        assert net.unit == unit and net.seeds == 2 and net.kind == "network"
+        assert unit in net.method
+        assert rows[(f"SGM cost start on {where}", cls)].kind == "optimum"

@@ -167,6 +167,8 @@ class KittiConfig:
     odometry: str = _added_later("odometry")
     odometry_sequences: tuple[str, ...] = _added_later(("09", "10"))
     rois_csv: str = ""  # hand-drawn boxes (image, class, x0, y0, x1, y1) added to the obj_map cars
+    # eval.extra_sets' kitti2012: boxes on its training frames, the same format (it has no obj_map)
+    kitti2012_rois_csv: str = _added_later("")
     roi_min_size: Annotated[int, Range(1, MAX_SIZE)] = 16  # px, both sides of an automatic car box
     roi_min_valid: Fraction = 0.3  # fraction of an automatic car box with valid GT
 

@@ -23,7 +23,7 @@ from msdepth.data import kitti
 from msdepth.data.pairs import check_same_size
 from msdepth.errors import DataError
 from msdepth.io import atomic_path, read_table_file
-from msdepth.pipeline.paths import SET_INDEXES
+from msdepth.pipeline.paths import SET_INDEXES, SET_ROIS
 
 # One evaluation index format for every set (msdepth.data.eval_sets): ``gt`` is a file of kind
 # ``gt_kind`` (msdepth.data.ground_truth.GT_KINDS), ``calib`` the raw day folder of a Velodyne
@@ -102,6 +102,12 @@ def build_eval_index(kitti2015_root: Path, split_file: Path, gt: str) -> pd.Data
 def set_index_path(index_dir: str | os.PathLike, name: str) -> Path:
     """The evaluation index of extra set ``name`` below the index folder."""
     return Path(index_dir) / SET_INDEXES.name / f"{name}.csv"
+
+
+def set_rois_path(index_dir: str | os.PathLike, name: str) -> Path:
+    """The ROI boxes of extra set ``name`` below the index folder (the ``rois`` stage's; its
+    contact sheet beside it, ``.png``)."""
+    return Path(index_dir) / SET_ROIS.name / f"{name}.csv"
 
 
 def write_eval_index(path: Path, frames: pd.DataFrame) -> None:

@@ -256,6 +256,45 @@ def write_roi_index(params: Params, frames: pd.DataFrame, out: Path, sheet: Path
     return boxes
 
 
+def _optional_path(value: str) -> Path | None:
+    return Path(value) if value else None
+
+
+def set_roi_boxes(params: Params, name: str, frames: pd.DataFrame) -> pd.DataFrame:
+    """The ROI boxes of extra set ``name`` (a key of ``eval.extra_sets``; ``frames``, its evaluation
+    index): ``kitti2015``, the obj_map cars (``data.kitti.roi_min_size``/``roi_min_valid``) plus
+    ``data.kitti.rois_csv``'s boxes, as on KITTI 2015's evaluation frames; ``kitti2012``, which has
+    no obj_map, ``data.kitti.kitti2012_rois_csv``'s; none on the Eigen sets (no object annotation).
+    A user box must name one of the set's frames and fit its image (:func:`_extract_rois`).
+
+    Example:
+        >>> from msdepth.config.params import Params
+        >>> frames = pd.DataFrame({"frame": ["a"], "left": ["a.png"], "gt": ["a.bin"],
+        ...                        "gt_kind": ["velodyne"], "obj_map": [""]})
+        >>> len(set_roi_boxes(Params(), "eigen", frames))
+        0
+    """
+    k = params.data.kitti
+    if name == "kitti2015":
+        user = _optional_path(k.rois_csv)
+        return _extract_rois(
+            frames, user_csv=user, min_size=k.roi_min_size, min_valid=k.roi_min_valid, progress=False
+        )
+    if name == "kitti2012":
+        return _extract_rois(frames, user_csv=_optional_path(k.kitti2012_rois_csv), progress=False)
+    return _empty_rois()
+
+
+def write_set_rois(params: Params, name: str, frames: pd.DataFrame, out: Path) -> pd.DataFrame:
+    """:func:`set_roi_boxes` of set ``name`` written as the ROI file ``out`` and its contact sheet
+    (``out`` with ``.png``); returns the boxes."""
+    boxes = set_roi_boxes(params, name, frames)
+    kitti.write_rois(out, boxes)
+    _contact_sheet(boxes, frames, out.with_suffix(".png"))
+    log.info("rois of set %s: %d boxes, %s", name, len(boxes), boxes["class"].value_counts().to_dict())
+    return boxes
+
+
 # --------------------------------------------------------------------------------------------
 # Contact sheet
 

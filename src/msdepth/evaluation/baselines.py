@@ -282,23 +282,24 @@ def score_baselines(params: Params, train_pairs: Path, eval_index: Path, rois: P
             run_suite(params, suite, run, pred, frames, boxes)
 
 
-def score_set_baselines(params: Params, name: str, train_pairs: Path, set_index: Path) -> None:
+def score_set_baselines(
+    params: Params, name: str, train_pairs: Path, set_index: Path, rois: Path | None = None
+) -> None:
     """Both baselines of the GT of the training frames of ``train_pairs`` scored on extra set
-    ``name``'s full images (its index ``set_index``); skipped, with the reason in their JSON, when
-    no training frame has GT."""
+    ``name``'s full images (its index ``set_index``) and, with ``rois``, its boxes; skipped, with
+    the reason in their JSON, when no training frame has GT."""
     gt = _indexed_training_gt(train_pairs)
     if gt.maps is None:
-        reason = _skip_reason(gt)
         for run in BASELINES:
-            write_skipped(
-                set_metrics_dir(name),
-                "full",
-                run,
-                reason,
-                headline=True,
-                headline_root=set_headline_dir(name),
-            )
+            write_set_skipped(name, run, _skip_reason(gt), rois is not None)
         return
     frames = load_frames(read_eval_index(set_index))
     for run, disp in baseline_disparities(gt.maps, len(frames)).items():
-        score_set(params, name, run, depth_maps(disp, frames), frames)
+        score_set(params, name, run, depth_maps(disp, frames), frames, rois=rois)
+
+
+def write_set_skipped(name: str, run: str, reason: str, rois: bool) -> None:
+    """A skipped run's files on extra set ``name`` (:func:`write_skipped`): its full-image suite's
+    and, with ``rois``, its ROI suite's."""
+    for suite in ("full", "roi") if rois else ("full",):
+        write_skipped(set_metrics_dir(name), suite, run, reason, True, set_headline_dir(name))

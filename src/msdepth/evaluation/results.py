@@ -16,6 +16,7 @@ from msdepth.data.eval_index import read_eval_index
 from msdepth.errors import ConfigError, DataError
 from msdepth.evaluation.classes import exact_class_scores, with_class_columns
 from msdepth.evaluation.suites import (
+    NO_ROIS,
     Frame,
     depth_maps,
     evaluate_full,
@@ -172,12 +173,28 @@ def median_scaling(params: Params) -> bool:
 
 
 def score_set(  # noqa: ANN001 - frames
-    params: Params, name: str, run: str, pred: dict, frames, *, scaled: bool | None = None
+    params: Params,
+    name: str,
+    run: str,
+    pred: dict,
+    frames,
+    *,
+    scaled: bool | None = None,
+    rois: Path | None = None,
 ) -> None:
     """The full-image suite of ``pred`` on extra set ``name``, written below ``metrics/sets/<set>/``;
-    median-scaled when ``scaled`` (default: ``eval.median_scaling``)."""
+    median-scaled when ``scaled`` (default: ``eval.median_scaling``). With ``rois`` (the set's ROI
+    file, :func:`~msdepth.data.eval_index.set_rois_path`), the ROI suite too, each box a unit with
+    D1 and EPE beside the 7 metrics (the explicit "no ROIs" summary where the file lists none)."""
     scaled = params.eval.median_scaling if scaled is None else scaled
+    root, headline_root = set_metrics_dir(name), set_headline_dir(name)
     summary, table = full_suite(params, pred, frames, scaled)
-    _write_suite(
-        "full", run, summary, table, root=set_metrics_dir(name), headline_root=set_headline_dir(name)
-    )
+    _write_suite("full", run, summary, table, root=root, headline_root=headline_root)
+    if rois is None:
+        return
+    boxes = kitti.read_rois(rois)
+    scored = median_scaled_maps(pred, frames, params.eval)[0] if scaled else pred
+    summary, table = evaluate_roi(scored, frames, boxes, params.eval, stereo=True)
+    if no_rois(summary):
+        summary[NO_ROIS] = f"no ROIs: {Path(rois).as_posix()} lists no box on set {name}"
+    _write_suite("roi", run, summary, table, root=root, headline_root=headline_root)

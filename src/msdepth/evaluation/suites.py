@@ -368,7 +368,12 @@ def exact_mask_summary(table: pd.DataFrame, n_rois: int, caps: Sequence[float]) 
 
 
 def evaluate_roi(
-    pred: dict[str, np.ndarray], frames: list[Frame], rois: pd.DataFrame, cfg: EvalConfig
+    pred: dict[str, np.ndarray],
+    frames: list[Frame],
+    rois: pd.DataFrame,
+    cfg: EvalConfig,
+    *,
+    stereo: bool = False,
 ) -> tuple[dict, pd.DataFrame]:
     """Suite 2: the same metrics inside each ROI box; mean over ROIs, overall and per class.
 
@@ -376,10 +381,12 @@ def evaluate_roi(
     over each box's exact pixels of its class: a car box without the road and facade behind
     the car, a windshield box without the bonnet. ROIs whose exact pixels have no valid GT are
     excluded there and counted. No ROI at all gives ``{"rois": 0, NO_ROIS: why}`` and a
-    header-only table.
+    header-only table. ``stereo``: each box's KITTI D1 and EPE too (an extra set's boxes, as its
+    full-image suite has them).
     """
+    keys = (*METRICS, *STEREO_METRICS) if stereo else METRICS
     if rois.empty:
-        return _no_roi_result(ROI_COLUMNS)
+        return _no_roi_result((*ROI_COLUMNS, *keys[len(METRICS) :]))
     rows, summary = [], {}
     masked = all(f.class_map is not None for f in frames)
     mask_rows: list[dict] = []
@@ -387,14 +394,14 @@ def evaluate_roi(
         per_cap = []
         for i, roi, frame, box in _boxes_for(rois, frames):
             valid = frame.valid[box]
-            m = _metrics_in(frame, pred[frame.name][box], valid, cap, cfg, box)
+            m = _metrics_in(frame, pred[frame.name][box], valid, cap, cfg, box, stereo=stereo)
             if m is not None:
                 per_cap.append({"roi": i, "image": roi["image"], "class": roi["class"], "cap": cap, **m})
             if masked and (m := _exact_row(pred, (i, roi, frame, box), cap, cfg)) is not None:
                 mask_rows.append(m)
         if not per_cap:
             raise DataError("ROI evaluation: no ROI has valid ground truth")
-        summary[f"cap{cap:g}"] = _summarise_by_class(per_cap, METRICS)
+        summary[f"cap{cap:g}"] = _summarise_by_class(per_cap, keys)
         rows += per_cap
     summary["rois"] = len(rois)
     summary["excluded_rois"] = len(rois) - len(rows) // len(cfg.caps)

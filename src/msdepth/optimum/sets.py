@@ -10,7 +10,8 @@ the stages ``match_set@<set>-<variant>``, ``sgbm_set@<set>`` and ``optimum_set@<
   the sweep stays on the default frames.
 
 Each is scored with the set's full-image suite (:func:`msdepth.evaluation.results.score_set`: the
-exact classes where the set has them, D1 and EPE), as the run the default frames name it
+exact classes where the set has them, D1 and EPE) and its ROI suite on the set's boxes
+(``data/index/set_rois/<set>.csv``), as the run the default frames name it
 (:func:`~msdepth.pipeline.paths.match_run`, :func:`~msdepth.pipeline.paths.optimum_run`).
 
 One frame in memory at a time while matching or optimising: each frame's disparity goes to a
@@ -44,8 +45,6 @@ from msdepth.pipeline.paths import (
     SGBM,
     match_run,
     optimum_run,
-    set_headline_dir,
-    set_metrics_dir,
 )
 
 log = logging.getLogger("msdepth")
@@ -129,10 +128,12 @@ def frame_disparities(index: pd.DataFrame, folder: Path, disparity: Disparity, l
         log.info("%s: frame %d/%d (%s) in %.1f s", label, i + 1, total, row.frame, seconds)
 
 
-def _score_scratch(params: Params, name: str, run: str, index: pd.DataFrame, folder: Path) -> None:
+def _score_scratch(
+    params: Params, name: str, run: str, index: pd.DataFrame, folder: Path, rois: Path | None
+) -> None:
     """The frames' disparities in ``folder`` as depth at each frame's GT size
-    (:func:`msdepth.evaluation.suites.depth_maps`, one frame at a time), scored on set ``name`` as run
-    ``run`` (:func:`msdepth.evaluation.results.score_set`)."""
+    (:func:`msdepth.evaluation.suites.depth_maps`, one frame at a time), scored on set ``name`` (and
+    its boxes ``rois``) as run ``run`` (:func:`msdepth.evaluation.results.score_set`)."""
     from msdepth.evaluation.results import score_set
     from msdepth.evaluation.suites import depth_maps, load_frames
 
@@ -140,15 +141,21 @@ def _score_scratch(params: Params, name: str, run: str, index: pd.DataFrame, fol
     pred: dict[str, np.ndarray] = {}
     for i, frame in enumerate(frames):
         pred.update(depth_maps([read_npy_file(folder / FRAME_FILE.format(i), "disparity")], [frame]))
-    score_set(params, name, run, pred, frames)
+    score_set(params, name, run, pred, frames, rois=rois)
 
 
 def _score_set_instrument(
-    params: Params, name: str, run: str, set_index: Path, key: dict, disparity: Disparity
+    params: Params,
+    name: str,
+    run: str,
+    set_index: Path,
+    rois: Path | None,
+    key: dict,
+    disparity: Disparity,
 ) -> None:
     """Run ``disparity`` on every frame of extra set ``name`` (its index ``set_index``) with
     ``optimum.threads`` torch threads, resuming from its scratch folder (``key``: :func:`_scratch_key`),
-    score it as run ``run`` and remove the scratch folder."""
+    score it as run ``run`` (on the boxes ``rois`` too) and remove the scratch folder."""
     import torch
 
     from msdepth.data.eval_index import read_eval_index
@@ -158,22 +165,24 @@ def _score_set_instrument(
     folder = _scratch_dir(name, run)
     _open_scratch(folder, key)
     frame_disparities(index, folder, disparity, f"{run} on {name}")
-    _score_scratch(params, name, run, index, folder)
+    _score_scratch(params, name, run, index, folder, rois)
     _remove_scratch(folder)
 
 
-def score_set_match(params: Params, name: str, matcher: str, set_index: Path) -> None:
+def score_set_match(
+    params: Params, name: str, matcher: str, set_index: Path, rois: Path | None = None
+) -> None:
     """A matcher on extra set ``name``: SGM on variant ``matcher``'s own cost volume (the optimum's
     ``cost`` start) or OpenCV's SGBM (``matcher`` ``sgbm``), unrefined, as run
     :func:`~msdepth.pipeline.paths.match_run`. A variant without a per-pixel cost (``mix``) writes
-    skipped metrics, as on the default frames."""
-    from msdepth.evaluation.baselines import write_skipped
+    skipped metrics, as on the default frames. With ``rois`` (the set's ROI file), the ROI suite too."""
+    from msdepth.evaluation.baselines import write_set_skipped
     from msdepth.optimum.starts import start_disparity
 
     run = match_run(checked_matcher(params, matcher))
     if matcher != SGBM and not has_per_pixel_cost(params.appearance[matcher]):
         reason = f"variant {matcher} has no per-pixel cost: no cost volume to match on"
-        write_skipped(set_metrics_dir(name), "full", run, reason, True, set_headline_dir(name))
+        write_set_skipped(name, run, reason, rois is not None)
         return
     start = SGBM if matcher == SGBM else "cost"
 
@@ -182,7 +191,7 @@ def score_set_match(params: Params, name: str, matcher: str, set_index: Path) ->
 
     variant = None if matcher == SGBM else matcher
     key = _scratch_key(params, start, variant, set_index)
-    _score_set_instrument(params, name, run, set_index, key, disparity)
+    _score_set_instrument(params, name, run, set_index, rois, key, disparity)
 
 
 def _checked_default_weight(params: Params, weight: str) -> float:
@@ -200,10 +209,12 @@ def _checked_default_weight(params: Params, weight: str) -> float:
     return value
 
 
-def score_set_optimum(params: Params, name: str, variant: str, weight: str, set_index: Path) -> None:
+def score_set_optimum(
+    params: Params, name: str, variant: str, weight: str, set_index: Path, rois: Path | None = None
+) -> None:
     """``variant``'s optimum at ``optimum.smoothness_weight`` (``weight``, as dvc.yaml spells it) on
     every frame of extra set ``name``, one pair at a time, as run
-    :func:`~msdepth.pipeline.paths.optimum_run`."""
+    :func:`~msdepth.pipeline.paths.optimum_run`; with ``rois`` (the set's ROI file), the ROI suite too."""
     from msdepth.optimum.solver import optimum_disparities
 
     value = _checked_default_weight(params, weight)
@@ -213,4 +224,4 @@ def score_set_optimum(params: Params, name: str, variant: str, weight: str, set_
         return optimum_disparities([(left, right)], params, variant, value, progress=False)[0]
 
     key = _scratch_key(params, "optimum", variant, set_index)
-    _score_set_instrument(params, name, run, set_index, key, disparity)
+    _score_set_instrument(params, name, run, set_index, rois, key, disparity)

@@ -36,6 +36,7 @@ SET_INDEXES = INDEX_DIR / "sets"  # <set>.csv per eval.extra_sets (msdepth.data.
 INDEX_REPORT = INDEX_DIR / "report.json"
 ROIS = INDEX_DIR / "rois.csv"
 ROI_SHEET = INDEX_DIR / "rois.png"
+SET_ROIS = INDEX_DIR / "set_rois"  # <set>.csv and <set>.png per eval.extra_sets (msdepth.data.rois)
 PAIR_CACHE = Path("data/cache/train_pairs.npy")
 CACHED_PAIRS = Path("data/cache/train_pairs.txt")
 CACHE_REPORT = Path("data/cache/report.json")

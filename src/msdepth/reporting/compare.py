@@ -424,6 +424,38 @@ def _stereo_lines(
     return ["Whole frame, KITTI's stereo metrics:", "", _table(["run", "D1 %", "EPE px"], rows), ""]
 
 
+def set_roi_lines(
+    name: str,
+    roi: dict[str, dict],
+    runs: Sequence[str],
+    stats: dict,
+    baselines: Sequence[str],
+    label: Callable,
+) -> list[str]:
+    """An extra set's boxes (``roi``: group -> its ROI suite summary, averaged over seeds), each box a
+    unit: per cap, every run's abs_rel, a1, D1 and EPE over all boxes and its abs_rel per class,
+    then each run minus the reference with its interval over the boxes (``stats["roi"]``)."""
+    lines = []
+    for cap in [k for k in roi[runs[0]] if k.startswith("cap")]:
+        classes = sorted({c for r in runs for c in roi[r][cap]["by_class"]})
+        rows = [
+            [label(r), *(_fmt(roi[r][cap]["overall"][k]) for k in ("abs_rel", "a1")),
+             f"{100 * roi[r][cap]['overall']['d1']:.1f}", f"{roi[r][cap]['overall']['epe']:.2f}",
+             *(_fmt(roi[r][cap]["by_class"].get(c, {}).get("abs_rel")) for c in classes)]
+            for r in runs
+        ]  # fmt: skip
+        first = roi[runs[0]][cap]
+        counts = ", ".join(f"{c} {first['by_class'][c]['count']}" for c in classes)
+        lines += [
+            f"## {name}: ROI boxes, cap {cap[3:]} m ({first['overall']['count']} boxes: {counts})",
+            "",
+            _table(["run", "abs_rel", "a1", "D1 %", "EPE px", *(f"{c} abs_rel" for c in classes)], rows),
+            "",
+            *_ci_lines(stats, "roi", cap, f"{name} boxes", baselines, label),
+        ]
+    return lines
+
+
 def _unrun_lines(unrun: dict[str, str] | None) -> list[str]:
     """The header line naming the network-free instruments without metrics on a set, and why."""
     if not unrun:

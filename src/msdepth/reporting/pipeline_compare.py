@@ -41,6 +41,7 @@ from msdepth.reporting.compare import (
     paired_statistics,
     pairing_status,
     seed_spread,
+    set_roi_lines,
     variant_settings,
 )
 from msdepth.reporting.verdict import (
@@ -170,7 +171,8 @@ def verdict_section(
     for name in params.eval.extra_sets:
         rows += set_verdict_rows(params, name, pairing, settings)
     better, than = display_names(params.variants, cfg.reference)
-    headline = headline_instruments(params.optimum.smoothness_weight, params.eval.extra_sets)
+    boxed = [n for n in params.eval.extra_sets if any(r.instrument.endswith(f" on {n} boxes") for r in rows)]
+    headline = headline_instruments(params.optimum.smoothness_weight, params.eval.extra_sets, boxed)
     return verdict_data(rows, cap, cfg.confidence, better, than, settings, headline)
 
 
@@ -225,34 +227,68 @@ def _set_instruments(params: Params, root: Path) -> tuple[dict[str, str], dict[s
     return found, {label: why for label, why in reasons.items() if why is not None}
 
 
+def _has_boxes(root: Path, runs: Sequence[str]) -> bool:
+    """Whether every run of ``runs`` has scored an extra set's boxes (its ROI suite below ``root``):
+    not where the set has none (the "no ROIs" summary) or a run was scored without the set's ROI file."""
+    if not runs or any(skipped_reason(root, r, ["roi"]) is not None for r in runs):
+        return False
+    return not any(no_rois(s) for s in load_suite_metrics(root, runs, ["roi"])["roi"].values())
+
+
 def set_verdict_rows(
     params: Params, name: str, pairing: dict[str, str | None] | None = None, settings: str = ""
 ) -> list[Row]:
-    """The verdict's rows of extra set ``name``, frames as the units: the trained networks (paired
-    by seed), each variant's SGM cost start and its optimum at ``optimum.smoothness_weight`` (paired
-    by frame), on the whole frame and on each of the set's exact classes (KITTI 2012's reflective,
-    KITTI 2015's cars). Named ``<instrument> on <set>``; kept without an interval below
-    :data:`~msdepth.reporting.verdict.MIN_UNITS` frames. [] with fewer than two variants."""
+    """The verdict's rows of extra set ``name``: the trained networks (paired by seed), each
+    variant's SGM cost start and its optimum at ``optimum.smoothness_weight`` (paired by unit). With
+    the frames as the units, on the whole frame and each of the set's exact classes (KITTI 2012's
+    reflective, KITTI 2015's cars), named ``<instrument> on <set>``; with the set's boxes as the
+    units, on each ROI class, named ``<instrument> on <set> boxes``. Kept without an interval below
+    :data:`~msdepth.reporting.verdict.MIN_UNITS` units. [] with fewer than two variants."""
     if len(params.variants) < 2:
         return []
-    root, cfg, cap = set_metrics_dir(name), params.compare, params.eval.caps[0]
-    scope = RowScope(whole_frame=True, unit=f"{name} frames", keep_few=True)
+    root = set_metrics_dir(name)
     variants = {v: variant_runs(params)[v] for v in params.variants}
-    tables = load_unit_tables(root, [r for runs in variants.values() for r in runs], ["full"])
-    rows = network_rows(tables, variants, cfg, cap, pairing=pairing, settings=settings, scope=scope)
     instruments, _ = _set_instruments(params, root)
+    rows = []
+    for suite, where in (("full", name), ("roi", f"{name} boxes")):
+        unit = where if suite == "roi" else f"{name} frames"
+        scope = RowScope(whole_frame=suite == "full", unit=unit, keep_few=True)
+        found = _set_suite_rows(params, root, suite, scope, variants, instruments, pairing, settings)
+        rows += [dataclasses.replace(r, instrument=f"{r.instrument} on {where}") for r in found]
+    return rows
+
+
+def _set_suite_rows(
+    params: Params,
+    root: Path,
+    suite: str,
+    scope: RowScope,
+    variants: dict[str, list[str]],
+    instruments: dict[str, str],
+    pairing: dict[str, str | None] | None,
+    settings: str,
+) -> list[Row]:
+    """:func:`set_verdict_rows`' rows of one suite (``full``, or ``roi`` where the runs scored boxes)."""
+    cfg, cap = params.compare, params.eval.caps[0]
+    rows = []
+    runs = [r for group in variants.values() for r in group]
+    if suite == "full" or _has_boxes(root, runs):
+        tables = load_unit_tables(root, runs, [suite])
+        rows += network_rows(tables, variants, cfg, cap, pairing=pairing, settings=settings, scope=scope)
     weight = f"w{params.optimum.smoothness_weight:g}"
     for instrument, label, pattern in (
         ("optimum", weight, f"{OPTIMUM} {{}} {weight}"),
         ("SGM", "cost start", "SGM ({} cost)"),
     ):
-        runs = {
+        found = {
             v: instruments[pattern.format(v)] for v in params.variants if pattern.format(v) in instruments
         }
-        if cfg.reference in runs and len(runs) > 1:
-            found = load_unit_tables(root, list(runs.values()), ["full"])
-            rows += optimum_rows(found, {label: runs}, cfg, cap, settings, scope, instrument)
-    return [dataclasses.replace(r, instrument=f"{r.instrument} on {name}") for r in rows]
+        if cfg.reference not in found or len(found) < 2:
+            continue
+        if suite == "full" or _has_boxes(root, list(found.values())):
+            tables = load_unit_tables(root, list(found.values()), [suite])
+            rows += optimum_rows(tables, {label: found}, cfg, cap, settings, scope, instrument)
+    return rows
 
 
 def _compare_set(params: Params, name: str, label: Callable[[str], str] = str) -> tuple[dict, str]:
@@ -270,15 +306,26 @@ def _compare_set(params: Params, name: str, label: Callable[[str], str] = str) -
     caps = [f"cap{c:g}" for c in params.eval.caps]
     # The same trained networks as KITTI 2015's: paired as there (their summaries are the pipeline's).
     pairing = pairing_status(groups, params.compare.reference, load_training_summaries(runs))
-    return build_set_section(
+    if _has_boxes(root, runs):  # the set's boxes, each a unit (data/index/set_rois/<set>.csv)
+        suites.update(load_suite_metrics(root, runs, ["roi"]))
+        tables.update(load_unit_tables(root, runs, ["roi"]))
+    stats = paired_statistics(tables, groups, params.compare, params.eval.caps, pairing)
+    merged = group_metrics(suites, groups)
+    result, md = build_set_section(
         name,
-        group_metrics(suites, groups),
+        {"full": merged["full"]},
         list(params.variants),
         [*built, *instruments],
-        paired_statistics(tables, groups, params.compare, params.eval.caps, pairing),
-        seed_spread(suites, groups, caps),
+        stats,
+        seed_spread({"full": suites["full"]}, groups, caps),
         params.train.seeds,
         missing_baselines=missing,
         label=label,
         unrun=unrun,
     )
+    if "roi" not in merged:
+        return result, md
+    result["roi"] = merged["roi"]
+    others = [*built, *instruments]
+    lines = set_roi_lines(name, merged["roi"], [*params.variants, *others], stats, others, label)
+    return result, md + "\n".join(lines) + "\n"

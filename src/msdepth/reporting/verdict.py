@@ -681,14 +681,17 @@ def display_names(variants: Sequence[str], reference: str) -> tuple[str, str]:
     return better, DISPLAY_NAMES.get(reference, reference)
 
 
-def headline_instruments(weight: float, sets: Sequence[str] = ()) -> dict[str, tuple[str, str]]:
+def headline_instruments(
+    weight: float, sets: Sequence[str] = (), box_sets: Sequence[str] = ()
+) -> dict[str, tuple[str, str]]:
     """The instrument of each family that the summary table shows: ``{family: (kind, instrument)}``:
     the stereo networks, the optimum at its default smoothness ``weight``, and that optimum on each
-    extra evaluation set of ``sets`` (its rows are named ``<instrument> on <set>``).
+    extra evaluation set of ``sets`` (its rows are named ``<instrument> on <set>``) and on the boxes
+    of each set of ``box_sets`` (``<instrument> on <set> boxes``).
 
     Example:
-        >>> list(headline_instruments(10, ["kitti2012"]))
-        ['stereo networks', "loss's own optimum, w10", 'optimum w10, kitti2012 frames']
+        >>> list(headline_instruments(10, ["kitti2012", "kitti2015"], ["kitti2015"]))[2:]
+        ['optimum w10, kitti2012 frames', 'optimum w10, kitti2015 frames', 'optimum w10, kitti2015 boxes']
     """
     families = {
         "stereo networks": ("network", "stereo networks"),
@@ -696,6 +699,8 @@ def headline_instruments(weight: float, sets: Sequence[str] = ()) -> dict[str, t
     }
     for name in sets:
         families[f"optimum w{weight:g}, {name} frames"] = ("optimum", f"optimum w{weight:g} on {name}")
+    for name in box_sets:
+        families[f"optimum w{weight:g}, {name} boxes"] = ("optimum", f"optimum w{weight:g} on {name} boxes")
     return families
 
 
