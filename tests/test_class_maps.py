@@ -266,3 +266,41 @@ def test_obj_map_cars_on_the_shared_kitti2015_frames(tmp_path, monkeypatch):
     car = summary["masks"]["cap80"]["by_class"]["car"]
     assert car["count"] == len(frames) and car["abs_rel"] == pytest.approx(0.0, abs=1e-6)
     assert summary["masks"]["stereo"]["car"]["d1"] == 0.0
+
+
+def test_a_stereo_folder_is_an_extra_set_with_its_class_maps_and_boxes(tmp_path, monkeypatch):
+    """eval.extra_sets' folder beside the synthetic training set: data.folder.root names the folder;
+    its frames, class maps and data.folder.rois_csv boxes make the set's index and ROI file, scored
+    as the folder source scores them (the numbers of the test above), each box a unit with D1/EPE.
+    Without data.folder.root the params are refused naming the key."""
+    from msdepth.data.eval_sets import build_set_index
+    from msdepth.data.rois import write_set_rois
+    from msdepth.errors import ConfigError
+    from msdepth.evaluation.results import score_set
+
+    root = _folder(tmp_path / "set")
+    (root / "rois.csv").write_text("image,class,x0,y0,x1,y1\nc,glass,0,0,12,4\nd,glass,0,0,6,8\n")
+    params = params_from_dict(
+        {"data": {"folder": {"root": str(root), "class_maps": "classes", "rois_csv": "rois.csv"}},
+         "eval": {"extra_sets": ["folder"]}}
+    )  # fmt: skip
+    assert params.data.source == "synthetic"
+    index = build_set_index(params, "folder")
+    assert list(index["frame"]) == ["c", "d"] and all(index["class_map"].str.endswith(".png"))
+    rois = tmp_path / "set_rois" / "folder.csv"
+    assert len(write_set_rois(params, "folder", index, rois)) == 2
+    frames = load_frames(index)
+    pred = {
+        "c": np.where(_labels("c") == 1, 12.0, 10.0).astype(np.float32),
+        "d": np.full((H, W), 15.0, np.float32),
+    }
+    monkeypatch.chdir(tmp_path)
+    score_set(params, "folder", "constant", pred, frames, scaled=False, rois=rois)
+    summary = json.loads((tmp_path / "metrics" / "sets" / "folder" / "full" / "constant.json").read_text())
+    assert summary["masks"]["cap80"]["by_class"]["transparent"]["abs_rel"] == pytest.approx(0.225, abs=1e-6)
+    roi = json.loads((tmp_path / "metrics" / "sets" / "folder" / "roi" / "constant.json").read_text())
+    glass = roi["cap80"]["by_class"]["glass"]  # c's top rows at 12 m for 10 (0.2), d's left half 15 for 20
+    assert glass["count"] == 2 and glass["abs_rel"] == pytest.approx(0.225, abs=1e-6)
+    assert "d1" in glass and "epe" in glass
+    with pytest.raises(ConfigError, match=r"^data\.folder\.root: must name the stereo folder"):
+        params_from_dict({"eval": {"extra_sets": ["folder"]}})

@@ -166,7 +166,9 @@ class KittiConfig:
     mono_split: str = _added_later("data_lists/eigen_zhou_train_files.txt")
     odometry: str = _added_later("odometry")
     odometry_sequences: tuple[str, ...] = _added_later(("09", "10"))
-    rois_csv: str = ""  # hand-drawn boxes (image, class, x0, y0, x1, y1) added to the obj_map cars
+    # hand-drawn boxes (image, class, x0, y0, x1, y1) on KITTI 2015 frames, added to the obj_map cars
+    # (the evaluation frames of data.source kitti, and eval.extra_sets' kitti2015)
+    rois_csv: str = ""
     # eval.extra_sets' kitti2012: boxes on its training frames, the same format (it has no obj_map)
     kitti2012_rois_csv: str = _added_later("")
     roi_min_size: Annotated[int, Range(1, MAX_SIZE)] = 16  # px, both sides of an automatic car box
@@ -209,7 +211,8 @@ class FolderConfig:
     """Any rectified stereo set in one folder (msdepth.data.folder): paths relative to it."""
 
     # "" = data.root. The pipeline tracks the data as ${data.root} (dvc.yaml), so the folder must
-    # be data.root: any other value is refused by validate() with that hint.
+    # be data.root: any other value is refused by validate() with that hint. Beside another source,
+    # the folder of eval.extra_sets' "folder" (required there; its other keys apply as here).
     root: str = ""
     left: str = "left"  # left images ...
     right: str = "right"  # ... and right images of the same file names
@@ -516,11 +519,14 @@ class EvalConfig:
     mask_gt_beyond_cap: bool = False
     post_process: bool = True
     dense_gt_fraction: Annotated[float, Range(0, 1, low_open=True)] = 0.9
-    # Evaluated beside KITTI 2015 (which always runs: the dissertation's tables and the ROI
-    # suites), full-image suite only, each under metrics/sets/<set>/ (msdepth.data.eval_sets);
-    # kitti2012's full-image summary adds its exact class "reflective", kitti2015's "car" where it has
-    # obj_map (msdepth.evaluation.classes).
-    extra_sets: tuple[Literal["eigen", "eigen_benchmark", "kitti2012", "kitti2015"], ...] = (
+    # Evaluated beside KITTI 2015 (which always runs: the dissertation's tables), each under
+    # metrics/sets/<set>/ (msdepth.data.eval_sets): the full-image suite, where kitti2012 adds its
+    # exact class "reflective" and kitti2015 "car" where it has obj_map (msdepth.evaluation.classes),
+    # and the ROI suite on the set's boxes (kitti2015: obj_map cars and data.kitti.rois_csv;
+    # kitti2012: data.kitti.kitti2012_rois_csv; msdepth.data.rois.set_roi_boxes). "folder": the
+    # stereo folder of data.folder.* (root: that folder) beside another source, its class maps and
+    # boxes with it.
+    extra_sets: tuple[Literal["eigen", "eigen_benchmark", "kitti2012", "kitti2015", "folder"], ...] = (
         _list_may_be_empty(("eigen",))
     )
     median_scaling: bool = False  # per-image median scaling of the extra sets (Monodepth2's mono evaluation)
@@ -536,6 +542,11 @@ class EvalConfig:
         check(0 < self.dense_gt_fraction <= 1, f"{key}.dense_gt_fraction", "must be in (0, 1]")
         sets = list(self.extra_sets)
         check(len(set(sets)) == len(sets), f"{key}.extra_sets", f"must not repeat a set, got {shown(sets)}")
+        check(
+            "folder" not in sets or bool(params.data.folder.root),
+            "data.folder.root",
+            f"must name the stereo folder that {key}.extra_sets' folder evaluates on",
+        )
 
 
 @dataclass(frozen=True)

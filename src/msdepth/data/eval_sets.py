@@ -10,7 +10,11 @@
 - ``kitti2015``: KITTI 2015's stereo training frames (``data_scene_flow.zip``'s ``training/``) beside
   a training set of another source, GT ``disp_occ_0`` (every pixel with GT, KITTI's D1-all, as
   ``kitti2012`` takes ``disp_occ``) and, where ``obj_map/`` has the frame, its cars (fitted CAD
-  models) as the exact-mask class ``car`` (:func:`_build_kitti2015_index`).
+  models) as the exact-mask class ``car`` (:func:`_build_kitti2015_index`);
+- ``folder``: a stereo folder's evaluation list (``data.folder.*`` with ``data.folder.root`` naming
+  it, :mod:`msdepth.data.folder`) beside a training set of another source: its GT, camera and
+  class maps (``data.folder.class_maps``: e.g. a Middlebury- or Booster-style set's transparent and
+  specular masks) as exact classes, as ``data.source: folder`` evaluates it.
 
 The Eigen sets are evaluated inside Garg's crop with GT in (min_depth, cap), KITTI 2012 and 2015 on
 the whole frame as ``data.source: kitti``'s KITTI 2015 frames (:mod:`msdepth.evaluation.suites`). Each
@@ -26,9 +30,9 @@ from typing import Callable
 import pandas as pd
 
 from msdepth.config.params import Params
-from msdepth.data import kitti, kitti2012
+from msdepth.data import folder, kitti, kitti2012
 from msdepth.data.eval_index import EVAL_COLUMNS, velodyne_path
-from msdepth.data.layout import layout
+from msdepth.data.layout import folder_layout, layout
 from msdepth.data.pairs import check_same_size
 from msdepth.errors import DataError
 
@@ -196,6 +200,15 @@ def _build_kitti2015_index(root: Path) -> pd.DataFrame:
     return pd.DataFrame(rows, columns=list(EVAL_COLUMNS))
 
 
+def _build_folder_index(params: Params) -> pd.DataFrame:
+    """The evaluation frames of the stereo folder ``data.folder.root`` (:func:`msdepth.data.folder.eval_rows`:
+    every listed frame's images, GT, camera and class map checked once here)."""
+    rows = folder.eval_rows(folder_layout(params), npy_is_disparity=params.data.folder.npy_is_disparity)
+    if not rows:
+        raise DataError(f"{folder_layout(params).eval_list}: lists no frame")
+    return pd.DataFrame(rows, columns=list(EVAL_COLUMNS))
+
+
 SETS: dict[str, Callable[[Params], pd.DataFrame]] = {
     "eigen": lambda p: _build_eigen_index(layout(p).raw_root, layout(p).eigen_split),
     "eigen_benchmark": lambda p: _build_eigen_benchmark_index(
@@ -203,6 +216,7 @@ SETS: dict[str, Callable[[Params], pd.DataFrame]] = {
     ),
     "kitti2012": lambda p: _build_kitti2012_index(layout(p).kitti2012_root),
     "kitti2015": lambda p: _build_kitti2015_index(layout(p).kitti2015_set_root),
+    "folder": _build_folder_index,
 }
 
 

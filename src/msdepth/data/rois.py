@@ -264,7 +264,8 @@ def set_roi_boxes(params: Params, name: str, frames: pd.DataFrame) -> pd.DataFra
     """The ROI boxes of extra set ``name`` (a key of ``eval.extra_sets``; ``frames``, its evaluation
     index): ``kitti2015``, the obj_map cars (``data.kitti.roi_min_size``/``roi_min_valid``) plus
     ``data.kitti.rois_csv``'s boxes, as on KITTI 2015's evaluation frames; ``kitti2012``, which has
-    no obj_map, ``data.kitti.kitti2012_rois_csv``'s; none on the Eigen sets (no object annotation).
+    no obj_map, ``data.kitti.kitti2012_rois_csv``'s; ``folder``, ``data.folder.rois_csv``'s; none on
+    the Eigen sets (no object annotation).
     A user box must name one of the set's frames and fit its image (:func:`_extract_rois`).
 
     Example:
@@ -282,6 +283,8 @@ def set_roi_boxes(params: Params, name: str, frames: pd.DataFrame) -> pd.DataFra
         )
     if name == "kitti2012":
         return _extract_rois(frames, user_csv=_optional_path(k.kitti2012_rois_csv), progress=False)
+    if name == "folder":
+        return _extract_rois(frames, user_csv=folder_layout(params).rois_csv, progress=False)
     return _empty_rois()
 
 

@@ -381,11 +381,13 @@ SET_TITLES = {
     "eigen_benchmark": "Eigen benchmark split (KITTI's annotated depth GT, Garg crop)",
     "kitti2012": "KITTI 2012 stereo training frames (disp_occ with the reflective surfaces' GT)",
     "kitti2015": "KITTI 2015 stereo training frames (disp_occ_0; obj_map's cars where present)",
+    "folder": "Stereo folder (data.folder.root: its evaluation list, class maps and boxes)",
 }
 # What a set evaluates, where it is not the Eigen sets' (msdepth.evaluation.suites' Frame.crop).
 SET_PIXELS = {
     "kitti2012": "every GT pixel of the whole frame (GT beyond the cap kept, as KITTI 2015's)",
     "kitti2015": "every GT pixel of the whole frame (GT beyond the cap kept, as data.source kitti's)",
+    "folder": "every GT pixel of the whole frame (GT beyond the cap kept, as data.source folder's)",
 }
 
 
