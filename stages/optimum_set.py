@@ -1,7 +1,7 @@
-"""Stage ``optimum_set@<set>-<variant>``: the variant's own optimum disparity of an extra
-evaluation set's frames at ``optimum.smoothness_weight`` (no network), converted to depth and
-scored with the set's full-image suite (run ``optimum/<variant>/w<weight>``, as on the default
-frames). Frame by frame, resumable; metrics only."""
+"""Stage ``optimum_set@<set>-<variant>-<weight>``: the variant's own optimum disparity of an extra
+evaluation set's frames at one weight of ``optimum.set_weights`` (no network), converted to depth
+and scored with the set's full-image and ROI suites (run ``optimum/<variant>/w<weight>``, as on the
+default frames). Frame by frame, resumable; metrics only."""
 
 from __future__ import annotations
 
@@ -18,9 +18,9 @@ def optimum_set(
     params: Params,
     set_name: SetArg,
     variant: VariantArg,
-    weight: Annotated[str, "optimum.smoothness_weight, as dvc.yaml writes it (the run's name)"],
+    weight: Annotated[str, "a weight of optimum.set_weights, as dvc.yaml writes it (the run's name)"],
 ) -> None:
-    """Optimise every frame of an extra set, convert to depth, and run the full-image suite."""
+    """Optimise every frame of an extra set, convert to depth, and run the set's suites."""
     name = checked_set(params, set_name)
     score_set_optimum(
         params, name, variant, weight, set_index_path(INDEX_DIR, name), set_rois_path(INDEX_DIR, name)

@@ -106,7 +106,9 @@ def test_the_instruments_score_an_extra_set_with_its_class_d1_and_epe(project: P
         assert {"abs_rel", "a1", "reflective_abs_rel", "reflective_d1"} <= set(head), run
         roi, head, table = _set_metrics(run, "roi")  # each of the user's boxes a unit, D1 and EPE beside
         assert roi["rois"] == 3 and roi["excluded_rois"] == 0 and len(table) == 3 * len(params.eval.caps)
-        assert roi["cap80"]["by_class"]["car"]["count"] == 2 and roi["cap80"]["by_class"]["glass"]["count"] == 1
+        assert (
+            roi["cap80"]["by_class"]["car"]["count"] == 2 and roi["cap80"]["by_class"]["glass"]["count"] == 1
+        )
         assert roi["cap80"]["overall"]["d1"] < 0.1 and set(table.columns) >= {"roi", "class", "d1", "epe"}
         assert head["roi"] == pytest.approx(roi["cap80"]["overall"]["abs_rel"]), run
     assert skipped_reason(set_metrics_dir(SET), match_run("mix"), ["full", "roi"]) == (
@@ -114,7 +116,7 @@ def test_the_instruments_score_an_extra_set_with_its_class_d1_and_epe(project: P
     )
     assert not (project / "checkpoints" / "sets").exists()
     assert not (project / "metrics" / "full").exists()  # the default frames' metrics untouched
-    with pytest.raises(ConfigError, match="not optimum.smoothness_weight"):
+    with pytest.raises(ConfigError, match=r"not in optimum\.set_weights \(\[10\.0\]\)"):
         optimum_set(params, SET, "ssim", "3.0")
     with pytest.raises(ConfigError, match="not in eval.extra_sets"):
         match_set(params, "eigen", "sgbm")
@@ -168,11 +170,20 @@ def test_the_set_stages_list_what_they_read():
     reads = {"optimum.threads", "optimum.max_width"}
     assert set(stages["match_set"]["params"]) == {*reads, "loss.alpha", "${item.variant}", *suites}
     assert set(stages["sgbm_set"]["params"]) == {*reads, *suites}
-    unread = {"sweep_frames", "cost_frames", "smoothness_sweep", "batch_size"}
+    # set_weights and smoothness_weight: the matrix gives the weight (the stage checks it is listed)
+    unread = {
+        "sweep_frames",
+        "cost_frames",
+        "smoothness_sweep",
+        "batch_size",
+        "set_weights",
+        "smoothness_weight",
+    }
     expected = {f"optimum.{f.name}" for f in dataclasses.fields(OptimumConfig) if f.name not in unread}
     listed = set(stages["optimum_set"]["params"])
     assert {p for p in listed if p.startswith("optimum")} == expected
-    assert stages["optimum_set"]["cmd"].endswith("${optimum.smoothness_weight}")
+    assert stages["optimum_set"]["cmd"].endswith("${item.weight}")
+    assert stages["optimum_set"]["matrix"]["weight"] == "${optimum.set_weights}"
     for name in ("optimum", "match", "sgbm", "cost_curves"):
         assert "eval.extra_sets" not in stages[name]["params"], name
 
@@ -217,7 +228,10 @@ def test_the_verdict_reads_the_sets_rows_frame_by_frame(project: Path):
     from msdepth.evaluation.suites import load_frames
     from msdepth.reporting.pipeline_compare import set_verdict_rows
 
-    params = params_from_dict({**RAW, "variants": ["ssim", "msssim"], "train": {"seeds": [0, 1]}})
+    optimum = {**RAW["optimum"], "set_weights": [3.0, 10.0]}  # the sweep on the set: one param away
+    params = params_from_dict(
+        {**RAW, "variants": ["ssim", "msssim"], "train": {"seeds": [0, 1]}, "optimum": optimum}
+    )
     frames = load_frames(read_eval_index(set_index_path(INDEX_DIR, SET)))
     depth = 200 * 0.54 / DISPARITY  # the tree's calibration
     for run, off in (("ssim/seed0", 1.2), ("ssim/seed1", 1.2), ("msssim/seed0", 1.1), ("msssim/seed1", 1.1)):
@@ -225,10 +239,12 @@ def test_the_verdict_reads_the_sets_rows_frame_by_frame(project: Path):
         score_set(params, SET, run, pred, frames, rois=set_rois_path(INDEX_DIR, SET))
     for variant in ("ssim", "msssim"):
         stage("match_set").match_set(params, SET, variant)
+        for weight in ("3.0", "10.0"):
+            stage("optimum_set").optimum_set(params, SET, variant, weight)
     rows = {(r.instrument, r.cls): r for r in set_verdict_rows(params, SET, {"msssim": None})}
     assert set(rows) == {
         (f"{name} on {where}", cls)
-        for name in ("stereo networks", "SGM cost start")
+        for name in ("stereo networks", "SGM cost start", "optimum w3", "optimum w10")
         for where, classes in ((SET, ("full frame", "reflective")), (f"{SET} boxes", ("car", "glass")))
         for cls in classes
     }

@@ -216,7 +216,7 @@ MSSSIM_STAGES = {
     "cost_curves@msssim",
     "match@msssim",  # SGM on its cost volume (SGBM's stage reads no variant's section)
     "match_set@eigen-msssim",  # the same instruments on the extra set
-    "optimum_set@eigen-msssim",
+    "optimum_set@eigen-msssim-10.0",
     "compare",
     "report",
     "figures",

@@ -610,6 +610,9 @@ class OptimumConfig:
     # map does not. Results are reported at every weight of smoothness_sweep (a decade or more).
     smoothness_weight: Weight = 10.0
     smoothness_sweep: tuple[Annotated[float, Range(0, MAX_WEIGHT, low_open=True)], ...] = (3.0, 10.0, 30.0)
+    # The weights of eval.extra_sets' optimum (each a stage per set and variant): smoothness_weight
+    # alone by default, the lean run; the sweep on your sets is one param away (= smoothness_sweep).
+    set_weights: tuple[Annotated[float, Range(0, MAX_WEIGHT, low_open=True)], ...] = _added_later((10.0,))
     # 0: the weights as given at any working size. N: they hold at a working width of N px and
     # scale by W / N at width W (the smoothness term falls as 1 / W; docs/optimum.md, measured).
     # 414: the render width, where the weights were chosen, so the pipeline's results keep them.
@@ -658,6 +661,13 @@ class OptimumConfig:
             min(sweep) > 0 and max(sweep) >= 10 * min(sweep) and self.smoothness_weight in sweep,
             f"{key}.smoothness_sweep",
             f"must be positive, span at least a decade and hold smoothness_weight, got {list(sweep)}",
+        )
+        weights = list(self.set_weights)
+        check(
+            self.smoothness_weight in weights and min(weights) > 0 and len(set(weights)) == len(weights),
+            f"{key}.set_weights",
+            f"must be positive, distinct and hold smoothness_weight ({self.smoothness_weight:g}), "
+            f"got {weights}",
         )
         cap = self.max_width
         check(

@@ -6,8 +6,8 @@ the stages ``match_set@<set>-<variant>``, ``sgbm_set@<set>`` and ``optimum_set@<
   the optimum starts from them (:func:`msdepth.optimum.starts.start_disparity`: matched at the
   frame's own size capped by ``optimum.max_width``, its left view resampled to the frame's size).
   On the default frames, narrower than the cap, that is the ``match`` stages' disparity.
-- The optimum at ``optimum.smoothness_weight`` only (:func:`msdepth.optimum.solver.optimum_disparities`):
-  the sweep stays on the default frames.
+- The optimum at each weight of ``optimum.set_weights`` (:func:`msdepth.optimum.solver.optimum_disparities`):
+  ``optimum.smoothness_weight`` alone by default; ``smoothness_sweep``'s weights there on request.
 
 Each is scored with the set's full-image suite (:func:`msdepth.evaluation.results.score_set`: the
 exact classes where the set has them, D1 and EPE) and its ROI suite on the set's boxes
@@ -194,17 +194,17 @@ def score_set_match(
     _score_set_instrument(params, name, run, set_index, rois, key, disparity)
 
 
-def _checked_default_weight(params: Params, weight: str) -> float:
-    """``weight`` as a float, a ConfigError unless it is ``optimum.smoothness_weight`` (an extra set
-    runs the optimum at that one weight)."""
+def _checked_set_weight(params: Params, weight: str) -> float:
+    """``weight`` as a float, a ConfigError unless it is one of ``optimum.set_weights`` (the weights
+    an extra set runs the optimum at)."""
     try:
         value = float(weight)
     except ValueError:
         raise ConfigError(f"smoothness weight {weight!r} is not a number") from None
-    if value != params.optimum.smoothness_weight:
+    if value not in params.optimum.set_weights:
         raise ConfigError(
-            f"smoothness weight {weight} is not optimum.smoothness_weight "
-            f"({params.optimum.smoothness_weight:g}), the one weight an extra set runs"
+            f"smoothness weight {weight} is not in optimum.set_weights "
+            f"({[float(w) for w in params.optimum.set_weights]}), the weights an extra set runs"
         )
     return value
 
@@ -212,12 +212,12 @@ def _checked_default_weight(params: Params, weight: str) -> float:
 def score_set_optimum(
     params: Params, name: str, variant: str, weight: str, set_index: Path, rois: Path | None = None
 ) -> None:
-    """``variant``'s optimum at ``optimum.smoothness_weight`` (``weight``, as dvc.yaml spells it) on
+    """``variant``'s optimum at ``weight`` (one of ``optimum.set_weights``, as dvc.yaml spells it) on
     every frame of extra set ``name``, one pair at a time, as run
     :func:`~msdepth.pipeline.paths.optimum_run`; with ``rois`` (the set's ROI file), the ROI suite too."""
     from msdepth.optimum.solver import optimum_disparities
 
-    value = _checked_default_weight(params, weight)
+    value = _checked_set_weight(params, weight)
     run = optimum_run(params.variant(variant), weight)
 
     def disparity(left: np.ndarray, right: np.ndarray) -> np.ndarray:

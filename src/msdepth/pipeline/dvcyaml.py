@@ -216,21 +216,17 @@ ITEMS = {
     "SET": "${item.set}",
     "WEIGHT": "${item.weight}",
 }
-# The params values that a tagged path may use, as dvc.yaml interpolates them (an extra set's
-# optimum runs at the one weight optimum.smoothness_weight: run optimum/<variant>/w<that weight>).
-PARAM_VALUES = {"SMOOTHNESS_WEIGHT": "${optimum.smoothness_weight}"}
 
 
 def _tagged_path(expr: str) -> str:
     """The path that a dvc.yaml line's ``# = EXPR`` names: EXPR is a public name of
     :mod:`msdepth.pipeline.paths`, a call of one of its functions on :data:`ITEMS` (``RUN``: a matrix
     stage's run, as dvc.yaml spells it; ``VARIANT``, ``SEED``, ``SET``, ``WEIGHT``: a matrix item) or on
-    strings, or either joined with ``/`` to a string; :data:`PARAM_VALUES` stand for params values
-    (``SMOOTHNESS_WEIGHT``)."""
+    strings, or either joined with ``/`` to a string."""
     from msdepth.pipeline import paths as pipeline
 
     run = pipeline.run_name(ITEMS["VARIANT"], ITEMS["SEED"])  # type: ignore[arg-type]
-    items = {**ITEMS, **PARAM_VALUES, "RUN": run}
+    items = {**ITEMS, "RUN": run}
 
     def value(node: ast.expr) -> object:
         if isinstance(node, ast.Constant) and isinstance(node.value, str):

@@ -212,16 +212,14 @@ def _set_optimum_run(root: Path, variant: str, weight: float) -> str:
 def _set_instruments(params: Params, root: Path) -> tuple[dict[str, str], dict[str, str]]:
     """The network-free instruments on an extra set (the ``match_set``, ``sgbm_set`` and
     ``optimum_set`` stages' runs below its metrics tree ``root``): ``{label: run}`` of those with
-    metrics (``SGM (<variant> cost)``, ``SGBM``, ``optimum <variant> w<weight>``) and ``{label: why}``
-    of those without (skipped, or not run). Neither where no instrument has written anything (the
-    set's stages run alone, as the tests do)."""
+    metrics (``SGM (<variant> cost)``, ``SGBM``, ``optimum <variant> w<weight>`` at each weight of
+    ``optimum.set_weights``) and ``{label: why}`` of those without (skipped, or not run). Neither
+    where no instrument has written anything (the set's stages run alone, as the tests do)."""
     if not (suite_dir("full", root) / OPTIMUM).is_dir():
         return {}, {}
-    weight = params.optimum.smoothness_weight
-    runs = {
-        **matcher_runs(params),
-        **{f"{OPTIMUM} {v} w{weight:g}": _set_optimum_run(root, v, weight) for v in params.variants},
-    }
+    runs = dict(matcher_runs(params))
+    for w in params.optimum.set_weights:
+        runs |= {f"{OPTIMUM} {v} w{w:g}": _set_optimum_run(root, v, w) for v in params.variants}
     reasons = {label: skipped_reason(root, run, ["full"]) for label, run in runs.items()}
     found = {label: run for label, run in runs.items() if reasons[label] is None}
     return found, {label: why for label, why in reasons.items() if why is not None}
@@ -239,7 +237,7 @@ def set_verdict_rows(
     params: Params, name: str, pairing: dict[str, str | None] | None = None, settings: str = ""
 ) -> list[Row]:
     """The verdict's rows of extra set ``name``: the trained networks (paired by seed), each
-    variant's SGM cost start and its optimum at ``optimum.smoothness_weight`` (paired by unit). With
+    variant's SGM cost start and its optimum at each of ``optimum.set_weights`` (paired by unit). With
     the frames as the units, on the whole frame and each of the set's exact classes (KITTI 2012's
     reflective, KITTI 2015's cars), named ``<instrument> on <set>``; with the set's boxes as the
     units, on each ROI class, named ``<instrument> on <set> boxes``. Kept without an interval below
@@ -275,9 +273,9 @@ def _set_suite_rows(
     if suite == "full" or _has_boxes(root, runs):
         tables = load_unit_tables(root, runs, [suite])
         rows += network_rows(tables, variants, cfg, cap, pairing=pairing, settings=settings, scope=scope)
-    weight = f"w{params.optimum.smoothness_weight:g}"
+    weights = [f"w{w:g}" for w in params.optimum.set_weights]
     for instrument, label, pattern in (
-        ("optimum", weight, f"{OPTIMUM} {{}} {weight}"),
+        *(("optimum", weight, f"{OPTIMUM} {{}} {weight}") for weight in weights),
         ("SGM", "cost start", "SGM ({} cost)"),
     ):
         found = {
