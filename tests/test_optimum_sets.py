@@ -35,7 +35,10 @@ RAW = {
     "data": {"kitti": {"kitti2012_rois_csv": "boxes.csv"}},
 }
 # The user's boxes on the set (data.kitti.kitti2012_rois_csv): 2 cars and a pane of glass.
-BOXES = "image,class,x0,y0,x1,y1\n000000_10,car,0,24,80,48\n000000_10,glass,80,24,160,48\n000001_10,car,0,0,80,24\n"
+BOXES = (
+    "image,class,x0,y0,x1,y1\n"
+    "000000_10,car,0,24,80,48\n000000_10,glass,80,24,160,48\n000001_10,car,0,0,80,24\n"
+)
 
 
 def tiny_tree(root: Path, height: int = 48, width: int = 160) -> None:

@@ -486,7 +486,8 @@ quoted on this page, and each results folder with a `README.md` says how it was 
   - `optimum_starts.py`, `optimum_refine.py`: global starts and their refinement, on real
     KITTI 2015 frames.
 - Real data:
-  - `real_pairs.py`: every real pair at hand, for every variant's optimum and networks.
+  - `lidar_pair.py`: the KITTI object pair against its Velodyne scan (no evaluation set holds it),
+    for every variant's cost start, optimum and networks.
   - `real_rois.py`: the hand-drawn ROIs on the real KITTI 2015 frames.
   - `kitti_pair.sh`, `score_lidar.py`: the optimum on the real KITTI object pair, scored against
     its Velodyne scan.

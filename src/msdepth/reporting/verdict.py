@@ -24,9 +24,9 @@ classes are the full frame (``"full frame"``) and each ROI class (car, windshiel
   ``n`` seeds (:func:`_parse_monocular_table`). Welch's t interval of the difference of the two
   variants' means over seeds (:func:`welch_interval`): it covers training noise, with the images
   held fixed. Their full-frame abs_rel is median-scaled per image, as the study scores it.
-- ``external``: rows another study wrote, read from a JSON file (:func:`read_external_rows`),
-  e.g. ``studies/results/real/verdict.json`` (real KITTI pairs). Its schema: a JSON list (``[]``
-  for none) of objects with exactly these keys::
+- ``external``: rows another study wrote, read from a JSON file (:func:`read_external_rows`; the
+  pipeline's own verdict reads none: real frames enter as extra sets). Its schema: a JSON list
+  (``[]`` for none) of objects with exactly these keys::
 
       {"instrument": "optimum w10",      # a name; the same name as a pipeline row means the same quantity
        "class": "windshield",           # "full frame" or a ROI class
