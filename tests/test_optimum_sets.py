@@ -163,7 +163,8 @@ def test_a_killed_run_redoes_only_its_unfinished_frames(project: Path, monkeypat
 def test_the_set_stages_list_what_they_read():
     """Each set stage lists its own keys: the optimum's every key that a pair's optimum reads (not
     the sweep's, the cost curves' or the batch size), the matchers none of the optimiser's; the
-    default frames' stages list no key of the extra sets."""
+    default frames' stages list no key of the extra sets; each set stage depends on its own set's
+    index and boxes, not on the folders of every set's."""
     import yaml
 
     from msdepth.config.params import OptimumConfig
@@ -189,6 +190,10 @@ def test_the_set_stages_list_what_they_read():
     assert stages["optimum_set"]["matrix"]["weight"] == "${optimum.set_weights}"
     for name in ("optimum", "match", "sgbm", "cost_curves"):
         assert "eval.extra_sets" not in stages[name]["params"], name
+    own = {"data/index/sets/${item.set}.csv", "data/index/set_rois/${item.set}.csv"}
+    for name in ("eval_set", "baselines_set", "match_set", "sgbm_set", "optimum_set"):
+        deps = set(stages[name]["deps"])  # its own set's files: another set's change reruns nothing here
+        assert own <= deps and not deps & {"data/index/sets", "data/index/set_rois"}, name
 
 
 def test_the_sets_section_of_compare_shows_the_instruments_beside_the_networks(project: Path):
