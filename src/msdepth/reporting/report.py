@@ -364,9 +364,10 @@ conservative check. *Loss's own optimum (wW)*: the disparity map that minimises 
 on the frames, no network, at smoothness weight W ([docs/optimum.md]({docs}optimum.md)). *X
 frames*: an extra evaluation set (`eval.extra_sets`; Eigen's LiDAR frames by default, your real
 KITTI 2012 and 2015 frames once linked in: [docs/user-guide.md]({docs}user-guide.md)); *X boxes*:
-its objects' boxes, each a unit. *Cost start*: SGM on the loss's own cost volume. *Pooled*: one instrument's independent rows combined by
-inverse variance. A class with fewer than {min_units} units has no interval. Real KITTI sample
-frames and the monocular networks are studies, on their own pages
+its objects' boxes, each a unit. *Cost start*: SGM on the loss's own cost volume. *Pooled*: one
+instrument's independent rows combined by inverse variance. A class with fewer than {min_units}
+units has no interval. Real KITTI sample frames and the monocular networks are studies, on their own
+pages
 ([real frames]({studies}real_sets/README.md), [monocular]({studies}monocular/table.md))."""
 
 
