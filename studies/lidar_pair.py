@@ -29,6 +29,7 @@ import os
 import sys
 import time
 from dataclasses import dataclass
+from itertools import chain
 from pathlib import Path
 from typing import Iterator, Sequence
 
@@ -226,7 +227,8 @@ def main(argv: list[str] | None = None) -> int:
     pair = object_pair(args.samples / PAIR)
     size = working_size(args.size, pair.left.shape)
     rows = []
-    found = [*methods(pair, variants, size, weights), *networks(pair, files, params.eval.post_process)]
+    # Scored as each method finishes: its line is the progress, and one disparity is held at a time.
+    found = chain(methods(pair, variants, size, weights), networks(pair, files, params.eval.post_process))
     for method, disparity, seconds in found:
         rows.append({"method": method, "s": seconds, **scores(pair, disparity)})
         print(f"{method}: {seconds:.1f} s", flush=True)

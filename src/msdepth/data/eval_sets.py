@@ -200,12 +200,11 @@ def _build_kitti2015_index(root: Path) -> pd.DataFrame:
     return pd.DataFrame(rows, columns=list(EVAL_COLUMNS))
 
 
-def _build_folder_index(params: Params) -> pd.DataFrame:
-    """The evaluation frames of the stereo folder ``data.folder.root`` (:func:`msdepth.data.folder.eval_rows`:
-    every listed frame's images, GT, camera and class map checked once here)."""
+def folder_eval_index(params: Params) -> pd.DataFrame:
+    """A stereo folder's evaluation index (:func:`msdepth.data.folder.eval_rows`: every listed frame's
+    images, GT, camera and class map checked once here): ``data.source: folder``'s main set, or the
+    extra set ``folder`` (the folder ``data.folder.root``)."""
     rows = folder.eval_rows(folder_layout(params), npy_is_disparity=params.data.folder.npy_is_disparity)
-    if not rows:
-        raise DataError(f"{folder_layout(params).eval_list}: lists no frame")
     return pd.DataFrame(rows, columns=list(EVAL_COLUMNS))
 
 
@@ -216,7 +215,7 @@ SETS: dict[str, Callable[[Params], pd.DataFrame]] = {
     ),
     "kitti2012": lambda p: _build_kitti2012_index(layout(p).kitti2012_root),
     "kitti2015": lambda p: _build_kitti2015_index(layout(p).kitti2015_set_root),
-    "folder": _build_folder_index,
+    "folder": folder_eval_index,
 }
 
 

@@ -189,7 +189,7 @@ def eval_rows(
     paths: FolderLayout, camera: Camera | None = None, *, npy_is_disparity: bool = False
 ) -> list[tuple]:
     """One row of :data:`msdepth.data.eval_index.EVAL_COLUMNS` per evaluation frame (the DataFrame:
-    :func:`msdepth.data.indexing.folder_eval_index`): the images, the GT and its kind (by
+    :func:`msdepth.data.eval_sets.folder_eval_index`): the images, the GT and its kind (by
     suffix; ``none`` without GT), the camera at the image's width, no crop, the class map if
     ``paths.class_maps``. Each GT and class map is read once here, so a bad file fails the index
     stage, not the evaluation."""

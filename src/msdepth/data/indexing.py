@@ -14,8 +14,8 @@ import pandas as pd
 
 from msdepth.config.params import Params
 from msdepth.data import kitti
-from msdepth.data.eval_index import EVAL_COLUMNS, build_eval_index, set_index_path, write_eval_index
-from msdepth.data.eval_sets import build_set_index
+from msdepth.data.eval_index import build_eval_index, set_index_path, write_eval_index
+from msdepth.data.eval_sets import build_set_index, folder_eval_index
 from msdepth.data.layout import folder_layout, layout
 from msdepth.data.pairs import PairIndex, index_pairs
 from msdepth.io import write_json
@@ -68,14 +68,6 @@ def _write_indexes(
     }
     write_json(out / INDEX_REPORT.name, report)
     return report
-
-
-def folder_eval_index(params: Params) -> pd.DataFrame:
-    """A stereo folder's evaluation index (:func:`msdepth.data.folder.eval_rows`)."""
-    from msdepth.data import folder
-
-    rows = folder.eval_rows(folder_layout(params), npy_is_disparity=params.data.folder.npy_is_disparity)
-    return pd.DataFrame(rows, columns=list(EVAL_COLUMNS))
 
 
 def _folder_indexes(params: Params, out_dir: str | os.PathLike) -> dict:

@@ -231,7 +231,7 @@ def _pipeline_rois(params: Params, frames: pd.DataFrame) -> pd.DataFrame:
         k = params.data.kitti
         boxes = _extract_rois(
             frames,
-            user_csv=Path(k.rois_csv) if k.rois_csv else None,
+            user_csv=_optional_path(k.rois_csv),
             min_size=k.roi_min_size,
             min_valid=k.roi_min_valid,
         )
