@@ -484,3 +484,16 @@ def test_objects_study_smoke(study_set: Path, tmp_path: Path) -> None:
     tiles = json.loads((tmp_path / "crop" / "tiles.json").read_text())
     assert set(tiles) == {"whole", "tiles"} and tiles["whole"] != tiles["tiles"]
     assert all(0 < t["abs_rel"] < 10 for t in tiles.values())
+
+
+def test_set_jobs_benchmark_times_threads_against_processes(tmp_path: Path) -> None:
+    """The lean default's five instruments over generated frames, one job of 2 threads against 2
+    jobs of 1 thread, per frame, with their ratio."""
+    (tmp_path / "p.yaml").write_text(
+        "optimum:\n  iterations: 2\n  refine_iterations: 2\n  levels: 1\n  refine_levels: 1\n"
+    )
+    args = ["--frames", str(tmp_path / "none"), "--size", "48x160", "--threads", "2", "--copies", "1"]
+    out = _run("set_jobs.py", *args, "--repeats", "1", "--params", str(tmp_path / "p.yaml"))
+    assert out.startswith("4 frames (generated, x1), 5 instruments")
+    rows = {line.split("|")[1].strip(): line.split("|") for line in out.splitlines() if line.startswith("| ")}
+    assert float(rows["1 job x 2 threads"][3]) == 1.0 and float(rows["2 jobs x 1 thread"][2]) > 0

@@ -13,7 +13,7 @@ from msdepth.__main__ import main
 from msdepth.cli.predict import _default_focal
 from msdepth.config.params import Params, apply_overrides, kernel_variant, params_from_dict
 from msdepth.data.pairs import to_tensor
-from msdepth.errors import ConfigError, DataError
+from msdepth.errors import ConfigError, DataError, MsdepthError
 from msdepth.evaluation.metrics import compute_errors
 from msdepth.io import _read_manifest, write_png
 from msdepth.optimum.frames import add_cost_curves
@@ -476,3 +476,44 @@ def test_cli_refuses_a_cost_volume_over_its_budget_in_one_line_per_pair(tmp_path
     err = capsys.readouterr().err
     assert err.startswith(f"error: {tmp_path / 'l.png'}: the cost volume of a 2400 x 1000 px pair at 721 ")
     assert "choose optimum.start sgbm or constant" in err and err.count("error:") == 1
+
+
+# ----------------------------------------------------------------------------- the device
+
+
+def test_the_refinement_runs_on_train_device_and_a_missing_cuda_is_one_line(tmp_path, capsys) -> None:
+    """``train.device`` cpu gives the default's bytes; ``cuda`` where torch sees none is refused
+    before any pair is matched, by the solver and by ``msdepth optimum --device cuda`` alike."""
+    import torch
+
+    params = small(Params(), iterations=3, levels=1)
+    pair = [plane_pair()]
+    on_cpu = optimum_disparities(pair, _device(params, "cpu"), "ssim", progress=False)[0]
+    assert np.array_equal(on_cpu, optimum_disparities(pair, params, "ssim", progress=False)[0])
+    if torch.cuda.is_available():
+        pytest.skip("torch sees a CUDA device: test_the_cuda_refinement_matches_the_cpu_s covers it")
+    with pytest.raises(MsdepthError, match="device cuda requested but torch sees no CUDA device"):
+        optimum_disparities(pair, _device(params, "cuda"), "ssim", progress=False)
+    write_png(tmp_path / "l.png", pair[0][0])
+    write_png(tmp_path / "r.png", pair[0][1])
+    args = [tmp_path / "l.png", tmp_path / "r.png", "--variant", "ssim", "--out", tmp_path / "out"]
+    assert cli(*args, "--device", "cuda") == 1
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and "no CUDA device" in err
+    assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.skipif(not __import__("torch").cuda.is_available(), reason="needs a CUDA device")
+def test_the_cuda_refinement_matches_the_cpu_s() -> None:
+    """On a GPU, the refinement's disparity agrees with the CPU's to float rounding (cuDNN sums in
+    another order), and both recover the plane."""
+    params = small(Params(), iterations=30, levels=2)
+    pair = [plane_pair()]
+    on_cpu = optimum_disparities(pair, _device(params, "cpu"), "msssim", progress=False)[0]
+    on_gpu = optimum_disparities(pair, _device(params, "cuda"), "msssim", progress=False)[0]
+    assert np.abs(on_gpu - on_cpu).max() < 1e-3
+    assert np.median(on_gpu[4:-4, SHIFT + 4 : -4] * W) == pytest.approx(SHIFT, rel=0.02)
+
+
+def _device(params: Params, device: str) -> Params:
+    return dataclasses.replace(params, train=dataclasses.replace(params.train, device=device))

@@ -7,6 +7,9 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import os
+import shutil
+import time
 from pathlib import Path
 
 import cv2
@@ -171,7 +174,7 @@ def test_the_set_stages_list_what_they_read():
 
     stages = yaml.safe_load((ROOT / "dvc.yaml").read_text())["stages"]
     suites = {"eval.caps", "eval.min_depth", "eval.mask_gt_beyond_cap", "eval.median_scaling"}
-    reads = {"optimum.threads", "optimum.max_width"}
+    reads = {"optimum.threads", "optimum.jobs", "optimum.max_width"}
     assert set(stages["match_set"]["params"]) == {*reads, "loss.alpha", "${item.variant}", *suites}
     assert set(stages["sgbm_set"]["params"]) == {*reads, *suites}
     # set_weights and smoothness_weight: the matrix gives the weight (the stage checks it is listed)
@@ -186,6 +189,7 @@ def test_the_set_stages_list_what_they_read():
     expected = {f"optimum.{f.name}" for f in dataclasses.fields(OptimumConfig) if f.name not in unread}
     listed = set(stages["optimum_set"]["params"])
     assert {p for p in listed if p.startswith("optimum")} == expected
+    assert "train.device" in listed and "train.device" in stages["optimum"]["params"]  # the refinement's
     assert stages["optimum_set"]["cmd"].endswith("${item.weight}")
     assert stages["optimum_set"]["matrix"]["weight"] == "${optimum.set_weights}"
     for name in ("optimum", "match", "sgbm", "cost_curves"):
@@ -263,3 +267,75 @@ def test_the_verdict_reads_the_sets_rows_frame_by_frame(project: Path):
         assert net.unit == unit and net.seeds == 2 and net.kind == "network"
         assert unit in net.method
         assert rows[(f"SGM cost start on {where}", cls)].kind == "optimum"
+
+
+class ProcessId:
+    """A picklable stand-in instrument: the id of the process that ran it, after a pause long
+    enough for every worker to take a frame."""
+
+    def __call__(self, left: np.ndarray, right: np.ndarray) -> np.ndarray:
+        time.sleep(1.0)
+        return np.full((2, 2), os.getpid(), np.float32)
+
+
+def test_jobs_run_the_frames_in_processes_with_the_same_bytes(project: Path):
+    """optimum.jobs 2: the two frames in two spawned workers give the bytes one process gives (a
+    frame's result depends on optimum.threads only), for SGM and the optimum; the scratch key
+    ignores jobs, so a resumed run keeps its frames whatever the count."""
+    from msdepth.optimum import sets
+
+    params = params_from_dict(RAW)
+    index = read_eval_index(set_index_path(INDEX_DIR, SET))
+    for instrument in (
+        sets.SetInstrument(params, "cost", "ssim"),
+        sets.SetInstrument(params, "optimum", "ssim", 10.0),
+    ):
+        one, two = project / "one", project / "two"
+        for folder, jobs in ((one, 1), (two, 2)):
+            folder.mkdir()
+            sets.frame_disparities(index, folder, instrument, instrument.start, jobs=jobs, threads=1)
+        for i in range(len(FRAMES)):
+            name = sets.FRAME_FILE.format(i)
+            assert (one / name).read_bytes() == (two / name).read_bytes(), (instrument.start, name)
+        for folder in (one, two):
+            shutil.rmtree(folder)
+    pids = project / "pids"
+    pids.mkdir()
+    sets.frame_disparities(index, pids, ProcessId(), "pid", jobs=2)
+    seen = {int(np.load(pids / sets.FRAME_FILE.format(i))[0, 0]) for i in range(len(FRAMES))}
+    assert len(seen) == 2 and os.getpid() not in seen  # one worker per frame, not this process
+    jobs = dataclasses.replace(params, optimum=dataclasses.replace(params.optimum, jobs=2))
+    keys = [sets._scratch_key(p, "cost", "ssim", set_index_path(INDEX_DIR, SET)) for p in (params, jobs)]
+    assert keys[0] == keys[1]
+
+
+def test_a_failing_frame_in_a_worker_is_one_line_and_keeps_the_finished_ones(project: Path):
+    """A frame whose image cannot be read fails in its worker: the parent raises the reader's
+    DataError naming the file, and the other frame's disparity stays for the next run."""
+    from msdepth.errors import DataError
+    from msdepth.optimum import sets
+
+    params = params_from_dict(RAW)
+    index = read_eval_index(set_index_path(INDEX_DIR, SET))
+    broken = Path(index.loc[1, "left"])
+    broken.write_bytes(b"not a png")
+    folder = project / "scratch"
+    folder.mkdir()
+    with pytest.raises(DataError, match=str(broken)):
+        sets.frame_disparities(index, folder, sets.SetInstrument(params, "sgbm", "sgbm"), "sgbm", jobs=2)
+    assert [p.name for p in folder.iterdir()] == [sets.FRAME_FILE.format(0)]
+
+
+def test_jobs_times_threads_is_bounded_in_one_line():
+    """optimum.jobs x optimum.threads past 4 per core is refused naming optimum.jobs; either one out
+    of its own range gets its own key's line."""
+    from msdepth.config.params import MAX_THREADS
+
+    raw = {**RAW, "optimum": {**RAW["optimum"], "jobs": MAX_THREADS, "threads": 2}}
+    with pytest.raises(ConfigError, match=rf"^optimum\.jobs: times threads must be <= {MAX_THREADS}, got"):
+        params_from_dict(raw)
+    raw["optimum"]["threads"] = 1
+    assert params_from_dict(raw).optimum.jobs == MAX_THREADS
+    raw["optimum"]["jobs"] = MAX_THREADS + 1
+    with pytest.raises(ConfigError, match=r"^optimum\.jobs: must be in 1\.\."):
+        params_from_dict(raw)

@@ -64,6 +64,11 @@ def optimum_command(add_parser: Callable[..., argparse.ArgumentParser]) -> None:
         "a matched start, refined at the finest level: SGM on the variant's own cost volume (cost) or "
         "OpenCV's SGBM (sgbm), matched at the image's own size (halved within optimum.max_width)",
     )
+    o.add_argument(
+        "--device",
+        choices=("cpu", "cuda", "auto"),
+        help="where the refinement runs (default: train.device); the matchers run on the CPU",
+    )
     o.add_argument("--quiet", action="store_true", help="no progress bar")
     o.set_defaults(run=run)
 
@@ -134,12 +139,17 @@ def run(args: argparse.Namespace) -> int:
     """
     from msdepth.cli.predict import PredictOptions
     from msdepth.data.imagefile import batches_by_pixels, file_pixels
+    from msdepth.networks.device import resolve_device
     from msdepth.optimum.solver import objective
 
-    # --start is optimum.start's override, checked (one line) as the params file's value is.
-    params = _read_params(args.params, [*args.set, *([f"optimum.start={args.start}"] if args.start else [])])
+    # --start and --device are overrides of optimum.start and train.device, checked (one line) as
+    # the params file's values are.
+    flags = [f"optimum.start={args.start}"] if args.start else []
+    flags += [f"train.device={args.device}"] if args.device else []
+    params = _read_params(args.params, [*args.set, *flags])
     size = _requested_size(args, params)
     objective(params, args.variant)  # an unknown variant fails before any image is read
+    resolve_device(params.train.device)  # so does a CUDA device torch does not see
     given = {k: v for k, v in (("focal", args.focal), ("baseline", args.baseline)) if v is not None}
     options = PredictOptions(disp_format="both", depth_format="npy", progress=False, **given)
     left, right, out = Path(args.left), Path(args.right), Path(args.out)

@@ -583,6 +583,17 @@ MIN_MAX_WIDTH = 64  # a cap below it would leave the coarsest level under SSIM's
 OptimumLevels = Annotated[int, Range(1, MAX_OPTIMUM_LEVELS)]
 
 
+def _check_workers(key: str, jobs: int, threads: int) -> None:
+    """An extra set stage's torch threads, all jobs together, within :data:`MAX_THREADS` (``jobs``
+    and ``threads`` out of range on their own get their own line from the range check)."""
+    in_range = max(jobs, threads) <= MAX_THREADS
+    check(
+        not in_range or jobs * threads <= MAX_THREADS,
+        key,
+        f"times threads must be <= {MAX_THREADS}, got {jobs * threads}",
+    )
+
+
 @dataclass(frozen=True)
 class OptimumConfig:
     """The losses' own optimum (:mod:`msdepth.optimum.solver`): per stereo pair, the disparity maps that
@@ -625,6 +636,9 @@ class OptimumConfig:
     sweep_frames: Frames = 4
     cost_frames: Frames = 8
     threads: Threads = 2
+    # An extra set's frames in this many worker processes at once, each with `threads` threads
+    # (a frame's result depends on `threads` only). 2 x 1 thread on 2 cores: benchmarks/README.md.
+    jobs: Threads = 1
 
     def validate(self, key: str, params: Params) -> None:
         """Range checks of the ``key`` section; a ConfigError names the key."""
@@ -655,6 +669,7 @@ class OptimumConfig:
         check(width >= 0, f"{key}.smoothness_width", f"must be 0 (not scaled) or a width in px, got {width}")
         check(self.sweep_frames >= 0, f"{key}.sweep_frames", f"must be >= 0, got {self.sweep_frames}")
         check(self.cost_frames >= 0, f"{key}.cost_frames", f"must be >= 0, got {self.cost_frames}")
+        _check_workers(f"{key}.jobs", self.jobs, self.threads)
         check_per_pixel_costs(f"{key}.start", self.start, {v: params.appearance[v] for v in params.variants})
         sweep = self.smoothness_sweep
         check(

@@ -71,7 +71,8 @@ def _scratch_key(params: Params, instrument: str, variant: str | None, set_index
     key = {
         "instrument": instrument,
         "set_index_sha256": file_sha256(set_index, "index"),
-        "optimum": dataclasses.asdict(params.optimum),
+        # jobs: how many frames run at once, not what a frame's result is
+        "optimum": {k: v for k, v in dataclasses.asdict(params.optimum).items() if k != "jobs"},
         "loss": dataclasses.asdict(params.loss),
     }
     if variant is not None:
@@ -107,25 +108,87 @@ def _remove_scratch(folder: Path, root: Path = SCRATCH) -> None:
             break
 
 
-def frame_disparities(index: pd.DataFrame, folder: Path, disparity: Disparity, label: str) -> None:
-    """``disparity`` of every row ``(left, right)`` of ``index`` not yet in ``folder``, one frame at a
-    time, each saved atomically as :data:`FRAME_FILE`; progress (frame, seconds) logged per frame."""
+@dataclasses.dataclass(frozen=True)
+class SetInstrument:
+    """A network-free instrument as a picklable callable ``(left, right) -> (h, w)`` disparity
+    (fraction of the width), so that worker processes (``optimum.jobs``) can run it.
+
+    ``start``: ``cost`` (SGM on ``matcher``'s cost volume) or ``sgbm`` (``matcher`` ``sgbm``), as
+    :func:`msdepth.optimum.starts.start_disparity` matches them; ``optimum``: ``matcher``'s optimum at
+    smoothness weight ``weight`` (:func:`msdepth.optimum.solver.optimum_disparities`).
+    """
+
+    params: Params
+    start: str
+    matcher: str
+    weight: float | None = None
+
+    def __call__(self, left: np.ndarray, right: np.ndarray) -> np.ndarray:
+        """The left view's disparity of one uint8 RGB pair."""
+        if self.start == "optimum":
+            from msdepth.optimum.solver import optimum_disparities
+
+            pair = [(left, right)]
+            return optimum_disparities(pair, self.params, self.matcher, self.weight, progress=False)[0]
+        from msdepth.optimum.starts import start_disparity
+
+        return start_disparity(left, right, self.params, self.matcher, self.start)[0]
+
+
+def _frame(disparity: Disparity, left: str, right: str, path: Path) -> float:
+    """Read one pair, save its ``disparity`` atomically at ``path``; the seconds it took."""
     from msdepth.data.kitti import read_image
     from msdepth.io import save_npy
 
+    started = time.perf_counter()
+    save_npy(path, np.asarray(disparity(read_image(left), read_image(right)), dtype=np.float32))
+    return time.perf_counter() - started
+
+
+def _worker_threads(threads: int) -> None:
+    """A worker process's start: ``threads`` torch threads, as the stage's own process has."""
+    import torch
+
+    torch.set_num_threads(threads)
+
+
+def frame_disparities(
+    index: pd.DataFrame, folder: Path, disparity: Disparity, label: str, jobs: int = 1, threads: int = 1
+) -> None:
+    """``disparity`` of every row ``(left, right)`` of ``index`` not yet in ``folder``, each saved
+    atomically as :data:`FRAME_FILE`; progress (frame, seconds) logged per frame.
+
+    One frame at a time, or with ``jobs`` > 1 that many frames at once in worker processes (spawned,
+    each with ``threads`` torch threads and one frame in memory; ``disparity`` must pickle, as a
+    :class:`SetInstrument` does). The first failure stops the run: frames not yet started are
+    cancelled, the finished ones kept for the next run.
+    """
     total = len(index)
-    done = sum((folder / FRAME_FILE.format(i)).is_file() for i in range(total))
-    if done:
-        log.info("%s: resuming, %d of %d frames done", label, done, total)
-    for i, row in enumerate(index.itertuples()):
-        path = folder / FRAME_FILE.format(i)
-        if path.is_file():
-            continue
-        started = time.perf_counter()
-        disp = disparity(read_image(row.left), read_image(row.right))
-        save_npy(path, np.asarray(disp, dtype=np.float32))
-        seconds = time.perf_counter() - started
-        log.info("%s: frame %d/%d (%s) in %.1f s", label, i + 1, total, row.frame, seconds)
+    rows = enumerate(index.itertuples())
+    todo = [(i, row) for i, row in rows if not (folder / FRAME_FILE.format(i)).is_file()]
+    if len(todo) < total:
+        log.info("%s: resuming, %d of %d frames done", label, total - len(todo), total)
+    if jobs == 1 or len(todo) < 2:
+        for i, row in todo:
+            seconds = _frame(disparity, row.left, row.right, folder / FRAME_FILE.format(i))
+            log.info("%s: frame %d/%d (%s) in %.1f s", label, i + 1, total, row.frame, seconds)
+        return
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor, as_completed
+
+    context = multiprocessing.get_context("spawn")  # fork would copy torch's thread pools
+    workers = min(jobs, len(todo))
+    pool = ProcessPoolExecutor(workers, mp_context=context, initializer=_worker_threads, initargs=(threads,))
+    try:
+        running = {
+            pool.submit(_frame, disparity, row.left, row.right, folder / FRAME_FILE.format(i)): (i, row)
+            for i, row in todo
+        }
+        for future in as_completed(running):
+            i, row = running[future]
+            log.info("%s: frame %d/%d (%s) in %.1f s", label, i + 1, total, row.frame, future.result())
+    finally:
+        pool.shutdown(wait=True, cancel_futures=True)
 
 
 def _score_scratch(
@@ -154,17 +217,19 @@ def _score_set_instrument(
     disparity: Disparity,
 ) -> None:
     """Run ``disparity`` on every frame of extra set ``name`` (its index ``set_index``) with
-    ``optimum.threads`` torch threads, resuming from its scratch folder (``key``: :func:`_scratch_key`),
-    score it as run ``run`` (on the boxes ``rois`` too) and remove the scratch folder."""
+    ``optimum.threads`` torch threads (in ``optimum.jobs`` processes), resuming from its scratch
+    folder (``key``: :func:`_scratch_key`), score it as run ``run`` (on the boxes ``rois`` too) and
+    remove the scratch folder."""
     import torch
 
     from msdepth.data.eval_index import read_eval_index
 
-    torch.set_num_threads(params.optimum.threads)
+    cfg = params.optimum
+    torch.set_num_threads(cfg.threads)
     index = read_eval_index(set_index)
     folder = _scratch_dir(name, run)
     _open_scratch(folder, key)
-    frame_disparities(index, folder, disparity, f"{run} on {name}")
+    frame_disparities(index, folder, disparity, f"{run} on {name}", cfg.jobs, cfg.threads)
     _score_scratch(params, name, run, index, folder, rois)
     _remove_scratch(folder)
 
@@ -177,7 +242,6 @@ def score_set_match(
     :func:`~msdepth.pipeline.paths.match_run`. A variant without a per-pixel cost (``mix``) writes
     skipped metrics, as on the default frames. With ``rois`` (the set's ROI file), the ROI suite too."""
     from msdepth.evaluation.baselines import write_set_skipped
-    from msdepth.optimum.starts import start_disparity
 
     run = match_run(checked_matcher(params, matcher))
     if matcher != SGBM and not has_per_pixel_cost(params.appearance[matcher]):
@@ -185,13 +249,9 @@ def score_set_match(
         write_set_skipped(name, run, reason, rois is not None)
         return
     start = SGBM if matcher == SGBM else "cost"
-
-    def disparity(left: np.ndarray, right: np.ndarray) -> np.ndarray:
-        return start_disparity(left, right, params, matcher, start)[0]
-
     variant = None if matcher == SGBM else matcher
     key = _scratch_key(params, start, variant, set_index)
-    _score_set_instrument(params, name, run, set_index, rois, key, disparity)
+    _score_set_instrument(params, name, run, set_index, rois, key, SetInstrument(params, start, matcher))
 
 
 def _checked_set_weight(params: Params, weight: str) -> float:
@@ -215,13 +275,8 @@ def score_set_optimum(
     """``variant``'s optimum at ``weight`` (one of ``optimum.set_weights``, as dvc.yaml spells it) on
     every frame of extra set ``name``, one pair at a time, as run
     :func:`~msdepth.pipeline.paths.optimum_run`; with ``rois`` (the set's ROI file), the ROI suite too."""
-    from msdepth.optimum.solver import optimum_disparities
-
     value = _checked_set_weight(params, weight)
     run = optimum_run(params.variant(variant), weight)
-
-    def disparity(left: np.ndarray, right: np.ndarray) -> np.ndarray:
-        return optimum_disparities([(left, right)], params, variant, value, progress=False)[0]
-
     key = _scratch_key(params, "optimum", variant, set_index)
-    _score_set_instrument(params, name, run, set_index, rois, key, disparity)
+    instrument = SetInstrument(params, "optimum", variant, value)
+    _score_set_instrument(params, name, run, set_index, rois, key, instrument)

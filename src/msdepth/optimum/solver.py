@@ -38,6 +38,7 @@ from msdepth.errors import ConfigError, DataError
 from msdepth.losses.monodepth import MonodepthLoss, reconstruct, scale_pyramid
 from msdepth.losses.objective import build_loss
 from msdepth.networks.common import MAX_DISPARITY
+from msdepth.networks.device import resolve_device
 from msdepth.optimum.starts import capped_size, start_disparity
 
 NUM_SCALES = 4  # the network's disparity scales (1, 1/2, 1/4, 1/8), all of which training's loss sees
@@ -220,10 +221,13 @@ def optimum_disparities(
     training's input is; the smoothness weight is :func:`working_weight`'s at its width.
     Consecutive pairs of one size share a batch. ``start``: ``constant``,
     ``cost`` or ``sgbm`` (default ``optimum.start``; :func:`msdepth.optimum.starts.start_disparity`,
-    matched at each pair's own size, capped alike).
+    matched at each pair's own size, capped alike). The matchers run on the CPU; the refinement on
+    ``train.device`` (:func:`msdepth.networks.device.resolve_device`: ``cuda`` without one is a
+    one-line error before any pair is matched).
     """
     cfg = params.optimum
     start = cfg.start if start is None else start
+    device = resolve_device(params.train.device)
     criteria: dict[float, MonodepthLoss] = {}  # by working weight (one per width, if scaled)
     out: list[np.ndarray] = []
     with tqdm(total=len(pairs), desc=f"optimum {variant}", unit="pair", disable=not progress) as bar:
@@ -243,12 +247,13 @@ def optimum_disparities(
             right = torch.stack([to_tensor(resize(b, *solved)) for _, b in chunk])
             weight = working_weight(params, solved[1], smoothness_weight)
             if weight not in criteria:
-                criteria[weight] = objective(params, variant, weight)
+                criteria[weight] = objective(params, variant, weight).to(device)
             init = batch_start(chunk, params, variant, start, solved)
-            disp = optimise(left, right, criteria[weight], cfg, start=init)
+            init = None if init is None else init.to(device)
+            disp = optimise(left.to(device), right.to(device), criteria[weight], cfg, start=init)
             if solved != (h, w):
                 disp = F.interpolate(disp, size=(h, w), mode="bilinear", align_corners=False)
-            out += [d[0].numpy().astype(np.float32) for d in disp]
+            out += [d[0].cpu().numpy().astype(np.float32) for d in disp]
             bar.update(len(chunk))
             first = stop
     return out
