@@ -124,14 +124,16 @@ def test_recipes_benchmark_times_each_recipe_against_the_default() -> None:
 
 
 def test_cpu_bytes_benchmark_hashes_each_settings_weights_in_a_fresh_process() -> None:
-    """Two rounds at one thread count train the same bytes (the hash agrees, "same bytes: yes");
-    MKL_CBWR, off the training path, trains the same bytes as no setting."""
+    """Two rounds at one thread count train the same bytes (the hash agrees, "same bytes: yes"),
+    with and without a setting. Whether MKL_CBWR changes them depends on the CPU (not on an AMD
+    EPYC's training path; on an Intel Xeon's it is), so only each row's own agreement is asserted."""
     out = _run("cpu_bytes.py", "--pairs", "8", "--threads", "1", "--repeats", "2",
                "--settings", "none,MKL_CBWR=COMPATIBLE")  # fmt: skip
     rows = {line.split(" | ")[0][2:]: line for line in out.splitlines() if line.startswith("| ")}
     assert rows["none"].endswith("| yes |") and rows["MKL_CBWR=COMPATIBLE"].endswith("| yes |")
-    digest = rows["none"].split(" | ")[1].split(",")[0]
-    assert len(digest) == 12 and digest in rows["MKL_CBWR=COMPATIBLE"]
+    for name in ("none", "MKL_CBWR=COMPATIBLE"):
+        digest = rows[name].split(" | ")[1].split(",")[0]
+        assert len(digest) == 12 and int(digest, 16) >= 0, name
 
 
 # The studies' tests' tiny size, as --set overrides; 8 evaluation frames give roi_errors.py

@@ -195,8 +195,9 @@ def test_the_optimum_stage_lists_every_optimum_key_it_reads_and_no_training_weig
     stages = yaml.safe_load((Path(__file__).resolve().parents[1] / "dvc.yaml").read_text())["stages"]
     listed = set(stages["optimum"]["params"])
     expected = {f"optimum.{f.name}" for f in dataclasses.fields(OptimumConfig)}
-    expected -= {"optimum.cost_frames", "optimum.set_weights"}
+    expected -= {"optimum.cost_frames", "optimum.set_weights", "optimum.jobs"}  # jobs: the extra sets'
     assert {p for p in listed if p.startswith("optimum")} == expected
+    assert "train.device" in listed  # where its refinement runs
     assert "loss" not in listed and "loss.smoothness_weight" not in listed and "${item.variant}" in listed
     assert "optimum.cost_frames" in stages["cost_curves"]["params"]
 
