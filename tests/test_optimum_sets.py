@@ -339,3 +339,24 @@ def test_jobs_times_threads_is_bounded_in_one_line():
     raw["optimum"]["jobs"] = MAX_THREADS + 1
     with pytest.raises(ConfigError, match=r"^optimum\.jobs: must be in 1\.\."):
         params_from_dict(raw)
+
+
+class Dies:
+    """A picklable stand-in instrument whose worker process dies (as the kernel's OOM killer ends one)."""
+
+    def __call__(self, left: np.ndarray, right: np.ndarray) -> np.ndarray:
+        os._exit(9)
+
+
+def test_a_worker_that_dies_is_one_line(project: Path):
+    """A worker process killed mid-frame ends the run in one line naming the run and the remedy,
+    not a BrokenProcessPool traceback."""
+    from msdepth.errors import MsdepthError
+    from msdepth.optimum import sets
+
+    index = read_eval_index(set_index_path(INDEX_DIR, SET))
+    folder = project / "scratch"
+    folder.mkdir()
+    with pytest.raises(MsdepthError, match=r"^sgbm on kitti2012: a worker process died .*lower optimum"):
+        sets.frame_disparities(index, folder, Dies(), "sgbm on kitti2012", jobs=2)
+    assert not list(folder.iterdir())

@@ -37,7 +37,7 @@ import pandas as pd
 
 from msdepth.config.checks import has_per_pixel_cost
 from msdepth.config.params import Params
-from msdepth.errors import ConfigError, DataError
+from msdepth.errors import ConfigError, DataError, MsdepthError
 from msdepth.io import read_json_file, read_npy_file
 from msdepth.optimum.frames import checked_matcher
 from msdepth.pipeline.paths import (
@@ -175,6 +175,7 @@ def frame_disparities(
         return
     import multiprocessing
     from concurrent.futures import ProcessPoolExecutor, as_completed
+    from concurrent.futures.process import BrokenProcessPool
 
     context = multiprocessing.get_context("spawn")  # fork would copy torch's thread pools
     workers = min(jobs, len(todo))
@@ -187,6 +188,11 @@ def frame_disparities(
         for future in as_completed(running):
             i, row = running[future]
             log.info("%s: frame %d/%d (%s) in %.1f s", label, i + 1, total, row.frame, future.result())
+    except BrokenProcessPool:
+        raise MsdepthError(
+            f"{label}: a worker process died (killed, or out of memory: lower optimum.jobs); "
+            "the frames it finished are kept"
+        ) from None
     finally:
         pool.shutdown(wait=True, cancel_futures=True)
 
