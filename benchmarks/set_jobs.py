@@ -22,6 +22,7 @@ frames. Prints seconds per frame and the ratio.
 from __future__ import annotations
 
 import argparse
+import itertools
 import os
 import tempfile
 from pathlib import Path
@@ -33,11 +34,12 @@ import torch
 from _timing import compare, table
 
 from msdepth.config.params import load_params
+from msdepth.data import kitti2012
 from msdepth.io import write_png
 from msdepth.optimum.sets import SetInstrument, frame_disparities
 
 SAMPLES = Path(__file__).resolve().parents[2] / "shared" / "real-samples"
-LAYOUTS = (("image_2", "image_3"), ("colored_0", "colored_1"))
+LAYOUTS = (("image_2", "image_3"), (kitti2012.LEFT, kitti2012.RIGHT))  # KITTI 2015, 2012
 
 
 def sample_pairs(root: Path) -> list[tuple[Path, Path]]:
@@ -98,7 +100,7 @@ def main() -> None:
             }
         )
         instruments = lean_instruments(params)
-        runs = iter(range(10**6))
+        runs = itertools.count()
 
         def candidate(jobs: int, threads: int):
             def run() -> None:
