@@ -17,6 +17,10 @@ checkpoint), ``curve.png``, ``strip.png`` (disparity at a few checkpoints beside
 ``summary.md`` into ``--out``. Run from the repository root after ``dvc repro cache rois``::
 
     python studies/objects.py --out studies/results/objects/diagnosis --steps 10000 --threads 1
+
+``--table`` writes ``--out/table.md``: a row per run below ``--out``, then the means over seeds of
+each recipe and variant and MS-SSIM − SSIM paired by seed (:func:`seed_tables`; a run's folder is
+named ``<recipe>[_msssim][_seed<k>]``).
 """
 
 from __future__ import annotations
@@ -25,6 +29,7 @@ import argparse
 import dataclasses
 import json
 import math
+import re
 import sys
 import time
 from pathlib import Path
@@ -40,7 +45,8 @@ from msdepth.errors import DataError, OutputError, run_main
 from msdepth.evaluation import baselines
 from msdepth.evaluation.box_errors import box_medians, prior_correlation
 from msdepth.evaluation.suites import depth_maps, evaluate_full, evaluate_roi, image_dependence, load_frames
-from msdepth.io import OutputPolicy, claim_output_file, save_npy, write_text
+from msdepth.io import OutputPolicy, claim_output_file, read_json_file, save_npy, write_text
+from msdepth.reporting.stats import paired_t
 
 INDEX = Path("data/index")
 CLASSES = ("car", "windshield", "glass", "sign")
@@ -151,10 +157,31 @@ def _recorder(params: Params, ev: EvalSet, out: Path, history: list[dict], spe: 
     return on_epoch
 
 
+def read_history(path: Path) -> list[dict]:
+    """A run's history.json through the hardened reader: a list of marks, each with an integer
+    ``step`` and a number for every score of the tables; one DataError line naming the file else."""
+    history = read_json_file(path, "objects history")
+    if not isinstance(history, list) or not all(isinstance(h, dict) for h in history):
+        raise DataError(f"{path}: needs a JSON list of scored marks")
+    for h in history:
+        step = h.get("step")
+        if isinstance(step, bool) or not isinstance(step, int):
+            raise DataError(f"{path}: a mark's step must be an integer, got {step!r}")
+        # seconds_per_step: absent on a mark scored right after a resume
+        bad = [k for k, _ in COLUMNS if k != "seconds_per_step" and not _is_number(h.get(k))]
+        if bad:
+            raise DataError(f"{path}: step {step} has no number for {', '.join(bad)}")
+    return history
+
+
+def _is_number(value: object) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+
+
 def _resumed_history(out: Path) -> list[dict]:
     """The curve so far of a run resumed from its checkpoint."""
     path = out / "history.json"
-    return json.loads(path.read_text()) if path.exists() else []
+    return read_history(path) if path.exists() else []
 
 
 def diagnose(
@@ -384,12 +411,103 @@ def runs_table(root: Path) -> str:
     overrides in its name): the scores at its last mark and at the mark nearest 1,200 steps."""
     rows = []
     for path in sorted(root.rglob("history.json")):
-        history = json.loads(path.read_text(encoding="utf-8"))
+        history = read_history(path)
+        if not history:
+            continue
         name = path.parent.relative_to(root).as_posix()
         near = min(history, key=lambda h: abs(h["step"] - 1200))
         for h in [near] if near is history[-1] else [near, history[-1]]:
             rows.append(([name, str(h["step"])], h))
     return "\n".join(_table_lines(["run", "steps"], rows)) + "\n"
+
+
+# A screen run's folder name: <recipe>[_msssim][_seed<k>] (no suffix: SSIM, seed 0).
+RUN_NAME = re.compile(r"^(?P<recipe>.+?)(?P<msssim>_msssim)?(?:_seed(?P<seed>\d+))?$")
+PAIRED = ("car_mask", "windshield_mask", "glass_mask", "abs_rel", "car_prior_corr")
+
+
+def run_key(name: str) -> tuple[str, str, int]:
+    """``(recipe, variant, seed)`` of a screen run from its folder's name.
+
+    Example:
+        >>> run_key("busy_cosine3e-4_x4_msssim_seed1"), run_key("default_x1")
+        (('busy_cosine3e-4_x4', 'msssim', 1), ('default_x1', 'ssim', 0))
+    """
+    m = RUN_NAME.match(name)
+    return m["recipe"], "msssim" if m["msssim"] else "ssim", int(m["seed"] or 0)
+
+
+def _seed_groups(root: Path) -> dict[tuple[str, str], dict[int, list[dict]]]:
+    """Every run's history below ``root``, grouped by (recipe, variant), keyed by seed."""
+    groups: dict[tuple[str, str], dict[int, list[dict]]] = {}
+    for path in sorted(root.rglob("history.json")):
+        recipe, variant, seed = run_key(path.parent.name)
+        folder = path.parent.parent.relative_to(root).as_posix()
+        key = (recipe if folder == "." else f"{folder}/{recipe}", variant)
+        history = read_history(path)
+        if history:
+            groups.setdefault(key, {})[seed] = history
+    return groups
+
+
+def _common_step(histories: Sequence[list[dict]]) -> int | None:
+    """The last step that every history scored (None: no common one)."""
+    common = set.intersection(*({h["step"] for h in history} for history in histories))
+    return max(common) if common else None
+
+
+def _row_at(history: list[dict], step: int) -> dict:
+    """A history's scores at ``step``."""
+    return next(h for h in history if h["step"] == step)
+
+
+def seed_means_lines(groups: dict[tuple[str, str], dict[int, list[dict]]]) -> list[str]:
+    """A table row per (recipe, variant) of 2 seeds or more: each score's mean over the seeds at
+    the last mark all of them reached."""
+    rows = []
+    for (recipe, variant), runs in sorted(groups.items()):
+        step = _common_step(list(runs.values())) if len(runs) >= 2 else None
+        if step is None:
+            continue
+        ends = [_row_at(h, step) for h in runs.values()]
+        means = {k: float(np.mean([e[k] for e in ends])) for k, _ in COLUMNS if k != "seconds_per_step"}
+        rows.append(([recipe, variant, ",".join(map(str, sorted(runs))), str(step)], means))
+    return _table_lines(["recipe", "variant", "seeds", "steps"], rows)
+
+
+def paired_lines(groups: dict[tuple[str, str], dict[int, list[dict]]], confidence: float = 0.95) -> list[str]:
+    """A table row per recipe that both variants ran with 2 seeds or more in common: MS-SSIM − SSIM
+    paired by seed (one seed's two runs share initial weights and data order) at the last mark all
+    four reached; each cell the mean difference, its paired t interval at ``confidence`` and the
+    count of seeds where MS-SSIM's score is the lower."""
+    head = ["recipe", "seeds", "steps", *(h for k, h in COLUMNS if k in PAIRED)]
+    lines = ["| " + " | ".join(head) + " |", "|---" * len(head) + "|"]
+    for (recipe, variant), ssim in sorted(groups.items()):
+        msssim = groups.get((recipe, "msssim"), {})
+        seeds = sorted(set(ssim) & set(msssim)) if variant == "ssim" else []
+        runs = [ssim[s] for s in seeds] + [msssim[s] for s in seeds]
+        step = _common_step(runs) if len(seeds) >= 2 else None
+        if step is None:
+            continue
+        cells = []
+        for key in (k for k, _ in COLUMNS if k in PAIRED):
+            d = np.array([_row_at(msssim[s], step)[key] - _row_at(ssim[s], step)[key] for s in seeds])
+            mean, low, high = paired_t(d, confidence)
+            cells.append(f"{mean:+.3f} [{low:+.3f}, {high:+.3f}] {int((d < 0).sum())}/{len(d)}")
+        lines.append("| " + " | ".join([recipe, ",".join(map(str, seeds)), str(step), *cells]) + " |")
+    return lines
+
+
+def seed_tables(root: Path) -> str:
+    """table.md's second part: the means over seeds, then MS-SSIM − SSIM paired by seed."""
+    groups = _seed_groups(root)
+    intro = (
+        "Means over seeds (each recipe and variant with 2 seeds or more, at the last mark all reached):",
+        "MS-SSIM − SSIM paired by seed: mean [95 % paired t interval], seeds where MS-SSIM's is lower:",
+    )
+    return (
+        "\n".join([intro[0], "", *seed_means_lines(groups), "", intro[1], "", *paired_lines(groups)]) + "\n"
+    )
 
 
 def claim(out: Path, steps: int, every: int, size: tuple[int, int]) -> None:
@@ -425,7 +543,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.table:
         if not claim_output_file(args.out / "table.md", "objects-table", args.out):
             return 1
-        text = runs_table(args.out)
+        text = runs_table(args.out) + "\n" + seed_tables(args.out)
         write_text(args.out / "table.md", text)
         print(text)
         return 0

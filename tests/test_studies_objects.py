@@ -49,3 +49,65 @@ def test_tiles_of_a_pointwise_network_give_back_its_whole_image_answer(objects, 
     ]
     assert windowed[0, 20, 50] == pytest.approx(np.mean(covering), abs=1e-6)
     assert torch.is_grad_enabled()
+
+
+def _history(path: Path, rows: dict[int, dict]) -> None:
+    """A run's history.json: one scores dict per step (every column the tables read)."""
+    import json
+
+    keys = ("abs_rel", "car_mask", "windshield_mask", "glass_mask", "sign_mask", "car_prior_corr")
+    keys += ("variation_ratio", "seconds_per_step")
+    history = [{"step": step, **{k: scores.get(k, 0.5) for k in keys}} for step, scores in rows.items()]
+    path.mkdir(parents=True)
+    (path / "history.json").write_text(json.dumps(history), encoding="utf-8")
+
+
+def test_run_names_give_recipe_variant_and_seed(objects) -> None:
+    assert objects.run_key("busy_cosine3e-4_x4_msssim_seed1") == ("busy_cosine3e-4_x4", "msssim", 1)
+    assert objects.run_key("cars3to8_near25_x1_seed12") == ("cars3to8_near25_x1", "ssim", 12)
+    assert objects.run_key("busy_lr3e-4_smooth0.05") == ("busy_lr3e-4_smooth0.05", "ssim", 0)
+    assert objects.run_key("crop2_x1_msssim") == ("crop2_x1", "msssim", 0)
+
+
+def test_seed_tables_average_at_the_common_mark_and_pair_by_seed(objects, tmp_path: Path) -> None:
+    """Hand-computed: SSIM seeds 0, 1 score car 0.30 and 0.20 at 2,400 steps, MS-SSIM 0.27 and
+    0.19 (seed 1 stopped at 2,400, so 4,800 is no common mark): mean 0.25 and 0.23, differences
+    -0.03 and -0.01, mean -0.02, t interval -0.02 +- 12.706 * 0.01414 / sqrt(2) = +-0.127; both
+    seeds lower. A recipe with one seed gets no row."""
+    screen = tmp_path / "screen"
+    _history(screen / "r", {1200: {"car_mask": 0.9}, 2400: {"car_mask": 0.30}, 4800: {"car_mask": 0.1}})
+    _history(screen / "r_seed1", {1200: {"car_mask": 0.9}, 2400: {"car_mask": 0.20}})
+    _history(screen / "r_msssim", {2400: {"car_mask": 0.27}, 4800: {"car_mask": 0.1}})
+    _history(screen / "r_msssim_seed1", {2400: {"car_mask": 0.19}})
+    _history(screen / "lonely", {1200: {}})
+    groups = objects._seed_groups(tmp_path)
+    means = objects.seed_means_lines(groups)
+    assert len(means) == 4
+    ms_row, ssim_row = means[2].split(" | "), means[3].split(" | ")
+    assert ms_row[:4] == ["| screen/r", "msssim", "0,1", "2400"] and ms_row[5] == "0.230"
+    assert ssim_row[:4] == ["| screen/r", "ssim", "0,1", "2400"] and ssim_row[5] == "0.250"
+    (row,) = objects.paired_lines(groups)[2:]
+    cells = row.split(" | ")
+    assert cells[:3] == ["| screen/r", "0,1", "2400"]
+    assert cells[4] == "-0.020 [-0.147, +0.107] 2/2"
+    assert cells[3] == "+0.000 [+0.000, +0.000] 0/2"
+
+
+@pytest.mark.parametrize(
+    "text, words",
+    [
+        ("{}", "needs a JSON list"),
+        ('[{"step": "600"}]', "step must be an integer"),
+        ('[{"step": 600, "abs_rel": 0.2}]', "step 600 has no number for car_mask"),
+        ("[", "not JSON"),
+    ],
+)
+def test_a_malformed_history_is_one_line_naming_the_file(objects, tmp_path: Path, text: str, words: str) -> None:
+    from msdepth.errors import DataError
+
+    run = tmp_path / "screen" / "r_seed1"
+    run.mkdir(parents=True)
+    (run / "history.json").write_text(text, encoding="utf-8")
+    with pytest.raises(DataError, match=words) as info:
+        objects.seed_tables(tmp_path)
+    assert str(run / "history.json") in str(info.value) and "\n" not in str(info.value)
