@@ -175,6 +175,7 @@ def read_history(path: Path) -> list[dict]:
 
 
 def _is_number(value: object) -> bool:
+    """A finite int or float (not a bool)."""
     return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
 
 

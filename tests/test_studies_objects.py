@@ -102,7 +102,9 @@ def test_seed_tables_average_at_the_common_mark_and_pair_by_seed(objects, tmp_pa
         ("[", "not JSON"),
     ],
 )
-def test_a_malformed_history_is_one_line_naming_the_file(objects, tmp_path: Path, text: str, words: str) -> None:
+def test_a_malformed_history_is_one_line_naming_the_file(
+    objects, tmp_path: Path, text: str, words: str
+) -> None:
     from msdepth.errors import DataError
 
     run = tmp_path / "screen" / "r_seed1"
