@@ -71,6 +71,11 @@ def _table(frames: list[str], abs_rel: list[float], cap: float = 80) -> pd.DataF
     return pd.DataFrame(rows)
 
 
+def _as_rois(table: pd.DataFrame) -> pd.DataFrame:
+    """A full-image table as a ROI table: each frame one ROI in a frame of its own."""
+    return table.rename(columns={"frame": "roi"}).assign(image=table["frame"].to_numpy())
+
+
 def test_units_are_paired_by_key_not_by_row_order() -> None:
     run = _table(["a", "b", "c"], [1.0, 2.0, 3.0])
     ref = _table(["c", "a", "b"], [2.5, 0.5, 1.5])  # the same frames in another order
@@ -93,7 +98,7 @@ def test_compare_reports_intervals_and_marks_clear_differences() -> None:
             "noise": _table(frames, base + rng.normal(0, 0.01, 30)),
         },
         "roi": {
-            r: t.rename(columns={"frame": "roi"})
+            r: t.pipe(_as_rois)
             for r, t in {
                 "ssim": _table(frames, base),
                 "msssim": _table(frames, base - 0.05),
@@ -127,7 +132,8 @@ def test_compare_reports_intervals_and_marks_clear_differences() -> None:
         comparison_data(suites, ["ssim", "msssim"], ["noise"], ComparisonInputs(stats=stats))
     )
     assert result["statistics"] is stats
-    assert "Difference to ssim (30 paired images)" in md and "Difference to ssim (30 paired ROIs)" in md
+    assert "Difference to ssim (30 paired images)" in md
+    assert "Difference to ssim (30 paired ROIs in 30 frames, drawn by frame)" in md
     # One seed: the interval covers the images only, so even a clear difference is not marked.
     assert "| msssim | -0.0500 [-0.0500, -0.0500] |" in md and " * |" not in md
     assert "so no difference is marked" in md
@@ -142,7 +148,7 @@ def test_differences_are_marked_only_over_at_least_three_seeds() -> None:
         for s in range(3)
     }
     runs["prior"] = _table(frames, base + 0.2)
-    tables = {"full": runs, "roi": {r: t.rename(columns={"frame": "roi"}) for r, t in runs.items()}}
+    tables = {"full": runs, "roi": {r: t.pipe(_as_rois) for r, t in runs.items()}}
     block = {m: 0.3 for m in METRICS}
     grad = {
         "cap80": {
@@ -182,7 +188,7 @@ def test_an_image_blind_run_is_flagged_in_words() -> None:
         "msssim/seed0": _table(frames, prior_errors + 0.001),
         "prior": _table(frames, prior_errors),
     }
-    tables = {"full": runs, "roi": {r: t.rename(columns={"frame": "roi"}) for r, t in runs.items()}}
+    tables = {"full": runs, "roi": {r: t.pipe(_as_rois) for r, t in runs.items()}}
     groups = {"ssim": ["ssim/seed0"], "msssim": ["msssim/seed0"], "prior": ["prior"]}
     ratios = {"ssim/seed0": 0.9, "msssim/seed0": 0.02, "prior": 0.0}
     block = {m: 0.3 for m in METRICS}
@@ -278,7 +284,7 @@ def test_statistics_over_seed_groups_and_their_spread() -> None:
     }
     for run, off in offsets.items():
         tables["full"][run] = _table(frames, base + off)
-        tables["roi"][run] = _table(frames, base + off).rename(columns={"frame": "roi"})
+        tables["roi"][run] = _table(frames, base + off).pipe(_as_rois)
     groups = {
         "ssim": ["ssim/seed0", "ssim/seed1"],
         "msssim": ["msssim/seed0", "msssim/seed1"],
@@ -355,3 +361,68 @@ def test_comparison_of_several_seeds_says_so_and_shows_the_spread() -> None:
         comparison_data(suites, ["ssim", "msssim"], [], ComparisonInputs(seeds=[0], spread=spread))
     )
     assert "Seed-to-seed" not in one and "One training run per variant (seed 0)" in one
+
+
+# --- the cluster bootstrap: ROIs drawn by their frames --------------------------------------------
+
+
+def test_a_cluster_draw_matches_a_straightforward_loop() -> None:
+    """Each draw picks frames with replacement and averages every ROI of the picked frames."""
+    rng = np.random.default_rng(5)
+    frames = np.repeat(np.arange(9), rng.integers(1, 6, 9))  # 9 frames of 1 to 5 ROIs
+    a, b = rng.normal(0.3, 0.1, len(frames)), rng.normal(0.3, 0.1, len(frames))
+    ours = seed_bootstrap(a[None], b[None], samples=2000, confidence=0.9, seed=4, clusters=frames)
+    draw = np.random.default_rng(4)
+    members = [np.flatnonzero(frames == f) for f in range(9)]
+    means = [
+        np.mean((a - b)[np.concatenate([members[f] for f in draw.integers(0, 9, 9)])]) for _ in range(2000)
+    ]
+    assert ours.low == pytest.approx(np.quantile(means, 0.05), abs=1e-12)
+    assert ours.high == pytest.approx(np.quantile(means, 0.95), abs=1e-12)
+    assert (ours.n, ours.clusters) == (len(frames), 9)
+
+
+def test_one_unit_per_cluster_is_the_unit_bootstrap_draw_for_draw() -> None:
+    rng = np.random.default_rng(6)
+    run, ref = rng.normal(0.3, 0.1, (3, 30)), rng.normal(0.31, 0.1, (3, 30))
+    for paired in (False, True):
+        plain = seed_bootstrap(run, ref, samples=1000, paired=paired)
+        single = seed_bootstrap(run, ref, samples=1000, paired=paired, clusters=np.arange(30))
+        assert (single.low, single.high, single.mean) == (plain.low, plain.high, plain.mean)
+        assert (plain.clusters, single.clusters) == (None, 30)
+
+
+def test_copies_of_a_frame_count_once() -> None:
+    """Five identical ROIs per frame carry one frame's evidence: the interval is the frames' own."""
+    frames = np.random.default_rng(7).normal(-0.02, 0.05, 8)
+    alone = paired_bootstrap(frames, np.zeros(8), samples=2000)
+    copies = np.repeat(frames, 5)
+    drawn = seed_bootstrap(copies[None], np.zeros((1, 40)), samples=2000, clusters=np.repeat(np.arange(8), 5))
+    as_units = paired_bootstrap(copies, np.zeros(40), samples=2000)
+    assert (drawn.low, drawn.high) == pytest.approx((alone.low, alone.high), abs=1e-12)
+    assert as_units.high - as_units.low < 0.6 * (drawn.high - drawn.low)  # 40 "units" look surer
+
+
+def test_cluster_labels_must_be_one_per_unit() -> None:
+    with pytest.raises(ValueError, match="one cluster label per unit"):
+        seed_bootstrap(np.zeros((1, 4)), np.zeros((1, 4)), clusters=np.arange(3))
+
+
+def test_the_roi_suite_is_drawn_by_frame() -> None:
+    """paired_statistics draws the ROI suite's frames (the tables' image column), the full suite's
+    images; each difference counts its frames."""
+    rng = np.random.default_rng(9)
+    roi = pd.DataFrame({"roi": range(12), "image": np.repeat(["a", "b", "c", "d"], 3), "cap": 80.0})
+    full = pd.DataFrame({"frame": list("abcd"), "cap": 80.0})
+    tables: dict = {"full": {}, "roi": {}}
+    for run in ("ssim/seed0", "msssim/seed0"):
+        tables["roi"][run] = roi.assign(**{m: rng.uniform(0.1, 0.5, 12) for m in METRICS})
+        tables["full"][run] = full.assign(**{m: rng.uniform(0.1, 0.5, 4) for m in METRICS})
+    groups = {"ssim": ["ssim/seed0"], "msssim": ["msssim/seed0"]}
+    stats = paired_statistics(tables, groups, CompareConfig(bootstrap_samples=200), [80.0], {"msssim": None})
+    roi_d, full_d = stats["roi"]["cap80"]["msssim"]["abs_rel"], stats["full"]["cap80"]["msssim"]["abs_rel"]
+    assert (roi_d["n"], roi_d["clusters"]) == (12, 4)
+    assert (full_d["n"], full_d["clusters"]) == (4, None)
+    a, b = tables["roi"]["msssim/seed0"]["abs_rel"], tables["roi"]["ssim/seed0"]["abs_rel"]
+    by_frame = seed_bootstrap(a.to_numpy()[None], b.to_numpy()[None], 200, clusters=roi["image"].to_numpy())
+    assert (roi_d["low"], roi_d["high"]) == (by_frame.low, by_frame.high)

@@ -434,3 +434,43 @@ def test_the_monocular_studys_settings_come_from_its_json_or_its_table(tmp_path:
     (tmp_path / "table.json").write_text(json.dumps({"modes": {}, "settings": "msssim: kernel_size=5"}))
     assert read_monocular_settings(tmp_path / "table.json", tmp_path / "table.md") == "msssim: kernel_size=5"
     assert read_monocular_settings(tmp_path / "none.json", tmp_path / "none.md") == ""
+
+
+def frames_table(shift: bool, frames: int) -> pd.DataFrame:
+    """Two car ROIs in each of ``frames`` frames; MS-SSIM 0.1 below SSIM on each."""
+    t = pd.DataFrame(
+        {
+            "roi": range(2 * frames),
+            "image": np.repeat([f"{i:06d}_10" for i in range(frames)], 2),
+            "class": "car",
+        }
+    )
+    t["cap"] = 80
+    for m in METRICS:
+        t[m] = 0.3 + 0.01 * np.arange(2 * frames) - 0.1 * shift
+    return t
+
+
+@pytest.mark.parametrize("frames", [5, 4])
+def test_rois_are_counted_and_drawn_by_their_frames(frames: int) -> None:
+    """Two ROIs per frame: the rows count the frames as the independent units (below MIN_UNITS
+    frames no interval, however many ROIs) and say so: ``10 ROIs in 5 frames``."""
+    tables = {"roi": {"o/ssim/w3": frames_table(False, frames), "o/msssim/w3": frames_table(True, frames)}}
+    runs = {"w3": {"ssim": "o/ssim/w3", "msssim": "o/msssim/w3"}}
+    groups = {v: [f"{v}/seed{s}" for s in (0, 1)] for v in ("ssim", "msssim")}
+    net = {"roi": {r: frames_table(v == "msssim", frames) for v in groups for r in groups[v]}}
+    kept = RowScope(keep_few=True)
+    (opt,) = optimum_rows(tables, runs, CFG, 80.0, scope=kept)
+    (row,) = network_rows(net, groups, CFG, 80.0, pairing={"msssim": None}, scope=kept)
+    for r in (opt, row):
+        assert r.n == 2 * frames and r.unit == f"ROIs in {frames} frames" and r.diff == pytest.approx(-0.1)
+        assert r.has_interval == (frames >= MIN_UNITS)
+    assert _units_text(row) == f"{2 * frames} ROIs in {frames} frames × 2 seed pairs"
+    assert _units_text(opt) == f"{2 * frames} ROIs in {frames} frames"
+    if frames >= MIN_UNITS:
+        assert (
+            "frames (each with all its ROIs)" in opt.method
+            and "frames (each with all its ROIs)" in row.method
+        )
+    else:
+        assert optimum_rows(tables, runs, CFG, 80.0) == [] and network_rows(net, groups, CFG, 80.0) == []

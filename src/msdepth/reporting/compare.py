@@ -63,6 +63,22 @@ def load_training_summaries(runs: Sequence[str], root: str | os.PathLike = ".") 
 
 # Per-unit tables of the suites that are compared statistically, and the column pairing units.
 UNIT_KEYS = {"full": ["frame"], "roi": ["roi"]}
+# The column grouping a suite's units into independent clusters: a frame's ROIs share its scene,
+# its rendering and each network's view of it, so the bootstrap draws frames with all their ROIs.
+CLUSTER_KEYS = {"roi": "image"}
+
+
+def unit_clusters(suite: str, anchor: pd.DataFrame) -> np.ndarray | None:
+    """Each unit's cluster label in ``anchor``'s order (:data:`CLUSTER_KEYS`); None where the
+    suite's units are independent themselves (images).
+
+    Example:
+        >>> t = pd.DataFrame({"roi": [0, 1, 2], "image": ["a", "a", "b"]})
+        >>> unit_clusters("roi", t).tolist(), unit_clusters("full", t)
+        (['a', 'a', 'b'], None)
+    """
+    key = CLUSTER_KEYS.get(suite)
+    return None if key is None else anchor[key].astype(str).to_numpy()
 
 
 def load_unit_tables(
@@ -154,7 +170,9 @@ def paired_statistics(
     ``groups`` maps a variant to its runs (one per seed) and a baseline to its one run; the
     reference's runs and each group's runs enter :func:`msdepth.reporting.stats.seed_bootstrap` as rows.
     ``pairing`` (:func:`pairing_status`) says which groups pair seed by seed with the reference
-    (None: paired): their seed pairs are drawn jointly, the others' seeds independently. Without
+    (None: paired): their seed pairs are drawn jointly, the others' seeds independently. A suite
+    with clusters (:func:`unit_clusters`: the ROI suite's frames) draws them instead of its units,
+    and each difference's ``clusters`` counts them. Without
     it nothing is paired. ``stats["pairing"]`` keeps it, so every row says how it was made.
     ``tables`` holds the suites to compare (from :func:`load_unit_tables`).
     """
@@ -172,6 +190,7 @@ def paired_statistics(
         for cap in caps:
             cap_tables = {run: t[t["cap"] == cap] for run, t in tables[suite].items()}
             anchor = cap_tables[groups[cfg.reference][0]]
+            clusters = unit_clusters(suite, anchor)
 
             ref_what = f"{suite} {cfg.reference}, cap {cap:g}"
             reference = {
@@ -189,6 +208,7 @@ def paired_statistics(
                         cfg.confidence,
                         cfg.seed,
                         paired=paired,
+                        clusters=clusters,
                     ).as_dict()
                     for m in METRICS
                 }
@@ -349,9 +369,11 @@ def _ci_lines(
 ) -> list[str]:
     """Every run minus the reference with its interval (:func:`_ci_rows`), as Markdown lines."""
     block = stats[suite][cap]
-    n = next(iter(next(iter(block.values())).values()))["n"] if block else 0
+    first = next(iter(next(iter(block.values())).values())) if block else {"n": 0}
+    k = first.get("clusters")
+    frames = "" if k is None else f" in {k} frame{'' if k == 1 else 's'}, drawn by frame"
     return [
-        f"Difference to {stats['reference']} ({n} paired {unit}):",
+        f"Difference to {stats['reference']} ({first['n']} paired {unit}{frames}):",
         "",
         _table(["run", *METRICS], _ci_rows(block, baselines, label)),
         "",
@@ -788,7 +810,7 @@ def _statistics_lines(c: Comparison) -> list[str]:
         return []
     seeds, several = len(c.seeds), len(c.seeds) > 1
     s = c.statistics
-    resampled = f"resampling images (ROIs){_seed_resampling(s, c.variants, several)}"
+    resampled = f"resampling images (ROIs by their frames){_seed_resampling(s, c.variants, several)}"
     if seeds >= MIN_SEEDS_FOR_MARKS:
         covers = (
             f"{resampled}: the intervals cover the choice of images and training noise. "

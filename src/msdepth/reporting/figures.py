@@ -700,7 +700,12 @@ def _verdict_panel(ax, cls: str, rows: list[Row], instruments: list[str]) -> Non
         else:
             ax.plot(r.diff, y, "x", color=color, markersize=6)
         ax.annotate(
-            f"n={r.n}", (1.0, y), xycoords=("axes fraction", "data"), ha="right", va="bottom", fontsize=6
+            f"n={r.n}" + (f", {r.unit.split(' in ', 1)[1]}" if " in " in r.unit else ""),  # ROIs in K frames
+            (1.0, y),
+            xycoords=("axes fraction", "data"),
+            ha="right",
+            va="bottom",
+            fontsize=6,
         )
     ax.axvline(0.0, color="k", linewidth=0.8)
     counted = [r for r in own if r.kind != "pooled"]
@@ -727,7 +732,7 @@ def _verdict_legend(ax, rows: list[Row], confidence: float) -> None:
         handles.append(
             Line2D([], [], marker="x", color="grey", linestyle="", label="too few units: no interval")
         )
-    title = f"{confidence * 100:g} % intervals; n: units"
+    title = f"{confidence * 100:g} % intervals; n: units (ROIs: and their frames)"
     ax.legend(handles=handles, loc="center left", fontsize=7, frameon=False, title=title, title_fontsize=8)
     ax.axis("off")
 

@@ -356,18 +356,19 @@ def _readme_verdict(r: Results) -> list[str]:
 
 
 TERMS = """Terms. *Difference*: MS-SSIM − SSIM abs_rel at cap {cap} m (negative: MS-SSIM's error is
-lower), with its {level} interval; `*`: the interval excludes 0. *n*: the independent units it is over
-(images, ROI boxes, real frames or objects) and, for networks, the seed pairs. *Networks*: the
+lower), with its {level} interval; `*`: the interval excludes 0. *n*: the units it is over (images,
+ROI boxes, real frames or objects) and, for networks, the seed pairs; boxes are resampled with the
+frame they lie in, so their frames are the independent units (`ROIs in K frames`). *Networks*: the
 pipeline's stereo networks; both losses train with the same seeds (same initial weights and batches),
 so seed s of each is a pair, resampled jointly with the units; the paired t over the seeds is the
 conservative check. *Loss's own optimum (wW)*: the disparity map that minimises each loss directly
 on the frames, no network, at smoothness weight W ([docs/optimum.md]({docs}optimum.md)). *X
 frames*: an extra evaluation set (`eval.extra_sets`; Eigen's LiDAR frames by default, your real
 KITTI 2012 and 2015 frames once linked in: [docs/user-guide.md]({docs}user-guide.md)); *X boxes*:
-its objects' boxes, each a unit. *Cost start*: SGM on the loss's own cost volume. *Pooled*: one
+its objects' boxes. *Cost start*: SGM on the loss's own cost volume. *Pooled*: one
 instrument's independent rows combined by inverse variance. A class with fewer than {min_units}
-units has no interval. Real KITTI sample frames and the monocular networks are studies, on their own
-pages
+independent units has no interval. Real KITTI sample frames and the monocular networks are
+studies, on their own pages
 ([real frames]({studies}real_sets/README.md), [monocular]({studies}monocular/table.md))."""
 
 
@@ -557,7 +558,7 @@ def _marks_text(r: Results) -> str:
     others = _compared(r)
     text = (
         "A difference is a verdict only where `metrics/compare.md` marks it (`*`): its interval, "
-        "resampling images (ROIs) and each variant's seeds, excludes 0, over at least "
+        "resampling images (ROIs by their frames) and each variant's seeds, excludes 0, over at least "
         f"{MIN_SEEDS_FOR_MARKS} seeds per variant, so that it covers the choice of images and training noise."
     )
     marked = [v for v in others for s in ("full", "roi") if (d := r.difference(s, v)) and r.marked(d, v)]

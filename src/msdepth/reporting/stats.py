@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import asdict, dataclass
+from typing import Callable
 
 import numpy as np
 import pandas as pd
@@ -46,6 +47,7 @@ class PairedDifference:
     per_seed: tuple[float, ...] = ()  # paired: each seed pair's mean difference over the units
     t_low: float | None = None  # paired, >= 2 seeds: the paired t interval over per_seed
     t_high: float | None = None
+    clusters: int | None = None  # the independent units drawn (e.g. frames of ROIs); None: the n units
 
     def as_dict(self) -> dict:
         d = asdict(self)
@@ -100,6 +102,68 @@ def _checked_runs(
     return values, reference
 
 
+def _chunked(samples: int, cells: int, chunk_means: Callable[[int], np.ndarray]) -> np.ndarray:
+    """``samples`` bootstrap means, drawn ``chunk_means(count)`` at a time: samples x units indices
+    at once would be 10,000 x 29,000 for a KITTI-sized ROI set (``cells``: units x seeds per draw)."""
+    means = np.empty(samples)
+    chunk = max(1, 2_000_000 // cells)
+    for start in range(0, samples, chunk):
+        stop = min(samples, start + chunk)
+        means[start:stop] = chunk_means(stop - start)
+    return means
+
+
+def _interval(means: np.ndarray, confidence: float) -> tuple[float, float]:
+    """The percentile interval of bootstrap ``means`` at ``confidence``."""
+    alpha = (1 - confidence) / 2
+    low, high = np.quantile(means, [alpha, 1 - alpha])
+    return float(low), float(high)
+
+
+class _UnitDraw:
+    """One bootstrap draw of the units: the units themselves, or whole clusters of them.
+
+    With ``clusters`` (one label per unit, e.g. the frame a ROI lies in) a draw resamples the
+    clusters with replacement and averages every unit of the drawn ones, so units that share a
+    frame are never counted as independent (the cluster bootstrap). With one unit per cluster it
+    is the plain unit draw, draw for draw (the same random stream)."""
+
+    def __init__(self, n: int, clusters: np.ndarray | None):
+        self.n = n
+        if clusters is None:
+            self.order, self.starts, self.counts = None, None, None
+            self.k = n
+            return
+        labels = np.asarray(clusters)
+        if labels.shape != (n,):
+            raise ValueError(
+                f"seed_bootstrap: need one cluster label per unit ({n}), got shape {labels.shape}"
+            )
+        _, codes = np.unique(labels, return_inverse=True)
+        self.order = np.argsort(codes, kind="stable")
+        self.counts = np.bincount(codes).astype(np.float64)
+        self.starts = np.concatenate([[0], np.cumsum(self.counts[:-1])]).astype(np.intp)
+        self.k = len(self.counts)
+
+    @property
+    def clusters(self) -> int | None:
+        """The clusters drawn; None where the units are."""
+        return None if self.order is None else self.k
+
+    def pick(self, rng: np.random.Generator, draws: int) -> np.ndarray:
+        """``draws`` resamples of the units (or clusters) with replacement, (draws, k) indices."""
+        return rng.integers(0, self.k, (draws, self.k))
+
+    def means(self, diff: np.ndarray, pick: np.ndarray) -> np.ndarray:
+        """Each draw's mean of ``diff`` over the picked units: ``diff`` is (units,), shared by every
+        draw, or (draws, units)."""
+        draws = len(pick)
+        if self.order is None:
+            return np.take_along_axis(np.broadcast_to(diff, (draws, self.n)), pick, axis=1).mean(axis=1)
+        sums = np.broadcast_to(np.add.reduceat(diff[..., self.order], self.starts, axis=-1), (draws, self.k))
+        return np.take_along_axis(sums, pick, axis=1).sum(axis=1) / self.counts[pick].sum(axis=1)
+
+
 def seed_bootstrap(
     values: np.ndarray,
     reference: np.ndarray,
@@ -107,6 +171,7 @@ def seed_bootstrap(
     confidence: float = 0.95,
     seed: int = 0,
     paired: bool = False,
+    clusters: np.ndarray | None = None,
 ) -> PairedDifference:
     """Percentile interval of the difference of means, resampling units and seeds.
 
@@ -122,6 +187,8 @@ def seed_bootstrap(
         confidence: the interval's level.
         seed: the draws' random seed.
         paired: draw seed pairs jointly.
+        clusters: one label per unit (e.g. the frame of each ROI): draw whole clusters, the
+            independent units, instead of single units (:class:`_UnitDraw`). None: units are independent.
 
     Returns:
         The mean difference over units (and seeds) with its percentile interval.
@@ -132,9 +199,10 @@ def seed_bootstrap(
         (0.5, 0.5, 0.5, 3)
     """
     if paired:
-        return paired_seed_bootstrap(values, reference, samples, confidence, seed)
+        return paired_seed_bootstrap(values, reference, samples, confidence, seed, clusters)
     values, reference = _checked_runs(values, reference, confidence)
     (sv, n), sr = values.shape, reference.shape[0]
+    draw = _UnitDraw(n, clusters)
     rng = np.random.default_rng(seed)
 
     def runs_mean(rows: np.ndarray, count: int) -> np.ndarray:
@@ -143,25 +211,23 @@ def seed_bootstrap(
             rows[0] if len(rows) == 1 else rows[rng.integers(0, len(rows), (count, len(rows)))].mean(axis=1)
         )
 
-    means = np.empty(samples)
-    # In chunks: samples x n indices at once would be 10,000 x 29,000 for a KITTI-sized ROI set.
-    chunk = max(1, 2_000_000 // (n * max(sv, sr)))
-    for start in range(0, samples, chunk):
-        stop = min(samples, start + chunk)
-        units = rng.integers(0, n, (stop - start, n))
-        diff = runs_mean(values, stop - start) - runs_mean(
-            reference, stop - start
-        )  # (units,) or (draws, units)
-        picked = diff[units] if diff.ndim == 1 else np.take_along_axis(diff, units, axis=1)
-        means[start:stop] = picked.mean(axis=1)
-    alpha = (1 - confidence) / 2
-    low, high = np.quantile(means, [alpha, 1 - alpha])
+    def chunk_means(count: int) -> np.ndarray:
+        pick = draw.pick(rng, count)  # before the seeds: the stream of the one-level bootstrap
+        return draw.means(runs_mean(values, count) - runs_mean(reference, count), pick)
+
+    low, high = _interval(_chunked(samples, n * max(sv, sr), chunk_means), confidence)
     mean = float((values.mean(axis=0) - reference.mean(axis=0)).mean())
-    return PairedDifference(mean, float(low), float(high), n, sv, sr, bool(low > 0 or high < 0))
+    excludes = bool(low > 0 or high < 0)
+    return PairedDifference(mean, low, high, n, sv, sr, excludes, clusters=draw.clusters)
 
 
 def paired_seed_bootstrap(
-    values: np.ndarray, reference: np.ndarray, samples: int = 10_000, confidence: float = 0.95, seed: int = 0
+    values: np.ndarray,
+    reference: np.ndarray,
+    samples: int = 10_000,
+    confidence: float = 0.95,
+    seed: int = 0,
+    clusters: np.ndarray | None = None,
 ) -> PairedDifference:
     """The bootstrap of a paired design: ``values`` and ``reference`` are (seed pairs, units), row
     ``i`` of both trained with the same seed. Each draw resamples the seed pairs and the units
@@ -175,6 +241,7 @@ def paired_seed_bootstrap(
         samples: bootstrap draws.
         confidence: the interval's level.
         seed: the draws' random seed.
+        clusters: one label per unit: draw whole clusters of units (see :func:`seed_bootstrap`).
 
     Returns:
         The mean difference, its percentile interval, the per-seed differences and the paired t.
@@ -199,32 +266,28 @@ def paired_seed_bootstrap(
         raise ValueError(f"paired_seed_bootstrap: confidence must be in (0, 1), got {confidence}")
     diff = values - reference
     pairs, n = diff.shape
+    draw = _UnitDraw(n, clusters)
     rng = np.random.default_rng(seed)
-    means = np.empty(samples)
-    chunk = max(1, 2_000_000 // (n * pairs))
-    for start in range(0, samples, chunk):
-        stop = min(samples, start + chunk)
+
+    def chunk_means(count: int) -> np.ndarray:
         # One pair: no seed draw, so that the stream matches the one-level bootstrap's.
-        rows = diff[None] if pairs == 1 else diff[rng.integers(0, pairs, (stop - start, pairs))]
-        by_unit = rows.mean(axis=1)  # (draws, units) or (1, units)
-        units = rng.integers(0, n, (stop - start, n))
-        means[start:stop] = np.take_along_axis(np.broadcast_to(by_unit, (stop - start, n)), units, 1).mean(1)
-    alpha = (1 - confidence) / 2
-    low, high = (float(x) for x in np.quantile(means, [alpha, 1 - alpha]))
+        rows = diff[None] if pairs == 1 else diff[rng.integers(0, pairs, (count, pairs))]
+        return draw.means(rows.mean(axis=1), draw.pick(rng, count))  # (draws, units) or (1, units)
+
+    low, high = _interval(_chunked(samples, n * pairs, chunk_means), confidence)
     per_seed = tuple(float(x) for x in diff.mean(axis=1))
-    t_low = t_high = None
-    if pairs >= 2:
-        _, t_low, t_high = paired_t(np.array(per_seed), confidence)
-    mean = float(diff.mean())
+    _, t_low, t_high = paired_t(np.array(per_seed), confidence) if pairs >= 2 else (None, None, None)
+    excludes = bool(low > 0 or high < 0)
     return PairedDifference(
-        mean, low, high, n, pairs, pairs, bool(low > 0 or high < 0), True, per_seed, t_low, t_high
+        float(diff.mean()), low, high, n, pairs, pairs, excludes, True, per_seed, t_low, t_high, draw.clusters
     )
 
 
 def paired_bootstrap(
     values: np.ndarray, reference: np.ndarray, samples: int = 10_000, confidence: float = 0.95, seed: int = 0
 ) -> PairedDifference:
-    """Percentile-bootstrap interval of ``mean(values - reference)``, resampling the pairs (one run each)."""
+    """Percentile-bootstrap interval of ``mean(values - reference)``, resampling the pairs (one run
+    each); :func:`seed_bootstrap` of one row each, which also draws clusters of pairs."""
     values, reference = np.asarray(values, np.float64), np.asarray(reference, np.float64)
     if values.shape != reference.shape or values.ndim != 1 or values.size == 0:
         raise ValueError(

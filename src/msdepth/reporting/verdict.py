@@ -11,8 +11,8 @@ classes are the full frame (``"full frame"``) and each ROI class (car, windshiel
   :func:`msdepth.reporting.stats.seed_bootstrap`) over images, or over the class's ROIs (the ROI
   table filtered to the class), and each variant's seeds.
 - ``optimum``: the losses' own optimum at each smoothness weight (one run per variant and weight,
-  no training noise): :func:`msdepth.reporting.stats.paired_bootstrap` over the images or ROIs
-  that weight was scored on.
+  no training noise): :func:`msdepth.reporting.stats.seed_bootstrap` of one run each, over the
+  images that weight was scored on, or over the frames of its ROIs (each with all its ROIs).
 - the same two on each extra evaluation set (``eval.extra_sets``), named ``<instrument> on <set>``
   (:func:`msdepth.reporting.pipeline_compare.set_verdict_rows`): the frames are the units, on the
   whole frame and on each exact class the set's frames carry (KITTI 2012's ``reflective``, KITTI
@@ -64,9 +64,9 @@ from msdepth.config.params import CompareConfig
 from msdepth.errors import DataError
 from msdepth.evaluation.classes import class_unit_tables
 from msdepth.io import read_json_file, read_text_file
-from msdepth.reporting.compare import UNIT_KEYS, paired_statistics
+from msdepth.reporting.compare import UNIT_KEYS, paired_statistics, unit_clusters
 from msdepth.reporting.power import t_quantile
-from msdepth.reporting.stats import paired_bootstrap, paired_t, paired_table
+from msdepth.reporting.stats import paired_t, paired_table, seed_bootstrap
 
 METRIC = "abs_rel"
 VERDICT_FIGURE = "verdict.png"  # below plots/figures: the figures stage draws it (figures.verdict_figure)
@@ -264,10 +264,13 @@ def network_rows(
         block = paired_statistics({suite: chosen}, dict(groups), cfg, [cap], pairing)
         for variant in others:
             d = block[suite][f"cap{cap:g}"][variant][METRIC]
-            few = d["n"] < MIN_UNITS
+            few = _independent(d["n"], d.get("clusters")) < MIN_UNITS
             if few and not scope.keep_few:
                 continue
-            method = _network_method(d, scope.units(suite), block["pairing"][variant])
+            unit = _unit_words(scope.units(suite), d.get("clusters"))
+            method = _network_method(
+                d, _drawn(scope.units(suite), d.get("clusters")), block["pairing"][variant]
+            )
             name = instrument if len(others) == 1 else f"{instrument}, {variant}"
             seeds = d["seeds"] if d["paired"] else min(d["seeds"], d["reference_seeds"])
             low, high = (None, None) if few else (d["low"], d["high"])
@@ -275,14 +278,29 @@ def network_rows(
                 Row(
                     name, cls, d["mean"], low, high, d["n"], method + _few_words(few), "network",
                     None if few else d.get("t_low"), None if few else d.get("t_high"), seeds, settings,
-                    per_seed=tuple(d.get("per_seed", ())), unit=scope.unit,
+                    per_seed=tuple(d.get("per_seed", ())), unit=unit if d.get("clusters") else scope.unit,
                 )
             )  # fmt: skip
     return rows
 
 
+def _independent(n: int, clusters: int | None) -> int:
+    """The independent units of a difference: its clusters (frames) where its units were drawn by them."""
+    return n if clusters is None else clusters
+
+
+def _unit_words(unit: str, clusters: int | None) -> str:
+    """What a row's n counts: ``ROIs``, or ``ROIs in 35 frames`` where the frames were drawn."""
+    return unit if clusters is None else f"{unit} in {clusters} frame{'' if clusters == 1 else 's'}"
+
+
+def _drawn(unit: str, clusters: int | None) -> str:
+    """What the bootstrap resampled: the units, or the frames with all their units."""
+    return unit if clusters is None else f"frames (each with all its {unit})"
+
+
 def _few_words(few: bool) -> str:
-    return f"; fewer than {MIN_UNITS} units: no interval" if few else ""
+    return f"; fewer than {MIN_UNITS} independent units: no interval" if few else ""
 
 
 def _network_method(d: Mapping, unit: str, unpaired: str | None) -> str:
@@ -306,9 +324,10 @@ def optimum_rows(
     instrument: str = "optimum",
 ) -> list[Row]:
     """Per weight (``runs``: weight label, e.g. ``w10``, -> {variant: its optimum run}) and class,
-    each variant minus ``cfg.reference``: :func:`~msdepth.reporting.stats.paired_bootstrap` over
-    the units both runs were scored on. ``instrument``: the rows' name before the weight label
-    (``SGM`` with the label ``cost start``: the SGM matchers on each variant's cost volume)."""
+    each variant minus ``cfg.reference``: :func:`~msdepth.reporting.stats.seed_bootstrap` of one
+    run each over the units both runs were scored on (ROIs: drawn by frame). ``instrument``: the
+    rows' name before the weight label (``SGM`` with the label ``cost start``: the SGM matchers on
+    each variant's cost volume)."""
     rows = []
     for weight, by_variant in runs.items():
         ref = by_variant[cfg.reference]
@@ -319,20 +338,35 @@ def optimum_rows(
                 what = f"{suite} {instrument} {variant} vs {cfg.reference} {weight}, {cls}"
                 a, b = (chosen[by_variant[variant]], chosen[ref])
                 values, reference = paired_table(a[a["cap"] == cap], b[b["cap"] == cap], keys, METRIC, what)
-                few = len(values) < MIN_UNITS
+                clusters = unit_clusters(suite, a[a["cap"] == cap])  # in values' order: a's rows
+                k = None if clusters is None else len(set(clusters))
+                few = _independent(len(values), k) < MIN_UNITS
                 if (few and not scope.keep_few) or not len(values):
                     continue
                 name = f"{instrument} {weight}" if len(others) == 1 else f"{instrument} {weight}, {variant}"
-                method = f"paired bootstrap over {scope.units(suite)} (one deterministic run per variant)"
+                drawn = _drawn(scope.units(suite), k)
+                method = f"paired bootstrap over {drawn} (one deterministic run per variant)"
                 if few:
-                    diff, low, high, n = float(np.mean(values - reference)), None, None, len(values)
+                    diff, low, high = float(np.mean(values - reference)), None, None
                 else:
-                    d = paired_bootstrap(values, reference, cfg.bootstrap_samples, cfg.confidence, cfg.seed)
-                    diff, low, high, n = d.mean, d.low, d.high, d.n
+                    d = seed_bootstrap(
+                        values[None], reference[None], cfg.bootstrap_samples, cfg.confidence, cfg.seed,
+                        clusters=clusters,
+                    )  # fmt: skip
+                    diff, low, high = d.mean, d.low, d.high
                 row = Row(
-                    name, cls, diff, low, high, n, method + _few_words(few), "optimum", settings=settings
+                    name,
+                    cls,
+                    diff,
+                    low,
+                    high,
+                    len(values),
+                    method + _few_words(few),
+                    "optimum",
+                    settings=settings,
                 )
-                rows.append(dataclasses.replace(row, unit=scope.unit))
+                unit = _unit_words(scope.units(suite), k) if k is not None else scope.unit
+                rows.append(dataclasses.replace(row, unit=unit))
     return rows
 
 
@@ -860,8 +894,9 @@ def verdict_lines(data: dict | None) -> list[str]:
         "",
         "Networks trained with the same seed are pairs (same initial weights and batches): their rows "
         "resample seed pairs with the units and give the paired t over seeds beside the bootstrap. "
-        "n: the independent units (images, ROIs, frames, objects or seed pairs); with fewer "
-        f"than {MIN_UNITS} a row has no interval. Pooled only where rows measure one quantity "
+        "n: the units (images, ROIs, frames, objects or seed pairs); ROIs are resampled with their "
+        f"frame, so the frames are their independent units; with fewer than {MIN_UNITS} independent "
+        "units a row has no interval. Pooled only where rows measure one quantity "
         "independently under one setting (src/msdepth/reporting/verdict.py). "
         "The figure: `plots/figures/verdict.png`.",
         "",
