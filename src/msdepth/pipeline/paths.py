@@ -50,6 +50,10 @@ METRICS = Path("metrics")  # <suite>/<run>.json|csv: see suite_path
 HEADLINE = METRICS / "headline"  # the DVC metrics: <suite>/<run>.json, see headline_path
 TRAIN_SUMMARIES = METRICS / "train"  # <run>.json: the train stage's summaries (pose ATE of mono runs)
 COST_CURVES = METRICS / "cost_curves"  # <variant>.json: the cost_curves stage's, drawn by figures
+PHOTOMETRY = METRICS / "photometry"  # the photometry stage's summary.json, table.md, frames.csv
+PHOTOMETRY_SUMMARY = PHOTOMETRY / "summary.json"
+PHOTOMETRY_TABLE = PHOTOMETRY / "table.md"
+PHOTOMETRY_FRAMES = PHOTOMETRY / "frames.csv"
 COMPARE_JSON = METRICS / "compare.json"
 COMPARE_MD = METRICS / "compare.md"
 # <variant>.json: per variant its mean over seeds, the compare stage's DVC metrics (see mean_path)
