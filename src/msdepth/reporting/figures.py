@@ -75,7 +75,14 @@ from msdepth.pipeline.paths import (
     train_plots_dir,
     variant_runs,
 )
-from msdepth.reporting.verdict import VERDICT_FIGURE, Row
+from msdepth.reporting.verdict import (
+    KINDS,
+    VERDICT_FIGURE,
+    Row,
+    instrument_columns,
+    rows_of,
+    verdict_table,
+)
 
 log = logging.getLogger("msdepth")
 
@@ -673,28 +680,16 @@ def cost_curve_figure(summaries: Mapping[str, dict], path: Path) -> Path:
     return _save(fig, path)
 
 
-# The verdict's instruments by kind: colour and what the legend says of their intervals.
-VERDICT_KINDS = {
-    "network": ("tab:blue", "trained stereo networks: seed pairs × units"),
-    "seeds": ("tab:purple", "mono / MS networks: over seeds"),
-    "optimum": ("tab:orange", "the loss's own optimum: over units"),
-    "external": ("tab:green", "real pairs (studies/results/real)"),
-    "pooled": ("black", "pooled (inverse-variance, independent rows)"),
-}
-FAMILY_ORDER = ("network", "seeds", "optimum", "external", "pooled")  # the summary table's order
-
-
-def _verdict_panel(ax, cls: str, rows: list[Row], instruments: list[str]) -> None:
+def _verdict_panel(ax, cls: str, cells: Sequence[Row | None]) -> None:
     """One class: a dot and a horizontal bar per instrument (filled where the interval excludes
     0; a cross without a bar where the row has too few units for an interval), a line at 0, each
     row's n at the right edge."""
-    own = [r for r in rows if r.cls == cls]
-    for r in own:
-        y = instruments.index(r.label)
-        color = VERDICT_KINDS.get(r.kind, ("grey", ""))[0]
+    own = [(y, r) for y, r in enumerate(cells) if r is not None]
+    for y, r in own:
+        color = KINDS.get(r.kind, ("", "grey"))[1]
         if r.has_interval:
             ax.errorbar(
-                r.diff, y, xerr=[[r.diff - r.low], [r.high - r.diff]], fmt="D" if r.kind == "pooled" else "o",
+                r.diff, y, xerr=[[r.diff - r.low], [r.high - r.diff]], fmt="o",
                 color=color, mfc=color if r.excludes_zero else "white", capsize=3, markersize=5,
             )  # fmt: skip
         else:
@@ -708,10 +703,9 @@ def _verdict_panel(ax, cls: str, rows: list[Row], instruments: list[str]) -> Non
             fontsize=6,
         )
     ax.axvline(0.0, color="k", linewidth=0.8)
-    counted = [r for r in own if r.kind != "pooled"]
-    ax.set_title(f"{cls}\nlower in {sum(r.diff < 0 for r in counted)} of {len(counted)}", fontsize=9)
+    ax.set_title(f"{cls}\nlower in {sum(r.diff < 0 for _, r in own)} of {len(own)}", fontsize=9)
     ax.grid(axis="x", alpha=0.3)
-    ends = [abs(v) for r in own for v in ((r.low, r.high) if r.has_interval else (r.diff,))]
+    ends = [abs(v) for _, r in own for v in ((r.low, r.high) if r.has_interval else (r.diff,))]
     reach = max([*ends, 1e-3]) * 1.2
     ax.set_xlim(-reach, reach)  # 0 in the middle: left of it the variant is better, right the reference
 
@@ -722,7 +716,7 @@ def _verdict_legend(ax, rows: list[Row], confidence: float) -> None:
 
     handles = [
         Line2D([], [], marker="o", color=color, linestyle="", label=text)
-        for kind, (color, text) in VERDICT_KINDS.items()
+        for kind, (text, color) in KINDS.items()
         if any(r.kind == kind for r in rows)
     ]
     handles.append(
@@ -738,38 +732,34 @@ def _verdict_legend(ax, rows: list[Row], confidence: float) -> None:
 
 
 def verdict_figure(verdict: Mapping | None, path: Path) -> Path:
-    """``verdict.png``: the summary table's structure, one panel per surface class of
-    compare.json's ``verdict`` (:func:`msdepth.reporting.verdict.verdict_data`) side by side, one
-    row per instrument grouped by family (networks, the optimum, real pairs, pooled), its
-    difference and interval; negative: the variant (MS-SSIM) has the lower error. Rows made under
-    other settings (shown apart in compare.md) are left out. The legend sits right of the panels."""
-    rows = [Row.from_dict(d) for d in (verdict or {}).get("rows", [])]
-    rows = [r for r in rows if not r.apart]
+    """``verdict.png``: the verdict table (:func:`msdepth.reporting.verdict.verdict_table`) with
+    one column per instrument (:func:`~msdepth.reporting.verdict.instrument_columns`), drawn as one
+    panel per surface class of compare.json's ``verdict`` side by side, one row per instrument
+    grouped by kind, its difference and interval; negative: the variant (MS-SSIM) has the lower
+    error. The legend sits right of the panels."""
+    rows = rows_of(verdict) if verdict else []
     if not rows:
         fig = _new_figure(4.0, 1.5)
         ax = fig.add_subplot(1, 1, 1)
         ax.text(0.5, 0.5, "no instrument compares two variants", ha="center", va="center")
         _off(ax)
         return _save(fig, path)
-    rank = {k: i for i, k in enumerate(FAMILY_ORDER)}
-    ordered = sorted(rows, key=lambda r: rank.get(r.kind, len(rank)))
-    instruments = list(dict.fromkeys(r.label for r in ordered))
-    classes = [c for c in verdict["classes"] if any(r.cls == c for r in rows)]
-    fig = _new_figure(2.3 * len(classes) + 2.6, 0.3 * len(instruments) + 1.7)
-    widths = {"width_ratios": [1.0] * len(classes) + [1.05]}  # the last column: the legend
-    *axes, legend = fig.subplots(1, len(classes) + 1, squeeze=False, gridspec_kw=widths).ravel()
+    columns = instrument_columns(rows)
+    table = [(c, cells) for c, cells in verdict_table(rows, columns, verdict["classes"]) if any(cells)]
+    fig = _new_figure(2.3 * len(table) + 2.6, 0.3 * len(columns) + 1.7)
+    widths = {"width_ratios": [1.0] * len(table) + [1.05]}  # the last column: the legend
+    *axes, legend = fig.subplots(1, len(table) + 1, squeeze=False, gridspec_kw=widths).ravel()
     for ax in axes[1:]:
         ax.sharey(axes[0])
         ax.tick_params(labelleft=False)
     better, than = verdict["variant"], verdict["reference"]
-    kinds = [next(r.kind for r in ordered if r.label == i) for i in instruments]
-    breaks = [i - 0.5 for i in range(1, len(kinds)) if kinds[i] != kinds[i - 1]]
-    for ax, cls in zip(axes, classes, strict=True):
-        _verdict_panel(ax, cls, rows, instruments)
-        for y in breaks:  # the families, as the summary table's columns
+    breaks = [i - 0.5 for i in range(1, len(columns)) if columns[i].kind != columns[i - 1].kind]
+    for ax, (cls, cells) in zip(axes, table, strict=True):
+        _verdict_panel(ax, cls, cells)
+        for y in breaks:  # the kinds of instrument
             ax.axhline(y, color="grey", linewidth=0.5, linestyle=":")
-    axes[0].set_yticks(range(len(instruments)), instruments, fontsize=7)
-    axes[0].set_ylim(len(instruments) - 0.5, -0.5)  # the first instrument on top
+    axes[0].set_yticks(range(len(columns)), [c.header for c in columns], fontsize=7)
+    axes[0].set_ylim(len(columns) - 0.5, -0.5)  # the first instrument on top
     fig.supxlabel(f"{better} − {than} abs_rel (negative: {better}'s error lower)", fontsize=8)
     _verdict_legend(legend, rows, verdict["confidence"])
     return _save(fig, path)
