@@ -78,6 +78,7 @@ from msdepth.pipeline.paths import (
 from msdepth.reporting.verdict import (
     KINDS,
     VERDICT_FIGURE,
+    Column,
     Row,
     instrument_columns,
     rows_of,
@@ -680,13 +681,12 @@ def cost_curve_figure(summaries: Mapping[str, dict], path: Path) -> Path:
     return _save(fig, path)
 
 
-def _verdict_panel(ax, cls: str, cells: Sequence[Row | None]) -> None:
-    """One class: a dot and a horizontal bar per instrument (filled where the interval excludes
-    0; a cross without a bar where the row has too few units for an interval), a line at 0, each
-    row's n at the right edge."""
-    own = [(y, r) for y, r in enumerate(cells) if r is not None]
-    for y, r in own:
-        color = KINDS.get(r.kind, ("", "grey"))[1]
+def _verdict_panel(ax, column: Column, cells: Sequence[tuple[str, Row]], reach: float) -> None:
+    """One instrument: a dot and a horizontal bar per surface class it has a row on (filled where
+    the interval excludes 0; a cross without a bar where the row has too few units for an
+    interval), a line at 0, the x-scale ``±reach`` of its kind, each row's n right of the frame."""
+    color = KINDS.get(column.kind, ("", "grey"))[1]
+    for y, (_, r) in enumerate(cells):
         if r.has_interval:
             ax.errorbar(
                 r.diff, y, xerr=[[r.diff - r.low], [r.high - r.diff]], fmt="o",
@@ -694,24 +694,27 @@ def _verdict_panel(ax, cls: str, cells: Sequence[Row | None]) -> None:
             )  # fmt: skip
         else:
             ax.plot(r.diff, y, "x", color=color, markersize=6)
+        frames = f", {r.unit.split(' in ', 1)[1]}" if " in " in r.unit else ""  # ROIs in K frames
         ax.annotate(
-            f"n={r.n}" + (f", {r.unit.split(' in ', 1)[1]}" if " in " in r.unit else ""),  # ROIs in K frames
-            (1.0, y),
+            f"n={r.n}{frames}",
+            (1.01, y),
             xycoords=("axes fraction", "data"),
-            ha="right",
-            va="bottom",
-            fontsize=6,
+            ha="left",
+            va="center",
+            fontsize=7,
         )
     ax.axvline(0.0, color="k", linewidth=0.8)
-    ax.set_title(f"{cls}\nlower in {sum(r.diff < 0 for _, r in own)} of {len(own)}", fontsize=9)
+    lower = sum(r.diff < 0 for _, r in cells)
+    ax.set_title(f"{column.header}: lower on {lower} of {len(cells)}", fontsize=8, loc="left")
+    ax.set_yticks(range(len(cells)), [cls for cls, _ in cells], fontsize=7)
+    ax.set_ylim(len(cells) - 0.5, -0.5)  # the first class on top
     ax.grid(axis="x", alpha=0.3)
-    ends = [abs(v) for _, r in own for v in ((r.low, r.high) if r.has_interval else (r.diff,))]
-    reach = max([*ends, 1e-3]) * 1.2
+    ax.tick_params(axis="x", labelsize=7)
     ax.set_xlim(-reach, reach)  # 0 in the middle: left of it the variant is better, right the reference
 
 
-def _verdict_legend(ax, rows: list[Row], confidence: float) -> None:
-    """The legend in a narrow column right of the panels (``ax``, without axes of its own)."""
+def _verdict_legend(fig: Figure, rows: list[Row], confidence: float) -> None:
+    """The legend below the panels."""
     from matplotlib.lines import Line2D
 
     handles = [
@@ -727,16 +730,24 @@ def _verdict_legend(ax, rows: list[Row], confidence: float) -> None:
             Line2D([], [], marker="x", color="grey", linestyle="", label="too few units: no interval")
         )
     title = f"{confidence * 100:g} % intervals; n: units (ROIs: and their frames)"
-    ax.legend(handles=handles, loc="center left", fontsize=7, frameon=False, title=title, title_fontsize=8)
-    ax.axis("off")
+    fig.legend(
+        handles=handles, loc="outside lower center", ncols=2, fontsize=7, frameon=False, title=title,
+        title_fontsize=8,
+    )  # fmt: skip
+
+
+def _reach(rows: Sequence[Row]) -> float:
+    """Half the x-range that holds every row's interval (or point), with a margin."""
+    ends = [abs(v) for r in rows for v in ((r.low, r.high) if r.has_interval else (r.diff,))]
+    return max([*ends, 1e-3]) * 1.15
 
 
 def verdict_figure(verdict: Mapping | None, path: Path) -> Path:
-    """``verdict.png``: the verdict table (:func:`msdepth.reporting.verdict.verdict_table`) with
-    one column per instrument (:func:`~msdepth.reporting.verdict.instrument_columns`), drawn as one
-    panel per surface class of compare.json's ``verdict`` side by side, one row per instrument
-    grouped by kind, its difference and interval; negative: the variant (MS-SSIM) has the lower
-    error. The legend sits right of the panels."""
+    """``verdict.png``: the verdict table (:func:`msdepth.reporting.verdict.verdict_table`) with one
+    column per instrument (:func:`~msdepth.reporting.verdict.instrument_columns`), drawn as one
+    panel per instrument, stacked, each with a row per surface class it measured (no empty rows):
+    its difference and interval, on one x-scale per kind of instrument; negative: the variant
+    (MS-SSIM) has the lower error. The n of each row stands right of its panel's frame."""
     rows = rows_of(verdict) if verdict else []
     if not rows:
         fig = _new_figure(4.0, 1.5)
@@ -745,23 +756,17 @@ def verdict_figure(verdict: Mapping | None, path: Path) -> Path:
         _off(ax)
         return _save(fig, path)
     columns = instrument_columns(rows)
-    table = [(c, cells) for c, cells in verdict_table(rows, columns, verdict["classes"]) if any(cells)]
-    fig = _new_figure(2.3 * len(table) + 2.6, 0.3 * len(columns) + 1.7)
-    widths = {"width_ratios": [1.0] * len(table) + [1.05]}  # the last column: the legend
-    *axes, legend = fig.subplots(1, len(table) + 1, squeeze=False, gridspec_kw=widths).ravel()
-    for ax in axes[1:]:
-        ax.sharey(axes[0])
-        ax.tick_params(labelleft=False)
+    table = verdict_table(rows, columns, verdict["classes"])
+    panels = [[(cls, cells[i]) for cls, cells in table if cells[i] is not None] for i in range(len(columns))]
+    reach = {kind: _reach([r for r in rows if r.kind == kind]) for kind in {c.kind for c in columns}}
+    heights = [len(p) + 1.2 for p in panels]
+    fig = _new_figure(7.0, 0.22 * sum(heights) + 1.4)
+    axes = fig.subplots(len(columns), 1, squeeze=False, gridspec_kw={"height_ratios": heights}).ravel()
+    for ax, column, cells in zip(axes, columns, panels, strict=True):
+        _verdict_panel(ax, column, cells, reach[column.kind])
     better, than = verdict["variant"], verdict["reference"]
-    breaks = [i - 0.5 for i in range(1, len(columns)) if columns[i].kind != columns[i - 1].kind]
-    for ax, (cls, cells) in zip(axes, table, strict=True):
-        _verdict_panel(ax, cls, cells)
-        for y in breaks:  # the kinds of instrument
-            ax.axhline(y, color="grey", linewidth=0.5, linestyle=":")
-    axes[0].set_yticks(range(len(columns)), [c.header for c in columns], fontsize=7)
-    axes[0].set_ylim(len(columns) - 0.5, -0.5)  # the first instrument on top
-    fig.supxlabel(f"{better} − {than} abs_rel (negative: {better}'s error lower)", fontsize=8)
-    _verdict_legend(legend, rows, verdict["confidence"])
+    fig.suptitle(f"{better} − {than} abs_rel (negative: {better}'s error lower)", fontsize=9)
+    _verdict_legend(fig, rows, verdict["confidence"])
     return _save(fig, path)
 
 
