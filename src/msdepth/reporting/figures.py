@@ -51,7 +51,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.colors import Colormap, LogNorm
 from matplotlib.figure import Figure
 from matplotlib.patches import Rectangle
-from matplotlib.ticker import MaxNLocator
+from matplotlib.ticker import MaxNLocator, NullFormatter
 
 from msdepth.config.params import EvalConfig, Params
 from msdepth.data import kitti
@@ -80,6 +80,7 @@ from msdepth.reporting.verdict import (
     VERDICT_FIGURE,
     Column,
     Row,
+    class_order,
     instrument_columns,
     rows_of,
     verdict_table,
@@ -91,6 +92,7 @@ DPI = 120
 REFERENCE = "ssim"
 MIN_VALID_FRACTION = 0.5  # an example ROI needs at least this much valid GT to be worth showing
 LOSS_TERMS = ("total", "appearance")
+SEED_STYLES = ("-", "--", ":", "-.")  # training_curves.png: a variant's seeds, in order
 FIGURES = ("disparity.png", "roi_depth.png", "roi_gradients.png", "training_curves.png", "error_scatter.png")
 ROI_FIGURES = ("roi_depth.png", "roi_gradients.png")  # drawn only where there are ROIs
 COST_CURVES_FIGURE = "cost_curves.png"  # drawn by cost_curve_figure
@@ -491,7 +493,7 @@ def _curve_path(train_plots: Path, run: str, term: str) -> Path:
 
 
 def _training_figure(runs: dict[str, list[str]], train_plots: Path, path: Path) -> Path:
-    """Per variant, one line per run (seed): the first solid and labelled, the others thinner."""
+    """Per variant (a colour), one line per run, each seed labelled and drawn in its own style."""
     curves = {
         (run, term): _read_curve(_curve_path(train_plots, run, term), term)
         for group in runs.values()
@@ -501,27 +503,26 @@ def _training_figure(runs: dict[str, list[str]], train_plots: Path, path: Path) 
     fig = _new_figure(4.2 * len(LOSS_TERMS), 3.4)
     axes = fig.subplots(1, len(LOSS_TERMS), squeeze=False)[0]
     for ax, term in zip(axes, LOSS_TERMS, strict=True):
-        for colour, (v, group) in enumerate(runs.items()):
+        for colour, group in enumerate(runs.values()):
             for i, run in enumerate(group):
                 df = curves[run, term]
                 # dvclive steps once per epoch, from 0: step k holds the mean loss of epoch k + 1.
-                label = (v if len(group) == 1 else f"{v} ({len(group)} seeds)") if i == 0 else None
                 ax.plot(
                     df["step"] + 1,
                     df[term],
                     color=f"C{colour}",
-                    marker="o" if i == 0 else None,
-                    markersize=3,
-                    linewidth=1.5 if i == 0 else 0.9,
-                    alpha=1.0 if i == 0 else 0.6,
-                    label=label,
+                    linestyle=SEED_STYLES[i % len(SEED_STYLES)],
+                    marker="o",
+                    markersize=2.5,
+                    linewidth=1.2,
+                    label=run.replace("/", ", "),  # "ssim, seed0"
                 )
         ax.set_title(f"{term} loss", fontsize=10)
         ax.set_xlabel("epoch")
         ax.xaxis.set_major_locator(MaxNLocator(integer=True))
         ax.set_ylabel("mean training loss")
         ax.grid(alpha=0.3)
-        ax.legend(fontsize=8)
+        ax.legend(fontsize=7)
     fig.suptitle("Training losses per epoch (each variant's own appearance term)", fontsize=11)
     return _save(fig, path)
 
@@ -550,19 +551,21 @@ def _scatter_figure(runs: dict[str, str], metrics: Path, cap: float, path: Path)
     for v, marker in zip(others, "osD^v<>", strict=False):
         x, y = errors[ref].align(errors[v], join="inner")
         all_values.append(y.to_numpy())
-        ax.scatter(x, y, s=18, marker=marker, alpha=0.75, label=v)
-        lines.append(f"{v}: {int((y < x).sum())} of {len(x)} images below y = x")
+        ax.scatter(x, y, s=18, marker=marker, alpha=0.75, label=runs[v].replace("/", ", "))
+        lines.append(f"{runs[v]}: {int((y < x).sum())} of {len(x)} images below y = x")
     lo = 0.0
     hi = float(max(a.max() for a in all_values)) * 1.05
     ax.plot([lo, hi], [lo, hi], color="0.4", linestyle="--", linewidth=1, label="y = x")
     ax.set_xlim(lo, hi)
     ax.set_ylim(lo, hi)
     ax.set_aspect("equal")
-    ax.set_xlabel(f"abs rel, {ref} (cap {cap:g} m)")
-    ax.set_ylabel(f"abs rel, {others[0] if len(others) == 1 else 'other variants'} (cap {cap:g} m)")
+    ax.set_xlabel(f"abs rel, {runs[ref]} (cap {cap:g} m)")
+    ax.set_ylabel(f"abs rel, {runs[others[0]] if len(others) == 1 else 'other variants'} (cap {cap:g} m)")
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8, loc="upper left")
-    ax.set_title("Per-image abs rel\n" + "\n".join(lines) + f"\n(below: lower error than {ref})", fontsize=9)
+    ax.set_title(
+        "Per-image abs rel\n" + "\n".join(lines) + f"\n(below: lower error than {runs[ref]})", fontsize=9
+    )
     return _save(fig, path)
 
 
@@ -658,7 +661,7 @@ def _read_cost_curves(directory: Path, variants: Sequence[str]) -> dict[str, dic
 def cost_curve_figure(summaries: Mapping[str, dict], path: Path) -> Path:
     """``cost_curves.png``: one panel per ROI class, one line per variant (its mean cost over the
     class's boxes against s, log axis), s = 1 (the GT) marked, each variant's minimum dotted."""
-    classes = sorted({c for s in summaries.values() for c in s.get("mean_curves", {})})
+    classes = class_order(sorted({c for s in summaries.values() for c in s.get("mean_curves", {})}))
     fig = _new_figure(3.2 * max(len(classes), 1), 3.0)
     if not classes:
         ax = fig.add_subplot(1, 1, 1)
@@ -676,6 +679,7 @@ def cost_curve_figure(summaries: Mapping[str, dict], path: Path) -> Path:
         rois = max(s["classes"][cls]["rois"] for s in summaries.values() if cls in s.get("classes", {}))
         ax.set(xscale="log", title=f"{cls} ({rois} ROIs)", xlabel="s (box disparity = GT × s)")
         ax.set_xticks([0.5, 1.0, 2.0], ["0.5", "1", "2"])
+        ax.xaxis.set_minor_formatter(NullFormatter())  # the log axis's own labels overlap these
     axes[0].set_ylabel("mean appearance cost")
     axes[0].legend(fontsize="small")
     return _save(fig, path)
