@@ -1,7 +1,7 @@
 """The compare stage's comparison of the pipeline's metrics: every variant (mean over its seeds)
 and baseline side by side, with the optimum runs and each extra evaluation set, read from the
 metrics tree the stages wrote (:mod:`msdepth.pipeline.paths`) and written as Markdown and JSON
-(tables and statistics: :mod:`msdepth.reporting.compare`)."""
+(tables and statistics: :mod:`msdepth.reporting.comparison`)."""
 
 from __future__ import annotations
 
@@ -26,7 +26,7 @@ from msdepth.pipeline.paths import (
     suite_dir,
     variant_runs,
 )
-from msdepth.reporting.compare import (
+from msdepth.reporting.comparison import (
     ComparisonInputs,
     build_comparison,
     build_set_section,

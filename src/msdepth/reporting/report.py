@@ -24,7 +24,7 @@ from msdepth.errors import DataError, MsdepthError
 from msdepth.evaluation.metrics import HIGHER_IS_BETTER
 from msdepth.io import read_json_object, read_text_file, write_text
 from msdepth.pipeline.paths import COMPARE_JSON, FIGURES_DIR, README, RESULTS, run_name, train_summary_path
-from msdepth.reporting.compare import (
+from msdepth.reporting.comparison import (
     MIN_SEEDS_FOR_MARKS,
     SET_TITLES,
     changed_settings,
@@ -431,7 +431,7 @@ def _marks_text(r: Results) -> str:
 
 def _dependence_text(r: Results) -> str:
     """Whether each trained run follows the image (compare.md's first table)."""
-    from msdepth.reporting.compare import IMAGE_BLIND_BELOW
+    from msdepth.reporting.comparison import IMAGE_BLIND_BELOW
 
     deps = r.get("image_dependence", default={}) or {}
     trained = {run: d for run, d in deps.items() if run not in r.baselines}

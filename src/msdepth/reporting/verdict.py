@@ -7,7 +7,7 @@ ROI class, in :data:`CLASS_ORDER`. Every row is this pipeline's own (``dvc repro
 the kinds of instrument (:data:`KINDS`):
 
 - ``network``: the trained stereo networks, every seed. The comparison's own bootstrap
-  (:func:`msdepth.reporting.compare.paired_statistics`) over images, or over the class's ROIs drawn
+  (:func:`msdepth.reporting.comparison.paired_statistics`) over images, or over the class's ROIs drawn
   with their frame, and the seed pairs; the paired t over the per-seed differences beside it.
 - ``optimum``: the losses' own optimum at each smoothness weight (one deterministic run per
   variant and weight): :func:`msdepth.reporting.stats.seed_bootstrap` of one run each, over the
@@ -40,7 +40,7 @@ import pandas as pd
 
 from msdepth.config.params import CompareConfig
 from msdepth.evaluation.classes import class_unit_tables
-from msdepth.reporting.compare import UNIT_KEYS, paired_statistics, unit_clusters
+from msdepth.reporting.comparison import UNIT_KEYS, paired_statistics, unit_clusters
 from msdepth.reporting.stats import paired_table, seed_bootstrap
 
 METRIC = "abs_rel"
@@ -204,8 +204,8 @@ def network_rows(
 ) -> list[Row]:
     """Per class, each variant of ``groups`` (variant -> its runs, the reference's included) minus
     ``cfg.reference``, by the comparison's bootstrap over units and seeds; ``tables`` is
-    :func:`msdepth.reporting.compare.load_unit_tables`' ``{suite: {run: table}}``. ``pairing``
-    (:func:`msdepth.reporting.compare.pairing_status`): the variants whose seeds pair with the
+    :func:`msdepth.reporting.comparison.load_unit_tables`' ``{suite: {run: table}}``. ``pairing``
+    (:func:`msdepth.reporting.comparison.pairing_status`): the variants whose seeds pair with the
     reference's are compared pair by pair, with the paired t beside the bootstrap."""
     rows = []
     others = [v for v in groups if v != cfg.reference]
