@@ -1,7 +1,7 @@
 """The compare stage's comparison of the pipeline's metrics: every variant (mean over its seeds)
 and baseline side by side, with the optimum runs and each extra evaluation set, read from the
 metrics tree the stages wrote (:mod:`msdepth.pipeline.paths`) and written as Markdown and JSON
-(tables and statistics: :mod:`msdepth.reporting.compare`)."""
+(tables and statistics: :mod:`msdepth.reporting.comparison`)."""
 
 from __future__ import annotations
 
@@ -26,7 +26,7 @@ from msdepth.pipeline.paths import (
     suite_dir,
     variant_runs,
 )
-from msdepth.reporting.compare import (
+from msdepth.reporting.comparison import (
     ComparisonInputs,
     build_comparison,
     build_set_section,
@@ -48,7 +48,7 @@ from msdepth.reporting.verdict import (
     Row,
     RowScope,
     display_names,
-    headline_instruments,
+    headline_columns,
     network_rows,
     optimum_rows,
     settings_label,
@@ -68,7 +68,7 @@ def _run_groups(
     return missing, built, groups, [r for group in groups.values() for r in group]
 
 
-def compare(params: Params) -> None:
+def write_comparison(params: Params) -> None:
     """One table of every variant (mean over its seeds) and baseline, as Markdown and JSON
     (:data:`~msdepth.pipeline.paths.COMPARE_MD`, :data:`~msdepth.pipeline.paths.COMPARE_JSON`), and
     each variant's mean over its seeds as a DVC metric (:func:`~msdepth.pipeline.paths.mean_path`).
@@ -103,7 +103,7 @@ def compare(params: Params) -> None:
         ),
     )
     result, md = build_comparison(comparison)
-    result["verdict"] = verdict_section(params, groups, compared, pairing)
+    result["verdict"] = comparison_verdict(params, groups, compared, pairing)
     md += "\n" + "\n".join(verdict_lines(result["verdict"]))
     for name in params.eval.extra_sets:
         result.setdefault("sets", {})[name], section = _compare_set(params, name, comparison.settings_label)
@@ -141,7 +141,7 @@ def _optimum_section(params: Params, groups: dict[str, list[str]], compared: Seq
     return optimum_data(suites, runs, stats, f"cap{params.eval.caps[0]:g}", skipped)
 
 
-def verdict_section(
+def comparison_verdict(
     params: Params,
     groups: dict[str, list[str]],
     compared: Sequence[str],
@@ -172,8 +172,8 @@ def verdict_section(
         rows += set_verdict_rows(params, name, pairing, settings)
     better, than = display_names(params.variants, cfg.reference)
     boxed = [n for n in params.eval.extra_sets if any(r.instrument.endswith(f" on {n} boxes") for r in rows)]
-    headline = headline_instruments(params.optimum.smoothness_weight, params.eval.extra_sets, boxed)
-    return verdict_data(rows, cap, cfg.confidence, better, than, settings, headline)
+    columns = headline_columns(params.optimum.smoothness_weight, params.eval.extra_sets, boxed)
+    return verdict_data(rows, cap, cfg.confidence, better, than, settings, columns)
 
 
 def _mean_rows(result: dict, variants: Sequence[str], cap: str) -> dict[str, dict[str, float]]:
