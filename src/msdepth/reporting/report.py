@@ -442,8 +442,8 @@ are written by the `report` stage (`src/msdepth/reporting/report.py`) from `metr
 `metrics/train/`: edit the code, not the page. Every table is in `metrics/compare.md`."""
 
 OBJECTS = """Whether the networks resolve the objects, or place cars and windshields where the image-blind
-prior does, is asked per box by `studies/roi_errors.py` (its table: `studies/results/roi_errors.md`)
-and shown by the disparity maps (`plots/figures/disparity.png`, below). `studies/objects.py`
+prior does, is asked per box (first on the committed run: `studies/results/roi_errors.md`, a
+retired study) and shown by the disparity maps (`plots/figures/disparity.png`, below). `studies/objects.py`
 follows the object classes' error and that per-box correlation as one run trains long, and screens
 recipes at equal cost ([studies/results/objects/](../studies/results/objects/README.md): its table,
 curves and disparity strips). The default is the screen's best within the default run's time (a
@@ -483,30 +483,22 @@ quoted on this page, and each results folder with a `README.md` says how it was 
   - `prepare_set.py`: a study's own project folder at other sizes (params with overrides, render,
     index, ROIs, cache).
 - Statistics:
-  - `kernels.py`: the dissertation's kernel table with intervals.
   - `power.py`: how many seeds a verdict needs, paired by seed
     ([12 seeds](../studies/results/seeds12/README.md)).
-  - `roi_errors.py`: per ROI class, each run's errors against the prior's.
 - The losses' own optimum:
-  - `cost_curves.py`: where each loss wants each ROI class.
   - `optimum_sweep.py`: the optimum at several smoothness weights.
-  - `optimum_kernels.py`: the optimum per MS-SSIM kernel size.
-  - `optimum_starts.py`, `optimum_refine.py`: global starts and their refinement, on real
-    KITTI 2015 frames.
-- Real data:
-  - `lidar_pair.py`: the KITTI object pair against its Velodyne scan (no evaluation set holds it),
-    for every variant's cost start, optimum and networks.
-  - `real_rois.py`: the hand-drawn ROIs on the real KITTI 2015 frames.
-  - `kitti_pair.sh`, `score_lidar.py`: the optimum on the real KITTI object pair, scored against
-    its Velodyne scan.
-  - The pipeline's own route to real frames is `eval.extra_sets`
-    ([real_sets](../studies/results/real_sets/README.md)).
-- Glass model:
-  - `glass_check.py`: non-glass pixels keep their bytes under a change of the glass model.
-  - `glass_before_after.py`: the default run before and after a renderer change.
-  - `glass_figure.py`: a windshield before and after the glass model.
+- Real data: the pipeline's own route to real frames is `eval.extra_sets`
+  ([real_sets](../studies/results/real_sets/README.md)).
 - Pictures:
-  - `side_by_side.py`: trained models' disparities side by side on chosen frames."""
+  - `side_by_side.py`: trained models' disparities side by side on chosen frames.
+
+Retired studies, superseded by stages or made once, keep their results; each folder's README names
+the commit that holds the script and the command that made them: the optimum's cost curves,
+matched starts, refinement, kernels and the KITTI object pair
+([optimum](../studies/results/optimum/README.md)), the glass model's check, before/after and figure
+([glass](../studies/results/glass/README.md)), the hand-drawn real ROIs and the LiDAR pair
+([real](../studies/results/real/README.md)), the kernel table ([grid](../studies/results/grid/README.md))
+and the per-box ROI errors ([studies/results](../studies/results/README.md))."""
 
 FIGURES = """## Figures and `dvc plots`
 
