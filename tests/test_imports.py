@@ -141,7 +141,7 @@ LAYERS = (
     ("training", "evaluation"),  # training a network; inference, suites, metrics, baselines
     ("optimum",),  # the losses' own optimum, scored as a run
     ("reporting",),  # comparison, the results page, the figures
-    ("cli", "studies"),  # the msdepth command's subcommands; what several studies/ scripts share
+    ("cli",),  # the msdepth command's subcommands
     ("__main__",),  # the msdepth command
 )
 RANK = {package: rank for rank, layer in enumerate(LAYERS) for package in layer}
@@ -196,8 +196,8 @@ def test_no_module_imports_another_modules_private_names():
 
 def study_edges(studies: Path) -> list[str]:
     """``script: what`` for each studies/ script that imports another script of the folder or
-    changes ``sys.path`` (an edge the package graph cannot see): what they share lives in
-    :mod:`msdepth.studies`."""
+    changes ``sys.path`` (an edge the package graph cannot see): what several share belongs in the
+    package, under the layering test."""
     scripts = {p.stem for p in studies.glob("*.py")}
     found = []
     for path in sorted(studies.glob("*.py")):
