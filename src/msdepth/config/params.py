@@ -662,9 +662,10 @@ class OptimumConfig:
     # pairs optimised together (independent: each pair's gradient is its own)
     batch_size: Annotated[int, Range(1, MAX_OPTIMUM_BATCH)] = 4
     # The pipeline's optimum stages (docs/optimum-pipeline.md): the sweep's weights other than
-    # smoothness_weight see only the first sweep_frames evaluation frames (0 = all), the cost
+    # smoothness_weight see only the first sweep_frames evaluation frames (0 = all: each loss is
+    # then also scored at its own best weight, msdepth.optimum.selection), the cost
     # curves the ROIs of the first cost_frames; torch threads.
-    sweep_frames: Frames = 4
+    sweep_frames: Frames = 0
     cost_frames: Frames = 8
     threads: Threads = 2
     # An extra set's frames in this many worker processes at once, each with `threads` threads

@@ -9,11 +9,14 @@ import dataclasses
 from pathlib import Path
 from typing import Callable, Sequence
 
+import pandas as pd
+
 from msdepth.config.params import Params
 from msdepth.evaluation.baselines import BASELINES, skipped_reason
 from msdepth.evaluation.suites import no_rois
 from msdepth.io import write_json, write_text
 from msdepth.optimum.frames import matcher_runs, optimum_runs
+from msdepth.optimum.selection import choose_weights, select_rows
 from msdepth.pipeline.paths import (
     COMPARE_JSON,
     COMPARE_MD,
@@ -45,6 +48,7 @@ from msdepth.reporting.comparison import (
     variant_settings,
 )
 from msdepth.reporting.verdict import (
+    OWN_BEST,
     Row,
     RowScope,
     display_names,
@@ -168,12 +172,60 @@ def comparison_verdict(
                 METRICS, [r for w in by_weight.values() for r in w.values()], compared
             )
             rows += optimum_rows(opt_tables, by_weight, cfg, cap, settings)
+            rows += own_best_rows(opt_tables, by_weight, params, settings)
     for name in params.eval.extra_sets:
         rows += set_verdict_rows(params, name, pairing, settings)
     better, than = display_names(params.variants, cfg.reference)
     boxed = [n for n in params.eval.extra_sets if any(r.instrument.endswith(f" on {n} boxes") for r in rows)]
     columns = headline_columns(params.optimum.smoothness_weight, params.eval.extra_sets, boxed)
     return verdict_data(rows, cap, cfg.confidence, better, than, settings, columns)
+
+
+def own_best_tables(
+    tables: dict[str, dict[str, pd.DataFrame]], by_weight: dict[str, dict[str, str]], cap: float
+) -> tuple[dict[str, str], dict[str, dict[int, float]]]:
+    """Adds to ``tables`` (``{suite: {run: table}}``) each variant's optimum at its own best weight
+    (:mod:`msdepth.optimum.selection`: two folds of frames, each scored at the weight with the lowest
+    full-frame abs_rel at ``cap`` on the other), as the run ``<its runs' folder>/own_best``.
+
+    ``by_weight``: ``{"w<weight>": {variant: run}}``. Returns ``{variant: its own-best run}`` and
+    ``{variant: {fold: chosen weight}}``; empty where the weights were scored on different frames
+    (``optimum.sweep_frames`` > 0) or only one weight ran.
+    """
+    variants = {v for runs in by_weight.values() for v in runs}
+    found, chosen = {}, {}
+    for variant in sorted(variants):
+        runs = {float(w[1:]): r[variant] for w, r in by_weight.items() if variant in r}
+        full = {w: tables["full"][r] for w, r in runs.items()}
+        headline = {w: t[t["cap"] == cap] for w, t in full.items()}
+        if len(runs) < 2 or len({frozenset(t["frame"]) for t in headline.values()}) != 1:
+            return {}, {}
+        frames, chosen[variant] = choose_weights(headline)
+        run = f"{next(iter(runs.values())).rsplit('/', 1)[0]}/own_best"
+        tables["full"][run] = select_rows(full, frames, "frame")
+        if "roi" in tables:
+            tables["roi"][run] = select_rows({w: tables["roi"][r] for w, r in runs.items()}, frames, "image")
+        found[variant] = run
+    return found, chosen
+
+
+def own_best_rows(
+    tables: dict[str, dict[str, pd.DataFrame]],
+    by_weight: dict[str, dict[str, str]],
+    params: Params,
+    settings: str,
+) -> list[Row]:
+    """The verdict's rows of the optimum at each variant's own best weight (:func:`own_best_tables`),
+    named ``optimum own best``; each row's method names the weights chosen per fold."""
+    runs, chosen = own_best_tables(tables, by_weight, params.eval.caps[0])
+    if not runs:
+        return []
+    rows = optimum_rows(tables, {OWN_BEST: runs}, params.compare, params.eval.caps[0], settings)
+    picked = "; ".join(
+        f"{v}: " + ", ".join(f"w{w:g}" for _, w in sorted(folds.items())) for v, folds in chosen.items()
+    )
+    note = f"; each fold of frames at the weight best on the other fold ({picked})"
+    return [dataclasses.replace(row, method=row.method + note) for row in rows]
 
 
 def _mean_rows(result: dict, variants: Sequence[str], cap: str) -> dict[str, dict[str, float]]:

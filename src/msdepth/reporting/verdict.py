@@ -376,6 +376,10 @@ class Column:
     instrument: str
 
 
+# The optimum at each variant's own best smoothness weight (msdepth.optimum.selection).
+OWN_BEST = "own best"
+
+
 def headline_columns(weight: float, sets: Sequence[str] = (), box_sets: Sequence[str] = ()) -> list[Column]:
     """The summary table's columns, one per instrument family: the stereo networks, the optimum at
     its default smoothness ``weight``, and that optimum on each extra evaluation set of ``sets``
@@ -391,13 +395,14 @@ def headline_columns(weight: float, sets: Sequence[str] = (), box_sets: Sequence
         The columns, in the table's order.
 
     Example:
-        >>> [c.header for c in headline_columns(10, ["kitti2012", "kitti2015"], ["kitti2015"])][2:]
+        >>> [c.header for c in headline_columns(10, ["kitti2012", "kitti2015"], ["kitti2015"])][3:]
         ['optimum w10, kitti2012 frames', 'optimum w10, kitti2015 frames', 'optimum w10, kitti2015 boxes']
     """
     w = f"w{weight:g}"
     columns = [
         Column("stereo networks", "network", "stereo networks"),
         Column(f"loss's own optimum, {w}", "optimum", f"optimum {w}"),
+        Column(f"optimum, each loss's {OWN_BEST} weight", "optimum", f"optimum {OWN_BEST}"),
     ]
     columns += [Column(f"optimum {w}, {name} frames", "optimum", f"optimum {w} on {name}") for name in sets]
     columns += [
