@@ -29,6 +29,8 @@ log = logging.getLogger("msdepth")
 # that name them end in `# = NAME` (or `# = model_path(RUN)`), and `python -m msdepth.pipeline.dvcyaml`
 # writes their paths from these definitions.
 CHECKED = Path("data/params_checked.txt")
+# <x>.txt: what stages/<x>.py's code does (the fingerprints stage's; msdepth.pipeline.fingerprints)
+FINGERPRINTS = Path("data/fingerprints")
 INDEX_DIR = Path("data/index")
 TRAIN_PAIRS = INDEX_DIR / "train_pairs.txt"
 EVAL_FRAMES = INDEX_DIR / "eval_frames.csv"
