@@ -205,6 +205,7 @@ def test_killed_repro_reruns_to_identical_results(repo: Path, tmp_path: Path):
 # output's bytes stay the same), the pretrained stage (it runs every time; its output stays the
 # same too), the MS-SSIM run's stages and the optimum's, and what compares them.
 MSSSIM_STAGES = {
+    "fingerprints",
     "validate_params",
     "pretrained",
     *(
@@ -384,8 +385,9 @@ def _workspace(repo: Path) -> dict[str, bytes]:
     ],
 )
 def test_bad_params_fail_dvc_repro_first_and_delete_nothing(repo: Path, patch: dict, message: str):
-    """DVC removes a stage's outputs just before running it: validate_params runs first and stops
-    `dvc repro` with one line, so the trained models and tracked results stay as they were."""
+    """DVC removes a stage's outputs just before running it: validate_params runs first (after
+    fingerprints, which reads no params and removes nothing) and stops `dvc repro` with one line, so
+    the trained models and tracked results stay as they were."""
     good = (repo / "params.yaml").read_text()
     before, git_before = _workspace(repo), run_checked(["git", "status", "--porcelain"], repo)
     (repo / "params.yaml").write_text(yaml.safe_dump(merge(yaml.safe_load(good), patch), sort_keys=False))
@@ -400,7 +402,8 @@ def test_bad_params_fail_dvc_repro_first_and_delete_nothing(repo: Path, patch: d
     assert proc.returncode != 0
     errors = [line for line in proc.stderr.splitlines() if line.startswith("error: ")]
     assert errors == [f"error: params.yaml: {message}"], proc.stderr
-    assert "Running stage 'validate_params'" in proc.stdout and proc.stdout.count("Running stage") == 1
+    ran = [line.split("'")[1] for line in proc.stdout.splitlines() if line.startswith("Running stage '")]
+    assert ran == ["fingerprints", "validate_params"], proc.stdout
     changed = {name for name in before.keys() | after.keys() if before.get(name) != after.get(name)}
     assert changed == {"params.yaml"}
     assert set(git_after.splitlines()) - set(git_before.splitlines()) <= {" M params.yaml"}

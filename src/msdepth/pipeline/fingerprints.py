@@ -98,7 +98,7 @@ class Sources:
         return self.hashes[path]
 
 
-def _imported_modules(
+def imported_modules(
     path: Path, module: str | None, src: Path, package: str = PACKAGE, sources: Sources | None = None
 ) -> set[str]:
     """The ``package`` modules that the file ``path`` (module ``module``; None for a script) imports.
@@ -145,7 +145,7 @@ def import_closure(
     while todo:
         path, module = todo.pop()
         if (path, module) not in sources.imports:
-            sources.imports[path, module] = _imported_modules(path, module, src, package, sources)
+            sources.imports[path, module] = imported_modules(path, module, src, package, sources)
         for name in sources.imports[path, module]:
             parts = name.split(".")
             for i in range(1, len(parts) + 1):  # importing a.b.c runs a/__init__ and a/b/__init__ first
@@ -162,7 +162,9 @@ def import_closure(
 def _is_docstring(node: object) -> bool:
     """Whether ``node`` is a statement that is only a string: a docstring, which does nothing."""
     return (
-        isinstance(node, ast.Expr) and isinstance(node.value, ast.Constant) and isinstance(node.value.value, str)
+        isinstance(node, ast.Expr)
+        and isinstance(node.value, ast.Constant)
+        and isinstance(node.value.value, str)
     )
 
 
