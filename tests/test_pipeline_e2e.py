@@ -20,6 +20,7 @@ from pathlib import Path
 import pytest
 import yaml
 from conftest import UP_TO_DATE, dvc_status, merge, project, require_dvc, run_checked, stage_env
+from test_dvc_deps import behaviour_edit, neutral_edit
 
 from msdepth.reporting.figures import STAGE_FIGURES
 
@@ -202,8 +203,8 @@ def test_killed_repro_reruns_to_identical_results(repo: Path, tmp_path: Path):
 
 
 # What `-S msssim.kernel_size=7` re-runs: the parameter check (it reads all of params.yaml; its
-# output's bytes stay the same), the pretrained stage (it runs every time; its output stays the
-# same too), the MS-SSIM run's stages and the optimum's, and what compares them.
+# output's bytes stay the same), the fingerprints and pretrained stages (they run every time; their
+# outputs stay the same too), the MS-SSIM run's stages and the optimum's, and what compares them.
 MSSSIM_STAGES = {
     "fingerprints",
     "validate_params",
@@ -284,6 +285,31 @@ def test_kernel_size_experiment_reruns_only_msssim_then_the_way_back_and_applyin
     run_checked([*dvc, "exp", "apply", "k7"], work)
     assert models["msssim/seed0"].read_bytes() == experiment
     assert yaml.safe_load((work / "params.yaml").read_text())["msssim"]["kernel_size"] == 7
+
+
+def test_a_comment_in_io_reruns_nothing_and_a_changed_constant_every_stage(repo: Path, tmp_path: Path):
+    """Issue 67: stages depend on their code's fingerprint. A comment, a docstring and blank lines in
+    src/msdepth/io.py, which every stage imports, leave `dvc status` up to date once the fingerprints
+    stage has run (`dvc repro` runs it first; `dvc status` alone does not run it), and dvc.lock as it
+    was; a changed constant in one of its functions marks every stage, the trained ones included,
+    for its fingerprint only."""
+    work = _copy(repo, tmp_path)
+    io, lock = work / "src" / "msdepth" / "io.py", (work / "dvc.lock").read_text()
+    neutral_edit(io)
+    log = run_checked([sys.executable, "-m", "dvc", "repro"], work)
+    ran = {line.split("'")[1] for line in log.splitlines() if line.startswith("Running stage '")}
+    assert ran == set(UP_TO_DATE) and dvc_status(work) == UP_TO_DATE
+    assert (work / "dvc.lock").read_text() == lock
+    behaviour_edit(io)
+    assert dvc_status(work) == UP_TO_DATE  # the fingerprints on disk are still the old code's
+    run_checked([sys.executable, "-m", "dvc", "repro", "fingerprints"], work)
+    status = dvc_status(work)
+    stages = set(yaml.safe_load(lock)["stages"]) - {"fingerprints"}
+    assert set(status) == stages | {"fingerprints"} and {"train@ssim-0", "train@msssim-0"} <= stages
+    for stage in stages:
+        changes = [c for c in status[stage] if c != "always changed"]
+        assert [set(c) for c in changes] == [{"changed deps"}], (stage, changes)
+        assert [path.startswith("data/fingerprints/") for path in changes[0]["changed deps"]] == [True], stage
 
 
 def _readme_command(start: str) -> str:
