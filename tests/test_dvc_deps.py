@@ -151,10 +151,16 @@ def test_canonical_trees_see_behaviour_not_comments_docstrings_or_layout():
     assert not same(code, code.replace("x: int", "x: float"))  # a dataclass's fields are annotations
     assert not same("def f(): return 1", "def f(): f'{print()}'\n")  # an f-string runs code
     # No positions, no empty fields: the same text on Python 3.10 to 3.13 (3.12 added type_params=[]).
-    assert (
-        canonical(ast.parse("def f(): pass"))
-        == "Module(body=[FunctionDef(args=arguments(), body=[Pass()], name='f')])"
-    )
+    expected = "Module(body=[FunctionDef(args=arguments(), body=[Pass()], name='f')])"
+    assert canonical(ast.parse("def f(): pass")) == expected
+    # f-strings as 3.12 (an empty string after a nested field) and 3.13 (a bare format spec) may parse them
+    nested, bare, split = ast.parse("f'{x:{y}}'"), ast.parse("f'{x:.2f}'"), ast.parse("f'a{x}b'")
+    nested.body[0].value.values[0].format_spec.values.append(ast.Constant(value=""))
+    bare.body[0].value.values[0].format_spec = bare.body[0].value.values[0].format_spec.values[0]
+    split.body[0].value.values[-1:] = [ast.Constant(value=""), ast.Constant(value="b")]
+    for code, tree in [("f'{x:{y}}'", nested), ("f'{x:.2f}'", bare), ("f'a{x}b'", split)]:
+        assert canonical(tree) == canonical(ast.parse(code)), code
+    assert not same("f'{x:.2f}'", "f'{x:.3f}'") and not same("f'a{x}b'", "f'a{x}c'")
 
 
 @pytest.fixture(scope="module")

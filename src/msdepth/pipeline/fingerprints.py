@@ -11,10 +11,12 @@ inside functions, and the ``__init__.py`` of every package on the way). Its fing
 - with every name, literal (``3`` -> ``4`` changes it; ``1.0`` -> ``1.00`` does not: the same
   value), operator and annotation (a dataclass's fields come from its annotations): any edit that
   can change what the code does changes it;
-- in a form that is the same on Python 3.10 to 3.13: the tree is written field by field, leaving
-  out empty lists and ``None`` (3.12 added ``type_params=[]`` to every function and class, and
-  3.13's ``ast.dump`` leaves out empty fields), so a fresh clone's ``dvc repro`` on another Python
-  reruns nothing for a source written in syntax those versions share.
+- in a form that is the same on Python 3.10 to 3.13: the tree is written field by field, sorted,
+  leaving out empty lists and ``None`` (3.12 added ``type_params=[]`` to every function and class,
+  and 3.13's ``ast.dump`` leaves out empty fields), and with each f-string's text in one piece
+  between its fields (3.12 and 3.13 split it, a format spec's above all, into other parts), so a
+  fresh clone's ``dvc repro`` on another Python reruns nothing for a source written in syntax
+  those versions share.
 
 The ``fingerprints`` stage (``stages/fingerprints.py``) writes them on every ``dvc repro``
 (``always_changed``: it reads only the sources, in about a second) and rewrites a file only when
@@ -168,14 +170,35 @@ def _is_docstring(node: object) -> bool:
     )
 
 
+def _fstring_parts(values: list[ast.expr]) -> list[ast.expr]:
+    """An f-string's parts without empty strings and with adjacent strings joined: Python 3.12 and
+    3.13 split the same f-string's text (a format spec's above all) differently from 3.11."""
+    parts: list[ast.expr] = []
+    for value in values:
+        if isinstance(value, ast.Constant) and isinstance(value.value, str):
+            if not value.value:
+                continue
+            if parts and isinstance(parts[-1], ast.Constant):
+                parts[-1] = ast.Constant(value=parts[-1].value + value.value)
+                continue
+        parts.append(value)
+    return parts
+
+
 def canonical(node: object) -> str:
     """``node`` (a syntax tree, a list of them or a field's value) as text: every field but the
-    positions, without docstring statements, and without fields that are empty lists or None (so
-    that the text is the same on every Python from 3.10 on: see the module's docstring).
+    positions, without docstring statements, without fields that are empty lists or None, and with
+    f-strings' parts in one form (so that the text is the same on every Python from 3.10 to 3.13:
+    see the module's docstring).
 
     >>> canonical(ast.parse("x = 1  # one"))
     "Module(body=[Assign(targets=[Name(ctx=Store(), id='x')], value=Constant(value=1))])"
     """
+    if isinstance(node, ast.FormattedValue) and isinstance(node.format_spec, ast.Constant):
+        spec = ast.JoinedStr(values=[node.format_spec])  # 3.13 may leave out the JoinedStr
+        node = ast.FormattedValue(value=node.value, conversion=node.conversion, format_spec=spec)
+    if isinstance(node, ast.JoinedStr):
+        node = ast.JoinedStr(values=_fstring_parts(node.values))
     if isinstance(node, ast.AST):
         fields = [(name, getattr(node, name, None)) for name in sorted(node._fields)]
         shown = [f"{name}={canonical(value)}" for name, value in fields if value is not None and value != []]
