@@ -21,6 +21,7 @@ import yaml
 from conftest import dvc_status
 
 from msdepth.errors import DataError
+from msdepth.io import TEMP_MARK
 from msdepth.pipeline import paths as pipeline
 from msdepth.pipeline.dvcyaml import COMMAND, TAGGED, _code_deps, _tagged_path, generate
 from msdepth.pipeline.fingerprints import (
@@ -194,7 +195,8 @@ def test_a_comment_or_docstring_in_io_changes_no_fingerprint_and_a_constant_ever
 
 def test_the_fingerprints_stage_rewrites_only_what_changed(toy: Path):
     """Each file's bytes change only with its stage's code, so DVC reruns only that stage; the file
-    of a script that is gone is removed; no absolute path or time is written."""
+    of a script that is gone is removed, and a killed write's temp file; no absolute path or time
+    is written."""
     (toy / "stages" / "other.py").write_text("import msdepth.errors\n")
     (toy / "stages" / "fingerprints.py").write_text("import msdepth.plain\n")  # it has none
     assert write_fingerprints(toy) == ["data/fingerprints/other.txt", "data/fingerprints/run.txt"]
@@ -207,11 +209,27 @@ def test_the_fingerprints_stage_rewrites_only_what_changed(toy: Path):
     ]
     os.utime(folder / "run.txt", (0, 0))
     (folder / "gone.txt").write_text("")
+    killed = folder / f".run.txt{TEMP_MARK}abcd1234.txt"  # a write killed before its rename
+    killed.write_text("half")
     assert write_fingerprints(toy) == ["data/fingerprints/gone.txt"]
     assert (folder / "run.txt").stat().st_mtime == 0 and not (folder / "gone.txt").exists()
+    assert not killed.exists()
     (toy / "src" / "msdepth" / "plain.py").write_text("import os\nfrom . import plugins\nos.sep\n")
     assert write_fingerprints(toy) == ["data/fingerprints/run.txt"]
     assert sorted(p.name for p in folder.iterdir()) == ["other.txt", "run.txt"]
+
+
+def test_a_source_that_is_not_python_is_one_line_naming_it(toy: Path, capsys):
+    from msdepth.pipeline.fingerprints import main
+
+    (toy / "src" / "msdepth" / "lazy.py").write_text("def f(:\n")
+    assert main(["--root", str(toy)]) == 1
+    err = capsys.readouterr().err
+    assert err == f"error: {toy}/src/msdepth/lazy.py: not valid Python (line 1: invalid syntax)\n"
+    (toy / "src" / "msdepth" / "lazy.py").write_text("import msdepth.missing\n")
+    assert main(["--root", str(toy)]) == 1
+    assert "imports msdepth.missing, which has no file under" in capsys.readouterr().err
+    assert not list((toy / pipeline.FINGERPRINTS).glob("*.txt"))
 
 
 TOY_YAML = """\

@@ -37,7 +37,7 @@ import sys
 from pathlib import Path
 
 from msdepth.errors import DataError, MsdepthError
-from msdepth.io import read_text_file, write_text
+from msdepth.io import read_text_file, remove_stale_temps, write_text
 from msdepth.pipeline.paths import FINGERPRINTS
 
 PACKAGE = "msdepth"
@@ -242,6 +242,7 @@ def write_fingerprints(root: Path) -> list[str]:
     files (relative to ``root``)."""
     folder = root / FINGERPRINTS
     folder.mkdir(parents=True, exist_ok=True)
+    remove_stale_temps(folder)  # a killed run's: they would be part of the folder DVC records
     sources = Sources()
     wanted = {fingerprint_path(s): fingerprint_text(root, s, sources) for s in stage_scripts(root)}
     changed = []
