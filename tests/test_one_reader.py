@@ -93,7 +93,6 @@ def test_the_kitti_jpeg_conversion_bounds_an_image_before_decoding_it(tmp_path: 
 # Reads of files the pipeline wrote itself, allowed outside msdepth.io's readers, with why.
 PIPELINE_READ_ALLOWED = {
     # the package's own source, hashed and parsed (no user file)
-    ("src/msdepth/pipeline/dvcyaml.py", "text = path.read_text()"),
     ("src/msdepth/training/train.py", "path.read_bytes()"),
     # a PNG this command wrote a moment ago in its own temporary folder
     ("src/msdepth/cli/example.py", "png_size(written.read_bytes())"),

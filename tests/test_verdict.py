@@ -275,10 +275,10 @@ def test_the_summary_table_holds_each_familys_headline_instrument() -> None:
     assert cells["optimum w10, kitti2015 frames"] is None
     assert data["summary"]["car"]["optimum w10, kitti2015 frames"]["instrument"] == "optimum w10 on kitti2015"
     lines = summary_lines(data)
-    assert lines[2] == "| car | – | – | \u22120.020 [\u22120.040, +0.000], n = 9 ROIs |"
+    assert lines[2] == "| car | – | – | – | \u22120.020 [\u22120.040, +0.000], n = 9 ROIs |"
     assert lines[3] == (
         "| windshield | \u22120.036 [\u22120.068, \u22120.002] *, n = 66 ROIs × 3 seed pairs | "
-        "\u22120.010 [\u22120.030, +0.010], n = 66 ROIs | – |"
+        "\u22120.010 [\u22120.030, +0.010], n = 66 ROIs | – | – |"
     )
 
 

@@ -437,7 +437,7 @@ def verdict_table(
         >>> car = Row("stereo networks", "car", -0.02, -0.04, 0.01, 40, "m", "network")
         >>> ((cls, cells),) = verdict_table([car], headline_columns(10), ["car"])
         >>> cls, [r and r.diff for r in cells]
-        ('car', [-0.02, None])
+        ('car', [-0.02, None, None])
     """
     cells = {(r.cls, r.kind, r.instrument): r for r in reversed(rows)}
     return [(cls, [cells.get((cls, c.kind, c.instrument)) for c in columns]) for cls in classes]
