@@ -85,11 +85,17 @@ def _export_folder(tmp: Path, out: Path, model: Path, synthetic: Path) -> tuple[
     return ["export-folder", "--from", str(synthetic), "--to", str(out)], synthetic, out / "eval.txt", False
 
 
+def _photometry(tmp: Path, out: Path, model: Path, synthetic: Path) -> tuple[list[str], Path, Path, bool]:
+    source = synthetic / "kitti2015"  # training/: image_2, image_3, disp_occ_0
+    return ["photometry", str(source), "--out", str(out), "--width", "40"], source, out, True
+
+
 WRITERS: dict[str, Writer] = {
     "predict": _predict,
     "optimum": _optimum,
     "export-onnx": _export_onnx,
     "export-folder": _export_folder,
+    "photometry": _photometry,
 }
 # Subcommands that write no file (their output is stdout): nothing for the hostile cases to reach.
 READ_ONLY = frozenset({"experiments"})
