@@ -304,19 +304,103 @@ def read_json_object(path: str | os.PathLike, kind: str, hint: str = "") -> dict
     return data
 
 
-def read_table_file(path: str | os.PathLike, kind: str, max_bytes: int = MAX_TABLE_BYTES, **options: Any):
-    """``pandas.read_csv`` of the regular file ``path``, read whole through :func:`read_bounded`
-    (``options`` go to read_csv); one DataError line naming the file when it is refused or not a
-    table."""
-    import io as _bytes_io
+# A table the pipeline writes averages 5 to 8 bytes a cell; pandas holds 8 bytes a cell (a float, or
+# a pointer to a string) plus its strings. A file of empty or one-character cells would take 4 to 11
+# times its size: the parsed table may hold at most this multiple of the file's bytes, and is parsed
+# in chunks of about _TABLE_CHUNK_CELLS cells (2 MiB of floats) whose memory is summed as they come.
+MAX_TABLE_GROWTH = 2
+MAX_TABLE_COLUMNS = 10_000  # the widest table the pipeline writes has under 100
+_TABLE_CHUNK_CELLS = 1 << 18
 
+
+def read_table_file(path: str | os.PathLike, kind: str, max_bytes: int = MAX_TABLE_BYTES, **options: Any):
+    """``pandas.read_csv`` of the regular file ``path`` of at most ``max_bytes`` (``options`` go to
+    read_csv); one DataError line naming the file when it is refused or not a table.
+
+    Parsed in chunks of rows straight from the file, their memory summed as they come
+    (:func:`_table_bytes`): a table of more than :data:`MAX_TABLE_COLUMNS` columns, or that would
+    hold more than :data:`MAX_TABLE_GROWTH` times its file's bytes (plus 1 MiB), is refused, so peak
+    memory stays a small multiple of the file's size."""
     import pandas as pd  # here: most commands never read a table
 
-    data = read_bounded(path, kind, max_bytes, allow_empty=True)
-    try:
-        return pd.read_csv(_bytes_io.BytesIO(data), **options)
-    except (ValueError, UnicodeDecodeError, pd.errors.EmptyDataError) as exc:  # ParserError is a ValueError
-        raise DataError(f"{path}: not a readable {kind} table ({str(exc).splitlines()[0][:200]})") from None
+    with open_regular(path, kind, max_bytes, allow_empty=True) as file:
+        size = os.fstat(file.fileno()).st_size
+        columns = _header_columns(file, options.get("sep", options.get("delimiter", ",")))
+        if columns > MAX_TABLE_COLUMNS:
+            raise DataError(
+                f"{path}: its header has {columns:,} columns, over the {MAX_TABLE_COLUMNS:,} "
+                f"of a {kind} table"
+            )
+        budget, chunks, held = MAX_TABLE_GROWTH * size + (1 << 20), [], 0
+        rows = max(1, _TABLE_CHUNK_CELLS // columns)
+        try:
+            with pd.read_csv(_SizedReader(file, size), chunksize=rows, **options) as reader:
+                for chunk in reader:
+                    held += _table_bytes(chunk)
+                    if held > budget:
+                        raise DataError(
+                            f"{path}: this {kind} table takes over {_size_text(held)} in memory, more than "
+                            f"{MAX_TABLE_GROWTH}x its file ({_size_text(size)}): "
+                            "not a table the pipeline writes"
+                        )
+                    chunks.append(chunk)
+        except pd.errors.EmptyDataError:
+            return pd.DataFrame()
+        except (ValueError, UnicodeDecodeError, OSError) as exc:  # ParserError is a ValueError
+            raise DataError(
+                f"{path}: not a readable {kind} table ({str(exc).splitlines()[0][:200]})"
+            ) from None
+    return (
+        chunks[0] if len(chunks) == 1 else pd.concat(chunks, ignore_index=True) if chunks else pd.DataFrame()
+    )
+
+
+def _header_columns(file: BinaryIO, sep: Any) -> int:
+    """The columns of the table's first line (at most 1 MiB of it is read), the file rewound; 1 when
+    ``sep`` is not one character (a pattern)."""
+    line = file.readline(1 << 20)
+    file.seek(0)
+    if not isinstance(sep, str) or len(sep) != 1:
+        return 1
+    return line.count(sep.encode("utf-8", "replace")) + 1
+
+
+def _table_bytes(frame: Any) -> int:
+    """The bytes a parsed DataFrame chunk holds: its arrays, plus each distinct string object once
+    (pandas shares one object among equal strings of a chunk, which ``memory_usage(deep=True)``
+    counts once per cell)."""
+    import pandas as pd
+
+    total = int(frame.memory_usage(index=True, deep=False).sum())
+    for i, dtype in enumerate(frame.dtypes):
+        if pd.api.types.is_object_dtype(dtype) or pd.api.types.is_string_dtype(dtype):
+            seen = {id(value): value for value in frame.iloc[:, i].to_numpy(dtype=object)}
+            total += sum(sys.getsizeof(value) for value in seen.values())
+    return total
+
+
+class _SizedReader:
+    """A binary file read as at most ``size`` bytes (its size when it was opened): a file that grows
+    while pandas reads it is not read past the size its limit was checked against."""
+
+    def __init__(self, file: BinaryIO, size: int) -> None:
+        self.file, self.left = file, size
+
+    def read(self, n: int = -1) -> bytes:
+        """Up to ``n`` bytes (all that is left for a negative ``n``), never past the opened size."""
+        n = self.left if n is None or n < 0 else min(n, self.left)
+        data = self.file.read(n)
+        self.left -= len(data)
+        return data
+
+    def __iter__(self) -> Iterator[bytes]:
+        return iter(self.readline, b"")
+
+    def readline(self, n: int = -1) -> bytes:
+        """One line, never past the opened size."""
+        data = self.file.readline(self.left if n is None or n < 0 else min(n, self.left))
+        self.left -= len(data)
+        return data
 
 
 def read_npy_header(file: BinaryIO, size: int, where: str) -> tuple[tuple[int, ...], bool, np.dtype]:
@@ -352,43 +436,72 @@ def read_npy_header(file: BinaryIO, size: int, where: str) -> tuple[tuple[int, .
 
 def _npy_array(file: BinaryIO, size: int, where: str) -> np.ndarray:
     """The array of an ``.npy`` stream of ``size`` bytes, its header checked before any allocation
-    (:func:`read_npy_header`)."""
+    (:func:`read_npy_header`), read into the one buffer the array keeps, 4 MiB at a time (a
+    ``read(n)`` of a zip member builds ``n`` bytes, then copies them)."""
     import numpy as np
 
     shape, fortran, dtype = read_npy_header(file, size, where)
     needed = size - file.tell()
     data = bytearray(needed)  # bytearray, not bytes: the array is writable, as np.load's is
-    got = file.readinto(data)
-    if got != needed:
-        raise DataError(f"{where}: the .npy data ended early ({got} of {needed} bytes)")
+    view, got = memoryview(data), 0
+    while got < needed:
+        step = file.readinto(view[got : got + (4 << 20)])
+        if not step:
+            raise DataError(f"{where}: the .npy data ended early ({got} of {needed} bytes)")
+        got += step
     return np.frombuffer(data, dtype).reshape(shape, order="F" if fortran else "C")
 
 
+# A file whose size is over this and of which under 1/_SPARSE_RATIO is on disk is sparse: its holes
+# read as zeros the pipeline never wrote (a 1.5 GiB .npy in 4 KB), and reading it allocates its size.
+_SPARSE_MIN_BYTES = 64 << 20
+_SPARSE_RATIO = 8
+# What the pipeline's .npz files (np.savez_compressed of float depth maps, ~1.1x) may inflate to, per
+# byte of the file: deflate reaches ~1,000x on zeros, so a bomb of a few MB would declare gigabytes.
+MAX_INFLATE_RATIO = 64
+
+
+def _check_not_sparse(file: BinaryIO, where: str, kind: str) -> None:
+    """DataError naming ``where`` when the open ``file`` is sparse (:data:`_SPARSE_RATIO`)."""
+    info = os.fstat(file.fileno())
+    on_disk = getattr(info, "st_blocks", None)
+    if (
+        on_disk is not None
+        and info.st_size > _SPARSE_MIN_BYTES
+        and on_disk * 512 * _SPARSE_RATIO < info.st_size
+    ):
+        raise DataError(
+            f"{where}: a sparse {kind} file ({_size_text(info.st_size)}, {_size_text(on_disk * 512)} "
+            "on disk): not one the pipeline wrote; nothing was read"
+        )
+
+
 def read_npy_file(path: str | os.PathLike, kind: str, max_bytes: int = MAX_ARRAY_BYTES) -> np.ndarray:
-    """The array in the regular ``.npy`` file ``path`` of at most ``max_bytes``: its header checked
-    against the file's size before the data is read; each refusal one DataError naming the file."""
+    """The array in the regular ``.npy`` file ``path`` of at most ``max_bytes``: a sparse file is
+    refused and the header checked against the file's size before the data is read; each refusal
+    one DataError naming the file."""
     with open_regular(path, kind, max_bytes) as file:
+        _check_not_sparse(file, str(path), kind)
         return _npy_array(file, os.fstat(file.fileno()).st_size, str(path))
 
 
 def read_npz_file(
     path: str | os.PathLike, kind: str, max_bytes: int = MAX_ARRAY_BYTES
 ) -> dict[str, np.ndarray]:
-    """``{name: array}`` of the regular ``.npz`` file ``path``: at most ``max_bytes`` on disk and,
-    summed over its members as the archive declares them, uncompressed (a zip bomb is refused before
-    it inflates); each member read as :func:`read_npy_file` reads a file."""
+    """``{name: array}`` of the regular ``.npz`` file ``path``: at most ``max_bytes`` on disk, not
+    sparse, and its members as the zip headers declare them (each member's npy header then checked
+    against its declared size) summed to at most ``max_bytes`` and :data:`MAX_INFLATE_RATIO` times the
+    file: a zip bomb is refused before anything inflates; each member read as :func:`read_npy_file`
+    reads a file. Each refusal one DataError naming the file."""
     import zipfile
 
     with open_regular(path, kind, max_bytes) as file:
+        _check_not_sparse(file, str(path), kind)
+        size = os.fstat(file.fileno()).st_size
         try:
             with zipfile.ZipFile(file) as archive:
                 members = archive.infolist()
-                if sum(m.file_size for m in members) > max_bytes:
-                    raise DataError(
-                        f"{path}: its members inflate to over {_size_text(max_bytes)}; nothing was read"
-                    )
-                if any(not m.filename.endswith(".npy") for m in members):
-                    raise DataError(f"{path}: not an .npz of arrays (a member is not .npy)")
+                _check_members(path, members, min(max_bytes, MAX_INFLATE_RATIO * size))
                 out = {}
                 for m in members:
                     with archive.open(m) as member:
@@ -396,8 +509,21 @@ def read_npz_file(
                             member, m.file_size, f"{path}[{m.filename}]"
                         )
                 return out
-        except (zipfile.BadZipFile, OSError, EOFError, zlib.error) as exc:
+        except (zipfile.BadZipFile, OSError, EOFError, zlib.error, NotImplementedError) as exc:
             raise DataError(f"{path}: not a readable .npz archive ({exc})") from None
+
+
+def _check_members(path: str | os.PathLike, members: list, limit: int) -> None:
+    """DataError naming ``path`` when the zip ``members`` declare more than ``limit`` bytes inflated,
+    or one is not an ``.npy``."""
+    declared = sum(m.file_size for m in members)
+    if declared > limit:
+        raise DataError(
+            f"{path}: its members declare {_size_text(declared)} inflated, over the {_size_text(limit)} "
+            f"this file may hold ({MAX_INFLATE_RATIO}x its size at most); nothing was inflated"
+        )
+    if any(not m.filename.endswith(".npy") for m in members):
+        raise DataError(f"{path}: not an .npz of arrays (a member is not .npy)")
 
 
 # One filter for every row and a fixed deflate level: the bytes depend only on the pixels and
