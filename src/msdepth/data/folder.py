@@ -42,6 +42,7 @@ The folder is ``data.root`` (DVC tracks the data under that name); every other n
 from __future__ import annotations
 
 import os
+import stat
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -179,9 +180,29 @@ def _image_files(folder: Path) -> list[Path]:
 
 
 def _existing(path: Path, what: str) -> Path:
-    if not path.is_file():
-        raise DataError(f"{path}: no such {what}")
+    """``path`` if it is a regular file (or a symbolic link to one); else a DataError naming it and
+    what it is (:func:`file_problem`)."""
+    problem = file_problem(path, what)
+    if problem is not None:
+        raise DataError(f"{path}: {problem}")
     return path
+
+
+def file_problem(path: Path, what: str) -> str | None:
+    """What keeps ``path`` from being a readable ``what`` ("no such class map", "a symbolic link to a
+    FIFO, not a regular file (class map)", ...), None if it is a regular file or a link to one."""
+    link = "a symbolic link to " if os.path.islink(path) else ""
+    try:
+        mode = os.stat(path).st_mode
+    except FileNotFoundError:
+        return f"{link}a missing file ({what})" if link else f"no such {what}"
+    except OSError as exc:  # a link loop, a name too long, no permission on a folder
+        return f"cannot reach this {what} ({exc.strerror or exc})"
+    if stat.S_ISREG(mode):
+        return None
+    kind = "a folder" if stat.S_ISDIR(mode) else "a FIFO" if stat.S_ISFIFO(mode) else "a socket"
+    kind = "a device" if stat.S_ISCHR(mode) or stat.S_ISBLK(mode) else kind
+    return f"{link}{kind}, not a regular file ({what})"
 
 
 def build_train_pairs(paths: FolderLayout) -> tuple[list[tuple[Path, Path]], int]:
@@ -292,11 +313,13 @@ def check_folder(paths: FolderLayout) -> dict:
     if "evaluation list" in report:
         for left, right, gt in report["evaluation list"]:
             for rel in (left, right, gt):
-                if rel and not (paths.root / rel).is_file():
-                    problems.append(f"{paths.root / rel}: listed in {paths.eval_list} but missing")
+                if rel and (problem := file_problem(paths.root / rel, "file")) is not None:
+                    problem = "missing" if problem == "no such file" else problem
+                    problems.append(f"{paths.root / rel}: listed in {paths.eval_list} but {problem}")
             class_map = paths.class_maps / f"{Path(left).stem}.png" if paths.class_maps else None
-            if class_map and not class_map.is_file():
-                problems.append(f"{class_map}: no class map for {left} (data.folder.class_maps)")
+            if class_map and (problem := file_problem(class_map, "class map")) is not None:
+                problem = "no class map" if problem == "no such class map" else problem
+                problems.append(f"{class_map}: {problem} for {left} (data.folder.class_maps)")
         try:
             train, excluded = build_train_pairs(paths)
             report["train_pairs"], report["eval_frames_excluded"] = len(train), excluded

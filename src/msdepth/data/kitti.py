@@ -59,17 +59,61 @@ def _decode(
         raise DataError(f"{path}: {what}: cannot read it ({exc.strerror or exc})") from None
 
 
+_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+_PNG_PALETTE = 3  # IHDR colour type of an indexed-colour PNG
+# What a file named .png may really be, by its first bytes: each named in the refusal.
+_OTHER_FORMATS = (
+    (b"P5", "a PGM"),
+    (b"P2", "a PGM"),
+    (b"P6", "a PPM"),
+    (b"\xff\xd8", "a JPEG"),
+    (b"BM", "a BMP"),
+)
+
+
+def _decode_png(path: PathLike, what: str) -> tuple[np.ndarray, int, int]:
+    """(pixels, bit depth, colour type) of the PNG ``path`` as :func:`_decode` reads it: a DataError
+    naming the file unless its bytes are a PNG (a PGM named ``.png`` decodes as well, and was taken
+    for KITTI GT). Below 8 bits OpenCV scales grey samples to 8 bits (a 1-bit 1 reads 255)."""
+    path = Path(path)
+    if not os.path.lexists(path):
+        raise DataError(f"{path}: no such {what} file")
+    try:
+        data = imagefile.read_file(path, MAX_IMAGE_PIXELS)
+    except DataError as exc:
+        raise type(exc)(f"{path}: {what}: {exc}") from None
+    except OSError as exc:
+        raise DataError(f"{path}: {what}: cannot read it ({exc.strerror or exc})") from None
+    if not data.startswith(_PNG_SIGNATURE):
+        found = next((name for magic, name in _OTHER_FORMATS if data.startswith(magic)), "another format")
+        raise DataError(f"{path}: {what}: not a PNG (its bytes are {found}); {what}s are PNG files")
+    try:
+        img = imagefile.decode(data, cv2.IMREAD_UNCHANGED, MAX_IMAGE_PIXELS)
+    except DataError as exc:
+        raise type(exc)(f"{path}: {what}: {exc}") from None
+    return img, data[24], data[25]  # IHDR: bit depth, colour type (read_file checked IHDR comes first)
+
+
 def _decode_as(path: PathLike, what: str, dtype: type, channels: int) -> np.ndarray:
-    """:func:`_decode`, then a DataError unless the pixels are ``dtype`` with ``channels`` channels."""
-    img = _decode(path, what)
+    """:func:`_decode_png`, then a DataError unless the pixels are ``dtype`` with ``channels``
+    channels (a palette PNG is called one)."""
+    img, _, color_type = _decode_png(path, what)
     found = 1 if img.ndim == 2 else img.shape[2]
-    if img.dtype != dtype or found != channels or (channels == 1 and img.ndim != 2):
+    if (
+        img.dtype != dtype
+        or found != channels
+        or (channels == 1 and img.ndim != 2)
+        or color_type == _PNG_PALETTE
+    ):
         bits = 8 * np.dtype(dtype).itemsize
         layout = "single-channel" if channels == 1 else f"{channels}-channel"
         article = "an" if bits == 8 else "a"
-        raise DataError(
-            f"{path}: expected {article} {bits}-bit {layout} {what}, got {img.dtype} with {found} channel(s)"
+        got = (
+            "a palette PNG (colours, not values)"
+            if color_type == _PNG_PALETTE
+            else f"{img.dtype} with {found} channel(s)"
         )
+        raise DataError(f"{path}: expected {article} {bits}-bit {layout} {what}, got {got}")
     return img
 
 
@@ -139,15 +183,20 @@ def read_label_map(path: PathLike) -> np.ndarray:
     """Read a PNG of integer labels, 8- or 16-bit with one channel (a stereo folder's class map,
     :func:`msdepth.data.ground_truth.read_label_class_map`). Any other format is refused: a JPEG's
     compression changes labels at every edge."""
-    img = _decode(path, "class map")
-    if not imagefile.is_png(path):
-        raise DataError(f"{path}: class map: not a PNG (labels must be stored losslessly: a PNG of integers)")
+    img, depth, color_type = _decode_png(path, "class map")
+    if color_type == _PNG_PALETTE:
+        raise DataError(
+            f"{path}: expected an 8- or 16-bit single-channel class map (integer labels), got a palette "
+            "PNG (colours, not labels): save the labels as a greyscale PNG"
+        )
     if img.ndim != 2 or img.dtype not in (np.uint8, np.uint16):
         found = 1 if img.ndim == 2 else img.shape[2]
         raise DataError(
             f"{path}: expected an 8- or 16-bit single-channel class map (integer labels), "
             f"got {img.dtype} with {found} channel(s)"
         )
+    if depth < 8:  # OpenCV scaled the 1-, 2- or 4-bit labels to 8 bits: back to the labels stored
+        img = img // np.uint8(255 // (2**depth - 1))
     return img
 
 
