@@ -20,7 +20,8 @@ import numpy as np
 
 from msdepth.config.params import read_params_file
 from msdepth.errors import OutputError, run_main
-from msdepth.io import OutputPolicy, save_npz
+from msdepth.io import save_npz
+from msdepth.outputs import OutputPolicy
 from msdepth.render import EVAL, TRAIN, render_frame
 
 ROOT = Path(__file__).resolve().parents[1]

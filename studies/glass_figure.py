@@ -22,8 +22,8 @@ import numpy as np  # noqa: E402
 from msdepth.config.params import params_from_dict, read_params_file  # noqa: E402
 from msdepth.data.kitti import CLASS_BITS  # noqa: E402
 from msdepth.errors import run_main
-from msdepth.io import claim_output_file  # noqa: E402
 from msdepth.optimum.solver import optimum_disparities  # noqa: E402
+from msdepth.outputs import claim_output_file  # noqa: E402
 from msdepth.reporting.figures import write_figure  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -23,7 +23,8 @@ from pathlib import Path
 import numpy as np
 
 from msdepth.errors import DataError, run_main
-from msdepth.io import claim_output_file, write_text
+from msdepth.io import write_text
+from msdepth.outputs import claim_output_file
 from msdepth.reporting.stats import paired_t
 from msdepth.reporting.verdict import signed
 

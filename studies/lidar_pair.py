@@ -45,10 +45,11 @@ from msdepth.errors import DataError, run_main
 from msdepth.evaluation.infer import network_disparity
 from msdepth.evaluation.metrics import compute_errors, median_scale, stereo_errors
 from msdepth.geometry.depth import clamp_depth, disparity_to_depth
-from msdepth.io import OutputPolicy, write_text
+from msdepth.io import write_text
 from msdepth.optimum.sgbm import sgbm_disparity
 from msdepth.optimum.solver import optimum_disparities
 from msdepth.optimum.starts import matched_disparity
+from msdepth.outputs import OutputPolicy
 from msdepth.studies.real_samples import CAP, MIN_DEPTH, lidar_gt, samples_dir, variants_of, working_size
 
 ROOT = Path(__file__).resolve().parents[1]

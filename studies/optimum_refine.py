@@ -36,9 +36,10 @@ from msdepth.config.params import Params, apply_overrides, kernel_variant, param
 from msdepth.data.kitti import read_disparity, read_image
 from msdepth.data.pairs import resize, to_tensor
 from msdepth.errors import run_main
-from msdepth.io import claim_output_file, write_text
+from msdepth.io import write_text
 from msdepth.optimum.solver import disparity_pyramid, level_sizes, objective, optimise, working_weight
 from msdepth.optimum.starts import start_disparity
+from msdepth.outputs import claim_output_file
 from msdepth.studies.real_samples import Result, samples_dir, scores, working_size
 
 ROOT = Path(__file__).resolve().parents[1]

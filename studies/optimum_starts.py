@@ -38,12 +38,13 @@ import torch
 from msdepth.data.kitti import read_disparity, read_image
 from msdepth.data.pairs import resize, to_tensor
 from msdepth.errors import run_main
-from msdepth.io import claim_output_file, write_text
+from msdepth.io import write_text
 from msdepth.optimum.cost_volume import cost_volume, matching_cost, winner_take_all
 from msdepth.optimum.sgbm import sgbm_disparity
 from msdepth.optimum.sgm import SGMConfig, sgm
 from msdepth.optimum.solver import disparity_pyramid, objective, optimise, working_weight
 from msdepth.optimum.starts import both_views
+from msdepth.outputs import claim_output_file
 from msdepth.studies.real_samples import Result, samples_dir, scores, variants_of, working_size
 
 ROOT = Path(__file__).resolve().parents[1]

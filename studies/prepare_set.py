@@ -19,7 +19,8 @@ import yaml
 
 from msdepth.config.params import Params, apply_overrides, params_from_dict, read_params_file
 from msdepth.errors import MsdepthError, run_main
-from msdepth.io import OutputPolicy, resolved, write_text
+from msdepth.io import write_text
+from msdepth.outputs import OutputPolicy, resolved
 from msdepth.render import generate
 
 ROOT = Path(__file__).resolve().parents[1]  # its params.yaml and stages/

@@ -28,8 +28,9 @@ from msdepth.data.annotations import gt_density, read_annotation
 from msdepth.errors import OutputError, run_main
 from msdepth.evaluation.suites import Frame, evaluate_roi
 from msdepth.geometry.depth import disparity_to_depth
-from msdepth.io import OutputPolicy, output_file_policy, write_png, write_text
+from msdepth.io import write_png, write_text
 from msdepth.optimum.sgbm import sgbm_disparity
+from msdepth.outputs import OutputPolicy, output_file_policy
 
 ROIS_CSV = Path("data_lists/kitti2015_rois.csv")
 SAMPLES = Path("../shared/real-samples/kitti2015-training")
@@ -135,7 +136,7 @@ def report(rois_csv: Path, samples: Path, pictures: Path | None) -> str:
 
 
 def claim_outputs(out: Path | None, pictures: Path | None, rois_csv: Path, samples: Path) -> None:
-    """Claim the report and each frame's overlay picture (:class:`msdepth.io.OutputPolicy`) before
+    """Claim the report and each frame's overlay picture (:class:`msdepth.outputs.OutputPolicy`) before
     any work; an OutputError names a file the study did not write."""
     if out is not None:
         output_file_policy(out, "real-rois").claim([out], samples)

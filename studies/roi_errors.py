@@ -30,7 +30,8 @@ from msdepth.data.pairs import load_pair_list
 from msdepth.errors import run_main
 from msdepth.evaluation import baselines
 from msdepth.evaluation.suites import depth_maps, load_frames, read_depth_maps
-from msdepth.io import claim_output_file, write_text
+from msdepth.io import write_text
+from msdepth.outputs import claim_output_file
 
 INDEX = Path("data/index")
 CAP = 80.0

@@ -27,7 +27,7 @@ MIB = 1 << 20
 CHILD = """
 import json, resource, sys
 import numpy, pandas
-from msdepth import io
+from msdepth import readers
 from msdepth.__main__ import main
 from msdepth.errors import MsdepthError
 base = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
@@ -73,7 +73,7 @@ def test_an_npz_member_declaring_1_5_gib_is_refused_before_inflating(tmp_path: P
         archive.writestr("000001.npy", _npy_header(4 * MIB) + bytes(4 * MIB))
     _declared_as(path, 3 << 29)  # 1.5 GiB
     assert path.stat().st_size < MIB
-    peak, error = _peak(f"io.read_npz_file({str(path)!r}, 'depth maps')")
+    peak, error = _peak(f"readers.read_npz_file({str(path)!r}, 'depth maps')")
     assert error.startswith(f"{path}: its members declare 1,536 MiB inflated") and "\n" not in error, error
     assert peak < 32 * MIB, peak
 
@@ -87,7 +87,7 @@ def test_a_deflate_bomb_is_refused_before_inflating(tmp_path: Path) -> None:
             for _ in range(8):
                 member.write(bytes(16 * MIB))
     assert path.stat().st_size < 2 * MIB
-    peak, error = _peak(f"io.read_npz_file({str(path)!r}, 'depth maps')")
+    peak, error = _peak(f"readers.read_npz_file({str(path)!r}, 'depth maps')")
     assert error.startswith(f"{path}: its members declare 128 MiB inflated, over the ") and "64x" in error
     assert peak < 32 * MIB, peak
 
@@ -98,7 +98,7 @@ def test_an_npz_within_its_ratio_is_read_within_twice_its_arrays(tmp_path: Path)
     path = tmp_path / "depth.npz"
     values = np.random.default_rng(0).random((64, 256, 512), dtype=np.float32)
     np.savez_compressed(path, a=values)
-    peak, error = _peak(f"arrays = io.read_npz_file({str(path)!r}, 'depth maps')")
+    peak, error = _peak(f"arrays = readers.read_npz_file({str(path)!r}, 'depth maps')")
     assert error == "" and peak < 1.5 * values.nbytes + 8 * MIB, peak
 
 
@@ -110,7 +110,7 @@ def test_a_sparse_npy_is_refused_without_allocating(tmp_path: Path) -> None:
         file.truncate(len(header) + (3 << 29))  # 1.5 GiB, nothing of it on disk
     if path.stat().st_blocks * 512 >= MIB:
         pytest.skip("this filesystem does not keep sparse files")
-    peak, error = _peak(f"io.read_npy_file({str(path)!r}, 'disparities')")
+    peak, error = _peak(f"readers.read_npy_file({str(path)!r}, 'disparities')")
     assert error.startswith(f"{path}: a sparse disparities file (1,536 MiB,") and "\n" not in error, error
     assert peak < 32 * MIB, peak
 
@@ -138,7 +138,7 @@ def test_a_table_of_tiny_cells_is_refused_within_about_twice_its_size(
 ) -> None:
     path = tmp_path / "metrics.csv"
     size = _csv(path, line, header, 16 * MIB)
-    peak, error = _peak(f"io.read_table_file({str(path)!r}, 'per-unit metrics')")
+    peak, error = _peak(f"readers.read_table_file({str(path)!r}, 'per-unit metrics')")
     assert error.startswith(f"{path}: this per-unit metrics table takes over ") and "2x its file" in error
     assert peak < 3 * size, (peak, size)
 
@@ -148,7 +148,7 @@ def test_a_table_of_unique_short_strings_is_refused_within_a_small_multiple(tmp_
     with open(path, "w") as file:
         file.write("a,b\n" + "".join(f"x{i:x},y{i:x}\n" for i in range(1_000_000)))
     size = path.stat().st_size
-    peak, error = _peak(f"io.read_table_file({str(path)!r}, 'per-unit metrics')")
+    peak, error = _peak(f"readers.read_table_file({str(path)!r}, 'per-unit metrics')")
     assert "2x its file" in error and peak < 5 * size, (peak, size)
 
 
@@ -157,7 +157,7 @@ def test_a_table_the_pipeline_writes_is_read_within_twice_its_size(tmp_path: Pat
     row = "2011_09_26_drive_0002_sync/0000000069," + ",".join(["0.1234567"] * 10) + "\n"
     size = _csv(path, row, "frame," + ",".join(f"m{i}" for i in range(10)) + "\n", 8 * MIB)
     peak, error = _peak(
-        f"t = io.read_table_file({str(path)!r}, 'per-unit metrics', dtype={{'frame': str}}); "
+        f"t = readers.read_table_file({str(path)!r}, 'per-unit metrics', dtype={{'frame': str}}); "
         "assert t.shape[1] == 11"
     )
     assert error == "" and peak < 2 * size, (peak, size)

@@ -20,7 +20,7 @@ from msdepth.config.variants import (
     configs as variant_configs,  # light: the loss variants' configs, not their terms
 )
 from msdepth.errors import ConfigError, DataError
-from msdepth.io import not_regular_file, open_regular
+from msdepth.readers import not_regular_file, open_regular
 
 # The ranges of the checks below that bound a value only so that it cannot fail later.
 SEED_MAX = 2**32 - 1  # numpy's legacy seeding (np.random.seed) takes seeds below 2^32

@@ -20,7 +20,8 @@ import pandas as pd
 from msdepth.data import imagefile
 from msdepth.data.imagefile import MAX_IMAGE_PIXELS
 from msdepth.errors import DataError
-from msdepth.io import atomic_path, read_bounded, write_png, write_text
+from msdepth.io import atomic_path, write_png, write_text
+from msdepth.readers import read_bounded
 
 # Monodepth's width -> focal table (px) for the four KITTI raw image widths, and its baseline (m).
 WIDTH_TO_FOCAL: dict[int, float] = {1242: 721.5377, 1241: 718.856, 1224: 707.0493, 1238: 718.3351}
@@ -31,7 +32,7 @@ ROI_COLUMNS = ("image", "class", "x0", "y0", "x1", "y1")
 
 PathLike = str | os.PathLike
 
-# What each text or binary reader here reads at most (:func:`msdepth.io.read_bounded`), far above
+# What each text or binary reader here reads at most (:func:`msdepth.readers.read_bounded`), far above
 # KITTI's own files: a calibration file is ~5 KB (a 600 MB one took 1.5 GB to refuse), a Velodyne
 # scan ~2 MB (about 120,000 points; the bound is 2 million), a split list ~3 MB (the bound: a
 # million lines of 64 bytes, data.synthetic's most frames), an ROI CSV ~30 bytes a box (the bound:
@@ -206,7 +207,7 @@ def read_calib(path: PathLike) -> dict[str, np.ndarray]:
     Reads both the raw-data ``calib_cam_to_cam.txt`` (``P_rect_02``, ``S_rect_02``, ...) and the
     object-benchmark ``calib.txt`` (``P2``, ``P3``, ...). Non-numeric entries such as
     ``calib_time`` are skipped. Matrices stay flat (row-major); reshape as needed. Only a regular
-    file of at most :data:`MAX_CALIB_BYTES` is read (:func:`msdepth.io.read_bounded`).
+    file of at most :data:`MAX_CALIB_BYTES` is read (:func:`msdepth.readers.read_bounded`).
     """
     path = Path(path)
     calib: dict[str, np.ndarray] = {}
@@ -279,7 +280,7 @@ def read_velodyne(path: PathLike) -> np.ndarray:
 
     x points forward, y left, z up (metres). A size that is not a whole number of 16-byte points
     means a truncated or foreign file, which would otherwise shift every later point's fields. Only
-    a regular file of at most :data:`MAX_VELODYNE_BYTES` is read (:func:`msdepth.io.read_bounded`).
+    a regular file of at most :data:`MAX_VELODYNE_BYTES` is read (:func:`msdepth.readers.read_bounded`).
     """
     data = read_bounded(path, "Velodyne scan", MAX_VELODYNE_BYTES, allow_empty=True)  # a scan of no points
     if len(data) % 16:
@@ -517,7 +518,7 @@ def read_rois(path: PathLike) -> pd.DataFrame:
     """Read ROI boxes: columns image, class, x0, y0, x1, y1 (pixels; x1/y1 exclusive).
 
     Only a regular, non-empty file of at most :data:`MAX_ROI_BYTES` is read
-    (:func:`msdepth.io.read_bounded`): pandas given the path would block on a FIFO and read any size.
+    (:func:`msdepth.readers.read_bounded`): pandas given the path would block on a FIFO and read any size.
     """
     path = Path(path)
     data = read_bounded(path, "ROI", MAX_ROI_BYTES)

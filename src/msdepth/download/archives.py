@@ -57,7 +57,8 @@ from typing import Any
 from tqdm import tqdm
 
 from msdepth.errors import DataError
-from msdepth.io import atomic_temps, file_sha256, read_bounded, read_json_file, write_json
+from msdepth.io import atomic_temps, write_json
+from msdepth.readers import file_sha256, read_bounded, read_json_file
 
 # The host every entry of the shipped list starts with; entries are kept relative to it so that a
 # mirror (or a test server) can be used by passing another base URL to fetch_all.
@@ -81,7 +82,7 @@ MAX_EXPANSION = 100
 # at that rate would still take 5 days. Lower FetchOptions.min_rate for a slower link.
 MIN_RATE = 10 * 1024
 RATE_WINDOW_S = 60.0
-# What the list readers read at most (msdepth.io.read_bounded: a FIFO would block a plain read
+# What the list readers read at most (msdepth.readers.read_bounded: a FIFO would block a plain read
 # forever, a huge file would be read whole). The archive list: the shipped one is 66 URLs, 7 KB;
 # the bound holds ~10,000 of them. The split lists: msdepth.data.kitti.MAX_LIST_BYTES, which the
 # index stage reads the same lists with (test_reader_bounds holds the two equal); not imported from
@@ -162,7 +163,7 @@ class FetchOptions:
 
 def _list_text(path: Path, kind: str, max_bytes: int) -> str:
     """The UTF-8 text of the list file ``path`` (an empty file is ""), read through
-    :func:`msdepth.io.read_bounded`; each refusal one DataError line naming the file."""
+    :func:`msdepth.readers.read_bounded`; each refusal one DataError line naming the file."""
     try:
         return read_bounded(path, kind, max_bytes, allow_empty=True).decode("utf-8")
     except UnicodeDecodeError as exc:

@@ -32,7 +32,7 @@ from pathlib import Path
 import yaml
 
 from msdepth.errors import DataError, MsdepthError
-from msdepth.io import read_text_file
+from msdepth.readers import read_text_file
 
 PACKAGE = "msdepth"
 CODE_PREFIXES = ("stages/", "src/")

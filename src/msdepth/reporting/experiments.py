@@ -21,8 +21,8 @@ from pathlib import Path
 from typing import Any, Iterator, Sequence
 
 from msdepth.errors import DataError, MsdepthError
-from msdepth.io import read_bounded, read_text_file
 from msdepth.pipeline.paths import mean_path
+from msdepth.readers import read_bounded, read_text_file
 
 MAX_JSON_BYTES = 64 << 20  # dvc exp show --json of ten experiments is about 150 KB
 # Python holds a JSON value in 30 to 70 bytes (an empty object 64), DVC's JSON spends over 10 bytes
@@ -81,7 +81,7 @@ def _first_sentence(exc: Exception) -> str:
 
 def read_json(path: str | os.PathLike) -> list:
     """The revisions of a saved ``dvc exp show --json`` output: a regular file of at most
-    :data:`MAX_JSON_BYTES` (:func:`msdepth.io.read_bounded`: a FIFO would block the read forever, a
+    :data:`MAX_JSON_BYTES` (:func:`msdepth.readers.read_bounded`: a FIFO would block the read forever, a
     larger file is refused before it is read), parsed by :func:`_parse_json`."""
     return _parse_json(read_bounded(path, "JSON", MAX_JSON_BYTES, allow_empty=True), str(path))
 

@@ -63,7 +63,7 @@ import pandas as pd
 from msdepth.config.params import CompareConfig
 from msdepth.errors import DataError
 from msdepth.evaluation.classes import class_unit_tables
-from msdepth.io import read_json_file, read_text_file
+from msdepth.readers import read_json_file, read_text_file
 from msdepth.reporting.compare import UNIT_KEYS, paired_statistics, unit_clusters
 from msdepth.reporting.power import t_quantile
 from msdepth.reporting.stats import paired_t, paired_table, seed_bootstrap
