@@ -217,9 +217,12 @@ def read_table_file(path: str | os.PathLike, kind: str, max_bytes: int = MAX_TAB
                             "not a table the pipeline writes"
                         )
                     chunks.append(chunk)
-        except pd.errors.EmptyDataError:
-            return pd.DataFrame()
-        except (ValueError, UnicodeDecodeError, OSError) as exc:  # ParserError is a ValueError
+        except (
+            ValueError,
+            UnicodeDecodeError,
+            OSError,
+            pd.errors.EmptyDataError,
+        ) as exc:  # ParserError: a ValueError
             raise DataError(
                 f"{path}: not a readable {kind} table ({str(exc).splitlines()[0][:200]})"
             ) from None
