@@ -33,7 +33,8 @@ def experiments_command(add_parser: Callable[..., argparse.ArgumentParser]) -> N
         nargs="+",
         default=list(DEFAULT_KEYS),
         metavar="KEY",
-        help="keys of the mean files, dotted for nested ones, e.g. roi.road "
+        help="keys of the mean files (abs_rel, a1, roi, masks, a class name), dotted for nested ones; "
+        "a key no mean file has is warned about "
         f"(default: {' '.join(DEFAULT_KEYS)})",
     )
     e.add_argument("--md", action="store_true", help="print a markdown table")

@@ -6,6 +6,11 @@ cannot rename it, so ``dvc exp show`` with the same columns is about 260 charact
 columns are ``<variant> k`` and ``<key> <variant>``. The input is DVC's own JSON: a list of
 revisions (the workspace, then each baseline commit), each with ``data.params`` and ``data.metrics``
 and its ``experiments``, each a named list of ``revs`` of the same shape.
+
+The input's size is bounded while it is read: a file of more JSON values than DVC writes in its
+bytes is refused before it is parsed, the table's cells are counted before any row is built, and
+labels and values are cut to :data:`MAX_CELL_CHARS`. A workspace row whose params differ from those
+``dvc.lock`` records is marked :data:`STALE` (:func:`mark_stale`).
 """
 
 from __future__ import annotations
