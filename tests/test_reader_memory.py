@@ -182,3 +182,12 @@ def test_experiments_does_not_pad_every_row_to_a_long_label(tmp_path: Path) -> N
     path.write_text(json.dumps([record]))
     peak, error = _peak(_experiments(path))
     assert error == "" and peak < 16 * MIB, peak
+
+
+def test_a_json_file_of_millions_of_empty_objects_is_refused_before_parsing(tmp_path: Path) -> None:
+    # 8 MB of "{}," parse to 2.7 million dicts: about 30x the file.
+    path = tmp_path / "metrics.json"
+    path.write_text("[" + ",".join(["{}"] * (8 * MIB // 3)) + "]")
+    peak, error = _peak(f"readers.read_json_file({str(path)!r}, 'metrics')")
+    assert error.startswith(f"{path}: up to ") and "over one per 4 bytes" in error, error
+    assert peak < path.stat().st_size + 8 * MIB, peak

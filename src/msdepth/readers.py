@@ -136,9 +136,41 @@ def read_text_file(path: str | os.PathLike, kind: str, max_bytes: int = MAX_JSON
         raise DataError(f"{path}: this {kind} file is not UTF-8 text (byte {exc.start})") from None
 
 
+# Python holds a JSON value in 30 to 70 bytes (an empty object 64, a float 24 plus its pointer); the
+# pipeline's JSON files spend 16 bytes or more on each. A file averaging under this many bytes per
+# value ("[{},{},...]": 3) would take over 20x its size parsed, and is refused before parsing.
+MIN_JSON_BYTES_PER_VALUE = 4
+
+
+def json_value_bound(data: bytes | str) -> int:
+    """An upper bound on the values of the JSON text ``data``: its commas, braces and brackets (one
+    each, strings' own included), counted without parsing.
+
+    Example:
+        >>> json_value_bound(b'[{}, {"a": [1, 2]}]')
+        6
+    """
+    if isinstance(data, str):
+        return data.count(",") + data.count("{") + data.count("[")
+    return data.count(b",") + data.count(b"{") + data.count(b"[")
+
+
+def check_json_density(data: bytes | str, where: str, min_bytes: int = MIN_JSON_BYTES_PER_VALUE) -> None:
+    """A DataError naming ``where`` when the JSON text ``data`` may hold more than one value per
+    ``min_bytes`` bytes (:func:`json_value_bound`, 4 KiB of slack): parsed, it would take many times
+    its size in memory."""
+    values = json_value_bound(data)
+    if values * min_bytes > len(data) + 4096:
+        raise DataError(
+            f"{where}: up to {values:,} JSON values in {len(data):,} bytes, over one per {min_bytes} "
+            "bytes: not a file the pipeline writes; nothing was parsed"
+        )
+
+
 def read_json_file(path: str | os.PathLike, kind: str, max_bytes: int = MAX_JSON_BYTES) -> Any:
     """The JSON value in the regular file ``path`` (:func:`read_text_file`); one DataError line
-    naming the file when it is refused or not JSON (nesting too deep for the parser included).
+    naming the file when it is refused, denser in values than the pipeline writes
+    (:func:`check_json_density`) or not JSON (nesting too deep for the parser included).
 
     Example:
         >>> import tempfile
@@ -149,6 +181,7 @@ def read_json_file(path: str | os.PathLike, kind: str, max_bytes: int = MAX_JSON
         {'abs_rel': 0.1}
     """
     text = read_text_file(path, kind, max_bytes)
+    check_json_density(text, str(path))
     try:
         return json.loads(text)
     except (ValueError, RecursionError) as exc:

@@ -27,12 +27,11 @@ from typing import Any, Iterator, Sequence
 
 from msdepth.errors import DataError, MsdepthError
 from msdepth.pipeline.paths import mean_path
-from msdepth.readers import read_bounded, read_text_file
+from msdepth.readers import check_json_density, read_bounded, read_text_file
 
 MAX_JSON_BYTES = 64 << 20  # dvc exp show --json of ten experiments is about 150 KB
-# Python holds a JSON value in 30 to 70 bytes (an empty object 64), DVC's JSON spends over 10 bytes
-# on each: a file averaging under this many bytes per value (20 million "{}" took 6.3 GB) is refused
-# before it is parsed, counting its commas, braces and brackets (an upper bound on its values).
+# DVC's JSON spends over 10 bytes on each value: a file averaging under this many bytes per value
+# (20 million "{}" took 6.3 GB) is refused before it is parsed (msdepth.readers.check_json_density).
 MIN_BYTES_PER_VALUE = 6
 DEFAULT_KEYS = ("abs_rel", "windshield")
 PARAMS_FILE = "params.yaml"
@@ -59,12 +58,7 @@ def _parse_json(data: bytes, source: str) -> list:
     when it is larger than :data:`MAX_JSON_BYTES`, not UTF-8 JSON, or not a list of records."""
     if len(data) > MAX_JSON_BYTES:
         raise DataError(f"{source}: larger than {MAX_JSON_BYTES >> 20} MiB: not dvc exp show --json output")
-    values = data.count(b",") + data.count(b"{") + data.count(b"[")
-    if values * MIN_BYTES_PER_VALUE > len(data) + 4096:
-        raise DataError(
-            f"{source}: up to {values:,} JSON values in {len(data):,} bytes, over one per "
-            f"{MIN_BYTES_PER_VALUE} bytes: not dvc exp show --json output; nothing was parsed"
-        )
+    check_json_density(data, source, MIN_BYTES_PER_VALUE)
     try:
         records = json.loads(data.decode("utf-8"))
     except UnicodeDecodeError as exc:
