@@ -14,7 +14,7 @@ def compare(params: Params) -> None:
 
     A baseline the baselines stage could not build is listed as missing, with the reason.
     """
-    pipeline_compare.compare(params)
+    pipeline_compare.write_comparison(params)
 
 
 if __name__ == "__main__":

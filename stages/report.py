@@ -1,4 +1,4 @@
-"""Stage ``report``: docs/results.md and the README's headline block, written from metrics/."""
+"""Stage ``report``: the numbers blocks of docs/results.md and the README, written from metrics/."""
 
 from __future__ import annotations
 
@@ -14,9 +14,9 @@ log = logging.getLogger("msdepth")
 
 
 def report(params: Params) -> None:
-    """Render docs/results.md and, where README.md exists, its block between the report markers,
-    from metrics/compare.json and metrics/train/ (the README is not a DVC output: the rest of it
-    is written by hand, so the stage rewrites only its own block)."""
+    """Rewrite the generated blocks of docs/results.md and, where README.md exists, of the README,
+    from metrics/compare.json and metrics/train/ (the rest of both is written by hand: the README
+    is not a DVC output, and docs/results.md is a persistent one)."""
     for path in write_report(Path(".")):
         log.info("wrote %s", path)
 

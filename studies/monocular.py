@@ -23,9 +23,8 @@ M and MS), ROI abs_rel per class, the image-dependence measure (variation; the p
 is 0) and its correlation with the prior, the pose ATE, and the training time per run against
 stereo's. table.json, written with it: the same runs' values per seed, ``{"cap", "seeds",
 "metric": "abs_rel", "modes": {mode: {variant: {"full frame" | ROI class: [one value per
-seed]}}}}``, in the verdict's row format (msdepth.reporting.verdict.read_monocular and
-seed_rows; the committed results predate it: their table.md keeps mean ± sd only). The pipeline's
-compare stage reads neither: its verdict holds only what ``dvc repro`` computes.
+seed]}}}}`` (the committed results predate it: their table.md keeps mean ± sd only). The
+pipeline's compare stage reads neither: its verdict holds only what ``dvc repro`` computes.
 """
 
 from __future__ import annotations
@@ -45,11 +44,17 @@ from msdepth.config.params import params_from_dict, read_params_file
 from msdepth.errors import OutputError, run_main
 from msdepth.io import write_text
 from msdepth.outputs import OutputPolicy
-from msdepth.reporting.compare import image_dependence, load_suite_metrics, load_unit_tables, variant_settings
+from msdepth.reporting.comparison import (
+    image_dependence,
+    load_suite_metrics,
+    load_unit_tables,
+    variant_settings,
+)
 from msdepth.reporting.figures import write_figure
-from msdepth.reporting.verdict import FULL_FRAME, SETTINGS_LINE, settings_label
+from msdepth.reporting.verdict import FULL_FRAME, settings_label
 
 ROOT = Path(__file__).resolve().parents[1]
+SETTINGS_LINE = "Variant settings: "  # table.md's line naming what its runs were trained with
 
 MODES = ("mono", "mono_stereo")
 CLASSES = ("car", "windshield", "glass", "sign")

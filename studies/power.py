@@ -29,7 +29,7 @@ from msdepth.io import write_text
 from msdepth.outputs import claim_output_file
 from msdepth.pipeline.paths import METRICS, run_name
 from msdepth.readers import read_json_object
-from msdepth.reporting.compare import load_suite_metrics
+from msdepth.reporting.comparison import load_suite_metrics
 from msdepth.reporting.power import detectable_difference, pooled_sd, power_at, seeds_needed
 from msdepth.reporting.report import Results, load_results
 from msdepth.reporting.stats import paired_t

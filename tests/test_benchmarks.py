@@ -3,14 +3,12 @@ benchmark would only be found when a GPU session needs it."""
 
 from __future__ import annotations
 
-import json
 import os
 import shutil
 import subprocess
 import sys
 from pathlib import Path
 
-import pandas as pd
 import pytest
 import yaml
 from conftest import run_script
@@ -136,8 +134,8 @@ def test_cpu_bytes_benchmark_hashes_each_settings_weights_in_a_fresh_process() -
         assert len(digest) == 12 and int(digest, 16) >= 0, name
 
 
-# The studies' tests' tiny size, as --set overrides; 8 evaluation frames give roi_errors.py
-# classes with 3 boxes or more.
+# The studies' tests' tiny size, as --set overrides; 8 evaluation frames give the ROI classes 3
+# boxes or more.
 TINY_STUDY = {
     "data.height": "32",
     "data.width": "96",
@@ -214,34 +212,6 @@ def test_learning_study_smoke(study_set: Path, tmp_path: Path) -> None:
     assert (tmp_path / "side.png").stat().st_size > 0
 
 
-def test_roi_error_study_known_answers(study_set: Path, tmp_path: Path, monkeypatch) -> None:
-    """studies/roi_errors.py: a run that predicts the GT has ratio 1.00 in every row, one at twice
-    the GT 2.00, and both see the same prior ratios."""
-    import numpy as np
-
-    from msdepth.data.eval_index import read_eval_index
-    from msdepth.evaluation.suites import load_frames
-    from msdepth.io import save_npz
-
-    shutil.copytree(study_set, tmp_path, dirs_exist_ok=True)
-    monkeypatch.chdir(tmp_path)  # the index's paths are relative to the project
-    frames = load_frames(read_eval_index(Path("data/index/eval_frames.csv")))
-    for run, factor in (("exact/seed0", 1.0), ("far/seed0", 2.0)):
-        save_npz(tmp_path / "outputs" / run / "depth.npz", **{f.name: factor * f.gt_depth for f in frames})
-    stdout = _study("roi_errors.py", "--runs", "exact/seed0", "far/seed0", cwd=tmp_path)
-    rows = [
-        line.split(" | ")
-        for line in stdout.splitlines()
-        if line.startswith("| exact/") or line.startswith("| far/")
-    ]
-    exact = {r[1]: r for r in rows if r[0] == "| exact/seed0"}
-    far = {r[1]: r for r in rows if r[0] == "| far/seed0"}
-    assert exact and exact.keys() == far.keys(), stdout
-    for key in exact:
-        assert (exact[key][4], far[key][4]) == ("1.00", "2.00"), key
-        assert exact[key][5] == far[key][5] and np.isfinite(float(exact[key][5])), key
-
-
 @pytest.mark.slow
 def test_objects_gpu_script_runs_tiny_on_the_cpu_without_matplotlib_or_dvclive(tmp_path: Path) -> None:
     """studies/objects_gpu.sh, the prepared GPU run for issue 17's goal 3, at the tiny size on the
@@ -307,102 +277,6 @@ def test_optimum_benchmark_selects_paths_and_variants() -> None:
     rows = [line.split(" | ")[0] for line in out.splitlines() if line.startswith("| ")]
     assert rows == ["| candidate", "| MS-SSIM k5 sgbm", "| SGBM alone"]
     assert "time / MS-SSIM k5 sgbm |" in out and "default path" not in out
-
-
-def _optimum_commit(repo: Path, kernel: int, offset: float) -> None:
-    """Commit params.yaml and optimum metrics in which msssim's abs_rel is ssim's plus ``offset``."""
-    params = {"msssim": {"kernel_size": kernel, "levels": 4}, "optimum": {"smoothness_weight": 10.0}}
-    params["optimum"]["smoothness_sweep"] = [10.0]
-    (repo / "params.yaml").write_text(yaml.safe_dump(params))
-    frames = [f"{i:06d}_10" for i in range(6)]
-    for variant, shift in (("ssim", 0.0), ("msssim", offset)):
-        full = pd.DataFrame(
-            {"frame": frames, "cap": 80, "abs_rel": [0.2 + 0.01 * i + shift for i in range(6)]}
-        )
-        full["a1"] = 0.5
-        roi = pd.DataFrame(
-            {
-                "roi": range(8),
-                "image": frames[0],
-                "class": ["car", "windshield", "glass", "sign"] * 2,
-                "cap": 80,
-            }
-        )
-        roi["cap"] = 80
-        roi["abs_rel"] = [0.3 + 0.02 * i + shift for i in range(8)]
-        for suite, table in (("full", full), ("roi", roi)):
-            out = repo / "metrics" / suite / "optimum" / variant
-            out.mkdir(parents=True, exist_ok=True)
-            table.to_csv(out / "w10.0.csv", index=False)
-        masks = {"cap80": {"overall": {"abs_rel": 0.25 + shift}}}
-        (repo / "metrics" / "roi" / "optimum" / variant / "w10.0.json").write_text(
-            json.dumps({"masks": masks})
-        )
-    subprocess.run(["git", "add", "-A"], cwd=repo, check=True)
-    subprocess.run(
-        ["git", "-c", "user.email=t@t", "-c", "user.name=t", "commit", "-qm", "k"], cwd=repo, check=True
-    )
-
-
-def test_optimum_kernels_pairs_each_kernel_with_the_first_refs_ssim(tmp_path: Path) -> None:
-    """studies/optimum_kernels.py: a kernel whose optimum is 0.05 better on every frame and ROI
-    reads -0.050 with a zero-width interval; one 0.02 worse, +0.020; the reference is ref 1's ssim."""
-    subprocess.run(["git", "init", "-q"], cwd=tmp_path, check=True)
-    _optimum_commit(tmp_path, 3, -0.05)
-    _optimum_commit(tmp_path, 7, 0.02)
-    out = _study("optimum_kernels.py", "HEAD~1", "HEAD", cwd=tmp_path)
-    assert "| ssim w10.0 | 6 | 0.2250 | 0.5000 | 0.3700 |" in out
-    assert "| msssim k3 L4 w10.0 | -0.050 [-0.050, -0.050] * | -0.050 [-0.050, -0.050] * |" in out
-    assert "| msssim k7 L4 w10.0 | +0.020 [+0.020, +0.020] * |" in out
-    # box abs_rel per class: car ROIs 0 and 4 (0.30, 0.38) + 0.02, windshield 1 and 5, ...
-    assert "| msssim k7 L4 w10.0 | 6 | 0.2450 | 0.5000 | 0.3900 | 0.3600 | 0.3800 | 0.4000 | 0.4200 |" in out
-
-
-def _glass_commit(repo: Path, windshield: float) -> None:
-    """Commit optimum and trained metrics (2 seeds) in which windshield ROIs read 0.5 + ``windshield``."""
-    params = {"msssim": {"kernel_size": 3, "levels": 4}, "optimum": {"smoothness_weight": 10.0}}
-    params["optimum"]["smoothness_sweep"] = [10.0]
-    (repo / "params.yaml").write_text(yaml.safe_dump(params))
-    frames = [f"{i:06d}_10" for i in range(4)]
-    full = pd.DataFrame({"frame": frames, "cap": 80, "abs_rel": [0.2, 0.3, 0.2, 0.3], "a1": 0.5})
-    classes = ["car", "windshield", "glass", "sign"] * 2
-    roi = pd.DataFrame({"roi": range(8), "image": frames[0], "class": classes, "cap": 80})
-    roi["abs_rel"] = [0.5 + (windshield if c == "windshield" else 0.0) for c in classes]
-    masks = json.dumps({"masks": {"cap80": {"overall": {"abs_rel": 0.4}}}})
-    stems = [f"optimum/{v}/w10.0" for v in ("ssim", "msssim")] + [f"ssim/seed{s}" for s in (0, 1)]
-    for stem in stems:
-        for suite, table in (("full", full), ("roi", roi)):
-            (repo / "metrics" / suite / stem).parent.mkdir(parents=True, exist_ok=True)
-            table.to_csv(repo / "metrics" / suite / f"{stem}.csv", index=False)
-        (repo / "metrics" / "roi" / f"{stem}.json").write_text(masks)
-    (repo / "metrics" / "compare.json").write_text(json.dumps({"variants": ["ssim"], "seeds": [0, 1]}))
-    subprocess.run(["git", "add", "-A"], cwd=repo, check=True)
-    subprocess.run(
-        ["git", "-c", "user.email=t@t", "-c", "user.name=t", "commit", "-qm", "g"], cwd=repo, check=True
-    )
-
-
-def test_glass_before_after_pairs_frames_rois_and_seeds(tmp_path: Path) -> None:
-    """studies/glass_before_after.py: windshield ROIs 0.40 lower after, nothing else changed: the
-    windshield column reads -0.400 exactly, every other column 0, for the optimum and the networks."""
-    subprocess.run(["git", "init", "-q"], cwd=tmp_path, check=True)
-    _glass_commit(tmp_path, 0.5)
-    _glass_commit(tmp_path, 0.1)
-    out = _study("glass_before_after.py", "HEAD~1", "HEAD", cwd=tmp_path)
-    zero, drop = "+0.000 [+0.000, +0.000]", "-0.400 [-0.400, -0.400] *"
-    # ROI mean: (6 x 0.5 + 2 x windshield) / 8 = 0.625 before, 0.525 after
-    for label in ("optimum ssim w10.0", "optimum msssim w10.0", "ssim (seeds)"):
-        (row,) = [line for line in out.splitlines() if line.startswith(f"| {label} | ")]
-        cells = row.strip("| ").split(" | ")
-        assert cells[1::2] == [zero, zero, zero] and cells[4] == drop and cells[2].startswith("-0.100 [")
-        assert (
-            f"| {label} before | 4 | 0.2500 | 0.5000 | 0.6250 | 0.5000 | 1.0000 | 0.5000 | 0.5000 | 0.4000 |"
-            in out
-        )
-        assert (
-            f"| {label} after | 4 | 0.2500 | 0.5000 | 0.5250 | 0.5000 | 0.6000 | 0.5000 | 0.5000 | 0.4000 |"
-            in out
-        )
 
 
 def test_monocular_study_scores_stereo_runs_median_scaled(study_set: Path, tmp_path: Path, monkeypatch):

@@ -6,7 +6,7 @@ from __future__ import annotations
 from msdepth.config.params import params_from_dict
 from msdepth.evaluation.metrics import METRICS
 from msdepth.evaluation.suites import NO_ROIS
-from msdepth.reporting.compare import (
+from msdepth.reporting.comparison import (
     ComparisonInputs,
     _seed_resampling,
     build_comparison,

@@ -40,6 +40,15 @@ def test_readme_is_short() -> None:
     assert lines <= README_MAX_LINES, f"README.md has {lines} lines (at most {README_MAX_LINES})"
 
 
+def test_readme_reaches_its_quick_start_within_30_lines() -> None:
+    """The question and the generated one-line answer come first, then the Quick start (issue 67)."""
+    lines = README.read_text(encoding="utf-8").splitlines()
+    start = lines.index("## Quick start")
+    assert start < 30, f"README.md: '## Quick start' is at line {start + 1} (at most 30)"
+    answer = "\n".join(lines[:start])
+    assert "<!-- answer: written by the report stage" in answer and "<!-- end of answer -->" in answer
+
+
 @pytest.mark.parametrize("path", [README, *DOCS], ids=lambda p: str(p.relative_to(ROOT)))
 def test_relative_links_exist(path: Path) -> None:
     missing = []

@@ -19,7 +19,7 @@ SCIENCE_API = {
     "msdepth.geometry.depth": ("disparity_to_depth", "depth_to_disparity"),
     "msdepth.geometry.warp": ("warp",),
     "msdepth.reporting.stats": ("paired_t", "seed_bootstrap", "paired_seed_bootstrap"),
-    "msdepth.reporting.verdict": ("welch_interval", "pooled_rows"),
+    "msdepth.reporting.verdict": ("headline_columns", "verdict_table"),
     "msdepth.reporting.power": ("seeds_needed", "detectable_difference"),
     "msdepth.evaluation.box_errors": ("box_medians",),
     "msdepth.training.train": ("learning_rate",),

@@ -32,12 +32,12 @@ from conftest import run_script
 
 from msdepth import io as dl_io
 from msdepth.config.params import Params, params_from_dict
-from msdepth.download import archives as dl
+from msdepth.download import extraction, fetching, lists, sizes, transfer, verification
 from msdepth.errors import DataError
 
 SHIPPED_LIST = Path(__file__).resolve().parents[1] / "data_lists" / "kitti_archives_to_download.txt"
 # The local server speaks plain http, which the downloader refuses unless told otherwise.
-FAST = dl.FetchOptions(retries=3, backoff=0.01, timeout=5, progress=False, allow_http=True)
+FAST = transfer.FetchOptions(retries=3, backoff=0.01, timeout=5, progress=False, allow_http=True)
 DRY = dataclasses.replace(FAST, dry_run=True)
 
 
@@ -226,10 +226,10 @@ def _serve_drive(server: _Server, mode: str = "normal", name: str = DRIVE, seed:
 
 
 def test_shipped_list_parses_to_66_relative_archive_paths() -> None:
-    names = dl.parse_archive_list(SHIPPED_LIST)
+    names = lists.parse_archive_list(SHIPPED_LIST)
     assert len(names) == 66
     assert all(n.startswith("raw_data/") and n.endswith(".zip") for n in names)
-    files = [dl._archive_filename(n) for n in names]
+    files = [lists.archive_filename(n) for n in names]
     assert sum(f.endswith("_calib.zip") for f in files) == 5
     assert sum(f.endswith("_sync.zip") for f in files) == 61
     assert names[1] == "raw_data/2011_09_26_drive_0001/2011_09_26_drive_0001_sync.zip"
@@ -238,7 +238,7 @@ def test_shipped_list_parses_to_66_relative_archive_paths() -> None:
 def test_bad_list_content_names_the_file_and_line(tmp_path: Path) -> None:
     good = tmp_path / "ok.txt"
     good.write_text("# a comment\n\nraw_data/2011_09_26_calib.zip\n  https://example.org/x/y.zip  \n")
-    assert dl.parse_archive_list(good) == ["raw_data/2011_09_26_calib.zip", "https://example.org/x/y.zip"]
+    assert lists.parse_archive_list(good) == ["raw_data/2011_09_26_calib.zip", "https://example.org/x/y.zip"]
     for text, pattern in [
         ("raw_data/a.zip\nnot an archive.tar\n", r"bad\.txt:2: expected one URL"),
         ("raw_data/a.zip\nother/a.zip\n", r"bad\.txt:2: archive a\.zip is listed twice"),
@@ -247,16 +247,16 @@ def test_bad_list_content_names_the_file_and_line(tmp_path: Path) -> None:
         bad = tmp_path / "bad.txt"
         bad.write_text(text)
         with pytest.raises(DataError, match=pattern):
-            dl.parse_archive_list(bad)
+            lists.parse_archive_list(bad)
     with pytest.raises(DataError, match="missing.txt: no such archive list file"):
-        dl.parse_archive_list(tmp_path / "missing.txt")
+        lists.parse_archive_list(tmp_path / "missing.txt")
 
 
 def test_unknown_url_scheme_is_a_data_error_naming_the_url(tmp_path: Path) -> None:
     for url in ("ftp-ish://x/a.zip", "raw_data/a.zip", "file:///etc/passwd", "ftp://x/a.zip"):
         refused = re.escape(url) + r": not an https URL \(or http\); refusing to fetch it"
         with pytest.raises(DataError, match=refused):
-            dl.download(url, tmp_path / "a.zip", FAST)
+            transfer.download(url, tmp_path / "a.zip", FAST)
     assert list(tmp_path.iterdir()) == []
 
 
@@ -269,19 +269,19 @@ def test_plain_http_is_refused_without_allow_http(server: _Server, tmp_path: Pat
     strict = dataclasses.replace(FAST, allow_http=False)
     refused = re.escape(server.url(DRIVE)) + r": plain http is refused .*data\.kitti\.allow_http: true"
     with pytest.raises(DataError, match=refused):
-        dl.download(server.url(DRIVE), tmp_path / "zips" / DRIVE, strict)
+        transfer.download(server.url(DRIVE), tmp_path / "zips" / DRIVE, strict)
     with pytest.raises(DataError, match=refused):
-        dl._remote_size(server.url(DRIVE), strict)
+        transfer.remote_size(server.url(DRIVE), strict)
     zips, raw = tmp_path / "zips", tmp_path / "raw"
     for dry_run in (False, True):
         with pytest.raises(DataError, match=refused):
             options = dataclasses.replace(strict, dry_run=dry_run)
-            dl.fetch_all(server.base_url, [f"raw_data/{DRIVE}"], zips, raw, options)
+            fetching.fetch_all(server.base_url, [f"raw_data/{DRIVE}"], zips, raw, options)
     # An https base does not let an absolute http entry of the list through either.
     with pytest.raises(DataError, match=refused):
-        dl.fetch_all("https://example.org/", [server.url(DRIVE)], zips, raw, strict)
+        fetching.fetch_all("https://example.org/", [server.url(DRIVE)], zips, raw, strict)
     assert server.log == [] and list(tmp_path.iterdir()) == []
-    assert dl.download(server.url(DRIVE), tmp_path / DRIVE, FAST).exists()  # allowed: fetched
+    assert transfer.download(server.url(DRIVE), tmp_path / DRIVE, FAST).exists()  # allowed: fetched
 
 
 def test_base_url_scheme_is_checked_with_the_config(tmp_path: Path) -> None:
@@ -302,7 +302,7 @@ def test_base_url_scheme_is_checked_with_the_config(tmp_path: Path) -> None:
         kitti(allow_http="yes")
 
 
-def _redirect(handler: dl.NoDowngradeRedirect, old: str, new: str):
+def _redirect(handler: transfer.NoDowngradeRedirect, old: str, new: str):
     fp = stdio.BytesIO(b"")
     headers = email.message.Message()
     headers["Location"] = new
@@ -310,7 +310,7 @@ def _redirect(handler: dl.NoDowngradeRedirect, old: str, new: str):
 
 
 def test_redirect_from_https_to_http_is_refused() -> None:
-    handler = dl.NoDowngradeRedirect()
+    handler = transfer.NoDowngradeRedirect()
     refused = (
         "https://a.org/x.zip: redirected to http://b.org/x.zip, which is not https; refusing the downgrade"
     )
@@ -330,29 +330,29 @@ def test_redirects_go_through_the_no_downgrade_handler(server: _Server, tmp_path
     """End to end over the local (http, allowed) server: the redirect is followed, by that handler."""
     data = _serve_drive(server)
     server.redirects["moved.zip"] = server.url(DRIVE)
-    seen, real = [], dl.NoDowngradeRedirect.redirect_request
+    seen, real = [], transfer.NoDowngradeRedirect.redirect_request
 
     def spy(self, req, fp, code, msg, headers, newurl):
         seen.append((req.full_url, newurl))
         return real(self, req, fp, code, msg, headers, newurl)
 
-    monkeypatch.setattr(dl.NoDowngradeRedirect, "redirect_request", spy)
-    assert dl.download(server.url("moved.zip"), tmp_path / DRIVE, FAST).read_bytes() == data
+    monkeypatch.setattr(transfer.NoDowngradeRedirect, "redirect_request", spy)
+    assert transfer.download(server.url("moved.zip"), tmp_path / DRIVE, FAST).read_bytes() == data
     assert seen == [(server.url("moved.zip"), server.url(DRIVE))]
 
 
 def test_select_all_first_n_and_named_drives_add_their_calibration() -> None:
-    names = dl.parse_archive_list(SHIPPED_LIST)
-    assert dl._select_archives(names, None) == names == dl._select_archives(names, "all")
-    first2 = [dl._archive_filename(n) for n in dl._select_archives(names, 2)]
+    names = lists.parse_archive_list(SHIPPED_LIST)
+    assert lists._select_archives(names, None) == names == lists._select_archives(names, "all")
+    first2 = [lists.archive_filename(n) for n in lists._select_archives(names, 2)]
     assert first2 == [
         "2011_09_26_calib.zip",
         "2011_09_26_drive_0001_sync.zip",
         "2011_09_26_drive_0002_sync.zip",
     ]
     picked = [
-        dl._archive_filename(n)
-        for n in dl._select_archives(names, ["2011_09_28_drive_0001", "2011_10_03_drive_0027_sync.zip"])
+        lists.archive_filename(n)
+        for n in lists._select_archives(names, ["2011_09_28_drive_0001", "2011_10_03_drive_0027_sync.zip"])
     ]
     assert picked == [
         "2011_09_28_calib.zip",
@@ -360,11 +360,11 @@ def test_select_all_first_n_and_named_drives_add_their_calibration() -> None:
         "2011_10_03_calib.zip",
         "2011_10_03_drive_0027_sync.zip",
     ]
-    assert dl._select_archives(names, 0) == []
+    assert lists._select_archives(names, 0) == []
     with pytest.raises(DataError, match="not in the archive list: 2011_09_26_drive_9999"):
-        dl._select_archives(names, ["2011_09_26_drive_9999"])
+        lists._select_archives(names, ["2011_09_26_drive_9999"])
     with pytest.raises(DataError, match=">= 0"):
-        dl._select_archives(names, -1)
+        lists._select_archives(names, -1)
 
 
 def _pairs(drives: list[str]) -> str:
@@ -381,18 +381,18 @@ def _benchmark(drives: list[str]) -> str:
 
 
 def test_the_splits_drives_in_list_order_with_their_days_calibration(tmp_path: Path) -> None:
-    names = dl.parse_archive_list(SHIPPED_LIST)
+    names = lists.parse_archive_list(SHIPPED_LIST)
     train, eigen, bench = tmp_path / "train.txt", tmp_path / "eigen.txt", tmp_path / "bench.txt"
     train.write_text(_pairs(["2011_10_03_drive_0027", "2011_09_26_drive_0002", "2011_10_03_drive_0027"]))
     eigen.write_text("\n" + _pairs(["2011_09_26_drive_0002", "2011_09_28_drive_0001"]))
     bench.write_text(_benchmark(["2011_09_26_drive_0009", "2011_09_26_drive_0009"]))
-    assert dl._split_drives(train) == ["2011_10_03_drive_0027", "2011_09_26_drive_0002"]
-    assert dl._split_drives(bench) == ["2011_09_26_drive_0009"]
+    assert lists._split_drives(train) == ["2011_10_03_drive_0027", "2011_09_26_drive_0002"]
+    assert lists._split_drives(bench) == ["2011_09_26_drive_0009"]
 
-    def files(selection: dl.Selection) -> list[str]:
-        return [dl._archive_filename(n) for n in selection.archives]
+    def files(selection: lists.Selection) -> list[str]:
+        return [lists.archive_filename(n) for n in selection.archives]
 
-    both = dl.select_needed(names, {"the train split": train, "eigen": eigen})
+    both = lists.select_needed(names, {"the train split": train, "eigen": eigen})
     assert files(both) == [
         "2011_09_26_calib.zip",
         "2011_09_26_drive_0002_sync.zip",
@@ -405,48 +405,50 @@ def test_the_splits_drives_in_list_order_with_their_days_calibration(tmp_path: P
         "KITTI raw: 3 drives named by the train split and eigen (of 61 in the archive list) "
         "+ 3 calibration archives"
     )
-    assert files(dl.select_needed(names, {"eigen_benchmark": bench})) == [
+    assert files(lists.select_needed(names, {"eigen_benchmark": bench})) == [
         "2011_09_26_calib.zip",
         "2011_09_26_drive_0009_sync.zip",
     ]
     # drive_count: the first N of the needed drives; drives: those of them the splits need.
-    first = dl.select_needed(names, {"the train split": train, "eigen": eigen}, 1)
+    first = lists.select_needed(names, {"the train split": train, "eigen": eigen}, 1)
     assert files(first) == ["2011_09_26_calib.zip", "2011_09_26_drive_0002_sync.zip"]
     assert first.describe() == (
         "KITTI raw: the first 1 of the 3 drives named by the train split and eigen "
         "(data.kitti.drive_count; 61 in the archive list) + 1 calibration archive"
     )
-    named = dl.select_needed(names, {"eigen": eigen}, ["2011_09_28_drive_0001", "2011_09_26_drive_0001_sync"])
+    named = lists.select_needed(
+        names, {"eigen": eigen}, ["2011_09_28_drive_0001", "2011_09_26_drive_0001_sync"]
+    )
     assert files(named) == ["2011_09_28_calib.zip", "2011_09_28_drive_0001_sync.zip"]
     assert named.unneeded == ("2011_09_26_drive_0001",)
     assert named.describe().endswith(
         "; in data.kitti.drives but named by no split, so not fetched: 2011_09_26_drive_0001"
     )
-    assert dl.select_needed(names, {"eigen": eigen}, 0).archives == []
+    assert lists.select_needed(names, {"eigen": eigen}, 0).archives == []
     with pytest.raises(DataError, match="archive subset: not in the archive list: 2011_09_26_drive_9999"):
-        dl.select_needed(names, {"eigen": eigen}, ["2011_09_26_drive_9999"])
+        lists.select_needed(names, {"eigen": eigen}, ["2011_09_26_drive_9999"])
     with pytest.raises(DataError, match=">= 0"):
-        dl.select_needed(names, {"eigen": eigen}, -1)
+        lists.select_needed(names, {"eigen": eigen}, -1)
 
 
 def test_the_shipped_splits_need_46_of_the_61_drives() -> None:
-    lists = SHIPPED_LIST.parent
-    names = dl.parse_archive_list(SHIPPED_LIST)
-    default = {"the train split": lists / "kitti_train_files.txt", "eigen": lists / "eigen_test_files.txt"}
-    selection = dl.select_needed(names, default)
+    folder = SHIPPED_LIST.parent
+    names = lists.parse_archive_list(SHIPPED_LIST)
+    default = {"the train split": folder / "kitti_train_files.txt", "eigen": folder / "eigen_test_files.txt"}
+    selection = lists.select_needed(names, default)
     assert len(selection.archives) == 51 and selection.calibrations == 5
     assert selection.describe() == (
         "KITTI raw: 46 drives named by the train split and eigen (of 61 in the archive list) "
         "+ 5 calibration archives"
     )
-    bench = dl.select_needed(names, {"eigen_benchmark": lists / "eigen_benchmark_test_files.txt"})
-    eigen = dl.select_needed(names, {"eigen": lists / "eigen_test_files.txt"})
+    bench = lists.select_needed(names, {"eigen_benchmark": folder / "eigen_benchmark_test_files.txt"})
+    eigen = lists.select_needed(names, {"eigen": folder / "eigen_test_files.txt"})
     assert bench.archives == eigen.archives and bench.drives == 28
     # Monodepth2's eigen_zhou split (train.mode mono | mono_stereo) names 32 drives, 15 of them
     # in neither list: with it every drive of the archive list is fetched.
-    zhou = {**default, "the monocular split": lists / "eigen_zhou_train_files.txt"}
-    assert dl.select_needed(names, zhou).drives == 61
-    assert dl.select_needed(names, {"m": lists / "eigen_zhou_train_files.txt"}).drives == 32
+    zhou = {**default, "the monocular split": folder / "eigen_zhou_train_files.txt"}
+    assert lists.select_needed(names, zhou).drives == 61
+    assert lists.select_needed(names, {"m": folder / "eigen_zhou_train_files.txt"}).drives == 32
 
 
 def test_the_monocular_modes_fetch_the_monocular_splits_drives(monkeypatch: pytest.MonkeyPatch) -> None:
@@ -461,11 +463,11 @@ def test_the_monocular_modes_fetch_the_monocular_splits_drives(monkeypatch: pyte
 
 
 def test_a_split_naming_drives_not_in_the_archive_list_is_one_line(tmp_path: Path) -> None:
-    names = dl.parse_archive_list(SHIPPED_LIST)
+    names = lists.parse_archive_list(SHIPPED_LIST)
     split = tmp_path / "eigen.txt"
     split.write_text(_pairs(["2011_09_26_drive_0001"] + [f"2011_09_26_drive_09{i:02d}" for i in range(5)]))
     with pytest.raises(DataError) as err:
-        dl.select_needed(names, {"the train split": split}, archive_list="lists/a.txt")
+        lists.select_needed(names, {"the train split": split}, archive_list="lists/a.txt")
     assert str(err.value) == (
         f"{split} (the train split): names 5 drive(s) not in lists/a.txt: 2011_09_26_drive_0900, "
         "2011_09_26_drive_0901, 2011_09_26_drive_0902 and 2 more"
@@ -482,7 +484,7 @@ def test_a_split_naming_drives_not_in_the_archive_list_is_one_line(tmp_path: Pat
         if text is not None:
             split.write_text(text)
         with pytest.raises(DataError, match=re.escape(f"{split}") + ".*" + re.escape(message)):
-            dl.select_needed(names, {"eigen": split})
+            lists.select_needed(names, {"eigen": split})
 
 
 # --------------------------------------------------------------------------- download
@@ -490,7 +492,7 @@ def test_a_split_naming_drives_not_in_the_archive_list_is_one_line(tmp_path: Pat
 
 def test_normal_download_is_byte_identical_and_leaves_no_part(server: _Server, tmp_path: Path) -> None:
     data = _serve_drive(server)
-    dest = dl.download(server.url(DRIVE), tmp_path / DRIVE, FAST)
+    dest = transfer.download(server.url(DRIVE), tmp_path / DRIVE, FAST)
     assert dest.read_bytes() == data
     assert not (tmp_path / (DRIVE + ".part")).exists()
     assert [e["range"] for e in server.gets(DRIVE)] == [None]
@@ -501,7 +503,7 @@ def test_reset_truncated_or_stalled_transfer_resumes_with_a_range_request(
     server: _Server, tmp_path: Path, mode: str
 ) -> None:
     data = _serve_drive(server, mode)
-    dest = dl.download(server.url(DRIVE), tmp_path / DRIVE, dataclasses.replace(FAST, timeout=0.3))
+    dest = transfer.download(server.url(DRIVE), tmp_path / DRIVE, dataclasses.replace(FAST, timeout=0.3))
     assert dest.read_bytes() == data
     first, second = server.gets(DRIVE)
     assert first["range"] is None and 0 < first["sent"] < len(data)
@@ -515,18 +517,18 @@ def test_404_fails_at_once_naming_the_url(server: _Server, tmp_path: Path) -> No
     _serve_drive(server, "404")
     url = server.url(DRIVE)
     with pytest.raises(DataError, match=re.escape(url) + ": HTTP 404"):
-        dl.download(url, tmp_path / DRIVE, FAST)
+        transfer.download(url, tmp_path / DRIVE, FAST)
     assert len(server.gets(DRIVE)) == 1  # no retries on a 4xx
     assert list(tmp_path.iterdir()) == []
 
 
 def test_5xx_is_retried_and_gives_up_after_the_retries(server: _Server, tmp_path: Path) -> None:
     data = _serve_drive(server, "503_once")
-    assert dl.download(server.url(DRIVE), tmp_path / DRIVE, FAST).read_bytes() == data
+    assert transfer.download(server.url(DRIVE), tmp_path / DRIVE, FAST).read_bytes() == data
     assert len(server.gets(DRIVE)) == 2
     server.modes[DRIVE], server.log[:] = "always_500", []
     with pytest.raises(DataError, match=r"download failed after 3 retries: HTTP 500"):
-        dl.download(server.url(DRIVE), tmp_path / "again.zip", FAST)
+        transfer.download(server.url(DRIVE), tmp_path / "again.zip", FAST)
     assert len(server.gets(DRIVE)) == 1 + FAST.retries
 
 
@@ -536,7 +538,7 @@ def test_resets_that_make_no_progress_give_up(server: _Server, tmp_path: Path) -
         DataError,
         match=re.escape(server.url(DRIVE)) + ": download failed after 3 retries: ConnectionResetError",
     ):
-        dl.download(server.url(DRIVE), tmp_path / DRIVE, FAST)
+        transfer.download(server.url(DRIVE), tmp_path / DRIVE, FAST)
     assert len(server.gets(DRIVE)) == 1 + FAST.retries
     assert not (tmp_path / DRIVE).exists()
 
@@ -545,7 +547,7 @@ def test_server_without_range_support_discards_the_partial_file(server: _Server,
     data = _serve_drive(server, "no_range")
     part = tmp_path / (DRIVE + ".part")
     part.write_bytes(b"\xff" * (len(data) // 2))  # a stale partial download of someone else's bytes
-    dest = dl.download(server.url(DRIVE), tmp_path / DRIVE, FAST)
+    dest = transfer.download(server.url(DRIVE), tmp_path / DRIVE, FAST)
     assert dest.read_bytes() == data  # not garbage + full body appended
     (get,) = server.gets(DRIVE)
     assert get["range"] == f"bytes={len(data) // 2}-" and get["sent"] == len(data)
@@ -556,7 +558,7 @@ def test_a_whole_part_left_by_a_killed_run_is_finished_without_refetching(
 ) -> None:
     data = _serve_drive(server)
     (tmp_path / (DRIVE + ".part")).write_bytes(data)  # killed between the last write and the rename
-    assert dl.download(server.url(DRIVE), tmp_path / DRIVE, FAST).read_bytes() == data
+    assert transfer.download(server.url(DRIVE), tmp_path / DRIVE, FAST).read_bytes() == data
     assert [e["sent"] for e in server.gets(DRIVE)] == [0]  # answered 416, nothing sent
 
 
@@ -566,7 +568,7 @@ def test_a_whole_part_left_by_a_killed_run_is_finished_without_refetching(
 def test_verify_zip_names_the_bad_member_and_the_file(tmp_path: Path) -> None:
     good = tmp_path / "good.zip"
     good.write_bytes(drive_zip("2011_09_26", 1))
-    dl._verify_zip(good)
+    verification._verify_zip(good)
     data = bytearray(good.read_bytes())
     with zipfile.ZipFile(good) as zf:
         info = zf.infolist()[1]
@@ -576,11 +578,11 @@ def test_verify_zip_names_the_bad_member_and_the_file(tmp_path: Path) -> None:
     bad = tmp_path / "bad.zip"
     bad.write_bytes(bytes(data))
     with pytest.raises(DataError, match=re.escape(f"{bad}: member {info.filename} is corrupt")):
-        dl._verify_zip(bad)
+        verification._verify_zip(bad)
     notzip = tmp_path / "notzip.zip"
     notzip.write_bytes(b"<html>rate limited</html>")
     with pytest.raises(DataError, match="notzip.zip: not a readable zip archive"):
-        dl._verify_zip(notzip)
+        verification._verify_zip(notzip)
 
 
 def _corrupt(data: bytes) -> bytes:
@@ -596,7 +598,7 @@ def test_manifest_recorded_on_first_success_and_later_tamper_detected(
     data = _serve_drive(server)
     dl_dir, raw = tmp_path / "zips", tmp_path / "raw"
     names = [f"raw_data/2011_09_26_drive_0001/{DRIVE}"]
-    report = dl.fetch_all(server.base_url, names, dl_dir, raw, dataclasses.replace(FAST, jobs=1))
+    report = fetching.fetch_all(server.base_url, names, dl_dir, raw, dataclasses.replace(FAST, jobs=1))
     assert (
         report["fetched"] == [DRIVE]
         and report["extracted"] == [DRIVE]
@@ -607,22 +609,22 @@ def test_manifest_recorded_on_first_success_and_later_tamper_detected(
     assert manifest[DRIVE]["size"] == len(data)
 
     # Second run: verified against the manifest, nothing downloaded or extracted again.
-    report = dl.fetch_all(server.base_url, names, dl_dir, raw, dataclasses.replace(FAST, jobs=1))
+    report = fetching.fetch_all(server.base_url, names, dl_dir, raw, dataclasses.replace(FAST, jobs=1))
     assert report["skipped"] == [DRIVE] and report["fetched"] == report["extracted"] == []
     assert report["bytes_downloaded"] == 0 and len(server.gets(DRIVE)) == 1
 
     # Tamper with the archive (same length): detected, named, moved aside, record dropped.
     (dl_dir / DRIVE).write_bytes(_corrupt(data))
     with pytest.raises(
-        dl.DownloadError, match=f"{DRIVE}: size .* sha256 .* differ from manifest.json"
+        fetching.DownloadError, match=f"{DRIVE}: size .* sha256 .* differ from manifest.json"
     ) as err:
-        dl.fetch_all(server.base_url, names, dl_dir, raw, dataclasses.replace(FAST, jobs=1))
+        fetching.fetch_all(server.base_url, names, dl_dir, raw, dataclasses.replace(FAST, jobs=1))
     assert list(err.value.report["failed"]) == [DRIVE]
     assert (dl_dir / (DRIVE + ".corrupt")).exists() and not (dl_dir / DRIVE).exists()
     assert DRIVE not in json.loads((dl_dir / "manifest.json").read_text())["archives"]
 
     # Third run fetches it again and records it again.
-    report = dl.fetch_all(server.base_url, names, dl_dir, raw, dataclasses.replace(FAST, jobs=1))
+    report = fetching.fetch_all(server.base_url, names, dl_dir, raw, dataclasses.replace(FAST, jobs=1))
     assert report["fetched"] == [DRIVE] and (dl_dir / DRIVE).read_bytes() == data
     assert (
         json.loads((dl_dir / "manifest.json").read_text())["archives"][DRIVE]["sha256"]
@@ -633,8 +635,8 @@ def test_manifest_recorded_on_first_success_and_later_tamper_detected(
 def test_corrupted_download_is_reported_failed_and_moved_aside(server: _Server, tmp_path: Path) -> None:
     data = _serve_drive(server)
     server.files[DRIVE] = _corrupt(data)  # right length, wrong bytes: the size check cannot see it
-    with pytest.raises(dl.DownloadError, match=f"{DRIVE}: member .* is corrupt") as err:
-        dl.fetch_all(server.base_url, [f"raw_data/{DRIVE}"], tmp_path / "zips", tmp_path / "raw", FAST)
+    with pytest.raises(fetching.DownloadError, match=f"{DRIVE}: member .* is corrupt") as err:
+        fetching.fetch_all(server.base_url, [f"raw_data/{DRIVE}"], tmp_path / "zips", tmp_path / "raw", FAST)
     assert list(err.value.report["failed"]) == [DRIVE]
     assert (tmp_path / "zips" / (DRIVE + ".corrupt")).exists() and not (tmp_path / "zips" / DRIVE).exists()
     assert not (tmp_path / "raw").exists() or not any((tmp_path / "raw").iterdir())
@@ -658,25 +660,25 @@ def test_failed_extraction_leaves_no_marker_and_no_half_drive(tmp_path: Path, mo
 
     monkeypatch.setattr(zipfile.ZipFile, "extract", fail_on_third)
     with pytest.raises(DataError, match=f"{DRIVE}: extraction into .* failed .*No space left"):
-        dl.extract(archive, raw)
+        extraction.extract(archive, raw)
     assert not drive_dir.exists()
     assert not (raw / f".{DRIVE}.complete").exists()
     assert [p.name for p in raw.iterdir()] == []  # temp folder removed too
 
     monkeypatch.setattr(zipfile.ZipFile, "extract", real_extract)
     (raw / f".{DRIVE}.abcd.tmp").mkdir()  # as left by a run killed mid-extraction
-    assert dl.extract(archive, raw) is True
+    assert extraction.extract(archive, raw) is True
     assert len(list((drive_dir / "image_02" / "data").glob("*.png"))) == 3
     assert (raw / f".{DRIVE}.complete").exists()
     assert sorted(p.name for p in raw.iterdir()) == [f".{DRIVE}.complete", "2011_09_26"]
-    assert dl.extract(archive, raw) is False  # marker present: skipped
+    assert extraction.extract(archive, raw) is False  # marker present: skipped
 
 
 def test_drive_and_calibration_archives_share_the_day_folder(tmp_path: Path) -> None:
     (tmp_path / "c.zip").write_bytes(calib_zip("2011_09_26"))
     (tmp_path / "d.zip").write_bytes(drive_zip("2011_09_26", 1))
     raw = tmp_path / "raw"
-    assert dl.extract(tmp_path / "d.zip", raw) and dl.extract(tmp_path / "c.zip", raw)
+    assert extraction.extract(tmp_path / "d.zip", raw) and extraction.extract(tmp_path / "c.zip", raw)
     assert sorted(p.name for p in (raw / "2011_09_26").iterdir()) == [
         "2011_09_26_drive_0001_sync",
         "calib_cam_to_cam.txt",
@@ -703,11 +705,11 @@ def test_zip_slip_member_is_rejected(tmp_path: Path, member: str) -> None:
         zf.writestr(member, "gotcha")
     raw = tmp_path / "a" / "raw"
     with pytest.raises(DataError, match=re.escape(f"member {member!r} points outside")):
-        dl.extract(archive, raw)
+        extraction.extract(archive, raw)
     assert not (tmp_path / "a" / "evil.txt").exists() and not (tmp_path / "evil.txt").exists()
     assert not raw.exists()  # refused before anything was written
     with pytest.raises(DataError, match=re.escape(f"member {member!r} points outside")):
-        dl._verify_zip(archive)
+        verification._verify_zip(archive)
 
 
 def _special_zip(path: Path, kind: int, target: str = "/etc/passwd") -> Path:
@@ -736,10 +738,10 @@ def test_symlink_and_device_members_are_refused(tmp_path: Path, kind: int, what:
     raw = tmp_path / "raw"
     message = re.escape(f"{archive}: member '2011_09_26/special' is {what}; refusing to extract")
     with pytest.raises(DataError, match=message):
-        dl.extract(archive, raw)
+        extraction.extract(archive, raw)
     assert not raw.exists()
     with pytest.raises(DataError, match=message):
-        dl._verify_zip(archive)
+        verification._verify_zip(archive)
 
 
 def test_members_without_a_unix_mode_or_with_a_plain_one_are_extracted(tmp_path: Path) -> None:
@@ -750,7 +752,7 @@ def test_members_without_a_unix_mode_or_with_a_plain_one_are_extracted(tmp_path:
             info = zipfile.ZipInfo(name)
             info.external_attr = mode << 16
             zf.writestr(info, "" if name.endswith("/") else "x")
-    assert dl.extract(archive, tmp_path / "raw")
+    assert extraction.extract(archive, tmp_path / "raw")
     assert sorted(p.name for p in (tmp_path / "raw" / "d").iterdir()) == ["a.txt", "b.txt"]
 
 
@@ -765,15 +767,15 @@ def bomb_zip(path: Path, megabytes: int = 10) -> Path:
 def test_zip_bomb_is_refused_before_anything_is_written(tmp_path: Path) -> None:
     archive = bomb_zip(tmp_path / "bomb.zip")
     ratio = (10 << 20) / archive.stat().st_size
-    assert ratio > 10 * dl.MAX_EXPANSION  # ~1000x
+    assert ratio > 10 * extraction.MAX_EXPANSION  # ~1000x
     raw = tmp_path / "raw"
     pattern = re.escape(f"{archive}: members declare 10.0 MiB uncompressed, ")
     pattern += r"\d+x the archive's .* \(more than 100x"
     with pytest.raises(DataError, match=pattern + ": a zip bomb\\?\\); refusing to extract"):
-        dl.extract(archive, raw)
+        extraction.extract(archive, raw)
     assert not raw.exists()
     with pytest.raises(DataError, match=pattern):
-        dl._verify_zip(archive)  # refused without decompressing it
+        verification._verify_zip(archive)  # refused without decompressing it
 
 
 def test_expansion_up_to_the_bound_is_extracted(tmp_path: Path) -> None:
@@ -783,8 +785,8 @@ def test_expansion_up_to_the_bound_is_extracted(tmp_path: Path) -> None:
     lines = "".join(f"{x:.6e} " for x in rng.normal(size=20_000))
     with zipfile.ZipFile(archive, "w", zipfile.ZIP_DEFLATED) as zf:
         zf.writestr("2011_09_26/numbers.txt", lines)
-    assert 1 < len(lines) / archive.stat().st_size < dl.MAX_EXPANSION
-    assert dl.extract(archive, tmp_path / "raw")
+    assert 1 < len(lines) / archive.stat().st_size < extraction.MAX_EXPANSION
+    assert extraction.extract(archive, tmp_path / "raw")
 
 
 def test_archive_larger_than_the_free_space_is_refused_before_writing(tmp_path: Path, monkeypatch) -> None:
@@ -799,7 +801,7 @@ def test_archive_larger_than_the_free_space_is_refused_before_writing(tmp_path: 
         asked.append(Path(path))
         return real(path)._replace(free=declared - 1)
 
-    monkeypatch.setattr(dl.shutil, "disk_usage", little_space)
+    monkeypatch.setattr(extraction.shutil, "disk_usage", little_space)
     raw = tmp_path / "not" / "yet" / "raw"
     with pytest.raises(
         DataError,
@@ -808,16 +810,16 @@ def test_archive_larger_than_the_free_space_is_refused_before_writing(tmp_path: 
         + re.escape(f"{tmp_path} has ")
         + r".* free; refusing to start",
     ):
-        dl.extract(archive, raw)
+        extraction.extract(archive, raw)
     assert asked == [tmp_path] and not (tmp_path / "not").exists()  # the nearest existing folder
-    monkeypatch.setattr(dl.shutil, "disk_usage", lambda path: real(path)._replace(free=declared))
-    assert dl.extract(archive, raw)
+    monkeypatch.setattr(extraction.shutil, "disk_usage", lambda path: real(path)._replace(free=declared))
+    assert extraction.extract(archive, raw)
 
 
 def test_served_zip_bomb_is_reported_and_never_extracted(server: _Server, tmp_path: Path) -> None:
     server.files[DRIVE] = bomb_zip(tmp_path / "bomb.zip").read_bytes()
-    with pytest.raises(dl.DownloadError, match=f"{DRIVE}: members declare .* a zip bomb") as err:
-        dl.fetch_all(server.base_url, [f"raw_data/{DRIVE}"], tmp_path / "zips", tmp_path / "raw", FAST)
+    with pytest.raises(fetching.DownloadError, match=f"{DRIVE}: members declare .* a zip bomb") as err:
+        fetching.fetch_all(server.base_url, [f"raw_data/{DRIVE}"], tmp_path / "zips", tmp_path / "raw", FAST)
     assert list(err.value.report["failed"]) == [DRIVE] and "moved to" in err.value.report["failed"][DRIVE]
     assert not (tmp_path / "raw").exists()
 
@@ -826,7 +828,7 @@ def test_jpeg_conversion_replaces_pngs(tmp_path: Path) -> None:
     archive = tmp_path / DRIVE
     archive.write_bytes(drive_zip("2011_09_26", 1))
     raw = tmp_path / "raw"
-    dl.extract(archive, raw, jpeg=True, jpeg_quality=92)
+    extraction.extract(archive, raw, jpeg=True, jpeg_quality=92)
     data = raw / "2011_09_26" / "2011_09_26_drive_0001_sync" / "image_02" / "data"
     assert sorted(p.name for p in data.iterdir()) == [f"{i:010d}.jpg" for i in range(3)]
     assert cv2.imread(str(data / "0000000000.jpg")).shape == (24, 40, 3)
@@ -839,7 +841,7 @@ def test_dry_run_reports_total_size_and_downloads_nothing(server: _Server, tmp_p
     a = _serve_drive(server, name="2011_09_26_drive_0001_sync.zip", seed=1)
     b = _serve_drive(server, name="2011_09_26_drive_0002_sync.zip", seed=2)
     names = [f"raw_data/{n}" for n in server.files]
-    report = dl.fetch_all(server.base_url, names, tmp_path / "zips", tmp_path / "raw", DRY)
+    report = fetching.fetch_all(server.base_url, names, tmp_path / "zips", tmp_path / "raw", DRY)
     assert report["total_bytes"] == len(a) + len(b)
     assert report["to_fetch"] == {n: len(d) for n, d in server.files.items()}
     assert {e["method"] for e in server.log} == {"HEAD"}
@@ -852,8 +854,8 @@ def test_parallel_fetch_reports_exactly_the_failing_archive(server: _Server, tmp
     ok = _serve_drive(server, "reset_once", name="2011_09_26_drive_0001_sync.zip", seed=1)
     _serve_drive(server, "404", name="2011_09_26_drive_0002_sync.zip", seed=2)
     names = [f"raw_data/{n}" for n in server.files]
-    with pytest.raises(dl.DownloadError, match=r"1 of 3 archive\(s\) failed") as err:
-        dl.fetch_all(
+    with pytest.raises(fetching.DownloadError, match=r"1 of 3 archive\(s\) failed") as err:
+        fetching.fetch_all(
             server.base_url, names, tmp_path / "zips", tmp_path / "raw", dataclasses.replace(FAST, jobs=3)
         )
     report = err.value.report
@@ -874,9 +876,9 @@ def test_extracted_archive_deleted_to_save_space_is_not_fetched_again(
 ) -> None:
     _serve_drive(server)
     names = [f"raw_data/{DRIVE}"]
-    dl.fetch_all(server.base_url, names, tmp_path / "zips", tmp_path / "raw", FAST)
+    fetching.fetch_all(server.base_url, names, tmp_path / "zips", tmp_path / "raw", FAST)
     (tmp_path / "zips" / DRIVE).unlink()
-    report = dl.fetch_all(server.base_url, names, tmp_path / "zips", tmp_path / "raw", FAST)
+    report = fetching.fetch_all(server.base_url, names, tmp_path / "zips", tmp_path / "raw", FAST)
     assert report["skipped"] == [DRIVE] and len(server.gets(DRIVE)) == 1
 
 
@@ -900,7 +902,7 @@ def test_dry_run_states_every_archive_and_writes_nothing(server: _Server, tmp_pa
     (zips / names[1]).write_bytes(data[names[1]])
     (zips / (names[2] + ".part")).write_bytes(data[names[2]][:1000])
     before = _tree(tmp_path)
-    report = dl.fetch_all(
+    report = fetching.fetch_all(
         server.base_url, [f"raw_data/{n}" for n in names], zips, raw, DRY, label="KITTI raw"
     )
     assert _tree(tmp_path) == before
@@ -910,7 +912,7 @@ def test_dry_run_states_every_archive_and_writes_nothing(server: _Server, tmp_pa
     assert report["resume"] == {names[2]: 1000}
     assert report["total_bytes"] == len(data[names[2]]) - 1000 + len(data[names[3]])
     lines = capsys.readouterr().out.splitlines()
-    human = dl._human
+    human = sizes.human_size
     assert lines == [
         f"  {names[0]:<34} complete (downloaded and extracted)",
         f"  {names[1]:<34} downloaded; would be verified and extracted",
@@ -920,7 +922,7 @@ def test_dry_run_states_every_archive_and_writes_nothing(server: _Server, tmp_pa
         f"KITTI raw: would fetch 2 archive(s), {human(report['total_bytes'])}; 1 already complete, "
         "1 downloaded and not yet extracted",
     ]
-    assert dl.dry_run_total([report, report]).startswith("dry run, in all: would fetch 4 archive(s), ")
+    assert fetching.dry_run_total([report, report]).startswith("dry run, in all: would fetch 4 archive(s), ")
 
 
 def _closed_port() -> int:
@@ -936,8 +938,8 @@ def test_connection_refused_stops_at_once_and_writes_nothing(tmp_path: Path, dry
     base = f"http://127.0.0.1:{_closed_port()}/avg-kitti/"
     names = [f"raw_data/2011_09_26_drive_{i:04d}_sync.zip" for i in range(1, 67)]
     started = time.monotonic()
-    with pytest.raises(dl.NetworkUnreachable) as err:
-        dl.fetch_all(
+    with pytest.raises(transfer.NetworkUnreachable) as err:
+        fetching.fetch_all(
             base,
             names,
             tmp_path / "zips",
@@ -960,8 +962,10 @@ def test_failed_name_resolution_is_asked_once(tmp_path: Path, monkeypatch, dry_r
 
     monkeypatch.setattr(socket, "getaddrinfo", no_dns)
     names = [f"raw_data/2011_09_26_drive_{i:04d}_sync.zip" for i in range(1, 4)]
-    with pytest.raises(dl.NetworkUnreachable, match=r"cannot reach kitti\.invalid \(gaierror: .*not known\)"):
-        dl.fetch_all(
+    with pytest.raises(
+        transfer.NetworkUnreachable, match=r"cannot reach kitti\.invalid \(gaierror: .*not known\)"
+    ):
+        fetching.fetch_all(
             "https://kitti.invalid/",
             names,
             tmp_path / "zips",
@@ -975,18 +979,18 @@ def test_unreachable_host_mid_run_stops_the_archives_not_started(server: _Server
     """The network goes away after the probe: the first archive's failure stops the others."""
     _serve_drive(server)
     names = [f"raw_data/{DRIVE}"] + [f"raw_data/2011_09_26_drive_{i:04d}_sync.zip" for i in range(2, 9)]
-    real, answered = dl._open, []
+    real, answered = transfer._open, []
 
     def goes_away(url, timeout, **kwargs):
         if answered:  # after the probe's HEAD
-            raise dl.NetworkUnreachable(f"{url}: cannot reach the host")
+            raise transfer.NetworkUnreachable(f"{url}: cannot reach the host")
         answered.append(url)
         return real(url, timeout, **kwargs)
 
     with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(dl, "_open", goes_away)
-        with pytest.raises(dl.NetworkUnreachable, match=r"stopped with 0 of 8 archive\(s\) complete$"):
-            dl.fetch_all(
+        mp.setattr(transfer, "_open", goes_away)
+        with pytest.raises(transfer.NetworkUnreachable, match=r"stopped with 0 of 8 archive\(s\) complete$"):
+            fetching.fetch_all(
                 server.base_url, names, tmp_path / "zips", tmp_path / "raw", dataclasses.replace(FAST, jobs=1)
             )
     assert server.gets(DRIVE) == []
@@ -1063,11 +1067,14 @@ def test_stage_dry_run_prints_each_archive_and_the_totals(server: _Server, tmp_p
         "KITTI raw: 2 drives named by the train split and eigen (of 2 in the archive list) "
         "+ 1 calibration archive"
     )
-    assert lines[1] == f"  {'2011_09_26_calib.zip':<34} to fetch, {dl._human(len(calib))}"
-    raw = dl._human(len(calib) + len(d1) + len(d2))
+    assert lines[1] == f"  {'2011_09_26_calib.zip':<34} to fetch, {sizes.human_size(len(calib))}"
+    raw = sizes.human_size(len(calib) + len(d1) + len(d2))
     assert lines[4] == f"KITTI raw: would fetch 3 archive(s), {raw}; 0 already complete"
-    assert lines[6] == f"KITTI 2015: would fetch 1 archive(s), {dl._human(len(scene))}; 0 already complete"
-    total = dl._human(len(calib) + len(d1) + len(d2) + len(scene))
+    assert (
+        lines[6]
+        == f"KITTI 2015: would fetch 1 archive(s), {sizes.human_size(len(scene))}; 0 already complete"
+    )
+    total = sizes.human_size(len(calib) + len(d1) + len(d2) + len(scene))
     assert lines[7:] == [
         f"dry run, in all: would fetch 4 archive(s), {total}; 0 already complete; nothing was written"
     ]
@@ -1206,7 +1213,7 @@ def test_annotated_depth_archive_unpacks_where_the_benchmark_index_looks(
             zf.writestr(name, data)
     server.files["data_depth_annotated.zip"] = buf.getvalue()
     root = tmp_path / "kitti" / "depth_annotated"
-    report = dl.fetch_all(server.base_url, ["data_depth_annotated.zip"], tmp_path / "zips", root, FAST)
+    report = fetching.fetch_all(server.base_url, ["data_depth_annotated.zip"], tmp_path / "zips", root, FAST)
     assert report["extracted"] == ["data_depth_annotated.zip"]
     assert sorted(p.name for p in root.iterdir()) == [".data_depth_annotated.zip.complete", "train", "val"]
     for (name, data), (drive, number) in zip(
@@ -1262,13 +1269,13 @@ def test_kitti2012_archive_unpacks_where_the_kitti2012_index_looks(server: _Serv
     )
     label, archive, dest = _single_archives(params)[-1]
     assert (label, archive, dest) == ("KITTI 2012", "data_stereo_flow.zip", tmp_path / "kitti" / "kitti2012")
-    report = dl.fetch_all(server.base_url, [archive], tmp_path / "zips", dest, FAST)
+    report = fetching.fetch_all(server.base_url, [archive], tmp_path / "zips", dest, FAST)
     assert report["extracted"] == ["data_stereo_flow.zip"]
     index = _build_kitti2012_index(dest / "training")
     assert list(index["frame"]) == ["000000_10"] and index["focal"][0] == pytest.approx(707.0912)
     assert Path(index["class_map"][0]) == dest / "training" / "disp_refl_occ" / "000000_10.png"
     asked = len(server.log)
-    assert dl.fetch_all(server.base_url, [archive], tmp_path / "zips", dest, FAST)["extracted"] == []
+    assert fetching.fetch_all(server.base_url, [archive], tmp_path / "zips", dest, FAST)["extracted"] == []
     assert len(server.log) == asked
 
 
@@ -1288,19 +1295,19 @@ def test_an_entry_naming_no_archive_file_is_refused_before_anything_is_asked(
     failed to verify and was renamed to ``zips.corrupt`` with its manifest (``..``: its parent)."""
     _serve_drive(server)
     zips, raw = tmp_path / "zips", tmp_path / "raw"
-    dl.fetch_all(server.base_url, [f"raw_data/{DRIVE}"], zips, raw, FAST)
+    fetching.fetch_all(server.base_url, [f"raw_data/{DRIVE}"], zips, raw, FAST)
     before, asked = _tree(tmp_path), len(server.log)
     problem = "has a query or fragment" if "?" in entry or "#" in entry else "names no archive file"
     for options in (FAST, DRY):
         with pytest.raises(DataError, match=re.escape(f"archive {entry!r}: {problem}")) as err:
-            dl.fetch_all(server.base_url, [f"raw_data/{DRIVE}", entry], zips, raw, options)
+            fetching.fetch_all(server.base_url, [f"raw_data/{DRIVE}", entry], zips, raw, options)
         assert "\n" not in str(err.value)
     assert _tree(tmp_path) == before and len(server.log) == asked
     listed = tmp_path / "list.txt"
     listed.write_text(f"raw_data/{DRIVE}\n{entry}{'' if entry.endswith('.zip') else '/x.zip'}\n")
     if entry.endswith(".zip"):  # the list's own check (one .zip URL per line) catches the others
         with pytest.raises(DataError, match=re.escape(f"{listed}:2: archive {entry!r}: {problem}")):
-            dl.parse_archive_list(listed)
+            lists.parse_archive_list(listed)
 
 
 def _zip(path: Path, members: dict[str, str]) -> Path:
@@ -1328,13 +1335,13 @@ def test_a_member_colliding_with_what_other_archives_unpacked_is_refused(
     raw = tmp_path / "raw"
     (tmp_path / "c.zip").write_bytes(calib_zip("2011_09_26"))
     (tmp_path / "d.zip").write_bytes(drive_zip("2011_09_26", 1))
-    assert dl.extract(tmp_path / "d.zip", raw) and dl.extract(tmp_path / "c.zip", raw)
+    assert extraction.extract(tmp_path / "d.zip", raw) and extraction.extract(tmp_path / "c.zip", raw)
     before = _tree(raw)
     hostile = _zip(tmp_path / D2, {member: "x"})
     colliding = "/".join(member.split("/")[:2])
     expected = f"{hostile}: member {colliding!r} " + message.format(raw=raw) + "; refusing to extract"
     with pytest.raises(DataError, match=re.escape(expected)):
-        dl.extract(hostile, raw)
+        extraction.extract(hostile, raw)
     assert _tree(raw) == before  # nothing removed, nothing added, no temp folder left
 
 
@@ -1344,11 +1351,11 @@ def test_a_top_level_dot_member_is_refused(server: _Server, tmp_path: Path, memb
     server.files[D2] = _zip(tmp_path / D2, {"2011_09_26/ok.txt": "fine", member: "{}"}).read_bytes()
     _serve_drive(server)
     zips, raw = tmp_path / "zips", tmp_path / "raw"
-    with pytest.raises(dl.DownloadError) as err:
-        dl.fetch_all(server.base_url, [f"raw_data/{D2}"], zips, raw, FAST)
+    with pytest.raises(fetching.DownloadError) as err:
+        fetching.fetch_all(server.base_url, [f"raw_data/{D2}"], zips, raw, FAST)
     assert f"member {member!r} is a top-level dot-file" in err.value.report["failed"][D2]
     assert not raw.exists()
-    report = dl.fetch_all(server.base_url, [f"raw_data/{DRIVE}"], zips, raw, FAST)
+    report = fetching.fetch_all(server.base_url, [f"raw_data/{DRIVE}"], zips, raw, FAST)
     assert report["fetched"] == report["extracted"] == [DRIVE]
 
 
@@ -1361,8 +1368,8 @@ def test_a_content_length_that_is_no_byte_count_fails_only_its_archive(
     zips, raw = tmp_path / "zips", tmp_path / "raw"
     refused = f"{server.url(D2)}: the server's Content-Length '\u00b2' is not a byte count; refusing it"
     for options in (DRY, FAST):
-        with pytest.raises(dl.DownloadError) as err:
-            dl.fetch_all(server.base_url, [f"raw_data/{DRIVE}", f"raw_data/{D2}"], zips, raw, options)
+        with pytest.raises(fetching.DownloadError) as err:
+            fetching.fetch_all(server.base_url, [f"raw_data/{DRIVE}", f"raw_data/{D2}"], zips, raw, options)
         assert err.value.report["failed"] == {D2: refused}
     assert err.value.report["fetched"] == [DRIVE] and not (zips / D2).exists()
 
@@ -1381,8 +1388,8 @@ def test_a_body_past_or_without_a_declared_size_is_cut_off(
     bounded by the size HEAD declared, and a size declared nowhere is refused."""
     data = _serve_drive(server, mode)
     zips = tmp_path / "zips"
-    with pytest.raises(dl.DownloadError) as err:
-        dl.fetch_all(server.base_url, [f"raw_data/{DRIVE}"], zips, tmp_path / "raw", FAST)
+    with pytest.raises(fetching.DownloadError) as err:
+        fetching.fetch_all(server.base_url, [f"raw_data/{DRIVE}"], zips, tmp_path / "raw", FAST)
     reason = err.value.report["failed"][DRIVE]
     assert reason == f"{server.url(DRIVE)}: " + refused.format(size=len(data))
     assert sorted(p.name for p in zips.iterdir()) == []  # no archive, no .part, no .corrupt
@@ -1397,8 +1404,8 @@ def test_a_server_dripping_bytes_is_cut_off_below_the_minimum_rate(server: _Serv
     _serve_drive(server)
     slow = dataclasses.replace(FAST, min_rate=1000, rate_window=0.1)
     names = ["raw_data/2011_09_26_calib.zip", f"raw_data/{DRIVE}"]
-    with pytest.raises(dl.DownloadError) as err:
-        dl.fetch_all(server.base_url, names, tmp_path / "zips", tmp_path / "raw", slow)
+    with pytest.raises(fetching.DownloadError) as err:
+        fetching.fetch_all(server.base_url, names, tmp_path / "zips", tmp_path / "raw", slow)
     report = err.value.report
     assert report["failed"] == {
         "2011_09_26_calib.zip": f"{server.url('2011_09_26_calib.zip')}: download failed after 3 retries: "
@@ -1419,8 +1426,8 @@ def test_a_redirect_off_http_or_to_an_unreachable_host_fails_only_its_archive(
     server.redirects[D3] = f"http://127.0.0.1:{port}/x.zip"
     names = [f"raw_data/{n}" for n in (DRIVE, D2, D3)]
     for options in (DRY, FAST):
-        with pytest.raises(dl.DownloadError) as err:
-            dl.fetch_all(server.base_url, names, tmp_path / "zips", tmp_path / "raw", options)
+        with pytest.raises(fetching.DownloadError) as err:
+            fetching.fetch_all(server.base_url, names, tmp_path / "zips", tmp_path / "raw", options)
         failed = err.value.report["failed"]
         assert failed[D2] == (
             f"{server.url(D2)}: redirected to ftp://127.0.0.1:{port}/x.zip, which is not an http(s) URL; "
@@ -1462,7 +1469,7 @@ def test_same_day_archives_finishing_together_both_land(tmp_path: Path, monkeypa
 
     def unpack(i: int) -> None:
         try:
-            dl.extract(tmp_path / f"d{i}.zip", raw)
+            extraction.extract(tmp_path / f"d{i}.zip", raw)
         except DataError as exc:
             errors.append(str(exc))
 
@@ -1487,11 +1494,14 @@ def test_the_temps_of_a_run_killed_writing_the_manifest_or_a_marker_are_removed(
     # left its temp (".manifest.json.msdepth-tmp-<random>.json") for good.
     _serve_drive(server)
     zips, raw = tmp_path / "zips", tmp_path / "raw"
-    writers = [dl_io.atomic_path(zips / dl.MANIFEST_NAME), dl_io.atomic_path(raw / f".{DRIVE}.complete")]
+    writers = [
+        dl_io.atomic_path(zips / verification.MANIFEST_NAME),
+        dl_io.atomic_path(raw / f".{DRIVE}.complete"),
+    ]
     temps = [writer.__enter__() for writer in writers]  # entered and never left (kept referenced)
     users = [zips / ".manifest.json.k1ll3d_9.json", raw / f"..{DRIVE}.complete.msdepth-tmp-k1ll3d_9.bak"]
     for path in users:
         path.write_text("a user's file")
-    report = dl.fetch_all(server.base_url, [f"raw_data/{DRIVE}"], zips, raw, FAST)
+    report = fetching.fetch_all(server.base_url, [f"raw_data/{DRIVE}"], zips, raw, FAST)
     assert report["fetched"] == report["extracted"] == [DRIVE]
     assert [t.exists() for t in temps] == [False, False] and all(p.exists() for p in users)

@@ -1,12 +1,18 @@
-"""dvc.yaml's code deps follow the imports: each stage lists exactly the files its script imports.
+"""dvc.yaml's code deps: each stage depends on its script's fingerprint, what its code does.
 
-:mod:`msdepth.pipeline.dvcyaml` writes them (``python -m msdepth.pipeline.dvcyaml``); these tests check that
-dvc.yaml is what it writes, and the import tracing itself on a toy package.
+:mod:`msdepth.pipeline.fingerprints` writes the fingerprints (the import closure, each file's syntax
+tree without docstrings) and :mod:`msdepth.pipeline.dvcyaml` dvc.yaml's deps on them
+(``python -m msdepth.pipeline.dvcyaml``); these tests check that dvc.yaml is what it writes, the
+import tracing on a toy package, and that a comment or a docstring changes no fingerprint while a
+changed constant does.
 """
 
 from __future__ import annotations
 
 import ast
+import hashlib
+import os
+import shutil
 import subprocess
 from pathlib import Path
 
@@ -15,8 +21,19 @@ import yaml
 from conftest import dvc_status
 
 from msdepth.errors import DataError
+from msdepth.io import TEMP_MARK
 from msdepth.pipeline import paths as pipeline
-from msdepth.pipeline.dvcyaml import COMMAND, TAGGED, _code_deps, _import_closure, _tagged_path, generate
+from msdepth.pipeline.dvcyaml import COMMAND, TAGGED, _code_deps, _tagged_path, generate
+from msdepth.pipeline.fingerprints import (
+    SCRIPT,
+    Sources,
+    canonical,
+    fingerprint_path,
+    fingerprint_text,
+    import_closure,
+    stage_scripts,
+    write_fingerprints,
+)
 
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGE = "msdepth"
@@ -25,7 +42,7 @@ PACKAGE = "msdepth"
 def test_dvc_yaml_is_what_the_generator_writes():
     text = (ROOT / "dvc.yaml").read_text()
     if generate(ROOT) != text:
-        pytest.fail(f"dvc.yaml's code deps differ from the stages' imports: run `{COMMAND}`", pytrace=False)
+        pytest.fail(f"dvc.yaml's generated parts are out of date: run `{COMMAND}`", pytrace=False)
 
 
 def test_no_package_module_imports_a_stage_script():
@@ -70,7 +87,7 @@ def toy(tmp_path: Path) -> Path:
 
 
 def test_closure_follows_relative_absolute_and_function_level_imports(toy: Path):
-    closure = _import_closure(toy / "stages" / "run.py", toy / "src")
+    closure = import_closure(toy / "stages" / "run.py", toy / "src")
     found = sorted(p.relative_to(toy / "src" / "msdepth").as_posix() for p in closure)
     assert found == [
         "__init__.py",
@@ -89,9 +106,141 @@ def test_closure_follows_relative_absolute_and_function_level_imports(toy: Path)
     ]
 
 
+def neutral_edit(path: Path) -> None:
+    """Edit ``path``'s comments, docstrings and layout, nothing it does: a docstring where there was
+    none, then more words in it and in the first function's, a comment and blank lines."""
+    text = path.read_text()
+    tree = ast.parse(text)
+    if not ast.get_docstring(tree):
+        text = f'"""A new docstring."""\n{text}'
+    lines = text.replace('"""', '"""Edited: ', 1).splitlines(keepends=True)
+    function = next((n for n in ast.walk(ast.parse(text)) if isinstance(n, ast.FunctionDef)), None)
+    if function is not None and ast.get_docstring(function):
+        at = function.body[0].lineno - 1
+        lines[at] = lines[at].replace('"""', '"""More words. ', 1)
+    edited = "# a comment\n\n" + "".join(lines).replace("\n\n", "\n\n\n  # an indented comment\n\n", 1)
+    assert ast.dump(ast.parse(edited)) != ast.dump(tree)  # the docstrings did change
+    path.write_text(edited + "\n\n# the end\n")
+
+
+def behaviour_edit(path: Path) -> str:
+    """Change the first integer literal in a function of ``path`` (``n`` -> ``n + 1``, a change in what
+    the code does); the edited line."""
+    text = path.read_text()
+    for function in (n for n in ast.walk(ast.parse(text)) if isinstance(n, ast.FunctionDef)):
+        for node in ast.walk(function):
+            if isinstance(node, ast.Constant) and type(node.value) is int and node.lineno == node.end_lineno:
+                lines = text.splitlines(keepends=True)
+                line = lines[node.lineno - 1].encode()  # the offsets count UTF-8 bytes
+                line = line[: node.col_offset] + str(node.value + 1).encode() + line[node.end_col_offset :]
+                lines[node.lineno - 1] = line.decode()
+                path.write_text("".join(lines))
+                return lines[node.lineno - 1]
+    raise AssertionError(f"{path}: no integer literal in a function")
+
+
+def test_canonical_trees_see_behaviour_not_comments_docstrings_or_layout():
+    def same(a: str, b: str) -> bool:
+        return canonical(ast.parse(a)) == canonical(ast.parse(b))
+
+    code = 'def f(x: int = 2) -> int:\n    """Doc."""\n    y = x + 1  # one\n    return y\n'
+    assert same(code, "def f(x:int=2)->int:\n    y=x+1\n\n    return (y)")
+    assert same(code, code.replace('"""Doc."""', '"""Other."""\n    "an attribute docstring"'))
+    assert same("x = 1.0", "x = 1.00") and same("x = 'a'", 'x = "a"')
+    for other in ("x + 2", "x - 1", "x + 1.0", "z + 1"):  # a constant, an operator, a type, a name
+        assert not same(code, code.replace("x + 1", other)), other
+    assert not same(code, code.replace("x: int", "x: float"))  # a dataclass's fields are annotations
+    assert not same("def f(): return 1", "def f(): f'{print()}'\n")  # an f-string runs code
+    # No positions, no empty fields: the same text on Python 3.10 to 3.13 (3.12 added type_params=[]).
+    expected = "Module(body=[FunctionDef(args=arguments(), body=[Pass()], name='f')])"
+    assert canonical(ast.parse("def f(): pass")) == expected
+    # f-strings as 3.12 (an empty string after a nested field) and 3.13 (a bare format spec) may parse them
+    nested, bare, split = ast.parse("f'{x:{y}}'"), ast.parse("f'{x:.2f}'"), ast.parse("f'a{x}b'")
+    nested.body[0].value.values[0].format_spec.values.append(ast.Constant(value=""))
+    bare.body[0].value.values[0].format_spec = bare.body[0].value.values[0].format_spec.values[0]
+    split.body[0].value.values[-1:] = [ast.Constant(value=""), ast.Constant(value="b")]
+    for code, tree in [("f'{x:{y}}'", nested), ("f'{x:.2f}'", bare), ("f'a{x}b'", split)]:
+        assert canonical(tree) == canonical(ast.parse(code)), code
+    assert not same("f'{x:.2f}'", "f'{x:.3f}'") and not same("f'a{x}b'", "f'a{x}c'")
+
+
+@pytest.fixture(scope="module")
+def tree(tmp_path_factory) -> Path:
+    """A copy of the project's stages/ and src/ and the fingerprints of every stage script in it."""
+    root = tmp_path_factory.mktemp("tree")
+    for name in ("stages", "src"):
+        shutil.copytree(ROOT / name, root / name, ignore=shutil.ignore_patterns("__pycache__"))
+    return root
+
+
+def _fingerprints(root: Path) -> dict[str, str]:
+    sources = Sources()
+    return {script: fingerprint_text(root, script, sources) for script in stage_scripts(root)}
+
+
+def test_a_comment_or_docstring_in_io_changes_no_fingerprint_and_a_constant_every_importers(tree: Path):
+    """Issue 67: every stage imports msdepth.io; a comment, a docstring or a blank line there reruns
+    none (the train stages included), a changed constant in one of its functions reruns every one."""
+    io, before = tree / "src" / "msdepth" / "io.py", _fingerprints(tree)
+    assert "stages/train.py" in before and all("\nsrc/msdepth/io.py " in t for t in before.values())
+    original = io.read_text()
+    neutral_edit(io)
+    assert io.read_text() != original and _fingerprints(tree) == before
+    behaviour_edit(io)
+    after = _fingerprints(tree)
+    assert [s for s in before if after[s] == before[s]] == []
+    changed = {line for s in before for line in set(after[s].splitlines()) ^ set(before[s].splitlines())}
+    assert {line.split()[0] for line in changed} == {"src/msdepth/io.py"}
+
+
+def test_the_fingerprints_stage_rewrites_only_what_changed(toy: Path):
+    """Each file's bytes change only with its stage's code, so DVC reruns only that stage; the file
+    of a script that is gone is removed, and a killed write's temp file; no absolute path or time
+    is written."""
+    (toy / "stages" / "other.py").write_text("import msdepth.errors\n")
+    (toy / "stages" / "fingerprints.py").write_text("import msdepth.plain\n")  # it has none
+    assert write_fingerprints(toy) == ["data/fingerprints/other.txt", "data/fingerprints/run.txt"]
+    folder = toy / pipeline.FINGERPRINTS
+    text = (folder / "other.txt").read_text()
+    assert text.splitlines()[2:] == [
+        f"stages/other.py {Sources().hash(toy / 'stages' / 'other.py')}",
+        f"src/msdepth/__init__.py {hashlib.sha256(b'Module()').hexdigest()}",
+        f"src/msdepth/errors.py {hashlib.sha256(b'Module()').hexdigest()}",
+    ]
+    os.utime(folder / "run.txt", (0, 0))
+    (folder / "gone.txt").write_text("")
+    killed = folder / f".run.txt{TEMP_MARK}abcd1234.txt"  # a write killed before its rename
+    killed.write_text("half")
+    assert write_fingerprints(toy) == ["data/fingerprints/gone.txt"]
+    assert (folder / "run.txt").stat().st_mtime == 0 and not (folder / "gone.txt").exists()
+    assert not killed.exists()
+    (toy / "src" / "msdepth" / "plain.py").write_text("import os\nfrom . import plugins\nos.sep\n")
+    assert write_fingerprints(toy) == ["data/fingerprints/run.txt"]
+    assert sorted(p.name for p in folder.iterdir()) == ["other.txt", "run.txt"]
+
+
+def test_a_source_that_is_not_python_is_one_line_naming_it(toy: Path, capsys):
+    from msdepth.pipeline.fingerprints import main
+
+    (toy / "src" / "msdepth" / "lazy.py").write_text("def f(:\n")
+    assert main(["--root", str(toy)]) == 1
+    err = capsys.readouterr().err
+    assert err == f"error: {toy}/src/msdepth/lazy.py: not valid Python (line 1: invalid syntax)\n"
+    (toy / "src" / "msdepth" / "lazy.py").write_text("import msdepth.missing\n")
+    assert main(["--root", str(toy)]) == 1
+    assert "imports msdepth.missing, which has no file under" in capsys.readouterr().err
+    assert not list((toy / pipeline.FINGERPRINTS).glob("*.txt"))
+
+
 TOY_YAML = """\
 # header comment
 stages:
+  fingerprints:
+    cmd: python stages/fingerprints.py
+    always_changed: true
+    outs:
+      - data/fingerprints
+
   run:  # the stage
     matrix:
       x: [1, 2]
@@ -114,24 +263,14 @@ stages:
 
 
 def test_generator_rewrites_only_the_code_deps(toy: Path):
-    """The code deps at the head of each deps list become the closure (a package folder whose every
-    module is imported listed as the folder); comments and every other line keep their bytes; a
-    stage without deps gets them after its cmd."""
+    """The code deps at the head of each deps list (source files, as dvc.yaml listed them before the
+    fingerprints) become the script's fingerprint; comments and every other line keep their bytes; a
+    stage without deps gets it after its cmd; the fingerprints stage gets none."""
     (toy / "dvc.yaml").write_text(TOY_YAML)
-    code = [
-        "stages/run.py",
-        "src/msdepth/__init__.py",
-        "src/msdepth/data/__init__.py",
-        "src/msdepth/data/kitti.py",
-        "src/msdepth/data/pairs.py",
-        "src/msdepth/errors.py",
-        "src/msdepth/lazy.py",
-        "src/msdepth/plain.py",
-        "src/msdepth/plugins",
-        "src/msdepth/stages",
-    ]
-    assert _code_deps(toy, "stages/run.py") == code
-    listed = "".join(f"      - {c}\n" for c in code)
+    assert (
+        _code_deps("stages/run.py") == ["data/fingerprints/run.txt"] and _code_deps(SCRIPT.as_posix()) == []
+    )
+    listed = "      - data/fingerprints/run.txt\n"
     expected = (
         TOY_YAML.replace("      - stages/run.py\n      - src/msdepth/unused.py\n", listed)
         .replace("    cmd: python stages/run.py\n", "    cmd: python stages/run.py\n    deps:\n" + listed)
@@ -140,6 +279,26 @@ def test_generator_rewrites_only_the_code_deps(toy: Path):
     assert generate(toy) == expected
     (toy / "dvc.yaml").write_text(expected)
     assert generate(toy) == expected  # a fixed point
+
+
+@pytest.mark.parametrize(
+    ("edit", "message"),
+    [
+        (("    always_changed: true\n", ""), "stage fingerprints: needs 'always_changed: true' and no deps"),
+        (
+            ("    always_changed: true\n", "    always_changed: true\n    deps:\n      - src/msdepth\n"),
+            "no deps",
+        ),
+        (("python stages/fingerprints.py", "python stages/run.py"), "0 stages run stages/fingerprints.py"),
+        (("python stages/run.py ${item.x}", "python stages/sub/run.py"), "stages/sub/run.py: a stage script"),
+    ],
+)
+def test_generator_refuses_a_fingerprints_stage_that_may_not_run(toy: Path, edit: tuple, message: str):
+    """Without always_changed, DVC would run the fingerprints stage once and then trust stale
+    fingerprints; with deps, their bytes would be back in dvc.lock."""
+    (toy / "dvc.yaml").write_text(TOY_YAML.replace(*edit))
+    with pytest.raises(DataError, match=message):
+        generate(toy)
 
 
 def test_tagged_paths_come_from_the_pipeline_module():
@@ -208,24 +367,39 @@ def test_the_command_checks_and_writes(toy: Path, capsys):
     assert (toy / "dvc.yaml").read_text() == generate(toy)
 
 
+def _closure(script: str) -> set[str]:
+    """The files (relative to src/msdepth) that the stage script ``script`` imports."""
+    src = ROOT / "src"
+    return {p.relative_to(src / PACKAGE).as_posix() for p in import_closure(ROOT / script, src)}
+
+
 def test_figures_and_evaluation_code_are_no_training_dep():
-    """Redrawing a figure or changing a metric must never retrain (or re-infer) a model."""
-    stages = yaml.safe_load((ROOT / "dvc.yaml").read_text())["stages"]
-    later = ("src/msdepth/reporting", "src/msdepth/evaluation/suites.py", "src/msdepth/evaluation/metrics.py")
-    later += ("src/msdepth/evaluation/baselines.py",)
-    for name in ("train", "infer"):
-        assert not [d for d in stages[name]["deps"] if d.startswith(later)], name
+    """Redrawing a figure or changing a metric must never retrain (or re-infer) a model: the train
+    and infer scripts' fingerprints hold no reporting or metric code."""
+    later = ("reporting/", "evaluation/suites.py", "evaluation/metrics.py", "evaluation/baselines.py")
+    for script in ("stages/train.py", "stages/infer.py"):
+        assert not [f for f in _closure(script) if f.startswith(later)], script
 
 
 def test_reading_params_depends_on_no_loss_code():
     """The variants' configs are apart from their terms, so a change to the loss code (e.g. the
     MS-SSIM kernels) re-runs only the stages that train or build a model, not every stage."""
-    closure = {
-        p.relative_to(ROOT / "src" / PACKAGE).as_posix()
-        for p in _import_closure(ROOT / "stages" / "validate_params.py", ROOT / "src")
-    }
+    closure = _closure("stages/validate_params.py")
     assert "config/variants/ssim.py" in closure and "config/params.py" in closure
     assert not {f for f in closure if f.startswith(("losses/", "geometry/", "networks/"))}
+
+
+def test_every_stage_depends_on_its_scripts_fingerprint_first():
+    """Each stage's first dep is the fingerprint of the script its cmd runs, and no stage lists a
+    source file (whose bytes, comments included, would re-run it)."""
+    stages = yaml.safe_load((ROOT / "dvc.yaml").read_text())["stages"]
+    for name, stage in stages.items():
+        script = stage["cmd"].split()[1]
+        if script == SCRIPT.as_posix():
+            assert stage["always_changed"] is True and "deps" not in stage
+            continue
+        assert stage["deps"][0] == fingerprint_path(script).as_posix(), name
+        assert not [d for d in stage["deps"] if d.startswith(("src/", "stages/"))], name
 
 
 def test_a_stage_that_reads_the_data_through_an_index_depends_on_the_data():
@@ -265,13 +439,52 @@ def stale_entries(status: dict, tracked: set[str], outs: set[str]) -> list[str]:
     return stale
 
 
+def stale_fingerprints(root: Path, locked: dict) -> list[str]:
+    """The stages of the dvc.lock entries ``locked`` whose locked fingerprint is not the one their
+    code gives today. `dvc status` cannot tell: it compares the fingerprint files on disk, which
+    only the fingerprints stage refreshes, so each is computed here from the sources."""
+    stages = yaml.safe_load((root / "dvc.yaml").read_text())["stages"]
+    scripts = {name: stage["cmd"].split()[1] for name, stage in stages.items()}
+    sources, md5s, stale = Sources(), {}, []
+    for stage, entry in locked.items():
+        script = scripts.get(stage.split("@")[0])
+        if script in (None, SCRIPT.as_posix()):
+            continue  # a stage no longer in dvc.yaml: dvc status names it
+        if script not in md5s:
+            md5s[script] = hashlib.md5(fingerprint_text(root, script, sources).encode()).hexdigest()
+        path = fingerprint_path(script).as_posix()
+        dep = next((d for d in entry.get("deps", []) if d["path"] == path), None)
+        if dep is None or dep.get("md5") != md5s[script]:
+            stale.append(f"{stage}: {path} {'not locked' if dep is None else 'modified'}")
+    return stale
+
+
 def stale_lock_entries(root: Path) -> list[str]:
     """Why ``root``'s dvc.lock is not the one `dvc repro` would commit (empty if it is): a locked dep
-    that git tracks and no stage writes, or a locked param whose current value differs from the lock."""
+    that git tracks and no stage writes, a locked param whose current value differs from the lock,
+    or a locked fingerprint that is not what the stage's code does today."""
     listed = subprocess.run(["git", "ls-files"], cwd=root, capture_output=True, text=True, check=True)
     stages = (yaml.safe_load((root / "dvc.lock").read_text()) or {}).get("stages", {})
     outs = {out["path"] for stage in stages.values() for out in stage.get("outs", [])}
-    return stale_entries(dvc_status(root), set(listed.stdout.split()), outs)
+    return stale_entries(dvc_status(root), set(listed.stdout.split()), outs) + stale_fingerprints(
+        root, stages
+    )
+
+
+def test_a_stale_fingerprint_in_the_lock_is_found_without_running_the_stage(toy: Path):
+    """A code change that no `dvc repro` has seen leaves the fingerprint file on disk as it was, so
+    `dvc status` is clean; the lock check recomputes the fingerprint and names the stage. A comment
+    is no change."""
+    (toy / "dvc.yaml").write_text(TOY_YAML)
+    text = fingerprint_text(toy, "stages/run.py")
+    dep = {"path": "data/fingerprints/run.txt", "hash": "md5", "md5": hashlib.md5(text.encode()).hexdigest()}
+    locked = {"run@1": {"deps": [dep]}, "fresh": {"deps": []}, "fingerprints": {}, "gone": {}}
+    assert stale_fingerprints(toy, locked) == ["fresh: data/fingerprints/run.txt not locked"]
+    del locked["fresh"]
+    neutral_edit(toy / "src" / "msdepth" / "data" / "pairs.py")
+    assert stale_fingerprints(toy, locked) == []
+    (toy / "src" / "msdepth" / "data" / "pairs.py").write_text("from . import kitti\nkitti = None\n")
+    assert stale_fingerprints(toy, locked) == ["run@1: data/fingerprints/run.txt modified"]
 
 
 def test_a_retrained_output_under_git_is_not_a_stale_lock():

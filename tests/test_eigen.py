@@ -246,7 +246,7 @@ def test_compare_section_of_an_extra_set(tmp_path: Path, monkeypatch: pytest.Mon
 
     from msdepth.config.params import CompareConfig
     from msdepth.evaluation.results import _write_suite
-    from msdepth.reporting.compare import (
+    from msdepth.reporting.comparison import (
         build_set_section,
         group_metrics,
         load_suite_metrics,

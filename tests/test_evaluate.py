@@ -7,7 +7,7 @@ import pytest
 
 from msdepth.config.params import EvalConfig
 from msdepth.evaluation.suites import Frame, depth_maps, evaluate_full, evaluate_gradients, evaluate_roi
-from msdepth.reporting.compare import ComparisonInputs, build_comparison, comparison_data
+from msdepth.reporting.comparison import ComparisonInputs, build_comparison, comparison_data
 
 FOCAL, BASELINE = 721.5377, 0.54
 
@@ -283,7 +283,7 @@ def test_compare_says_when_image_dependence_cannot_be_measured():
     """One evaluation frame (or GT never at the same pixels in 3): the ratio is NaN, which must
     read as "not measured", not as "follows the image"."""
     from msdepth.evaluation.suites import image_dependence
-    from msdepth.reporting.compare import image_dependence as compare_dependence
+    from msdepth.reporting.comparison import image_dependence as compare_dependence
 
     frame = _frames_with_depth([np.full((10, 20), 20.0, dtype=np.float32)])
     measured = image_dependence({frame[0].name: frame[0].gt_depth}, frame, 80.0)

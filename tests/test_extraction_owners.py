@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 from msdepth.data import owners
-from msdepth.download import archives as dl
+from msdepth.download import extraction
 from msdepth.errors import DataError
 
 CALIB = "2011_09_26/calib_cam_to_cam.txt"
@@ -35,11 +35,11 @@ def test_a_later_archive_cannot_replace_an_earlier_ones_file(tmp_path: Path, mem
     # extracted drive, whose marker still said complete.
     raw = tmp_path / "raw"
     first = _zip(tmp_path / "2011_09_26_calib.zip", {CALIB: "real calibration\n", FRAME: "real frame"})
-    assert dl.extract(first, raw)
+    assert extraction.extract(first, raw)
     before = _tree(raw)
     later = _zip(tmp_path / "2011_09_26_drive_0002_sync.zip", {"2011_09_26/new.txt": "x", member: "forged"})
     with pytest.raises(DataError) as err:
-        dl.extract(later, raw)
+        extraction.extract(later, raw)
     assert str(err.value) == (
         f"{later}: member {member!r} would replace {raw / member} (written by 2011_09_26_calib.zip); "
         "refusing to extract, nothing was changed"
@@ -53,7 +53,7 @@ def test_a_file_no_archive_wrote_is_not_replaced(tmp_path: Path) -> None:
     (raw / CALIB).write_text("the user's own\n")
     archive = _zip(tmp_path / "c.zip", {CALIB: "forged"})
     with pytest.raises(DataError, match=r"c.zip: member .* \(a file no KITTI archive wrote here\)"):
-        dl.extract(archive, raw)
+        extraction.extract(archive, raw)
     assert (raw / CALIB).read_text() == "the user's own\n"
     assert sorted(p.name for p in raw.iterdir()) == ["2011_09_26"]
 
@@ -64,19 +64,19 @@ def test_the_jpeg_a_png_member_becomes_is_checked_too(tmp_path: Path) -> None:
     (raw / "2011_09_26" / "a.jpg").write_bytes(b"the user's")
     archive = _zip(tmp_path / "d.zip", {"2011_09_26/a.png": "png"})
     with pytest.raises(DataError, match=r"member '2011_09_26/a.jpg' would replace"):
-        dl.extract(archive, raw, jpeg=True)
+        extraction.extract(archive, raw, jpeg=True)
 
 
 def test_an_archive_may_replace_its_own_files_and_its_marker_lists_them(tmp_path: Path) -> None:
     raw = tmp_path / "raw"
     archive = _zip(tmp_path / "c.zip", {CALIB: "v1"})
-    assert dl.extract(archive, raw)
+    assert extraction.extract(archive, raw)
     marker = raw / ".c.zip.complete"
     assert json.loads(marker.read_text())["files"] == [CALIB]
-    assert dl._file_owners(raw) == {CALIB: "c.zip"}
+    assert extraction._file_owners(raw) == {CALIB: "c.zip"}
     # A run killed mid-move: the pending record still says whose the moved files are.
     marker.rename(raw / ".c.zip.pending")
-    assert dl.extract(_zip(archive, {CALIB: "v2"}), raw)
+    assert extraction.extract(_zip(archive, {CALIB: "v2"}), raw)
     assert (raw / CALIB).read_text() == "v2" and not (raw / ".c.zip.pending").exists()
 
 

@@ -179,6 +179,7 @@ def test_training_curves_draw_every_seed_and_name_a_missing_one(tree: Path, tmp_
 
     def keep(fig, path):
         drawn[path.name] = [[line.get_label() for line in ax.get_lines()] for ax in fig.axes]
+        drawn[path.name + " x"] = [ax.get_xlabel() for ax in fig.axes]
         return real_save(fig, path)
 
     monkeypatch.setattr(figures_mod, "_save", keep)
@@ -189,8 +190,9 @@ def test_training_curves_draw_every_seed_and_name_a_missing_one(tree: Path, tmp_
         inputs=FigureInputs(**_paths(tree), metrics=tree / "metrics", train_plots=plots, curves=curves),
         eval_cfg=_eval_cfg(),
     )
-    for labels in drawn["training_curves.png"]:  # per panel: 2 ssim seeds, 1 msssim; one legend entry each
-        assert len(labels) == 3 and labels.count("ssim (2 seeds)") == 1 and labels.count("msssim") == 1
+    for labels in drawn["training_curves.png"]:  # per panel: 2 ssim seeds, 1 msssim; each seed labelled
+        assert labels == ["ssim, seed0", "ssim, seed1", "msssim, seed0"]
+    assert drawn["error_scatter.png x"] == ["abs rel, ssim/seed0 (cap 80 m)"]  # the run drawn, with its seed
     missing = plots / "ssim/seed1/plots/metrics/train/total.tsv"
     missing.unlink()
     with pytest.raises(DataError, match=str(missing)):

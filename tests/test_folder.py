@@ -340,7 +340,7 @@ def test_zero_rois_give_an_explicit_summary_and_a_header_only_table(suite, tmp_p
 
 def test_compare_without_rois_says_the_roi_suites_were_skipped():
     from msdepth.evaluation.metrics import METRICS
-    from msdepth.reporting.compare import ROIS_SKIPPED, build_comparison, comparison_data
+    from msdepth.reporting.comparison import ROIS_SKIPPED, build_comparison, comparison_data
 
     full = {"cap80": dict.fromkeys(METRICS, 0.5), "images": 2, "excluded_images": 0}
     none = {"rois": 0, NO_ROIS: "no ROIs"}
@@ -353,7 +353,7 @@ def test_compare_without_rois_says_the_roi_suites_were_skipped():
 def test_means_without_rois_have_no_roi_number():
     """The compare stage's per-variant mean rows from a comparison without ROIs: full image only."""
     from msdepth.evaluation.metrics import METRICS
-    from msdepth.reporting.compare import build_comparison, comparison_data
+    from msdepth.reporting.comparison import build_comparison, comparison_data
     from msdepth.reporting.pipeline_compare import _mean_rows
 
     full = {"cap80": dict.fromkeys(METRICS, 0.5), "images": 2, "excluded_images": 0}

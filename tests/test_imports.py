@@ -1,8 +1,8 @@
 """The ``msdepth`` package's import graph: no cycle, and no module reaching into another's private names.
 
 The graph is static (``ast``), with the same reading of imports as dvc.yaml's code deps
-(:func:`msdepth.pipeline.dvcyaml.imported_modules`): every ``import`` statement, including those inside
-functions, and a registry package's imports of its own modules by name; ``if TYPE_CHECKING:``
+(:func:`msdepth.pipeline.fingerprints.imported_modules`): every ``import`` statement, including those
+inside functions, and a registry package's imports of its own modules by name; ``if TYPE_CHECKING:``
 blocks never run and are left out. An import of a module's own enclosing package is left out too:
 Python runs a package's ``__init__`` before any of its modules, whether or not the module names it,
 so that edge is always there and only its reverse (a package importing its modules) is a choice.
@@ -23,7 +23,7 @@ from pathlib import Path
 
 import pytest
 
-from msdepth.pipeline.dvcyaml import PACKAGE, _imported_modules, _module_file
+from msdepth.pipeline.fingerprints import PACKAGE, imported_modules, module_file
 
 ROOT = Path(__file__).resolve().parents[1]
 SRC = ROOT / "src"
@@ -45,7 +45,7 @@ def import_graph(src: Path, package: str = PACKAGE) -> dict[str, set[str]]:
     graph = {}
     for name, path in modules(src, package).items():
         own = {".".join(name.split(".")[:i]) for i in range(1, name.count(".") + 1)}
-        graph[name] = {m for m in _imported_modules(path, name, src, package) if m != name and m not in own}
+        graph[name] = {m for m in imported_modules(path, name, src, package) if m != name and m not in own}
     return graph
 
 
@@ -106,7 +106,7 @@ def private_imports(src: Path, package: str = PACKAGE) -> list[str]:
                 if base != package and not base.startswith(package + "."):
                     continue
                 for alias in node.names:
-                    if _module_file(f"{base}.{alias.name}", src):
+                    if module_file(f"{base}.{alias.name}", src):
                         bound[alias.asname or alias.name] = f"{base}.{alias.name}"
                     elif alias.name.startswith("_") and base != name:
                         found.append(f"{name}: from {base} import {alias.name}")
@@ -121,7 +121,7 @@ def private_imports(src: Path, package: str = PACKAGE) -> list[str]:
                 and node.value.id in bound
                 and node.attr.startswith("_")
                 and not node.attr.startswith("__")
-                and not _module_file(f"{bound[node.value.id]}.{node.attr}", src)
+                and not module_file(f"{bound[node.value.id]}.{node.attr}", src)
             ):
                 found.append(f"{name}: {node.value.id}.{node.attr} (of {bound[node.value.id]})")
     return sorted(set(found))
@@ -142,7 +142,7 @@ LAYERS = (
     ("training", "evaluation"),  # training a network; inference, suites, metrics, baselines
     ("optimum",),  # the losses' own optimum, scored as a run
     ("reporting",),  # comparison, the results page, the figures
-    ("cli", "studies"),  # the msdepth command's subcommands; what several studies/ scripts share
+    ("cli",),  # the msdepth command's subcommands
     ("__main__",),  # the msdepth command
 )
 RANK = {package: rank for rank, layer in enumerate(LAYERS) for package in layer}
@@ -197,8 +197,8 @@ def test_no_module_imports_another_modules_private_names():
 
 def study_edges(studies: Path) -> list[str]:
     """``script: what`` for each studies/ script that imports another script of the folder or
-    changes ``sys.path`` (an edge the package graph cannot see): what they share lives in
-    :mod:`msdepth.studies`."""
+    changes ``sys.path`` (an edge the package graph cannot see): what several share belongs in the
+    package, under the layering test."""
     scripts = {p.stem for p in studies.glob("*.py")}
     found = []
     for path in sorted(studies.glob("*.py")):

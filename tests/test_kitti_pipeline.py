@@ -26,7 +26,7 @@ from conftest import UP_TO_DATE, dvc_status, project, run_checked
 
 from msdepth import render
 from msdepth.config.params import SyntheticConfig
-from msdepth.download.archives import KITTI_BASE_URL
+from msdepth.download.lists import KITTI_BASE_URL
 from msdepth.reporting.figures import STAGE_FIGURES
 
 # The tests here run DVC on copied projects: the second tier (`-m slow`).

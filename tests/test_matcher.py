@@ -5,8 +5,6 @@ tiny sizes, and on two real KITTI 2015 frames when ../shared/real-samples is the
 from __future__ import annotations
 
 import dataclasses
-import subprocess
-import sys
 from pathlib import Path
 
 import cv2
@@ -373,67 +371,6 @@ def test_ssim_cost_volume_start_on_real_kitti_2015():
     start = stereo_errors(gt_small, sgm(volume)[0])["d1"]
     assert start < 0.08
     assert stereo_errors(gt_small, cv.winner_take_all(volume).numpy())["d1"] > 3 * start
-
-
-def fake_samples(root: Path) -> None:
-    """The real-samples layout under ``root`` with every frame a tiny synthetic plane at 5 px."""
-    from msdepth.data.kitti import write_disparity
-    from msdepth.io import write_png
-
-    left, right, truth = scene(5, 5)
-    pair = [(np.clip(i, 0, 1) * 255).round().astype(np.uint8) for i in (left, right)]
-    layout = {
-        "kitti2015-training": ("image_2", "image_3", ("disp_occ_0",)),
-        "kitti2012-training": ("colored_0", "colored_1", ("disp_occ", "disp_refl_occ")),
-    }
-    for folder, (left_dir, right_dir, gts) in layout.items():
-        for frame in ("000000_10", "000001_10"):
-            for name, image in zip((left_dir, right_dir), pair, strict=True):
-                (root / folder / name).mkdir(parents=True, exist_ok=True)
-                write_png(root / folder / name / f"{frame}.png", image)
-            for gt in gts:
-                (root / folder / gt).mkdir(parents=True, exist_ok=True)
-                write_disparity(root / folder / gt / f"{frame}.png", truth)
-
-
-def starts_study(root: Path, *args: str) -> str:
-    """studies/optimum_starts.py on the samples at ``root``: its markdown."""
-    out = root / "starts.md"
-    script = Path(__file__).resolve().parents[1] / "studies" / "optimum_starts.py"
-    proc = subprocess.run(
-        [sys.executable, str(script), "--samples", str(root), "--out", str(out), *args],
-        capture_output=True,
-        text=True,
-        timeout=300,
-    )
-    assert proc.returncode == 0, proc.stderr[-3000:]
-    return out.read_text(encoding="utf-8")
-
-
-def test_starts_study_on_a_tiny_fake_samples_folder(tmp_path):
-    """studies/optimum_starts.py end to end on the real-samples layout, with tiny synthetic frames."""
-    fake_samples(tmp_path)
-    text = starts_study(tmp_path)
-    assert text.count("| 2012 000001_10 | disp_refl_occ |") == 7  # SGBM, and WTA + SGM of 3 variants
-    assert "| 2015 000000_10 | disp_occ_0 | ssim SGM | 0.0" in text
-
-
-@pytest.mark.slow
-def test_starts_study_refines_from_each_start(tmp_path):
-    """``--refine``: each variant's optimum from the constant, its SGM and SGBM, and the reflective
-    pixels against the rest (here the same plane: a difference of 0)."""
-    import yaml
-
-    fake_samples(tmp_path)
-    params = yaml.safe_load((Path(__file__).resolve().parents[1] / "params.yaml").read_text(encoding="utf-8"))
-    params["optimum"].update(levels=1, iterations=5, refine_iterations=5)  # the path, not the optimum
-    (tmp_path / "p.yaml").write_text(yaml.safe_dump(params), encoding="utf-8")
-    text = starts_study(tmp_path, "--refine", "full", "--params", str(tmp_path / "p.yaml"))
-    assert text.count("| 2012 000001_10 | disp_refl_occ |") == 7 + 3 * 3
-    for start in ("constant", "SGM", "SGBM"):
-        assert f"| 2015 000000_10 | disp_occ_0 | msssim k7 optimum from {start} |" in text
-    assert "| 2015 000000_10 | disp_occ_0 | ssim optimum from SGM | 0.0" in text
-    assert "| 2012 000001_10 | ssim optimum from SGBM | " in text and "| +0.000 |" in text
 
 
 def test_the_cost_volume_is_bounded_before_it_is_allocated() -> None:

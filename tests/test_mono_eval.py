@@ -17,7 +17,7 @@ from msdepth.evaluation.pose import _odometry_ates, sequence_ates
 from msdepth.evaluation.results import median_scaling
 from msdepth.evaluation.suites import Frame, depth_maps, evaluate_full, median_scaled_maps
 from msdepth.io import write_png
-from msdepth.reporting.compare import ComparisonInputs, _render_comparison, comparison_data, monocular_data
+from msdepth.reporting.comparison import ComparisonInputs, _render_comparison, comparison_data, monocular_data
 
 CFG = EvalConfig(caps=(80.0,))
 

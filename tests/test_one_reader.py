@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 
 from msdepth.data import folder
-from msdepth.download import archives
+from msdepth.download import extraction
 from msdepth.errors import DataError
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -40,7 +40,7 @@ def test_no_entry_point_parses_yaml_around_the_params_reader() -> None:
 
 
 def test_no_entry_point_decodes_an_image_around_the_image_reader() -> None:
-    # the download's JPEG conversion (now download/archives.py) used cv2.imread: no bound before decoding.
+    # the download's JPEG conversion (now download/extraction.py) used cv2.imread: no bound before decoding.
     pattern = r"\bcv2\.(imread|imreadmulti|imdecode)\(|\bImage\.open\(|\bimageio\."
     assert _offenders(pattern, IMAGE_READERS) == []
 
@@ -85,7 +85,7 @@ def test_the_kitti_jpeg_conversion_bounds_an_image_before_decoding_it(tmp_path: 
     (tmp_path / "image_02").mkdir()
     (tmp_path / "image_02" / "0000000000.png").write_bytes(bomb)
     with pytest.raises(DataError, match=r"0000000000\.png: the header declares 50000 x 50000 px"):
-        archives._to_jpeg(tmp_path, 90)
+        extraction._to_jpeg(tmp_path, 90)
     assert (tmp_path / "image_02" / "0000000000.png").read_bytes() == bomb
     assert not list(tmp_path.rglob("*.jpg"))
 
@@ -93,7 +93,6 @@ def test_the_kitti_jpeg_conversion_bounds_an_image_before_decoding_it(tmp_path: 
 # Reads of files the pipeline wrote itself, allowed outside msdepth.io's readers, with why.
 PIPELINE_READ_ALLOWED = {
     # the package's own source, hashed and parsed (no user file)
-    ("src/msdepth/pipeline/dvcyaml.py", "text = path.read_text()"),
     ("src/msdepth/training/train.py", "path.read_bytes()"),
     # a PNG this command wrote a moment ago in its own temporary folder
     ("src/msdepth/cli/example.py", "png_size(written.read_bytes())"),

@@ -21,7 +21,7 @@ from msdepth.optimum.frames import (
 )
 from msdepth.optimum.solver import COST_SCALES
 from msdepth.pipeline.paths import optimum_run
-from msdepth.reporting.compare import ComparisonInputs, build_comparison, comparison_data, optimum_data
+from msdepth.reporting.comparison import ComparisonInputs, build_comparison, comparison_data, optimum_data
 from msdepth.reporting.figures import _read_cost_curves, cost_curve_figure
 
 METRICS = {"abs_rel": 0.2, "sq_rel": 0.2, "rmse": 0.2, "rmse_log": 0.2, "a1": 0.8, "a2": 0.8, "a3": 0.8}

@@ -5,14 +5,11 @@
 from __future__ import annotations
 
 import dataclasses
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
-from test_matcher import fake_samples
 from test_optimum import SHIFT, H, W, plane_pair, small
 
 from msdepth.__main__ import main
@@ -209,40 +206,6 @@ def test_refinement_from_sgbm_on_real_kitti_2015_at_quarter_size() -> None:
     start = stereo_errors(gt_small, init[0] * size[1])
     refined = stereo_errors(gt_small, disp[0, 0].numpy() * size[1])
     assert start["d1"] < 0.04 and refined["d1"] < 0.07 and refined["epe"] < 1.0, (start, refined)
-
-
-@pytest.mark.slow
-def test_refine_study_on_a_tiny_fake_samples_folder(tmp_path) -> None:
-    """studies/optimum_refine.py's two tables end to end on tiny synthetic frames (a plane at 5 px)."""
-    fake_samples(tmp_path)
-    script = Path(__file__).resolve().parents[1] / "studies" / "optimum_refine.py"
-    fast = [
-        "--set",
-        "optimum.iterations=3",
-        "--set",
-        "optimum.levels=1",
-        "--set",
-        "optimum.refine_iterations=3",
-    ]
-    common = ["--samples", str(tmp_path), "--frames", "000000_10", "--variants", "ssim", *fast]
-    for study, extra in (
-        ("sizes", ["--sizes", "full", "40x128"]),
-        ("steps", ["--size", "full", "--rates", "0.05"]),
-    ):
-        out = tmp_path / f"{study}.md"
-        proc = subprocess.run(
-            [sys.executable, str(script), study, *common, *extra, "--out", str(out)],
-            capture_output=True,
-            text=True,
-            timeout=300,
-        )
-        assert proc.returncode == 0, proc.stderr[-3000:]
-        text = out.read_text(encoding="utf-8")
-        if study == "sizes":  # each start's own row, then one per size; SGM's start on a plane: exact
-            assert text.count("| 000000_10 | ssim |") == 2 * 3 + 2
-            assert "| 000000_10 | ssim | cost (start) | full |  |  | 0.0" in text
-        else:  # 6 marks per matched start
-            assert text.count("| 000000_10 | ssim | sgbm | 1 | 0.05 |") == 6
 
 
 def test_the_smoothness_weight_scales_with_the_working_width_when_asked() -> None:

@@ -20,6 +20,7 @@ from pathlib import Path
 import pytest
 import yaml
 from conftest import UP_TO_DATE, dvc_status, merge, project, require_dvc, run_checked, stage_env
+from test_dvc_deps import behaviour_edit, neutral_edit
 
 from msdepth.reporting.figures import STAGE_FIGURES
 
@@ -202,9 +203,10 @@ def test_killed_repro_reruns_to_identical_results(repo: Path, tmp_path: Path):
 
 
 # What `-S msssim.kernel_size=7` re-runs: the parameter check (it reads all of params.yaml; its
-# output's bytes stay the same), the pretrained stage (it runs every time; its output stays the
-# same too), the MS-SSIM run's stages and the optimum's, and what compares them.
+# output's bytes stay the same), the fingerprints and pretrained stages (they run every time; their
+# outputs stay the same too), the MS-SSIM run's stages and the optimum's, and what compares them.
 MSSSIM_STAGES = {
+    "fingerprints",
     "validate_params",
     "pretrained",
     *(
@@ -283,6 +285,31 @@ def test_kernel_size_experiment_reruns_only_msssim_then_the_way_back_and_applyin
     run_checked([*dvc, "exp", "apply", "k7"], work)
     assert models["msssim/seed0"].read_bytes() == experiment
     assert yaml.safe_load((work / "params.yaml").read_text())["msssim"]["kernel_size"] == 7
+
+
+def test_a_comment_in_io_reruns_nothing_and_a_changed_constant_every_stage(repo: Path, tmp_path: Path):
+    """Issue 67: stages depend on their code's fingerprint. A comment, a docstring and blank lines in
+    src/msdepth/io.py, which every stage imports, leave `dvc status` up to date once the fingerprints
+    stage has run (`dvc repro` runs it first; `dvc status` alone does not run it), and dvc.lock as it
+    was; a changed constant in one of its functions marks every stage, the trained ones included,
+    for its fingerprint only."""
+    work = _copy(repo, tmp_path)
+    io, lock = work / "src" / "msdepth" / "io.py", (work / "dvc.lock").read_text()
+    neutral_edit(io)
+    log = run_checked([sys.executable, "-m", "dvc", "repro"], work)
+    ran = {line.split("'")[1] for line in log.splitlines() if line.startswith("Running stage '")}
+    assert ran == set(UP_TO_DATE) and dvc_status(work) == UP_TO_DATE
+    assert (work / "dvc.lock").read_text() == lock
+    behaviour_edit(io)
+    assert dvc_status(work) == UP_TO_DATE  # the fingerprints on disk are still the old code's
+    run_checked([sys.executable, "-m", "dvc", "repro", "fingerprints"], work)
+    status = dvc_status(work)
+    stages = set(yaml.safe_load(lock)["stages"]) - {"fingerprints"}
+    assert set(status) == stages | {"fingerprints"} and {"train@ssim-0", "train@msssim-0"} <= stages
+    for stage in stages:
+        changes = [c for c in status[stage] if c != "always changed"]
+        assert [set(c) for c in changes] == [{"changed deps"}], (stage, changes)
+        assert [path.startswith("data/fingerprints/") for path in changes[0]["changed deps"]] == [True], stage
 
 
 def _readme_command(start: str) -> str:
@@ -384,8 +411,9 @@ def _workspace(repo: Path) -> dict[str, bytes]:
     ],
 )
 def test_bad_params_fail_dvc_repro_first_and_delete_nothing(repo: Path, patch: dict, message: str):
-    """DVC removes a stage's outputs just before running it: validate_params runs first and stops
-    `dvc repro` with one line, so the trained models and tracked results stay as they were."""
+    """DVC removes a stage's outputs just before running it: validate_params runs first (after
+    fingerprints, which reads no params and removes nothing) and stops `dvc repro` with one line, so
+    the trained models and tracked results stay as they were."""
     good = (repo / "params.yaml").read_text()
     before, git_before = _workspace(repo), run_checked(["git", "status", "--porcelain"], repo)
     (repo / "params.yaml").write_text(yaml.safe_dump(merge(yaml.safe_load(good), patch), sort_keys=False))
@@ -400,7 +428,8 @@ def test_bad_params_fail_dvc_repro_first_and_delete_nothing(repo: Path, patch: d
     assert proc.returncode != 0
     errors = [line for line in proc.stderr.splitlines() if line.startswith("error: ")]
     assert errors == [f"error: params.yaml: {message}"], proc.stderr
-    assert "Running stage 'validate_params'" in proc.stdout and proc.stdout.count("Running stage") == 1
+    ran = [line.split("'")[1] for line in proc.stdout.splitlines() if line.startswith("Running stage '")]
+    assert ran == ["fingerprints", "validate_params"], proc.stdout
     changed = {name for name in before.keys() | after.keys() if before.get(name) != after.get(name)}
     assert changed == {"params.yaml"}
     assert set(git_after.splitlines()) - set(git_before.splitlines()) <= {" M params.yaml"}

@@ -25,7 +25,7 @@ from conftest import unblocking
 from msdepth.config.params import MAX_PARAMS_BYTES, read_params_file
 from msdepth.config.params_yaml import MAX_DATA_FILE_BYTES
 from msdepth.data import eval_sets, folder, ground_truth, imagefile, kitti, pfm
-from msdepth.download import archives
+from msdepth.download import lists
 from msdepth.errors import DataError, MsdepthError
 from msdepth.evaluation import pose
 from msdepth.io import _encode_png
@@ -139,15 +139,15 @@ READERS = [
         "archive list",
         "archives.txt",
         b"# KITTI raw\nraw_data/2011_09_26_calib.zip\n",
-        archives.MAX_ARCHIVE_LIST_BYTES,
-        archives.parse_archive_list,
+        lists.MAX_ARCHIVE_LIST_BYTES,
+        lists.parse_archive_list,
     ),
     Reader(
         "download's split list",
         "train_files.txt",
         b"2011_09_26/2011_09_26_drive_0001_sync 1 l\n",
-        archives.MAX_SPLIT_LIST_BYTES,
-        archives._split_drives,
+        lists.MAX_SPLIT_LIST_BYTES,
+        lists._split_drives,
         cut=33,  # "2011_09_26" is left: names no drive
     ),
 ]
@@ -215,9 +215,9 @@ def test_each_reader_refuses_the_hostile_set_in_one_line(tmp_path: Path, reader:
 
 
 def test_the_download_reads_split_lists_with_the_index_stages_bound() -> None:
-    # archives keeps its own constant (importing msdepth.data.kitti would load OpenCV and pandas):
+    # download.lists keeps its own constant (importing msdepth.data.kitti would load OpenCV and pandas):
     # this holds the two equal.
-    assert archives.MAX_SPLIT_LIST_BYTES == kitti.MAX_LIST_BYTES
+    assert lists.MAX_SPLIT_LIST_BYTES == kitti.MAX_LIST_BYTES
 
 
 @pytest.mark.parametrize("case", ["fifo", "folder", "missing"])

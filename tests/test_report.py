@@ -13,12 +13,15 @@ import pytest
 
 from msdepth.errors import DataError
 from msdepth.reporting.report import (
+    ANSWER_BEGIN,
+    ANSWER_END,
     BEGIN,
     END,
     _headline_table,
+    _readme_answer,
     _readme_block,
     _replace_block,
-    _results_page,
+    _results_block,
     load_results,
     main,
     rendered,
@@ -129,15 +132,15 @@ def test_headline_table_known_answers(tmp_path: Path):
     r = load_results(_project(tmp_path, COMPARISON))
     lines = _headline_table(r).splitlines()
     assert lines[0] == (
-        "| run | abs_rel | sq_rel | rmse (m) | a1 | ROI abs_rel | exact masks | glass | car |"
-    )  # classes: glass-like first
+        "| run | abs_rel | sq_rel | rmse (m) | a1 | ROI abs_rel | exact masks | car | glass |"
+    )  # classes in verdict.CLASS_ORDER, the one order of every table
     # mean ± sd over seeds where the spread is known; the best variant per full-image column bold
     assert (
         lines[2]
-        == "| SSIM | 0.200 ± 0.004 | 0.40 | **7.00** | 0.800 | 0.600 ± 0.020 | 0.610 | 0.500 | 0.450 |"
+        == "| SSIM | 0.200 ± 0.004 | 0.40 | **7.00** | 0.800 | 0.600 ± 0.020 | 0.610 | 0.450 | 0.500 |"
     )
     assert (
-        lines[3] == "| MS-SSIM (k=3) | **0.180** | **0.36** | 7.50 | **0.810** | 0.550 | – | 0.550 | 0.400 |"
+        lines[3] == "| MS-SSIM (k=3) | **0.180** | **0.36** | 7.50 | **0.810** | 0.550 | – | 0.400 | 0.550 |"
     )
     assert lines[4].startswith("| constant (image-blind) | 0.500 | 1.00 | 15.00 | 0.200 | 0.450 |")
 
@@ -178,7 +181,7 @@ def test_image_blind_runs_are_flagged(tmp_path: Path):
     r = load_results(_project(tmp_path, data))
     assert "| MS-SSIM (k=3) (1 of 2 runs image-blind) |" in _headline_table(r)
     assert "msssim/seed0 is image-blind (variation below 0.25 of the GT's)" in " ".join(
-        _results_page(r).split()
+        _results_block(r).split()
     )
 
 
@@ -189,7 +192,7 @@ def test_without_rois_or_extra_sets_their_parts_are_left_out(tmp_path: Path):
     del data["statistics"]["roi"]
     r = load_results(_project(tmp_path, data))
     assert _headline_table(r).splitlines()[0] == "| run | abs_rel | sq_rel | rmse (m) | a1 |"
-    page = _results_page(r)
+    page = _results_block(r)
     assert "on the ROIs" not in page and "Per ROI class" not in page
     assert "## The Eigen split" not in page
 
@@ -198,7 +201,7 @@ def test_results_page_known_answers(tmp_path: Path):
     data = copy.deepcopy(COMPARISON)
     data["sets"] = {"eigen": copy.deepcopy({k: data[k] for k in ("full", "statistics", "seed_spread")})}
     data["sets"]["eigen"]["images"] = 10
-    page = " ".join(_results_page(load_results(_project(tmp_path, data))).split())
+    page = " ".join(_results_block(load_results(_project(tmp_path, data))).split())
     assert "3 training runs per variant (seeds 0, 1, 2), each 1,200 steps over 8 epochs" in page
     assert "Every trained run follows the image (variation 0.60–0.70 of the GT's" in page
     assert (
@@ -219,20 +222,54 @@ def test_replace_block_keeps_the_rest_and_needs_both_markers(tmp_path: Path):
     for broken in ("# no block\n", f"{END}\n{BEGIN}\n", f"{BEGIN}\n{BEGIN}\n{END}\n"):
         with pytest.raises(DataError, match=r"^README\.md: needs one generated block"):
             _replace_block(broken, "x", Path("README.md"))
+    # The README's answer has markers of its own: the results block's markers do not stand for them.
+    with pytest.raises(DataError, match="end of answer"):
+        _replace_block(text, "x", Path("README.md"), ANSWER_BEGIN, ANSWER_END)
+
+
+README = f"# title\n\n{ANSWER_BEGIN}\n{ANSWER_END}\n\n## Quick start\n\n{BEGIN}\n{END}\n\nhand-written\n"
 
 
 def test_write_then_check_and_a_hand_edit_is_found(tmp_path: Path, capsys):
-    root = _project(tmp_path, COMPARISON, readme=f"# title\n\n{BEGIN}\n{END}\n\nhand-written\n")
+    root = _project(tmp_path, COMPARISON, readme=README)
     assert main(["--root", str(root), "--check"]) == 1
     assert write_report(root) == [root / "docs" / "results.md", root / "README.md"]
     assert main(["--root", str(root), "--check"]) == 0
     assert write_report(root) == []  # unchanged files are left alone
     readme = (root / "README.md").read_text()
     assert readme.endswith(f"{END}\n\nhand-written\n") and "| SSIM | 0.200 ± 0.004 |" in readme
+    answer = " ".join(readme[readme.index(ANSWER_BEGIN) : readme.index(ANSWER_END)].split())
+    assert "**Answer so far** ([docs/results.md](docs/results.md)): **Verdict**: MS-SSIM (k=3)" in answer
     (root / "README.md").write_text(readme.replace("0.200 ± 0.004", "0.199 ± 0.004"))
     capsys.readouterr()
     assert main(["--root", str(root), "--check"]) == 1
     assert "README.md: not what the metrics give" in capsys.readouterr().err
+
+
+def test_the_results_pages_prose_is_kept_and_only_its_block_rewritten(tmp_path: Path):
+    """docs/results.md is written by hand around one generated block: the report rewrites the
+    block and leaves the prose; a page without the block is one line naming it."""
+    root = _project(tmp_path, COMPARISON)
+    page = root / "docs" / "results.md"
+    page.parent.mkdir()
+    page.write_text(f"# Results\n\nby hand\n\n{BEGIN}\nold 0.123\n{END}\n\n## Terms\n\nby hand too\n")
+    write_report(root)
+    text = page.read_text()
+    assert text.startswith(f"# Results\n\nby hand\n\n{BEGIN}")
+    assert text.endswith(f"{END}\n\n## Terms\n\nby hand too\n")
+    assert "old 0.123" not in text and "| SSIM | 0.200 ± 0.004 |" in text
+    page.write_text("# Results\n\nno block\n")
+    with pytest.raises(DataError, match=r"results\.md: needs one generated block"):
+        rendered(root)
+
+
+def test_the_committed_results_page_holds_the_terms_the_readme_links_to():
+    """The glossary is docs/results.md's, by hand; the README's table links to it."""
+    page = (ROOT / "docs" / "results.md").read_text(encoding="utf-8")
+    terms = page[page.index("## Terms") :].split("\n## ")[0]
+    for term in ("*Difference*", "*n*", "*Networks*", "*Loss's own optimum (wW)*", "*X frames*", "*X boxes*"):
+        assert term in terms
+    assert "(docs/results.md#terms)" in (ROOT / "README.md").read_text(encoding="utf-8")
 
 
 def test_a_project_without_readme_gets_only_the_results_page(tmp_path: Path):
@@ -258,40 +295,32 @@ def test_missing_or_broken_metrics_are_one_line(tmp_path: Path):
         load_results(_project(tmp_path, data))
 
 
-def test_the_verdict_sentences_go_into_the_readme_and_the_page(tmp_path: Path):
+def test_the_verdict_table_goes_into_the_readme_and_the_sentences_into_the_page(tmp_path: Path):
     from msdepth.reporting.verdict import Row, verdict_data
 
     rows = [
         Row("stereo networks", "windshield", -0.04, -0.13, 0.06, 66, "m", "network"),
         Row("optimum w10", "windshield", -0.01, -0.04, -0.002, 66, "m", "optimum"),
-        Row("optimum w10", "windshield", -0.02, -0.05, 0.01, 14, "m", "external"),
     ]
     data = copy.deepcopy(COMPARISON)
     data["verdict"] = verdict_data(rows, 80.0, 0.95, "MS-SSIM", "SSIM")
     r = load_results(_project(tmp_path, data))
     block = " ".join(_readme_block(r).split())
-    assert block.startswith(BEGIN + " **What the study finds so far**: is MS-SSIM's depth error (abs_rel)")
+    assert block.startswith(BEGIN + " MS-SSIM − SSIM abs_rel per surface class and instrument at cap 80 m")
+    assert "`*`: the 95 % interval excludes 0; terms: [docs/results.md](docs/results.md#terms)" in block
     assert "| windshield | −0.040 [−0.130, +0.060], n = 66 ROIs × 0 seeds a side |" in block
-    assert (
-        "Per class, every instrument ([verdict.png](plots/figures/verdict.png); the full table: "
-        "`metrics/compare.md`):" in block
+    answer = " ".join(_readme_answer(r).split())
+    assert answer == (
+        f"{ANSWER_BEGIN} **Answer so far** ([docs/results.md](docs/results.md)): MS-SSIM's abs_rel against "
+        "SSIM's: stereo networks lower on 1 of 1 class, no interval excluding 0; loss's own optimum, w10 "
+        f"lower on 1 of 1 class, 1 interval excluding 0. {ANSWER_END}"
     )
-    assert (
-        "- windshield: MS-SSIM's error is lower in 3 of 3 instruments; intervals excluding 0: "
-        "optimum w10 (lower); optimum w10, pooled:" in block
-    )
-    assert "*Networks*: the pipeline's stereo networks; both losses train with the same seeds" in block
-    page = " ".join(_results_page(r).split())
-    assert "(stereo networks and optimum w10; [verdict.png](../plots/figures/verdict.png)" in page
-    assert "- windshield: MS-SSIM's error is lower in 3 of 3 instruments;" in page
-    assert (
-        "## The verdict per surface class ![the verdict per surface class](../plots/figures/verdict.png)"
-        in page
-    )
-    assert "Pooled here: optimum w10, pooled (windshield)." in page
-    assert "Every row is computed by this pipeline: the studies' results" in page
-    assert "[real frames](studies/results/real_sets/README.md)" in block
-    assert "[real frames](../studies/results/real_sets/README.md)" in page
+    page = " ".join(_results_block(r).split())
+    assert "## What the study finds Is MS-SSIM's depth error (abs_rel) lower than SSIM's?" in page
+    assert "Per class, every instrument ([verdict.png](../plots/figures/verdict.png)" in page
+    assert "- windshield: MS-SSIM's error is lower in 2 of 2 instruments;" in page
+    assert page.count("- windshield:") == 1  # the sentences once
     plain = load_results(_project(tmp_path / "plain", copy.deepcopy(COMPARISON)))
-    assert "verdict.png" not in _readme_block(plain) and "## The verdict" not in _results_page(plain)
-    assert "## What the study finds" in page and "## What the study finds" not in _results_page(plain)
+    assert "verdict.png" not in _readme_block(plain) and "## What the study finds" not in _results_block(
+        plain
+    )

@@ -11,7 +11,7 @@ import pytest
 from msdepth.config.params import CompareConfig
 from msdepth.errors import DataError
 from msdepth.evaluation.metrics import METRICS
-from msdepth.reporting.compare import (
+from msdepth.reporting.comparison import (
     ComparisonInputs,
     _mean_over_runs,
     build_comparison,
@@ -431,7 +431,7 @@ def test_the_roi_suite_is_drawn_by_frame() -> None:
 def test_a_revisions_cell_draws_rois_by_frame_and_frames_alone() -> None:
     """The revision studies' paired cell: ROIs drawn with their frame, as the comparison draws them;
     frames drawn one by one."""
-    from msdepth.reporting.compare import difference_cell
+    from msdepth.reporting.comparison import difference_cell
     from msdepth.reporting.revisions import paired_cell
 
     rng = np.random.default_rng(11)

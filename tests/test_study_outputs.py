@@ -19,14 +19,8 @@ RESULTS = ROOT / "studies" / "results"
 CASES = {
     "learning": (["--variants", "ssim", "--seeds", "0", "--out", "{out}"], "ssim_seed0.json"),
     "monocular": (["--repo", str(ROOT), "--out", "{out}"], "table.md"),
-    "optimum_refine": (["steps", "--out", "{out}/refine_steps.md"], "refine_steps.md"),
-    "optimum_starts": (["--out", "{out}/starts.md"], "starts.md"),
     "prepare_set": (["--out", "{out}"], "params.yaml"),
-    "roi_errors": (["--out", "{out}/roi_errors.md"], "roi_errors.md"),
-    "glass_figure": (["{out}/before", "{out}/after", "{out}/windshield.png"], "windshield.png"),
-    "glass_check": (["dump", "{out}", "--eval", "1", "--train", "0"], "1_000000.npz"),
     "power": (["--out", "{out}/power.md"], "power.md"),
-    "real_rois": (["--out", "{out}/kitti2015_rois.md"], "kitti2015_rois.md"),
     "side_by_side": (
         ["--models", "a=models/none.pt", "--frames", "000003_10", "--out", "{out}/disparity.png"],
         "disparity.png",

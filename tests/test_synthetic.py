@@ -292,11 +292,13 @@ def test_class_map_is_indexed_and_read_with_the_frames(root: Path) -> None:
 _SIMD_FRAMES = (20, 21, 32, 37)
 _RENDER_DIGEST = f"""
 import hashlib
+from msdepth.config.params import CameraConfig
 from msdepth.render import EVAL, render_frame
 digest = hashlib.sha256()
 for index in {_SIMD_FRAMES}:
-    frame = render_frame(2017, EVAL, index, 125, 414)
-    digest.update(frame.left.tobytes() + frame.right.tobytes())
+    for sensor in (None, CameraConfig()):  # the ideal views and the default camera's
+        frame = render_frame(2017, EVAL, index, 125, 414, sensor=sensor)
+        digest.update(frame.left.tobytes() + frame.right.tobytes())
 print(digest.hexdigest())
 """
 

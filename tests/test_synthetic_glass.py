@@ -16,7 +16,8 @@ FRAME = (2017, render.EVAL, 0, 48, 160)
 # sha256 of that frame's left then right image with glass pixels zeroed, rendered by the previous
 # glass model (Schlick F0 drawn from U(0.25, 0.5) for cars, U(0.2, 0.45) for shop windows): the
 # index-of-refraction draw replaced the F0 draw one for one, so the random stream and with it every
-# non-glass byte is unchanged (docs/glass.md; studies/glass_check.py checks whole sets).
+# non-glass byte is unchanged (docs/glass.md; the retired glass_check study checked whole sets:
+# studies/results/glass/README.md).
 NON_GLASS_SHA256 = "0ff96e96c51c19137c1924fd266f4eccbf860a935062e9a96c5eb27eaac90c11"
 
 

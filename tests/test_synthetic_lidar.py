@@ -16,13 +16,17 @@ import numpy as np
 import pytest
 
 from msdepth import render
-from msdepth.config.params import SyntheticConfig
+from msdepth.config.params import CameraConfig, SyntheticConfig
 from msdepth.data import kitti
 from msdepth.data.eval_index import velodyne_path
 from msdepth.render import velodyne_sim
 from msdepth.render.street import build_scene
 
-CFG = SyntheticConfig(seed=11, drives=2, train_pairs=3, eval_frames=8, height=96, width=320)
+# The camera off (data.synthetic.camera.enabled: false): the digests below were written before the
+# camera model existed (msdepth.render.sensor), so they also prove the switch gives those bytes.
+CFG = SyntheticConfig(
+    seed=11, drives=2, train_pairs=3, eval_frames=8, height=96, width=320, camera=CameraConfig(enabled=False)
+)
 
 # Digests of what generate(CFG) wrote before the scans existed (commit 8f1e769): md5 over the
 # sorted lines "<path relative to root> <md5 of the file>". The scans must not change a byte of

@@ -1,9 +1,8 @@
-"""The verdict's rows (per class, every instrument), its intervals over seeds, the external rows'
-reader, the pooling rule and the sentences, on hand-made numbers with known answers."""
+"""The verdict's rows (per class, every instrument), the table that lays them out (one function, every
+renderer), and the sentences, on hand-made numbers with known answers."""
 
 from __future__ import annotations
 
-import dataclasses
 import json
 from pathlib import Path
 
@@ -18,24 +17,23 @@ from msdepth.reporting.power import t_quantile
 from msdepth.reporting.verdict import (
     FULL_FRAME,
     MIN_UNITS,
+    Column,
     Row,
     RowScope,
     _class_sentence,
-    _parse_monocular_table,
-    _units_text,
+    answer_sentence,
     display_names,
-    headline_instruments,
+    headline_columns,
+    instrument_columns,
     interval_cell,
     network_rows,
     optimum_rows,
-    pooled_rows,
-    read_external_rows,
-    read_monocular,
-    seed_rows,
+    short_answer,
     summary_lines,
+    units_text,
     verdict_data,
     verdict_lines,
-    welch_interval,
+    verdict_table,
 )
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -115,7 +113,7 @@ def test_an_extra_sets_class_columns_are_paired_frame_by_frame(frames: int) -> N
     assert list(rows) == [FULL_FRAME, "car"]
     car = rows["car"]
     assert car.diff == pytest.approx(-0.1) and car.n == frames - 1 and car.unit == "kitti2015 frames"
-    assert _units_text(car) == f"{frames - 1} kitti2015 frames × 2 seed pairs"
+    assert units_text(car) == f"{frames - 1} kitti2015 frames × 2 seed pairs"
     if frames - 1 >= MIN_UNITS:
         assert (car.low, car.high) == pytest.approx((-0.1, -0.1)) and car.excludes_zero
     else:
@@ -128,126 +126,26 @@ def test_an_extra_sets_class_columns_are_paired_frame_by_frame(frames: int) -> N
     assert [r.cls for r in network_rows(tables, groups, CFG, 80.0)] == [FULL_FRAME] * (frames >= MIN_UNITS)
 
 
-def test_t_quantile_and_welch_interval_known_values() -> None:
+def test_t_quantile_known_values() -> None:
     assert t_quantile(0.975, 2) == pytest.approx(4.302653, abs=1e-4)
     assert t_quantile(0.975, 4) == pytest.approx(2.776445, abs=1e-4)
     assert t_quantile(0.975, 1e6) == pytest.approx(1.959964, abs=1e-3)
-    # Equal sd and n: df = 2(n - 1) = 4; half-width t(4)·sqrt(2·sd²/n).
-    diff, low, high = welch_interval((1.0, 0.1, 3), (0.9, 0.1, 3))
-    half = 2.776445 * np.sqrt(2 * 0.01 / 3)
-    assert (diff, low, high) == pytest.approx((0.1, 0.1 - half, 0.1 + half), abs=1e-4)
-
-
-def test_the_committed_monocular_table_parses_to_its_numbers() -> None:
-    stats = _parse_monocular_table(ROOT / "studies/results/monocular/table.md")
-    assert stats["mono"]["ssim"]["windshield"] == (0.4897, 0.0643, 3)
-    assert stats["mono_stereo"]["msssim"][FULL_FRAME] == (0.2020, 0.0041, 3)
-    rows = {(r.instrument, r.cls): r for r in seed_rows(stats, "ssim", 0.95)}
-    assert rows[("mono networks", "windshield")].diff == pytest.approx(0.4483 - 0.4897)
-    assert ("stereo networks", "windshield") not in rows  # the pipeline's own rows compare those
-
-
-def test_monocular_json_per_seed_and_a_bad_table(tmp_path: Path) -> None:
-    path = tmp_path / "table.json"
-    seeds = {"ssim": {"car": [0.3, 0.4, 0.5]}, "msssim": {"car": [0.2, 0.3, 0.4]}}
-    path.write_text(json.dumps({"seeds": [0, 1, 2], "modes": {"mono": seeds}}))
-    stats = read_monocular(path, tmp_path / "absent.md")
-    assert stats["mono"]["ssim"]["car"] == pytest.approx([0.3, 0.4, 0.5])
-    # Per-seed values of the same seeds are pairs: the paired t over the differences (all -0.1: 0 wide).
-    (row,) = seed_rows(stats, "ssim", 0.95)
-    assert row.method.startswith("paired by seed (3 pairs)") and row.seeds == 3
-    assert (row.diff, row.low, row.high) == pytest.approx((-0.1, -0.1, -0.1))
-    assert read_monocular(tmp_path / "none.json", tmp_path / "none.md") == {}
-    bad = tmp_path / "table.md"
-    bad.write_text(
-        "Mean ± sd over seeds [0, 1].\n\n| mode | variant | abs_rel |\n|---|---|---|\n"
-        "| mono | ssim | 0.2 ± x |\n"
-    )
-    with pytest.raises(DataError, match=r"table\.md: row \['mono', 'ssim'\], column 'abs_rel'"):
-        _parse_monocular_table(bad)
-
-
-GOOD = {"instrument": "optimum w10", "class": "windshield", "diff": -0.02, "low": -0.05, "high": 0.01}
-
-
-@pytest.mark.parametrize(
-    "content, message",
-    [
-        ("{not json", "verdict rows file is not JSON"),
-        ('{"rows": []}', "needs a JSON list of rows"),
-        (json.dumps([{**GOOD, "n": 3}]), "needs the keys"),
-        (json.dumps([{**GOOD, "n": 3, "method": "m", "extra": 1}]), "needs the keys"),
-        (
-            json.dumps([{**GOOD, "n": 3, "method": "m", "low": None}]),
-            "low and high are both numbers or both null",
-        ),
-        (json.dumps([{**GOOD, "n": 3, "method": "m", "low": 0.0}]), "needs low <= diff <= high"),
-        (json.dumps([{**GOOD, "n": 0, "method": "m"}]), "n must be a positive integer"),
-        (json.dumps([{**GOOD, "n": 3, "method": "m", "diff": "x"}]), "diff must be a finite number"),
-    ],
-)
-def test_malformed_external_rows_are_one_line_naming_the_file(
-    tmp_path: Path, content: str, message: str
-) -> None:
-    path = tmp_path / "verdict.json"
-    path.write_text(content)
-    with pytest.raises(DataError) as err:
-        read_external_rows(path)
-    assert str(err.value).startswith(str(path)) and message in str(err.value) and "\n" not in str(err.value)
-
-
-def test_external_rows_read_and_absent_file(tmp_path: Path) -> None:
-    path = tmp_path / "verdict.json"
-    path.write_text(json.dumps([{**GOOD, "n": 14, "method": "paired bootstrap over ROIs"}]))
-    (row,) = read_external_rows(path)
-    assert row == Row(
-        "optimum w10", "windshield", -0.02, -0.05, 0.01, 14, "paired bootstrap over ROIs", "external"
-    )
-    assert read_external_rows(tmp_path / "absent.json") == []
-
-
-def test_only_one_optimum_instrument_from_independent_rows_is_pooled() -> None:
-    z = 1.959964
-    rows = [
-        Row("optimum w10", "glass", -0.1, -0.1 - z * 0.01, -0.1 + z * 0.01, 50, "m", "optimum"),
-        Row("optimum w10", "glass", -0.3, -0.3 - z * 0.01, -0.3 + z * 0.01, 20, "m", "external"),
-        Row("stereo networks", "glass", -0.1, -0.2, 0.0, 50, "m", "network"),
-        Row("stereo networks", "glass", -0.3, -0.4, -0.2, 20, "m", "external"),
-        Row("optimum w3", "glass", -0.3, -0.4, -0.2, 20, "m", "optimum"),
-    ]
-    (pooled,) = pooled_rows(rows)
-    assert pooled.instrument == "optimum w10, pooled" and pooled.kind == "pooled" and pooled.n == 70
-    # Equal variances: the plain mean, its standard error 0.01/sqrt(2).
-    assert pooled.diff == pytest.approx(-0.2)
-    assert pooled.high - pooled.diff == pytest.approx(z * 0.01 / np.sqrt(2), rel=1e-4)
 
 
 def test_sentences_from_known_rows() -> None:
     rows = [
         Row("stereo networks", "windshield", -0.04, -0.13, 0.06, 66, "m", "network"),
-        Row("mono networks", "windshield", -0.04, -0.17, 0.09, 3, "m", "seeds"),
         Row("optimum w10", "windshield", 0.01, -0.04, 0.02, 66, "m", "optimum"),
         Row("optimum w3", "car", -0.1, -0.16, -0.05, 8, "m", "optimum"),
         Row("optimum w30", "car", 0.1, 0.04, 0.16, 8, "m", "optimum"),
     ]
     assert _class_sentence("windshield", rows) == (
-        "windshield: MS-SSIM's error is lower in 2 of 3 instruments; no interval excludes 0."
+        "windshield: MS-SSIM's error is lower in 1 of 2 instruments; no interval excludes 0."
     )
     assert _class_sentence("car", rows) == (
         "car: MS-SSIM's error is lower in 1 of 2 instruments; intervals excluding 0: "
         "optimum w3 (lower), optimum w30 (higher)."
     )
-    pooled = Row("optimum w10, pooled", "windshield", -0.012, -0.02, -0.004, 80, "m", "pooled")
-    assert _class_sentence("windshield", [*rows, pooled]).endswith(
-        "no interval excludes 0; optimum w10, pooled: \u22120.012 [\u22120.020, \u22120.004]."
-    )
-    # Another study's row of the same instrument is named with its source (the method before ":").
-    real = Row("optimum w3", "car", -0.02, -0.03, -0.01, 16, "real pairs: over ROIs", "external")
-    assert (real.label, rows[3].label) == ("optimum w3, real pairs", "optimum w3")
-    assert _class_sentence("car", [*rows, real]).endswith(
-        "optimum w3 (lower), optimum w30 (higher), optimum w3, real pairs (lower)."
-    )
-    assert Row("x", "car", 0, -1, 1, 5, "no colon", "external").label == "x, another study"
     data = verdict_data(rows, 80.0, 0.95, "MS-SSIM", "SSIM")
     assert data["classes"] == ["car", "windshield"] and list(data["sentences"]) == data["classes"]
     md = "\n".join(verdict_lines(data))
@@ -262,12 +160,11 @@ def test_the_verdict_figure_is_a_png_with_and_without_rows(tmp_path: Path) -> No
         Row("stereo networks", FULL_FRAME, -0.002, -0.012, 0.008, 40, "m", "network"),
         Row("stereo networks", "windshield", -0.04, -0.13, 0.06, 66, "m", "network"),
         Row("optimum w10", "windshield", -0.01, -0.04, -0.002, 66, "m", "optimum"),
-        Row("optimum w10", "windshield", -0.02, -0.05, 0.01, 14, "m", "external"),
+        Row("optimum w10 on eigen", FULL_FRAME, -0.02, None, None, 3, "m", "optimum"),
     ]
     compare_json = tmp_path / "compare.json"
     compare_json.write_text(json.dumps({"verdict": verdict_data(rows, 80.0, 0.95, "MS-SSIM", "SSIM")}))
     data = read_json_object(compare_json, "comparison")["verdict"]
-    assert any(r["kind"] == "pooled" for r in data["rows"])  # the two optimum w10 rows
     for name, verdict in (("verdict.png", data), ("empty.png", None)):
         path = verdict_figure(verdict, tmp_path / name)
         assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
@@ -279,7 +176,7 @@ def test_the_verdict_figure_is_a_png_with_and_without_rows(tmp_path: Path) -> No
         read_json_object(compare_json, "comparison")
 
 
-def test_the_monocular_study_writes_per_seed_values_the_verdict_reads(tmp_path: Path) -> None:
+def test_the_monocular_study_writes_per_seed_values(tmp_path: Path) -> None:
     import importlib.util
 
     spec = importlib.util.spec_from_file_location("monocular_study", ROOT / "studies" / "monocular.py")
@@ -299,72 +196,66 @@ def test_the_monocular_study_writes_per_seed_values_the_verdict_reads(tmp_path: 
         FULL_FRAME: pytest.approx([0.2, 0.21]),
         "car": pytest.approx([0.4, 0.41]),
     }
-    (tmp_path / "table.json").write_text(json.dumps(values))
-    rows = {
-        r.cls: r for r in seed_rows(read_monocular(tmp_path / "table.json", tmp_path / "x.md"), "ssim", 0.95)
-    }
-    assert rows["car"].diff == pytest.approx(-0.08) and rows[FULL_FRAME].diff == pytest.approx(0.02)
+    assert values["modes"]["mono"]["msssim"]["car"] == pytest.approx([0.32, 0.33])
 
 
 def test_display_names_of_one_two_and_three_variants() -> None:
     assert display_names(["ssim", "msssim"], "ssim") == ("MS-SSIM", "SSIM")
-    assert display_names(["ssim"], "ssim") == ("MS-SSIM", "SSIM")  # external rows are MS-SSIM − SSIM
+    assert display_names(["ssim"], "ssim") == ("MS-SSIM", "SSIM")  # no rows: the question's names
     assert display_names(["ssim", "msssim", "mix"], "ssim") == ("each other variant", "SSIM")
 
 
-def test_an_external_reflective_row_gets_its_panel_after_the_known_classes(tmp_path: Path) -> None:
+def test_a_set_class_gets_its_panel_after_the_known_classes(tmp_path: Path) -> None:
     from msdepth.reporting.figures import verdict_figure
 
     rows = [
         Row("stereo networks", "sign", -0.05, -0.19, 0.06, 26, "m", "network"),
-        Row("optimum w10", "reflective", -0.03, -0.05, -0.01, 28568, "m", "external"),
+        Row("optimum w10 on kitti2012", "reflective", -0.03, -0.05, -0.01, 28, "m", "optimum"),
         Row("stereo networks", FULL_FRAME, -0.002, -0.012, 0.008, 40, "m", "network"),
     ]
     data = verdict_data(rows, 80.0, 0.95, "MS-SSIM", "SSIM")
     assert data["classes"] == [FULL_FRAME, "sign", "reflective"]
     assert data["sentences"]["reflective"] == (
         "reflective: MS-SSIM's error is lower in 1 of 1 instrument; "
-        "intervals excluding 0: optimum w10, another study (lower)."
+        "intervals excluding 0: optimum w10 on kitti2012 (lower)."
     )
     assert verdict_figure(data, tmp_path / "v.png").read_bytes()[:4] == b"\x89PNG"
 
 
-def test_a_row_without_an_interval_is_counted_but_never_excludes_or_pools(tmp_path: Path) -> None:
-    """A class with fewer independent units than MIN_UNITS (one real frame) has no interval: its
-    row says so, is never marked and never pooled."""
-    path = tmp_path / "verdict.json"
-    bare = {**GOOD, "class": "reflective", "low": None, "high": None, "n": 1, "method": "real pairs: 1 frame"}
-    path.write_text(json.dumps([bare]))
-    (row,) = read_external_rows(path)
+def test_a_row_without_an_interval_is_counted_but_never_excludes_zero() -> None:
+    """A class with fewer independent units than MIN_UNITS (an extra set of a few frames) has no
+    interval: its row says so and is never marked."""
+    row = Row("optimum w10 on kitti2012", "reflective", -0.02, None, None, 1, "m; no interval", "optimum")
     assert not row.has_interval and not row.excludes_zero
     assert interval_cell(row) == "\u22120.020 (no interval)"
-    pipeline = Row("optimum w10", "reflective", -0.03, -0.05, -0.01, 40, "m", "optimum")
-    assert pooled_rows([row, pipeline]) == []
-    assert "no interval (too few independent units): optimum w10, real pairs (n=1)" in _class_sentence(
+    assert "no interval (too few independent units): optimum w10 on kitti2012 (n=1)" in _class_sentence(
         "reflective", [row]
     )
 
 
-def test_rows_of_other_settings_are_shown_apart_and_never_pooled() -> None:
-    """After `dvc exp run -S msssim.kernel_size=7` a study's committed k=3 rows stay apart."""
-    k3, k7 = "msssim: kernel_size=3; ssim: kernel_size=3", "msssim: kernel_size=7; ssim: kernel_size=3"
+def test_a_new_column_is_one_entry_and_every_renderer_shows_it(tmp_path: Path) -> None:
+    """The verdict table is data: a Column added to the headline columns appears in the summary
+    table, its sentence and short answer, with no renderer changed; the figure lays out the same
+    table with one column per instrument."""
+    from msdepth.reporting.figures import verdict_figure
+
     rows = [
-        Row("optimum w10", "car", -0.02, -0.03, -0.01, 40, "m", "optimum", settings=k7),
-        Row("optimum w10", "car", -0.05, -0.06, -0.04, 16, "real pairs: ROIs", "external", settings=k3),
-        Row("mono networks", "car", -0.01, -0.02, 0.0, 3, "m", "seeds"),  # no settings recorded
+        Row("stereo networks", "car", -0.02, -0.04, 0.01, 40, "m", "network"),
+        Row("optimum best", "car", -0.05, -0.07, -0.03, 40, "m", "optimum"),
     ]
-    data = verdict_data(rows, 80.0, 0.95, "MS-SSIM", "SSIM", settings=k7)
-    kept = [Row.from_dict(d) for d in data["rows"]]
-    assert [r.apart for r in kept] == ["", f"made with {k3}", "its settings are not recorded"]
-    assert not any(r.kind == "pooled" for r in kept)  # the k=3 real row is not pooled with k=7
-    assert data["sentences"]["car"].startswith("car: MS-SSIM's error is lower in 1 of 1 instrument")
-    md = "\n".join(verdict_lines(data))
-    assert "Made under other settings" in md and f"made with {k3}" in md
-    # Under the same settings the two optimum rows pool.
-    same = verdict_data(
-        [rows[0], dataclasses.replace(rows[1], settings=k7)], 80.0, 0.95, "MS-SSIM", "SSIM", k7
-    )
-    assert [d["kind"] for d in same["rows"]][-1] == "pooled"
+    base = headline_columns(10.0)
+    extra = Column("optimum at each variant's best weight", "optimum", "optimum best")
+    without = verdict_data(rows, 80.0, 0.95, "MS-SSIM", "SSIM", columns=base)
+    data = verdict_data(rows, 80.0, 0.95, "MS-SSIM", "SSIM", columns=[*base, extra])
+    assert "optimum at each variant's best weight" not in "\n".join(summary_lines(without))
+    assert summary_lines(data)[0].endswith("| optimum at each variant's best weight |")
+    assert summary_lines(data)[2].endswith("| \u22120.050 [\u22120.070, \u22120.030] *, n = 40 ROIs |")
+    assert "optimum at each variant's best weight: lower on 1 of 1 surface class" in answer_sentence(data)
+    assert "optimum at each variant's best weight lower on 1 of 1 class, 1 interval" in short_answer(data)
+    assert data["summary"]["car"][extra.header]["instrument"] == "optimum best"
+    assert verdict_table(rows, [extra], ["car", "glass"]) == [("car", [rows[1]]), ("glass", [None])]
+    assert [c.instrument for c in instrument_columns(rows[::-1])] == ["stereo networks", "optimum best"]
+    assert verdict_figure(data, tmp_path / "v.png").read_bytes()[:4] == b"\x89PNG"
 
 
 def test_the_summary_table_holds_each_familys_headline_instrument() -> None:
@@ -376,18 +267,18 @@ def test_the_summary_table_holds_each_familys_headline_instrument() -> None:
         Row("optimum w3", "windshield", -0.05, -0.07, -0.03, 66, "m", "optimum"),
         Row("optimum w10 on kitti2015", "car", -0.02, -0.04, 0.0, 9, "m", "optimum"),
     ]
-    headline = headline_instruments(10.0, ["kitti2015"])
-    data = verdict_data(rows, 80.0, 0.95, "MS-SSIM", "SSIM", headline=headline)
+    columns = headline_columns(10.0, ["kitti2015"])
+    data = verdict_data(rows, 80.0, 0.95, "MS-SSIM", "SSIM", columns=columns)
     cells = data["summary"]["windshield"]
     assert cells["stereo networks"]["diff"] == -0.036
     assert cells["loss's own optimum, w10"]["instrument"] == "optimum w10"
     assert cells["optimum w10, kitti2015 frames"] is None
     assert data["summary"]["car"]["optimum w10, kitti2015 frames"]["instrument"] == "optimum w10 on kitti2015"
     lines = summary_lines(data)
-    assert lines[2] == "| car | – | – | \u22120.020 [\u22120.040, +0.000], n = 9 ROIs |"
+    assert lines[2] == "| car | – | – | – | \u22120.020 [\u22120.040, +0.000], n = 9 ROIs |"
     assert lines[3] == (
         "| windshield | \u22120.036 [\u22120.068, \u22120.002] *, n = 66 ROIs × 3 seed pairs | "
-        "\u22120.010 [\u22120.030, +0.010], n = 66 ROIs | – |"
+        "\u22120.010 [\u22120.030, +0.010], n = 66 ROIs | – | – |"
     )
 
 
@@ -424,18 +315,6 @@ def test_the_committed_network_rows_are_the_mean_of_the_per_seed_paired_differen
         assert r.t_low < r.diff < r.t_high
 
 
-def test_the_monocular_studys_settings_come_from_its_json_or_its_table(tmp_path: Path) -> None:
-    from msdepth.reporting.verdict import SETTINGS_LINE, read_monocular_settings
-
-    committed = read_monocular_settings(tmp_path / "absent.json", ROOT / "studies/results/monocular/table.md")
-    assert committed == "msssim: kernel_size=3, levels=4, weights=wang; ssim: kernel_size=3, padding=valid"
-    (tmp_path / "table.md").write_text(f"# t\n\n{SETTINGS_LINE}`msssim: kernel_size=7`\n")
-    assert read_monocular_settings(tmp_path / "absent.json", tmp_path / "table.md") == "msssim: kernel_size=7"
-    (tmp_path / "table.json").write_text(json.dumps({"modes": {}, "settings": "msssim: kernel_size=5"}))
-    assert read_monocular_settings(tmp_path / "table.json", tmp_path / "table.md") == "msssim: kernel_size=5"
-    assert read_monocular_settings(tmp_path / "none.json", tmp_path / "none.md") == ""
-
-
 def frames_table(shift: bool, frames: int) -> pd.DataFrame:
     """Two car ROIs in each of ``frames`` frames; MS-SSIM 0.1 below SSIM on each."""
     t = pd.DataFrame(
@@ -465,8 +344,8 @@ def test_rois_are_counted_and_drawn_by_their_frames(frames: int) -> None:
     for r in (opt, row):
         assert r.n == 2 * frames and r.unit == f"ROIs in {frames} frames" and r.diff == pytest.approx(-0.1)
         assert r.has_interval == (frames >= MIN_UNITS)
-    assert _units_text(row) == f"{2 * frames} ROIs in {frames} frames × 2 seed pairs"
-    assert _units_text(opt) == f"{2 * frames} ROIs in {frames} frames"
+    assert units_text(row) == f"{2 * frames} ROIs in {frames} frames × 2 seed pairs"
+    assert units_text(opt) == f"{2 * frames} ROIs in {frames} frames"
     if frames >= MIN_UNITS:
         assert (
             "frames (each with all its ROIs)" in opt.method

@@ -1,5 +1,5 @@
-"""Command line: ``msdepth predict``, ``optimum``, ``export-onnx``, ``export-folder`` and
-``experiments`` (also ``python -m msdepth``)."""
+"""Command line: ``msdepth predict``, ``optimum``, ``export-onnx``, ``export-folder``,
+``experiments`` and ``photometry`` (also ``python -m msdepth``)."""
 
 from __future__ import annotations
 
@@ -10,6 +10,7 @@ from typing import Callable, Sequence
 from msdepth.cli.experiments import experiments_command
 from msdepth.cli.optimum import optimum_command
 from msdepth.cli.options import camera_options
+from msdepth.cli.photometry import photometry_command
 from msdepth.errors import MsdepthError, unexpected_error
 from msdepth.outputs import settle_outputs
 
@@ -118,6 +119,7 @@ _COMMANDS: tuple[Callable[[AddParser], None], ...] = (
     _export_folder_command,
     optimum_command,
     experiments_command,
+    photometry_command,
 )
 
 

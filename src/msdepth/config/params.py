@@ -90,6 +90,35 @@ def _added_later(default: Any) -> Any:
 
 
 @dataclass(frozen=True)
+class CameraConfig:
+    """The photometric camera each rendered view passes through (:mod:`msdepth.render.sensor`).
+
+    Defaults are calibrated against real KITTI pairs at the render width (the ``photometry`` stage,
+    docs/design.md "The camera"); ``enabled: false`` gives the ideal views of earlier releases, byte
+    for byte.
+    """
+
+    enabled: bool = True
+    # Where each default comes from (docs/design.md "The camera"; measured: the photometry stage).
+    # A lens's point-spread function: ~0.6 px at KITTI's full width, a third of it at the render width.
+    blur: Annotated[float, Range(0, 10, note="px at the render width")] = 0.2
+    # Light lost at the corners: the cos^4 law at KITTI's 40 deg half field of view, as a corrected
+    # lens passes it.
+    vignetting: Annotated[float, Range(0, 0.9, note="light lost at the image corners")] = 0.3
+    # A rig's rectification residual: ~1 px at KITTI's full width.
+    rectification: Annotated[float, Range(0, 5, note="px")] = 0.3
+    # Auto-exposure target; with the scenes' lower contrast, it puts KITTI's mean grey and spread within 15 %.
+    exposure: Annotated[float, Range(0.01, 1, note="the left view's mean, of full scale")] = 0.43
+    # KITTI's two cameras expose on their own: their views' mean grey levels differ by 1-7 levels of 255.
+    gain_mismatch: Annotated[float, Range(0, 1, note="log-normal sigma")] = 0.04
+    white_balance: Annotated[float, Range(0, 1, note="log-normal sigma")] = 0.02
+    # Read and shot noise, calibrated on KITTI's noise sigma and SSIM at the GT disparity.
+    read_noise: Annotated[float, Range(0, 64, note="DN of 255")] = 2.0
+    shot_noise: Annotated[float, Range(0, 64, note="DN of 255 at full scale")] = 4.5
+    jpeg_quality: Annotated[int, Range(0, 100, note="0 = PNG")] = 0
+
+
+@dataclass(frozen=True)
 class SyntheticConfig:
     """The generated KITTI-format stereo set."""
 
@@ -111,6 +140,8 @@ class SyntheticConfig:
     # find cars within the default's budget (issue 52's screen, studies/results/objects/).
     train_cars: tuple[Annotated[int, Range(0, MAX_CARS)], ...] = (3, 8)
     train_car_depth: tuple[Annotated[float, Range(4, MAX_DEPTH_M)], ...] = (4.0, 25.0)
+    # The camera that records each view (off: the ideal views of earlier releases, byte for byte).
+    camera: CameraConfig = field(default_factory=CameraConfig)
 
     def validate(self, key: str, params: Params) -> None:
         """Range checks of the ``key`` section; a ConfigError names the key."""
@@ -634,9 +665,10 @@ class OptimumConfig:
     # pairs optimised together (independent: each pair's gradient is its own)
     batch_size: Annotated[int, Range(1, MAX_OPTIMUM_BATCH)] = 4
     # The pipeline's optimum stages (docs/optimum-pipeline.md): the sweep's weights other than
-    # smoothness_weight see only the first sweep_frames evaluation frames (0 = all), the cost
+    # smoothness_weight see only the first sweep_frames evaluation frames (0 = all: each loss is
+    # then also scored at its own best weight, msdepth.optimum.selection), the cost
     # curves the ROIs of the first cost_frames; torch threads.
-    sweep_frames: Frames = 4
+    sweep_frames: Frames = 0
     cost_frames: Frames = 8
     threads: Threads = 2
     # An extra set's frames in this many worker processes at once, each with `threads` threads
@@ -703,6 +735,19 @@ class OptimumConfig:
 
 
 @dataclass(frozen=True)
+class PhotometryConfig:
+    """The ``photometry`` stage: how the evaluation frames look to a photometric loss, beside real pairs."""
+
+    # Per-frame statistics of real pairs (``msdepth photometry``), the stage's real column.
+    reference: str = "data_lists/photometry_kitti.csv"
+
+    def validate(self, key: str, params: Params) -> None:
+        """The reference must name a file (the stage depends on it); a ConfigError names the key."""
+        problem = "must name a CSV file of `msdepth photometry`"
+        check(bool(self.reference.strip()), f"{key}.reference", problem)
+
+
+@dataclass(frozen=True)
 class Params:
     data: DataConfig = field(default_factory=DataConfig)
     model: ModelConfig = field(default_factory=ModelConfig)
@@ -714,6 +759,7 @@ class Params:
     eval: EvalConfig = field(default_factory=EvalConfig)
     compare: CompareConfig = field(default_factory=CompareConfig)
     optimum: OptimumConfig = field(default_factory=OptimumConfig)
+    photometry: PhotometryConfig = field(default_factory=PhotometryConfig)
     # The params section of every registered variant, by name (top-level sections in
     # params.yaml, e.g. ``ssim:``; not a key of its own).
     appearance: dict[str, Any] = field(default_factory=_registered_sections, metadata={"yaml": False})
@@ -850,6 +896,7 @@ def validate(p: Params) -> Params:
     p.eval.validate("eval", p)
     p.compare.validate("compare", p)
     p.optimum.validate("optimum", p)
+    p.photometry.validate("photometry", p)
     # Last, so that a value with a check of its own gets that check's message.
     for f in dataclasses.fields(p):
         section = getattr(p, f.name)

@@ -7,7 +7,7 @@ Each source has a tree of its own (``data.root``: ``data/synthetic`` for the syn
 - the synthetic set: ``synthetic.json`` (its summary, written last) or, while a render is under
   way or was interrupted, :data:`RENDERING`;
 - KITTI: the download's completion markers ``.<archive>.complete``
-  (:mod:`msdepth.download.archives`) in the folders archives are extracted into (``raw/``,
+  (:mod:`msdepth.download.extraction`) in the folders archives are extracted into (``raw/``,
   ``kitti2015/``, the annotated depth's).
 
 The renderer replaces only a tree it marked as its own (or an empty one), and the download

@@ -1,6 +1,6 @@
 """KITTI for the params: the archives the splits and evaluation sets need, fetched into the
 KITTI-format tree under ``data.root`` (:func:`fetch_kitti`, the prepare_data stage's
-``data.source: kitti``) through :mod:`msdepth.download.archives`."""
+``data.source: kitti``) through :mod:`msdepth.download.fetching`."""
 
 from __future__ import annotations
 
@@ -10,7 +10,9 @@ from pathlib import Path
 from msdepth.config.params import Params
 from msdepth.data.layout import layout
 from msdepth.data.owners import check_kitti_root
-from msdepth.download import archives
+from msdepth.download.fetching import dry_run_total, fetch_all
+from msdepth.download.lists import parse_archive_list, select_needed
+from msdepth.download.transfer import FetchOptions
 
 log = logging.getLogger("msdepth")
 
@@ -20,12 +22,12 @@ def fetch_kitti(params: Params, dry_run: bool) -> None:
     into the synthetic set's tree (DataError)."""
     check_kitti_root(Path(params.data.root))
     k, paths = params.data.kitti, layout(params)
-    names = archives.parse_archive_list(k.archive_list)
+    names = parse_archive_list(k.archive_list)
     subset = list(k.drives) if k.drives is not None else (k.drive_count or None)
-    selection = archives.select_needed(names, _needed_splits(params), subset, archive_list=k.archive_list)
-    options = archives.FetchOptions(jobs=k.jobs, dry_run=dry_run, jpeg=k.jpeg, allow_http=k.allow_http)
+    selection = select_needed(names, _needed_splits(params), subset, archive_list=k.archive_list)
+    options = FetchOptions(jobs=k.jobs, dry_run=dry_run, jpeg=k.jpeg, allow_http=k.allow_http)
     reports = {
-        "raw archives": archives.fetch_all(
+        "raw archives": fetch_all(
             k.base_url,
             selection.archives,
             k.download_dir,
@@ -36,9 +38,9 @@ def fetch_kitti(params: Params, dry_run: bool) -> None:
         ),
     }
     for label, archive, dest in _single_archives(params):
-        reports[label] = archives.fetch_all(k.base_url, [archive], k.download_dir, dest, options, label=label)
+        reports[label] = fetch_all(k.base_url, [archive], k.download_dir, dest, options, label=label)
     if dry_run:
-        print(archives.dry_run_total(list(reports.values())))
+        print(dry_run_total(list(reports.values())))
         return
     log.info(
         "kitti: %s; %s",

@@ -2,23 +2,20 @@
 
 Two parts of dvc.yaml are written from the code, so that each is defined once:
 
-- every stage's code deps, from its script's imports;
+- every stage's code dep: its script's fingerprint, ``data/fingerprints/<x>.txt`` for
+  ``python stages/<x>.py`` in ``cmd`` (:mod:`msdepth.pipeline.fingerprints`: the syntax trees of
+  the script and of its import closure, which the ``fingerprints`` stage writes on every run);
 - every path that ends in ``# = EXPR``, from :mod:`msdepth.pipeline.paths`'s definition of that file
   (EXPR: one of its names, e.g. ``EVAL_FRAMES``, or a call of one of its path functions on
   ``RUN``, a matrix stage's run as dvc.yaml spells it: ``model_path(RUN)``, or on another matrix
   item: ``cost_curves_path(VARIANT)``).
 
-A stage's code is its script (``python stages/<x>.py`` in ``cmd``) and the transitive closure of
-the ``msdepth`` modules it imports, found statically with ``ast`` (every ``import`` statement,
-including those inside functions, and the ``__init__.py`` of every package on the way). A source
-file missing from a stage's deps lets ``dvc repro`` serve results of old code; a listed file the
-stage does not import re-runs it for nothing.
-
-In dvc.yaml a stage's code deps are the entries under ``stages/`` and ``src/`` at the head of its
-``deps`` list (a package folder whose every module the stage imports is listed as the folder).
-The command rewrites those lines and the tagged paths, nothing else: comments, order and every
-other key keep their bytes (pyyaml would drop the comments, so the file is edited as text). A
-stage without ``deps`` gets the list after its ``cmd`` line.
+In dvc.yaml a stage's code dep is the entry at the head of its ``deps`` list (source entries under
+``stages/`` and ``src/`` there, as dvc.yaml listed them before the fingerprints, are replaced by
+it). The ``fingerprints`` stage itself must be ``always_changed`` with no deps. The command
+rewrites those lines and the tagged paths, nothing else: comments, order and every other key keep
+their bytes (pyyaml would drop the comments, so the file is edited as text). A stage without
+``deps`` gets the list after its ``cmd`` line.
 """
 
 from __future__ import annotations
@@ -32,86 +29,13 @@ from pathlib import Path
 import yaml
 
 from msdepth.errors import DataError, MsdepthError
+from msdepth.pipeline import fingerprints
 from msdepth.readers import read_text_file
 
-PACKAGE = "msdepth"
-CODE_PREFIXES = ("stages/", "src/")
+# The entries at the head of a stage's deps that the generator owns: its fingerprint, and source
+# files (what a stage listed before the fingerprints, rewritten to its fingerprint).
+CODE_PREFIXES = (f"{fingerprints.FINGERPRINTS.as_posix()}/", "stages/", "src/")
 COMMAND = "python -m msdepth.pipeline.dvcyaml"
-
-
-def _module_file(name: str, src: Path) -> Path | None:
-    """The file of module ``name`` (``a.b`` -> ``src/a/b.py`` or ``src/a/b/__init__.py``), if any."""
-    base = src.joinpath(*name.split("."))
-    for path in (base.with_suffix(".py"), base / "__init__.py"):
-        if path.is_file():
-            return path
-    return None
-
-
-def _skipped_nodes(tree: ast.AST) -> set[int]:
-    """The ids of the nodes inside ``if TYPE_CHECKING:`` blocks, which never run."""
-    return {
-        id(n)
-        for block in ast.walk(tree)
-        if isinstance(block, ast.If) and "TYPE_CHECKING" in ast.unparse(block.test)
-        for stmt in block.body
-        for n in ast.walk(stmt)
-    }
-
-
-def _imported_modules(path: Path, module: str | None, src: Path, package: str = PACKAGE) -> set[str]:
-    """The ``package`` modules that the file ``path`` (module ``module``; None for a script) imports.
-
-    ``from X import y`` counts ``X`` and, when ``y`` is a submodule, ``X.y`` too; relative imports
-    are resolved against the module's package.
-    """
-    is_package = path.name == "__init__.py"
-    found: set[str] = set()
-    text = path.read_text()
-    tree = ast.parse(text, filename=str(path))
-    skipped = _skipped_nodes(tree)
-    registry = r"\b(pkgutil\.iter_modules|importlib\.import_module)\(|\bRegistry\(__name__\b"
-    if is_package and re.search(registry, text):
-        # A package that imports its own modules by name (a registry, msdepth.config.variants._registry's
-        # Registry): count them all.
-        found.update(f"{module}.{p.stem}" for p in path.parent.glob("*.py") if p.name != "__init__.py")
-    for node in ast.walk(tree):
-        if id(node) in skipped:
-            continue
-        if isinstance(node, ast.Import):
-            found.update(a.name for a in node.names)
-        elif isinstance(node, ast.ImportFrom):
-            if node.level:
-                if module is None:
-                    raise DataError(f"{path}: a relative import in a script")
-                parts = module.split(".") if is_package else module.split(".")[:-1]
-                parts = parts[: len(parts) - (node.level - 1)]
-                base = ".".join(parts + ([node.module] if node.module else []))
-            else:
-                base = node.module or ""
-            found.add(base)
-            found.update(f"{base}.{a.name}" for a in node.names if _module_file(f"{base}.{a.name}", src))
-    return {m for m in found if m == package or m.startswith(package + ".")}
-
-
-def _import_closure(script: Path, src: Path, package: str = PACKAGE) -> set[Path]:
-    """Every source file that running ``script`` executes from ``package``: the modules it imports,
-    theirs in turn, and each one's parent packages' ``__init__.py``."""
-    files: set[Path] = set()
-    todo: list[tuple[Path, str | None]] = [(script, None)]
-    while todo:
-        path, module = todo.pop()
-        for name in _imported_modules(path, module, src, package):
-            parts = name.split(".")
-            for i in range(1, len(parts) + 1):  # importing a.b.c runs a/__init__ and a/b/__init__ first
-                sub = ".".join(parts[:i])
-                file = _module_file(sub, src)
-                if file is None:
-                    raise DataError(f"{path}: imports {sub}, which has no file under {src}")
-                if file not in files:
-                    files.add(file)
-                    todo.append((file, sub))
-    return files
 
 
 def _stage_scripts(dvc_yaml: dict) -> dict[str, str]:
@@ -125,23 +49,25 @@ def _stage_scripts(dvc_yaml: dict) -> dict[str, str]:
     return scripts
 
 
-def _code_deps(root: Path, script: str, package: str = PACKAGE) -> list[str]:
-    """A stage's code deps: its script, then the files it imports (sorted, relative to ``root``),
-    a folder below the package standing for its files when the stage imports every one of them."""
-    src = root / "src"
-    files = _import_closure(root / script, src, package)
-    folders = sorted(
-        {d for f in files for d in f.parents if src / package in d.parents}, key=lambda d: len(d.parts)
-    )
-    entries: set[Path] = set()
-    covered: set[Path] = set()
-    for folder in folders:
-        modules = {p for p in folder.rglob("*.py") if "__pycache__" not in p.parts}
-        if folder not in covered and modules <= files:
-            entries.add(folder)
-            covered |= modules | {d for m in modules for d in m.parents if folder in d.parents}
-    entries |= files - covered
-    return [script] + sorted(p.relative_to(root).as_posix() for p in entries)
+def _code_deps(script: str) -> list[str]:
+    """A stage's code dep: its script's fingerprint (none for the stage that writes them)."""
+    if script == fingerprints.SCRIPT.as_posix():
+        return []
+    if Path(script).parent != fingerprints.STAGES:
+        raise DataError(f"dvc.yaml: {script}: a stage script must lie in {fingerprints.STAGES}/")
+    return [fingerprints.fingerprint_path(script).as_posix()]
+
+
+def _check_fingerprint_stage(dvc_yaml: dict, scripts: dict[str, str]) -> None:
+    """One stage runs :data:`msdepth.pipeline.fingerprints.SCRIPT`: always (``always_changed``), with
+    no deps (it reads every source on each run, and listed sources would put their bytes back
+    into dvc.lock)."""
+    names = [n for n, s in scripts.items() if s == fingerprints.SCRIPT.as_posix()]
+    if len(names) != 1:
+        raise DataError(f"dvc.yaml: {len(names)} stages run {fingerprints.SCRIPT}, not one")
+    stage = dvc_yaml["stages"][names[0]]
+    if stage.get("always_changed") is not True or stage.get("deps"):
+        raise DataError(f"dvc.yaml: stage {names[0]}: needs 'always_changed: true' and no deps")
 
 
 def _stage_block(lines: list[str], name: str) -> tuple[int, int, str]:
@@ -266,8 +192,8 @@ def _rewrite_tagged(lines: list[str]) -> list[str]:
 
 
 def generate(root: Path) -> str:
-    """dvc.yaml under ``root`` with every stage's code deps written from its imports and every
-    tagged path from its definition in :mod:`msdepth.pipeline.paths`."""
+    """dvc.yaml under ``root`` with every stage's code dep written (its script's fingerprint) and
+    every tagged path from its definition in :mod:`msdepth.pipeline.paths`."""
     path = root / "dvc.yaml"
     text = read_text_file(path, "pipeline")
     try:
@@ -275,8 +201,11 @@ def generate(root: Path) -> str:
     except yaml.YAMLError as exc:
         raise DataError(f"{path}: not valid YAML: {str(exc).splitlines()[0]}") from None
     lines = text.splitlines(keepends=True)
-    for name, script in _stage_scripts(dvc_yaml).items():
-        lines = _rewrite_stage(lines, name, _code_deps(root, script))
+    scripts = _stage_scripts(dvc_yaml)
+    _check_fingerprint_stage(dvc_yaml, scripts)
+    for name, script in scripts.items():
+        if deps := _code_deps(script):
+            lines = _rewrite_stage(lines, name, deps)
     return "".join(_rewrite_tagged(lines))
 
 

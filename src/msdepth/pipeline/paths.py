@@ -29,6 +29,8 @@ log = logging.getLogger("msdepth")
 # that name them end in `# = NAME` (or `# = model_path(RUN)`), and `python -m msdepth.pipeline.dvcyaml`
 # writes their paths from these definitions.
 CHECKED = Path("data/params_checked.txt")
+# <x>.txt: what stages/<x>.py's code does (the fingerprints stage's; msdepth.pipeline.fingerprints)
+FINGERPRINTS = Path("data/fingerprints")
 INDEX_DIR = Path("data/index")
 TRAIN_PAIRS = INDEX_DIR / "train_pairs.txt"
 EVAL_FRAMES = INDEX_DIR / "eval_frames.csv"
@@ -50,6 +52,10 @@ METRICS = Path("metrics")  # <suite>/<run>.json|csv: see suite_path
 HEADLINE = METRICS / "headline"  # the DVC metrics: <suite>/<run>.json, see headline_path
 TRAIN_SUMMARIES = METRICS / "train"  # <run>.json: the train stage's summaries (pose ATE of mono runs)
 COST_CURVES = METRICS / "cost_curves"  # <variant>.json: the cost_curves stage's, drawn by figures
+# The photometry stage's outputs (metrics/photometry/).
+PHOTOMETRY_SUMMARY = METRICS / "photometry" / "summary.json"
+PHOTOMETRY_TABLE = METRICS / "photometry" / "table.md"
+PHOTOMETRY_FRAMES = METRICS / "photometry" / "frames.csv"
 COMPARE_JSON = METRICS / "compare.json"
 COMPARE_MD = METRICS / "compare.md"
 # <variant>.json: per variant its mean over seeds, the compare stage's DVC metrics (see mean_path)

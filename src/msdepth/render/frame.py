@@ -6,10 +6,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from msdepth.config.params import CameraConfig
 from msdepth.data.kitti import CLASS_BITS, KITTI_BASELINE
 from msdepth.render.cars import CAR_COUNT, CAR_DEPTH, CarRanges
 from msdepth.render.raycast import Camera, camera, project, trace
 from msdepth.render.scene import GLASS, Scene
+from msdepth.render.sensor import record
 from msdepth.render.shading import shade_view
 from msdepth.render.street import build_scene
 from msdepth.render.velodyne_sim import Scan, scan_rng, simulate
@@ -100,16 +102,18 @@ def render_frame(
     width: int,
     lidar: bool = False,
     cars: CarRanges = (CAR_COUNT, CAR_DEPTH),
+    sensor: CameraConfig | None = None,
 ) -> Frame:
     """Render frame ``index`` of ``split`` (0 = training, 1 = evaluation) deterministically.
 
     ``lidar``: also scan the scene with the simulated Velodyne (``Frame.scan``); the scan has its
     own generator, so everything else is the same either way. ``cars``: the scene's car count and
-    depth ranges (:func:`~msdepth.render.cars.add_cars`).
+    depth ranges (:func:`~msdepth.render.cars.add_cars`). ``sensor``: the photometric camera the
+    views pass through (:mod:`msdepth.render.sensor`); None or disabled: the ideal views.
     """
     rng = frame_rng(seed, split, index)
     scene = build_scene(rng, *cars)
-    frame = _view_scene(scene, height, width, 0.0, rng)
+    frame = _view_scene(scene, height, width, 0.0, rng, sensor)
     if lidar:
         frame.scan = simulate(scene, frame.focal, width, scan_rng(seed, split, index))
     return frame
@@ -123,13 +127,15 @@ def sequence_frame(
     width: int,
     step: float = SEQUENCE_STEP,
     cars: CarRanges = (CAR_COUNT, CAR_DEPTH),
+    sensor: CameraConfig | None = None,
 ) -> Frame:
     """Frame ``position`` (0, 1, ...) of the training sequence ``run`` (drive, sequence in the
     drive): one static scene, the rig moved ``position * step`` metres along its optical axis, its
-    own sensor noise per frame (:func:`sequence_pose` is the left camera's pose)."""
+    own sensor noise per frame (:func:`sequence_pose` is the left camera's pose); ``sensor`` as in
+    :func:`render_frame`."""
     scene = build_scene(np.random.default_rng([seed, SEQUENCE, *run]), *cars)
     noise = np.random.default_rng([seed, SEQUENCE, *run, position + 1])  # + 1: never the scene's seed
-    return _view_scene(scene, height, width, position * step, noise)
+    return _view_scene(scene, height, width, position * step, noise, sensor)
 
 
 def sequence_pose(rotation: np.ndarray, forward: float) -> np.ndarray:
@@ -147,9 +153,28 @@ def _camera_origin(rotation: np.ndarray, offset: float, forward: float) -> np.nd
     return rotation @ np.array([offset, 0.0, forward])
 
 
-def _view_scene(scene: Scene, height: int, width: int, forward: float, rng: np.random.Generator) -> Frame:
+def _ideal_views(views: list[np.ndarray], rng: np.random.Generator) -> list[np.ndarray]:
+    """The views of a rig without a camera model: a 1.5 % gain jitter and a little noise per view
+    (the renderer before :mod:`msdepth.render.sensor`; kept so its bytes stay reproducible)."""
+    images = []
+    for view in views:
+        gain = rng.uniform(0.985, 1.015)
+        noisy = view * gain + rng.standard_normal(view.shape, dtype=np.float32) * np.float32(0.008)
+        images.append((np.clip(noisy, 0, 1) * 255 + 0.5).astype(np.uint8))
+    return images
+
+
+def _view_scene(
+    scene: Scene,
+    height: int,
+    width: int,
+    forward: float,
+    rng: np.random.Generator,
+    sensor: CameraConfig | None = None,
+) -> Frame:
     """The stereo frame of ``scene`` seen by the rig ``forward`` metres along its optical axis,
-    sensor noise drawn from ``rng``; no LiDAR scan."""
+    recorded by ``sensor`` (None or disabled: :func:`_ideal_views`) with draws from ``rng``; no
+    LiDAR scan."""
     cam = camera(height, width, scene.rot)
     f = cam.f
     views, depths, faces = [], [], []
@@ -159,11 +184,10 @@ def _view_scene(scene: Scene, height: int, width: int, forward: float, rng: np.r
         views.append(shade_view(scene, cam, origin, depth, face))
         depths.append(depth)
         faces.append(face)
-    images = []
-    for view in views:  # a little sensor noise and exposure mismatch per view
-        gain = rng.uniform(0.985, 1.015)
-        noisy = view * gain + rng.standard_normal(view.shape, dtype=np.float32) * np.float32(0.008)
-        images.append((np.clip(noisy, 0, 1) * 255 + 0.5).astype(np.uint8))
+    if sensor is not None and sensor.enabled:
+        images = record(views[0], views[1], sensor, rng)
+    else:
+        images = _ideal_views(views, rng)
     with np.errstate(divide="ignore"):
         disp, disp_right = (
             np.where(np.isfinite(z), f * KITTI_BASELINE / z, 0).astype(np.float32) for z in depths

@@ -7,12 +7,12 @@ import os
 import shutil
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
-from typing import Any, Callable, Iterable
+from typing import Any, Callable, Iterable, Iterator
 
 import numpy as np
 import pandas as pd
 
-from msdepth.config.params import SyntheticConfig, fingerprint_fields
+from msdepth.config.params import CameraConfig, SyntheticConfig, fingerprint_fields
 from msdepth.data.kitti import (
     KITTI_BASELINE,
     read_raw_calib,
@@ -101,10 +101,10 @@ def _train_frame(cfg: SyntheticConfig, index: int) -> Frame:
     ``number % sequence_length`` of its drive's sequence ``number // sequence_length``."""
     cars = (tuple(cfg.train_cars), tuple(cfg.train_car_depth))
     if not cfg.sequence_length:
-        return render_frame(cfg.seed, TRAIN, index, cfg.height, cfg.width, cars=cars)
+        return render_frame(cfg.seed, TRAIN, index, cfg.height, cfg.width, cars=cars, sensor=cfg.camera)
     drive, number = _drive_position(cfg, index)
     run, position = (drive, number // cfg.sequence_length), number % cfg.sequence_length
-    return sequence_frame(cfg.seed, run, position, cfg.height, cfg.width, cars=cars)
+    return sequence_frame(cfg.seed, run, position, cfg.height, cfg.width, cars=cars, sensor=cfg.camera)
 
 
 def _write_train(job: tuple[SyntheticConfig, str, int]) -> tuple[str, str, np.ndarray]:
@@ -132,6 +132,20 @@ def within_range(disp: np.ndarray, focal: float, max_depth: float) -> np.ndarray
     return np.where(disp >= focal * KITTI_BASELINE / max_depth, disp, 0).astype(disp.dtype)
 
 
+def eval_pairs(
+    cfg: SyntheticConfig, gt: str = EVAL_GT_NOC, sensor: CameraConfig | None = None
+) -> Iterator[tuple[str, np.ndarray, np.ndarray, np.ndarray]]:
+    """Each evaluation frame's name, views and GT disparity (``gt``: :data:`EVAL_GT_NOC` or
+    :data:`EVAL_GT_OCC`), rendered in memory as :func:`generate` writes them but recorded by
+    ``sensor`` (None: the ideal views), for comparing cameras on the same scenes."""
+    for index in range(cfg.eval_frames):
+        frame = render_frame(cfg.seed, EVAL, index, cfg.height, cfg.width, sensor=sensor)
+        disp = within_range(frame.disp, frame.focal, cfg.gt_max_depth)
+        if gt == EVAL_GT_NOC:
+            disp = np.where(frame.noc, disp, 0).astype(disp.dtype)
+        yield f"{index:06d}_10", frame.left, frame.right, disp
+
+
 def eval_drive() -> str:
     """The raw drive folder (relative to ``raw/``) of the evaluation frames and their scans."""
     return f"{EVAL_DATE}/{EVAL_DATE}_drive_{EVAL_DRIVE:04d}_sync"
@@ -142,7 +156,7 @@ def _write_eval(
 ) -> tuple[list[tuple[str, str, int, int, int, int]], dict[str, int] | None]:
     """Write evaluation frame ``index``; returns its ROI rows and (with the LiDAR) its scan's counts."""
     cfg, root, index, lidar = job
-    frame = render_frame(cfg.seed, EVAL, index, cfg.height, cfg.width, lidar=lidar)
+    frame = render_frame(cfg.seed, EVAL, index, cfg.height, cfg.width, lidar=lidar, sensor=cfg.camera)
     name = f"{index:06d}_10"
     training = Path(root) / "kitti2015" / "training"
     write_png(training / "image_2" / f"{name}.png", frame.left)

@@ -51,7 +51,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.colors import Colormap, LogNorm
 from matplotlib.figure import Figure
 from matplotlib.patches import Rectangle
-from matplotlib.ticker import MaxNLocator
+from matplotlib.ticker import MaxNLocator, NullFormatter
 
 from msdepth.config.params import EvalConfig, Params
 from msdepth.data import kitti
@@ -76,7 +76,16 @@ from msdepth.pipeline.paths import (
     variant_runs,
 )
 from msdepth.readers import read_json_file, read_json_object, read_npy_file, read_table_file
-from msdepth.reporting.verdict import VERDICT_FIGURE, Row
+from msdepth.reporting.verdict import (
+    KINDS,
+    VERDICT_FIGURE,
+    Column,
+    Row,
+    class_order,
+    instrument_columns,
+    rows_of,
+    verdict_table,
+)
 
 log = logging.getLogger("msdepth")
 
@@ -84,6 +93,7 @@ DPI = 120
 REFERENCE = "ssim"
 MIN_VALID_FRACTION = 0.5  # an example ROI needs at least this much valid GT to be worth showing
 LOSS_TERMS = ("total", "appearance")
+SEED_STYLES = ("-", "--", ":", "-.")  # training_curves.png: a variant's seeds, in order
 FIGURES = ("disparity.png", "roi_depth.png", "roi_gradients.png", "training_curves.png", "error_scatter.png")
 ROI_FIGURES = ("roi_depth.png", "roi_gradients.png")  # drawn only where there are ROIs
 COST_CURVES_FIGURE = "cost_curves.png"  # drawn by cost_curve_figure
@@ -484,7 +494,7 @@ def _curve_path(train_plots: Path, run: str, term: str) -> Path:
 
 
 def _training_figure(runs: dict[str, list[str]], train_plots: Path, path: Path) -> Path:
-    """Per variant, one line per run (seed): the first solid and labelled, the others thinner."""
+    """Per variant (a colour), one line per run, each seed labelled and drawn in its own style."""
     curves = {
         (run, term): _read_curve(_curve_path(train_plots, run, term), term)
         for group in runs.values()
@@ -494,27 +504,26 @@ def _training_figure(runs: dict[str, list[str]], train_plots: Path, path: Path) 
     fig = _new_figure(4.2 * len(LOSS_TERMS), 3.4)
     axes = fig.subplots(1, len(LOSS_TERMS), squeeze=False)[0]
     for ax, term in zip(axes, LOSS_TERMS, strict=True):
-        for colour, (v, group) in enumerate(runs.items()):
+        for colour, group in enumerate(runs.values()):
             for i, run in enumerate(group):
                 df = curves[run, term]
                 # dvclive steps once per epoch, from 0: step k holds the mean loss of epoch k + 1.
-                label = (v if len(group) == 1 else f"{v} ({len(group)} seeds)") if i == 0 else None
                 ax.plot(
                     df["step"] + 1,
                     df[term],
                     color=f"C{colour}",
-                    marker="o" if i == 0 else None,
-                    markersize=3,
-                    linewidth=1.5 if i == 0 else 0.9,
-                    alpha=1.0 if i == 0 else 0.6,
-                    label=label,
+                    linestyle=SEED_STYLES[i % len(SEED_STYLES)],
+                    marker="o",
+                    markersize=2.5,
+                    linewidth=1.2,
+                    label=run.replace("/", ", "),  # "ssim, seed0"
                 )
         ax.set_title(f"{term} loss", fontsize=10)
         ax.set_xlabel("epoch")
         ax.xaxis.set_major_locator(MaxNLocator(integer=True))
         ax.set_ylabel("mean training loss")
         ax.grid(alpha=0.3)
-        ax.legend(fontsize=8)
+        ax.legend(fontsize=7)
     fig.suptitle("Training losses per epoch (each variant's own appearance term)", fontsize=11)
     return _save(fig, path)
 
@@ -543,19 +552,21 @@ def _scatter_figure(runs: dict[str, str], metrics: Path, cap: float, path: Path)
     for v, marker in zip(others, "osD^v<>", strict=False):
         x, y = errors[ref].align(errors[v], join="inner")
         all_values.append(y.to_numpy())
-        ax.scatter(x, y, s=18, marker=marker, alpha=0.75, label=v)
-        lines.append(f"{v}: {int((y < x).sum())} of {len(x)} images below y = x")
+        ax.scatter(x, y, s=18, marker=marker, alpha=0.75, label=runs[v].replace("/", ", "))
+        lines.append(f"{runs[v]}: {int((y < x).sum())} of {len(x)} images below y = x")
     lo = 0.0
     hi = float(max(a.max() for a in all_values)) * 1.05
     ax.plot([lo, hi], [lo, hi], color="0.4", linestyle="--", linewidth=1, label="y = x")
     ax.set_xlim(lo, hi)
     ax.set_ylim(lo, hi)
     ax.set_aspect("equal")
-    ax.set_xlabel(f"abs rel, {ref} (cap {cap:g} m)")
-    ax.set_ylabel(f"abs rel, {others[0] if len(others) == 1 else 'other variants'} (cap {cap:g} m)")
+    ax.set_xlabel(f"abs rel, {runs[ref]} (cap {cap:g} m)")
+    ax.set_ylabel(f"abs rel, {runs[others[0]] if len(others) == 1 else 'other variants'} (cap {cap:g} m)")
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8, loc="upper left")
-    ax.set_title("Per-image abs rel\n" + "\n".join(lines) + f"\n(below: lower error than {ref})", fontsize=9)
+    ax.set_title(
+        "Per-image abs rel\n" + "\n".join(lines) + f"\n(below: lower error than {runs[ref]})", fontsize=9
+    )
     return _save(fig, path)
 
 
@@ -651,7 +662,7 @@ def _read_cost_curves(directory: Path, variants: Sequence[str]) -> dict[str, dic
 def cost_curve_figure(summaries: Mapping[str, dict], path: Path) -> Path:
     """``cost_curves.png``: one panel per ROI class, one line per variant (its mean cost over the
     class's boxes against s, log axis), s = 1 (the GT) marked, each variant's minimum dotted."""
-    classes = sorted({c for s in summaries.values() for c in s.get("mean_curves", {})})
+    classes = class_order(sorted({c for s in summaries.values() for c in s.get("mean_curves", {})}))
     fig = _new_figure(3.2 * max(len(classes), 1), 3.0)
     if not classes:
         ax = fig.add_subplot(1, 1, 1)
@@ -669,61 +680,51 @@ def cost_curve_figure(summaries: Mapping[str, dict], path: Path) -> Path:
         rois = max(s["classes"][cls]["rois"] for s in summaries.values() if cls in s.get("classes", {}))
         ax.set(xscale="log", title=f"{cls} ({rois} ROIs)", xlabel="s (box disparity = GT × s)")
         ax.set_xticks([0.5, 1.0, 2.0], ["0.5", "1", "2"])
+        ax.xaxis.set_minor_formatter(NullFormatter())  # the log axis's own labels overlap these
     axes[0].set_ylabel("mean appearance cost")
     axes[0].legend(fontsize="small")
     return _save(fig, path)
 
 
-# The verdict's instruments by kind: colour and what the legend says of their intervals.
-VERDICT_KINDS = {
-    "network": ("tab:blue", "trained stereo networks: seed pairs × units"),
-    "seeds": ("tab:purple", "mono / MS networks: over seeds"),
-    "optimum": ("tab:orange", "the loss's own optimum: over units"),
-    "external": ("tab:green", "real pairs (studies/results/real)"),
-    "pooled": ("black", "pooled (inverse-variance, independent rows)"),
-}
-FAMILY_ORDER = ("network", "seeds", "optimum", "external", "pooled")  # the summary table's order
-
-
-def _verdict_panel(ax, cls: str, rows: list[Row], instruments: list[str]) -> None:
-    """One class: a dot and a horizontal bar per instrument (filled where the interval excludes
-    0; a cross without a bar where the row has too few units for an interval), a line at 0, each
-    row's n at the right edge."""
-    own = [r for r in rows if r.cls == cls]
-    for r in own:
-        y = instruments.index(r.label)
-        color = VERDICT_KINDS.get(r.kind, ("grey", ""))[0]
+def _verdict_panel(ax, column: Column, cells: Sequence[tuple[str, Row]], reach: float) -> None:
+    """One instrument: a dot and a horizontal bar per surface class it has a row on (filled where
+    the interval excludes 0; a cross without a bar where the row has too few units for an
+    interval), a line at 0, the x-scale ``±reach`` of its kind, each row's n right of the frame."""
+    color = KINDS.get(column.kind, ("", "grey"))[1]
+    for y, (_, r) in enumerate(cells):
         if r.has_interval:
             ax.errorbar(
-                r.diff, y, xerr=[[r.diff - r.low], [r.high - r.diff]], fmt="D" if r.kind == "pooled" else "o",
+                r.diff, y, xerr=[[r.diff - r.low], [r.high - r.diff]], fmt="o",
                 color=color, mfc=color if r.excludes_zero else "white", capsize=3, markersize=5,
             )  # fmt: skip
         else:
             ax.plot(r.diff, y, "x", color=color, markersize=6)
+        frames = f", {r.unit.split(' in ', 1)[1]}" if " in " in r.unit else ""  # ROIs in K frames
         ax.annotate(
-            f"n={r.n}" + (f", {r.unit.split(' in ', 1)[1]}" if " in " in r.unit else ""),  # ROIs in K frames
-            (1.0, y),
+            f"n={r.n}{frames}",
+            (1.01, y),
             xycoords=("axes fraction", "data"),
-            ha="right",
-            va="bottom",
-            fontsize=6,
+            ha="left",
+            va="center",
+            fontsize=7,
         )
     ax.axvline(0.0, color="k", linewidth=0.8)
-    counted = [r for r in own if r.kind != "pooled"]
-    ax.set_title(f"{cls}\nlower in {sum(r.diff < 0 for r in counted)} of {len(counted)}", fontsize=9)
+    lower = sum(r.diff < 0 for _, r in cells)
+    ax.set_title(f"{column.header}: lower on {lower} of {len(cells)}", fontsize=8, loc="left")
+    ax.set_yticks(range(len(cells)), [cls for cls, _ in cells], fontsize=7)
+    ax.set_ylim(len(cells) - 0.5, -0.5)  # the first class on top
     ax.grid(axis="x", alpha=0.3)
-    ends = [abs(v) for r in own for v in ((r.low, r.high) if r.has_interval else (r.diff,))]
-    reach = max([*ends, 1e-3]) * 1.2
+    ax.tick_params(axis="x", labelsize=7)
     ax.set_xlim(-reach, reach)  # 0 in the middle: left of it the variant is better, right the reference
 
 
-def _verdict_legend(ax, rows: list[Row], confidence: float) -> None:
-    """The legend in a narrow column right of the panels (``ax``, without axes of its own)."""
+def _verdict_legend(fig: Figure, rows: list[Row], confidence: float) -> None:
+    """The legend below the panels."""
     from matplotlib.lines import Line2D
 
     handles = [
         Line2D([], [], marker="o", color=color, linestyle="", label=text)
-        for kind, (color, text) in VERDICT_KINDS.items()
+        for kind, (text, color) in KINDS.items()
         if any(r.kind == kind for r in rows)
     ]
     handles.append(
@@ -734,45 +735,43 @@ def _verdict_legend(ax, rows: list[Row], confidence: float) -> None:
             Line2D([], [], marker="x", color="grey", linestyle="", label="too few units: no interval")
         )
     title = f"{confidence * 100:g} % intervals; n: units (ROIs: and their frames)"
-    ax.legend(handles=handles, loc="center left", fontsize=7, frameon=False, title=title, title_fontsize=8)
-    ax.axis("off")
+    fig.legend(
+        handles=handles, loc="outside lower center", ncols=2, fontsize=7, frameon=False, title=title,
+        title_fontsize=8,
+    )  # fmt: skip
+
+
+def _reach(rows: Sequence[Row]) -> float:
+    """Half the x-range that holds every row's interval (or point), with a margin."""
+    ends = [abs(v) for r in rows for v in ((r.low, r.high) if r.has_interval else (r.diff,))]
+    return max([*ends, 1e-3]) * 1.15
 
 
 def verdict_figure(verdict: Mapping | None, path: Path) -> Path:
-    """``verdict.png``: the summary table's structure, one panel per surface class of
-    compare.json's ``verdict`` (:func:`msdepth.reporting.verdict.verdict_data`) side by side, one
-    row per instrument grouped by family (networks, the optimum, real pairs, pooled), its
-    difference and interval; negative: the variant (MS-SSIM) has the lower error. Rows made under
-    other settings (shown apart in compare.md) are left out. The legend sits right of the panels."""
-    rows = [Row.from_dict(d) for d in (verdict or {}).get("rows", [])]
-    rows = [r for r in rows if not r.apart]
+    """``verdict.png``: the verdict table (:func:`msdepth.reporting.verdict.verdict_table`) with one
+    column per instrument (:func:`~msdepth.reporting.verdict.instrument_columns`), drawn as one
+    panel per instrument, stacked, each with a row per surface class it measured (no empty rows):
+    its difference and interval, on one x-scale per kind of instrument; negative: the variant
+    (MS-SSIM) has the lower error. The n of each row stands right of its panel's frame."""
+    rows = rows_of(verdict) if verdict else []
     if not rows:
         fig = _new_figure(4.0, 1.5)
         ax = fig.add_subplot(1, 1, 1)
         ax.text(0.5, 0.5, "no instrument compares two variants", ha="center", va="center")
         _off(ax)
         return _save(fig, path)
-    rank = {k: i for i, k in enumerate(FAMILY_ORDER)}
-    ordered = sorted(rows, key=lambda r: rank.get(r.kind, len(rank)))
-    instruments = list(dict.fromkeys(r.label for r in ordered))
-    classes = [c for c in verdict["classes"] if any(r.cls == c for r in rows)]
-    fig = _new_figure(2.3 * len(classes) + 2.6, 0.3 * len(instruments) + 1.7)
-    widths = {"width_ratios": [1.0] * len(classes) + [1.05]}  # the last column: the legend
-    *axes, legend = fig.subplots(1, len(classes) + 1, squeeze=False, gridspec_kw=widths).ravel()
-    for ax in axes[1:]:
-        ax.sharey(axes[0])
-        ax.tick_params(labelleft=False)
+    columns = instrument_columns(rows)
+    table = verdict_table(rows, columns, verdict["classes"])
+    panels = [[(cls, cells[i]) for cls, cells in table if cells[i] is not None] for i in range(len(columns))]
+    reach = {kind: _reach([r for r in rows if r.kind == kind]) for kind in {c.kind for c in columns}}
+    heights = [len(p) + 1.2 for p in panels]
+    fig = _new_figure(7.0, 0.22 * sum(heights) + 1.4)
+    axes = fig.subplots(len(columns), 1, squeeze=False, gridspec_kw={"height_ratios": heights}).ravel()
+    for ax, column, cells in zip(axes, columns, panels, strict=True):
+        _verdict_panel(ax, column, cells, reach[column.kind])
     better, than = verdict["variant"], verdict["reference"]
-    kinds = [next(r.kind for r in ordered if r.label == i) for i in instruments]
-    breaks = [i - 0.5 for i in range(1, len(kinds)) if kinds[i] != kinds[i - 1]]
-    for ax, cls in zip(axes, classes, strict=True):
-        _verdict_panel(ax, cls, rows, instruments)
-        for y in breaks:  # the families, as the summary table's columns
-            ax.axhline(y, color="grey", linewidth=0.5, linestyle=":")
-    axes[0].set_yticks(range(len(instruments)), instruments, fontsize=7)
-    axes[0].set_ylim(len(instruments) - 0.5, -0.5)  # the first instrument on top
-    fig.supxlabel(f"{better} − {than} abs_rel (negative: {better}'s error lower)", fontsize=8)
-    _verdict_legend(legend, rows, verdict["confidence"])
+    fig.suptitle(f"{better} − {than} abs_rel (negative: {better}'s error lower)", fontsize=9)
+    _verdict_legend(fig, rows, verdict["confidence"])
     return _save(fig, path)
 
 

@@ -1,7 +1,7 @@
 """The compare stage's comparison of the pipeline's metrics: every variant (mean over its seeds)
 and baseline side by side, with the optimum runs and each extra evaluation set, read from the
 metrics tree the stages wrote (:mod:`msdepth.pipeline.paths`) and written as Markdown and JSON
-(tables and statistics: :mod:`msdepth.reporting.compare`)."""
+(tables and statistics: :mod:`msdepth.reporting.comparison`)."""
 
 from __future__ import annotations
 
@@ -9,11 +9,14 @@ import dataclasses
 from pathlib import Path
 from typing import Callable, Sequence
 
+import pandas as pd
+
 from msdepth.config.params import Params
 from msdepth.evaluation.baselines import BASELINES, skipped_reason
 from msdepth.evaluation.suites import no_rois
 from msdepth.io import write_json, write_text
 from msdepth.optimum.frames import matcher_runs, optimum_runs
+from msdepth.optimum.selection import choose_weights, select_rows
 from msdepth.pipeline.paths import (
     COMPARE_JSON,
     COMPARE_MD,
@@ -26,7 +29,7 @@ from msdepth.pipeline.paths import (
     suite_dir,
     variant_runs,
 )
-from msdepth.reporting.compare import (
+from msdepth.reporting.comparison import (
     ComparisonInputs,
     build_comparison,
     build_set_section,
@@ -45,10 +48,11 @@ from msdepth.reporting.compare import (
     variant_settings,
 )
 from msdepth.reporting.verdict import (
+    OWN_BEST,
     Row,
     RowScope,
     display_names,
-    headline_instruments,
+    headline_columns,
     network_rows,
     optimum_rows,
     settings_label,
@@ -68,7 +72,7 @@ def _run_groups(
     return missing, built, groups, [r for group in groups.values() for r in group]
 
 
-def compare(params: Params) -> None:
+def write_comparison(params: Params) -> None:
     """One table of every variant (mean over its seeds) and baseline, as Markdown and JSON
     (:data:`~msdepth.pipeline.paths.COMPARE_MD`, :data:`~msdepth.pipeline.paths.COMPARE_JSON`), and
     each variant's mean over its seeds as a DVC metric (:func:`~msdepth.pipeline.paths.mean_path`).
@@ -103,7 +107,7 @@ def compare(params: Params) -> None:
         ),
     )
     result, md = build_comparison(comparison)
-    result["verdict"] = verdict_section(params, groups, compared, pairing)
+    result["verdict"] = comparison_verdict(params, groups, compared, pairing)
     md += "\n" + "\n".join(verdict_lines(result["verdict"]))
     for name in params.eval.extra_sets:
         result.setdefault("sets", {})[name], section = _compare_set(params, name, comparison.settings_label)
@@ -141,7 +145,7 @@ def _optimum_section(params: Params, groups: dict[str, list[str]], compared: Seq
     return optimum_data(suites, runs, stats, f"cap{params.eval.caps[0]:g}", skipped)
 
 
-def verdict_section(
+def comparison_verdict(
     params: Params,
     groups: dict[str, list[str]],
     compared: Sequence[str],
@@ -168,12 +172,60 @@ def verdict_section(
                 METRICS, [r for w in by_weight.values() for r in w.values()], compared
             )
             rows += optimum_rows(opt_tables, by_weight, cfg, cap, settings)
+            rows += own_best_rows(opt_tables, by_weight, params, settings)
     for name in params.eval.extra_sets:
         rows += set_verdict_rows(params, name, pairing, settings)
     better, than = display_names(params.variants, cfg.reference)
     boxed = [n for n in params.eval.extra_sets if any(r.instrument.endswith(f" on {n} boxes") for r in rows)]
-    headline = headline_instruments(params.optimum.smoothness_weight, params.eval.extra_sets, boxed)
-    return verdict_data(rows, cap, cfg.confidence, better, than, settings, headline)
+    columns = headline_columns(params.optimum.smoothness_weight, params.eval.extra_sets, boxed)
+    return verdict_data(rows, cap, cfg.confidence, better, than, settings, columns)
+
+
+def own_best_tables(
+    tables: dict[str, dict[str, pd.DataFrame]], by_weight: dict[str, dict[str, str]], cap: float
+) -> tuple[dict[str, str], dict[str, dict[int, float]]]:
+    """Adds to ``tables`` (``{suite: {run: table}}``) each variant's optimum at its own best weight
+    (:mod:`msdepth.optimum.selection`: two folds of frames, each scored at the weight with the lowest
+    full-frame abs_rel at ``cap`` on the other), as the run ``<its runs' folder>/own_best``.
+
+    ``by_weight``: ``{"w<weight>": {variant: run}}``. Returns ``{variant: its own-best run}`` and
+    ``{variant: {fold: chosen weight}}``; empty where the weights were scored on different frames
+    (``optimum.sweep_frames`` > 0) or only one weight ran.
+    """
+    variants = {v for runs in by_weight.values() for v in runs}
+    found, chosen = {}, {}
+    for variant in sorted(variants):
+        runs = {float(w[1:]): r[variant] for w, r in by_weight.items() if variant in r}
+        full = {w: tables["full"][r] for w, r in runs.items()}
+        headline = {w: t[t["cap"] == cap] for w, t in full.items()}
+        if len(runs) < 2 or len({frozenset(t["frame"]) for t in headline.values()}) != 1:
+            return {}, {}
+        frames, chosen[variant] = choose_weights(headline)
+        run = f"{next(iter(runs.values())).rsplit('/', 1)[0]}/own_best"
+        tables["full"][run] = select_rows(full, frames, "frame")
+        if "roi" in tables:
+            tables["roi"][run] = select_rows({w: tables["roi"][r] for w, r in runs.items()}, frames, "image")
+        found[variant] = run
+    return found, chosen
+
+
+def own_best_rows(
+    tables: dict[str, dict[str, pd.DataFrame]],
+    by_weight: dict[str, dict[str, str]],
+    params: Params,
+    settings: str,
+) -> list[Row]:
+    """The verdict's rows of the optimum at each variant's own best weight (:func:`own_best_tables`),
+    named ``optimum own best``; each row's method names the weights chosen per fold."""
+    runs, chosen = own_best_tables(tables, by_weight, params.eval.caps[0])
+    if not runs:
+        return []
+    rows = optimum_rows(tables, {OWN_BEST: runs}, params.compare, params.eval.caps[0], settings)
+    picked = "; ".join(
+        f"{v}: " + ", ".join(f"w{w:g}" for _, w in sorted(folds.items())) for v, folds in chosen.items()
+    )
+    note = f"; each fold of frames at the weight best on the other fold ({picked})"
+    return [dataclasses.replace(row, method=row.method + note) for row in rows]
 
 
 def _mean_rows(result: dict, variants: Sequence[str], cap: str) -> dict[str, dict[str, float]]:

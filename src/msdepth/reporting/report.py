@@ -1,11 +1,15 @@
-"""The results page and the README's headline, written from the committed metrics.
+"""The numbers blocks of ``docs/results.md`` and ``README.md``, written from the committed metrics.
 
-``docs/results.md`` and the block of ``README.md`` between :data:`BEGIN` and :data:`END` are
-rendered from ``metrics/compare.json`` (the compare stage's) and ``metrics/train/`` alone: every
-number in them, and every sentence whose truth depends on a number (which loss is ahead, whether
-the interval marks a verdict, which ROI classes an image-blind baseline still wins), is written
-here from the data, so the text cannot drift from the run it describes. The ``report`` stage writes
-both; ``python -m msdepth.reporting.report --check`` compares them (tests/test_report.py runs it).
+Each file is written by hand except its blocks between markers: README's answer
+(:data:`ANSWER_BEGIN` … :data:`ANSWER_END`) and its table (:data:`BEGIN` … :data:`END`), and
+results.md's block (:data:`BEGIN` … :data:`END`). The blocks are rendered from
+``metrics/compare.json`` (the compare stage's) and ``metrics/train/`` alone: every number, and
+every sentence whose truth depends on a number (which loss is ahead, whether an interval marks a
+verdict, which ROI classes an image-blind baseline still wins), is written here from the data, so
+the text cannot drift from the run it describes; the prose around them (terms, methods, the
+studies) is the pages' own. The verdict's table is :func:`msdepth.reporting.verdict.summary_lines`,
+the one compare.md shows. The ``report`` stage writes both files; ``python -m
+msdepth.reporting.report --check`` compares them (tests/test_report.py runs it).
 """
 
 from __future__ import annotations
@@ -21,14 +25,21 @@ from msdepth.evaluation.metrics import HIGHER_IS_BETTER
 from msdepth.io import write_text
 from msdepth.pipeline.paths import COMPARE_JSON, FIGURES_DIR, README, RESULTS, run_name, train_summary_path
 from msdepth.readers import read_json_object, read_text_file
-from msdepth.reporting.compare import (
+from msdepth.reporting.comparison import (
     MIN_SEEDS_FOR_MARKS,
     SET_TITLES,
     changed_settings,
     marks_allowed,
     settings_text,
 )
-from msdepth.reporting.verdict import MIN_UNITS, VERDICT_FIGURE, answer_sentence, summary_lines
+from msdepth.reporting.verdict import (
+    NAMES,
+    VERDICT_FIGURE,
+    answer_sentence,
+    class_order,
+    short_answer,
+    summary_lines,
+)
 
 COMMAND = "python -m msdepth.reporting.report"
 BEGIN = (
@@ -36,16 +47,15 @@ BEGIN = (
     "do not edit -->"
 )
 END = "<!-- end of results -->"
+ANSWER_BEGIN = "<!-- answer: written by the report stage from metrics/compare.json; do not edit -->"
+ANSWER_END = "<!-- end of answer -->"
 
-# How the tables name a run; a variant or baseline not listed keeps its own name.
-NAMES = {"ssim": "SSIM", "msssim": "MS-SSIM", "mix": "MS-SSIM + L1 mix"}
+# How the tables name a baseline (a variant: verdict.NAMES); one not listed keeps its own name.
 BASELINE_NAMES = {"constant": "constant (image-blind)", "prior": "per-pixel prior (image-blind)"}
 PROSE_NAMES = {"constant": "constant", "prior": "per-pixel prior"}  # in sentences, which say "image-blind"
 # Settings a variant's label always states (the question is about MS-SSIM's kernel), besides
 # those that differ from the defaults.
 ALWAYS_NAMED = {"msssim": ("kernel_size",)}
-# The ROI classes' column order (the glass-like ones first); other classes follow, sorted.
-CLASS_ORDER = ("windshield", "glass", "sign", "car")
 # The headline's full-image columns: (metric, header, decimals).
 FULL_COLUMNS = (("abs_rel", "abs_rel", 3), ("sq_rel", "sq_rel", 2), ("rmse", "rmse (m)", 2), ("a1", "a1", 3))
 MINUS = "\u2212"
@@ -132,7 +142,7 @@ class Results:
     def classes(self) -> list[str]:
         rois = self.rois()
         found = set().union(*(set(r.get("by_class", {})) for r in rois.values())) if rois else set()
-        return [c for c in CLASS_ORDER if c in found] + sorted(found - set(CLASS_ORDER))
+        return class_order(sorted(found))
 
 
 def load_results(root: Path = Path(".")) -> Results:
@@ -312,215 +322,67 @@ def wrap(text: str, width: int = 100) -> str:
     return textwrap.fill(text, width, break_long_words=False, break_on_hyphens=False)
 
 
-def _verdict_sentences(r: Results) -> list[str]:
-    """compare.json's sentence per surface class (:mod:`msdepth.reporting.verdict`), in its order;
-    [] where the comparison has no verdict."""
+def _verdict_items(r: Results) -> list[str]:
+    """compare.json's sentence per surface class as a Markdown list, in its order; [] where the
+    comparison has no verdict."""
     block = r.get("verdict", default=None) or {}
-    return [block["sentences"][c] for c in block.get("classes", []) if c in block.get("sentences", {})]
-
-
-def _verdict_lead(r: Results, figure: str) -> str:
-    """The line before the per-class sentences: what the instruments are, the figure at ``figure``
-    (a path relative to the page)."""
-    block = r.get("verdict")
-    instruments = list(dict.fromkeys(x["instrument"] for x in block["rows"] if x.get("kind") != "pooled"))
-    return (
-        f"Per surface class, {block['variant']} − {block['reference']} in abs_rel by every instrument "
-        f"({_join(instruments)}; [{VERDICT_FIGURE}]({figure}), the table in `metrics/compare.md`):"
-    )
-
-
-def _verdict_list(r: Results, figure: str) -> list[str]:
-    """The per-class sentences as a Markdown list under :func:`_verdict_lead`; [] without a verdict."""
-    sentences = _verdict_sentences(r)
-    if not sentences:
-        return []
-    items = [
+    sentences = [block["sentences"][c] for c in block.get("classes", []) if c in block.get("sentences", {})]
+    return [
         textwrap.fill(s, 100, initial_indent="- ", subsequent_indent="  ", break_on_hyphens=False)
         for s in sentences
     ]
-    return [wrap(_verdict_lead(r, figure)), "", *items]
 
 
-def _readme_verdict(r: Results) -> list[str]:
-    """The README's per-class sentences, continuing the verdict's paragraph (the README is kept
-    within tests/test_docs.py's line limit); [] without a verdict."""
-    block = r.get("verdict", default=None) or {}
-    sentences = block.get("sentences", {})
-    if not sentences:
-        return []
-    # Each sentence starts with its class: bold, so that the paragraph reads as a list.
-    bold = [f"**{c}**{sentences[c][len(c) :]}" for c in block.get("classes", []) if c in sentences]
-    figure = f"[{VERDICT_FIGURE}]({FIGURES_DIR.as_posix()}/{VERDICT_FIGURE})"
-    lead = f"Per surface class, {block['variant']} − {block['reference']} by every instrument ({figure}):"
-    return [wrap(" ".join([lead, *bold]))]
-
-
-TERMS = """Terms. *Difference*: MS-SSIM − SSIM abs_rel at cap {cap} m (negative: MS-SSIM's error is
-lower), with its {level} interval; `*`: the interval excludes 0. *n*: the units it is over (images,
-ROI boxes, real frames or objects) and, for networks, the seed pairs; boxes are resampled with the
-frame they lie in, so their frames are the independent units (`ROIs in K frames`). *Networks*: the
-pipeline's stereo networks; both losses train with the same seeds (same initial weights and batches),
-so seed s of each is a pair, resampled jointly with the units; the paired t over the seeds is the
-conservative check. *Loss's own optimum (wW)*: the disparity map that minimises each loss directly
-on the frames, no network, at smoothness weight W ([docs/optimum.md]({docs}optimum.md)). *X
-frames*: an extra evaluation set (`eval.extra_sets`; Eigen's LiDAR frames by default, your real
-KITTI 2012 and 2015 frames once linked in: [docs/user-guide.md]({docs}user-guide.md)); *X boxes*:
-its objects' boxes. *Cost start*: SGM on the loss's own cost volume. *Pooled*: one
-instrument's independent rows combined by inverse variance. A class with fewer than {min_units}
-independent units has no interval. Real KITTI sample frames and the monocular networks are
-studies, on their own pages
-([real frames]({studies}real_sets/README.md), [monocular]({studies}monocular/table.md))."""
-
-
-def _answer_lines(r: Results, docs: str) -> list[str]:
-    """The answer the study gives: the summary table (surface class by instrument family), the
-    sentence that reads it, one sentence per class and the terms; ``docs``: the path from the page
-    to docs/. [] without a verdict in compare.json."""
+def _answer_lines(r: Results) -> list[str]:
+    """results.md's answer: the summary table (surface class by instrument), the sentence that reads
+    it and one sentence per class; [] without a verdict in compare.json."""
     block = r.get("verdict", default=None) or {}
     if not block.get("summary"):
         return []
-    level = f"{block['confidence'] * 100:g} %"
     lead = (
-        f"**What the study finds so far**: is {block['variant']}'s depth error (abs_rel) lower than "
-        f"{block['reference']}'s? " + answer_sentence(block)
+        f"Is {block['variant']}'s depth error (abs_rel) lower than {block['reference']}'s? "
+        + answer_sentence(block)
     )
-    items = [
-        textwrap.fill(
-            block["sentences"][c], 100, initial_indent="- ", subsequent_indent="  ", break_on_hyphens=False
-        )
-        for c in block.get("classes", [])
-        if c in block.get("sentences", {})
-    ]
-    figure = f"[{VERDICT_FIGURE}]({'../' if docs == '' else ''}{FIGURES_DIR.as_posix()}/{VERDICT_FIGURE})"
-    terms = TERMS.format(
-        cap=block["cap"][3:],
-        level=level,
-        docs=docs,
-        studies="../studies/results/" if docs == "" else "studies/results/",
-        min_units=block.get("min_units", MIN_UNITS),
-    )
-    return [
-        wrap(lead),
-        "",
-        *summary_lines(block),
-        "",
-        wrap(f"Per class, every instrument ({figure}; the full table: `metrics/compare.md`):"),
-        "",
-        *items,
-        "",
-        wrap(" ".join(terms.split())),
-        "",
-    ]
+    figure = f"[{VERDICT_FIGURE}](../{FIGURES_DIR.as_posix()}/{VERDICT_FIGURE})"
+    per_class = f"Per class, every instrument ({figure}; the full table: `metrics/compare.md`):"
+    return [wrap(lead), "", *summary_lines(block), "", wrap(per_class), "", *_verdict_items(r)]
+
+
+def _readme_answer(r: Results) -> str:
+    """The README's one-line answer, markers included (:func:`~msdepth.reporting.verdict.short_answer`;
+    without a verdict, the full-image difference)."""
+    block = r.get("verdict", default=None) or {}
+    text = short_answer(block) if block.get("summary") else verdict(r)
+    link = "[docs/results.md](docs/results.md)"
+    return "\n".join([ANSWER_BEGIN, wrap(f"**Answer so far** ({link}): {text}"), ANSWER_END])
 
 
 def _readme_block(r: Results) -> str:
-    """The README's generated block, markers included: the answer (:func:`_answer_lines`), then
-    where the run's own numbers are."""
-    answer = _answer_lines(r, "docs/")
-    if not answer:  # no verdict (one variant): the headline table is the result
+    """The README's results block, markers included: the summary table (without a verdict, the
+    headline table and the verdict sentence), then what the run is."""
+    block = r.get("verdict", default=None) or {}
+    if block.get("summary"):
+        lead = (
+            f"{block['variant']} − {block['reference']} abs_rel per surface class and instrument at cap "
+            f"{r.cap_m} m (negative: {block['variant']}'s error is lower; `*`: the {_confidence(r)} "
+            "interval excludes 0; terms: [docs/results.md](docs/results.md#terms)):"
+        )
+        answer = [wrap(lead), "", *summary_lines(block)]
+    else:
         answer = [_headline_table(r), "", wrap(verdict(r))]
     return "\n".join(
         [
             BEGIN,
             *answer,
+            "",
             wrap(
                 f"The committed run: {_headline_caption(r).split('; variants')[0]}, {len(r.seeds)} "
-                f"seed{'s' if len(r.seeds) != 1 else ''} per loss. Each run's metrics, the image-blind "
-                "baselines and how to read them: [docs/results.md](docs/results.md)."
+                f"seed{'s' if len(r.seeds) != 1 else ''} per loss. Terms, each run's metrics, the "
+                "image-blind baselines and how to read them: [docs/results.md](docs/results.md)."
             ),
             END,
         ]
     )
-
-
-# --- the results page ----------------------------------------------------------------------------
-
-INTRO = """# Results
-
-The committed run, how to read it, and the studies behind it. This page and the README's headline
-are written by the `report` stage (`src/msdepth/reporting/report.py`) from `metrics/compare.json` and
-`metrics/train/`: edit the code, not the page. Every table is in `metrics/compare.md`."""
-
-OBJECTS = """Whether the networks resolve the objects, or place cars and windshields where the image-blind
-prior does, is asked per box by `studies/roi_errors.py` (its table: `studies/results/roi_errors.md`)
-and shown by the disparity maps (`plots/figures/disparity.png`, below). `studies/objects.py`
-follows the object classes' error and that per-box correlation as one run trains long, and screens
-recipes at equal cost ([studies/results/objects/](../studies/results/objects/README.md): its table,
-curves and disparity strips). The default is the screen's best within the default run's time (a
-training street with more and nearer cars, a 3e-4 learning rate): it places the near cars, but its
-per-box error still follows the prior's. Four times the steps with a cosine schedule (`dvc exp run
--S train.epochs=32 -S train.schedule=cosine`, "Training longer" in the
-[user guide](user-guide.md#does-a-run-use-the-image)) resolves the near cars on every seed of both
-losses, and there the two losses' paired difference on cars and windshields is not resolved from
-zero. Earlier single-run screens (a 96 × 320 input: `studies/results/input_96x320/`; more epochs, a
-smaller batch and a smaller smoothness weight: `studies/results/screens/`) and the glass model
-([glass.md](glass.md), now the renderer's) keep their numbers in those folders, each made with the
-code and data of its day. `studies/objects_gpu.sh` is the prepared run for a machine with a GPU
-(larger render and input, wider network; sizes are env vars)."""
-
-CURVES = (
-    "![training curves: each variant and seed, loss and abs_rel per epoch, the prior dashed]"
-    "(../studies/results/grid/curves.png)\n\n"
-    + """The figure above is `studies/results/grid/` (SSIM and MS-SSIM at several kernel sizes and seeds,
-`python studies/learning.py`; what it ran: `overrides.json`): per run, its per-epoch abs_rel and
-image dependence against the prior's line, and its final full and ROI metrics, in `summary.md`."""
-)
-
-STUDIES = """## The studies
-
-The scripts in `studies/` ask what the default run cannot; `studies/results/` holds the runs
-quoted on this page, and each results folder with a `README.md` says how it was made. Every script
-(`tests/test_docs.py` checks the list is complete):
-
-- Training runs:
-  - `learning.py`: variants × seeds with overrides; does each run learn from the image, and how
-    far apart are seeds.
-  - `monocular.py`: Monodepth2's mono and mono+stereo training beside stereo, with both losses.
-  - `objects.py`: do the networks see objects; the object classes' error as one run trains long
-    ([objects](../studies/results/objects/README.md)).
-  - `objects_gpu.sh`: the prepared GPU run for resolving objects (larger render and input, wider
-    network, more epochs).
-  - `prepare_set.py`: a study's own project folder at other sizes (params with overrides, render,
-    index, ROIs, cache).
-- Statistics:
-  - `kernels.py`: the dissertation's kernel table with intervals.
-  - `power.py`: how many seeds a verdict needs, paired by seed
-    ([12 seeds](../studies/results/seeds12/README.md)).
-  - `roi_errors.py`: per ROI class, each run's errors against the prior's.
-- The losses' own optimum:
-  - `cost_curves.py`: where each loss wants each ROI class.
-  - `optimum_sweep.py`: the optimum at several smoothness weights.
-  - `optimum_kernels.py`: the optimum per MS-SSIM kernel size.
-  - `optimum_starts.py`, `optimum_refine.py`: global starts and their refinement, on real
-    KITTI 2015 frames.
-- Real data:
-  - `lidar_pair.py`: the KITTI object pair against its Velodyne scan (no evaluation set holds it),
-    for every variant's cost start, optimum and networks.
-  - `real_rois.py`: the hand-drawn ROIs on the real KITTI 2015 frames.
-  - `kitti_pair.sh`, `score_lidar.py`: the optimum on the real KITTI object pair, scored against
-    its Velodyne scan.
-  - The pipeline's own route to real frames is `eval.extra_sets`
-    ([real_sets](../studies/results/real_sets/README.md)).
-- Glass model:
-  - `glass_check.py`: non-glass pixels keep their bytes under a change of the glass model.
-  - `glass_before_after.py`: the default run before and after a renderer change.
-  - `glass_figure.py`: a windshield before and after the glass model.
-- Pictures:
-  - `side_by_side.py`: trained models' disparities side by side on chosen frames."""
-
-FIGURES = """## Figures and `dvc plots`
-
-`dvc plots show` writes `dvc_plots/index.html` with the figures of `plots/figures/`. They are
-declared as image plots, so the page loads nothing from a CDN and displays offline (DVC's
-data-series plots would pull Vega from the internet); `dvc plots diff` shows them per revision or
-experiment side by side. The per-epoch losses behind `training_curves.png` are in
-`plots/train/<variant>/seed<S>/` (dvclive TSV). The figures show the first seed's run of each
-variant.
-
-| ![disparities](../plots/figures/disparity.png) |
-|---|
-| ![ROI depth](../plots/figures/roi_depth.png) |"""
 
 
 def _training_text(r: Results) -> str:
@@ -570,7 +432,7 @@ def _marks_text(r: Results) -> str:
 
 def _dependence_text(r: Results) -> str:
     """Whether each trained run follows the image (compare.md's first table)."""
-    from msdepth.reporting.compare import IMAGE_BLIND_BELOW
+    from msdepth.reporting.comparison import IMAGE_BLIND_BELOW
 
     deps = r.get("image_dependence", default={}) or {}
     trained = {run: d for run, d in deps.items() if run not in r.baselines}
@@ -638,7 +500,7 @@ def _reading_section(r: Results) -> str:
     paragraphs = [first + _marks_text(r), f"{_dependence_text(r)} {_baselines_text(r)}".strip()]
     if r.rois():
         paragraphs.append(_classes_text(r))
-    return "\n\n".join([*(wrap(p) for p in paragraphs if p), OBJECTS, CURVES])
+    return "\n\n".join(wrap(p) for p in paragraphs if p)
 
 
 def _set_results(r: Results, name: str, block: dict) -> Results:
@@ -672,102 +534,46 @@ def _set_section(r: Results, name: str, block: dict) -> str:
         )
     text += "".join(f"; the {PROSE_NAMES.get(b, b)} {_num(full[b]['abs_rel'], 3)}" for b in s.baselines)
     heading = "## The Eigen split" if name == "eigen" else f"## The {name} set"
-    return "\n\n".join([heading, wrap(text + "."), wrap(SET_NOTE)])
+    return "\n\n".join([heading, wrap(text + ".")])
 
 
-SET_NOTE = (
-    "Its numbers and the KITTI 2015 layout's score different pixels: Garg's crop drops the upper "
-    "image (far facades and the vanishing road), and LiDAR GT has no returns beyond the scanner's "
-    "range and none on part of the glass "
-    "([the simulated LiDAR on glass](glass.md#the-simulated-lidar-on-glass))."
-)
-
-
-VERDICT_HOW = """How each row's interval is made. Trained stereo networks: both losses train with
-the same seeds, so seed s of SSIM and seed s of MS-SSIM start from the same weights and see the same
-batches (each run's training summary records both, `metrics/train/`; a pair whose records differ is
-compared unpaired, and the row says so). Each draw of the bootstrap resamples the seed pairs and the
-images (or the class's ROIs) together; the paired t over the per-seed differences is given beside
-it, the conservative check with few seeds. The loss's own optimum at each weight: a paired
-bootstrap over the images or ROIs that weight was scored on. An extra evaluation set
-(`eval.extra_sets`: Eigen's LiDAR frames here; your KITTI 2012 and 2015 frames once linked in, see
-docs/user-guide.md): the same instruments with its frames as the units, never pixels or tiles of one
-object. Every row is computed by this pipeline: the studies' results (monocular training, the real
-sample pairs, the kernel grid) are on their own pages, linked below, and never enter these rows. A
-row over fewer than {min_units} units has no interval: a percentile interval over one or two units
-is narrow, not certain."""
-
-POOLING = """Pooling. Rows of different instruments are not pooled: they score the same frames, so they
-are not independent of the frames' draw, and they measure different quantities (a training mode,
-an optimum weight), whose average estimates nothing in particular. Rows of one network instrument
-are not pooled either: each scores the same trained networks, whose seed noise they share. Only
-one optimum instrument (`optimum w10`, say) measured on other frames, such as an extra set's, is
-pooled with the default frames' row: the optimum has no training noise, so rows on disjoint frames are
-independent. They are combined by inverse-variance weighting (a fixed effect: one common
-difference assumed; each row's standard error is its interval's half-width over the normal
-quantile)."""
-
-
-def verdict_section(r: Results) -> str:
-    """The verdict per surface class: the figure, the sentences, how the intervals are made and
-    which rows are pooled; empty without a verdict in compare.json."""
-    sentences = _verdict_list(r, f"../{FIGURES_DIR.as_posix()}/{VERDICT_FIGURE}")
-    if not sentences:
-        return ""
-    rows = r.get("verdict", "rows")
-    pooled = sorted({f"{x['instrument']} ({x['class']})" for x in rows if x.get("kind") == "pooled"})
-    pooled_text = (
-        f" Pooled here: {_join(pooled)}."
-        if pooled
-        else " None is pooled here: no instrument has a second, independent measurement yet."
-    )
-    image = f"![the verdict per surface class](../{FIGURES_DIR.as_posix()}/{VERDICT_FIGURE})"
-    return "\n\n".join(
-        [
-            "## The verdict per surface class",
-            image,
-            "\n".join(sentences),
-            wrap(VERDICT_HOW.format(min_units=MIN_UNITS)),
-            wrap(POOLING + pooled_text),
-        ]
-    )
-
-
-def _results_page(r: Results) -> str:
-    """``docs/results.md``: the default run, how to read it, the verdict per surface class, the
-    studies, the extra sets, figures."""
-    sets = r.get("sets", default={}) or {}
-    answer = _answer_lines(r, "")
-    parts = [INTRO, *(["## What the study finds", "\n".join(answer)] if answer else [])]
+def _results_block(r: Results) -> str:
+    """results.md's numbers block, markers included: the answer, the default run, how to read it
+    and the extra sets."""
+    answer = _answer_lines(r)
+    parts = [BEGIN, *(["## What the study finds", "\n".join(answer)] if answer else [])]
     parts += [_default_run_section(r), _reading_section(r)]
-    parts += [section] if (section := verdict_section(r)) else []
-    parts += [STUDIES]
-    parts += [_set_section(r, name, block) for name, block in sets.items()]
-    return "\n\n".join([*parts, FIGURES]) + "\n"
+    parts += [_set_section(r, name, block) for name, block in (r.get("sets", default={}) or {}).items()]
+    return "\n\n".join([*parts, END])
 
 
 # --- writing and checking ------------------------------------------------------------------------
 
 
-def _replace_block(text: str, block: str, path: Path) -> str:
-    """``text`` with the part from :data:`BEGIN` to :data:`END` (inclusive) replaced by ``block``;
+def _replace_block(text: str, block: str, path: Path, begin: str = BEGIN, end: str = END) -> str:
+    """``text`` with the part from ``begin`` to ``end`` (inclusive) replaced by ``block``;
     DataError naming ``path`` unless each marker is there once, in order."""
-    if text.count(BEGIN) != 1 or text.count(END) != 1 or text.index(BEGIN) > text.index(END):
+    if text.count(begin) != 1 or text.count(end) != 1 or text.index(begin) > text.index(end):
         raise DataError(
-            f"{path}: needs one generated block, a line {BEGIN!r} and later a line {END!r}, to write the "
-            "headline into"
+            f"{path}: needs one generated block, a line {begin!r} and later a line {end!r}, to write the "
+            "numbers into"
         )
-    return text[: text.index(BEGIN)] + block + text[text.index(END) + len(END) :]
+    return text[: text.index(begin)] + block + text[text.index(end) + len(end) :]
 
 
 def rendered(root: Path = Path(".")) -> dict[Path, str]:
-    """What the report writes under ``root``: ``docs/results.md`` and, where ``README.md`` exists
-    (a project copy may have none), the README with its block rewritten."""
+    """What the report writes under ``root``: ``docs/results.md`` with its block rewritten (a
+    project copy without the page gets a page of the block alone) and, where ``README.md`` exists,
+    the README with its two blocks rewritten."""
     r = load_results(root)
-    out = {root / RESULTS: _results_page(r)}
-    readme = root / README
+    page, readme = root / RESULTS, root / README
+    if page.is_file():
+        out = {page: _replace_block(read_text_file(page, "results page"), _results_block(r), page)}
+    else:
+        out = {page: f"# Results\n\n{_results_block(r)}\n"}
     if readme.is_file():
-        out[readme] = _replace_block(read_text_file(readme, "README"), _readme_block(r), readme)
+        text = _replace_block(read_text_file(readme, "README"), _readme_block(r), readme)
+        out[readme] = _replace_block(text, _readme_answer(r), readme, ANSWER_BEGIN, ANSWER_END)
     return out
 
 

@@ -15,7 +15,7 @@ import pandas as pd
 
 from msdepth.config.params_yaml import parse as parse_yaml
 from msdepth.errors import DataError
-from msdepth.reporting.compare import UNIT_KEYS, difference_cell, unit_clusters
+from msdepth.reporting.comparison import UNIT_KEYS, difference_cell, unit_clusters
 from msdepth.reporting.stats import paired_table, seed_bootstrap
 
 CAP = 80  # m: the cap of every table the studies print
@@ -51,9 +51,9 @@ def optimum_settings_at(ref: str) -> dict:
 
 def paired_cell(run: pd.DataFrame, ref: pd.DataFrame, keys: list[str], what: str) -> str:
     """``mean(run - ref)`` of abs_rel over the units paired on ``keys``, with its 95 % interval
-    (:func:`msdepth.reporting.compare.difference_cell`); ``–`` where ``run`` has no unit. ROIs
+    (:func:`msdepth.reporting.comparison.difference_cell`); ``–`` where ``run`` has no unit. ROIs
     (``keys`` the ROI suite's) are drawn with their frame, as the pipeline's comparison draws them
-    (:func:`msdepth.reporting.compare.unit_clusters`)."""
+    (:func:`msdepth.reporting.comparison.unit_clusters`)."""
     if run.empty:
         return "–"
     values, reference = paired_table(run, ref, keys, "abs_rel", what)

@@ -5,7 +5,7 @@ Both loss variants train with the same seeds, and a seed fixes the network's ini
 seeded from the seed and the epoch). Seed ``s`` of SSIM and seed ``s`` of MS-SSIM then differ only
 in the loss, and the comparison may treat them as a pair (:mod:`msdepth.reporting.stats`). The
 training summary records the evidence (:func:`pairing_record`); the comparison pairs two runs only
-where their records agree (:func:`msdepth.reporting.compare.pairing_status`).
+where their records agree (:func:`msdepth.reporting.comparison.pairing_status`).
 """
 
 from __future__ import annotations

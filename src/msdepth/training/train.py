@@ -208,9 +208,9 @@ def learning_rate(base: float, step: int, total_steps: int, schedule: str = "ste
     return base / 4
 
 
-# The modules (and packages: every .py file below them) whose code shapes a training run: the
-# train stage's src/ deps in dvc.yaml (a test keeps the two lists equal). Their bytes are part of
-# the checkpoint fingerprint: when DVC reruns the stage because one of them changed, the run
+# The modules (and packages: every .py file below them) whose code shapes a training run, all in
+# the train stage's code fingerprint, data/fingerprints/train.txt (a test keeps them there). Their
+# bytes are part of the checkpoint fingerprint: when DVC reruns the stage because one changed, the run
 # trains anew instead of resuming a checkpoint that the old code wrote, so a model always comes
 # from the code that is committed with it. A new variant lands in appearance/ and variants/ (its
 # config's code, e.g. MixConfig.l1_sigma, shapes the run too), both already listed.
