@@ -38,7 +38,8 @@ from msdepth.data.pairs import build_pair_cache, load_pair_cache, load_pair_list
 from msdepth.errors import DataError, OutputError, run_main
 from msdepth.evaluation import baselines
 from msdepth.evaluation.suites import depth_maps, evaluate_full, evaluate_roi, image_dependence, load_frames
-from msdepth.io import OutputPolicy, write_text
+from msdepth.io import write_text
+from msdepth.outputs import OutputPolicy
 
 INDEX = Path("data/index")
 

@@ -42,7 +42,8 @@ import pandas as pd
 
 from msdepth.config.params import params_from_dict, read_params_file
 from msdepth.errors import OutputError, run_main
-from msdepth.io import OutputPolicy, write_text
+from msdepth.io import write_text
+from msdepth.outputs import OutputPolicy
 from msdepth.reporting.comparison import (
     image_dependence,
     load_suite_metrics,

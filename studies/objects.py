@@ -45,7 +45,9 @@ from msdepth.errors import DataError, OutputError, run_main
 from msdepth.evaluation import baselines
 from msdepth.evaluation.box_errors import box_medians, prior_correlation
 from msdepth.evaluation.suites import depth_maps, evaluate_full, evaluate_roi, image_dependence, load_frames
-from msdepth.io import OutputPolicy, claim_output_file, read_json_file, save_npy, write_text
+from msdepth.io import save_npy, write_text
+from msdepth.outputs import OutputPolicy, claim_output_file
+from msdepth.readers import read_json_file
 from msdepth.reporting.stats import paired_t
 
 INDEX = Path("data/index")

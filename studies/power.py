@@ -25,8 +25,10 @@ from pathlib import Path
 import numpy as np
 
 from msdepth.errors import MsdepthError, run_main
-from msdepth.io import claim_output_file, read_json_object, write_text
+from msdepth.io import write_text
+from msdepth.outputs import claim_output_file
 from msdepth.pipeline.paths import METRICS, run_name
+from msdepth.readers import read_json_object
 from msdepth.reporting.comparison import load_suite_metrics
 from msdepth.reporting.power import detectable_difference, pooled_sd, power_at, seeds_needed
 from msdepth.reporting.report import Results, load_results

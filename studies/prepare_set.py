@@ -19,7 +19,8 @@ import yaml
 
 from msdepth.config.params import Params, apply_overrides, params_from_dict, read_params_file
 from msdepth.errors import MsdepthError, run_main
-from msdepth.io import OutputPolicy, resolved, write_text
+from msdepth.io import write_text
+from msdepth.outputs import OutputPolicy, resolved
 from msdepth.render import generate
 
 ROOT = Path(__file__).resolve().parents[1]  # its params.yaml and stages/
@@ -27,14 +28,17 @@ ROOT = Path(__file__).resolve().parents[1]  # its params.yaml and stages/
 
 def outputs(out: Path, params: Params) -> list[Path]:
     """Every file the study writes or replaces under ``out`` outside the data tree: params.yaml and
-    the index, rois and cache stages' outputs, with the extra sets' indexes that the index stage
-    removes (those of sets ``params`` does not list)."""
-    from msdepth.data.eval_index import set_index_path
+    the index, rois and cache stages' outputs (each extra set's index, ROI file and its contact
+    sheet included), with the extra sets' indexes that the index stage removes (those of sets
+    ``params`` does not list)."""
+    from msdepth.data.eval_index import set_index_path, set_rois_path
     from msdepth.pipeline import paths
 
     files = [paths.TRAIN_PAIRS, paths.EVAL_FRAMES, paths.INDEX_REPORT, paths.ROIS, paths.ROI_SHEET]
     files += [paths.PAIR_CACHE, paths.CACHED_PAIRS, paths.CACHE_REPORT]
-    files += [set_index_path(paths.INDEX_DIR, name) for name in params.eval.extra_sets]
+    for name in params.eval.extra_sets:
+        rois = set_rois_path(paths.INDEX_DIR, name)
+        files += [set_index_path(paths.INDEX_DIR, name), rois, rois.with_suffix(".png")]
     removed = sorted((out / paths.SET_INDEXES).glob("*.csv"))
     return list(dict.fromkeys([out / "params.yaml", *(out / f for f in files), *removed]))
 

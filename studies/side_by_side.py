@@ -23,7 +23,7 @@ from msdepth.data.eval_index import read_eval_index
 from msdepth.data.kitti import read_image
 from msdepth.errors import DataError, OutputError, run_main
 from msdepth.evaluation.suites import load_frames
-from msdepth.io import output_file_policy
+from msdepth.outputs import output_file_policy
 from msdepth.reporting.figures import write_figure
 
 INDEX = Path("data/index")

@@ -158,7 +158,10 @@ def test_each_range_refuses_its_outside_and_keeps_its_ends(key, config, name, ki
             {"compare": {"bootstrap_samples": 10**12}},
             "compare.bootstrap_samples: must be in 100..1000000, got",
         ),
-        ({"optimum": {"learning_rate": 1.0e308}}, "optimum.learning_rate: must be in (0, 10], got 1e+308"),
+        (
+            {"optimum": {"learning_rate": 1.0e308}},
+            "optimum.learning_rate: must be in [1e-09, 10] (Adam's step per update), got 1e+308",
+        ),
         ({"mix": {"sigma": 1.0e9}}, "mix.sigma: must be in (0, 64], got"),  # a variant not in `variants`
         ({"eval": {"caps": [80, 1.0e9]}}, "eval.caps[1]: must be in (0, 10000] (metres), got"),
     ],

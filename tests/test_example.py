@@ -19,8 +19,8 @@ from conftest import committed_file, require_git_checkout
 from msdepth.__main__ import main as msdepth_main
 from msdepth.cli.example import FRAME, MANIFEST, OUT, _disparity_name, main, md5
 from msdepth.data.imagefile import png_size
-from msdepth.io import _manifest_line, _read_manifest
 from msdepth.networks.vgg import MonodepthVGG
+from msdepth.outputs import _manifest_line, _read_manifest
 
 ROOT = Path(__file__).resolve().parents[1]
 

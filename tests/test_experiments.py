@@ -223,3 +223,90 @@ def test_a_fifo_or_a_folder_is_refused_without_blocking(
     assert code == 1 and len(err) == 1 and "not a regular file" in err[0]
     code, out, err = _run(capsys, "--json", str(tmp_path))
     assert code == 1 and len(err) == 1 and "a folder, not a file" in err[0]
+
+
+# Issue 68: limits checked while reading, naming the file; stale rows marked; unknown keys warned.
+
+
+def test_the_cell_bound_is_checked_before_any_row_is_built_and_names_the_file(
+    tmp_path: Path, capsys: pytest.CaptureFixture, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # The bound was checked after every row was built, and named "dvc exp show --json", not the file.
+    built = []
+    monkeypatch.setattr(exp, "Experiment", lambda *a: built.append(a))
+    path = _saved(tmp_path, json.dumps([_revision("main", [f"v{i}" for i in range(1000)], revs=400)]))
+    code, out, err = _run(capsys, "--json", path)
+    assert code == 1 and built == [] and len(err) == 1
+    assert err[0].startswith(f"error: {path}: 401 experiments x 3001 columns"), err
+
+
+def test_a_file_of_millions_of_empty_records_is_refused_before_parsing(
+    tmp_path: Path, capsys: pytest.CaptureFixture, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # 20 million {} records (60 MB) ran to 6.3 GB and a timeout.
+    monkeypatch.setattr(exp.json, "loads", lambda *a, **k: pytest.fail("parsed"))
+    path = _saved(tmp_path, "[" + ",".join(["{}"] * 100_000) + "]")
+    code, out, err = _run(capsys, "--json", path)
+    assert code == 1 and out == [] and len(err) == 1
+    assert err[0].startswith(f"error: {path}: up to 200,000 JSON values in 300,001 bytes"), err
+
+
+def test_a_long_label_or_value_is_cut_not_padded_into_every_row(
+    tmp_path: Path, capsys: pytest.CaptureFixture
+) -> None:
+    # A 3 MB label padded every row to 3 MB: a MemoryError at 3.9 GB.
+    record = _revision("x" * 100_000, revs=3)
+    record["data"]["params"]["params.yaml"]["data"]["ssim"] = {"kernel_size": "k" * 100_000}
+    code, out, err = _run(capsys, "--json", _saved(tmp_path, json.dumps([record])))
+    assert code == 0 and err == [] and len(out) == 5
+    assert max(len(line) for line in out) < 2 * exp.MAX_CELL_CHARS + 60
+    assert out[1].startswith("x" * (exp.MAX_CELL_CHARS - 3) + "...")
+
+
+def test_an_unknown_key_is_warned_about(capsys: pytest.CaptureFixture) -> None:
+    # The user guide's --keys a1 roi.road printed a column of "-" without a word.
+    code, out, err = _run(capsys, "--json", str(SAMPLE), "--keys", "a1", "roi.road")
+    assert code == 0 and len(out) == 4
+    assert err == [
+        "warning: --keys roi.road: no experiment's mean file has it (keys there: abs_rel, a1, windshield)"
+    ]
+
+
+def _lock(tmp_path: Path, kernel: int) -> Path:
+    lock = tmp_path / "dvc.lock"
+    stage = {"cmd": "python stages/train.py", "params": {"params.yaml": {"msssim": {"kernel_size": kernel}}}}
+    lock.write_text(json.dumps({"schema": "2.0", "stages": {"train@msssim-0": stage}}))  # JSON is YAML
+    return lock
+
+
+def test_a_workspace_row_older_than_its_params_is_marked_stale(
+    tmp_path: Path, capsys: pytest.CaptureFixture
+) -> None:
+    # After an interrupted `dvc exp run -S msssim.kernel_size=7` the workspace row read "msssim k 7"
+    # with the k=3 run's numbers, unmarked.
+    records = exp.read_json(SAMPLE)
+    records[0]["data"]["params"]["params.yaml"]["data"]["msssim"] = {"kernel_size": 7}
+    path = _saved(tmp_path, json.dumps(records))
+    code, out, err = _run(capsys, "--json", path, "--lock", str(_lock(tmp_path, 3)))
+    assert code == 0 and out[1].startswith("workspace (stale)") and out[2].startswith("main ")
+    assert (
+        len(err) == 1
+        and err[0].startswith("warning: workspace (stale): its params differ")
+        and "msssim" in err[0]
+    )
+    code, out, err = _run(capsys, "--json", path, "--lock", str(_lock(tmp_path, 7)))
+    assert code == 0 and out[1].split()[0] == "workspace" and "stale" not in out[1] and err == []
+
+
+def test_the_lock_is_read_when_dvc_runs_here(
+    tmp_path: Path, capsys: pytest.CaptureFixture, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    records = exp.read_json(SAMPLE)
+    records[0]["data"]["params"]["params.yaml"]["data"]["msssim"] = {"kernel_size": 7}
+    path = _saved(tmp_path, json.dumps(records))
+    script = f"import sys; sys.stdout.write(open({path!r}).read())"
+    monkeypatch.setattr(exp, "_dvc_command", lambda: [sys.executable, "-c", script])
+    monkeypatch.chdir(tmp_path)
+    _lock(tmp_path, 3)
+    code, out, err = _run(capsys)
+    assert code == 0 and out[1].startswith("workspace (stale)") and len(err) == 1

@@ -123,8 +123,43 @@ def test_camera_file_and_focal_rescaled_to_the_width(tmp_path: Path):
     with pytest.raises(DataError, match=r"bad\.yaml: .*missing \['width_px'\], unknown \['width'\]"):
         folder._read_camera(tmp_path / "bad.yaml")
     (tmp_path / "neg.yaml").write_text("focal_px: 700\nwidth_px: 1400\nbaseline_m: -1\n")
-    with pytest.raises(DataError, match="baseline_m must be a number > 0"):
+    with pytest.raises(DataError, match="baseline_m must be 0.001 to 10 m, got -1"):
         folder._read_camera(tmp_path / "neg.yaml")
+
+
+@pytest.mark.parametrize(
+    ("line", "expected"),
+    [
+        # Issue 68: only > 0 was checked; width 1e-300 put focal 9.6e+304 into the index.
+        ("focal_px: 1.0e-300", "focal_px must be 1 to 100000 px, got 1e-300"),
+        ("focal_px: 2.0e+5", "focal_px must be 1 to 100000 px"),
+        ("baseline_m: 1.0e+300", "baseline_m must be 0.001 to 10 m, got 1e+300"),
+        ("baseline_m: 0.0001", "baseline_m must be 0.001 to 10 m"),
+        ("width_px: 1.0e-300", "width_px must be 1 to 100000 px, got 1e-300"),
+        ("width_px: 1400.5", "width_px must be a whole number of pixels, got 1400.5"),
+        ("width_px: .nan", "width_px must be a number"),
+    ],
+)
+def test_camera_values_outside_their_physical_range_are_one_line(
+    tmp_path: Path, line: str, expected: str
+) -> None:
+    values = {"focal_px": "700", "width_px": "1400", "baseline_m": "0.12"}
+    key, value = line.split(": ")
+    values[key] = value
+    path = tmp_path / "camera.yaml"
+    path.write_text("".join(f"{k}: {v}\n" for k, v in values.items()))
+    with pytest.raises(DataError) as err:
+        folder._read_camera(path)
+    message = str(err.value)
+    assert message.startswith(f"{path}: ") and expected in message and "\n" not in message, message
+
+
+def test_camera_values_at_their_range_ends_are_read(tmp_path: Path) -> None:
+    path = tmp_path / "camera.yaml"
+    path.write_text("focal_px: 1\nwidth_px: 100000\nbaseline_m: 10\n")
+    assert folder._read_camera(path) == folder.Camera(1.0, 100000.0, 10.0)
+    path.write_text("focal_px: 100000\nwidth_px: 1\nbaseline_m: 0.001\n")
+    assert folder._read_camera(path) == folder.Camera(100000.0, 1.0, 0.001)
 
 
 # --------------------------------------------------------------------------- index builders
@@ -194,6 +229,49 @@ def test_evaluation_index_rows_kinds_camera_and_no_gt(tmp_path: Path):
     (root / "gt" / "c.png").unlink()
     with pytest.raises(DataError, match=r"gt/c\.png: no such GT file \(listed in .*eval\.txt\)"):
         folder_eval_index(_params(root))
+
+
+@pytest.mark.parametrize("field", ["left", "right", "gt"])
+@pytest.mark.parametrize("escape", ["../../outside/c.png", "ABSOLUTE", "left/../../outside/c.png"])
+def test_an_evaluation_list_naming_a_file_outside_the_folder_is_one_line(
+    tmp_path: Path, field: str, escape: str
+) -> None:
+    # Issue 68: eval.txt naming ../../outside/000001.png or an absolute path was indexed: DVC tracks
+    # only the folder, so a change there would rerun nothing.
+    from msdepth.data.indexing import folder_eval_index
+
+    root = _folder(tmp_path / "a" / "s")
+    (tmp_path / "outside").mkdir()
+    _image(tmp_path / "outside" / "c.png")
+    escape = str(tmp_path / "outside" / "c.png") if escape == "ABSOLUTE" else escape
+    line = {"left": "left/c.png", "right": "right/c.png", "gt": "gt/c.png"}
+    line[field] = escape
+    (root / "eval.txt").write_text(f"{line['left']} {line['right']} {line['gt']}\n")
+    for call in (folder_eval_index, lambda p: folder.check_folder(folder_layout(p))):
+        with pytest.raises(DataError) as err:
+            call(_params(root))
+        message = str(err.value)
+        assert f"{root / 'eval.txt'}:1: " in message and repr(escape) in message, message
+        assert ("absolute path" if escape.startswith("/") else "out of the folder") in message
+        assert "\n" not in message
+
+
+@pytest.mark.parametrize("key", ["camera", "eval_list", "class_maps", "pairs", "rois_csv"])
+def test_a_folder_key_naming_a_file_outside_the_folder_is_one_line(tmp_path: Path, key: str) -> None:
+    root = _folder(tmp_path / "s")
+    params = _params(root, **{key: "../elsewhere/x"})
+    with pytest.raises(DataError, match=rf"^data\.folder\.{key}: the path '\.\./elsewhere/x' is a path out"):
+        folder.check_folder(folder_layout(params))
+    params = _params(root, **{key: str(tmp_path / "elsewhere")})
+    with pytest.raises(DataError, match=rf"^data\.folder\.{key}: .* out of the folder"):
+        folder.check_folder(folder_layout(params))
+
+
+def test_a_pairs_list_naming_a_file_outside_the_folder_is_one_line(tmp_path: Path) -> None:
+    root = _folder(tmp_path / "s")
+    (root / "pairs.txt").write_text("left/a.png ../../x/a.png\n")
+    with pytest.raises(DataError, match=r"pairs\.txt: the right image '\.\./\.\./x/a\.png' is a path out"):
+        folder.build_train_pairs(folder_layout(_params(root, pairs="pairs.txt")))
 
 
 def test_folder_indexes_write_the_pipeline_files(tmp_path: Path):

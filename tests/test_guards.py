@@ -19,14 +19,14 @@ from conftest import load_study, save_tiny_model
 
 from msdepth.__main__ import main
 from msdepth.errors import OutputError
-from msdepth.io import (
+from msdepth.io import write_text
+from msdepth.outputs import (
     OutputPolicy,
     _manifest_entries,
     _manifest_line,
     _pending_line,
     _read_manifest,
     settle_outputs,
-    write_text,
 )
 
 ROOT = Path(__file__).resolve().parents[1]

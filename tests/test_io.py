@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from msdepth import io
+from msdepth.errors import DataError
 
 
 def _fail_midway(*args, **kwargs):
@@ -136,7 +137,7 @@ def test_png_bytes_depend_only_on_the_pixels() -> None:
 )
 def test_png_refuses_what_it_cannot_write_naming_the_file(tmp_path: Path, image: np.ndarray) -> None:
     path = tmp_path / "bad.png"
-    with pytest.raises(io.DataError, match="bad.png"):
+    with pytest.raises(DataError, match="bad.png"):
         io.write_png(path, image)
     assert not path.exists() and not list(tmp_path.iterdir())
 

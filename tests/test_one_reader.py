@@ -106,12 +106,12 @@ PIPELINE_READ_ALLOWED = {
 
 def test_src_reads_its_own_outputs_through_the_bounded_readers() -> None:
     """Metrics JSON and CSV, disparities and depth maps, records and pages the pipeline wrote are
-    read back through msdepth.io's readers (a FIFO or a huge file at an output's path: one line)."""
+    read back through msdepth.readers (a FIFO or a huge file at an output's path: one line)."""
     pattern = r"\.read_text\(|\.read_bytes\(|\bnp\.load\(|\bpd\.read_csv\(|\bjson\.load\("
     found = []
     for path in SOURCES:
         name = path.relative_to(ROOT).as_posix()
-        if not name.startswith("src/") or name == "src/msdepth/io.py":
+        if not name.startswith("src/") or name == "src/msdepth/readers.py":
             continue
         for number, line in enumerate(path.read_text(encoding="utf-8").splitlines(), 1):
             if re.search(pattern, line) and not any(
@@ -176,9 +176,9 @@ def _hostile(tmp_path: Path, case: str) -> Path:
 def test_each_reader_of_pipeline_outputs_refuses_the_hostile_set_in_one_line(
     tmp_path: Path, reader: str, cases: list[str]
 ) -> None:
-    from msdepth import io
+    from msdepth import readers
 
-    read = getattr(io, reader)
+    read = getattr(readers, reader)
     for case in cases:
         path = _hostile(tmp_path, case)
         limit = 1000 if case == "huge" else 64 << 20
@@ -198,4 +198,7 @@ def test_one_opening_for_reading_in_src() -> None:
         for n, line in enumerate(path.read_text(encoding="utf-8").splitlines(), 1)
         if re.search(r"\bos\.open\(", line)
     ]
-    assert len(found) == 2 and all(f.startswith("src/msdepth/io.py:") for f in found), found
+    assert len(found) == 2, found
+    assert found[0].startswith("src/msdepth/outputs.py:") and found[1].startswith(
+        "src/msdepth/readers.py:"
+    ), found

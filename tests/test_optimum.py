@@ -15,7 +15,7 @@ from msdepth.config.params import Params, apply_overrides, kernel_variant, param
 from msdepth.data.pairs import to_tensor
 from msdepth.errors import ConfigError, DataError, MsdepthError
 from msdepth.evaluation.metrics import compute_errors
-from msdepth.io import _read_manifest, write_png
+from msdepth.io import write_png
 from msdepth.optimum.frames import add_cost_curves
 from msdepth.optimum.solver import (
     COST_SCALES,
@@ -30,6 +30,7 @@ from msdepth.optimum.solver import (
     optimise,
     optimum_disparities,
 )
+from msdepth.outputs import _read_manifest
 from msdepth.render import render_frame
 
 VARIANTS = ("ssim", "msssim", "mix")

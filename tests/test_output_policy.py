@@ -1,4 +1,5 @@
-"""The shared output policy (:class:`msdepth.io.OutputPolicy`) and every ``msdepth`` subcommand that writes.
+"""The shared output policy (:class:`msdepth.outputs.OutputPolicy`) and every ``msdepth`` subcommand
+that writes.
 
 :data:`WRITERS` holds, per subcommand, the arguments that make it write into a folder of the test's
 choosing; ``test_every_subcommand_is_walked`` enumerates the subcommands from the parser itself, so a
@@ -23,7 +24,8 @@ from conftest import save_tiny_model
 from msdepth.__main__ import _build_parser, main
 from msdepth.config.params import SyntheticConfig
 from msdepth.errors import OutputError
-from msdepth.io import OutputPolicy, _manifest_line, _read_manifest, claim_output_file, write_text
+from msdepth.io import write_text
+from msdepth.outputs import OutputPolicy, _manifest_line, _read_manifest, claim_output_file
 from msdepth.render import generate
 
 FAST_OPTIMUM = ["--variant", "ssim", "--set", "optimum.iterations=2", "--set", "optimum.levels=1", "--quiet"]

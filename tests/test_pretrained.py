@@ -18,10 +18,10 @@ from conftest import project, require_dvc, run_checked, stage
 import msdepth.training.train as train_mod
 from msdepth.config.params import Params, params_from_dict
 from msdepth.errors import ConfigError, DataError
-from msdepth.io import file_sha256
 from msdepth.networks.resnet import ResNetEncoder
 from msdepth.pipeline.paths import PRETRAINED, run_stage
 from msdepth.pipeline.pretrained import recorded_sha256, write_record
+from msdepth.readers import file_sha256
 from msdepth.training.train import (
     TrainingError,
     TrainOptions,

@@ -3,7 +3,7 @@ folder, a symbolic link loop, a sparse file one byte over its kind's limit, a tr
 empty file and garbage. Each answer is one line naming the file (a MsdepthError), given at once (a
 FIFO never blocks) and without reading what the file declares (a sparse file costs a stat).
 
-The readers share one opening (:func:`msdepth.io.open_regular`); this test is what holds each of them
+The readers share one opening (:func:`msdepth.readers.open_regular`); this test is what holds each of them
 to it, so a new reader goes into :data:`READERS` with its limit."""
 
 from __future__ import annotations

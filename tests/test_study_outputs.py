@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 from conftest import load_study
 
-from msdepth.io import MANIFEST_PREFIX, _read_manifest
+from msdepth.outputs import MANIFEST_PREFIX, _read_manifest
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "studies" / "results"

@@ -153,7 +153,7 @@ def test_sentences_from_known_rows() -> None:
 
 
 def test_the_verdict_figure_is_a_png_with_and_without_rows(tmp_path: Path) -> None:
-    from msdepth.io import read_json_object
+    from msdepth.readers import read_json_object
     from msdepth.reporting.figures import verdict_figure
 
     rows = [

@@ -12,7 +12,7 @@ from msdepth.cli.optimum import optimum_command
 from msdepth.cli.options import camera_options
 from msdepth.cli.photometry import photometry_command
 from msdepth.errors import MsdepthError, unexpected_error
-from msdepth.io import settle_outputs
+from msdepth.outputs import settle_outputs
 
 # A subcommand is a function that adds its parser with ``add_parser`` (the subparsers' own method:
 # name, help, description) and sets ``run``, the function that runs it; _COMMANDS lists them in

@@ -25,7 +25,8 @@ from msdepth.data.imagefile import png_size
 from msdepth.data.kitti import kitti2015_paths
 from msdepth.data.layout import layout
 from msdepth.errors import DataError, MsdepthError, unexpected_error
-from msdepth.io import OutputPolicy, atomic_path, settle_outputs, write_json
+from msdepth.io import atomic_path, write_json
+from msdepth.outputs import OutputPolicy, settle_outputs
 from msdepth.pipeline.paths import model_path, run_name
 
 COMMAND = "python -m msdepth.cli.example"

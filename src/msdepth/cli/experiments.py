@@ -8,9 +8,12 @@ columns for two variants, where ``dvc exp show`` cannot rename its 40-character 
 from __future__ import annotations
 
 import argparse
+import sys
 from typing import Callable
 
 from msdepth.reporting.experiments import DEFAULT_KEYS
+
+LOCK_FILE = "dvc.lock"
 
 
 def experiments_command(add_parser: Callable[..., argparse.ArgumentParser]) -> None:
@@ -30,25 +33,54 @@ def experiments_command(add_parser: Callable[..., argparse.ArgumentParser]) -> N
         nargs="+",
         default=list(DEFAULT_KEYS),
         metavar="KEY",
-        help="keys of the mean files, dotted for nested ones, e.g. roi.road "
+        help="keys of the mean files (abs_rel, a1, roi, masks, a class name), dotted for nested ones; "
+        "a key no mean file has is warned about "
         f"(default: {' '.join(DEFAULT_KEYS)})",
     )
     e.add_argument("--md", action="store_true", help="print a markdown table")
+    e.add_argument(
+        "--lock",
+        metavar="FILE",
+        help="the dvc.lock the workspace row is checked against: a row whose params differ from those "
+        f"its metrics were made with is marked stale (default: ./{LOCK_FILE} when DVC is run here, "
+        "none with --json)",
+    )
     e.set_defaults(run=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    """Print the table of ``msdepth experiments`` to stdout."""
+    """Print the table of ``msdepth experiments`` to stdout; on stderr a warning for each key no
+    mean file has, and for a workspace row whose metrics are older than its params (./dvc.lock)."""
     from msdepth.reporting.experiments import (
         SOURCE,
+        STALE,
         experiments,
         format_table,
+        mark_stale,
+        mean_keys,
         read_json,
+        read_lock,
         run_exp_show,
         table,
+        unknown_keys,
     )
 
+    source = args.json_file or SOURCE
     records = read_json(args.json_file) if args.json_file else run_exp_show()
-    rows = experiments(records, args.json_file or SOURCE)
-    print(format_table(table(rows, args.keys), markdown=args.md), end="")
+    rows = experiments(records, source, args.keys)
+    lock = args.lock or (None if args.json_file else LOCK_FILE)
+    stale = mark_stale(rows, read_lock(lock)) if lock else []
+    print(format_table(table(rows, args.keys, source), markdown=args.md), end="")
+    known = mean_keys(rows)
+    for key in unknown_keys(rows, args.keys) if known else []:
+        print(
+            f"warning: --keys {key}: no experiment's mean file has it (keys there: {', '.join(known)})",
+            file=sys.stderr,
+        )
+    if stale:
+        print(
+            f"warning: workspace{STALE}: its params differ from those its metrics were made with "
+            f"({lock}: {', '.join(stale[:5])}); run `dvc exp run` or `dvc repro` to update them",
+            file=sys.stderr,
+        )
     return 0

@@ -17,7 +17,8 @@ from msdepth.data.folder import Camera, write_camera
 from msdepth.data.pairs import index_pairs
 from msdepth.data.pfm import write_pfm
 from msdepth.errors import DataError, OutputError
-from msdepth.io import OutputPolicy, atomic_path, write_text
+from msdepth.io import atomic_path, write_text
+from msdepth.outputs import OutputPolicy
 
 
 def export_folder(source_root: str | os.PathLike, out: str | os.PathLike) -> dict:
@@ -28,7 +29,7 @@ def export_folder(source_root: str | os.PathLike, out: str | os.PathLike) -> dic
     ``left/eval_<frame>.png`` and ``right/`` too (the index leaves them out of training), their
     ``disp_noc_0`` GT ``gt/eval_<frame>.pfm`` (disparity in px, inf = none), listed in
     ``eval.txt``; the camera in ``camera.yaml``. ``out`` must not exist or be empty; every file
-    goes through the output policy (:class:`msdepth.io.OutputPolicy`) and is written atomically.
+    goes through the output policy (:class:`msdepth.outputs.OutputPolicy`) and is written atomically.
     """
     source_root, out = Path(source_root), Path(out)
     policy = OutputPolicy(out, "export-folder", input_dirs=(source_root,))

@@ -25,8 +25,9 @@ from torch import Tensor, nn
 
 from msdepth.cli.predict import load_trained
 from msdepth.errors import MsdepthError
-from msdepth.io import atomic_path, output_file_policy
+from msdepth.io import atomic_path
 from msdepth.networks.model_file import MAX_INPUT_SIDE, DepthNetwork
+from msdepth.outputs import output_file_policy
 
 INPUT_NAME = "image"
 OUTPUT_NAME = "disparity"

@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, Callable
 from msdepth.cli.options import camera_options
 from msdepth.config.params import MAX_OPTIMUM_SIDE, Params, apply_overrides, load_params, params_from_dict
 from msdepth.errors import ConfigError, DataError, MsdepthError, PixelLimitError
-from msdepth.io import OutputPolicy
+from msdepth.outputs import OutputPolicy
 
 if TYPE_CHECKING:
     from msdepth.cli.predict import PredictOptions
@@ -135,7 +135,7 @@ def run(args: argparse.Namespace) -> int:
 
     Pairs are read, optimised and written ``optimum.batch_size`` at a time (fewer when their
     images reach :data:`msdepth.data.imagefile.BATCH_PIXEL_BUDGET` pixels), so a run killed
-    midway keeps the pairs it finished; every output goes through :class:`msdepth.io.OutputPolicy`.
+    midway keeps the pairs it finished; every output goes through :class:`msdepth.outputs.OutputPolicy`.
     """
     from msdepth.cli.predict import PredictOptions
     from msdepth.data.imagefile import batches_by_pixels, file_pixels

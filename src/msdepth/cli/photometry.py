@@ -45,7 +45,8 @@ def run(args: argparse.Namespace) -> int:
     import pandas as pd
 
     from msdepth.evaluation.photometry import measure_real
-    from msdepth.io import atomic_path, output_file_policy
+    from msdepth.io import atomic_path
+    from msdepth.outputs import output_file_policy
 
     if not 16 <= args.width <= MAX_WIDTH:
         raise ConfigError(f"--width: must be 16 to {MAX_WIDTH} px, got {args.width}")

@@ -14,7 +14,7 @@ Outputs for a frame whose output stem is ``S`` (see :func:`predict` for the stem
 - ``S_depth.npy``: depth in metres (float32); 0 = invalid or beyond ``max_depth``;
 - ``S.ply``: coloured point cloud in the camera frame (x right, y down, z forward, metres).
 
-Nothing but these outputs is ever replaced (the shared output policy, :class:`msdepth.io.OutputPolicy`):
+Nothing but these outputs is ever replaced (the shared output policy, :class:`msdepth.outputs.OutputPolicy`):
 every file written under the output folder is listed in its ``.msdepth-predict`` file, and a frame
 whose output name is taken by a file not listed there (a user's own ``S_disp.png``), by the input,
 by the model or by another input's output (``a.png`` and ``a.jpg``) is refused. The output folder
@@ -41,9 +41,10 @@ from msdepth.data.pairs import resize, to_tensor
 from msdepth.errors import DataError, MsdepthError, PixelLimitError
 from msdepth.evaluation.infer import network_disparity
 from msdepth.geometry.depth import disparity_to_depth, pixel_disparity
-from msdepth.io import OutputPolicy, atomic_path, save_npy, write_png
+from msdepth.io import atomic_path, save_npy, write_png
 from msdepth.networks.device import resolve_device
 from msdepth.networks.model_file import MAX_INPUT_SIDE, DepthNetwork, load_model
+from msdepth.outputs import OutputPolicy
 from msdepth.render import focal_for_width
 
 IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp", ".ppm")

@@ -20,7 +20,7 @@ from msdepth.config.variants import (
     configs as variant_configs,  # light: the loss variants' configs, not their terms
 )
 from msdepth.errors import ConfigError, DataError
-from msdepth.io import not_regular_file, open_regular
+from msdepth.readers import not_regular_file, open_regular
 
 # The ranges of the checks below that bound a value only so that it cannot fail later.
 SEED_MAX = 2**32 - 1  # numpy's legacy seeding (np.random.seed) takes seeds below 2^32
@@ -36,6 +36,9 @@ MAX_STEPS = 1_000_000  # optimiser steps or steps between host reads
 MAX_EPOCHS = 10_000
 MAX_BATCH = 4096
 MAX_LEARNING_RATE = 10.0  # Adam moves each parameter by about the rate per step
+# Below this a float32 parameter of 0.01 moves by under its own rounding step (eps 1.2e-7 x 0.01):
+# Adam changes nothing, so 1e-320 (which passed as > 0) is a typo.
+MIN_LEARNING_RATE = 1e-9
 MAX_WEIGHT = 1e4  # a loss term's weight (the defaults: 0.1 to 30)
 MAX_DEPTH_M = 10_000.0  # metres (KITTI's GT ends at ~80 m)
 MAX_CROP_SCALE = 4  # train.crop_scale: 4 = 1/16 of the image per crop
@@ -50,7 +53,7 @@ Frames = Annotated[int, Range(0, MAX_FRAMES)]  # 0 = all or none, as each field 
 Steps = Annotated[int, Range(1, MAX_STEPS)]
 Weight = Annotated[float, Range(0, MAX_WEIGHT)]
 Fraction = Annotated[float, Range(0, 1)]
-LearningRate = Annotated[float, Range(0, MAX_LEARNING_RATE, low_open=True)]
+LearningRate = Annotated[float, Range(MIN_LEARNING_RATE, MAX_LEARNING_RATE, note="Adam's step per update")]
 WidthMultiplier = Annotated[float, Range(0, MAX_WIDTH_MULTIPLIER, low_open=True)]
 InitDisparity = Annotated[float, Range(0, 0.3, low_open=True, high_open=True, note="the heads' range")]
 Depth = Annotated[float, Range(0, MAX_DEPTH_M, low_open=True, note="metres")]

@@ -17,7 +17,7 @@ import yaml
 
 from msdepth.config.checks import SHOWN_CHARS, check, shown
 from msdepth.errors import ConfigError, DataError
-from msdepth.io import read_bounded
+from msdepth.readers import read_bounded
 
 MAX_DEPTH = 16  # params.yaml nests 3 levels (data.kitti.drives[0]); deeper is not a params file
 MAX_INT_CHARS = 32  # any params integer fits 64 bits (19 digits); Python refuses over 4300 digits

@@ -22,8 +22,9 @@ import pandas as pd
 from msdepth.data import kitti
 from msdepth.data.pairs import check_same_size
 from msdepth.errors import DataError
-from msdepth.io import atomic_path, read_table_file
+from msdepth.io import atomic_path
 from msdepth.pipeline.paths import SET_INDEXES, SET_ROIS
+from msdepth.readers import read_table_file
 
 # One evaluation index format for every set (msdepth.data.eval_sets): ``gt`` is a file of kind
 # ``gt_kind`` (msdepth.data.ground_truth.GT_KINDS), ``calib`` the raw day folder of a Velodyne

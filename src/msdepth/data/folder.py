@@ -42,6 +42,7 @@ The folder is ``data.root`` (DVC tracks the data under that name); every other n
 from __future__ import annotations
 
 import os
+import stat
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -57,6 +58,10 @@ from msdepth.io import write_text
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
 CAMERA_KEYS = ("focal_px", "width_px", "baseline_m")
+# Physical ranges of a camera file's values: a focal length of 1 px to 1e5 px (a 1e5 px wide
+# telephoto), a baseline of 1 mm to 10 m, an image 1 to 1e5 px wide (a whole number of pixels).
+# Outside them a value is a typo or a unit error (1.0e-300 put focal 9.6e+304 into the index).
+CAMERA_RANGES = {"focal_px": (1.0, 1e5), "width_px": (1.0, 1e5), "baseline_m": (1e-3, 10.0)}
 
 
 @dataclass(frozen=True)
@@ -85,18 +90,52 @@ def _read_camera(path: str | os.PathLike) -> Camera:
             f"{path}: camera file needs exactly {list(CAMERA_KEYS)}; "
             f"missing {sorted(missing)}, unknown {sorted(map(str, unknown))}"
         )
-    values = {}
-    for key in CAMERA_KEYS:
-        value = raw[key]
-        if (
-            isinstance(value, bool)
-            or not isinstance(value, (int, float))
-            or not np.isfinite(value)
-            or value <= 0
-        ):
-            raise DataError(f"{path}: {key} must be a number > 0, got {value!r}")
-        values[key] = float(value)
+    values = {key: _camera_value(path, key, raw[key]) for key in CAMERA_KEYS}
     return Camera(**values)
+
+
+def _camera_value(path: Path, key: str, value: object) -> float:
+    """``value`` of the camera file's ``key`` as a float; a DataError naming ``path`` unless it is a
+    number within :data:`CAMERA_RANGES` (``width_px`` a whole number)."""
+    low, high = CAMERA_RANGES[key]
+    unit = {"focal_px": "px", "width_px": "px", "baseline_m": "m"}[key]
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value):
+        raise DataError(f"{path}: {key} must be a number ({low:g} to {high:g} {unit}), got {value!r}")
+    if not low <= value <= high:
+        raise DataError(f"{path}: {key} must be {low:g} to {high:g} {unit}, got {value!r}")
+    if key == "width_px" and value != int(value):
+        raise DataError(f"{path}: width_px must be a whole number of pixels, got {value!r}")
+    return float(value)
+
+
+def below_root(root: Path, path: str | os.PathLike, where: str, what: str) -> Path:
+    """``root / path`` once ``path`` is known to stay below the folder ``root``: a DataError naming
+    ``where`` for an absolute path or one whose ``..`` leads out of it. The pipeline tracks the folder
+    (``data.root``) in DVC: a file outside it could change without rerunning anything. (Judged on
+    the names, so a symbolic link inside the folder stays the user's choice: DVC hashes its target.)
+
+    Example:
+        >>> below_root(Path("data/stereo"), "gt/1.pfm", "eval.txt:1", "GT").as_posix()
+        'data/stereo/gt/1.pfm'
+    """
+    rel = os.path.normpath(os.path.relpath(os.path.normpath(Path(root) / path), os.path.normpath(root)))
+    if Path(path).is_absolute() or rel == ".." or rel.startswith(".." + os.sep):
+        kind = "an absolute path" if Path(path).is_absolute() else "a path out of the folder"
+        raise DataError(
+            f"{where}: the {what} {os.fspath(path)!r} is {kind}: name files below {root} (DVC tracks only "
+            "that folder, so a file outside it could change without rerunning anything)"
+        )
+    return Path(root) / path
+
+
+def check_layout(paths: FolderLayout) -> None:
+    """A DataError when a ``data.folder.*`` path of ``paths`` (camera, evaluation list, class maps,
+    ROI file, pairs list, image folders) is not below the folder (:func:`below_root`)."""
+    for key in ("left", "right", "pairs", "camera", "eval_list", "rois_csv", "class_maps"):
+        path = getattr(paths, key)
+        if path is not None:
+            rel = os.path.relpath(os.path.normpath(path), os.path.normpath(paths.root))
+            below_root(paths.root, rel, f"data.folder.{key}", "path")
 
 
 def write_camera(path: str | os.PathLike, camera: Camera) -> None:
@@ -118,13 +157,16 @@ def gt_kind(path: str | os.PathLike, *, npy_is_disparity: bool = False) -> str:
     )
 
 
-def _read_eval_list(path: str | os.PathLike) -> list[tuple[str, str, str]]:
-    """The evaluation list's ``left right [gt]`` lines as (left, right, gt or "")."""
+def _read_eval_list(path: str | os.PathLike, root: Path) -> list[tuple[str, str, str]]:
+    """The evaluation list's ``left right [gt]`` lines as (left, right, gt or ""), each file below
+    the folder ``root`` (:func:`below_root`)."""
     rows = []
     missing = "no evaluation list (data.folder.eval_list: 'left right [gt]' per line)"
     for number, line, fields in kitti.list_lines(path, missing):
         if len(fields) not in (2, 3):
             raise DataError(f"{path}:{number}: expected 'left right [gt]', got {line.strip()!r}")
+        for field_, what in zip(fields, ("left image", "right image", "GT file"), strict=False):
+            below_root(root, field_, f"{path}:{number}", what)
         rows.append((fields[0], fields[1], fields[2] if len(fields) == 3 else ""))
     if not rows:
         raise DataError(f"{path}: the evaluation list lists no frame")
@@ -138,9 +180,29 @@ def _image_files(folder: Path) -> list[Path]:
 
 
 def _existing(path: Path, what: str) -> Path:
-    if not path.is_file():
-        raise DataError(f"{path}: no such {what}")
+    """``path`` if it is a regular file (or a symbolic link to one); else a DataError naming it and
+    what it is (:func:`file_problem`)."""
+    problem = file_problem(path, what)
+    if problem is not None:
+        raise DataError(f"{path}: {problem}")
     return path
+
+
+def file_problem(path: Path, what: str) -> str | None:
+    """What keeps ``path`` from being a readable ``what`` ("no such class map", "a symbolic link to a
+    FIFO, not a regular file (class map)", ...), None if it is a regular file or a link to one."""
+    link = "a symbolic link to " if os.path.islink(path) else ""
+    try:
+        mode = os.stat(path).st_mode
+    except FileNotFoundError:
+        return f"{link}a missing file ({what})" if link else f"no such {what}"
+    except OSError as exc:  # a link loop, a name too long, no permission on a folder
+        return f"cannot reach this {what} ({exc.strerror or exc})"
+    if stat.S_ISREG(mode):
+        return None
+    kind = "a folder" if stat.S_ISDIR(mode) else "a FIFO" if stat.S_ISFIFO(mode) else "a socket"
+    kind = "a device" if stat.S_ISCHR(mode) or stat.S_ISBLK(mode) else kind
+    return f"{link}{kind}, not a regular file ({what})"
 
 
 def build_train_pairs(paths: FolderLayout) -> tuple[list[tuple[Path, Path]], int]:
@@ -149,7 +211,9 @@ def build_train_pairs(paths: FolderLayout) -> tuple[list[tuple[Path, Path]], int
     The left folder's images with their right namesakes, or ``paths.pairs``'s lines; either way
     without the evaluation list's left images. A missing right (or listed) image is a DataError.
     """
-    eval_lefts = {(paths.root / left).resolve() for left, _, _ in _read_eval_list(paths.eval_list)}
+    eval_lefts = {
+        (paths.root / left).resolve() for left, _, _ in _read_eval_list(paths.eval_list, paths.root)
+    }
     if paths.pairs is None:
         lefts = _image_files(paths.left)
         if not lefts:
@@ -165,8 +229,8 @@ def build_train_pairs(paths: FolderLayout) -> tuple[list[tuple[Path, Path]], int
     else:
         pairs = [
             (
-                _existing(paths.root / left, f"left image (listed in {paths.pairs})"),
-                _existing(paths.root / right, f"right image (listed in {paths.pairs})"),
+                _existing(below_root(paths.root, left, str(paths.pairs), "left image"), "left image"),
+                _existing(below_root(paths.root, right, str(paths.pairs), "right image"), "right image"),
             )
             for left, right in kitti.read_split(paths.pairs)
         ]
@@ -193,10 +257,11 @@ def eval_rows(
     suffix; ``none`` without GT), the camera at the image's width, no crop, the class map if
     ``paths.class_maps``. Each GT and class map is read once here, so a bad file fails the index
     stage, not the evaluation."""
+    check_layout(paths)
     camera = camera or _read_camera(paths.camera)
     classes = read_classes(paths.class_maps / CLASSES_FILE) if paths.class_maps else None
     rows, names = [], {}
-    for left_rel, right_rel, gt_rel in _read_eval_list(paths.eval_list):
+    for left_rel, right_rel, gt_rel in _read_eval_list(paths.eval_list, paths.root):
         left = _existing(paths.root / left_rel, f"left image (listed in {paths.eval_list})")
         right = _existing(paths.root / right_rel, f"right image (listed in {paths.eval_list})")
         name = left.stem
@@ -234,10 +299,11 @@ def check_folder(paths: FolderLayout) -> dict:
             f"{paths.root}: no such folder (data.root, with data.source folder: the stereo folder; "
             "see docs/user-guide.md 'Train and evaluate on your own stereo camera')"
         )
+    check_layout(paths)
     problems, report = [], {}
     for what, check in (
         ("camera", lambda: _read_camera(paths.camera)),
-        ("evaluation list", lambda: _read_eval_list(paths.eval_list)),
+        ("evaluation list", lambda: _read_eval_list(paths.eval_list, paths.root)),
         ("classes", lambda: read_classes(paths.class_maps / CLASSES_FILE) if paths.class_maps else None),
     ):
         try:
@@ -247,11 +313,13 @@ def check_folder(paths: FolderLayout) -> dict:
     if "evaluation list" in report:
         for left, right, gt in report["evaluation list"]:
             for rel in (left, right, gt):
-                if rel and not (paths.root / rel).is_file():
-                    problems.append(f"{paths.root / rel}: listed in {paths.eval_list} but missing")
+                if rel and (problem := file_problem(paths.root / rel, "file")) is not None:
+                    problem = "missing" if problem == "no such file" else problem
+                    problems.append(f"{paths.root / rel}: listed in {paths.eval_list} but {problem}")
             class_map = paths.class_maps / f"{Path(left).stem}.png" if paths.class_maps else None
-            if class_map and not class_map.is_file():
-                problems.append(f"{class_map}: no class map for {left} (data.folder.class_maps)")
+            if class_map and (problem := file_problem(class_map, "class map")) is not None:
+                problem = "no class map" if problem == "no such class map" else problem
+                problems.append(f"{class_map}: {problem} for {left} (data.folder.class_maps)")
         try:
             train, excluded = build_train_pairs(paths)
             report["train_pairs"], report["eval_frames_excluded"] = len(train), excluded

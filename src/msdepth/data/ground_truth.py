@@ -24,7 +24,7 @@ from msdepth.data.imagefile import MAX_IMAGE_PIXELS, check_pixel_limit
 from msdepth.data.pfm import read_pfm
 from msdepth.errors import DataError
 from msdepth.geometry.depth import disparity_to_depth
-from msdepth.io import read_npy_file
+from msdepth.readers import read_npy_file
 
 # The index's ``gt_kind`` column: what its ``gt`` file holds.
 GT_KINDS = {
@@ -55,7 +55,7 @@ def _disparity_depth(disp: np.ndarray, path: str | os.PathLike, focal: float, ba
 
 
 def _read_npy(path: str | os.PathLike) -> np.ndarray:
-    """A 2-D numeric GT array from a ``.npy`` file: read by :func:`msdepth.io.read_npy_file` (a
+    """A 2-D numeric GT array from a ``.npy`` file: read by :func:`msdepth.readers.read_npy_file` (a
     regular file of at most :data:`MAX_NPY_BYTES`, its header checked against its size before the
     data is read), then held to the image pixel limit, as each value becomes a float32 depth."""
     values = read_npy_file(path, ".npy", MAX_NPY_BYTES)

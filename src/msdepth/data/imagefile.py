@@ -35,7 +35,7 @@ import cv2
 import numpy as np
 
 from msdepth.errors import DataError, PixelLimitError
-from msdepth.io import open_regular
+from msdepth.readers import open_regular
 
 # 120 million pixels: a 108-megapixel phone photo (12,000 x 9,000) fits; predict on one peaks at
 # about 4.3 GiB (measured, docs/user-guide.md "Security"). Raise it with read_image(max_pixels=...)
@@ -429,7 +429,7 @@ def batches_by_pixels(
 
 def is_png(path: str | os.PathLike) -> bool:
     """Whether a file starts with PNG's signature (8 bytes read); a DataError line names a file that
-    is not a regular one (:func:`msdepth.io.open_regular`: a FIFO put in its place would block a
+    is not a regular one (:func:`msdepth.readers.open_regular`: a FIFO put in its place would block a
     plain open forever)."""
     with open_regular(path, "image", allow_empty=True) as file:
         return file.read(len(_PNG_MAGIC)) == _PNG_MAGIC

@@ -20,7 +20,8 @@ import pandas as pd
 from msdepth.data import imagefile
 from msdepth.data.imagefile import MAX_IMAGE_PIXELS
 from msdepth.errors import DataError
-from msdepth.io import atomic_path, read_bounded, write_png, write_text
+from msdepth.io import atomic_path, write_png, write_text
+from msdepth.readers import read_bounded
 
 # Monodepth's width -> focal table (px) for the four KITTI raw image widths, and its baseline (m).
 WIDTH_TO_FOCAL: dict[int, float] = {1242: 721.5377, 1241: 718.856, 1224: 707.0493, 1238: 718.3351}
@@ -31,7 +32,7 @@ ROI_COLUMNS = ("image", "class", "x0", "y0", "x1", "y1")
 
 PathLike = str | os.PathLike
 
-# What each text or binary reader here reads at most (:func:`msdepth.io.read_bounded`), far above
+# What each text or binary reader here reads at most (:func:`msdepth.readers.read_bounded`), far above
 # KITTI's own files: a calibration file is ~5 KB (a 600 MB one took 1.5 GB to refuse), a Velodyne
 # scan ~2 MB (about 120,000 points; the bound is 2 million), a split list ~3 MB (the bound: a
 # million lines of 64 bytes, data.synthetic's most frames), an ROI CSV ~30 bytes a box (the bound:
@@ -59,17 +60,61 @@ def _decode(
         raise DataError(f"{path}: {what}: cannot read it ({exc.strerror or exc})") from None
 
 
+_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+_PNG_PALETTE = 3  # IHDR colour type of an indexed-colour PNG
+# What a file named .png may really be, by its first bytes: each named in the refusal.
+_OTHER_FORMATS = (
+    (b"P5", "a PGM"),
+    (b"P2", "a PGM"),
+    (b"P6", "a PPM"),
+    (b"\xff\xd8", "a JPEG"),
+    (b"BM", "a BMP"),
+)
+
+
+def _decode_png(path: PathLike, what: str) -> tuple[np.ndarray, int, int]:
+    """(pixels, bit depth, colour type) of the PNG ``path`` as :func:`_decode` reads it: a DataError
+    naming the file unless its bytes are a PNG (a PGM named ``.png`` decodes as well, and was taken
+    for KITTI GT). Below 8 bits OpenCV scales grey samples to 8 bits (a 1-bit 1 reads 255)."""
+    path = Path(path)
+    if not os.path.lexists(path):
+        raise DataError(f"{path}: no such {what} file")
+    try:
+        data = imagefile.read_file(path, MAX_IMAGE_PIXELS)
+    except DataError as exc:
+        raise type(exc)(f"{path}: {what}: {exc}") from None
+    except OSError as exc:
+        raise DataError(f"{path}: {what}: cannot read it ({exc.strerror or exc})") from None
+    if not data.startswith(_PNG_SIGNATURE):
+        found = next((name for magic, name in _OTHER_FORMATS if data.startswith(magic)), "another format")
+        raise DataError(f"{path}: {what}: not a PNG (its bytes are {found}); {what}s are PNG files")
+    try:
+        img = imagefile.decode(data, cv2.IMREAD_UNCHANGED, MAX_IMAGE_PIXELS)
+    except DataError as exc:
+        raise type(exc)(f"{path}: {what}: {exc}") from None
+    return img, data[24], data[25]  # IHDR: bit depth, colour type (read_file checked IHDR comes first)
+
+
 def _decode_as(path: PathLike, what: str, dtype: type, channels: int) -> np.ndarray:
-    """:func:`_decode`, then a DataError unless the pixels are ``dtype`` with ``channels`` channels."""
-    img = _decode(path, what)
+    """:func:`_decode_png`, then a DataError unless the pixels are ``dtype`` with ``channels``
+    channels (a palette PNG is called one)."""
+    img, _, color_type = _decode_png(path, what)
     found = 1 if img.ndim == 2 else img.shape[2]
-    if img.dtype != dtype or found != channels or (channels == 1 and img.ndim != 2):
+    if (
+        img.dtype != dtype
+        or found != channels
+        or (channels == 1 and img.ndim != 2)
+        or color_type == _PNG_PALETTE
+    ):
         bits = 8 * np.dtype(dtype).itemsize
         layout = "single-channel" if channels == 1 else f"{channels}-channel"
         article = "an" if bits == 8 else "a"
-        raise DataError(
-            f"{path}: expected {article} {bits}-bit {layout} {what}, got {img.dtype} with {found} channel(s)"
+        got = (
+            "a palette PNG (colours, not values)"
+            if color_type == _PNG_PALETTE
+            else f"{img.dtype} with {found} channel(s)"
         )
+        raise DataError(f"{path}: expected {article} {bits}-bit {layout} {what}, got {got}")
     return img
 
 
@@ -139,15 +184,20 @@ def read_label_map(path: PathLike) -> np.ndarray:
     """Read a PNG of integer labels, 8- or 16-bit with one channel (a stereo folder's class map,
     :func:`msdepth.data.ground_truth.read_label_class_map`). Any other format is refused: a JPEG's
     compression changes labels at every edge."""
-    img = _decode(path, "class map")
-    if not imagefile.is_png(path):
-        raise DataError(f"{path}: class map: not a PNG (labels must be stored losslessly: a PNG of integers)")
+    img, depth, color_type = _decode_png(path, "class map")
+    if color_type == _PNG_PALETTE:
+        raise DataError(
+            f"{path}: expected an 8- or 16-bit single-channel class map (integer labels), got a palette "
+            "PNG (colours, not labels): save the labels as a greyscale PNG"
+        )
     if img.ndim != 2 or img.dtype not in (np.uint8, np.uint16):
         found = 1 if img.ndim == 2 else img.shape[2]
         raise DataError(
             f"{path}: expected an 8- or 16-bit single-channel class map (integer labels), "
             f"got {img.dtype} with {found} channel(s)"
         )
+    if depth < 8:  # OpenCV scaled the 1-, 2- or 4-bit labels to 8 bits: back to the labels stored
+        img = img // np.uint8(255 // (2**depth - 1))
     return img
 
 
@@ -157,7 +207,7 @@ def read_calib(path: PathLike) -> dict[str, np.ndarray]:
     Reads both the raw-data ``calib_cam_to_cam.txt`` (``P_rect_02``, ``S_rect_02``, ...) and the
     object-benchmark ``calib.txt`` (``P2``, ``P3``, ...). Non-numeric entries such as
     ``calib_time`` are skipped. Matrices stay flat (row-major); reshape as needed. Only a regular
-    file of at most :data:`MAX_CALIB_BYTES` is read (:func:`msdepth.io.read_bounded`).
+    file of at most :data:`MAX_CALIB_BYTES` is read (:func:`msdepth.readers.read_bounded`).
     """
     path = Path(path)
     calib: dict[str, np.ndarray] = {}
@@ -230,7 +280,7 @@ def read_velodyne(path: PathLike) -> np.ndarray:
 
     x points forward, y left, z up (metres). A size that is not a whole number of 16-byte points
     means a truncated or foreign file, which would otherwise shift every later point's fields. Only
-    a regular file of at most :data:`MAX_VELODYNE_BYTES` is read (:func:`msdepth.io.read_bounded`).
+    a regular file of at most :data:`MAX_VELODYNE_BYTES` is read (:func:`msdepth.readers.read_bounded`).
     """
     data = read_bounded(path, "Velodyne scan", MAX_VELODYNE_BYTES, allow_empty=True)  # a scan of no points
     if len(data) % 16:
@@ -468,7 +518,7 @@ def read_rois(path: PathLike) -> pd.DataFrame:
     """Read ROI boxes: columns image, class, x0, y0, x1, y1 (pixels; x1/y1 exclusive).
 
     Only a regular, non-empty file of at most :data:`MAX_ROI_BYTES` is read
-    (:func:`msdepth.io.read_bounded`): pandas given the path would block on a FIFO and read any size.
+    (:func:`msdepth.readers.read_bounded`): pandas given the path would block on a FIFO and read any size.
     """
     path = Path(path)
     data = read_bounded(path, "ROI", MAX_ROI_BYTES)

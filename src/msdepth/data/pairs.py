@@ -19,7 +19,8 @@ from torch.utils.data import Dataset
 
 from msdepth.data import kitti
 from msdepth.errors import DataError
-from msdepth.io import MAX_ARRAY_BYTES, atomic_path, open_regular, read_npy_header
+from msdepth.io import atomic_path
+from msdepth.readers import MAX_ARRAY_BYTES, open_regular, read_npy_header
 
 
 @dataclass(frozen=True)
@@ -171,7 +172,7 @@ def build_pair_cache(
 def load_pair_cache(path: str | os.PathLike, num_pairs: int, height: int, width: int) -> np.ndarray:
     """Memory-map a cache written by :func:`build_pair_cache`, checking it fits the index and size.
 
-    One open (:func:`msdepth.io.open_regular`: a FIFO or a folder is one line, never a hang); the
+    One open (:func:`msdepth.readers.open_regular`: a FIFO or a folder is one line, never a hang); the
     header is checked against the file's size before the map is made."""
     expected = (num_pairs, 2, height, width, 3)
     with open_regular(path, "pair cache", MAX_ARRAY_BYTES) as file:

@@ -20,7 +20,8 @@ import numpy as np
 
 from msdepth.data.imagefile import MAX_IMAGE_PIXELS
 from msdepth.errors import DataError
-from msdepth.io import atomic_path, open_regular
+from msdepth.io import atomic_path
+from msdepth.readers import open_regular
 
 # Three whitespace-separated header fields after the magic; "\r\n" (Windows line ends) or one other
 # whitespace byte ends the scale, then the samples start (a binary sample may itself look like
@@ -68,7 +69,7 @@ def read_pfm(path: str | os.PathLike) -> np.ndarray:
     with trailing bytes), is a DataError naming it; "\\r\\n" may end the header.
 
     Bounded: only a regular file of at most :data:`MAX_PFM_BYTES` is opened
-    (:func:`msdepth.io.open_regular`), its header is read first, and the body only once the file's
+    (:func:`msdepth.readers.open_regular`), its header is read first, and the body only once the file's
     size is exactly what the header declares (a 1 GiB sparse PFM took 4.1 GB to refuse)."""
     path = Path(path)
     try:

@@ -23,7 +23,8 @@ from pathlib import Path
 
 from msdepth.download.sizes import file_size, human_size
 from msdepth.errors import DataError
-from msdepth.io import read_json_file, write_json
+from msdepth.io import write_json
+from msdepth.readers import read_json_file
 
 JPEG_QUALITY = 92  # Monodepth's conversion (ImageMagick -quality 92, 4:2:0 chroma like OpenCV's)
 # Declared uncompressed bytes per archive byte above which an archive is refused as a zip bomb.

@@ -13,13 +13,13 @@ from dataclasses import dataclass
 from pathlib import Path, PurePosixPath
 
 from msdepth.errors import DataError
-from msdepth.io import read_bounded
+from msdepth.readers import read_bounded
 
 # The host every entry of the shipped list starts with; entries are kept relative to it so that a
 # mirror (or a test server) can be used by passing another base URL to fetch_all.
 KITTI_BASE_URL = "https://s3.eu-central-1.amazonaws.com/avg-kitti/"
 
-# What the list readers read at most (msdepth.io.read_bounded: a FIFO would block a plain read
+# What the list readers read at most (msdepth.readers.read_bounded: a FIFO would block a plain read
 # forever, a huge file would be read whole). The archive list: the shipped one is 66 URLs, 7 KB;
 # the bound holds ~10,000 of them. The split lists: msdepth.data.kitti.MAX_LIST_BYTES, which the
 # index stage reads the same lists with (test_reader_bounds holds the two equal); not imported from
@@ -30,7 +30,7 @@ MAX_SPLIT_LIST_BYTES = 64 << 20
 
 def _list_text(path: Path, kind: str, max_bytes: int) -> str:
     """The UTF-8 text of the list file ``path`` (an empty file is ""), read through
-    :func:`msdepth.io.read_bounded`; each refusal one DataError line naming the file."""
+    :func:`msdepth.readers.read_bounded`; each refusal one DataError line naming the file."""
     try:
         return read_bounded(path, kind, max_bytes, allow_empty=True).decode("utf-8")
     except UnicodeDecodeError as exc:

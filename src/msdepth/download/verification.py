@@ -14,7 +14,8 @@ from typing import Any
 from msdepth.download.extraction import check_members
 from msdepth.download.sizes import CHUNK_SIZE, file_size
 from msdepth.errors import DataError
-from msdepth.io import file_sha256, read_json_file, write_json
+from msdepth.io import write_json
+from msdepth.readers import file_sha256, read_json_file
 
 MANIFEST_NAME = "manifest.json"
 

@@ -33,7 +33,7 @@ from msdepth.data.eval_index import read_eval_index, training_gt_path, velodyne_
 from msdepth.data.pairs import load_pair_list
 from msdepth.evaluation.results import run_suite, score_set
 from msdepth.evaluation.suites import depth_maps, load_frames
-from msdepth.io import read_json_file, write_json, write_text
+from msdepth.io import write_json, write_text
 from msdepth.pipeline.paths import (
     HEADLINE,
     METRICS,
@@ -43,6 +43,7 @@ from msdepth.pipeline.paths import (
     set_metrics_dir,
     suite_path,
 )
+from msdepth.readers import read_json_file
 
 log = logging.getLogger("msdepth")
 

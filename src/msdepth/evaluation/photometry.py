@@ -38,8 +38,8 @@ from msdepth.data.ground_truth import read_gt_depth
 from msdepth.data.pairs import check_same_size
 from msdepth.errors import DataError
 from msdepth.geometry.warp import warp
-from msdepth.io import read_table_file
 from msdepth.losses.ssim import ssim
+from msdepth.readers import read_table_file
 
 _LUMA = np.array([0.299, 0.587, 0.114], np.float32)  # ITU-R BT.601
 _IMMERKAER = np.array([[1, -2, 1], [-2, 4, -2], [1, -2, 1]], np.float32)

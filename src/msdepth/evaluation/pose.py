@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING, Sequence
 import numpy as np
 
 from msdepth.errors import DataError
-from msdepth.io import read_bounded, read_json_file
+from msdepth.readers import read_bounded, read_json_file
 
 if TYPE_CHECKING:
     from msdepth.config.params import Params
@@ -41,7 +41,7 @@ def _read_poses(path: str | os.PathLike) -> np.ndarray:
     """(N, 4, 4) camera-to-world poses of a KITTI odometry poses file; a DataError names a bad file.
 
     Only a regular, non-empty file of at most :data:`MAX_POSES_BYTES` is read
-    (:func:`msdepth.io.read_bounded`), and only ASCII text (numbers, ``#`` comments) is parsed.
+    (:func:`msdepth.readers.read_bounded`), and only ASCII text (numbers, ``#`` comments) is parsed.
     """
     data = read_bounded(path, "poses", MAX_POSES_BYTES)
     if not data.isascii():  # a pose file is numbers: anything else is another file (or garbage)

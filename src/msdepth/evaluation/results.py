@@ -27,7 +27,7 @@ from msdepth.evaluation.suites import (
     no_rois,
     read_depth_maps,
 )
-from msdepth.io import atomic_path, read_npy_file, save_npz, write_json
+from msdepth.io import atomic_path, save_npz, write_json
 from msdepth.pipeline.paths import (
     HEADLINE,
     METRICS,
@@ -36,6 +36,7 @@ from msdepth.pipeline.paths import (
     set_metrics_dir,
     suite_path,
 )
+from msdepth.readers import read_npy_file
 
 SUITES = {"full": evaluate_full, "roi": evaluate_roi, "gradients": evaluate_gradients}  # SUITE_NAMES' order
 

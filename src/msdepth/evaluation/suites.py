@@ -39,8 +39,8 @@ from msdepth.geometry.depth import (
     pixel_disparity,
     predicted_depth,
 )
-from msdepth.io import read_npz_file
 from msdepth.pipeline.paths import ROIS
+from msdepth.readers import read_npz_file
 
 GRADIENTS = ("sobel_x", "sobel_y", "laplacian")
 # The summary key of an ROI or gradient suite run without any ROI (a folder without

@@ -38,7 +38,6 @@ import pandas as pd
 from msdepth.config.checks import has_per_pixel_cost
 from msdepth.config.params import Params
 from msdepth.errors import ConfigError, DataError, MsdepthError
-from msdepth.io import read_json_file, read_npy_file
 from msdepth.optimum.frames import checked_matcher
 from msdepth.pipeline.paths import (
     CHECKPOINTS,
@@ -46,6 +45,7 @@ from msdepth.pipeline.paths import (
     match_run,
     optimum_run,
 )
+from msdepth.readers import read_json_file, read_npy_file
 
 log = logging.getLogger("msdepth")
 
@@ -66,7 +66,7 @@ def _scratch_key(params: Params, instrument: str, variant: str | None, set_index
     """What a scratch folder's frames depend on: the instrument, the ``optimum`` and ``loss`` sections,
     the variant's own section (for SGM and the optimum) and the sha256 of the set's index, as JSON
     reads it back (a resumed run compares it with the folder's :data:`KEY`)."""
-    from msdepth.io import file_sha256
+    from msdepth.readers import file_sha256
 
     key = {
         "instrument": instrument,

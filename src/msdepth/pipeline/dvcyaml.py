@@ -29,8 +29,8 @@ from pathlib import Path
 import yaml
 
 from msdepth.errors import DataError, MsdepthError
-from msdepth.io import read_text_file
 from msdepth.pipeline import fingerprints
+from msdepth.readers import read_text_file
 
 # The entries at the head of a stage's deps that the generator owns: its fingerprint, and source
 # files (what a stage listed before the fingerprints, rewritten to its fingerprint).

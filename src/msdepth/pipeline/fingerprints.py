@@ -37,8 +37,9 @@ import sys
 from pathlib import Path
 
 from msdepth.errors import DataError, MsdepthError
-from msdepth.io import read_text_file, remove_stale_temps, write_text
+from msdepth.io import remove_stale_temps, write_text
 from msdepth.pipeline.paths import FINGERPRINTS
+from msdepth.readers import read_text_file
 
 PACKAGE = "msdepth"
 STAGES = Path("stages")

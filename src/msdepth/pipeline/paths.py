@@ -21,7 +21,7 @@ from typing import Annotated, Callable
 
 from msdepth.config.params import Params, load_params
 from msdepth.errors import ConfigError, MsdepthError, unexpected_error
-from msdepth.io import read_text_file
+from msdepth.readers import read_text_file
 
 log = logging.getLogger("msdepth")
 

@@ -15,7 +15,8 @@ import re
 from pathlib import Path
 
 from msdepth.errors import DataError
-from msdepth.io import file_sha256, read_json_file, read_text_file, write_text
+from msdepth.io import write_text
+from msdepth.readers import file_sha256, read_json_file, read_text_file
 
 SHA256 = re.compile(r"[0-9a-f]{64}")
 

@@ -17,8 +17,8 @@ from msdepth.config.variants import configs as variant_configs
 from msdepth.errors import DataError
 from msdepth.evaluation.metrics import HIGHER_IS_BETTER, METRICS, STEREO_METRICS
 from msdepth.evaluation.suites import GRADIENTS, NO_ROIS
-from msdepth.io import read_json_file, read_table_file
 from msdepth.pipeline.paths import suite_path, train_summary_path
+from msdepth.readers import read_json_file, read_table_file
 from msdepth.reporting.stats import paired_table, seed_bootstrap
 
 SUITES = ("full", "roi", "gradients")

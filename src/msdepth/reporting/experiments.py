@@ -6,6 +6,11 @@ cannot rename it, so ``dvc exp show`` with the same columns is about 260 charact
 columns are ``<variant> k`` and ``<key> <variant>``. The input is DVC's own JSON: a list of
 revisions (the workspace, then each baseline commit), each with ``data.params`` and ``data.metrics``
 and its ``experiments``, each a named list of ``revs`` of the same shape.
+
+The input's size is bounded while it is read: a file of more JSON values than DVC writes in its
+bytes is refused before it is parsed, the table's cells are counted before any row is built, and
+labels and values are cut to :data:`MAX_CELL_CHARS`. A workspace row whose params differ from those
+``dvc.lock`` records is marked :data:`STALE` (:func:`mark_stale`).
 """
 
 from __future__ import annotations
@@ -17,19 +22,26 @@ import shutil
 import subprocess
 import sys
 from dataclasses import dataclass, field
-from typing import Any, Sequence
+from pathlib import Path
+from typing import Any, Iterator, Sequence
 
-from msdepth.errors import DataError
-from msdepth.io import read_bounded
+from msdepth.errors import DataError, MsdepthError
 from msdepth.pipeline.paths import mean_path
+from msdepth.readers import check_json_density, read_bounded, read_text_file
 
 MAX_JSON_BYTES = 64 << 20  # dvc exp show --json of ten experiments is about 150 KB
+# DVC's JSON spends over 10 bytes on each value: a file averaging under this many bytes per value
+# (20 million "{}" took 6.3 GB) is refused before it is parsed (msdepth.readers.check_json_density).
+MIN_BYTES_PER_VALUE = 6
 DEFAULT_KEYS = ("abs_rel", "windshield")
 PARAMS_FILE = "params.yaml"
 MISSING = "-"
 # Rows x columns of the table: 60,000 rows of 1,000 variants' columns took 2 GB and 26 s, then failed.
 MAX_CELLS = 1_000_000
+MAX_LOCK_BYTES = 64 << 20  # the project's dvc.lock is about 0.3 MB
+MAX_CELL_CHARS = 60  # a longer label or value is cut, so one 3 MB label cannot pad every row
 SOURCE = "dvc exp show --json"
+STALE = " (stale)"
 
 
 @dataclass(frozen=True)
@@ -46,6 +58,7 @@ def _parse_json(data: bytes, source: str) -> list:
     when it is larger than :data:`MAX_JSON_BYTES`, not UTF-8 JSON, or not a list of records."""
     if len(data) > MAX_JSON_BYTES:
         raise DataError(f"{source}: larger than {MAX_JSON_BYTES >> 20} MiB: not dvc exp show --json output")
+    check_json_density(data, source, MIN_BYTES_PER_VALUE)
     try:
         records = json.loads(data.decode("utf-8"))
     except UnicodeDecodeError as exc:
@@ -67,7 +80,7 @@ def _first_sentence(exc: Exception) -> str:
 
 def read_json(path: str | os.PathLike) -> list:
     """The revisions of a saved ``dvc exp show --json`` output: a regular file of at most
-    :data:`MAX_JSON_BYTES` (:func:`msdepth.io.read_bounded`: a FIFO would block the read forever, a
+    :data:`MAX_JSON_BYTES` (:func:`msdepth.readers.read_bounded`: a FIFO would block the read forever, a
     larger file is refused before it is read), parsed by :func:`_parse_json`."""
     return _parse_json(read_bounded(path, "JSON", MAX_JSON_BYTES, allow_empty=True), str(path))
 
@@ -130,16 +143,20 @@ def _text(record: dict, key: str, source: str, where: str) -> str:
     return value
 
 
-def experiments(records: Sequence[dict], source: str = SOURCE) -> list[Experiment]:
+def experiments(
+    records: Sequence[dict], source: str = SOURCE, keys: Sequence[str] = DEFAULT_KEYS
+) -> list[Experiment]:
     """The rows in DVC's order: each top-level revision (``workspace``, a baseline by its branch
-    name, else its short sha), then its experiments' revisions as ``<short sha> [name]``. A name or
-    rev that is not a string is one DataError naming ``source``."""
+    name, else its short sha), then its experiments' revisions as ``<short sha> [name]``, each label
+    cut to :data:`MAX_CELL_CHARS`. One DataError naming ``source`` for a name or rev that is not a
+    string, or, before any row is built, for a table of ``keys`` over :data:`MAX_CELLS` cells."""
+    _check_cells(records, source, keys)
     rows = []
     for number, record in enumerate(records, 1):
         where = f"revision {number}"
         rev = _text(record, "rev", source, where)
         label = _text(record, "name", source, where) or (rev if rev == "workspace" else rev[:7])
-        rows.append(Experiment(label, *_data(record)))
+        rows.append(Experiment(_clipped(label), *_data(record)))
         for experiment in _list(record.get("experiments")):
             if not isinstance(experiment, dict):
                 continue
@@ -149,8 +166,42 @@ def experiments(records: Sequence[dict], source: str = SOURCE) -> list[Experimen
                     continue
                 name = _text(entry, "name", source, f"an experiment of {where}") or group
                 sha = _text(entry, "rev", source, f"an experiment of {where}")[:7]
-                rows.append(Experiment(f"{sha} [{name}]" if name else sha, *_data(entry)))
+                rows.append(Experiment(_clipped(f"{sha} [{name}]" if name else sha), *_data(entry)))
     return rows
+
+
+def _revisions(records: Sequence[dict]) -> Iterator[dict]:
+    """Each revision of ``records`` (a top-level one, then its experiments'), as :func:`experiments`
+    reads them."""
+    for record in records:
+        yield record
+        for experiment in _list(record.get("experiments")):
+            if isinstance(experiment, dict):
+                yield from (e for e in _list(experiment.get("revs")) if isinstance(e, dict))
+
+
+def _check_cells(records: Sequence[dict], source: str, keys: Sequence[str]) -> None:
+    """DataError naming ``source`` when the table of ``records`` would be over :data:`MAX_CELLS`
+    cells: counted from the revisions and their ``variants`` before any row is built."""
+    count, found = 0, {}
+    for revision in _revisions(records):
+        count += 1
+        listed = _data(revision)[0].get("variants")
+        found.update((n, None) for n in (listed if isinstance(listed, list) else []) if isinstance(n, str))
+    _check_size(count, 1 + len(found) * (1 + len(keys)), source)
+
+
+def _check_size(rows: int, columns: int, source: str) -> None:
+    if (rows + 1) * columns > MAX_CELLS:
+        raise DataError(
+            f"{source}: {rows} experiments x {columns} columns is over {MAX_CELLS:,} cells, "
+            "more than a table can show; pass fewer --keys or fewer experiments"
+        )
+
+
+def _clipped(text: str) -> str:
+    """``text`` cut to :data:`MAX_CELL_CHARS` characters, its end marked ``...``."""
+    return text if len(text) <= MAX_CELL_CHARS else text[: MAX_CELL_CHARS - 3] + "..."
 
 
 def variants(rows: Sequence[Experiment]) -> list[str]:
@@ -170,7 +221,7 @@ def cell(value: Any) -> str:
         return MISSING
     if isinstance(value, float):
         return f"{value:.5g}"
-    return str(value)
+    return _clipped(str(value))
 
 
 def lookup(data: dict, key: str) -> Any:
@@ -185,17 +236,16 @@ def lookup(data: dict, key: str) -> Any:
     return node
 
 
-def table(rows: Sequence[Experiment], keys: Sequence[str] = DEFAULT_KEYS) -> list[list[str]]:
+def table(
+    rows: Sequence[Experiment], keys: Sequence[str] = DEFAULT_KEYS, source: str = SOURCE
+) -> list[list[str]]:
     """The header and one line of cells per row: experiment, ``<variant> k`` per variant, then
-    ``<key> <variant>`` per key and variant (the mean from ``metrics/headline/mean/<variant>.json``)."""
+    ``<key> <variant>`` per key and variant (the mean from ``metrics/headline/mean/<variant>.json``);
+    a DataError naming ``source`` over :data:`MAX_CELLS` cells."""
     names = variants(rows)
     files = {v: mean_path(v).as_posix() for v in names}
-    header = ["Experiment", *(f"{v} k" for v in names), *(f"{k} {v}" for k in keys for v in names)]
-    if (len(rows) + 1) * len(header) > MAX_CELLS:
-        raise DataError(
-            f"{SOURCE}: {len(rows)} experiments x {len(header)} columns is over {MAX_CELLS:,} cells, "
-            "more than a table can show; pass fewer --keys or fewer experiments"
-        )
+    header = ["Experiment", *(f"{v} k" for v in names), *(_clipped(f"{k} {v}") for k in keys for v in names)]
+    _check_size(len(rows), len(header), source)
     lines = [header]
     for row in rows:
         kernels = [
@@ -205,6 +255,61 @@ def table(rows: Sequence[Experiment], keys: Sequence[str] = DEFAULT_KEYS) -> lis
         means = [cell(lookup(row.metrics.get(files[v], {}), k)) for k in keys for v in names]
         lines.append([row.label, *kernels, *means])
     return lines
+
+
+def unknown_keys(rows: Sequence[Experiment], keys: Sequence[str]) -> list[str]:
+    """The ``keys`` found in no row's mean file of any variant (a typo, or a key the mean files do
+    not have, such as ``roi.road``): each would be a column of ``-`` only."""
+    files = [mean_path(v).as_posix() for v in variants(rows)]
+    found = {k for row in rows for f in files for k in keys if lookup(row.metrics.get(f, {}), k) is not None}
+    return [k for k in keys if k not in found]
+
+
+def mean_keys(rows: Sequence[Experiment]) -> list[str]:
+    """The top-level keys of the rows' mean files, in order of first use (for a warning's hint)."""
+    files = [mean_path(v).as_posix() for v in variants(rows)]
+    return list(dict.fromkeys(k for row in rows for f in files for k in row.metrics.get(f, {})))
+
+
+def stale_params(row: Experiment, lock: Any) -> list[str]:
+    """The params (dotted keys of ``params.yaml``) whose value in ``row`` differs from the value a
+    stage of ``lock`` (dvc.lock's data) last ran with: the row's metrics are older than its params
+    (an interrupted ``dvc exp run -S``, an edit not yet reproduced). Empty where ``lock`` has none."""
+    stages = _mapping(_mapping(lock).get("stages"))
+    differing: dict[str, None] = {}
+    for stage in stages.values():
+        locked = _mapping(_mapping(_mapping(stage).get("params")).get(PARAMS_FILE))
+        for key, value in locked.items():
+            current = lookup(row.params, str(key))  # absent: a trimmed record, not a changed param
+            if current is not None and current != value:
+                differing.setdefault(str(key))
+    return list(differing)
+
+
+def mark_stale(rows: list[Experiment], lock: Any) -> list[str]:
+    """Mark the ``workspace`` row :data:`STALE` when its params differ from ``lock``'s
+    (:func:`stale_params`), in place; the differing params (empty when it is not stale)."""
+    for number, row in enumerate(rows):
+        if row.label == "workspace":
+            differing = stale_params(row, lock)
+            if differing:
+                rows[number] = Experiment(row.label + STALE, row.params, row.metrics)
+            return differing
+    return []
+
+
+def read_lock(path: str | os.PathLike) -> Any:
+    """The data of the ``dvc.lock`` at ``path`` (None where there is none), read as params files are
+    (:func:`msdepth.config.params_yaml.read_data_file`'s bounds); one DataError naming it otherwise."""
+    from msdepth.config.params_yaml import parse
+
+    if not Path(path).is_file():
+        return None
+    text = read_text_file(path, "DVC lock", MAX_LOCK_BYTES)
+    try:
+        return parse(text)
+    except MsdepthError as exc:
+        raise DataError(f"{path}: not a readable dvc.lock ({' '.join(str(exc).split())})") from None
 
 
 def _printable(text: str) -> str:

@@ -59,7 +59,7 @@ from msdepth.data.eval_index import read_eval_index
 from msdepth.errors import DataError
 from msdepth.evaluation.suites import Frame, evaluate_roi, gradient_maps, load_frames, read_depth_maps
 from msdepth.geometry.depth import clamp_depth, depth_to_disparity, pixel_disparity
-from msdepth.io import atomic_path, read_json_file, read_json_object, read_npy_file, read_table_file
+from msdepth.io import atomic_path
 from msdepth.pipeline.paths import (
     COMPARE_JSON,
     COST_CURVES,
@@ -75,6 +75,7 @@ from msdepth.pipeline.paths import (
     train_plots_dir,
     variant_runs,
 )
+from msdepth.readers import read_json_file, read_json_object, read_npy_file, read_table_file
 from msdepth.reporting.verdict import (
     KINDS,
     VERDICT_FIGURE,

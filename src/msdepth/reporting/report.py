@@ -22,8 +22,9 @@ from typing import Any, Sequence
 
 from msdepth.errors import DataError, MsdepthError
 from msdepth.evaluation.metrics import HIGHER_IS_BETTER
-from msdepth.io import read_json_object, read_text_file, write_text
+from msdepth.io import write_text
 from msdepth.pipeline.paths import COMPARE_JSON, FIGURES_DIR, README, RESULTS, run_name, train_summary_path
+from msdepth.readers import read_json_object, read_text_file
 from msdepth.reporting.comparison import (
     MIN_SEEDS_FOR_MARKS,
     SET_TITLES,

@@ -27,7 +27,7 @@ from msdepth.config.params import Params, TrainConfig, fingerprint_fields, speed
 from msdepth.data.pairs import StereoPairs, training_data_sha256
 from msdepth.data.sequences import SequenceFrames, SequenceSample
 from msdepth.errors import MsdepthError
-from msdepth.io import file_sha256, write_json
+from msdepth.io import write_json
 from msdepth.losses.monocular import MonocularLoss, build_monocular_loss, monocular_losses
 from msdepth.losses.monodepth import MonodepthLoss
 from msdepth.losses.objective import build_loss
@@ -43,6 +43,7 @@ from msdepth.networks.pose import PoseNet
 from msdepth.networks.resnet import load_pretrained
 from msdepth.networks.resnet_depth import ResNetMonodepth
 from msdepth.networks.serialization import load_weights_file, save_weights_file
+from msdepth.readers import file_sha256
 from msdepth.training import distributed
 from msdepth.training.distributed import Context, GlobalBatchSampler
 from msdepth.training.pairing import pairing_record
