@@ -153,7 +153,10 @@ def test_a_marked_difference_is_a_verdict_an_unmarked_one_is_not(tmp_path: Path)
     assert "**Verdict**: MS-SSIM (k=3) has an abs_rel 0.020 lower than SSIM's" in text
     assert "[−0.030, −0.010] over images and seeds, which excludes 0 (marked `*`" in text
     assert "the constant on glass" in text and "car" not in text.split("On the ROIs")[1]
-    assert "The committed run: KITTI 2015 layout, cap 80 m, 10 frames, 7 ROIs, 3 seeds per loss." in text
+    assert (
+        "The committed run: rendered frames in KITTI 2015's layout, cap 80 m, 10 frames, 7 ROIs, "
+        "3 seeds per loss." in text
+    )
 
 
 def test_with_one_seed_nothing_is_marked(tmp_path: Path):
@@ -239,7 +242,10 @@ def test_write_then_check_and_a_hand_edit_is_found(tmp_path: Path, capsys):
     readme = (root / "README.md").read_text()
     assert readme.endswith(f"{END}\n\nhand-written\n") and "| SSIM | 0.200 ± 0.004 |" in readme
     answer = " ".join(readme[readme.index(ANSWER_BEGIN) : readme.index(ANSWER_END)].split())
-    assert "**Answer so far** ([docs/results.md](docs/results.md)): **Verdict**: MS-SSIM (k=3)" in answer
+    assert (
+        "**Answer so far, on the rendered frames** ([docs/results.md](docs/results.md)): **Verdict**: MS-SSIM"
+        in answer
+    )
     (root / "README.md").write_text(readme.replace("0.200 ± 0.004", "0.199 ± 0.004"))
     capsys.readouterr()
     assert main(["--root", str(root), "--check"]) == 1
@@ -311,10 +317,23 @@ def test_the_verdict_table_goes_into_the_readme_and_the_sentences_into_the_page(
     assert "| windshield | −0.040 [−0.130, +0.060], n = 66 ROIs × 0 seeds a side |" in block
     answer = " ".join(_readme_answer(r).split())
     assert answer == (
-        f"{ANSWER_BEGIN} **Answer so far** ([docs/results.md](docs/results.md)): MS-SSIM's abs_rel against "
-        "SSIM's: stereo networks lower on 1 of 1 class, no interval excluding 0; loss's own optimum, w10 "
-        f"lower on 1 of 1 class, 1 interval excluding 0. {ANSWER_END}"
+        f"{ANSWER_BEGIN} **Answer so far, on the rendered frames** ([docs/results.md](docs/results.md)): "
+        "MS-SSIM's abs_rel against SSIM's: stereo networks lower on 1 of 1 class, no interval excluding 0; "
+        "loss's own optimum, w10 lower on 1 of 1 class, 1 interval excluding 0. Real KITTI frames are not "
+        f"pooled with these: [their own page](studies/results/real_sets/README.md). {ANSWER_END}"
     )
+    flipped = copy.deepcopy(data)
+    flipped["verdict"] = verdict_data(
+        [*rows, Row("optimum w30", "windshield", 0.02, 0.01, 0.03, 66, "m", "optimum")],
+        80.0,
+        0.95,
+        "MS-SSIM",
+        "SSIM",
+    )
+    flipped["data_source"] = "kitti"
+    answer = " ".join(_readme_answer(load_results(_project(tmp_path / "flipped", flipped))).split())
+    assert "**Answer so far, on the real KITTI frames**" in answer and "their own page" not in answer
+    assert "The sign depends on the optimum's smoothness weight on windshield." in answer
     page = " ".join(_results_block(r).split())
     assert "## What the study finds Is MS-SSIM's depth error (abs_rel) lower than SSIM's?" in page
     assert "Per class, every instrument ([verdict.png](../plots/figures/verdict.png)" in page

@@ -28,6 +28,7 @@ import cv2
 import numpy as np
 
 from msdepth.config.params import CameraConfig
+from msdepth.data.imagefile import decode
 
 _LUMA = np.array([0.299, 0.587, 0.114], np.float32)
 # Auto-exposure stays within what a camera's shutter and gain can do for a scene.
@@ -85,7 +86,7 @@ def _encoded(image: np.ndarray, quality: int) -> np.ndarray:
     ok, data = cv2.imencode(".jpg", image[..., ::-1], [cv2.IMWRITE_JPEG_QUALITY, int(quality)])
     if not ok:  # OpenCV without a JPEG codec: a build problem, not the user's input
         raise RuntimeError("OpenCV could not encode a JPEG")
-    return cv2.imdecode(data, cv2.IMREAD_COLOR)[..., ::-1].copy()
+    return decode(data.tobytes(), cv2.IMREAD_COLOR)[..., ::-1].copy()
 
 
 def record(

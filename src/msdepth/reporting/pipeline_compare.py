@@ -108,6 +108,7 @@ def write_comparison(params: Params) -> None:
     )
     result, md = build_comparison(comparison)
     result["verdict"] = comparison_verdict(params, groups, compared, pairing)
+    result["data_source"] = params.data.source  # whose frames the rows score: rendered or real
     md += "\n" + "\n".join(verdict_lines(result["verdict"]))
     for name in params.eval.extra_sets:
         result.setdefault("sets", {})[name], section = _compare_set(params, name, comparison.settings_label)

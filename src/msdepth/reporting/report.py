@@ -38,8 +38,13 @@ from msdepth.reporting.verdict import (
     answer_sentence,
     class_order,
     short_answer,
+    sign_caveat,
     summary_lines,
 )
+
+# Whose frames the committed rows score, by data.source (compare.json's ``data_source``).
+FRAMES = {"synthetic": "rendered", "kitti": "real KITTI", "folder": "your stereo folder's"}
+REAL_SAMPLES = "studies/results/real_sets/README.md"  # the shared real KITTI frames, a study apart
 
 COMMAND = "python -m msdepth.reporting.report"
 BEGIN = (
@@ -216,7 +221,7 @@ def _headline_table(r: Results) -> str:
 
 def _headline_caption(r: Results) -> str:
     """What the table shows: the cap, how many frames and ROIs, how variants are averaged."""
-    parts = [f"KITTI 2015 layout, cap {r.cap_m} m"]
+    parts = [f"{_frames_words(r)} frames in KITTI 2015's layout, cap {r.cap_m} m"]
     if (frames := r.frames()) is not None:
         parts.append(f"{frames} frames")
     if r.rois():
@@ -353,8 +358,19 @@ def _readme_answer(r: Results) -> str:
     without a verdict, the full-image difference)."""
     block = r.get("verdict", default=None) or {}
     text = short_answer(block) if block.get("summary") else verdict(r)
+    if block.get("summary") and (caveat := sign_caveat(block)):
+        text += " " + caveat
     link = "[docs/results.md](docs/results.md)"
-    return "\n".join([ANSWER_BEGIN, wrap(f"**Answer so far** ({link}): {text}"), ANSWER_END])
+    frames = _frames_words(r)
+    real = f" Real KITTI frames are not pooled with these: [their own page]({REAL_SAMPLES})."
+    head = f"**Answer so far, on the {frames} frames** ({link}): {text}"
+    return "\n".join([ANSWER_BEGIN, wrap(head + (real if frames == FRAMES["synthetic"] else "")), ANSWER_END])
+
+
+def _frames_words(r: Results) -> str:
+    """Whose frames the committed rows score: "rendered" (the synthetic set), "real KITTI", ..."""
+    source = r.get("data_source", default="synthetic")
+    return FRAMES.get(source, source)
 
 
 def _readme_block(r: Results) -> str:

@@ -554,6 +554,33 @@ def answer_sentence(data: Mapping) -> str:
     return "; ".join(parts) + "." if parts else "No instrument compares two variants here."
 
 
+def sign_caveat(data: Mapping) -> str:
+    """One sentence naming the classes whose sign depends on the instrument (the summary table's
+    columns disagree) or on the optimum's smoothness weight (its rows ``optimum w<W>`` disagree);
+    "" where every sign agrees.
+
+    Example:
+        >>> rows = [Row("optimum w3", "car", -0.02, -0.03, -0.01, 91, "m", "optimum"),
+        ...         Row("optimum w30", "car", 0.01, 0.0, 0.02, 91, "m", "optimum"),
+        ...         Row("stereo networks", "car", -0.01, -0.03, 0.01, 91, "m", "network")]
+        >>> sign_caveat(verdict_data(rows, 80.0, 0.95, "MS-SSIM", "SSIM"))
+        "The sign depends on the optimum's smoothness weight on car."
+    """
+    table = verdict_table(rows_of(data), columns_of(data), data["classes"])
+    by_instrument = [cls for cls, cells in table if len({c.diff < 0 for c in cells if c is not None}) > 1]
+    weights: dict[str, set[bool]] = {}
+    for r in rows_of(data):
+        if r.kind == "optimum" and r.instrument.startswith("optimum w") and " " not in r.instrument[9:]:
+            weights.setdefault(r.cls, set()).add(r.diff < 0)
+    by_weight = [cls for cls in data["classes"] if len(weights.get(cls, ())) > 1]
+    parts = []
+    if by_instrument:
+        parts.append(f"on the instrument on {', '.join(by_instrument)}")
+    if by_weight:
+        parts.append(f"on the optimum's smoothness weight on {', '.join(by_weight)}")
+    return f"The sign depends {'; and '.join(parts)}." if parts else ""
+
+
 def short_answer(data: Mapping) -> str:
     """:func:`answer_sentence` in a line: per column, on how many classes the variant's error is
     lower and on how many its interval excludes 0.
