@@ -426,25 +426,3 @@ def test_the_roi_suite_is_drawn_by_frame() -> None:
     a, b = tables["roi"]["msssim/seed0"]["abs_rel"], tables["roi"]["ssim/seed0"]["abs_rel"]
     by_frame = seed_bootstrap(a.to_numpy()[None], b.to_numpy()[None], 200, clusters=roi["image"].to_numpy())
     assert (roi_d["low"], roi_d["high"]) == (by_frame.low, by_frame.high)
-
-
-def test_a_revisions_cell_draws_rois_by_frame_and_frames_alone() -> None:
-    """The revision studies' paired cell: ROIs drawn with their frame, as the comparison draws them;
-    frames drawn one by one."""
-    from msdepth.reporting.comparison import difference_cell
-    from msdepth.reporting.revisions import paired_cell
-
-    rng = np.random.default_rng(11)
-    roi = pd.DataFrame(
-        {"roi": range(12), "image": np.repeat(list("abcdef"), 2), "abs_rel": rng.uniform(0.2, 0.4, 12)}
-    )
-    other = roi.assign(abs_rel=roi["abs_rel"] - rng.uniform(0.0, 0.1, 12))
-    by_frame = seed_bootstrap(
-        other["abs_rel"].to_numpy()[None], roi["abs_rel"].to_numpy()[None], clusters=roi["image"].to_numpy()
-    )
-    assert paired_cell(other, roi, ["roi"], "test") == difference_cell(by_frame.as_dict())
-    frames = roi.rename(columns={"roi": "frame"}).drop(columns="image")
-    shifted = other.rename(columns={"roi": "frame"}).drop(columns="image")
-    plain = paired_bootstrap(shifted["abs_rel"].to_numpy(), frames["abs_rel"].to_numpy())
-    assert paired_cell(shifted, frames, ["frame"], "test") == difference_cell(plain.as_dict())
-    assert difference_cell(by_frame.as_dict()) != difference_cell(plain.as_dict())
