@@ -47,12 +47,11 @@ from msdepth.config.params import (
     params_from_dict,
     read_params_file,
 )
-from msdepth.data.kitti import KITTI_BASELINE
 from msdepth.errors import ConfigError, run_main
+from msdepth.evaluation.rendered import rendered_eval_set
 from msdepth.evaluation.suites import Frame, depth_maps, evaluate_full, evaluate_roi
 from msdepth.io import OutputPolicy, write_text
 from msdepth.optimum.selection import choose_weights, select_rows
-from msdepth.render import render_frame, within_range
 from msdepth.reporting.verdict import (
     NAMES,
     Row,
@@ -68,7 +67,6 @@ CAP = 80.0
 VARIANTS = ("ssim", "msssim")  # the reference first (compare.reference)
 FIXED = 10.0  # the fixed weight reported beside each variant's own best
 SCORE_COLUMNS = ["suite", "image", "roi", "class", "cap", "abs_rel"]
-ROI_KEYS = ("image", "class", "x0", "y0", "x1", "y1")
 # Every effect off: the camera then only exposes the views and quantises them.
 _OFF = {"blur": 0.0, "vignetting": 0.0, "rectification": 0.0, "gain_mismatch": 0.0, "white_balance": 0.0}
 _OFF |= {"read_noise": 0.0, "shot_noise": 0.0, "jpeg_quality": 0}
@@ -105,20 +103,6 @@ def camera(name: str, default: CameraConfig) -> CameraConfig:
     return dataclasses.replace(default, enabled=True, **(_OFF | kept))
 
 
-def rendered(params: Params, count: int, sensor: CameraConfig) -> tuple[list, list[Frame], pd.DataFrame]:
-    """Evaluation frames 0..count-1 through ``sensor``: their (left, right) pairs, GT frames and ROI boxes."""
-    s = params.data.synthetic
-    pairs, frames, rois = [], [], []
-    for i in range(count):
-        f = render_frame(s.seed, 1, i, s.height, s.width, sensor=sensor)
-        name = f"{i:06d}_10"
-        gt = within_range(f.disp, f.focal, s.gt_max_depth)
-        pairs.append((f.left, f.right))
-        frames.append(Frame.from_disparity(name, gt, f.focal, KITTI_BASELINE, class_map=f.class_map))
-        rois += [dict(zip(ROI_KEYS, (name, *roi), strict=True)) for roi in f.rois]
-    return pairs, frames, pd.DataFrame(rois)
-
-
 def scored(disps: list[np.ndarray], frames: list[Frame], rois: pd.DataFrame, params: Params) -> pd.DataFrame:
     """The per-frame (``suite`` full) and per-ROI box (``suite`` roi) abs_rel at cap 80 m."""
     pred = depth_maps(disps, frames)
@@ -151,7 +135,9 @@ def run_condition(base: dict, name: str, args: argparse.Namespace, weights: list
     from msdepth.optimum.solver import optimum_disparities
 
     params = params_from_dict(base)
-    pairs, frames, rois = rendered(params, args.frames, camera(name, params.data.synthetic.camera))
+    synthetic = params.data.synthetic
+    rendered = rendered_eval_set(synthetic, args.frames, camera(name, synthetic.camera))
+    pairs, frames, rois = rendered.pairs, rendered.frames, rendered.rois
     parts = []
     for label in VARIANTS:
         variant, raw = kernel_variant(base, label)

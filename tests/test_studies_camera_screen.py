@@ -14,6 +14,7 @@ from conftest import run_script
 
 from msdepth.config.params import CameraConfig, params_from_dict, read_params_file
 from msdepth.errors import run_main
+from msdepth.evaluation.rendered import rendered_eval_set
 
 ROOT = Path(__file__).resolve().parents[1]
 SCRIPT = "studies/camera_screen.py"
@@ -89,11 +90,12 @@ def test_ideal_and_all_render_different_bytes_and_each_effect_alone() -> None:
     raw["data"]["synthetic"] |= {"height": 48, "width": 160}
     params = params_from_dict(raw)
     default = params.data.synthetic.camera
-    (ideal, f_ideal, _), (full, f_all, _) = (
-        study.rendered(params, 1, study.camera(n, default)) for n in ("ideal", "all")
+    ideal, full = (
+        rendered_eval_set(params.data.synthetic, 1, study.camera(n, default)) for n in ("ideal", "all")
     )
-    assert ideal[0][0].tobytes() != full[0][0].tobytes() and ideal[0][1].tobytes() != full[0][1].tobytes()
-    assert (f_ideal[0].gt_depth == f_all[0].gt_depth).all()
+    for a, b in zip(ideal.pairs[0], full.pairs[0], strict=True):
+        assert a.shape == b.shape and a.tobytes() != b.tobytes()
+    assert (ideal.frames[0].gt_depth == full.frames[0].gt_depth).all() and ideal.rois.equals(full.rois)
     assert study.camera("all", default) == CameraConfig(**{**vars(default), "enabled": True})
     noise = study.camera("noise", default)
     assert (noise.read_noise, noise.shot_noise) == (default.read_noise, default.shot_noise)
