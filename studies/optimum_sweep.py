@@ -1,8 +1,9 @@
 """The losses' own optimum on rendered evaluation frames, at several smoothness weights.
 
-Renders evaluation frames of the synthetic set (``data.synthetic``, exact GT: disp_occ within
-``gt_max_depth``), runs the optimum (:mod:`msdepth.optimum.solver`) per variant and weight, and scores
-it with the evaluation's suites (cap 80 m): full-frame abs_rel and a1, ROI abs_rel per class
+Renders evaluation frames of the synthetic set (``data.synthetic``, through its camera;
+:func:`msdepth.evaluation.rendered.rendered_eval_set`), runs the optimum
+(:mod:`msdepth.optimum.solver`) per variant and weight, and scores it with the evaluation's suites
+(cap 80 m): full-frame abs_rel and a1, ROI abs_rel per class
 (boxes) and over the classes' exact pixels (masks), beside an oracle constant (each frame's
 median GT disparity). Every row has KITTI's D1 (%) and EPE (px), the full-image suite's.
 ``--matchers`` adds the matchers, unrefined, as the pipeline's match and sgbm stages run them: SGM
@@ -34,28 +35,12 @@ from msdepth.config.params import (
     params_from_dict,
     read_params_file,
 )
-from msdepth.data.kitti import KITTI_BASELINE
 from msdepth.errors import ConfigError, run_main
+from msdepth.evaluation.rendered import rendered_eval_set
 from msdepth.evaluation.suites import Frame, depth_maps, evaluate_full, evaluate_roi
-from msdepth.render import render_frame, within_range
 
 ROOT = Path(__file__).resolve().parents[1]  # its params.yaml is the base
 CAP = "cap80"
-ROI_KEYS = ("image", "class", "x0", "y0", "x1", "y1")
-
-
-def rendered(params, count: int) -> tuple[list, list[Frame], pd.DataFrame]:
-    """Evaluation frames 0..count-1: their (left, right) pairs, GT frames and ROI boxes."""
-    s = params.data.synthetic
-    pairs, frames, rois = [], [], []
-    for i in range(count):
-        f = render_frame(s.seed, 1, i, s.height, s.width)
-        name = f"{i:06d}_10"
-        gt = within_range(f.disp, f.focal, s.gt_max_depth)
-        pairs.append((f.left, f.right))
-        frames.append(Frame.from_disparity(name, gt, f.focal, KITTI_BASELINE, class_map=f.class_map))
-        rois += [dict(zip(ROI_KEYS, (name, *roi), strict=True)) for roi in f.rois]
-    return pairs, frames, pd.DataFrame(rois)
 
 
 def scores(disps: list[np.ndarray], frames: list[Frame], rois: pd.DataFrame, params) -> dict:
@@ -108,7 +93,10 @@ def main(argv: list[str] | None = None) -> int:
         raise ConfigError(f"--weights: each must be in [0, {MAX_WEIGHT:g}], got {args.weights}")
     base = apply_overrides(read_params_file(ROOT / "params.yaml"), args.set)
     params = params_from_dict(base)
-    pairs, frames, rois = rendered(params, args.frames)
+    # The frames the pipeline evaluates: through its camera (data.synthetic.camera).
+    s = params.data.synthetic
+    rendered = rendered_eval_set(s, args.frames, s.camera)
+    pairs, frames, rois = rendered.pairs, rendered.frames, rendered.rois
     weights = args.weights or list(params.optimum.smoothness_sweep)
     # The oracle constant: median GT disparity, as a fraction of the width (depth_maps' input).
     constant = [

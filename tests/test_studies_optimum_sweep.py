@@ -16,6 +16,7 @@ import pytest
 from conftest import run_script
 
 from msdepth.errors import run_main
+from msdepth.evaluation.rendered import rendered_eval_set
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -112,7 +113,7 @@ def test_the_trace_of_levels_shorter_than_25_steps_gives_their_last_step(tmp_pat
 
 
 def test_the_sweeps_scores_of_the_gt_itself_are_exact() -> None:
-    """The sweep's scoring (its ``rendered`` frames, ``scores``): a disparity equal to the GT scores
+    """The sweep's scoring (the rendered frames, ``scores``): a disparity equal to the GT scores
     abs_rel, D1 and EPE 0 and a1 1 over the frame and in every box and mask class; twice the GT's
     disparity (half its depth) scores abs_rel 0.5 and a1 0 everywhere."""
     from msdepth.config.params import apply_overrides, params_from_dict, read_params_file
@@ -120,7 +121,8 @@ def test_the_sweeps_scores_of_the_gt_itself_are_exact() -> None:
     sweep = _study("optimum_sweep")
     tiny = ["data.synthetic.height=48", "data.synthetic.width=160"]
     params = params_from_dict(apply_overrides(read_params_file(ROOT / "params.yaml"), tiny))
-    _, frames, rois = sweep.rendered(params, 2)
+    rendered = rendered_eval_set(params.data.synthetic, 2, params.data.synthetic.camera)
+    frames, rois = rendered.frames, rendered.rois
     exact = [
         np.where(f.valid, f.focal * f.baseline / np.where(f.valid, f.gt_depth, 1.0), 1.0) / f.shape[1]
         for f in frames
