@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING, Callable
 from msdepth.cli.options import camera_options
 from msdepth.config.params import (
     MAX_OPTIMUM_SIDE,
+    MAX_WEIGHT,
     OptimumConfig,
     Params,
     apply_overrides,
@@ -126,7 +127,7 @@ def _weights_follow(raw: dict, assignments: list[str]) -> Params:
     given. A weight 0, which no sweep may hold, is checked as the default weight, then set."""
     section = raw.get("optimum")
     weight = section.get("smoothness_weight") if isinstance(section, dict) else None
-    if not _is_number(weight) or weight < 0:
+    if not _is_number(weight) or not 0 <= weight <= MAX_WEIGHT:
         return params_from_dict(raw)  # absent, or its own check's one line
     named = {a.partition("=")[0].strip() for a in assignments}
     defaults = OptimumConfig()
@@ -136,7 +137,7 @@ def _weights_follow(raw: dict, assignments: list[str]) -> Params:
         listed = section.get(key, getattr(defaults, key))
         if f"optimum.{key}" in named or not isinstance(listed, list | tuple):
             continue
-        if all(_is_number(w) for w in listed):
+        if all(_is_number(w) and 0 < w <= MAX_WEIGHT for w in listed):  # else their own check's line
             followed = {checked} if key == "set_weights" else {*listed, checked}
             section[key] = sorted(map(float, followed))
     params = params_from_dict(raw)
