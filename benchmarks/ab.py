@@ -98,6 +98,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("script", help="a script under benchmarks/ that prints an 'images/s:' line")
     ap.add_argument("args", nargs=argparse.REMAINDER, help="its arguments (after --)")
     args = ap.parse_args(argv)
+    if args.base.startswith("-") or not args.base.strip():
+        # git would read it as one of its own options (--orphan: its usage, 14 lines)
+        print(f"error: --base: {args.base!r} is not a git revision", file=sys.stderr)
+        return 1
+    if args.rounds < 1:
+        print(f"error: --rounds: must be >= 1, got {args.rounds}", file=sys.stderr)
+        return 1
     script_args = args.args[1:] if args.args[:1] == ["--"] else args.args
     with tempfile.TemporaryDirectory(prefix="msdepth-ab-") as tmp:
         tree = Path(tmp) / "base"
@@ -105,7 +112,8 @@ def main(argv: list[str] | None = None) -> int:
             [*GIT, "worktree", "add", "--detach", str(tree), args.base], capture_output=True, text=True
         )
         if add.returncode:
-            print(f"error: {args.base}: cannot check it out: {add.stderr.strip()}", file=sys.stderr)
+            why = " ".join(add.stderr.split())  # git's lines, as one
+            print(f"error: --base {args.base}: cannot check it out: {why}", file=sys.stderr)
             return 1
         try:
             command = " ".join([f"benchmarks/{args.script}", *script_args])

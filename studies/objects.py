@@ -37,11 +37,11 @@ from typing import Sequence
 
 import numpy as np
 
-from msdepth.config.params import Params, apply_overrides, params_from_dict, read_params_file
+from msdepth.config.params import MAX_THREADS, Params, apply_overrides, params_from_dict, read_params_file
 from msdepth.data import kitti
 from msdepth.data.eval_index import read_eval_index
 from msdepth.data.pairs import build_pair_cache, load_pair_cache, load_pair_list
-from msdepth.errors import DataError, OutputError, run_main
+from msdepth.errors import ConfigError, DataError, OutputError, run_main
 from msdepth.evaluation import baselines
 from msdepth.evaluation.box_errors import box_medians, prior_correlation
 from msdepth.evaluation.suites import depth_maps, evaluate_full, evaluate_roi, image_dependence, load_frames
@@ -130,6 +130,9 @@ def _recorder(params: Params, ev: EvalSet, out: Path, history: list[dict], spe: 
     clock = {"since": time.perf_counter()}
 
     def on_epoch(epoch: int, model, means: dict) -> None:
+        # Marks from this epoch on are another run's: one that went further before it was killed, or
+        # one whose checkpoint did not match (other params or code) so that training started anew.
+        history[:] = [h for h in history if h["epoch"] < epoch]
         step, previous = epoch * spe, (epoch - 1) * spe
         if step // every == previous // every and epoch != params.train.epochs:
             return
@@ -441,12 +444,20 @@ def run_key(name: str) -> tuple[str, str, int]:
 
 
 def _seed_groups(root: Path) -> dict[tuple[str, str], dict[int, list[dict]]]:
-    """Every run's history below ``root``, grouped by (recipe, variant), keyed by seed."""
+    """Every run's history below ``root``, grouped by (recipe, variant), keyed by seed; two folders
+    that name the same run (``r_seed1`` and ``r_seed01``) are a DataError naming both."""
     groups: dict[tuple[str, str], dict[int, list[dict]]] = {}
+    seen: dict[tuple[str, str, int], Path] = {}
     for path in sorted(root.rglob("history.json")):
         recipe, variant, seed = run_key(path.parent.name)
         folder = path.parent.parent.relative_to(root).as_posix()
         key = (recipe if folder == "." else f"{folder}/{recipe}", variant)
+        if (*key, seed) in seen:
+            raise DataError(
+                f"{seen[(*key, seed)].parent} and {path.parent}: both are {key[0]} {variant} seed {seed}; "
+                "rename or move one"
+            )
+        seen[(*key, seed)] = path
         history = read_history(path)
         if history:
             groups.setdefault(key, {})[seed] = history
@@ -525,6 +536,16 @@ def claim(out: Path, steps: int, every: int, size: tuple[int, int]) -> None:
     OutputPolicy(out / "work", "objects").claim(scratch, "params.yaml")
 
 
+def check_args(args: argparse.Namespace) -> None:
+    """``--steps``, ``--every`` and ``--threads`` in range, a ConfigError naming the option else:
+    checked before anything is claimed, read or set (torch.set_num_threads)."""
+    for option, value in (("--steps", args.steps), ("--every", args.every)):
+        if value < 1:
+            raise ConfigError(f"{option}: must be a whole number >= 1, got {value}")
+    if not 1 <= args.threads <= MAX_THREADS:
+        raise ConfigError(f"--threads: must be in 1..{MAX_THREADS}, got {args.threads}")
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run the diagnosis into ``--out``; write its curve, strip and summary."""
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -543,10 +564,11 @@ def main(argv: list[str] | None = None) -> int:
         help="train.crop_scale > 1: also score the final model on crop-sized tiles (--out/tiles.json)",
     )
     args = ap.parse_args(argv)
+    check_args(args)
     if args.table:
+        text = runs_table(args.out) + "\n" + seed_tables(args.out)
         if not claim_output_file(args.out / "table.md", "objects-table", args.out):
             return 1
-        text = runs_table(args.out) + "\n" + seed_tables(args.out)
         write_text(args.out / "table.md", text)
         print(text)
         return 0

@@ -373,3 +373,25 @@ def test_set_jobs_benchmark_times_threads_against_processes(tmp_path: Path) -> N
     assert out.startswith("4 frames (generated, x1), 5 instruments")
     rows = {line.split("|")[1].strip(): line.split("|") for line in out.splitlines() if line.startswith("| ")}
     assert float(rows["1 job x 2 threads"][3]) == 1.0 and float(rows["2 jobs x 1 thread"][2]) > 0
+
+
+@pytest.mark.parametrize(
+    "args, words",
+    [
+        (["--base=--orphan"], "error: --base: '--orphan' is not a git revision"),
+        (["--base=-b"], "error: --base: '-b' is not a git revision"),
+        (["--base", "HEAD", "--rounds", "0"], "error: --rounds: must be >= 1, got 0"),
+        (["--base", "no-such-revision-xyz"], "error: --base no-such-revision-xyz: cannot check it out: "),
+    ],
+)
+def test_ab_refuses_a_bad_base_or_rounds_in_one_line(args: list[str], words: str, capsys) -> None:
+    """An option-looking --base is refused before git is called (git printed its 14-line usage); a
+    revision git cannot check out is git's reason in one line."""
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    try:
+        from ab import main
+    finally:
+        sys.path.remove(str(ROOT / "benchmarks"))
+    assert main([*args, "train_loop.py"]) == 1
+    err = capsys.readouterr().err
+    assert err.startswith(words) and err.count("\n") == 1, err

@@ -156,12 +156,30 @@ def _break(root: Path, case: str) -> str:
     if case == "class":
         (root / "classes" / "classes.yaml").write_text("1: transparent\n2: mirror\n")
         return r"classes/classes\.yaml: label 2: unknown class 'mirror'; known: \['car', "
+    if case == "class list":  # issue 68: unexpected TypeError: unhashable type: 'list'
+        (root / "classes" / "classes.yaml").write_text("1: [transparent]\n2: specular\n")
+        return r"classes/classes\.yaml: label 1: expected one class name, got \['transparent'\]; known: "
+    if case == "class mapping":
+        (root / "classes" / "classes.yaml").write_text("1: {transparent: 1}\n2: specular\n")
+        return r"classes/classes\.yaml: label 1: expected one class name, got \{'transparent': 1\}; known: "
     (root / "classes" / "classes.yaml").unlink()
     return r"classes/classes\.yaml: no classes file"
 
 
 @pytest.mark.parametrize(
-    "case", ["missing", "size", "label", "jpeg", "colour", "huge", "class", "no classes"]
+    "case",
+    [
+        "missing",
+        "size",
+        "label",
+        "jpeg",
+        "colour",
+        "huge",
+        "class",
+        "class list",
+        "class mapping",
+        "no classes",
+    ],
 )
 def test_a_bad_class_map_is_one_line_naming_the_file(tmp_path, case):
     root = _folder(tmp_path / "set")
@@ -172,6 +190,16 @@ def test_a_bad_class_map_is_one_line_naming_the_file(tmp_path, case):
     assert "\n" not in message and len(message) < 400, message
     assert message.startswith(str(root)), message
     assert re.search(expected, message), message
+
+
+@pytest.mark.parametrize("case", ["class list", "class mapping"])
+def test_prepare_data_names_a_class_that_is_no_name(tmp_path, case):
+    """prepare_data's check of the folder reads classes.yaml as the index does: one line naming it."""
+    root = _folder(tmp_path / "set")
+    expected = _break(root, case)
+    with pytest.raises(DataError) as err:
+        folder.check_folder(folder_layout(_params(root)))
+    assert "\n" not in str(err.value) and re.search(expected, str(err.value)), err.value
 
 
 def test_prepare_data_names_a_missing_class_map(tmp_path):

@@ -24,6 +24,7 @@ SCIENCE_API = {
     "msdepth.evaluation.box_errors": ("box_medians",),
     "msdepth.training.train": ("learning_rate",),
 }
+FLAGS = doctest.NORMALIZE_WHITESPACE  # the runner's below, and pytest's (pyproject.toml)
 FUNCTIONS = [(module, name) for module, names in SCIENCE_API.items() for name in names]
 
 
@@ -58,7 +59,7 @@ def test_every_example_in_the_package_runs(module: str) -> None:
     tests = [t for t in doctest.DocTestFinder().find(importlib.import_module(module)) if t.examples]
     assert tests, f"{module}: '>>> ' in its text but no docstring example found"
     report: list[str] = []
-    runner = doctest.DocTestRunner(optionflags=doctest.NORMALIZE_WHITESPACE)
+    runner = doctest.DocTestRunner(optionflags=FLAGS)
     for test in tests:
         runner.run(test, out=report.append)
     assert runner.failures == 0, "".join(report)
@@ -66,3 +67,16 @@ def test_every_example_in_the_package_runs(module: str) -> None:
 
 def test_the_science_api_s_modules_are_among_those_run() -> None:
     assert set(SCIENCE_API) <= set(modules_with_examples())
+
+
+def test_plain_pytest_doctest_modules_uses_the_runners_flags() -> None:
+    """`pytest --doctest-modules src/msdepth` reads its flags from pyproject.toml: the same as this
+    runner's, so an example that passes here (verdict.answer_sentence's wrapped line) passes there."""
+    import tomllib
+
+    config = tomllib.loads((Path(__file__).resolve().parents[1] / "pyproject.toml").read_text())
+    names = config["tool"]["pytest"]["ini_options"].get("doctest_optionflags", [])
+    flags = 0
+    for name in names:
+        flags |= doctest.OPTIONFLAGS_BY_NAME[name]
+    assert flags == FLAGS, names

@@ -4,6 +4,7 @@ config checks and the zero-ROI suites."""
 from __future__ import annotations
 
 import json
+import os
 import struct
 from pathlib import Path
 
@@ -361,3 +362,38 @@ def test_means_without_rois_have_no_roi_number():
     suites = {"full": {"ssim": full}, "roi": {"ssim": none}, "gradients": {"ssim": none}}
     result, _ = build_comparison(comparison_data(suites, ["ssim"], []))
     assert _mean_rows(result, ["ssim"], "cap80") == {"ssim": {"abs_rel": 0.5, "a1": 0.5}}
+
+
+@pytest.mark.parametrize(
+    ("name", "why"),
+    [
+        (b"a b.png", "white space"),
+        (b"a\nb.png", "white space"),
+        (b"a\rb.png", "white space"),
+        (b"a\tb.png", "white space"),
+        (b"\xff\xfe.png", "not UTF-8"),
+    ],
+    ids=["space", "newline", "carriage-return", "tab", "not-utf8"],
+)
+def test_an_unlistable_image_name_is_one_line_naming_it_in_prepare_data_and_index(
+    tmp_path: Path, name: bytes, why: str
+) -> None:
+    """Issue 68: a non-UTF-8 image name passed prepare_data, then the index stage gave 'unexpected
+    UnicodeEncodeError'; a space, newline or carriage return refused the folder naming the stage's
+    own output. Both stages now refuse such an image in one line naming it (escaped)."""
+    from msdepth.data.indexing import _folder_indexes
+
+    root = _folder(tmp_path / "s")
+    for side in ("left", "right"):
+        _image(Path(os.fsdecode(os.fsencode(root / side) + b"/" + name)))
+    shown = repr(os.fsdecode(os.fsencode(root / "left") + b"/" + name))[1:-1]
+    for stage in (
+        lambda: folder.check_folder(folder_layout(_params(root))),
+        lambda: _folder_indexes(_params(root), tmp_path / "index"),
+    ):
+        with pytest.raises(DataError) as err:
+            stage()
+        message = str(err.value)
+        assert "\n" not in message and "\r" not in message, message
+        assert shown in message and why in message and "rename it" in message, message
+    assert not (tmp_path / "index").exists()

@@ -83,3 +83,47 @@ def test_npy_gt_whose_body_is_not_exactly_its_shape_is_one_data_error(
         read_gt_depth("npy_depth", tmp_path / "gt.npy", focal=700.0, baseline=0.5)
     (tmp_path / "gt.npy").write_bytes(_npy_declaring((4, 5), b"\x00" * 80))
     assert read_gt_depth("npy_depth", tmp_path / "gt.npy", focal=700.0, baseline=0.5).shape == (4, 5)
+
+
+@pytest.mark.parametrize(
+    "case, words",
+    [
+        ("missing", r"no depth map of evaluation frame 'b'"),
+        (
+            "shape",
+            r"frame 'b''s depth map is float32 \(4, 5\), expected a float map of its GT's size \(4, 6\)",
+        ),
+        ("dtype", r"frame 'b''s depth map is <U1 \(4, 6\), expected a float map"),
+        ("nan", r"frame 'b''s depth map holds NaN or a depth <= 0"),
+        ("negative", r"frame 'b''s depth map holds NaN or a depth <= 0"),
+    ],
+)
+def test_a_tampered_depth_npz_is_one_line_naming_it_in_the_evaluate_stage(
+    tmp_path: Path, monkeypatch, case: str, words: str
+) -> None:
+    """Issue 68: a depth.npz missing a frame, of the wrong shape or holding NaN gave 'unexpected
+    KeyError / IndexError / ValueError' in the evaluate stage (msdepth.evaluation.results.score_run),
+    without the file's name."""
+    from msdepth.config.params import Params
+    from msdepth.evaluation import results
+    from msdepth.evaluation.suites import Frame
+    from msdepth.io import save_npz
+
+    frames = [Frame(name, np.full((4, 6), 10.0, np.float32), 700.0, 0.5) for name in ("a", "b")]
+    maps = {f.name: np.full((4, 6), 12.0, np.float32) for f in frames}
+    if case == "missing":
+        del maps["b"]
+    elif case == "shape":
+        maps["b"] = maps["b"][:, :5]
+    elif case == "dtype":
+        maps["b"] = np.full((4, 6), "x")
+    else:
+        maps["b"][1, 2] = np.nan if case == "nan" else -1.0
+    path = tmp_path / "outputs" / "ssim" / "seed0" / "depth.npz"
+    save_npz(path, **maps)
+    monkeypatch.chdir(tmp_path)  # where metrics/ would be written, were the file accepted
+    monkeypatch.setattr(results, "read_eval_index", lambda path: None)
+    monkeypatch.setattr(results, "load_frames", lambda index: frames)
+    with pytest.raises(DataError, match=rf"^{path}: {words}") as err:
+        results.score_run(Params(), "full", "ssim/seed0", path, tmp_path / "i.csv", tmp_path / "r.csv")
+    assert "\n" not in str(err.value) and not (tmp_path / "metrics").exists()

@@ -518,3 +518,78 @@ def test_the_cuda_refinement_matches_the_cpu_s() -> None:
 
 def _device(params: Params, device: str) -> Params:
     return dataclasses.replace(params, train=dataclasses.replace(params.train, device=device))
+
+
+@pytest.mark.parametrize("weight", ["3", "0", "0.5"])
+def test_cli_takes_any_smoothness_weight_the_pipeline_lists_follow_it(tmp_path, weight: str) -> None:
+    """Issue 68: --set optimum.smoothness_weight=3 failed on optimum.set_weights, a list only the
+    pipeline reads; on the command line the pipeline's weight lists follow the weight (0 too, which
+    no sweep may hold), and a list the user sets is checked as given."""
+    from msdepth.cli.optimum import _read_params
+
+    write_png(tmp_path / "l.png", plane_pair()[0])
+    write_png(tmp_path / "r.png", plane_pair()[1])
+    args = [tmp_path / "l.png", tmp_path / "r.png", "--variant", "ssim", "--out", tmp_path / "out"]
+    assert cli(*args, "--set", f"optimum.smoothness_weight={weight}") == 0
+    assert _read_params(None, [f"optimum.smoothness_weight={weight}"]).optimum.smoothness_weight == float(
+        weight
+    )
+    with pytest.raises(ConfigError, match=r"optimum\.set_weights: must be positive, distinct and hold"):
+        _read_params(None, [f"optimum.smoothness_weight={weight}", "optimum.set_weights=[7]"])
+
+
+def test_cli_colorbar_draws_every_variant_of_a_pair_on_one_scale(tmp_path) -> None:
+    """--colorbar: the second variant's run into the folder redraws the first's PNG, both on one
+    scale (the least minimum to the largest 95th percentile of the two maps), each with its bar;
+    --vmax PX: the scale 0..PX."""
+    from msdepth.cli.predict import color_scale, colorize_disparity
+
+    left, right = plane_pair()
+    write_png(tmp_path / "l.png", left)
+    write_png(tmp_path / "r.png", right)
+    out = tmp_path / "out"
+    pair = [tmp_path / "l.png", tmp_path / "r.png"]
+    for variant in ("msssim", "ssim"):
+        assert cli(*pair, "--variant", variant, "--out", out, "--colorbar") == 0
+    maps = {v: np.load(out / f"l_{v}_disp.npy") for v in ("msssim", "ssim")}
+    lows, highs = zip(*(color_scale(d) for d in maps.values()), strict=True)
+    assert len(set(highs)) == 2  # two scales of their own: the shared one differs from one of them
+    for variant, disp in maps.items():
+        drawn = cv2.cvtColor(cv2.imread(str(out / f"l_{variant}_disp.png")), cv2.COLOR_BGR2RGB)
+        assert drawn.shape[1] > W  # the bar
+        np.testing.assert_array_equal(drawn, colorize_disparity(disp, (min(lows), max(highs)), True))
+    assert cli(*pair, "--variant", "ssim", "--out", tmp_path / "fixed", "--vmax", 5) == 0
+    drawn = cv2.cvtColor(cv2.imread(str(tmp_path / "fixed" / "l_ssim_disp.png")), cv2.COLOR_BGR2RGB)
+    np.testing.assert_array_equal(
+        drawn, colorize_disparity(np.load(tmp_path / "fixed" / "l_ssim_disp.npy"), (0, 5))
+    )
+
+
+@pytest.mark.parametrize("vmax", ["0", "-1", "nan", "inf"])
+def test_cli_vmax_out_of_range_is_one_line(tmp_path, capsys, vmax: str) -> None:
+    write_png(tmp_path / "l.png", plane_pair()[0])
+    write_png(tmp_path / "r.png", plane_pair()[1])
+    args = [tmp_path / "l.png", tmp_path / "r.png", "--variant", "ssim", "--out", tmp_path / "out"]
+    assert cli(*args, "--vmax", vmax) == 1
+    err = capsys.readouterr().err
+    assert err.startswith("error: --vmax: must be a disparity in px") and err.count("\n") == 1, err
+    assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("side", [1, 2])
+@pytest.mark.parametrize(
+    ("start", "extra"), [("cost", []), ("cost", ["--height", 24, "--width", 24]), ("sgbm", [])]
+)
+def test_cli_a_tiny_pair_is_one_line_naming_it(tmp_path, capsys, side: int, start: str, extra: list) -> None:
+    """Issue 68: a 1x1 or 2x2 pair through --start cost gave 'unexpected ValueError / RuntimeError';
+    any start at the image's own size a line naming no file. Now one line naming the image."""
+    rng = np.random.default_rng(side)
+    for name in ("l.png", "r.png"):
+        write_png(tmp_path / name, rng.integers(0, 255, (side, side, 3), dtype=np.uint8))
+    args = [tmp_path / "l.png", tmp_path / "r.png", "--variant", "ssim", "--out", tmp_path / "out"]
+    assert cli(*args, "--start", start, *extra) == 1
+    first, *rest = capsys.readouterr().err.splitlines()
+    assert first.startswith(
+        f"error: {tmp_path / 'l.png'}: {side}x{side} px is below the optimum's 24 px a side"
+    )
+    assert rest == [f"wrote the optimum of 0 of 1 pair(s) to {tmp_path / 'out'}"]

@@ -163,6 +163,54 @@ def test_a_killed_run_redoes_only_its_unfinished_frames(project: Path, monkeypat
     assert sets._open_scratch(scratch, changed) == 0 and (scratch / sets.KEY).is_file()
 
 
+def test_frames_of_old_images_or_old_code_are_not_resumed(project: Path, monkeypatch):
+    """A run killed after its first frame, then every image replaced under the same name: the rerun
+    redoes both frames (the key holds each image's size and modification time), as it does after
+    a change to the optimum's code (the key holds its fingerprint)."""
+    from msdepth.optimum import sets, starts
+
+    params = params_from_dict(RAW)
+    matched, calls = starts.start_disparity, []
+
+    def killed_on_the_second(*args, **kwargs) -> np.ndarray:
+        calls.append(1)
+        if len(calls) == 2:
+            raise KeyboardInterrupt
+        return matched(*args, **kwargs)
+
+    monkeypatch.setattr(starts, "start_disparity", killed_on_the_second)
+    with pytest.raises(KeyboardInterrupt):
+        sets.score_set_match(params, SET, "sgbm", set_index_path(INDEX_DIR, SET))
+    index = read_eval_index(set_index_path(INDEX_DIR, SET))
+    key = sets._scratch_key(params, "sgbm", None, set_index_path(INDEX_DIR, SET))
+    for left in index["left"]:  # new pictures, same names (and the same sizes: the time differs)
+        image = cv2.imread(left)
+        os.utime(left, ns=(time.time_ns(), time.time_ns() + 10**9))
+        cv2.imwrite(left, 255 - image)
+    assert sets._scratch_key(params, "sgbm", None, set_index_path(INDEX_DIR, SET)) != key
+    calls.clear()
+    monkeypatch.setattr(starts, "start_disparity", lambda *a, **k: calls.append(1) or matched(*a, **k))
+    sets.score_set_match(params, SET, "sgbm", set_index_path(INDEX_DIR, SET))
+    assert len(calls) == 2  # both frames of the new images, none resumed
+    key = sets._scratch_key(params, "sgbm", None, set_index_path(INDEX_DIR, SET))
+    monkeypatch.setattr(sets, "OPTIMUM_MODULES", sets.OPTIMUM_MODULES[:-1])
+    assert sets._scratch_key(params, "sgbm", None, set_index_path(INDEX_DIR, SET))["code"] != key["code"]
+
+
+def test_the_scratch_keys_code_is_the_set_stages_code_deps():
+    """Every module of the scratch key's code fingerprint is a dep of the set stages in dvc.yaml (a
+    change to it reruns them, and they then redo their frames)."""
+    import yaml
+
+    from msdepth.optimum import sets
+
+    stages = yaml.safe_load((ROOT / "dvc.yaml").read_text())["stages"]
+    for name in ("match_set", "optimum_set", "sgbm_set"):
+        deps = stages[name]["deps"]
+        src = [d.removeprefix("src/msdepth/") for d in deps if d.startswith("src/msdepth/")]
+        assert all(any(m == d or m.startswith(d + "/") for d in src) for m in sets.OPTIMUM_MODULES), name
+
+
 def test_the_set_stages_list_what_they_read():
     """Each set stage lists its own keys: the optimum's every key that a pair's optimum reads (not
     the sweep's, the cost curves' or the batch size), the matchers none of the optimiser's; the

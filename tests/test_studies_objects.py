@@ -113,3 +113,57 @@ def test_a_malformed_history_is_one_line_naming_the_file(
     with pytest.raises(DataError, match=words) as info:
         objects.seed_tables(tmp_path)
     assert str(run / "history.json") in str(info.value) and "\n" not in str(info.value)
+
+
+@pytest.mark.parametrize(
+    "argv, words",
+    [
+        (["--every", "0"], "--every: must be a whole number >= 1, got 0"),
+        (["--steps", "-5"], "--steps: must be a whole number >= 1, got -5"),
+        (["--threads", "0"], "--threads: must be in 1.."),
+        (["--threads", "-1"], "--threads: must be in 1.."),
+        (["--threads", "-1", "--table"], "--threads: must be in 1.."),
+    ],
+)
+def test_out_of_range_options_are_one_line_before_any_work(
+    objects, tmp_path: Path, monkeypatch, capsys, argv: list[str], words: str
+) -> None:
+    """--every 0, --steps -5, --threads 0 or -1: one line naming the option, before the study claims
+    its folder (no work folder is left behind) or sets torch's threads."""
+    from msdepth.errors import run_main
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "params.yaml").write_text("")
+    monkeypatch.setattr(torch, "set_num_threads", lambda n: pytest.fail(f"set_num_threads({n}) reached"))
+    out = tmp_path / "res"
+    assert run_main("studies/objects.py", lambda: objects.main([*argv, "--out", str(out)])) == 1
+    err = capsys.readouterr().err
+    assert err.startswith(f"error: {words}") and err.count("\n") == 1, err
+    assert not out.exists()
+
+
+def test_two_folders_of_one_seed_are_refused_naming_both(objects, tmp_path: Path, capsys) -> None:
+    """r_seed1 and r_seed01 both parse as seed 1 of recipe r: --table refuses in one line naming both
+    folders (it dropped one run without a word), and writes no table."""
+    from msdepth.errors import run_main
+
+    _history(tmp_path / "r", {1200: {}})
+    _history(tmp_path / "r_seed1", {1200: {}})
+    _history(tmp_path / "r_seed01", {1200: {}})
+    assert run_main("studies/objects.py", lambda: objects.main(["--table", "--out", str(tmp_path)])) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "both are r ssim seed 1" in err, err
+    assert str(tmp_path / "r_seed01") in err and str(tmp_path / "r_seed1") in err
+    assert not (tmp_path / "table.md").exists()
+
+
+def test_marks_of_another_run_are_dropped_when_training_starts_at_an_epoch(objects) -> None:
+    """A history.json holds marks to epoch 6; training resumes at epoch 3 (its checkpoint) or starts
+    anew (other params: epoch 1): the marks from that epoch on are not this run's and are dropped."""
+    ev = objects.EvalSet([], [], None, np.zeros(0), np.zeros(0), {})
+    params = objects.params_from_dict({"train": {"epochs": 100}})
+    for start, kept in ((3, [1, 2]), (1, [])):
+        history = [{"epoch": e, "step": 10 * e} for e in range(1, 7)]
+        on_epoch = objects._recorder(params, ev, Path("unused"), history, 10, 100_000, 50_000)
+        on_epoch(start, None, {})  # not a mark: nothing scored
+        assert [h["epoch"] for h in history] == kept

@@ -10,21 +10,33 @@ LEFT's resolution, float32), ``<stem>_<variant>_disp.png`` and ``<stem>_<variant
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Callable
 
 from msdepth.cli.options import camera_options
-from msdepth.config.params import MAX_OPTIMUM_SIDE, Params, apply_overrides, load_params, params_from_dict
+from msdepth.config.params import (
+    MAX_OPTIMUM_SIDE,
+    MAX_WEIGHT,
+    OptimumConfig,
+    Params,
+    apply_overrides,
+    params_from_dict,
+    read_params_file,
+)
 from msdepth.errors import ConfigError, DataError, MsdepthError, PixelLimitError
 from msdepth.outputs import OutputPolicy
 
 if TYPE_CHECKING:
+    import numpy as np
+
     from msdepth.cli.predict import PredictOptions
 
 # Adam steps per level without a params file: the instrument's measured stopping rule
 # (docs/optimum.md, "Stopping rule"); params.yaml's 50 fits the pipeline's time budget.
 INSTRUMENT_ITERATIONS = 100
+MAX_VMAX = 1e5  # px: --vmax's bound, wider than any image the command reads
 
 
 def optimum_command(add_parser: Callable[..., argparse.ArgumentParser]) -> None:
@@ -69,18 +81,73 @@ def optimum_command(add_parser: Callable[..., argparse.ArgumentParser]) -> None:
         choices=("cpu", "cuda", "auto"),
         help="where the refinement runs (default: train.device); the matchers run on the CPU",
     )
+    o.add_argument(
+        "--colorbar",
+        action="store_true",
+        help="one colour scale for a pair's disparity PNGs of every variant in --out (this run's and "
+        "those already there, redrawn: min to the largest 95th percentile), with a colour bar in px",
+    )
+    o.add_argument(
+        "--vmax",
+        type=float,
+        metavar="PX",
+        help="a fixed colour scale for every disparity PNG, 0 to PX px (runs into different folders "
+        "compare too); with --colorbar, its bar",
+    )
     o.add_argument("--quiet", action="store_true", help="no progress bar")
     o.set_defaults(run=run)
+
+
+# optimum's keys that only the pipeline reads (the extra sets' weights, the sweep stage's) and
+# that must hold optimum.smoothness_weight: on the command line they follow the weight given.
+PIPELINE_WEIGHT_LISTS = ("set_weights", "smoothness_sweep")
 
 
 def _read_params(path: str | None, assignments: list[str]) -> Params:
     """``path`` (or ./params.yaml, or the defaults with ``optimum.iterations``
     :data:`INSTRUMENT_ITERATIONS`) with the ``--set`` assignments, validated: the hardened reader
-    and checks of every params file (:func:`msdepth.config.params.load_params`)."""
+    and checks of every params file (:func:`msdepth.config.params.read_params_file`). The
+    pipeline-only weight lists (:data:`PIPELINE_WEIGHT_LISTS`) follow ``optimum.smoothness_weight``
+    unless an assignment sets them (:func:`_weights_follow`)."""
     source = Path(path) if path else Path("params.yaml")
     if path or source.is_file():
-        return load_params(source, assignments)
-    return params_from_dict(apply_overrides({"optimum": {"iterations": INSTRUMENT_ITERATIONS}}, assignments))
+        raw = read_params_file(source)
+    else:
+        source, raw = None, {"optimum": {"iterations": INSTRUMENT_ITERATIONS}}
+    try:
+        raw = apply_overrides(raw, assignments)
+        return _weights_follow(raw, assignments)
+    except ConfigError as exc:
+        raise ConfigError(f"{source}: {exc}" if source else str(exc)) from None
+
+
+def _weights_follow(raw: dict, assignments: list[str]) -> Params:
+    """``raw`` validated with ``optimum.set_weights`` and ``smoothness_sweep`` (the pipeline's, read
+    by no command) made to hold ``optimum.smoothness_weight``; a list an assignment names is kept as
+    given. A weight 0, which no sweep may hold, is checked as the default weight, then set."""
+    section = raw.get("optimum")
+    weight = section.get("smoothness_weight") if isinstance(section, dict) else None
+    if not _is_number(weight) or not 0 <= weight <= MAX_WEIGHT:
+        return params_from_dict(raw)  # absent, or its own check's one line
+    named = {a.partition("=")[0].strip() for a in assignments}
+    defaults = OptimumConfig()
+    checked = weight or defaults.smoothness_weight
+    section["smoothness_weight"] = checked
+    for key in PIPELINE_WEIGHT_LISTS:
+        listed = section.get(key, getattr(defaults, key))
+        if f"optimum.{key}" in named or not isinstance(listed, list | tuple):
+            continue
+        if all(_is_number(w) and 0 < w <= MAX_WEIGHT for w in listed):  # else their own check's line
+            followed = {checked} if key == "set_weights" else {*listed, checked}
+            section[key] = sorted(map(float, followed))
+    params = params_from_dict(raw)
+    optimum = dataclasses.replace(params.optimum, smoothness_weight=float(weight))
+    return dataclasses.replace(params, optimum=optimum)
+
+
+def _is_number(value: object) -> bool:
+    """An int or float, not a bool."""
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
 
 
 def _stereo_pairs(left: Path, right: Path, skip: Path | None = None) -> list[tuple[Path, Path, Path]]:
@@ -148,6 +215,10 @@ def run(args: argparse.Namespace) -> int:
     flags += [f"train.device={args.device}"] if args.device else []
     params = _read_params(args.params, [*args.set, *flags])
     size = _requested_size(args, params)
+    if args.vmax is not None and not 0 < args.vmax <= MAX_VMAX:
+        raise ConfigError(
+            f"--vmax: must be a disparity in px, above 0 and at most {MAX_VMAX:g}, got {args.vmax}"
+        )
     objective(params, args.variant)  # an unknown variant fails before any image is read
     resolve_device(params.train.device)  # so does a CUDA device torch does not see
     given = {k: v for k, v in (("focal", args.focal), ("baseline", args.baseline)) if v is not None}
@@ -166,6 +237,23 @@ def run(args: argparse.Namespace) -> int:
         f"wrote the optimum of {len(pairs) - failed} of {len(pairs)} pair(s) to {args.out}", file=sys.stderr
     )
     return 1 if failed else 0
+
+
+def _check_small(path: Path, shape: tuple[int, ...], start: str, size: tuple[int, int] | None) -> None:
+    """A DataError naming ``path`` if its image is too small for the optimum: under
+    :data:`msdepth.optimum.solver.MIN_LEVEL_SIDE` px a side, where it runs at the image's own size
+    (no working ``size``) or the cost start matches there."""
+    from msdepth.optimum.solver import MIN_LEVEL_SIDE
+
+    height, width = shape[:2]
+    if min(height, width) >= MIN_LEVEL_SIDE or (size and start != "cost"):
+        return
+    remedy = (
+        "the cost start matches at the image's own size" if start == "cost" else "give --height and --width"
+    )
+    raise DataError(
+        f"{path}: {width}x{height} px is below the optimum's {MIN_LEVEL_SIDE} px a side ({remedy})"
+    )
 
 
 def _fail(exc: Exception) -> int:
@@ -191,6 +279,7 @@ def _optimise_and_write(
     from msdepth.data.imagefile import MAX_IMAGE_PIXELS
     from msdepth.data.kitti import read_image
     from msdepth.data.pairs import check_same_size
+    from msdepth.geometry.depth import pixel_disparity
     from msdepth.optimum.cost_volume import check_volume_size
     from msdepth.optimum.solver import optimum_disparities
     from msdepth.optimum.starts import capped_size
@@ -202,6 +291,7 @@ def _optimise_and_write(
         try:
             left, right = read_image(left_path, limit), read_image(right_path, limit)
             check_same_size(left_path, left.shape, right_path, right.shape, "right image")
+            _check_small(left_path, left.shape, params.optimum.start, size)
             if params.optimum.start == "cost":
                 check_volume_size(*capped_size(left.shape[:2], params.optimum.max_width))
             good.append((left_path, stem, left, right))
@@ -219,7 +309,53 @@ def _optimise_and_write(
         try:
             target = _output_stem(Path(args.out), stem, args.variant)
             policy.claim(list(output_paths(target, options).values()), left_path)
-            save_outputs(target, left, disp, options)
+            shared = args.colorbar or args.vmax is not None  # the PNG drawn below, on the shared scale
+            save_outputs(
+                target, left, disp, dataclasses.replace(options, disp_format="npy") if shared else options
+            )
+            if shared:
+                disp_px = pixel_disparity(disp, *left.shape[:2])
+                _shared_colours(
+                    Path(args.out), (left_path, stem), args, disp_px, policy, list(params.appearance)
+                )
         except (MsdepthError, OSError) as exc:
             failed += _fail(_naming(left_path, exc))
     return failed
+
+
+def _shared_colours(
+    out: Path,
+    pair: tuple[Path, Path],
+    args: argparse.Namespace,
+    disp_px: np.ndarray,
+    policy: OutputPolicy,
+    variants: list[str],
+) -> None:
+    """Draw the disparity PNG of ``pair`` (its left image and output stem; ``disp_px``, this run's
+    variant's) on a shared colour scale: 0 to ``--vmax``; else from the least minimum to the largest
+    95th percentile of this map and of the other variants' ``_disp.npy`` of the pair already in
+    ``out`` (those of another size are another pair's; ``variants``: every variant's name), each of
+    their PNGs redrawn on it. ``--colorbar`` adds the bar."""
+    import numpy as np
+
+    from msdepth.cli.predict import color_scale, colorize_disparity
+    from msdepth.io import write_png
+    from msdepth.readers import read_npy_file
+
+    left_path, stem = pair
+    maps = {args.variant: disp_px}
+    if args.vmax is None:
+        for other in sorted(set(variants) - {args.variant}):
+            path = Path(f"{_output_stem(out, stem, other)}_disp.npy")
+            if path.is_file():
+                found = read_npy_file(path, "disparity")
+                if found.shape == disp_px.shape and np.isfinite(found).all():
+                    maps[other] = found
+        lows, highs = zip(*(color_scale(d) for d in maps.values()), strict=True)
+        scale = (min(lows), max(highs))
+    else:
+        scale = (0.0, float(args.vmax))
+    for variant, disp in maps.items():
+        png = Path(f"{_output_stem(out, stem, variant)}_disp.png")
+        policy.claim([png], left_path)  # this variant's claimed already, the others' from their run
+        write_png(png, colorize_disparity(disp, scale, args.colorbar))

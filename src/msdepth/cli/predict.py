@@ -171,10 +171,20 @@ def _depth_to_png16(depth: np.ndarray) -> np.ndarray:
 
 def _colorize_disparity(disp_px: np.ndarray, colorbar: bool = False) -> np.ndarray:
     """Disparity -> uint8 RGB (plasma, min .. 95th percentile), optionally with a labelled colour bar."""
-    vmin = float(disp_px.min())
-    vmax = float(np.percentile(disp_px, COLOR_PERCENTILE))
-    scale = 255.0 / max(vmax - vmin, 1e-6)
-    levels = np.clip((disp_px - vmin) * scale, 0, 255).astype(np.uint8)
+    return colorize_disparity(disp_px, color_scale(disp_px), colorbar)
+
+
+def color_scale(disp_px: np.ndarray) -> tuple[float, float]:
+    """The colour scale of a disparity map (px): its min and its :data:`COLOR_PERCENTILE` th percentile."""
+    return float(disp_px.min()), float(np.percentile(disp_px, COLOR_PERCENTILE))
+
+
+def colorize_disparity(disp_px: np.ndarray, scale: tuple[float, float], colorbar: bool = False) -> np.ndarray:
+    """Disparity (px) -> uint8 RGB (plasma) on the colour scale ``scale`` (vmin, vmax: clipped beyond),
+    optionally with a labelled colour bar: one scale for several maps makes them comparable by eye."""
+    vmin, vmax = scale
+    scale_factor = 255.0 / max(vmax - vmin, 1e-6)
+    levels = np.clip((disp_px - vmin) * scale_factor, 0, 255).astype(np.uint8)
     rgb = cv2.cvtColor(cv2.applyColorMap(levels, COLORMAP), cv2.COLOR_BGR2RGB)
     if colorbar:
         rgb = np.concatenate([rgb, _colorbar(disp_px.shape[0], vmin, vmax)], axis=1)

@@ -174,9 +174,31 @@ def _read_eval_list(path: str | os.PathLike, root: Path) -> list[tuple[str, str,
 
 
 def _image_files(folder: Path) -> list[Path]:
+    """The images below ``folder``, sorted; one whose name :func:`_unlistable` refuses is a DataError
+    naming it (and how many others share the problem), in prepare_data and index alike."""
     if not folder.is_dir():
         raise DataError(f"{folder}: no image folder")
-    return sorted(p for p in folder.rglob("*") if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES)
+    files = sorted(p for p in folder.rglob("*") if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES)
+    odd = [p for p in files if _unlistable(p.relative_to(folder))]
+    if odd:
+        others = f" ({len(odd) - 1} other image(s) too)" if len(odd) > 1 else ""
+        raise DataError(
+            f"{repr(str(odd[0]))[1:-1]}: {_unlistable(odd[0].relative_to(folder))}: the pipeline's lists "
+            f"hold one 'left right' pair per line; rename it{others}"
+        )
+    return files
+
+
+def _unlistable(name: Path) -> str:
+    """Why an image's relative ``name`` cannot stand in the pipeline's lists, "" if it can: bytes
+    that are not UTF-8 (no text file can hold them) or white space (space, tab, newline, carriage
+    return: the lists' separators)."""
+    text = str(name)
+    if any("\udc80" <= c <= "\udcff" for c in text):  # os.fsdecode's escapes of undecodable bytes
+        return "a file name that is not UTF-8"
+    if any(c.isspace() for c in text):
+        return "a file name with white space (space, tab, newline or carriage return)"
+    return ""
 
 
 def _existing(path: Path, what: str) -> Path:

@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from msdepth.config.checks import shown
 from msdepth.config.params_yaml import read_data_file
 from msdepth.data import kitti, kitti2012
 from msdepth.data.imagefile import MAX_IMAGE_PIXELS, check_pixel_limit
@@ -114,9 +115,16 @@ def read_classes(path: str | os.PathLike) -> dict[int, str]:
         raise DataError(f"{path}: expected a mapping of labels to class names, e.g. {{1: transparent}}")
     for label, name in raw.items():
         if isinstance(label, bool) or not isinstance(label, int) or not 1 <= label <= MAX_LABEL:
-            raise DataError(f"{path}: label {label!r} must be an integer 1..{MAX_LABEL} (0 = no class)")
+            raise DataError(f"{path}: label {shown(label)} must be an integer 1..{MAX_LABEL} (0 = no class)")
+        if not isinstance(name, str):  # a list or mapping is no name (and cannot be looked up)
+            known = list(kitti.CLASS_BITS)
+            raise DataError(
+                f"{path}: label {label}: expected one class name, got {shown(name)}; known: {known}"
+            )
         if name not in kitti.CLASS_BITS:
-            raise DataError(f"{path}: label {label}: unknown class {name!r}; known: {list(kitti.CLASS_BITS)}")
+            raise DataError(
+                f"{path}: label {label}: unknown class {shown(name)}; known: {list(kitti.CLASS_BITS)}"
+            )
     return raw
 
 

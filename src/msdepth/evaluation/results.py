@@ -164,7 +164,7 @@ def score_run(params: Params, suite: str, run: str, depth: Path, eval_index: Pat
     (``train.mode`` mono | mono_stereo) median-scaled."""
     frames = load_frames(read_eval_index(eval_index))
     boxes = kitti.read_rois(rois) if suite != "full" else None
-    pred = read_depth_maps(depth)
+    pred = read_depth_maps(depth, frames)
     run_suite(params, suite, run, pred, frames, boxes, scaled=params.train.monocular)
 
 

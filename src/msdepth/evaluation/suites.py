@@ -480,9 +480,27 @@ def evaluate_gradients(
     return summary, pd.DataFrame(rows)
 
 
-def read_depth_maps(path: str | os.PathLike) -> dict[str, np.ndarray]:
-    """Depth maps written by the depth stage (an ``.npz`` keyed by frame)."""
+def read_depth_maps(path: str | os.PathLike, frames: Sequence[Frame] | None = None) -> dict[str, np.ndarray]:
+    """Depth maps written by the depth stage (an ``.npz`` keyed by frame). Given the evaluation
+    ``frames``, each must be there as a float map of its frame's GT size with depths > 0 (inf: no
+    match); a file that is not (damaged, or written by other code) is a DataError naming it."""
     path = Path(path)
     if not path.exists():
         raise DataError(f"{path}: no depth maps (run the depth stage)")
-    return read_npz_file(path, "depth maps")
+    maps = read_npz_file(path, "depth maps")
+    for frame in frames or ():
+        depth = maps.get(frame.name)
+        if depth is None:
+            raise DataError(
+                f"{path}: no depth map of evaluation frame {frame.name!r}; re-run the depth stage"
+            )
+        if depth.shape != frame.shape or depth.dtype.kind != "f":
+            raise DataError(
+                f"{path}: frame {frame.name!r}'s depth map is {depth.dtype} {depth.shape}, expected a float "
+                f"map of its GT's size {frame.shape}; re-run the depth stage"
+            )
+        if not (depth > 0).all():  # NaN compares False too
+            raise DataError(
+                f"{path}: frame {frame.name!r}'s depth map holds NaN or a depth <= 0; re-run the depth stage"
+            )
+    return maps

@@ -17,9 +17,11 @@ exact classes where the set has them, D1 and EPE) and its ROI suite on the set's
 One frame in memory at a time while matching or optimising: each frame's disparity goes to a
 scratch folder the stage owns (:func:`_scratch_dir`, below ``checkpoints/``, not a DVC output),
 written atomically, so a killed run redoes only the frames it had not finished. The folder holds a
-key (:func:`_scratch_key`: the instrument, the params it reads, the set index's hash) and is emptied
-when the key differs; it is removed once the metrics are written. Scoring then reads the set's GT
-and depth maps, as the networks' ``eval_set`` stage does.
+key (:func:`_scratch_key`: the instrument, the params it reads, the set index's hash, every image's
+size and modification time, the code's fingerprint) and is emptied when the key differs; it is
+removed once the metrics are written. With ``optimum.jobs`` > 1 the frames run in worker processes
+that end with the stage, even when it is killed (:func:`msdepth.optimum.workers.worker_pool`).
+Scoring then reads the set's GT and depth maps, as the networks' ``eval_set`` stage does.
 """
 
 from __future__ import annotations
@@ -44,6 +46,7 @@ from msdepth.pipeline.paths import (
     SGBM,
     match_run,
     optimum_run,
+    source_digest,
 )
 from msdepth.readers import read_json_file, read_npy_file
 
@@ -53,6 +56,23 @@ SCRATCH = CHECKPOINTS / "sets"  # <set>/<run>/: a set stage's per-frame disparit
 KEY = "key.json"  # what a scratch folder's frames were computed with (_scratch_key)
 # A frame's disparity (fraction of the width, at the working size) in its scratch folder: row i of the index.
 FRAME_FILE = "frame{:06d}.npy"
+
+# The modules (every .py file of a package) whose code shapes a scratch frame: their bytes are part of
+# the scratch key, so frames written by older code are redone. Each is a dep of the set stages in
+# dvc.yaml (a test keeps them so).
+OPTIMUM_MODULES = (
+    "optimum",
+    "losses/appearance",
+    "losses/monodepth.py",
+    "losses/objective.py",
+    "losses/ssim.py",
+    "losses/ssim_kernels.py",
+    "config/variants",
+    "geometry",
+    "data/kitti.py",
+    "data/imagefile.py",
+    "data/pairs.py",
+)
 
 Disparity = Callable[[np.ndarray, np.ndarray], np.ndarray]  # (left, right) uint8 RGB -> (h, w) fraction
 
@@ -64,13 +84,22 @@ def _scratch_dir(name: str, run: str, root: Path = SCRATCH) -> Path:
 
 def _scratch_key(params: Params, instrument: str, variant: str | None, set_index: Path) -> dict:
     """What a scratch folder's frames depend on: the instrument, the ``optimum`` and ``loss`` sections,
-    the variant's own section (for SGM and the optimum) and the sha256 of the set's index, as JSON
-    reads it back (a resumed run compares it with the folder's :data:`KEY`)."""
+    the variant's own section (for SGM and the optimum), the sha256 of the set's index, every image's
+    path, size and modification time (:func:`msdepth.data.pairs.training_data_sha256`: images
+    replaced under the same names are new inputs) and the code's fingerprint (:data:`OPTIMUM_MODULES`,
+    :func:`msdepth.pipeline.paths.source_digest`), as JSON reads it back (a resumed run compares it
+    with the folder's :data:`KEY`)."""
+    from msdepth.data.eval_index import read_eval_index
+    from msdepth.data.pairs import training_data_sha256
     from msdepth.readers import file_sha256
 
+    index = read_eval_index(set_index)
+    images = [Path(p) for row in index.itertuples() for p in (row.left, row.right)]
     key = {
         "instrument": instrument,
         "set_index_sha256": file_sha256(set_index, "index"),
+        "images": training_data_sha256(None, images),
+        "code": source_digest(Path(__file__).resolve().parents[1], OPTIMUM_MODULES),
         # jobs: how many frames run at once, not what a frame's result is
         "optimum": {k: v for k, v in dataclasses.asdict(params.optimum).items() if k != "jobs"},
         "loss": dataclasses.asdict(params.loss),
@@ -145,21 +174,15 @@ def _frame(disparity: Disparity, left: str, right: str, path: Path) -> float:
     return time.perf_counter() - started
 
 
-def _worker_threads(threads: int) -> None:
-    """A worker process's start: ``threads`` torch threads, as the stage's own process has."""
-    import torch
-
-    torch.set_num_threads(threads)
-
-
 def frame_disparities(
     index: pd.DataFrame, folder: Path, disparity: Disparity, label: str, jobs: int = 1, threads: int = 1
 ) -> None:
     """``disparity`` of every row ``(left, right)`` of ``index`` not yet in ``folder``, each saved
     atomically as :data:`FRAME_FILE`; progress (frame, seconds) logged per frame.
 
-    One frame at a time, or with ``jobs`` > 1 that many frames at once in worker processes (spawned,
-    each with ``threads`` torch threads and one frame in memory; ``disparity`` must pickle, as a
+    One frame at a time, or with ``jobs`` > 1 that many frames at once in worker processes
+    (:func:`msdepth.optimum.workers.worker_pool`: spawned, ending with this process even when it is
+    killed, each with ``threads`` torch threads and one frame in memory; ``disparity`` must pickle, as a
     :class:`SetInstrument` does). The first failure stops the run: frames not yet started are
     cancelled, the finished ones kept for the next run.
     """
@@ -173,13 +196,12 @@ def frame_disparities(
             seconds = _frame(disparity, row.left, row.right, folder / FRAME_FILE.format(i))
             log.info("%s: frame %d/%d (%s) in %.1f s", label, i + 1, total, row.frame, seconds)
         return
-    import multiprocessing
-    from concurrent.futures import ProcessPoolExecutor, as_completed
+    from concurrent.futures import as_completed
     from concurrent.futures.process import BrokenProcessPool
 
-    context = multiprocessing.get_context("spawn")  # fork would copy torch's thread pools
-    workers = min(jobs, len(todo))
-    pool = ProcessPoolExecutor(workers, mp_context=context, initializer=_worker_threads, initargs=(threads,))
+    from msdepth.optimum.workers import worker_pool
+
+    pool = worker_pool(min(jobs, len(todo)), threads)  # spawned; they end with this process
     try:
         running = {
             pool.submit(_frame, disparity, row.left, row.right, folder / FRAME_FILE.format(i)): (i, row)

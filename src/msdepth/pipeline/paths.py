@@ -10,6 +10,7 @@ it imports is every stage's dependency.
 from __future__ import annotations
 
 import argparse
+import hashlib
 import inspect
 import logging
 import os
@@ -212,6 +213,26 @@ def train_timing_path(run: str) -> Path:
 def cost_curves_path(variant: str, root: Path = COST_CURVES) -> Path:
     """A variant's cost-curve summary (the cost_curves stage's)."""
     return Path(root) / f"{variant}.json"
+
+
+def source_files(package: Path, modules: typing.Sequence[str]) -> list[Path]:
+    """The files of ``modules`` (paths below ``package``, the ``msdepth`` folder), each package
+    expanded to its sorted .py files."""
+    files: list[Path] = []
+    for name in modules:
+        path = package / name
+        files.extend(sorted(path.rglob("*.py")) if path.is_dir() else [path])
+    return files
+
+
+def source_digest(package: Path, modules: typing.Sequence[str]) -> str:
+    """Hash (hex, 16 digits) of the source of ``modules`` (:func:`source_files`), each file under its
+    path below ``package``: part of every resume key (a training checkpoint's fingerprint, an optimum
+    set stage's scratch key), so that state written by other code is never resumed."""
+    digest = hashlib.sha256()
+    for path in source_files(package, modules):
+        digest.update(path.relative_to(package).as_posix().encode() + b"\0" + path.read_bytes() + b"\0")
+    return digest.hexdigest()[:16]
 
 
 def _stage_parser(fn: Callable[..., None]) -> argparse.ArgumentParser:

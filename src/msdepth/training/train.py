@@ -43,6 +43,7 @@ from msdepth.networks.pose import PoseNet
 from msdepth.networks.resnet import load_pretrained
 from msdepth.networks.resnet_depth import ResNetMonodepth
 from msdepth.networks.serialization import load_weights_file, save_weights_file
+from msdepth.pipeline.paths import source_digest, source_files
 from msdepth.readers import file_sha256
 from msdepth.training import distributed
 from msdepth.training.distributed import Context, GlobalBatchSampler
@@ -228,20 +229,12 @@ TRAINING_MODULES = (
 
 def _training_files() -> list[Path]:
     """The source files of :data:`TRAINING_MODULES`, packages expanded to their sorted .py files."""
-    root = Path(__file__).resolve().parents[1]
-    files: list[Path] = []
-    for name in TRAINING_MODULES:
-        path = root / name
-        files.extend(sorted(path.rglob("*.py")) if path.is_dir() else [path])
-    return files
+    return source_files(Path(__file__).resolve().parents[1], TRAINING_MODULES)
 
 
 def _code_digest() -> str:
     """Hash of the source of :data:`TRAINING_MODULES` (each file under its path in the package)."""
-    root, digest = Path(__file__).resolve().parents[1], hashlib.sha256()
-    for path in _training_files():
-        digest.update(path.relative_to(root).as_posix().encode() + b"\0" + path.read_bytes() + b"\0")
-    return digest.hexdigest()[:16]
+    return source_digest(Path(__file__).resolve().parents[1], TRAINING_MODULES)
 
 
 def fingerprint(
