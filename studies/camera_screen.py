@@ -51,8 +51,8 @@ from msdepth.errors import ConfigError, run_main
 from msdepth.evaluation.rendered import rendered_eval_set
 from msdepth.evaluation.suites import Frame, depth_maps, evaluate_full, evaluate_roi
 from msdepth.io import write_text
-from msdepth.outputs import OutputPolicy
 from msdepth.optimum.selection import choose_weights, select_rows
+from msdepth.outputs import OutputPolicy
 from msdepth.reporting.verdict import (
     NAMES,
     Row,
