@@ -11,7 +11,9 @@ from __future__ import annotations
 
 import sys
 
+from msdepth.errors import run_main
 from msdepth.pipeline.fingerprints import main
 
 if __name__ == "__main__":
-    sys.exit(main(sys.argv[1:], prog="stages/fingerprints.py"))
+    # run_main, not run_stage: this stage runs before validate_params and reads no params.
+    sys.exit(run_main("stages/fingerprints.py", lambda: main(sys.argv[1:], prog="stages/fingerprints.py")))

@@ -80,8 +80,10 @@ def test_two_ranks_match_one_process_with_the_same_global_batch(pairs, tmp_path:
     # Rank 0 wrote the model after checking that both ranks' replicas (network and learned
     # MS-SSIM level weights) are bit-identical.
     single, ddp = _weights(tmp_path / "single" / "model.pt"), _weights(tmp_path / "ddp" / "model.pt")
+    # all-reduce sums the two ranks' gradients in another order than one process sums its batch: on
+    # a 2-core AMD EPYC one weight of 4,608 ends 1.3e-5 apart after the run (rounding, not a defect)
     for name in single:
-        torch.testing.assert_close(ddp[name], single[name], rtol=1e-4, atol=1e-5)
+        torch.testing.assert_close(ddp[name], single[name], rtol=1e-4, atol=5e-5)
     level = [
         torch.load(tmp_path / run / "model.pt", weights_only=True)["criterion"]["level_weights.logits"]
         for run in ("single", "ddp")

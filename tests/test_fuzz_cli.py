@@ -34,7 +34,7 @@ FEW = settings(
     database=None,
     suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture],
 )
-FUZZED = ("predict", "optimum", "export-onnx", "export-folder", "experiments")
+FUZZED = ("predict", "optimum", "export-onnx", "export-folder", "experiments", "photometry")
 MAX_LINE = 1000  # an error line echoing a 100 KB value is a defect too (case 12)
 
 # A file name component: any character but "/" and NUL, or any bytes (not UTF-8 too) but those.
@@ -201,6 +201,34 @@ def test_export_folder_on_hostile_names_and_trees(to: str, source: str) -> None:
             _image(src / "kitti2015" / "training" / "image_2" / "000000_10.png", 2, "junk")
         code, _ = _run(["export-folder", "--from", str(src), "--to", str(tmp / to)])
         assert code != 0
+
+
+@FEW
+@given(
+    out=_names,
+    tree=st.sampled_from(["missing", "file", "empty", "junk images", "gt of another size"]),
+    width=st.sampled_from([None, -1, 0, 15, 16, 4097, 10**9]),
+)
+def test_photometry_on_hostile_names_trees_and_widths(out: str, tree: str, width: int | None) -> None:
+    with _folder() as tmp:
+        training = tmp / "k15" / "training"
+        if tree == "file":
+            (tmp / "k15").write_bytes(b"not a folder")
+        elif tree == "empty":
+            training.mkdir(parents=True)
+        elif tree != "missing":
+            for sub, seed in (("image_2", 1), ("image_3", 2), ("disp_occ_0", 3)):
+                _image(training / sub / "000000_10.png", seed, "junk" if tree == "junk images" else "png")
+            if tree == "gt of another size":
+                gt = np.ones((10, 10), np.uint16) * 256
+                (training / "disp_occ_0" / "000000_10.png").write_bytes(cv2.imencode(".png", gt)[1].tobytes())
+        before = _snapshot(tmp, tmp / "nothing")
+        try:
+            code, _ = _run(["photometry", str(tmp / "k15"), "--out", str(tmp / out), *_opt("--width", width)])
+        except OSError:  # a name the file system refuses (too long in bytes): nothing to test
+            return
+        assert code != 0
+        assert {p: b for p, b in _snapshot(tmp, tmp / "nothing").items() if p in before} == before
 
 
 @settings(FEW, max_examples=40)

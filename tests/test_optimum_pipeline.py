@@ -143,7 +143,10 @@ def test_weights_frames_and_run_names(tmp_path: Path):
         checked_weight(params, "ten")
     index = pd.DataFrame({"frame": [f"{i:06d}_10" for i in range(12)]})
     assert len(sweep_frames(params, index, 10.0)) == 12  # the default weight: every frame
-    assert list(sweep_frames(params, index, 3.0)["frame"]) == list(index["frame"][:4])
+    assert len(sweep_frames(params, index, 3.0)) == 12  # default sweep_frames 0: every weight, every frame
+    cheap = params_from_dict({"optimum": {"sweep_frames": 4}})
+    assert list(sweep_frames(cheap, index, 3.0)["frame"]) == list(index["frame"][:4])
+    assert len(sweep_frames(cheap, index, 10.0)) == 12
     assert len(_first_frames(index, 0)) == 12 and list(_first_frames(index, 2)["frame"]) == [
         "000000_10",
         "000001_10",
