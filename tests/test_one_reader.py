@@ -93,7 +93,7 @@ def test_the_kitti_jpeg_conversion_bounds_an_image_before_decoding_it(tmp_path: 
 # Reads of files the pipeline wrote itself, allowed outside msdepth.io's readers, with why.
 PIPELINE_READ_ALLOWED = {
     # the package's own source, hashed and parsed (no user file)
-    ("src/msdepth/training/train.py", "path.read_bytes()"),
+    ("src/msdepth/pipeline/paths.py", "path.read_bytes()"),
     # a PNG this command wrote a moment ago in its own temporary folder
     ("src/msdepth/cli/example.py", "png_size(written.read_bytes())"),
     # the pair cache is memory-mapped after open_regular has checked it
