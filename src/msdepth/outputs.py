@@ -347,6 +347,8 @@ def output_file_policy(
     it before writing): OutputError (one line) if ``out`` is a folder, an input, or a file the
     command did not write."""
     out = Path(out)
+    if any(resolved(out) == resolved(p) for p in inputs):  # before "a folder": an input folder is an input
+        raise OutputError(f"{out}: an input; --out names the file to write")
     if out.is_dir():
         raise OutputError(f"{out}: a folder; --out names the file to write")
     policy = OutputPolicy(out.parent, command, inputs)

@@ -13,7 +13,7 @@ import sys
 from pathlib import Path
 from typing import Callable
 
-from msdepth.errors import ConfigError, OutputError
+from msdepth.errors import ConfigError
 
 DEFAULT_WIDTH = 414  # the synthetic set's render width (data.synthetic.width)
 MAX_WIDTH = 4096
@@ -50,10 +50,6 @@ def run(args: argparse.Namespace) -> int:
 
     if not 16 <= args.width <= MAX_WIDTH:
         raise ConfigError(f"--width: must be 16 to {MAX_WIDTH} px, got {args.width}")
-    out = Path(args.out).resolve()
-    for folder in args.folders:  # checked before the policy's "a folder": this folder is an input
-        if out == Path(folder).resolve():
-            raise OutputError(f"{args.out}: an input folder; --out names the CSV file to write")
     policy = output_file_policy(args.out, "photometry", tuple(args.folders))
     policy.claim([Path(args.out)], args.folders[0])
     table = pd.concat([measure_real(folder, args.width) for folder in args.folders], ignore_index=True)
