@@ -194,19 +194,20 @@ def own_best_tables(
     (``optimum.sweep_frames`` > 0) or only one weight ran.
     """
     variants = {v for runs in by_weight.values() for v in runs}
-    found, chosen = {}, {}
+    found, chosen, added = {}, {}, {}
     for variant in sorted(variants):
         runs = {float(w[1:]): r[variant] for w, r in by_weight.items() if variant in r}
         full = {w: tables["full"][r] for w, r in runs.items()}
         headline = {w: t[t["cap"] == cap] for w, t in full.items()}
         if len(runs) < 2 or len({frozenset(t["frame"]) for t in headline.values()}) != 1:
-            return {}, {}
+            return {}, {}  # ``tables`` untouched: the rows are added only once every variant has them
         frames, chosen[variant] = choose_weights(headline)
-        run = f"{next(iter(runs.values())).rsplit('/', 1)[0]}/own_best"
-        tables["full"][run] = select_rows(full, frames, "frame")
+        run = found[variant] = f"{next(iter(runs.values())).rsplit('/', 1)[0]}/own_best"
+        added[("full", run)] = select_rows(full, frames, "frame")
         if "roi" in tables:
-            tables["roi"][run] = select_rows({w: tables["roi"][r] for w, r in runs.items()}, frames, "image")
-        found[variant] = run
+            added[("roi", run)] = select_rows({w: tables["roi"][r] for w, r in runs.items()}, frames, "image")
+    for (suite, run), table in added.items():
+        tables[suite][run] = table
     return found, chosen
 
 
