@@ -95,3 +95,17 @@ def test_no_own_best_row_when_the_weights_saw_other_frames() -> None:
     tables, by_weight = _tables({("ssim", "w3"): np.ones(12), ("ssim", "w10"): np.ones(12)})
     tables["full"]["optimum/ssim/w3"] = tables["full"]["optimum/ssim/w3"].iloc[:8]
     assert own_best_tables(tables, by_weight, 80) == ({}, {})
+
+
+def test_no_own_best_row_from_a_single_frame() -> None:
+    """A one-frame set (real KITTI with one evaluation pair) has no other fold to choose on: the
+    comparison goes on without the row instead of failing (CI, test_real_kitti_files_run_every_stage)."""
+    tables, by_weight = _tables({(v, w): np.ones(12) for v in ("ssim", "msssim") for w in ("w3", "w10")})
+    for suite in tables.values():
+        for run in suite:
+            key = "frame" if "frame" in suite[run] else "image"
+            suite[run] = suite[run][suite[run][key] == FRAMES[0]]
+    before = {s: dict(t) for s, t in tables.items()}
+    assert own_best_tables(tables, by_weight, 80) == ({}, {})
+    assert own_best_rows(tables, by_weight, Params(), "") == []
+    assert {s: dict(t) for s, t in tables.items()} == before

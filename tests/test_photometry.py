@@ -145,3 +145,17 @@ def test_the_committed_default_camera_is_calibrated_within_tolerance() -> None:
     assert summary["worst"]["rendered"] <= TOLERANCE
     assert summary["worst"]["rendered, no camera"] > TOLERANCE
     assert summary["frames"]["real"] == len(pd.read_csv(REFERENCE))
+
+
+def test_a_lidar_scan_keeps_every_pixel_with_a_point_and_an_empty_gt_is_one_line(tmp_path: Path) -> None:
+    """A projected scan (~5 % of pixels) would lose every pixel to the majority rule at a third of
+    its size (CI: real KITTI with LiDAR GT failed the photometry stage)."""
+    left, right, disp = _textured_pair(shift=6)
+    points = np.zeros_like(disp)
+    points[::5, ::5] = disp[::5, ::5]  # 4 % of the pixels
+    small_d = resize_pair(left, right, points, 32)[2]
+    assert (small_d > 0).mean() == pytest.approx(8 / 20 * 13 / 32) and np.allclose(small_d[small_d > 0], 3.0)
+    folder = _fake_kitti2015(tmp_path / "k15")
+    kitti.write_disparity(folder / "training" / "disp_occ_0" / "000000_10.png", np.zeros((40, 64), np.float32))
+    with pytest.raises(DataError, match=r"000000_10\.png: at 32 px wide no GT pixel"):
+        measure_real(folder, 32)

@@ -43,8 +43,11 @@ from msdepth.readers import read_table_file
 
 _LUMA = np.array([0.299, 0.587, 0.114], np.float32)  # ITU-R BT.601
 _IMMERKAER = np.array([[1, -2, 1], [-2, 4, -2], [1, -2, 1]], np.float32)
-# A resized sparse GT pixel keeps its value only where most of the pixels it averages had one.
+# A resized GT pixel keeps its value only where most of the pixels it averages had one ...
 _MIN_VALID_FRACTION = 0.5
+# ... unless the GT is a scan of points (a projected LiDAR sweep covers ~5 % of a KITTI image, the
+# densest KITTI 2012/2015 disparity maps 19-36 %): then one valid pixel is enough.
+_POINTS_DENSITY = 0.1
 
 
 @dataclass(frozen=True)
@@ -75,8 +78,8 @@ def resize_pair(
     """The pair and its GT disparity (px, 0 = none) at ``width`` px wide, the aspect kept.
 
     Images are area-averaged (what a smaller sensor of the same optics would record). The sparse GT
-    is averaged over its valid pixels only and kept where at least half of them were valid; its
-    values scale with the width.
+    is averaged over its valid pixels only and kept where at least half of them were valid (where
+    any was, for GT covering under 10 % of the image: a LiDAR scan); its values scale with the width.
     """
     h, w = disp.shape
     if w == width:
@@ -85,8 +88,9 @@ def resize_pair(
     valid = (disp > 0).astype(np.float32)
     total = cv2.resize(disp * valid, size, interpolation=cv2.INTER_AREA)
     count = cv2.resize(valid, size, interpolation=cv2.INTER_AREA)
+    least = _MIN_VALID_FRACTION if valid.mean() >= _POINTS_DENSITY else 1e-6
     with np.errstate(invalid="ignore", divide="ignore"):
-        small = np.where(count >= _MIN_VALID_FRACTION, total / count, 0.0) * (width / w)
+        small = np.where(count >= least, total / count, 0.0) * (width / w)
     shrink = [cv2.resize(v, size, interpolation=cv2.INTER_AREA) for v in (left, right)]
     return shrink[0], shrink[1], small.astype(np.float32)
 
@@ -175,6 +179,15 @@ def real_layout(root: Path) -> tuple[str, Path]:
     )
 
 
+def _measured(gt: str | os.PathLike, left: np.ndarray, right: np.ndarray, disp: np.ndarray, width: int) -> list:
+    """The pair's statistics at ``width`` (:func:`as_row`); DataError naming its GT file ``gt``
+    where no GT pixel is left with a match inside the right view."""
+    try:
+        return as_row(pair_stats(*resize_pair(left, right, disp, width)))
+    except ValueError as err:
+        raise DataError(f"{gt}: at {width} px wide {str(err).removeprefix('pair_stats: ')}") from None
+
+
 def measure_real(root: str | os.PathLike, width: int) -> pd.DataFrame:
     """Per frame (``*_10.png``) of a KITTI 2015 or 2012 training folder, its statistics at ``width``.
 
@@ -194,7 +207,7 @@ def measure_real(root: str | os.PathLike, width: int) -> pd.DataFrame:
         left, right = kitti.read_image(paths[0]), kitti.read_image(paths[1])
         check_same_size(paths[0], left.shape, paths[1], right.shape, "right image")
         check_same_size(paths[0], left.shape, paths[2], disp.shape, "GT")
-        rows.append([name, frame, width, *as_row(pair_stats(*resize_pair(left, right, disp, width)))])
+        rows.append([name, frame, width, *_measured(paths[2], left, right, disp, width)])
     return pd.DataFrame(rows, columns=[*FRAME_COLUMNS, *STATS])
 
 
@@ -209,7 +222,7 @@ def measure_index(index: pd.DataFrame, width: int = 0) -> pd.DataFrame:
         check_same_size(Path(row.left), left.shape, Path(row.gt), depth.shape, "GT")
         disp = np.where(depth > 0, row.focal * row.baseline / np.maximum(depth, 1e-6), 0).astype(np.float32)
         size = width or disp.shape[1]
-        rows.append(["eval", row.frame, size, *as_row(pair_stats(*resize_pair(left, right, disp, size)))])
+        rows.append(["eval", row.frame, size, *_measured(row.gt, left, right, disp, size)])
     return pd.DataFrame(rows, columns=[*FRAME_COLUMNS, *STATS])
 
 

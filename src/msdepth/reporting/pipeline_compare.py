@@ -16,7 +16,7 @@ from msdepth.evaluation.baselines import BASELINES, skipped_reason
 from msdepth.evaluation.suites import no_rois
 from msdepth.io import write_json, write_text
 from msdepth.optimum.frames import matcher_runs, optimum_runs
-from msdepth.optimum.selection import choose_weights, select_rows
+from msdepth.optimum.selection import FOLDS, choose_weights, select_rows
 from msdepth.pipeline.paths import (
     COMPARE_JSON,
     COMPARE_MD,
@@ -191,7 +191,8 @@ def own_best_tables(
 
     ``by_weight``: ``{"w<weight>": {variant: run}}``. Returns ``{variant: its own-best run}`` and
     ``{variant: {fold: chosen weight}}``; empty where the weights were scored on different frames
-    (``optimum.sweep_frames`` > 0) or only one weight ran.
+    (``optimum.sweep_frames`` > 0), only one weight ran, or there are fewer frames than folds (a
+    one-frame set has no other frames to choose on).
     """
     variants = {v for runs in by_weight.values() for v in runs}
     found, chosen, added = {}, {}, {}
@@ -199,7 +200,8 @@ def own_best_tables(
         runs = {float(w[1:]): r[variant] for w, r in by_weight.items() if variant in r}
         full = {w: tables["full"][r] for w, r in runs.items()}
         headline = {w: t[t["cap"] == cap] for w, t in full.items()}
-        if len(runs) < 2 or len({frozenset(t["frame"]) for t in headline.values()}) != 1:
+        names = {frozenset(t["frame"]) for t in headline.values()}
+        if len(runs) < 2 or len(names) != 1 or len(next(iter(names))) < FOLDS:
             return {}, {}  # ``tables`` untouched: the rows are added only once every variant has them
         frames, chosen[variant] = choose_weights(headline)
         run = found[variant] = f"{next(iter(runs.values())).rsplit('/', 1)[0]}/own_best"
