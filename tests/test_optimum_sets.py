@@ -308,7 +308,7 @@ def test_the_verdict_reads_the_sets_rows_frame_by_frame(project: Path):
     rows = {(r.instrument, r.cls): r for r in set_verdict_rows(params, SET, {"msssim": None})}
     assert set(rows) == {
         (f"{name} on {where}", cls)
-        for name in ("stereo networks", "SGM cost start", "optimum w3", "optimum w10")
+        for name in ("stereo networks", "SGM cost start", "optimum w3", "optimum w10", "optimum own best")
         for where, classes in ((SET, ("full frame", "reflective")), (f"{SET} boxes", ("car", "glass")))
         for cls in classes
     }
@@ -319,6 +319,19 @@ def test_the_verdict_reads_the_sets_rows_frame_by_frame(project: Path):
         assert net.unit == unit and net.seeds == 2 and net.kind == "network"
         assert (f"frames (each with all its {where})" if where != SET else unit) in net.method
         assert rows[(f"SGM cost start on {where}", cls)].kind == "optimum"
+
+    # each frame at the weight the other frame preferred (ties: the smaller weight), by hand
+    def own_best(variant: str) -> pd.Series:
+        err = {w: _set_metrics(optimum_run(variant, w))[2].query("cap == 80").set_index("frame")["abs_rel"]
+               for w in ("3.0", "10.0")}  # fmt: skip
+        other = dict(zip(FRAMES, reversed(FRAMES), strict=True))
+        pick = {f: min(err, key=lambda w: (err[w][other[f]], float(w))) for f in FRAMES}
+        return pd.Series({f: err[pick[f]][f] for f in FRAMES})
+
+    own = rows[(f"optimum own best on {SET}", "full frame")]
+    assert own.diff == pytest.approx((own_best("msssim") - own_best("ssim")).mean(), abs=1e-9)
+    assert "each fold of frames at the weight best on the other fold" in own.method and own.n == 2
+    assert rows[(f"optimum own best on {SET} boxes", "car")].kind == "optimum"
 
 
 class ProcessId:

@@ -156,6 +156,8 @@ def test_a_lidar_scan_keeps_every_pixel_with_a_point_and_an_empty_gt_is_one_line
     small_d = resize_pair(left, right, points, 32)[2]
     assert (small_d > 0).mean() == pytest.approx(8 / 20 * 13 / 32) and np.allclose(small_d[small_d > 0], 3.0)
     folder = _fake_kitti2015(tmp_path / "k15")
-    kitti.write_disparity(folder / "training" / "disp_occ_0" / "000000_10.png", np.zeros((40, 64), np.float32))
+    kitti.write_disparity(
+        folder / "training" / "disp_occ_0" / "000000_10.png", np.zeros((40, 64), np.float32)
+    )
     with pytest.raises(DataError, match=r"000000_10\.png: at 32 px wide no GT pixel"):
         measure_real(folder, 32)

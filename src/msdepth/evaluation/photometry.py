@@ -179,7 +179,9 @@ def real_layout(root: Path) -> tuple[str, Path]:
     )
 
 
-def _measured(gt: str | os.PathLike, left: np.ndarray, right: np.ndarray, disp: np.ndarray, width: int) -> list:
+def _measured(
+    gt: str | os.PathLike, left: np.ndarray, right: np.ndarray, disp: np.ndarray, width: int
+) -> list:
     """The pair's statistics at ``width`` (:func:`as_row`); DataError naming its GT file ``gt``
     where no GT pixel is left with a match inside the right view."""
     try:

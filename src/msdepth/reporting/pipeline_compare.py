@@ -178,8 +178,18 @@ def comparison_verdict(
         rows += set_verdict_rows(params, name, pairing, settings)
     better, than = display_names(params.variants, cfg.reference)
     boxed = [n for n in params.eval.extra_sets if any(r.instrument.endswith(f" on {n} boxes") for r in rows)]
-    columns = headline_columns(params.optimum.smoothness_weight, params.eval.extra_sets, boxed)
+    own = [
+        w
+        for n in params.eval.extra_sets
+        for w in (n, f"{n} boxes")
+        if _has_row(rows, f"optimum {OWN_BEST} on {w}")
+    ]
+    columns = headline_columns(params.optimum.smoothness_weight, params.eval.extra_sets, boxed, own)
     return verdict_data(rows, cap, cfg.confidence, better, than, settings, columns)
+
+
+def _has_row(rows: Sequence[Row], instrument: str) -> bool:
+    return any(r.instrument == instrument for r in rows)
 
 
 def own_best_tables(
@@ -218,13 +228,19 @@ def own_best_rows(
     by_weight: dict[str, dict[str, str]],
     params: Params,
     settings: str,
+    scope: RowScope | None = None,
+    suites: Sequence[str] = (),
 ) -> list[Row]:
     """The verdict's rows of the optimum at each variant's own best weight (:func:`own_best_tables`),
-    named ``optimum own best``; each row's method names the weights chosen per fold."""
+    named ``optimum own best``; each row's method names the weights chosen per fold. ``suites``: the
+    suites that get rows (default: every one of ``tables``; the weights are chosen on ``full``)."""
     runs, chosen = own_best_tables(tables, by_weight, params.eval.caps[0])
     if not runs:
         return []
-    rows = optimum_rows(tables, {OWN_BEST: runs}, params.compare, params.eval.caps[0], settings)
+    scored = {suite: tables[suite] for suite in (suites or tables)}
+    rows = optimum_rows(
+        scored, {OWN_BEST: runs}, params.compare, params.eval.caps[0], settings, scope or RowScope()
+    )
     picked = "; ".join(
         f"{v}: " + ", ".join(f"w{w:g}" for _, w in sorted(folds.items())) for v, folds in chosen.items()
     )
@@ -342,7 +358,26 @@ def _set_suite_rows(
         if suite == "full" or _has_boxes(root, list(found.values())):
             tables = load_unit_tables(root, list(found.values()), [suite])
             rows += optimum_rows(tables, {label: found}, cfg, cap, settings, scope, instrument)
-    return rows
+    return rows + _set_own_best_rows(params, root, suite, scope, instruments, settings)
+
+
+def _set_own_best_rows(
+    params: Params, root: Path, suite: str, scope: RowScope, instruments: dict[str, str], settings: str
+) -> list[Row]:
+    """:func:`own_best_rows` on an extra set: each variant's weight chosen from ``optimum.set_weights``
+    on the other fold of the set's frames (full-frame abs_rel), then scored on ``suite``. [] with
+    fewer than two weights or a variant missing one."""
+    by_weight = {}
+    for w in params.optimum.set_weights:
+        labels = {v: f"{OPTIMUM} {v} w{w:g}" for v in params.variants}
+        if any(label not in instruments for label in labels.values()):
+            return []
+        by_weight[f"w{w:g}"] = {v: instruments[label] for v, label in labels.items()}
+    runs = [r for found in by_weight.values() for r in found.values()]
+    if len(by_weight) < 2 or (suite == "roi" and not _has_boxes(root, runs)):
+        return []
+    tables = load_unit_tables(root, runs, list(dict.fromkeys(["full", suite])))
+    return own_best_rows(tables, by_weight, params, settings, scope, [suite])
 
 
 def _compare_set(params: Params, name: str, label: Callable[[str], str] = str) -> tuple[dict, str]:

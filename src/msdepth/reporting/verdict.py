@@ -380,16 +380,21 @@ class Column:
 OWN_BEST = "own best"
 
 
-def headline_columns(weight: float, sets: Sequence[str] = (), box_sets: Sequence[str] = ()) -> list[Column]:
+def headline_columns(
+    weight: float, sets: Sequence[str] = (), box_sets: Sequence[str] = (), own_best: Sequence[str] = ()
+) -> list[Column]:
     """The summary table's columns, one per instrument family: the stereo networks, the optimum at
-    its default smoothness ``weight``, and that optimum on each extra evaluation set of ``sets``
-    (its rows are named ``<instrument> on <set>``) and on the boxes of each set of ``box_sets``
-    (``<instrument> on <set> boxes``). A new instrument in the summary table is one more entry here.
+    its default smoothness ``weight`` and at each loss's own best weight, and the optimum on each
+    extra evaluation set of ``sets`` (its rows are named ``<instrument> on <set>``) and on the boxes
+    of each set of ``box_sets`` (``<instrument> on <set> boxes``). A new instrument in the summary
+    table is one more entry here.
 
     Args:
         weight: the optimum's default smoothness weight (``optimum.smoothness_weight``).
         sets: the extra evaluation sets (``eval.extra_sets``).
         box_sets: those of ``sets`` whose boxes were scored.
+        own_best: the places (a set's name, or ``<set> boxes``) with own-best rows (the set ran
+            more than one of ``optimum.set_weights``); each gets its column beside the fixed weight's.
 
     Returns:
         The columns, in the table's order.
@@ -397,6 +402,8 @@ def headline_columns(weight: float, sets: Sequence[str] = (), box_sets: Sequence
     Example:
         >>> [c.header for c in headline_columns(10, ["kitti2012", "kitti2015"], ["kitti2015"])][3:]
         ['optimum w10, kitti2012 frames', 'optimum w10, kitti2015 frames', 'optimum w10, kitti2015 boxes']
+        >>> [c.header for c in headline_columns(10, ["kitti2015"], own_best=["kitti2015"])][3:]
+        ['optimum w10, kitti2015 frames', 'optimum own best, kitti2015 frames']
     """
     w = f"w{weight:g}"
     columns = [
@@ -404,10 +411,13 @@ def headline_columns(weight: float, sets: Sequence[str] = (), box_sets: Sequence
         Column(f"loss's own optimum, {w}", "optimum", f"optimum {w}"),
         Column(f"optimum, each loss's {OWN_BEST} weight", "optimum", f"optimum {OWN_BEST}"),
     ]
-    columns += [Column(f"optimum {w}, {name} frames", "optimum", f"optimum {w} on {name}") for name in sets]
-    columns += [
-        Column(f"optimum {w}, {name} boxes", "optimum", f"optimum {w} on {name} boxes") for name in box_sets
-    ]
+    places = [(name, f"{name} frames") for name in sets] + [(f"{n} boxes", f"{n} boxes") for n in box_sets]
+    for where, header in places:
+        columns.append(Column(f"optimum {w}, {header}", "optimum", f"optimum {w} on {where}"))
+        if where in own_best:
+            columns.append(
+                Column(f"optimum {OWN_BEST}, {header}", "optimum", f"optimum {OWN_BEST} on {where}")
+            )
     return columns
 
 
