@@ -10,6 +10,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
+import yaml
 from conftest import run_script
 
 from msdepth.config.checks import SHOWN_CHARS, shown
@@ -145,3 +146,20 @@ def test_a_variant_named_like_a_params_section_is_refused(monkeypatch):
     monkeypatch.setattr(config, "variant_configs", lambda: {"ssim": SSIMConfig, "train": SSIMConfig})
     with pytest.raises(ValueError, match=r"variant\(s\) \['train'\]: the name of a params section"):
         params_from_dict({})
+
+
+def test_an_exponent_without_a_dot_is_a_number() -> None:
+    """Issue 68: PyYAML (YAML 1.1) reads ``3e-4`` as text, so ``train.learning_rate: 3e-4`` and
+    ``--set optimum.learning_rate=1e-3`` failed with "expected a number, got '1e-3'"."""
+    raw = yaml.safe_load(
+        "train: {learning_rate: 3e-4}\noptimum: {learning_rate: 1E-3, smoothness_weight: +1e1}"
+    )
+    assert raw["train"]["learning_rate"] == "3e-4"  # the YAML 1.1 reading the conversion corrects
+    params = params_from_dict(raw)
+    assert params.train.learning_rate == 3e-4 and params.optimum.learning_rate == 1e-3
+    assert params.optimum.smoothness_weight == 10.0
+    for text in ("1e", "e-3", "1e-3x", "0x1p-3"):
+        with pytest.raises(ConfigError, match="expected a number"):
+            params_from_dict({"train": {"learning_rate": text}})
+    with pytest.raises(ConfigError, match="expected an integer"):
+        params_from_dict({"train": {"seeds": ["1e3"]}})  # integers stay strict

@@ -184,6 +184,26 @@ def test_calib_errors(tmp_path: Path) -> None:
         kitti.stereo_from_calib({"P2": np.ones(9), "P3": np.ones(9)})
 
 
+@pytest.mark.parametrize(
+    ("p2", "p3", "problem"),
+    [
+        ("1e-300 0 80 0", "1e-300 0 80 -1e-300", r"focal length must be 1 to 100000 px, got 1e-300"),
+        ("200 0 80 0", "200 0 80 -1e-300", r"baseline of 5e-303 m, outside 0.001 to 10 m"),
+        ("200 0 80 0", "200 0 80 -1e9", r"baseline of 5e\+06 m"),
+        ("200 0 80 0", "200 0 80 108", r"baseline of -0.54 m"),
+    ],
+)
+def test_a_calibration_outside_a_rigs_physical_range_is_one_line(
+    tmp_path: Path, p2: str, p3: str, problem: str
+) -> None:
+    """Issue 68: KITTI calibrations get camera files' ranges (a focal of 1e-300 was indexed)."""
+    path = tmp_path / "000001.txt"
+    path.write_text(f"P2: {p2} 0 200 24 0 0 0 1 0\nP3: {p3} 0 200 24 0 0 0 1 0\n")
+    with pytest.raises(DataError, match=problem) as err:
+        kitti.focal_and_baseline(160, path)
+    assert str(path) in str(err.value)
+
+
 def test_focal_and_baseline(tmp_path: Path) -> None:
     assert kitti.focal_and_baseline(1242) == (721.5377, 0.54)
     assert kitti.focal_and_baseline(1224, tmp_path / "ignored.txt") == (707.0493, 0.54)

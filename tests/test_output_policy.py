@@ -352,3 +352,18 @@ def test_optimum_writes_each_batch_before_the_next_is_optimised(
 
 
 OPTIMUM_SUFFIXES = ("_depth.npy", "_disp.npy", "_disp.png")
+
+
+def test_export_folder_refuses_a_folder_inside_the_tree_it_exports(
+    synthetic: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # Issue 68 (a turn-5 case): `--from data/synthetic --to data/synthetic/out` wrote into the tree,
+    # a DVC output, and `--to data/synthetic/raw/x` among its drives.
+    before = _tree(synthetic)
+    for inside in (synthetic / "out", synthetic / "raw" / "x"):
+        _one_line_refusal(
+            ["export-folder", "--from", str(synthetic), "--to", str(inside)],
+            capsys,
+            "inside the tree it exports",
+        )
+    assert _tree(synthetic) == before

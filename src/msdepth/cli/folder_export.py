@@ -28,11 +28,15 @@ def export_folder(source_root: str | os.PathLike, out: str | os.PathLike) -> dic
     The training pairs become ``left/<drive>_<frame>.png`` and ``right/``; the KITTI 2015 frames
     ``left/eval_<frame>.png`` and ``right/`` too (the index leaves them out of training), their
     ``disp_noc_0`` GT ``gt/eval_<frame>.pfm`` (disparity in px, inf = none), listed in
-    ``eval.txt``; the camera in ``camera.yaml``. ``out`` must not exist or be empty; every file
+    ``eval.txt``; the camera in ``camera.yaml``. ``out`` must not exist or be empty, nor lie inside
+    ``source_root``; every file
     goes through the output policy (:class:`msdepth.outputs.OutputPolicy`) and is written atomically.
     """
     source_root, out = Path(source_root), Path(out)
     policy = OutputPolicy(out, "export-folder", input_dirs=(source_root,))
+    if source_root.is_dir() and out.resolve().is_relative_to(source_root.resolve()):
+        # data.root is a DVC output: a folder written into it would be lost or tracked by mistake
+        raise OutputError(f"{out}: inside the tree it exports ({source_root}); choose a folder outside it")
     if out.is_dir() and any(out.iterdir()):
         raise OutputError(f"{out}: exists and is not an empty folder (not overwriting it)")
     pairs = index_pairs(source_root / "train_files.txt", source_root / "raw").pairs

@@ -7,6 +7,8 @@ sections with these, so neither imports the other for them (and reading params i
 from __future__ import annotations
 
 import dataclasses
+import math
+import re
 import reprlib
 import typing
 from collections.abc import Mapping
@@ -127,3 +129,38 @@ def check_per_pixel_costs(key: str, start: str, sections: Mapping[str, object]) 
         key,
         f"cost needs each variant's per-pixel cost and {without} have none: set it to sgbm or constant",
     )
+
+
+# Every integer parameter fits a signed 64-bit integer (numpy, torch); every float one is finite.
+INT_RANGE = (-(2**63), 2**63 - 1)
+# YAML 1.1 (PyYAML) reads an exponent without a dot (1e-3, 3E+4) as text; YAML 1.2 and users: a number.
+EXPONENT_FLOAT = re.compile(r"[-+]?(\d+\.?\d*|\.\d+)[eE][-+]?\d+")
+
+
+def convert_scalar(value: Any, tp: Any, key: str) -> Any:
+    """Check a YAML scalar against ``tp`` (bool, int, float or str); a ConfigError names ``key``."""
+    if tp is bool:
+        if not isinstance(value, bool):
+            raise ConfigError(f"{key}: expected true/false, got {shown(value)}")
+        return value
+    if tp in (int, float):
+        value = (
+            float(value)
+            if tp is float and isinstance(value, str) and EXPONENT_FLOAT.fullmatch(value)
+            else value
+        )
+        number = isinstance(value, int) or (tp is float and isinstance(value, float))
+        if isinstance(value, bool) or not number:
+            raise ConfigError(
+                f"{key}: expected {'an integer' if tp is int else 'a number'}, got {shown(value)}"
+            )
+        if isinstance(value, int) and not INT_RANGE[0] <= value <= INT_RANGE[1]:
+            raise ConfigError(f"{key}: {shown(value)} is out of range (a 64-bit integer)")
+        if tp is float and not math.isfinite(value):
+            raise ConfigError(f"{key}: expected a finite number, got {value}")
+        return float(value) if tp is float else value
+    if tp is str:
+        if not isinstance(value, str):
+            raise ConfigError(f"{key}: expected a string, got {shown(value)}")
+        return value
+    raise TypeError(f"unsupported config type {tp} at {key}")  # programming error

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import copy
 import dataclasses
-import math
 import os
 import types
 import typing
@@ -13,7 +12,15 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Annotated, Any, Literal, Sequence, get_args, get_origin
 
-from msdepth.config.checks import SHOWN_CHARS, Range, check, check_per_pixel_costs, check_ranges, shown
+from msdepth.config.checks import (
+    SHOWN_CHARS,
+    Range,
+    check,
+    check_per_pixel_costs,
+    check_ranges,
+    convert_scalar,
+    shown,
+)
 from msdepth.config.network_sizes import TRAINING_SIDES, sides_problem
 from msdepth.config.params_yaml import parse
 from msdepth.config.variants import (
@@ -828,35 +835,7 @@ def _convert(value: Any, tp: Any, key: str) -> Any:
             return None
         (inner,) = [a for a in get_args(tp) if a is not type(None)]
         return _convert(value, inner, key)
-    return _convert_scalar(value, tp, key)
-
-
-# Every integer parameter fits a signed 64-bit integer (numpy, torch); every float one is finite.
-INT_RANGE = (-(2**63), 2**63 - 1)
-
-
-def _convert_scalar(value: Any, tp: Any, key: str) -> Any:
-    """Check a YAML scalar against ``tp`` (bool, int, float or str); a ConfigError names ``key``."""
-    if tp is bool:
-        if not isinstance(value, bool):
-            raise ConfigError(f"{key}: expected true/false, got {shown(value)}")
-        return value
-    if tp in (int, float):
-        number = isinstance(value, int) or (tp is float and isinstance(value, float))
-        if isinstance(value, bool) or not number:
-            raise ConfigError(
-                f"{key}: expected {'an integer' if tp is int else 'a number'}, got {shown(value)}"
-            )
-        if isinstance(value, int) and not INT_RANGE[0] <= value <= INT_RANGE[1]:
-            raise ConfigError(f"{key}: {shown(value)} is out of range (a 64-bit integer)")
-        if tp is float and not math.isfinite(value):
-            raise ConfigError(f"{key}: expected a finite number, got {value}")
-        return float(value) if tp is float else value
-    if tp is str:
-        if not isinstance(value, str):
-            raise ConfigError(f"{key}: expected a string, got {shown(value)}")
-        return value
-    raise TypeError(f"unsupported config type {tp} at {key}")  # programming error
+    return convert_scalar(value, tp, key)
 
 
 def _build(cls: type, raw: dict, prefix: str) -> Any:

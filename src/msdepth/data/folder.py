@@ -58,10 +58,7 @@ from msdepth.io import write_text
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
 CAMERA_KEYS = ("focal_px", "width_px", "baseline_m")
-# Physical ranges of a camera file's values: a focal length of 1 px to 1e5 px (a 1e5 px wide
-# telephoto), a baseline of 1 mm to 10 m, an image 1 to 1e5 px wide (a whole number of pixels).
-# Outside them a value is a typo or a unit error (1.0e-300 put focal 9.6e+304 into the index).
-CAMERA_RANGES = {"focal_px": (1.0, 1e5), "width_px": (1.0, 1e5), "baseline_m": (1e-3, 10.0)}
+CAMERA_RANGES = kitti.CAMERA_RANGES
 
 
 @dataclass(frozen=True)

@@ -227,6 +227,12 @@ def read_calib(path: PathLike) -> dict[str, np.ndarray]:
     return calib
 
 
+# Physical ranges of a rig's values, for camera files and KITTI calibrations alike: a focal length
+# of 1 px to 1e5 px (a 1e5 px wide telephoto), a baseline of 1 mm to 10 m, an image 1 to 1e5 px
+# wide. Outside them a value is a typo or a unit error (1.0e-300 put focal 9.6e+304 into the index).
+CAMERA_RANGES = {"focal_px": (1.0, 1e5), "width_px": (1.0, 1e5), "baseline_m": (1e-3, 10.0)}
+
+
 def stereo_from_calib(calib: dict[str, np.ndarray]) -> tuple[float, float]:
     """``(focal_px, baseline_m)`` of the rectified colour pair (camera 2 left, camera 3 right)."""
     for left, right in (("P_rect_02", "P_rect_03"), ("P2", "P3")):
@@ -240,14 +246,17 @@ def stereo_from_calib(calib: dict[str, np.ndarray]) -> tuple[float, float]:
             if not (np.isfinite(p2).all() and np.isfinite(p3).all()):
                 raise DataError(f"calibration: {left}/{right} contain NaN or infinite values")
             focal = float(p2[0, 0])
-            if focal <= 0:
-                raise DataError(f"calibration: {left} has a non-positive focal length {focal}")
-            baseline = float((p2[0, 3] - p3[0, 3]) / focal)
-            # Depth = focal * baseline / disparity: a zero, negative or infinite baseline would
-            # turn every depth into garbage downstream (camera 3 must sit right of camera 2).
-            if not (np.isfinite(baseline) and baseline > 0):
+            (f_low, f_high), (b_low, b_high) = CAMERA_RANGES["focal_px"], CAMERA_RANGES["baseline_m"]
+            if not f_low <= focal <= f_high:
                 raise DataError(
-                    f"calibration: {left}/{right} give a non-positive or non-finite baseline {baseline} m"
+                    f"calibration: {left}'s focal length must be {f_low:g} to {f_high:g} px, got {focal:g}"
+                )
+            baseline = float((p2[0, 3] - p3[0, 3]) / focal)
+            # Depth = focal * baseline / disparity: a baseline out of range turns every depth into
+            # garbage downstream (camera 3 must sit right of camera 2).
+            if not (np.isfinite(baseline) and b_low <= baseline <= b_high):
+                raise DataError(
+                    f"calibration: {left}/{right} give a baseline of {baseline:g} m, outside {b_low:g} to {b_high:g} m"
                 )
             return focal, baseline
     raise DataError(f"calibration: no P_rect_02/P_rect_03 or P2/P3 projections (keys: {sorted(calib)})")
