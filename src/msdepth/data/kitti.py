@@ -256,7 +256,8 @@ def stereo_from_calib(calib: dict[str, np.ndarray]) -> tuple[float, float]:
             # garbage downstream (camera 3 must sit right of camera 2).
             if not (np.isfinite(baseline) and b_low <= baseline <= b_high):
                 raise DataError(
-                    f"calibration: {left}/{right} give a baseline of {baseline:g} m, outside {b_low:g} to {b_high:g} m"
+                    f"calibration: {left}/{right} give a baseline of {baseline:g} m, "
+                    f"outside {b_low:g} to {b_high:g} m"
                 )
             return focal, baseline
     raise DataError(f"calibration: no P_rect_02/P_rect_03 or P2/P3 projections (keys: {sorted(calib)})")
