@@ -48,7 +48,7 @@ from msdepth.evaluation.suites import depth_maps, evaluate_full, evaluate_roi, i
 from msdepth.io import save_npy, write_text
 from msdepth.outputs import OutputPolicy, claim_output_file
 from msdepth.readers import read_json_file
-from msdepth.reporting.stats import paired_t
+from msdepth.stats import paired_t
 
 INDEX = Path("data/index")
 CLASSES = ("car", "windshield", "glass", "sign")

@@ -7,7 +7,7 @@ the full frame (``metrics/full/<variant>/seed<S>.json``), over all ROIs and per 
 each is a pair (:mod:`msdepth.training.pairing`): δ is the mean of the per-seed differences and σ_d
 their standard deviation. The seed pairs needed for 80 % power in a two-sided 5 % paired t-test,
 the power of the design as run, and the smallest difference it detects come from
-:mod:`msdepth.reporting.power`; the unpaired two-sample size is shown beside it for comparison.
+:mod:`msdepth.stats`; the unpaired two-sample size is shown beside it for comparison.
 Run from the repository root::
 
     python studies/power.py --out studies/results/power.md
@@ -30,9 +30,8 @@ from msdepth.outputs import claim_output_file
 from msdepth.pipeline.paths import METRICS, run_name
 from msdepth.readers import read_json_object
 from msdepth.reporting.comparison import load_suite_metrics
-from msdepth.reporting.power import detectable_difference, pooled_sd, power_at, seeds_needed
 from msdepth.reporting.report import Results, load_results
-from msdepth.reporting.stats import paired_t
+from msdepth.stats import detectable_difference, paired_t, pooled_sd, power_at, seeds_needed
 
 ALPHA, POWER = 0.05, 0.8
 CAP_SEEDS = 12  # issue 39's ceiling on extra stereo seeds
@@ -128,7 +127,7 @@ def preamble(source: str, seeds: str, cap_m: str, reference: str) -> list[str]:
         "(negative: lower error), with the 95 % paired t interval over the seed pairs (`*`: it excludes "
         "0); σ_d: the standard deviation of those per-seed differences; r: the "
         "two variants' correlation over seeds. Pairs needed: for a two-sided paired t-test at "
-        f"{ALPHA * 100:g} % with {POWER * 100:g} % power (`msdepth.reporting.power`: "
+        f"{ALPHA * 100:g} % with {POWER * 100:g} % power (`msdepth.stats`: "
         "n = (z₀.₉₇₅ + z₀.₈)²σ_d²/δ², then the smallest n whose noncentral-t power reaches 80 %, "
         "df = n − 1). Smallest δ: the difference the seeds as run detect with 80 % power. σ and n "
         "unpaired: the two-sample test that ignores the pairing, for comparison. With few seeds σ_d "

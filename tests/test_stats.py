@@ -20,7 +20,7 @@ from msdepth.reporting.comparison import (
     paired_statistics,
     seed_spread,
 )
-from msdepth.reporting.stats import paired_bootstrap, paired_table, seed_bootstrap
+from msdepth.stats import paired_bootstrap, paired_table, seed_bootstrap
 
 
 def test_constant_difference_has_a_zero_width_interval() -> None:

@@ -19,7 +19,7 @@ from msdepth.evaluation.metrics import HIGHER_IS_BETTER, METRICS, STEREO_METRICS
 from msdepth.evaluation.suites import GRADIENTS, NO_ROIS
 from msdepth.pipeline.paths import suite_path, train_summary_path
 from msdepth.readers import read_json_file, read_table_file
-from msdepth.reporting.stats import paired_table, seed_bootstrap
+from msdepth.stats import paired_table, seed_bootstrap
 
 SUITES = ("full", "roi", "gradients")
 ROIS_SKIPPED = "no ROIs: ROI suites skipped"  # compare.md's line when the ROI index is empty
@@ -168,7 +168,7 @@ def paired_statistics(
     """``{suite: {capN: {group: {metric: PairedDifference dict}}}}`` of every group against ``cfg.reference``.
 
     ``groups`` maps a variant to its runs (one per seed) and a baseline to its one run; the
-    reference's runs and each group's runs enter :func:`msdepth.reporting.stats.seed_bootstrap` as rows.
+    reference's runs and each group's runs enter :func:`msdepth.stats.seed_bootstrap` as rows.
     ``pairing`` (:func:`pairing_status`) says which groups pair seed by seed with the reference
     (None: paired): their seed pairs are drawn jointly, the others' seeds independently. A suite
     with clusters (:func:`unit_clusters`: the ROI suite's frames) draws them instead of its units,
@@ -1086,7 +1086,7 @@ def optimum_data(
 
 
 def difference_cell(d: dict | None) -> str:
-    """A paired difference (:meth:`msdepth.reporting.stats.PairedDifference.as_dict`) as a table
+    """A paired difference (:meth:`msdepth.stats.PairedDifference.as_dict`) as a table
     cell, ``mean [low, high]`` with `` *`` where the interval excludes 0; empty for none."""
     if d is None:
         return ""

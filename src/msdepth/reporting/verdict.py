@@ -10,7 +10,7 @@ the kinds of instrument (:data:`KINDS`):
   (:func:`msdepth.reporting.comparison.paired_statistics`) over images, or over the class's ROIs drawn
   with their frame, and the seed pairs; the paired t over the per-seed differences beside it.
 - ``optimum``: the losses' own optimum at each smoothness weight (one deterministic run per
-  variant and weight): :func:`msdepth.reporting.stats.seed_bootstrap` of one run each, over the
+  variant and weight): :func:`msdepth.stats.seed_bootstrap` of one run each, over the
   images, or over the frames of the ROIs.
 
 Both also run on each extra evaluation set (``eval.extra_sets``), named ``<instrument> on <set>``
@@ -41,7 +41,7 @@ import pandas as pd
 from msdepth.config.params import CompareConfig
 from msdepth.evaluation.classes import class_unit_tables
 from msdepth.reporting.comparison import UNIT_KEYS, paired_statistics, unit_clusters
-from msdepth.reporting.stats import paired_table, seed_bootstrap
+from msdepth.stats import paired_table, seed_bootstrap
 
 METRIC = "abs_rel"
 VERDICT_FIGURE = "verdict.png"  # below plots/figures: the figures stage draws it (figures.verdict_figure)
@@ -273,7 +273,7 @@ def optimum_rows(
     instrument: str = "optimum",
 ) -> list[Row]:
     """Per weight (``runs``: weight label, e.g. ``w10``, -> {variant: its optimum run}) and class,
-    each variant minus ``cfg.reference``: :func:`~msdepth.reporting.stats.seed_bootstrap` of one
+    each variant minus ``cfg.reference``: :func:`~msdepth.stats.seed_bootstrap` of one
     run each over the units both runs were scored on (ROIs: drawn by frame). ``instrument``: the
     rows' name before the weight label (``SGM`` with the label ``cost start``: the SGM matchers on
     each variant's cost volume)."""

@@ -3,7 +3,7 @@
 Both loss variants train with the same seeds, and a seed fixes the network's initial weights
 (``torch.manual_seed`` before it is built) and the data order and augmentation (generators
 seeded from the seed and the epoch). Seed ``s`` of SSIM and seed ``s`` of MS-SSIM then differ only
-in the loss, and the comparison may treat them as a pair (:mod:`msdepth.reporting.stats`). The
+in the loss, and the comparison may treat them as a pair (:mod:`msdepth.stats`). The
 training summary records the evidence (:func:`pairing_record`); the comparison pairs two runs only
 where their records agree (:func:`msdepth.reporting.comparison.pairing_status`).
 """
