@@ -55,8 +55,7 @@ def load_suite_metrics(
 
 
 def load_training_summaries(runs: Sequence[str], root: str | os.PathLike = ".") -> dict[str, dict]:
-    """``{run: its training summary}`` (:func:`~msdepth.pipeline.paths.train_summary_path` below the
-    project folder ``root``) of the runs that have one (the baselines were not trained)."""
+    """``{run: its training summary}`` of the runs that have one (the baselines were not trained)."""
     paths = {r: Path(root) / train_summary_path(r) for r in runs}
     return {r: read_json_file(p, "training summary") for r, p in paths.items() if p.is_file()}
 
@@ -70,13 +69,7 @@ CLUSTER_KEYS = {"roi": "image"}
 
 def unit_clusters(suite: str, anchor: pd.DataFrame) -> np.ndarray | None:
     """Each unit's cluster label in ``anchor``'s order (:data:`CLUSTER_KEYS`); None where the
-    suite's units are independent themselves (images).
-
-    Example:
-        >>> t = pd.DataFrame({"roi": [0, 1, 2], "image": ["a", "a", "b"]})
-        >>> unit_clusters("roi", t).tolist(), unit_clusters("full", t)
-        (['a', 'a', 'b'], None)
-    """
+    suite's units are independent themselves (images)."""
     key = CLUSTER_KEYS.get(suite)
     return None if key is None else anchor[key].astype(str).to_numpy()
 
@@ -115,14 +108,7 @@ def pairing_status(
 ) -> dict[str, str | None]:
     """Per group other than ``reference``: None when its runs pair seed by seed with the
     reference's (the same seeds, and every pair's training summaries record the same initial
-    weights and first batch: :mod:`msdepth.training.pairing`), else why they do not.
-
-    Example:
-        >>> rec = {"pairing": {"initial_weights_sha256": "a", "first_batch_sha256": "b"}}
-        >>> pairing_status({"ssim": ["ssim/seed0"], "msssim": ["msssim/seed0"]}, "ssim",
-        ...                {"ssim/seed0": rec, "msssim/seed0": rec})
-        {'msssim': None}
-    """
+    weights and first batch: :mod:`msdepth.training.pairing`), else why they do not."""
 
     def records(runs: Sequence[str]) -> dict[str, dict | None] | None:
         keys = [SEED_RUN.search(r) for r in runs]
@@ -165,17 +151,11 @@ def paired_statistics(
     caps: Sequence[float],
     pairing: Mapping[str, str | None] | None = None,
 ) -> dict:
-    """``{suite: {capN: {group: {metric: PairedDifference dict}}}}`` of every group against ``cfg.reference``.
-
-    ``groups`` maps a variant to its runs (one per seed) and a baseline to its one run; the
-    reference's runs and each group's runs enter :func:`msdepth.stats.seed_bootstrap` as rows.
-    ``pairing`` (:func:`pairing_status`) says which groups pair seed by seed with the reference
-    (None: paired): their seed pairs are drawn jointly, the others' seeds independently. A suite
-    with clusters (:func:`unit_clusters`: the ROI suite's frames) draws them instead of its units,
-    and each difference's ``clusters`` counts them. Without
-    it nothing is paired. ``stats["pairing"]`` keeps it, so every row says how it was made.
-    ``tables`` holds the suites to compare (from :func:`load_unit_tables`).
-    """
+    """``{suite: {capN: {group: {metric: PairedDifference dict}}}}`` of every group (variant -> its
+    runs, baseline -> its one run) against ``cfg.reference`` (:func:`msdepth.stats.seed_bootstrap`,
+    the runs as rows; a suite's clusters drawn instead of its units). ``pairing``
+    (:func:`pairing_status`, kept as ``stats["pairing"]``): the groups whose seed pairs are drawn
+    jointly (None: paired); without it nothing is paired."""
     others = [g for g in groups if g != cfg.reference]
     pairing = dict(pairing) if pairing is not None else dict.fromkeys(others, "pairing not checked")
     stats: dict = {
@@ -246,9 +226,8 @@ def group_metrics(
 def seed_spread(
     suites: dict[str, dict[str, dict]], groups: dict[str, Sequence[str]], caps: Sequence[str]
 ) -> dict:
-    """``{suite: {capN: {variant: {metric: {mean, sd, runs}}}}}``: each run's mean metric over its
-    seeds (full image and all ROIs, those of the two in ``suites``); ``sd`` is the sample standard
-    deviation (None for one seed)."""
+    """``{suite: {capN: {variant: {metric: {mean, sd, runs}}}}}`` over each variant's seeds (full
+    image and all ROIs, those in ``suites``); ``sd``: the sample sd, None for one seed."""
     out: dict = {}
     picks = {"full": lambda m, cap: m[cap], "roi": lambda m, cap: m[cap]["overall"]}
     for suite, pick in picks.items():
@@ -299,10 +278,8 @@ def image_dependence(
     prior: str,
     cap: float,
 ) -> dict[str, dict]:
-    """Per run: its ``variation_ratio`` (from the full-image suite), the correlation of its
-    per-image abs_rel with the image-blind ``prior``'s, and ``image_blind`` (ratio below
-    :data:`IMAGE_BLIND_BELOW`). A network whose per-image errors track the prior's and whose
-    predictions barely change between images has learned the average scene, not depth."""
+    """Per run: its ``variation_ratio`` (full-image suite), the correlation of its per-image abs_rel
+    with the image-blind ``prior``'s, and ``image_blind`` (ratio below :data:`IMAGE_BLIND_BELOW`)."""
     full = {r: t[t["cap"] == cap] for r, t in tables["full"].items()}
     out: dict = {}
     for runs in groups.values():
@@ -416,8 +393,8 @@ SET_PIXELS = {
 def _class_lines(
     name: str, groups: dict[str, dict], runs: Sequence[str], cap: str, label: Callable
 ) -> list[str]:
-    """An extra set's exact classes at ``cap`` (KITTI 2012's ``reflective``, the summaries' ``masks``,
-    msdepth.evaluation.classes): per class and run, abs_rel, a1, D1 and EPE; none for other sets."""
+    """An extra set's exact classes at ``cap`` (the summaries' ``masks``): per class and run,
+    abs_rel, a1, D1 and EPE."""
     masks = {r: groups[r].get("masks") for r in runs}
     if any(m is None or cap not in m for m in masks.values()):
         return []
@@ -440,8 +417,7 @@ def _class_lines(
 def _stereo_lines(
     block: dict[str, dict], runs: Sequence[str], label: Callable[[str], str] = str
 ) -> list[str]:
-    """KITTI's D1 (%) and EPE (px) of the whole frame per run at one cap (``block``: run -> the
-    full-image suite's numbers), as Markdown lines; none where a run has no D1."""
+    """KITTI's D1 (%) and EPE (px) of the whole frame per run (``block``: run -> its numbers)."""
     if any("d1" not in block[r] for r in runs):
         return []
     rows = [[label(r), f"{100 * block[r]['d1']:.1f}", f"{block[r]['epe']:.2f}"] for r in runs]
@@ -456,9 +432,8 @@ def set_roi_lines(
     baselines: Sequence[str],
     label: Callable,
 ) -> list[str]:
-    """An extra set's boxes (``roi``: group -> its ROI suite summary, averaged over seeds), each box a
-    unit: per cap, every run's abs_rel, a1, D1 and EPE over all boxes and its abs_rel per class,
-    then each run minus the reference with its interval over the boxes (``stats["roi"]``)."""
+    """An extra set's boxes (``roi``: group -> its ROI summary): per cap, every run's abs_rel, a1, D1
+    and EPE over all boxes and its abs_rel per class, then its difference to the reference."""
     lines = []
     for cap in [k for k in roi[runs[0]] if k.startswith("cap")]:
         classes = sorted({c for r in runs for c in roi[r][cap]["by_class"]})
@@ -499,15 +474,10 @@ def build_set_section(
     label: Callable[[str], str] = str,
     unrun: dict[str, str] | None = None,
 ) -> tuple[dict, str]:
-    """An extra set's full-image tables for ``compare.md`` (per cap: the metrics, the differences
-    to the reference with their intervals, D1 and EPE, the seed spread), and the same as a dict.
-    ``label`` names a run's row (:meth:`Comparison.settings_label`).
-
-    ``suites`` is ``{"full": {group: metrics averaged over its runs}}`` of that set,
-    ``stats``/``spread`` from :func:`paired_statistics`/:func:`seed_spread` on its tables.
-    ``baselines``: the groups of one run each, the image-blind baselines and the network-free
-    instruments (SGM, SGBM, the optimum); ``unrun``: the instruments without metrics, and why.
-    """
+    """An extra set's full-image tables (per cap: metrics, D1 and EPE, differences to the reference,
+    seed spread, exact classes) as compare.json's dict and compare.md's text. ``baselines``: the
+    groups of one run (image-blind baselines, network-free instruments); ``unrun``: instruments
+    without metrics, and why."""
     runs = [*variants, *baselines]
     caps = [k for k in suites["full"][runs[0]] if k.startswith("cap")]
     images = suites["full"][runs[0]]["images"]
@@ -591,12 +561,8 @@ JSON_FIELDS = (
 
 @dataclass(frozen=True)
 class Comparison:
-    """What ``compare.md`` shows, as data: :meth:`as_json` is ``compare.json``.
-
-    A section is a field filled by :func:`comparison_data` (named in :data:`JSON_FIELDS` if
-    ``compare.json`` carries it) and a renderer in :data:`SECTIONS`, or in :data:`CAP_SECTIONS`
-    for a table per cap.
-    """
+    """What ``compare.md`` shows (a renderer per section in :data:`SECTIONS`, or per cap in
+    :data:`CAP_SECTIONS`); :meth:`as_json` is ``compare.json``."""
 
     variants: list[str]
     baselines: list[str]
@@ -632,8 +598,7 @@ class Comparison:
         return {k: getattr(self, k) for k in JSON_FIELDS if getattr(self, k) is not None}
 
     def settings_label(self, group: str) -> str:
-        """``group``'s name with the settings in which its variant differs from the defaults
-        (:func:`changed_settings`), e.g. ``msssim (k=7)``."""
+        """``group`` with its variant's settings that differ from the defaults: ``msssim (k=7)``."""
         changed = changed_settings(group, self.settings[group]) if group in (self.settings or {}) else {}
         return f"{group} ({settings_text(changed)})" if changed else group
 
@@ -672,60 +637,28 @@ def _roi_masks(
     return masks, {"rois": first["rois"], "excluded_rois": first["excluded_rois"]}
 
 
-@dataclass(frozen=True)
-class ComparisonInputs:
-    """The seeds and optional tables of :func:`comparison_data`; a table left None leaves its
-    section out.
-
-    - ``seeds``: the training seeds each variant's numbers average.
-    - ``stats`` (:func:`paired_statistics`): each full-image and ROI table is followed by the
-      differences to the reference variant with their bootstrap intervals.
-    - ``spread`` (:func:`seed_spread`), with more than one seed: each variant's mean ± sd over seeds.
-    - ``dependence`` (:func:`image_dependence`, per run) and ``groups`` (variant -> its runs; None:
-      each run its own): a section says for every run whether it uses the image, and image-blind
-      runs are flagged in the tables.
-    - ``missing_baselines`` (baseline -> why it could not be built, e.g. no training GT): named
-      under the header, so that a table without them is not mistaken for complete.
-    - ``optimum`` (:func:`optimum_data`): the losses' own optimum, no network.
-    - ``settings`` (:func:`variant_settings`): the header states every variant's, and a row names
-      its variant's settings that differ from the defaults.
-    - ``monocular`` (:func:`monocular_data`): scale ratios and pose ATE.
-    """
-
-    seeds: Sequence[int] = (0,)
-    stats: dict | None = None
-    spread: dict | None = None
-    dependence: dict[str, dict] | None = None
-    groups: dict[str, Sequence[str]] | None = None
-    missing_baselines: dict[str, str] | None = None
-    optimum: dict | None = None
-    settings: dict[str, dict] | None = None
-    monocular: dict[str, dict] | None = None
-
-
 def comparison_data(
     suites: dict[str, dict[str, dict]],
     variants: Sequence[str],
     baselines: Sequence[str],
-    inputs: ComparisonInputs | None = None,
+    *,
+    seeds: Sequence[int] = (0,),
+    stats: dict | None = None,
+    spread: dict | None = None,
+    dependence: dict[str, dict] | None = None,
+    groups: dict[str, Sequence[str]] | None = None,
+    missing_baselines: dict[str, str] | None = None,
+    optimum: dict | None = None,
+    settings: dict[str, dict] | None = None,
+    monocular: dict[str, dict] | None = None,
 ) -> Comparison:
-    """What ``compare.md`` shows, as a :class:`Comparison` (best variant per column in bold).
-
-    Without ROIs (every ROI summary is :data:`msdepth.evaluation.suites.NO_ROIS`'s) the ROI and
-    gradient tables are replaced by one line, :data:`ROIS_SKIPPED`.
-
-    Args:
-        suites: each run's metrics per suite, a variant's averaged over its seeds
-            (:func:`group_metrics`).
-        variants: the loss variants compared.
-        baselines: the image-blind baselines built.
-        inputs: the seeds and the optional tables (:class:`ComparisonInputs`); None: one seed (0)
-            and no optional section.
-
-    Returns:
-        The comparison, for :func:`build_comparison`.
-    """
-    extra = inputs if inputs is not None else ComparisonInputs()
+    """What ``compare.md`` shows: ``suites`` (each run's metrics per suite, a variant's averaged over
+    its seeds: :func:`group_metrics`) by cap, with the optional tables, each None to leave its
+    section out: ``stats`` (:func:`paired_statistics`), ``spread`` (:func:`seed_spread`),
+    ``dependence`` (:func:`image_dependence`; ``groups``: variant -> its runs), ``optimum``
+    (:func:`optimum_data`), ``settings`` (:func:`variant_settings`), ``monocular``
+    (:func:`monocular_data`). Without ROIs (every ROI summary is :data:`NO_ROIS`'s) the ROI and
+    gradient tables are replaced by one line, :data:`ROIS_SKIPPED`."""
     runs = [*variants, *baselines]
     caps = [k for k in suites["full"][runs[0]] if k.startswith("cap")]
     skipped = all(NO_ROIS in suites["roi"][r] for r in runs)
@@ -733,21 +666,21 @@ def comparison_data(
     return Comparison(
         variants=list(variants),
         baselines=list(baselines),
-        seeds=list(extra.seeds),
+        seeds=list(seeds),
         full=_by_cap(suites["full"], runs, caps),
         roi={} if skipped else _by_cap(suites["roi"], runs, caps),
         gradients={} if skipped else _by_cap(suites["gradients"], runs, caps),
-        groups=extra.groups or {r: [r] for r in runs},
-        missing_baselines=dict(extra.missing_baselines) if extra.missing_baselines else None,
-        statistics=extra.stats,
-        image_dependence=extra.dependence,
-        seed_spread=extra.spread,
+        groups=groups or {r: [r] for r in runs},
+        missing_baselines=dict(missing_baselines) if missing_baselines else None,
+        statistics=stats,
+        image_dependence=dependence,
+        seed_spread=spread,
         rois_skipped=suites["roi"][runs[0]][NO_ROIS] if skipped else None,
         roi_masks=masks,
         mask_counts=counts,
-        optimum=extra.optimum,
-        settings=extra.settings,
-        monocular=extra.monocular,
+        optimum=optimum,
+        settings=settings,
+        monocular=monocular,
         images={r: suites["full"][r]["images"] for r in runs if "images" in suites["full"][r]},
     )
 
@@ -868,10 +801,9 @@ def _dependence_lines(c: Comparison) -> list[str]:
 def monocular_data(
     full: dict[str, dict], training: dict[str, dict], groups: dict[str, Sequence[str]], cap: str
 ) -> dict[str, dict] | None:
-    """Per variant whose runs were trained monocularly (their full-image summaries carry
-    ``median_scaling``): the per-image scale ratios' median and spread (std / median) at ``cap``
-    and, from the training summaries (``training``: run -> ``metrics/train/<run>.json``), the pose
-    ATE on the training sequences, each the mean over the group's runs. None when no run is."""
+    """Per variant trained monocularly (full-image summaries with ``median_scaling``): the scale
+    ratios' median and spread at ``cap`` and the training summaries' pose ATE, means over its runs;
+    None when no variant is."""
     out = {}
     for group, runs in groups.items():
         scaling = [full[r][cap].get("median_scaling") for r in runs if r in full]
@@ -1045,8 +977,7 @@ OPTIMUM_METRICS = ("abs_rel", "a1")
 
 
 def _optimum_row(full: dict, roi: dict | None, cap: str) -> dict:
-    """One run's numbers in the optimum section: full-image (with D1 and EPE where the suite has
-    them: metrics written before they were added have not), ROI (overall and per class), masks."""
+    """One run's numbers in the optimum section: full image (D1 and EPE where present), ROIs, masks."""
     row = {"images": full.get("images"), **{m: full[cap][m] for m in OPTIMUM_METRICS}}
     row.update({m: full[cap][m] for m in STEREO_METRICS if m in full[cap]})
     if roi is not None and cap in roi:
@@ -1065,10 +996,8 @@ def optimum_data(
     cap: str,
     skipped: dict[str, str] | None = None,
 ) -> dict:
-    """The section's data: per optimum or matcher label (``runs``: label -> run, e.g.
-    ``"optimum ssim w10"``, ``"SGBM"``) its numbers at ``cap`` (:func:`_optimum_row`), the
-    differences to the reference that ``stats`` (:func:`paired_statistics` over groups that hold
-    these labels) has for them, and the matchers ``skipped`` (label -> why)."""
+    """Per optimum or matcher label (``runs``: label -> run) its numbers at ``cap``, its differences
+    to the reference in ``stats`` (:func:`paired_statistics`), and the matchers ``skipped`` (why)."""
     roi = suites.get("roi", {})
     rows = {label: _optimum_row(suites["full"][run], roi.get(run), cap) for label, run in runs.items()}
     differences: dict = {}
@@ -1086,8 +1015,7 @@ def optimum_data(
 
 
 def difference_cell(d: dict | None) -> str:
-    """A paired difference (:meth:`msdepth.stats.PairedDifference.as_dict`) as a table
-    cell, ``mean [low, high]`` with `` *`` where the interval excludes 0; empty for none."""
+    """A PairedDifference dict as ``mean [low, high]``, `` *`` where it excludes 0; "" for none."""
     if d is None:
         return ""
     star = " *" if d["excludes_zero"] else ""
@@ -1186,11 +1114,7 @@ SECTIONS: tuple[Callable[[Comparison], list[str]], ...] = (
 )
 
 
-def _render_comparison(comparison: Comparison) -> str:
-    """``compare.md``'s text: :data:`SECTIONS` in order."""
-    return "\n".join(line for section in SECTIONS for line in section(comparison)) + "\n"
-
-
 def build_comparison(comparison: Comparison) -> tuple[dict, str]:
-    """``comparison`` (:func:`comparison_data`) as ``compare.json``'s dict and ``compare.md``'s text."""
-    return comparison.as_json(), _render_comparison(comparison)
+    """``comparison`` (:func:`comparison_data`) as ``compare.json``'s dict and ``compare.md``'s text
+    (:data:`SECTIONS` in order)."""
+    return comparison.as_json(), "\n".join(line for s in SECTIONS for line in s(comparison)) + "\n"
