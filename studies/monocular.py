@@ -42,14 +42,10 @@ import pandas as pd
 
 from msdepth.config.params import params_from_dict, read_params_file
 from msdepth.errors import OutputError, run_main
+from msdepth.evaluation.results import load_suite_metrics, load_unit_tables
 from msdepth.io import write_text
 from msdepth.outputs import OutputPolicy
-from msdepth.reporting.comparison import (
-    image_dependence,
-    load_suite_metrics,
-    load_unit_tables,
-    variant_settings,
-)
+from msdepth.reporting.comparison import image_dependence, variant_settings
 from msdepth.reporting.figures import write_figure
 from msdepth.reporting.verdict import FULL_FRAME, settings_label
 

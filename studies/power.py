@@ -25,11 +25,11 @@ from pathlib import Path
 import numpy as np
 
 from msdepth.errors import MsdepthError, run_main
+from msdepth.evaluation.results import load_suite_metrics
 from msdepth.io import write_text
 from msdepth.outputs import claim_output_file
 from msdepth.pipeline.paths import METRICS, run_name
 from msdepth.readers import read_json_object
-from msdepth.reporting.comparison import load_suite_metrics
 from msdepth.reporting.report import Results, load_results
 from msdepth.stats import detectable_difference, paired_t, pooled_sd, power_at, seeds_needed
 

@@ -16,8 +16,7 @@ import torch
 
 import msdepth.training.train as train_mod
 from msdepth.config.params import params_from_dict
-from msdepth.reporting.comparison import pairing_status
-from msdepth.training.pairing import PAIRING_KEYS, tensors_sha256
+from msdepth.training.pairing import PAIRING_KEYS, pairing_status, tensors_sha256
 from msdepth.training.train import TrainOptions, TrainOutputs, load_model, train_variant
 
 H, W = 32, 64

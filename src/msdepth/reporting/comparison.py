@@ -3,10 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
-import os
-import re
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Callable, Mapping, Sequence
 
 import numpy as np
@@ -17,11 +14,8 @@ from msdepth.config.variants import configs as variant_configs
 from msdepth.errors import DataError
 from msdepth.evaluation.metrics import HIGHER_IS_BETTER, METRICS, STEREO_METRICS
 from msdepth.evaluation.suites import GRADIENTS, NO_ROIS
-from msdepth.pipeline.paths import suite_path, train_summary_path
-from msdepth.readers import read_json_file, read_table_file
 from msdepth.stats import paired_table, seed_bootstrap
 
-SUITES = ("full", "roi", "gradients")
 ROIS_SKIPPED = "no ROIs: ROI suites skipped"  # compare.md's line when the ROI index is empty
 # A difference is marked only when its interval covers training noise: at least this many seeds
 # of every trained run it involves (with fewer, the seed draws cannot show seed-to-seed spread).
@@ -30,34 +24,6 @@ MIN_SEEDS_FOR_MARKS = 3
 # called image-blind (a constant or the per-pixel prior score exactly 0; networks that follow
 # the scene ~1).
 IMAGE_BLIND_BELOW = 0.25
-
-
-def _load_runs(
-    metrics_dir: str | os.PathLike, suites: Sequence[str], runs: Sequence[str], suffix: str, read, what: str
-) -> dict:
-    """``{suite: {run: read(metrics_dir/<suite>/<run><suffix>)}}``, naming any missing file."""
-    out: dict[str, dict] = {}
-    for suite in suites:
-        out[suite] = {}
-        for run in runs:
-            path = suite_path(suite, run, suffix, Path(metrics_dir))
-            if not path.exists():
-                raise DataError(f"{path}: missing {what} of run {run!r} (suite {suite})")
-            out[suite][run] = read(path)
-    return out
-
-
-def load_suite_metrics(
-    metrics_dir: str | os.PathLike, runs: Sequence[str], suites: Sequence[str] = SUITES
-) -> dict[str, dict[str, dict]]:
-    """``{suite: {run: metrics}}`` from ``metrics_dir/<suite>/<run>.json``."""
-    return _load_runs(metrics_dir, suites, runs, ".json", lambda p: read_json_file(p, "metrics"), "metrics")
-
-
-def load_training_summaries(runs: Sequence[str], root: str | os.PathLike = ".") -> dict[str, dict]:
-    """``{run: its training summary}`` of the runs that have one (the baselines were not trained)."""
-    paths = {r: Path(root) / train_summary_path(r) for r in runs}
-    return {r: read_json_file(p, "training summary") for r, p in paths.items() if p.is_file()}
 
 
 # Per-unit tables of the suites that are compared statistically, and the column pairing units.
@@ -74,20 +40,6 @@ def unit_clusters(suite: str, anchor: pd.DataFrame) -> np.ndarray | None:
     return None if key is None else anchor[key].astype(str).to_numpy()
 
 
-def load_unit_tables(
-    metrics_dir: str | os.PathLike, runs: Sequence[str], suites: Sequence[str] = tuple(UNIT_KEYS)
-) -> dict[str, dict[str, pd.DataFrame]]:
-    """``{suite: {run: per-image or per-ROI table}}`` from ``metrics_dir/<suite>/<run>.csv``."""
-    return _load_runs(
-        metrics_dir,
-        suites,
-        runs,
-        ".csv",
-        lambda p: read_table_file(p, "per-unit metrics", dtype={"frame": str, "image": str}),
-        "per-unit metrics",
-    )
-
-
 def _unit_matrix(
     tables: dict[str, pd.DataFrame],
     runs: Sequence[str],
@@ -98,50 +50,6 @@ def _unit_matrix(
 ) -> np.ndarray:
     """(runs, units): ``metric`` of every run, its units aligned on ``keys`` to ``anchor``'s order."""
     return np.stack([paired_table(anchor, tables[r], keys, metric, f"{what} ({r})")[1] for r in runs])
-
-
-SEED_RUN = re.compile(r"/(seed\d+)$")  # a variant's run, "<variant>/seed<S>"
-
-
-def pairing_status(
-    groups: Mapping[str, Sequence[str]], reference: str, summaries: Mapping[str, Mapping]
-) -> dict[str, str | None]:
-    """Per group other than ``reference``: None when its runs pair seed by seed with the
-    reference's (the same seeds, and every pair's training summaries record the same initial
-    weights and first batch: :mod:`msdepth.training.pairing`), else why they do not."""
-
-    def records(runs: Sequence[str]) -> dict[str, dict | None] | None:
-        keys = [SEED_RUN.search(r) for r in runs]
-        if not all(keys):
-            return None
-        return {k.group(1): (summaries.get(r) or {}).get("pairing") for k, r in zip(keys, runs, strict=True)}
-
-    ref = records(groups[reference])
-    out: dict[str, str | None] = {}
-    for name, runs in groups.items():
-        if name == reference:
-            continue
-        own = records(runs)
-        if own is None or ref is None:
-            out[name] = "a baseline is one deterministic run, not a seed of a variant"
-        elif sorted(own) != sorted(ref):
-            out[name] = "the two variants were trained with different seeds"
-        else:
-            out[name] = _record_mismatch(own, ref)
-    return out
-
-
-def _record_mismatch(own: Mapping[str, dict | None], ref: Mapping[str, dict | None]) -> str | None:
-    """The first seed whose two pairing records disagree, in words; None when all agree."""
-    for key in sorted(own):
-        a, b = own[key], ref[key]
-        if not a or not b:
-            return f"{key}: a training summary keeps no pairing record (trained by an older version)"
-        if a.get("initial_weights_sha256") != b.get("initial_weights_sha256"):
-            return f"{key}: the initial weights differ"
-        if a.get("first_batch_sha256") != b.get("first_batch_sha256"):
-            return f"{key}: the first training batches differ"
-    return None
 
 
 def paired_statistics(

@@ -11,6 +11,7 @@ import pandas as pd
 
 from msdepth.config.params import Params
 from msdepth.evaluation.baselines import BASELINES, skipped_reason
+from msdepth.evaluation.results import load_suite_metrics, load_training_summaries, load_unit_tables
 from msdepth.evaluation.suites import no_rois
 from msdepth.io import write_json, write_text
 from msdepth.optimum.frames import matcher_runs, optimum_runs
@@ -33,13 +34,9 @@ from msdepth.reporting.comparison import (
     comparison_data,
     group_metrics,
     image_dependence,
-    load_suite_metrics,
-    load_training_summaries,
-    load_unit_tables,
     monocular_data,
     optimum_data,
     paired_statistics,
-    pairing_status,
     seed_spread,
     set_roi_lines,
     variant_settings,
@@ -56,6 +53,7 @@ from msdepth.reporting.verdict import (
     verdict_data,
     verdict_lines,
 )
+from msdepth.training.pairing import pairing_status
 
 
 def _run_groups(
