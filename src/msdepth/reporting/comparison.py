@@ -214,7 +214,8 @@ def _fmt(v: float | None) -> str:
     return "–" if v is None else f"{v:.4f}"
 
 
-def _table(header: Sequence[str], rows: list[list[str]]) -> str:
+def markdown_table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
+    """A Markdown table of ``header`` and ``rows`` (cells as given), the lines joined."""
     lines = ["| " + " | ".join(header) + " |", "|" + "|".join("---" for _ in header) + "|"]
     lines += ["| " + " | ".join(r) + " |" for r in rows]
     return "\n".join(lines)
@@ -260,7 +261,7 @@ def _ci_lines(
     return [
         f"Difference to {stats['reference']} ({first['n']} paired {unit}{frames}):",
         "",
-        _table(["run", *METRICS], _ci_rows(block, baselines, label)),
+        markdown_table(["run", *METRICS], _ci_rows(block, baselines, label)),
         "",
     ]
 
@@ -277,7 +278,7 @@ def _spread_lines(
     return [
         f"Seed-to-seed spread (mean ± sd over {seeds} seeds of the per-run mean):",
         "",
-        _table(["variant", *METRICS], rows),
+        markdown_table(["variant", *METRICS], rows),
         "",
     ]
 
@@ -317,7 +318,7 @@ def _class_lines(
         "",
         "Each class's exact GT pixels of every frame that has some (D1 %, EPE px: KITTI's, uncapped).",
         "",
-        _table(["class", "run", "abs_rel", "a1", "D1 %", "EPE px"], rows),
+        markdown_table(["class", "run", "abs_rel", "a1", "D1 %", "EPE px"], rows),
         "",
     ]
 
@@ -329,7 +330,7 @@ def _stereo_lines(
     if any("d1" not in block[r] for r in runs):
         return []
     rows = [[label(r), f"{100 * block[r]['d1']:.1f}", f"{block[r]['epe']:.2f}"] for r in runs]
-    return ["Whole frame, KITTI's stereo metrics:", "", _table(["run", "D1 %", "EPE px"], rows), ""]
+    return ["Whole frame, KITTI's stereo metrics:", "", markdown_table(["run", "D1 %", "EPE px"], rows), ""]
 
 
 def set_roi_lines(
@@ -356,7 +357,9 @@ def set_roi_lines(
         lines += [
             f"## {name}: ROI boxes, cap {cap[3:]} m ({first['overall']['count']} boxes: {counts})",
             "",
-            _table(["run", "abs_rel", "a1", "D1 %", "EPE px", *(f"{c} abs_rel" for c in classes)], rows),
+            markdown_table(
+                ["run", "abs_rel", "a1", "D1 %", "EPE px", *(f"{c} abs_rel" for c in classes)], rows
+            ),
             "",
             *_ci_lines(stats, "roi", cap, f"{name} boxes", baselines, label),
         ]
@@ -408,7 +411,7 @@ def build_set_section(
         md += [
             f"## {name}: full image, cap {cap[3:]} m",
             "",
-            _table(["run", *METRICS], _metric_rows(block, runs, variants, label)),
+            markdown_table(["run", *METRICS], _metric_rows(block, runs, variants, label)),
             "",
         ]
         md += _stereo_lines(block, runs, label)
@@ -701,7 +704,7 @@ def _dependence_lines(c: Comparison) -> list[str]:
         f"variation below {IMAGE_BLIND_BELOW} has learned the average scene, not depth from the image: "
         "its numbers say nothing about its loss.",
         "",
-        _table(["run", "variation", "corr. with prior", "verdict"], rows),
+        markdown_table(["run", "variation", "corr. with prior", "verdict"], rows),
         "",
     ]
 
@@ -753,7 +756,7 @@ def _monocular_lines(c: Comparison) -> list[str]:
         "consistent scale). Pose ATE: Monodepth2's over 5-frame snippets of the training sequences "
         "(scale-aligned, in metres), mean and std over snippets. Means over each variant's seeds.",
         "",
-        _table(["run", "scale ratio", "ratio spread", "pose ATE", "ATE std"], rows),
+        markdown_table(["run", "scale ratio", "ratio spread", "pose ATE", "ATE std"], rows),
         "",
     ]
 
@@ -782,7 +785,7 @@ def _full_lines(c: Comparison, cap: str) -> list[str]:
     return [
         f"## Full image, cap {cap[3:]} m",
         "",
-        _table(["run", *METRICS], _metric_rows(c.full[cap], c.runs, c.variants, c.label)),
+        markdown_table(["run", *METRICS], _metric_rows(c.full[cap], c.runs, c.variants, c.label)),
         "",
         *_noise_lines(c, "full", cap, "images"),
     ]
@@ -796,7 +799,7 @@ def _roi_lines(c: Comparison, cap: str) -> list[str]:
     return [
         f"## ROI, cap {cap[3:]} m (mean over {roi[c.runs[0]]['count']} ROIs)",
         "",
-        _table(["run", *METRICS], _metric_rows(roi, c.runs, c.variants, c.label)),
+        markdown_table(["run", *METRICS], _metric_rows(roi, c.runs, c.variants, c.label)),
         "",
         *_noise_lines(c, "roi", cap, "ROIs"),
     ]
@@ -809,7 +812,7 @@ def _roi_class_lines(c: Comparison, cap: str) -> list[str]:
     by_class = {r: c.roi[cap][r]["by_class"] for r in c.runs}
     classes = sorted({k for r in c.runs for k in by_class[r]})
     rows = [[c.label(r), *[_fmt(by_class[r].get(k, {}).get("abs_rel")) for k in classes]] for r in c.runs]
-    return [f"### ROI abs rel per class, cap {cap[3:]} m", "", _table(["run", *classes], rows), ""]
+    return [f"### ROI abs rel per class, cap {cap[3:]} m", "", markdown_table(["run", *classes], rows), ""]
 
 
 def _roi_mask_lines(c: Comparison, cap: str) -> list[str]:
@@ -833,7 +836,7 @@ def _roi_mask_lines(c: Comparison, cap: str) -> list[str]:
         f"behind it, a windshield without the bonnet); {c.mask_counts['rois']} ROIs, "
         f"{c.mask_counts['excluded_rois']} without valid GT on their pixels excluded.",
         "",
-        _table(["run", "abs_rel", "rmse", "a1", *[f"{k} abs_rel" for k in classes]], rows),
+        markdown_table(["run", "abs_rel", "rmse", "a1", *[f"{k} abs_rel" for k in classes]], rows),
         "",
     ]
 
@@ -857,7 +860,7 @@ def _gradient_lines(c: Comparison, cap: str) -> list[str]:
     return [
         f"## Gradient consistency on ROIs, cap {cap[3:]} m (mean |derivative| of depth, m/px)",
         "",
-        _table(header, rows),
+        markdown_table(header, rows),
         "",
     ]
 
@@ -983,7 +986,9 @@ def _optimum_lines(c: Comparison) -> list[str]:
         "`cost` and `sgbm` starts). D1: KITTI's share of GT pixels off by > 3 px and > 5 %; EPE: the "
         "mean disparity error, on the capped depth's disparity f·B/depth.",
         "",
-        _table(["run", "images", "abs_rel", "a1", "D1 (%)", "EPE (px)", "ROI abs_rel", "mask abs_rel"], main),
+        markdown_table(
+            ["run", "images", "abs_rel", "a1", "D1 (%)", "EPE (px)", "ROI abs_rel", "mask abs_rel"], main
+        ),
         "",
     ]
     if o.get("skipped"):
@@ -998,14 +1003,14 @@ def _optimum_lines(c: Comparison) -> list[str]:
             "(ROIs for the ROI columns); `*`: the interval excludes 0. The optimum has no training "
             "seed, so its interval covers the choice of images (and the reference's seeds) only.",
             "",
-            _table(["run", "Δ abs_rel", "Δ a1", "Δ ROI abs_rel", "Δ ROI a1"], diff),
+            markdown_table(["run", "Δ abs_rel", "Δ a1", "Δ ROI abs_rel", "Δ ROI a1"], diff),
             "",
         ]
     if classes:
         lines += [
             f"## {OPTIMUM_TITLE}: ROI abs rel per class, cap {cap[3:]} m",
             "",
-            _table(["run", *classes, *[f"{k} (mask)" for k in classes]], per_class),
+            markdown_table(["run", *classes, *[f"{k} (mask)" for k in classes]], per_class),
             "",
         ]
     return lines

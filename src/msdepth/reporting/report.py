@@ -25,6 +25,7 @@ from msdepth.reporting.comparison import (
     MIN_SEEDS_FOR_MARKS,
     SET_TITLES,
     changed_settings,
+    markdown_table,
     marks_allowed,
     settings_text,
 )
@@ -198,7 +199,7 @@ def _headline_table(r: Results) -> str:
     if r.rois():
         header += ["ROI abs_rel", "exact masks", *classes]
     best = {m: _best_variant(r, m) for m, _, _ in FULL_COLUMNS}
-    lines = ["| " + " | ".join(header) + " |", "|" + "|".join("---" for _ in header) + "|"]
+    rows = []
     for run in [*r.variants, *r.baselines]:
         full = r.get("full", r.cap, run)
         cells = []
@@ -208,8 +209,8 @@ def _headline_table(r: Results) -> str:
             cells.append(f"**{text}**" if best[metric] == run else text)
         if r.rois():
             cells += _roi_cells(r, run, classes)
-        lines.append("| " + " | ".join([r.label(run), *cells]) + " |")
-    return "\n".join(lines)
+        rows.append([r.label(run), *cells])
+    return markdown_table(header, rows)
 
 
 def _headline_caption(r: Results) -> str:

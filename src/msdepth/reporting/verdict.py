@@ -23,7 +23,7 @@ import pandas as pd
 
 from msdepth.config.params import CompareConfig
 from msdepth.evaluation.classes import class_unit_tables
-from msdepth.reporting.comparison import UNIT_KEYS, paired_statistics, unit_clusters
+from msdepth.reporting.comparison import UNIT_KEYS, markdown_table, paired_statistics, unit_clusters
 from msdepth.stats import paired_table, seed_bootstrap
 
 METRIC = "abs_rel"
@@ -475,11 +475,11 @@ def units_text(r: Row) -> str:
 def summary_lines(data: Mapping) -> list[str]:
     """The summary table as Markdown (compare.md and the README): each cell's interval and n."""
     columns = columns_of(data)
-    lines = [f"| class | {' | '.join(c.header for c in columns)} |", "|---" * (len(columns) + 1) + "|"]
-    for cls, cells in verdict_table(rows_of(data), columns, data["classes"]):
-        text = ["–" if r is None else f"{interval_cell(r)}, n = {units_text(r)}" for r in cells]
-        lines.append(f"| {cls} | {' | '.join(text)} |")
-    return lines
+    rows = [
+        [cls, *("–" if r is None else f"{interval_cell(r)}, n = {units_text(r)}" for r in cells)]
+        for cls, cells in verdict_table(rows_of(data), columns, data["classes"])
+    ]
+    return markdown_table(["class", *(c.header for c in columns)], rows).split("\n")
 
 
 def _filled_columns(data: Mapping) -> list[tuple[Column, dict[str, Row]]]:
