@@ -20,9 +20,8 @@ ROIS_SKIPPED = "no ROIs: ROI suites skipped"  # compare.md's line when the ROI i
 # A difference is marked only when its interval covers training noise: at least this many seeds
 # of every trained run it involves (with fewer, the seed draws cannot show seed-to-seed spread).
 MIN_SEEDS_FOR_MARKS = 3
-# A run whose predictions vary across images less than this fraction of the GT's variation is
-# called image-blind (a constant or the per-pixel prior score exactly 0; networks that follow
-# the scene ~1).
+# Image-blind: predictions varying across images less than this fraction of the GT's variation
+# (a constant or the per-pixel prior score exactly 0; networks that follow the scene ~1).
 IMAGE_BLIND_BELOW = 0.25
 
 
@@ -34,8 +33,7 @@ CLUSTER_KEYS = {"roi": "image"}
 
 
 def unit_clusters(suite: str, anchor: pd.DataFrame) -> np.ndarray | None:
-    """Each unit's cluster label in ``anchor``'s order (:data:`CLUSTER_KEYS`); None where the
-    suite's units are independent themselves (images)."""
+    """Each unit's cluster label in ``anchor``'s order; None where the units are independent (images)."""
     key = CLUSTER_KEYS.get(suite)
     return None if key is None else anchor[key].astype(str).to_numpy()
 
@@ -60,10 +58,8 @@ def paired_statistics(
     pairing: Mapping[str, str | None] | None = None,
 ) -> dict:
     """``{suite: {capN: {group: {metric: PairedDifference dict}}}}`` of every group (variant -> its
-    runs, baseline -> its one run) against ``cfg.reference`` (:func:`msdepth.stats.seed_bootstrap`,
-    the runs as rows; a suite's clusters drawn instead of its units). ``pairing``
-    (:func:`pairing_status`, kept as ``stats["pairing"]``): the groups whose seed pairs are drawn
-    jointly (None: paired); without it nothing is paired."""
+    runs) against ``cfg.reference`` (:func:`msdepth.stats.seed_bootstrap`); ``pairing``: the groups
+    whose seed pairs are drawn jointly (None: paired; absent: nothing is)."""
     others = [g for g in groups if g != cfg.reference]
     pairing = dict(pairing) if pairing is not None else dict.fromkeys(others, "pairing not checked")
     stats: dict = {
@@ -158,9 +154,7 @@ def seed_spread(
 
 
 def marks_allowed(difference: dict, baseline: bool) -> bool:
-    """Whether ``difference`` (a PairedDifference dict) may be marked: its interval covers the
-    training noise of every trained run in it (a baseline is deterministic: only the reference's
-    seeds count)."""
+    """Whether ``difference`` may be marked: enough seeds of every trained run in it (not a baseline's)."""
     seeds = [difference["reference_seeds"]] + ([] if baseline else [difference["seeds"]])
     return min(seeds) >= MIN_SEEDS_FOR_MARKS
 
@@ -385,10 +379,8 @@ def build_set_section(
     label: Callable[[str], str] = str,
     unrun: dict[str, str] | None = None,
 ) -> tuple[dict, str]:
-    """An extra set's full-image tables (per cap: metrics, D1 and EPE, differences to the reference,
-    seed spread, exact classes) as compare.json's dict and compare.md's text. ``baselines``: the
-    groups of one run (image-blind baselines, network-free instruments); ``unrun``: instruments
-    without metrics, and why."""
+    """An extra set's full-image tables per cap as compare.json's dict and compare.md's text;
+    ``baselines``: the groups of one run, ``unrun``: instruments without metrics, and why."""
     runs = [*variants, *baselines]
     caps = [k for k in suites["full"][runs[0]] if k.startswith("cap")]
     images = suites["full"][runs[0]]["images"]
@@ -430,14 +422,12 @@ SETTING_NAMES = {"kernel_size": "k"}
 
 
 def variant_settings(params: Params) -> dict[str, dict]:
-    """Each compared variant's params section (``params.<variant>``) as a dict: what its runs were
-    trained with, for ``compare.json``."""
+    """Each compared variant's params section as a dict (what its runs were trained with)."""
     return {v: dataclasses.asdict(getattr(params, v)) for v in params.variants}
 
 
 def changed_settings(variant: str, settings: dict) -> dict:
-    """The entries of ``settings`` (variant ``variant``'s section) that differ from its config's
-    defaults (:mod:`msdepth.config.variants`)."""
+    """The entries of ``variant``'s ``settings`` that differ from its config's defaults."""
     defaults = dataclasses.asdict(variant_configs()[variant]())
     return {k: v for k, v in settings.items() if k not in defaults or defaults[k] != v}
 
@@ -563,13 +553,8 @@ def comparison_data(
     settings: dict[str, dict] | None = None,
     monocular: dict[str, dict] | None = None,
 ) -> Comparison:
-    """What ``compare.md`` shows: ``suites`` (each run's metrics per suite, a variant's averaged over
-    its seeds: :func:`group_metrics`) by cap, with the optional tables, each None to leave its
-    section out: ``stats`` (:func:`paired_statistics`), ``spread`` (:func:`seed_spread`),
-    ``dependence`` (:func:`image_dependence`; ``groups``: variant -> its runs), ``optimum``
-    (:func:`optimum_data`), ``settings`` (:func:`variant_settings`), ``monocular``
-    (:func:`monocular_data`). Without ROIs (every ROI summary is :data:`NO_ROIS`'s) the ROI and
-    gradient tables are replaced by one line, :data:`ROIS_SKIPPED`."""
+    """What ``compare.md`` shows: ``suites`` (each group's metrics per suite, :func:`group_metrics`)
+    by cap, and each optional table (None: its section left out) from the function of its name."""
     runs = [*variants, *baselines]
     caps = [k for k in suites["full"][runs[0]] if k.startswith("cap")]
     skipped = all(NO_ROIS in suites["roi"][r] for r in runs)
@@ -596,14 +581,6 @@ def comparison_data(
     )
 
 
-def _settings_lines(c: Comparison) -> list[str]:
-    """One line stating each variant's settings (none without them)."""
-    if not c.settings:
-        return []
-    stated = "; ".join(f"{v} {settings_text(c.settings[v])}" for v in c.variants if v in c.settings)
-    return [f"Settings: {stated} (a row names where its variant differs from the defaults)."]
-
-
 def _header_lines(c: Comparison) -> list[str]:
     """The title, what was compared and how many training runs each variant's numbers average."""
     if len(c.seeds) > 1:
@@ -613,13 +590,15 @@ def _header_lines(c: Comparison) -> list[str]:
         )
     else:
         trained = f"One training run per variant (seed {c.seeds[0]})."
+    stated = "; ".join(f"{v} {settings_text(c.settings[v])}" for v in c.variants if v in (c.settings or {}))
+    settings = f"Settings: {stated} (a row names where its variant differs from the defaults)."
     return [
         "# Comparison of loss variants",
         "",
         f"Variants: {', '.join(c.variants)}. "
         f"Baselines (image-blind, from training GT): {', '.join(c.baselines) or 'none'}.",
         *_missing_lines(c.missing_baselines),
-        *_settings_lines(c),
+        *([settings] if c.settings else []),
         trained,
         "Errors: lower is better; a1–a3: higher is better. Best variant per column in **bold**.",
         "",
@@ -627,8 +606,7 @@ def _header_lines(c: Comparison) -> list[str]:
 
 
 def _seed_resampling(statistics: dict, variants: Sequence[str], several: bool) -> str:
-    """How the seeds enter the intervals: as pairs where a variant pairs with the reference's
-    seeds (:func:`pairing_status`), else per variant, with the reason."""
+    """How the seeds enter the intervals: as pairs, else per variant with the reason."""
     if not several:
         return ""
     pairing = statistics.get("pairing", {})
@@ -712,9 +690,8 @@ def _dependence_lines(c: Comparison) -> list[str]:
 def monocular_data(
     full: dict[str, dict], training: dict[str, dict], groups: dict[str, Sequence[str]], cap: str
 ) -> dict[str, dict] | None:
-    """Per variant trained monocularly (full-image summaries with ``median_scaling``): the scale
-    ratios' median and spread at ``cap`` and the training summaries' pose ATE, means over its runs;
-    None when no variant is."""
+    """Per variant trained monocularly (with ``median_scaling``): its scale ratios' median and spread
+    at ``cap`` and its pose ATE, means over its runs; None when no variant is."""
     out = {}
     for group, runs in groups.items():
         scaling = [full[r][cap].get("median_scaling") for r in runs if r in full]
@@ -768,41 +745,26 @@ def _rois_skipped_lines(c: Comparison) -> list[str]:
     return [f"{ROIS_SKIPPED}: the ROI index is empty (no boxes to evaluate).", ""]
 
 
-def _noise_lines(c: Comparison, suite: str, cap: str, unit: str) -> list[str]:
-    """The differences to the reference (with ``stats``) and the seed spread (with several seeds)."""
-    lines = (
-        []
-        if c.statistics is None
-        else _ci_lines(c.statistics, suite, cap, unit, c.baselines, c.settings_label)
-    )
+def _suite_lines(c: Comparison, cap: str, suite: str) -> list[str]:
+    """The metrics at ``cap`` of the full image or over all ROIs, the differences to the reference
+    (with ``statistics``) and the seed spread (with several seeds)."""
+    if suite == "roi" and cap not in c.roi:
+        return []
+    block = c.full[cap] if suite == "full" else {r: c.roi[cap][r]["overall"] for r in c.runs}
+    title = "Full image" if suite == "full" else "ROI"
+    count = "" if suite == "full" else f" (mean over {block[c.runs[0]]['count']} ROIs)"
+    lines = [
+        f"## {title}, cap {cap[3:]} m{count}",
+        "",
+        markdown_table(["run", *METRICS], _metric_rows(block, c.runs, c.variants, c.label)),
+        "",
+    ]
+    unit = "images" if suite == "full" else "ROIs"
+    if c.statistics is not None:
+        lines += _ci_lines(c.statistics, suite, cap, unit, c.baselines, c.settings_label)
     if c.seed_spread is not None and len(c.seeds) > 1:
         lines += _spread_lines(c.seed_spread[suite][cap], c.variants, len(c.seeds), c.settings_label)
     return lines
-
-
-def _full_lines(c: Comparison, cap: str) -> list[str]:
-    """The full-image metrics at ``cap``."""
-    return [
-        f"## Full image, cap {cap[3:]} m",
-        "",
-        markdown_table(["run", *METRICS], _metric_rows(c.full[cap], c.runs, c.variants, c.label)),
-        "",
-        *_noise_lines(c, "full", cap, "images"),
-    ]
-
-
-def _roi_lines(c: Comparison, cap: str) -> list[str]:
-    """The metrics over all ROIs at ``cap``."""
-    if cap not in c.roi:
-        return []
-    roi = {r: c.roi[cap][r]["overall"] for r in c.runs}
-    return [
-        f"## ROI, cap {cap[3:]} m (mean over {roi[c.runs[0]]['count']} ROIs)",
-        "",
-        markdown_table(["run", *METRICS], _metric_rows(roi, c.runs, c.variants, c.label)),
-        "",
-        *_noise_lines(c, "roi", cap, "ROIs"),
-    ]
 
 
 def _roi_class_lines(c: Comparison, cap: str) -> list[str]:
@@ -867,8 +829,8 @@ def _gradient_lines(c: Comparison, cap: str) -> list[str]:
 
 # The tables repeated per cap, in order (the ROI ones are empty without ROIs).
 CAP_SECTIONS: tuple[Callable[[Comparison, str], list[str]], ...] = (
-    _full_lines,
-    _roi_lines,
+    lambda c, cap: _suite_lines(c, cap, "full"),
+    lambda c, cap: _suite_lines(c, cap, "roi"),
     _roi_class_lines,
     _roi_mask_lines,
     _gradient_lines,
@@ -880,7 +842,6 @@ def _cap_lines(c: Comparison) -> list[str]:
     return [line for cap in c.caps for section in CAP_SECTIONS for line in section(c, cap)]
 
 
-# compare.md's sections in order; each renders a Comparison as Markdown lines (none if absent).
 # ----------------------------------------------------------------------------- the losses' optimum
 
 OPTIMUM_TITLE = "The losses' own optimum (no network)"
@@ -1016,6 +977,7 @@ def _optimum_lines(c: Comparison) -> list[str]:
     return lines
 
 
+# compare.md's sections in order; each renders a Comparison as Markdown lines (none if absent).
 SECTIONS: tuple[Callable[[Comparison], list[str]], ...] = (
     _header_lines,
     _statistics_lines,
@@ -1028,6 +990,5 @@ SECTIONS: tuple[Callable[[Comparison], list[str]], ...] = (
 
 
 def build_comparison(comparison: Comparison) -> tuple[dict, str]:
-    """``comparison`` (:func:`comparison_data`) as ``compare.json``'s dict and ``compare.md``'s text
-    (:data:`SECTIONS` in order)."""
+    """``comparison`` as ``compare.json``'s dict and ``compare.md``'s text (:data:`SECTIONS`)."""
     return comparison.as_json(), "\n".join(line for s in SECTIONS for line in s(comparison)) + "\n"
