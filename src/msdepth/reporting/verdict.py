@@ -15,6 +15,7 @@ instrument in the summary table is its rows plus one :class:`Column` in :func:`h
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from typing import Mapping, Sequence
 
@@ -74,20 +75,10 @@ class Row:
         return self.t_low is not None and self.t_high is not None and (self.t_low > 0 or self.t_high < 0)
 
     def as_dict(self) -> dict:
-        """The row as compare.json holds it (the optional keys only where set)."""
-        d = {
-            "instrument": self.instrument,
-            "class": self.cls,
-            "diff": self.diff,
-            "low": self.low,
-            "high": self.high,
-            "n": self.n,
-            "method": self.method,
-            "kind": self.kind,
-        }
-        optional = {"t_low": self.t_low, "t_high": self.t_high, "seeds": self.seeds}
-        optional |= {"settings": self.settings, "per_seed": list(self.per_seed), "unit": self.unit}
-        return d | {k: v for k, v in optional.items() if v not in (None, 0, "", [])}
+        """The row as compare.json holds it: its first eight fields, then the others where set."""
+        d = dataclasses.asdict(self) | {"per_seed": list(self.per_seed)}
+        kept = [k for i, (k, v) in enumerate(d.items()) if i < 8 or v not in (None, 0, "", [])]
+        return {"class" if k == "cls" else k: d[k] for k in kept}
 
     @classmethod
     def from_dict(cls, d: Mapping) -> Row:
