@@ -159,7 +159,7 @@ def network_rows(
         block = paired_statistics({suite: chosen}, dict(groups), cfg, [cap], pairing)
         for variant in others:
             d = block[suite][f"cap{cap:g}"][variant][METRIC]
-            few = _independent(d["n"], d.get("clusters")) < MIN_UNITS
+            few = (d.get("clusters") or d["n"]) < MIN_UNITS  # independent units: frames where drawn by frame
             if few and not scope.keep_few:
                 continue
             unit = _unit_words(scope.units(suite), d.get("clusters"))
@@ -177,11 +177,6 @@ def network_rows(
                 )
             )  # fmt: skip
     return rows
-
-
-def _independent(n: int, clusters: int | None) -> int:
-    """The independent units of a difference: its clusters (frames) where its units were drawn by them."""
-    return n if clusters is None else clusters
 
 
 def _unit_words(unit: str, clusters: int | None) -> str:
@@ -233,7 +228,7 @@ def optimum_rows(
                 values, reference = paired_table(a[a["cap"] == cap], b[b["cap"] == cap], keys, METRIC, what)
                 clusters = unit_clusters(suite, a[a["cap"] == cap])  # in values' order: a's rows
                 k = None if clusters is None else len(set(clusters))
-                few = _independent(len(values), k) < MIN_UNITS
+                few = (k or len(values)) < MIN_UNITS
                 if (few and not scope.keep_few) or not len(values):
                     continue
                 name = f"{instrument} {weight}" if len(others) == 1 else f"{instrument} {weight}, {variant}"
