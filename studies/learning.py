@@ -1,19 +1,15 @@
 """Does every run learn from the image? Train variants x seeds, evaluate each, print the spread.
 
-Issue 17's instrument: for each loss variant (SSIM, MS-SSIM at several kernel sizes) and seed,
-train with the pipeline's own code (``msdepth.training.train.train_variant`` on the cached pairs), predict
-the evaluation frames and report full-image and ROI abs_rel (cap 80), the run's image
-dependence (``msdepth.evaluation.suites.image_dependence``), whether its loss fell within the first
-epoch, and the per-pixel prior's abs_rel beside it. Runs are independent processes
-(``--jobs``); finished runs are kept in ``--out`` and not trained again (resumable).
-
-Run from the repository root after ``dvc repro cache rois baselines``::
+Issue 17's instrument: per loss variant (SSIM, MS-SSIM at several kernel sizes) and seed, train
+with the pipeline's own code, predict the evaluation frames and report full-image and ROI abs_rel
+(cap 80), image dependence, whether the loss fell within the first epoch, and the per-pixel
+prior's abs_rel. Runs are independent processes (``--jobs``), kept in ``--out`` (resumable);
+``--set key=value`` overrides a param for every run. From the repository root after ``dvc repro
+cache rois baselines``::
 
     python studies/learning.py --variants ssim msssim:3 msssim:5 msssim:7 msssim:11 \\
         --seeds 0 1 2 3 4 --out studies/results/default --jobs 2
     python studies/learning.py ... --set model.norm=none --set train.warmup_steps=0
-
-``--set key=value`` overrides one param (YAML value) for every run.
 """
 
 from __future__ import annotations
@@ -62,9 +58,8 @@ def cache_path(params: Params, out: Path) -> Path:
 
 
 def claim_outputs(out: Path, base: dict, jobs: list[tuple[str, int]]) -> OutputPolicy:
-    """Claim every file the study may write under ``out`` (through the output policy, manifest
-    ``out/.msdepth-learning``) before any run starts: OutputError (one line) naming the first that
-    exists and was not written by the study."""
+    """Claim every file the study may write under ``out`` (manifest ``out/.msdepth-learning``) before
+    any run starts: an OutputError names the first that exists and was not written by the study."""
     paths = [out / "overrides.json", out / "summary.md", out / "curves.png"]
     paths += sorted({cache_path(_params_for(base, spec, 1)[0], out) for spec, _ in jobs})
     for spec, seed in jobs:

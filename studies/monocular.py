@@ -1,30 +1,20 @@
 """Monodepth2's monocular (M) and mono+stereo (MS) training beside stereo, with SSIM and MS-SSIM.
 
-Issue 30's closing study. From a project checkout whose workspace holds the stereo results of
-its params (``dvc repro`` or ``dvc pull`` done, ``params.yaml`` and ``dvc.lock`` unchanged), it
-snapshots the stereo runs, then runs one experiment per monocular mode::
+Issue 30's closing study. From a checkout whose workspace holds the stereo results of its params
+(``dvc repro`` or ``dvc pull`` done, ``params.yaml`` and ``dvc.lock`` unchanged), it snapshots the
+stereo runs, then per monocular mode runs every variant and seed of ``params.yaml`` as
 
     dvc exp run -n mono-study-<mode> -S train.mode=<mode> -S data.synthetic.sequence_length=<L> [-S ...]
 
-(every variant and seed of ``params.yaml``: by default ssim and msssim k = 3, seeds 0, 1, 2),
-snapshots each (metrics, the evaluation disparities, the training timings of ``logs/train/``)
-under ``--out``/runs/<mode>/, puts the workspace back to the stereo results (``git checkout
-params.yaml dvc.lock metrics plots``, which must be unchanged at the start, and ``dvc checkout``)
-and writes ``--out``/table.md and ``--out``/disparities.png. The data root then holds the
-rendered sequences: the next ``dvc repro`` renders the stereo set again (the same bytes), and
-nothing after it re-runs::
+snapshots it under ``--out``/runs/<mode>/ (a mode already there is not run again), puts the
+workspace back to the stereo results, and writes ``--out``/table.md (per mode and variant, mean ±
+sd over seeds of full-frame abs_rel, median-scaled for M and MS, ROI abs_rel per class, image
+dependence, pose ATE, training time), table.json (the same per seed) and disparities.png::
 
     python studies/monocular.py                                   # the study (hours: see table.md)
     python studies/monocular.py --modes mono --set train.epochs=1 # any -S of every experiment
 
-A mode already snapshotted under ``--out`` is not run again (delete its folder to rerun it).
-table.md: per mode and variant, mean ± sd over seeds of full-frame abs_rel (median-scaled for
-M and MS), ROI abs_rel per class, the image-dependence measure (variation; the per-pixel prior's
-is 0) and its correlation with the prior, the pose ATE, and the training time per run against
-stereo's. table.json, written with it: the same runs' values per seed, ``{"cap", "seeds",
-"metric": "abs_rel", "modes": {mode: {variant: {"full frame" | ROI class: [one value per
-seed]}}}}`` (the committed results predate it: their table.md keeps mean ± sd only). The
-pipeline's compare stage reads neither: its verdict holds only what ``dvc repro`` computes.
+The pipeline's compare stage reads neither table: its verdict holds only what ``dvc repro`` computes.
 """
 
 from __future__ import annotations
@@ -42,14 +32,10 @@ import pandas as pd
 
 from msdepth.config.params import params_from_dict, read_params_file
 from msdepth.errors import OutputError, run_main
+from msdepth.evaluation.results import load_suite_metrics, load_unit_tables
 from msdepth.io import write_text
 from msdepth.outputs import OutputPolicy
-from msdepth.reporting.comparison import (
-    image_dependence,
-    load_suite_metrics,
-    load_unit_tables,
-    variant_settings,
-)
+from msdepth.reporting.comparison import image_dependence, markdown_table, variant_settings
 from msdepth.reporting.figures import write_figure
 from msdepth.reporting.verdict import FULL_FRAME, settings_label
 
@@ -173,9 +159,8 @@ def mode_rows(snap: Path, mode: str, params: dict, cap: float) -> list[list[str]
 
 
 def scaled_stereo_rows(repo: Path, params: dict, cap: float) -> list[list[str]]:
-    """Per variant, the stereo runs of ``repo``'s workspace median-scaled per image as the
-    monocular runs are: the same per-image GT scale, so the modes compare on shape alone. The
-    rows have :func:`table`'s columns (those a snapshot gives, such as pose, are ``–``)."""
+    """Per variant, the stereo runs of ``repo``'s workspace median-scaled per image as the monocular
+    runs are, so the modes compare on shape alone (:func:`table`'s columns, ``–`` for pose)."""
     import os
 
     from msdepth.config.params import load_params
@@ -213,8 +198,7 @@ def scaled_stereo_rows(repo: Path, params: dict, cap: float) -> list[list[str]]:
 
 
 def seed_values(snap: Path, params: dict, cap: float) -> dict[str, dict[str, list[float]]]:
-    """Per variant of the snapshot ``snap``, each seed's full-frame abs_rel (under ``"full frame"``,
-    median-scaled for M and MS as the table's) and ROI abs_rel per class: table.json's values."""
+    """table.json's values: per variant of ``snap``, each seed's full-frame and per-class ROI abs_rel."""
     runs, key = runs_of(params), f"cap{cap:g}"
     suites = load_suite_metrics(snap / "metrics", runs, ("full", "roi"))
     out: dict[str, dict[str, list[float]]] = {}
@@ -234,8 +218,7 @@ def _json(path: Path) -> dict:
 
 
 def study_settings(params: dict) -> str:
-    """The variants' settings the study's runs were trained with (the verdict's label): a row made
-    under other settings than a later run's is shown apart, never pooled."""
+    """The variants' settings the study's runs were trained with (the verdict's label)."""
     typed = params_from_dict(params)
     return settings_label(variant_settings(typed), typed.variants)
 
@@ -245,12 +228,12 @@ def table(out: Path, modes: list[str], params: dict, cap: float, repo: Path | No
     stereo runs), their median-scaled rows too (:func:`scaled_stereo_rows`)."""
     header = ["mode", "variant", "abs_rel", *[f"ROI {c}" for c in CLASSES], "variation", "corr. prior"]
     header += ["scale ratio", "pose ATE (m)", "train s/run"]
-    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    rows = []
     for mode in ["stereo", *modes]:
-        rows = mode_rows(out / "runs" / mode, mode, params, cap)
-        lines += ["| " + " | ".join(row) + " |" for row in rows]
+        rows += mode_rows(out / "runs" / mode, mode, params, cap)
         if mode == "stereo" and repo is not None:
-            lines += ["| " + " | ".join(row) + " |" for row in scaled_stereo_rows(repo, params, cap)]
+            rows += scaled_stereo_rows(repo, params, cap)
+    lines = markdown_table(header, rows).split("\n")
     prior = _json(out / "runs" / "stereo" / "metrics" / "full" / "prior.json").get(f"cap{cap:g}", {})
     seeds = params["train"]["seeds"]
     return "\n".join(

@@ -1,26 +1,17 @@
 """Do the networks see objects? Curves of the object classes' error as one run trains long.
 
-Issue 52's diagnosis: one variant and seed trained with the pipeline's own code
-(``msdepth.training.train.train_variant`` on the cached pairs) out to ``--steps`` steps; every
-``--every`` steps (at the first epoch end past each multiple) the plain predictions of the
-evaluation frames are scored:
-
-- car / windshield / glass / sign abs_rel on each class's exact pixels (cap 80 m), and full frame;
-- the per-box correlation of log(run / GT) with the image-blind prior's log(prior / GT) over the
-  large car boxes (:mod:`msdepth.evaluation.box_errors`): near 1 = cars placed where the layout
-  prior puts them;
-- image dependence (:func:`msdepth.evaluation.suites.image_dependence`).
-
-If the classes' errors fall late, the default is a budget problem; if they never fall, a recipe
-problem. Writes ``history.json`` (resumable: a killed run resumes from its last epoch
-checkpoint), ``curve.png``, ``strip.png`` (disparity at a few checkpoints beside the GT) and
-``summary.md`` into ``--out``. Run from the repository root after ``dvc repro cache rois``::
+Issue 52's diagnosis: one variant and seed trained with the pipeline's own code out to ``--steps``
+steps; every ``--every`` steps (at the first epoch end past each multiple) the evaluation frames
+are scored: each object class's abs_rel on its exact pixels and the full frame (cap 80 m), the
+large car boxes' correlation with the image-blind prior (:mod:`msdepth.evaluation.box_errors`: near
+1 = cars placed where the layout prior puts them), and image dependence. Writes ``history.json``
+(resumable from the last epoch checkpoint), ``curve.png``, ``strip.png`` and ``summary.md`` into
+``--out``. Run from the repository root after ``dvc repro cache rois``::
 
     python studies/objects.py --out studies/results/objects/diagnosis --steps 10000 --threads 1
 
-``--table`` writes ``--out/table.md``: a row per run below ``--out``, then the means over seeds of
-each recipe and variant and MS-SSIM − SSIM paired by seed (:func:`seed_tables`; a run's folder is
-named ``<recipe>[_msssim][_seed<k>]``).
+``--table`` writes ``--out/table.md``: a row per run below ``--out`` (folders named
+``<recipe>[_msssim][_seed<k>]``), the means over seeds and MS-SSIM − SSIM paired by seed.
 """
 
 from __future__ import annotations
@@ -48,7 +39,8 @@ from msdepth.evaluation.suites import depth_maps, evaluate_full, evaluate_roi, i
 from msdepth.io import save_npy, write_text
 from msdepth.outputs import OutputPolicy, claim_output_file
 from msdepth.readers import read_json_file
-from msdepth.reporting.stats import paired_t
+from msdepth.reporting.comparison import markdown_table
+from msdepth.stats import paired_t
 
 INDEX = Path("data/index")
 CLASSES = ("car", "windshield", "glass", "sign")
@@ -58,8 +50,7 @@ LARGE_PX = 4.0  # a box this tall at the network's input is "large" (studies/roi
 
 @dataclasses.dataclass(frozen=True)
 class EvalSet:
-    """The evaluation frames, their left images, the ROI boxes, which are large cars, the
-    image-blind baselines' depth maps (the constant's, the prior's) and the prior's per-box medians."""
+    """The evaluation frames and images, the ROIs (which are large cars) and the image-blind baselines."""
 
     frames: list
     images: list[Path]
@@ -163,8 +154,7 @@ def _recorder(params: Params, ev: EvalSet, out: Path, history: list[dict], spe: 
 
 
 def read_history(path: Path) -> list[dict]:
-    """A run's history.json through the hardened reader: a list of marks, each with an integer
-    ``step`` and a number for every score of the tables; one DataError line naming the file else."""
+    """A run's history.json: marks, each with an integer ``step`` and a number per score; else a DataError."""
     history = read_json_file(path, "objects history")
     if not isinstance(history, list) or not all(isinstance(h, dict) for h in history):
         raise DataError(f"{path}: needs a JSON list of scored marks")
@@ -399,11 +389,8 @@ def _cell(value: float | None) -> str:
 def _table_lines(first: Sequence[str], rows: Sequence[tuple[Sequence[str], dict]]) -> list[str]:
     """A markdown table: the ``first`` columns' headers, then :data:`COLUMNS`; each row its first
     cells and a scores dict."""
-    headers = [*first, *(h for _, h in COLUMNS)]
-    lines = ["| " + " | ".join(headers) + " |", "|---" * len(headers) + "|"]
-    for cells, row in rows:
-        lines.append("| " + " | ".join([*cells, *(_cell(row.get(k)) for k, _ in COLUMNS)]) + " |")
-    return lines
+    cells = [[*first_cells, *(_cell(row.get(k)) for k, _ in COLUMNS)] for first_cells, row in rows]
+    return markdown_table([*first, *(h for _, h in COLUMNS)], cells).split("\n")
 
 
 def summary_table(history: list[dict], floor: dict[str, dict]) -> str:
@@ -413,8 +400,7 @@ def summary_table(history: list[dict], floor: dict[str, dict]) -> str:
 
 
 def runs_table(root: Path) -> str:
-    """table.md: one row per run below ``root`` (each folder holding a history.json and its
-    overrides in its name): the scores at its last mark and at the mark nearest 1,200 steps."""
+    """table.md: per run below ``root``, the scores at its last mark and at the one nearest 1,200 steps."""
     rows = []
     for path in sorted(root.rglob("history.json")):
         history = read_history(path)
@@ -444,8 +430,7 @@ def run_key(name: str) -> tuple[str, str, int]:
 
 
 def _seed_groups(root: Path) -> dict[tuple[str, str], dict[int, list[dict]]]:
-    """Every run's history below ``root``, grouped by (recipe, variant), keyed by seed; two folders
-    that name the same run (``r_seed1`` and ``r_seed01``) are a DataError naming both."""
+    """Every run's history below ``root`` by (recipe, variant) and seed; a run named twice is a DataError."""
     groups: dict[tuple[str, str], dict[int, list[dict]]] = {}
     seen: dict[tuple[str, str, int], Path] = {}
     for path in sorted(root.rglob("history.json")):
@@ -490,12 +475,9 @@ def seed_means_lines(groups: dict[tuple[str, str], dict[int, list[dict]]]) -> li
 
 
 def paired_lines(groups: dict[tuple[str, str], dict[int, list[dict]]], confidence: float = 0.95) -> list[str]:
-    """A table row per recipe that both variants ran with 2 seeds or more in common: MS-SSIM − SSIM
-    paired by seed (one seed's two runs share initial weights and data order) at the last mark all
-    four reached; each cell the mean difference, its paired t interval at ``confidence`` and the
-    count of seeds where MS-SSIM's score is the lower."""
-    head = ["recipe", "seeds", "steps", *(h for k, h in COLUMNS if k in PAIRED)]
-    lines = ["| " + " | ".join(head) + " |", "|---" * len(head) + "|"]
+    """Per recipe both variants ran with 2 seeds or more in common, MS-SSIM − SSIM paired by seed at
+    the last common mark: mean, paired t interval, seeds where MS-SSIM's is lower."""
+    rows = []
     for (recipe, variant), ssim in sorted(groups.items()):
         msssim = groups.get((recipe, "msssim"), {})
         seeds = sorted(set(ssim) & set(msssim)) if variant == "ssim" else []
@@ -508,8 +490,9 @@ def paired_lines(groups: dict[tuple[str, str], dict[int, list[dict]]], confidenc
             d = np.array([_row_at(msssim[s], step)[key] - _row_at(ssim[s], step)[key] for s in seeds])
             mean, low, high = paired_t(d, confidence)
             cells.append(f"{mean:+.3f} [{low:+.3f}, {high:+.3f}] {int((d < 0).sum())}/{len(d)}")
-        lines.append("| " + " | ".join([recipe, ",".join(map(str, seeds)), str(step), *cells]) + " |")
-    return lines
+        rows.append([recipe, ",".join(map(str, seeds)), str(step), *cells])
+    head = ["recipe", "seeds", "steps", *(h for k, h in COLUMNS if k in PAIRED)]
+    return markdown_table(head, rows).split("\n")
 
 
 def seed_tables(root: Path) -> str:

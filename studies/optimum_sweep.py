@@ -1,15 +1,10 @@
 """The losses' own optimum on rendered evaluation frames, at several smoothness weights.
 
-Renders evaluation frames of the synthetic set (``data.synthetic``, through its camera;
-:func:`msdepth.evaluation.rendered.rendered_eval_set`), runs the optimum
-(:mod:`msdepth.optimum.solver`) per variant and weight, and scores it with the evaluation's suites
-(cap 80 m): full-frame abs_rel and a1, ROI abs_rel per class
-(boxes) and over the classes' exact pixels (masks), beside an oracle constant (each frame's
-median GT disparity). Every row has KITTI's D1 (%) and EPE (px), the full-image suite's.
-``--matchers`` adds the matchers, unrefined, as the pipeline's match and sgbm stages run them: SGM
-on each variant's own cost volume and OpenCV's SGBM (:func:`msdepth.optimum.starts.matched_disparity`).
-Prints a markdown table; ``--trace`` also prints the mean loss per level at steps 25, 50, 100, ...
-(a level of fewer steps: at its last), the stopping rule's measurement::
+Renders evaluation frames of the synthetic set (:func:`msdepth.evaluation.rendered.rendered_eval_set`),
+runs the optimum per variant and weight and scores it with the evaluation's suites (cap 80 m):
+abs_rel and a1, ROI abs_rel per class (boxes and exact masks), D1 and EPE, beside an oracle
+constant. ``--matchers`` adds SGM on each variant's cost volume and OpenCV's SGBM, unrefined;
+``--trace`` prints the mean loss per level at steps 25, 50, 100, ... (the stopping rule's measure)::
 
     python studies/optimum_sweep.py --frames 8 --variants ssim msssim:3 --weights 0.3 1 3
     python studies/optimum_sweep.py --frames 8 --weights 10 --matchers --set optimum.iterations=50

@@ -1,14 +1,10 @@
 """How many seeds would a verdict at the observed MS-SSIM − SSIM differences need, paired by seed?
 
-From committed runs only (no training): each variant's per-seed abs_rel (cap of the headline) on
-the full frame (``metrics/full/<variant>/seed<S>.json``), over all ROIs and per ROI class
-(``metrics/roi/...``); or, with ``--compare``, the per-seed values a ``compare.json`` keeps
-(``seed_spread``: full frame and all ROIs). Both losses train with the same seeds, so seed ``s`` of
-each is a pair (:mod:`msdepth.training.pairing`): δ is the mean of the per-seed differences and σ_d
-their standard deviation. The seed pairs needed for 80 % power in a two-sided 5 % paired t-test,
-the power of the design as run, and the smallest difference it detects come from
-:mod:`msdepth.reporting.power`; the unpaired two-sample size is shown beside it for comparison.
-Run from the repository root::
+From committed runs only: each variant's per-seed abs_rel at the headline cap on the full frame,
+over all ROIs and per ROI class (``metrics/``), or with ``--compare`` a ``compare.json``'s
+``seed_spread``. Seed ``s`` of both losses is a pair: δ is the mean of the per-seed differences,
+σ_d their sd; the pairs needed for 80 % power (two-sided 5 % paired t), the power as run and the
+smallest detectable difference come from :mod:`msdepth.stats`, the unpaired size beside them::
 
     python studies/power.py --out studies/results/power.md
     python studies/power.py --compare studies/results/seeds12/compare.json \\
@@ -25,14 +21,14 @@ from pathlib import Path
 import numpy as np
 
 from msdepth.errors import MsdepthError, run_main
+from msdepth.evaluation.results import load_suite_metrics
 from msdepth.io import write_text
 from msdepth.outputs import claim_output_file
 from msdepth.pipeline.paths import METRICS, run_name
 from msdepth.readers import read_json_object
-from msdepth.reporting.comparison import load_suite_metrics
-from msdepth.reporting.power import detectable_difference, pooled_sd, power_at, seeds_needed
 from msdepth.reporting.report import Results, load_results
-from msdepth.reporting.stats import paired_t
+from msdepth.reporting.verdict import signed
+from msdepth.stats import detectable_difference, paired_t, pooled_sd, power_at, seeds_needed
 
 ALPHA, POWER = 0.05, 0.8
 CAP_SEEDS = 12  # issue 39's ceiling on extra stereo seeds
@@ -63,11 +59,6 @@ def per_seed_from_compare(data: dict, variant: str, cap: str) -> dict[str, list[
     return rows
 
 
-def _signed(value: float, decimals: int) -> str:
-    """``value`` with its sign, a typographic minus as in the project's reports."""
-    return f"{value:+.{decimals}f}".replace("-", "\u2212")
-
-
 def _size(n: float) -> str:
     return "∞" if math.isinf(n) else str(int(n))
 
@@ -96,7 +87,7 @@ def table(labels: tuple[str, str], ours: dict, theirs: dict) -> list[str]:
         smallest = detectable_difference(seeds, sd_d, ALPHA, POWER, paired=True)
         _, low, high = paired_t(d)
         star = " *" if low > 0 or high < 0 else ""
-        interval = f"{_signed(delta, 4)} [{_signed(low, 4)}, {_signed(high, 4)}]{star}"
+        interval = f"{signed(delta, 4)} [{signed(low, 4)}, {signed(high, 4)}]{star}"
         lines.append(
             f"| {row} | {a.mean():.4f} | {b.mean():.4f} | {interval} | {sd_d:.4f} | {r:.2f} | "
             f"{_size(n_t)} | {powers[0]:.2f} | {powers[1]:.2f} | {smallest:.4f} | {sd:.4f} | "
@@ -128,7 +119,7 @@ def preamble(source: str, seeds: str, cap_m: str, reference: str) -> list[str]:
         "(negative: lower error), with the 95 % paired t interval over the seed pairs (`*`: it excludes "
         "0); σ_d: the standard deviation of those per-seed differences; r: the "
         "two variants' correlation over seeds. Pairs needed: for a two-sided paired t-test at "
-        f"{ALPHA * 100:g} % with {POWER * 100:g} % power (`msdepth.reporting.power`: "
+        f"{ALPHA * 100:g} % with {POWER * 100:g} % power (`msdepth.stats`: "
         "n = (z₀.₉₇₅ + z₀.₈)²σ_d²/δ², then the smallest n whose noncentral-t power reaches 80 %, "
         "df = n − 1). Smallest δ: the difference the seeds as run detect with 80 % power. σ and n "
         "unpaired: the two-sample test that ignores the pairing, for comparison. With few seeds σ_d "

@@ -28,9 +28,7 @@ ROOT = Path(__file__).resolve().parents[1]  # its params.yaml and stages/
 
 def outputs(out: Path, params: Params) -> list[Path]:
     """Every file the study writes or replaces under ``out`` outside the data tree: params.yaml and
-    the index, rois and cache stages' outputs (each extra set's index, ROI file and its contact
-    sheet included), with the extra sets' indexes that the index stage removes (those of sets
-    ``params`` does not list)."""
+    the index, rois and cache stages' outputs (the extra sets' included, listed or not)."""
     from msdepth.data.eval_index import set_index_path, set_rois_path
     from msdepth.pipeline import paths
 

@@ -195,21 +195,6 @@ def test_learning_study_smoke(study_set: Path, tmp_path: Path) -> None:
     assert set(run["history"][-1]["roi_by_class"]) == set(run["roi_by_class"])
     assert "ROI abs_rel per class" in stdout and "| constant |" in stdout
     assert (tmp_path / "out" / "curves.png").stat().st_size > 0
-    # studies/side_by_side.py on the two models the study trained.
-    work = tmp_path / "out" / "work"
-    _study(
-        "side_by_side.py",
-        "--models",
-        f"SSIM={work / 'ssim_seed0' / 'model.pt'}",
-        f"k5={work / 'msssim_k5_seed0' / 'model.pt'}",
-        "--frames",
-        "000000_10",
-        "000001_10",
-        "--out",
-        "side.png",
-        cwd=tmp_path,
-    )
-    assert (tmp_path / "side.png").stat().st_size > 0
 
 
 @pytest.mark.slow

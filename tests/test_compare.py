@@ -7,7 +7,6 @@ from msdepth.config.params import params_from_dict
 from msdepth.evaluation.metrics import METRICS
 from msdepth.evaluation.suites import NO_ROIS
 from msdepth.reporting.comparison import (
-    ComparisonInputs,
     _seed_resampling,
     build_comparison,
     changed_settings,
@@ -60,7 +59,7 @@ def test_compare_names_a_changed_kernel_size_in_the_rows_and_every_setting_in_th
         "msssim": {**DEFAULT_MSSSIM, "kernel_size": 7},
     }
     comparison = comparison_data(
-        _suites({"ssim": 0.3, "msssim": 0.2}), ["ssim", "msssim"], [], ComparisonInputs(settings=settings)
+        _suites({"ssim": 0.3, "msssim": 0.2}), ["ssim", "msssim"], [], settings=settings
     )
     result, md = build_comparison(comparison)
     lines = md.splitlines()
@@ -85,9 +84,7 @@ def test_compare_names_a_changed_kernel_size_in_the_rows_and_every_setting_in_th
 def test_compare_at_the_defaults_states_the_kernel_once_and_keeps_the_row_names():
     settings = {"ssim": {"kernel_size": 3, "padding": "valid"}, "msssim": DEFAULT_MSSSIM}
     _, md = build_comparison(
-        comparison_data(
-            _suites({"ssim": 0.3, "msssim": 0.2}), ["ssim", "msssim"], [], ComparisonInputs(settings=settings)
-        )
+        comparison_data(_suites({"ssim": 0.3, "msssim": 0.2}), ["ssim", "msssim"], [], settings=settings)
     )
     assert md.count("k=3") == 2 and "| msssim | **0.2000** |" in md and "(k=" not in md
 
@@ -103,7 +100,7 @@ def test_an_image_blind_run_keeps_its_settings_in_the_label():
     settings = {"msssim": {**DEFAULT_MSSSIM, "levels": 3}}
     dependence = {"msssim": {"image_blind": True}}
     comparison = comparison_data(
-        _suites({"msssim": 0.2}), ["msssim"], [], ComparisonInputs(dependence=dependence, settings=settings)
+        _suites({"msssim": 0.2}), ["msssim"], [], dependence=dependence, settings=settings
     )
     assert comparison.label("msssim") == "msssim (levels=3) (image-blind)"
 
@@ -118,9 +115,7 @@ def test_every_table_with_rois_names_the_changed_kernel():
         dense = {"overall": {"count": 0}, "by_class": {}}
         suites["gradients"][run] = {"cap80": {"overall": g, "by_class": {}, "dense_gt": dense}}
     settings = {"msssim": {**DEFAULT_MSSSIM, "kernel_size": 7}}
-    _, md = build_comparison(
-        comparison_data(suites, ["ssim", "msssim"], [], ComparisonInputs(settings=settings))
-    )
+    _, md = build_comparison(comparison_data(suites, ["ssim", "msssim"], [], settings=settings))
     rows = [line.split(" |")[0] for line in md.splitlines() if line.startswith("| msssim")]
     assert rows == ["| msssim (k=7)"] * 4  # full image, ROI, ROI per class, gradients
 

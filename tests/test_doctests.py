@@ -18,9 +18,14 @@ SCIENCE_API = {
     "msdepth.evaluation.metrics": ("compute_errors", "stereo_errors"),  # stereo_errors: D1 and EPE
     "msdepth.geometry.depth": ("disparity_to_depth", "depth_to_disparity"),
     "msdepth.geometry.warp": ("warp",),
-    "msdepth.reporting.stats": ("paired_t", "seed_bootstrap", "paired_seed_bootstrap"),
+    "msdepth.stats": (
+        "paired_t",
+        "seed_bootstrap",
+        "paired_seed_bootstrap",
+        "seeds_needed",
+        "detectable_difference",
+    ),
     "msdepth.reporting.verdict": ("headline_columns", "verdict_table"),
-    "msdepth.reporting.power": ("seeds_needed", "detectable_difference"),
     "msdepth.evaluation.box_errors": ("box_medians",),
     "msdepth.training.train": ("learning_rate",),
 }

@@ -245,15 +245,8 @@ def test_compare_section_of_an_extra_set(tmp_path: Path, monkeypatch: pytest.Mon
     import pandas as pd
 
     from msdepth.config.params import CompareConfig
-    from msdepth.evaluation.results import _write_suite
-    from msdepth.reporting.comparison import (
-        build_set_section,
-        group_metrics,
-        load_suite_metrics,
-        load_unit_tables,
-        paired_statistics,
-        seed_spread,
-    )
+    from msdepth.evaluation.results import _write_suite, load_suite_metrics, load_unit_tables
+    from msdepth.reporting.comparison import build_set_section, group_metrics, paired_statistics, seed_spread
 
     monkeypatch.chdir(tmp_path)
     gts, disps = _sparse_scene(2, n=4, shape=(60, 200))

@@ -7,7 +7,7 @@ import pytest
 
 from msdepth.config.params import EvalConfig
 from msdepth.evaluation.suites import Frame, depth_maps, evaluate_full, evaluate_gradients, evaluate_roi
-from msdepth.reporting.comparison import ComparisonInputs, build_comparison, comparison_data
+from msdepth.reporting.comparison import build_comparison, comparison_data
 
 FOCAL, BASELINE = 721.5377, 0.54
 
@@ -267,13 +267,11 @@ def test_compare_names_missing_baselines_with_their_reasons():
         "gradients": {r: grad for r in ("ssim", "constant")},
     }
     missing = {"prior": "no metrics/full/prior.json"}
-    result, md = build_comparison(
-        comparison_data(suites, ["ssim"], ["constant"], ComparisonInputs(missing_baselines=missing))
-    )
+    result, md = build_comparison(comparison_data(suites, ["ssim"], ["constant"], missing_baselines=missing))
     assert "Missing baselines (not built): prior: no metrics/full/prior.json." in md
     assert result["missing_baselines"] == missing and result["baselines"] == ["constant"]
     two = {"constant": "no training GT", "prior": "no metrics/full/prior.json"}
-    _, md = build_comparison(comparison_data(suites, ["ssim"], [], ComparisonInputs(missing_baselines=two)))
+    _, md = build_comparison(comparison_data(suites, ["ssim"], [], missing_baselines=two))
     assert "Missing baselines (not built): constant: no training GT; prior: no metrics/full/prior.json." in md
     _, md = build_comparison(comparison_data(suites, ["ssim"], ["constant"]))
     assert "Missing" not in md
@@ -302,8 +300,6 @@ def test_compare_says_when_image_dependence_cannot_be_measured():
     }
     suites = {"full": suites["full"], "roi": {"ssim": roi}, "gradients": {"ssim": grad}}
     _, md = build_comparison(
-        comparison_data(
-            suites, ["ssim"], [], ComparisonInputs(dependence=dependence, groups={"ssim": ["ssim"]})
-        )
+        comparison_data(suites, ["ssim"], [], dependence=dependence, groups={"ssim": ["ssim"]})
     )
     assert "| ssim | – | – | not measured: too few evaluation frames with GT at the same pixels, " in md

@@ -15,7 +15,7 @@ import pytest
 from conftest import unblocking
 
 from msdepth.__main__ import main
-from msdepth.reporting import experiments as exp
+from msdepth.cli import experiments as exp
 
 SAMPLE = Path(__file__).resolve().parent / "data" / "exp_show.json"
 WIDEST = 120  # issue 43: the README's table, two variants and the default keys

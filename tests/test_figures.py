@@ -18,7 +18,7 @@ from msdepth.evaluation.results import SUITES
 from msdepth.evaluation.suites import load_frames
 from msdepth.pipeline import paths as pipeline
 from msdepth.render import generate
-from msdepth.reporting.figures import FIGURES, FigureInputs, make_figures, roi_examples
+from msdepth.reporting.figures import FIGURES, make_figures, roi_examples
 
 VARIANTS = ["ssim", "msssim"]
 RUNS = {v: f"{v}/seed0" for v in VARIANTS}  # label -> run, as the figures stage passes them
@@ -93,7 +93,9 @@ def test_every_figure_is_a_png_and_no_temp_file_is_left(tree: Path, tmp_path: Pa
     written = make_figures(
         RUNS,
         out,
-        inputs=FigureInputs(**_paths(tree), metrics=tree / "metrics", train_plots=tree / "plots/train"),
+        **_paths(tree),
+        metrics=tree / "metrics",
+        train_plots=tree / "plots/train",
         eval_cfg=_eval_cfg(),
     )
     assert written == [out / name for name in FIGURES]
@@ -110,7 +112,9 @@ def test_one_variant_gives_no_scatter(tree: Path, tmp_path: Path):
     written = make_figures(
         {"msssim": RUNS["msssim"]},
         tmp_path,
-        inputs=FigureInputs(**_paths(tree), metrics=tree / "metrics", train_plots=tree / "plots/train"),
+        **_paths(tree),
+        metrics=tree / "metrics",
+        train_plots=tree / "plots/train",
         eval_cfg=_eval_cfg(),
         frames=1,
     )
@@ -148,7 +152,9 @@ def test_missing_tsv_is_one_data_error_naming_it(tree: Path, tmp_path: Path):
         make_figures(
             RUNS,
             out,
-            inputs=FigureInputs(**_paths(tree), metrics=tree / "metrics", train_plots=plots),
+            **_paths(tree),
+            metrics=tree / "metrics",
+            train_plots=plots,
             eval_cfg=_eval_cfg(),
         )
     assert not out.exists() or not any(out.iterdir())  # inputs are checked before any figure is drawn
@@ -163,7 +169,9 @@ def test_missing_depth_maps_is_a_data_error_naming_them(tree: Path, tmp_path: Pa
         make_figures(
             RUNS,
             tmp_path / "figs",
-            inputs=FigureInputs(**paths, metrics=tree / "metrics", train_plots=tree / "plots/train"),
+            **paths,
+            metrics=tree / "metrics",
+            train_plots=tree / "plots/train",
             eval_cfg=_eval_cfg(),
         )
 
@@ -187,7 +195,10 @@ def test_training_curves_draw_every_seed_and_name_a_missing_one(tree: Path, tmp_
     make_figures(
         RUNS,
         tmp_path / "figs",
-        inputs=FigureInputs(**_paths(tree), metrics=tree / "metrics", train_plots=plots, curves=curves),
+        **_paths(tree),
+        metrics=tree / "metrics",
+        train_plots=plots,
+        curves=curves,
         eval_cfg=_eval_cfg(),
     )
     for labels in drawn["training_curves.png"]:  # per panel: 2 ssim seeds, 1 msssim; each seed labelled
@@ -199,7 +210,10 @@ def test_training_curves_draw_every_seed_and_name_a_missing_one(tree: Path, tmp_
         make_figures(
             RUNS,
             tmp_path / "figs2",
-            inputs=FigureInputs(**_paths(tree), metrics=tree / "metrics", train_plots=plots, curves=curves),
+            **_paths(tree),
+            metrics=tree / "metrics",
+            train_plots=plots,
+            curves=curves,
             eval_cfg=_eval_cfg(),
         )
 
@@ -225,7 +239,9 @@ def test_sparse_gt_shows_the_densest_roi_of_each_class(tree: Path, tmp_path: Pat
     written = make_figures(
         RUNS,
         tmp_path / "figs",
-        inputs=FigureInputs(**_paths(sparse), metrics=sparse / "metrics", train_plots=sparse / "plots/train"),
+        **_paths(sparse),
+        metrics=sparse / "metrics",
+        train_plots=sparse / "plots/train",
         eval_cfg=_eval_cfg(),
     )
     assert [p.name for p in written] == list(FIGURES)
@@ -252,7 +268,9 @@ def test_disparity_figure_shows_the_gt_and_outlines_cars_and_windshields(
     make_figures(
         RUNS,
         tmp_path / "figs",
-        inputs=FigureInputs(**_paths(tree), metrics=tree / "metrics", train_plots=tree / "plots/train"),
+        **_paths(tree),
+        metrics=tree / "metrics",
+        train_plots=tree / "plots/train",
         eval_cfg=_eval_cfg(),
     )
     panels = drawn[0]

@@ -130,7 +130,7 @@ def private_imports(src: Path, package: str = PACKAGE) -> list[str]:
 # Lowest first. A top-level module counts as its own package (``errors``, ``io``, ``__main__``).
 LAYERS = (
     ("errors",),  # the one-line errors every entry point prints
-    ("io", "readers"),  # atomic writers (JSON, text, PNG, npy); bounded readers
+    ("io", "readers", "stats"),  # atomic writers (JSON, text, PNG, npy); bounded readers; statistics
     ("outputs",),  # the output policy: what a command may write into a user's folder
     ("config",),  # the typed params and each loss variant's settings (no torch)
     ("geometry", "pipeline"),  # warping, cameras, disparity <-> depth; the pipeline's paths

@@ -17,7 +17,7 @@ from msdepth.evaluation.pose import _odometry_ates, sequence_ates
 from msdepth.evaluation.results import median_scaling
 from msdepth.evaluation.suites import Frame, depth_maps, evaluate_full, median_scaled_maps
 from msdepth.io import write_png
-from msdepth.reporting.comparison import ComparisonInputs, _render_comparison, comparison_data, monocular_data
+from msdepth.reporting.comparison import build_comparison, comparison_data, monocular_data
 
 CFG = EvalConfig(caps=(80.0,))
 
@@ -90,10 +90,10 @@ def test_compare_shows_scale_ratios_and_pose_ate_of_monocular_runs_only() -> Non
         "full": {"ssim": _full(3.0), "prior": _full(None)},
         "roi": {"ssim": {"rois": 0, "no_rois": "x"}, "prior": {"rois": 0, "no_rois": "x"}},
     }
-    md = _render_comparison(comparison_data(suites, ["ssim"], ["prior"], ComparisonInputs(monocular=mono)))
+    _, md = build_comparison(comparison_data(suites, ["ssim"], ["prior"], monocular=mono))
     assert "## Monocular training: scale and pose" in md
     assert "| ssim | 3.0000 | 0.3000 | 0.2000 | 0.1000 |" in md
-    stereo = _render_comparison(comparison_data(suites, ["ssim"], ["prior"]))
+    stereo = build_comparison(comparison_data(suites, ["ssim"], ["prior"]))[1]
     assert "Monocular training" not in stereo
 
 

@@ -21,7 +21,7 @@ from msdepth.optimum.frames import (
 )
 from msdepth.optimum.solver import COST_SCALES
 from msdepth.pipeline.paths import optimum_run
-from msdepth.reporting.comparison import ComparisonInputs, build_comparison, comparison_data, optimum_data
+from msdepth.reporting.comparison import build_comparison, comparison_data, optimum_data
 from msdepth.reporting.figures import _read_cost_curves, cost_curve_figure
 
 METRICS = {"abs_rel": 0.2, "sq_rel": 0.2, "rmse": 0.2, "rmse_log": 0.2, "a1": 0.8, "a2": 0.8, "a3": 0.8}
@@ -109,7 +109,7 @@ def _trained_suites() -> dict:
 def test_the_optimum_section_shows_optimum_trained_runs_and_baselines_side_by_side():
     data = optimum_data(OPT_SUITES, RUNS, STATS, "cap80", SKIPPED)
     result, md = build_comparison(
-        comparison_data(_trained_suites(), ["ssim", "msssim"], ["prior"], ComparisonInputs(optimum=data))
+        comparison_data(_trained_suites(), ["ssim", "msssim"], ["prior"], optimum=data)
     )
     section = md[md.index("# The losses' own optimum (no network)") :]
     # The trained runs and the baselines were scored on every frame: their count stands beside them.

@@ -1,6 +1,6 @@
 """The losses' runs are paired by design: one seed, the same initial weights and the same batches.
 
-The comparison treats seed ``s`` of every variant as a pair (msdepth.reporting.stats); that holds
+The comparison treats seed ``s`` of every variant as a pair (msdepth.stats); that holds
 only while a variant changes nothing but the loss. These tests train each variant a few steps with
 one seed and check what training actually saw, so a variant that draws random numbers before the
 network is built, or that changes the data order, fails here.
@@ -16,8 +16,7 @@ import torch
 
 import msdepth.training.train as train_mod
 from msdepth.config.params import params_from_dict
-from msdepth.reporting.comparison import pairing_status
-from msdepth.training.pairing import PAIRING_KEYS, tensors_sha256
+from msdepth.training.pairing import PAIRING_KEYS, pairing_status, tensors_sha256
 from msdepth.training.train import TrainOptions, TrainOutputs, load_model, train_variant
 
 H, W = 32, 64

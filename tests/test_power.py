@@ -1,4 +1,4 @@
-"""Seeds a verdict needs (msdepth.reporting.power): hand-computed sizes, and t quantiles and
+"""Seeds a verdict needs (msdepth.stats): hand-computed sizes, and t quantiles and
 powers against SciPy's values (scipy.stats.t.ppf, scipy.stats.nct, written down here: SciPy is
 not a dependency)."""
 
@@ -8,7 +8,7 @@ import math
 
 import pytest
 
-from msdepth.reporting.power import _t_cdf, pooled_sd, power_at, seeds_needed, t_quantile
+from msdepth.stats import _t_cdf, pooled_sd, power_at, seeds_needed, t_quantile
 
 
 def test_normal_size_by_hand() -> None:
@@ -69,7 +69,7 @@ def test_pooled_sd_by_hand() -> None:
 def test_paired_power_matches_a_simulation_down_to_one_degree_of_freedom() -> None:
     """The paired t on n seed pairs (df = n - 1, χ²(1)'s infinite density at 0 included): the
     power a 200,000-draw simulation of the test measured (seed 0: 0.154, 0.397, 0.403)."""
-    from msdepth.reporting.power import detectable_difference
+    from msdepth.stats import detectable_difference
 
     assert power_at(2, 1.76, 1.0, paired=True) == pytest.approx(0.154, abs=0.004)
     assert power_at(3, 1.76, 1.0, paired=True) == pytest.approx(0.397, abs=0.004)

@@ -22,6 +22,7 @@ import numpy as np
 import pytest
 from conftest import unblocking
 
+from msdepth.cli import experiments
 from msdepth.config.params import MAX_PARAMS_BYTES, read_params_file
 from msdepth.config.params_yaml import MAX_DATA_FILE_BYTES
 from msdepth.data import eval_sets, folder, ground_truth, imagefile, kitti, pfm
@@ -29,7 +30,6 @@ from msdepth.download import lists
 from msdepth.errors import DataError, MsdepthError
 from msdepth.evaluation import pose
 from msdepth.io import _encode_png
-from msdepth.reporting import experiments
 
 
 @dataclass(frozen=True)

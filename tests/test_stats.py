@@ -12,7 +12,6 @@ from msdepth.config.params import CompareConfig
 from msdepth.errors import DataError
 from msdepth.evaluation.metrics import METRICS
 from msdepth.reporting.comparison import (
-    ComparisonInputs,
     _mean_over_runs,
     build_comparison,
     comparison_data,
@@ -20,7 +19,7 @@ from msdepth.reporting.comparison import (
     paired_statistics,
     seed_spread,
 )
-from msdepth.reporting.stats import paired_bootstrap, paired_table, seed_bootstrap
+from msdepth.stats import paired_bootstrap, paired_table, seed_bootstrap
 
 
 def test_constant_difference_has_a_zero_width_interval() -> None:
@@ -128,9 +127,7 @@ def test_compare_reports_intervals_and_marks_clear_differences() -> None:
             for r in ("ssim", "msssim", "noise")
         },
     }
-    result, md = build_comparison(
-        comparison_data(suites, ["ssim", "msssim"], ["noise"], ComparisonInputs(stats=stats))
-    )
+    result, md = build_comparison(comparison_data(suites, ["ssim", "msssim"], ["noise"], stats=stats))
     assert result["statistics"] is stats
     assert "Difference to ssim (30 paired images)" in md
     assert "Difference to ssim (30 paired ROIs in 30 frames, drawn by frame)" in md
@@ -172,7 +169,7 @@ def test_differences_are_marked_only_over_at_least_three_seeds() -> None:
             "gradients": {g: grad for g in groups},
         }
         _, md = build_comparison(
-            comparison_data(suites, ["ssim", "msssim"], ["prior"], ComparisonInputs(seeds=seeds, stats=stats))
+            comparison_data(suites, ["ssim", "msssim"], ["prior"], seeds=seeds, stats=stats)
         )
         assert ("| msssim | -0.0500 [" in md) and ("] * |" in md) == marked, md
         # The baseline is deterministic: its mark needs only the reference's seeds.
@@ -211,9 +208,7 @@ def test_an_image_blind_run_is_flagged_in_words() -> None:
         },
     }
     result, md = build_comparison(
-        comparison_data(
-            suites, ["ssim", "msssim"], ["prior"], ComparisonInputs(dependence=dependence, groups=groups)
-        )
+        comparison_data(suites, ["ssim", "msssim"], ["prior"], dependence=dependence, groups=groups)
     )
     assert "| msssim (image-blind) |" in md and "| ssim |" in md
     assert (
@@ -352,14 +347,12 @@ def test_comparison_of_several_seeds_says_so_and_shows_the_spread() -> None:
     entry = {m: {"mean": 0.3, "sd": 0.0125, "runs": {}} for m in METRICS}
     spread = {s: {"cap80": {"ssim": entry, "msssim": entry}} for s in ("full", "roi")}
     result, md = build_comparison(
-        comparison_data(suites, ["ssim", "msssim"], [], ComparisonInputs(seeds=[0, 1, 2], spread=spread))
+        comparison_data(suites, ["ssim", "msssim"], [], seeds=[0, 1, 2], spread=spread)
     )
     assert "mean of 3 training runs (seeds 0, 1, 2)" in md
     assert md.count("Seed-to-seed spread") == 2 and "| msssim | 0.3000 ± 0.0125 |" in md
     assert result["seeds"] == [0, 1, 2] and result["seed_spread"] is spread
-    _, one = build_comparison(
-        comparison_data(suites, ["ssim", "msssim"], [], ComparisonInputs(seeds=[0], spread=spread))
-    )
+    _, one = build_comparison(comparison_data(suites, ["ssim", "msssim"], [], seeds=[0], spread=spread))
     assert "Seed-to-seed" not in one and "One training run per variant (seed 0)" in one
 
 

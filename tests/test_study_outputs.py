@@ -21,10 +21,6 @@ CASES = {
     "monocular": (["--repo", str(ROOT), "--out", "{out}"], "table.md"),
     "prepare_set": (["--out", "{out}"], "params.yaml"),
     "power": (["--out", "{out}/power.md"], "power.md"),
-    "side_by_side": (
-        ["--models", "a=models/none.pt", "--frames", "000003_10", "--out", "{out}/disparity.png"],
-        "disparity.png",
-    ),
 }
 
 

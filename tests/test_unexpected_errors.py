@@ -15,8 +15,8 @@ import pytest
 from msdepth import __main__ as cli
 from msdepth.cli import example, experiments
 from msdepth.errors import LOG_DIR_ENV, DataError, run_main
+from msdepth.evaluation import results
 from msdepth.pipeline.paths import run_stage
-from msdepth.reporting import comparison
 
 ROOT = Path(__file__).resolve().parents[1]
 LINE = re.compile(
@@ -91,7 +91,7 @@ def test_a_stage_reports_an_unexpected_exception_in_one_line(
 def test_a_study_reports_an_unexpected_exception_in_one_line(
     logs: Path, monkeypatch: pytest.MonkeyPatch, capsys
 ) -> None:
-    monkeypatch.setattr(comparison, "load_suite_metrics", _boom)  # imported by the study as it starts
+    monkeypatch.setattr(results, "load_suite_metrics", _boom)  # imported by the study as it starts
     monkeypatch.setattr(sys, "argv", ["studies/power.py", "--root", str(ROOT)])
     with pytest.raises(SystemExit) as exit_:
         runpy.run_path(str(ROOT / "studies" / "power.py"), run_name="__main__")

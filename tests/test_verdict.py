@@ -13,7 +13,6 @@ import pytest
 from msdepth.config.params import CompareConfig
 from msdepth.errors import DataError
 from msdepth.evaluation.metrics import METRICS
-from msdepth.reporting.power import t_quantile
 from msdepth.reporting.verdict import (
     FULL_FRAME,
     MIN_UNITS,
@@ -35,6 +34,7 @@ from msdepth.reporting.verdict import (
     verdict_lines,
     verdict_table,
 )
+from msdepth.stats import t_quantile
 
 ROOT = Path(__file__).resolve().parents[1]
 CFG = CompareConfig(reference="ssim", bootstrap_samples=300, confidence=0.95, seed=0)

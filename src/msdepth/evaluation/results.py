@@ -5,7 +5,9 @@ they score (:func:`write_depth_maps`)."""
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
+from typing import Sequence
 
 import numpy as np
 import pandas as pd
@@ -35,8 +37,9 @@ from msdepth.pipeline.paths import (
     set_headline_dir,
     set_metrics_dir,
     suite_path,
+    train_summary_path,
 )
-from msdepth.readers import read_npy_file
+from msdepth.readers import read_json_file, read_npy_file, read_table_file
 
 SUITES = {"full": evaluate_full, "roi": evaluate_roi, "gradients": evaluate_gradients}  # SUITE_NAMES' order
 
@@ -199,3 +202,48 @@ def score_set(  # noqa: ANN001 - frames
     if no_rois(summary):
         summary[NO_ROIS] = f"no ROIs: {Path(rois).as_posix()} lists no box on set {name}"
     _write_suite("roi", run, summary, table, root=root, headline_root=headline_root)
+
+
+# --- reading the metric files back (the compare stage, the studies) ---------------------------------
+
+
+def _load_runs(
+    metrics_dir: str | os.PathLike, suites: Sequence[str], runs: Sequence[str], suffix: str, read, what: str
+) -> dict:
+    """``{suite: {run: read(metrics_dir/<suite>/<run><suffix>)}}``, naming any missing file."""
+    out: dict[str, dict] = {}
+    for suite in suites:
+        out[suite] = {}
+        for run in runs:
+            path = suite_path(suite, run, suffix, Path(metrics_dir))
+            if not path.exists():
+                raise DataError(f"{path}: missing {what} of run {run!r} (suite {suite})")
+            out[suite][run] = read(path)
+    return out
+
+
+def load_suite_metrics(
+    metrics_dir: str | os.PathLike, runs: Sequence[str], suites: Sequence[str] = tuple(SUITES)
+) -> dict[str, dict[str, dict]]:
+    """``{suite: {run: metrics}}`` from ``metrics_dir/<suite>/<run>.json``."""
+    return _load_runs(metrics_dir, suites, runs, ".json", lambda p: read_json_file(p, "metrics"), "metrics")
+
+
+def load_training_summaries(runs: Sequence[str], root: str | os.PathLike = ".") -> dict[str, dict]:
+    """``{run: its training summary}`` of the runs that have one (the baselines were not trained)."""
+    paths = {r: Path(root) / train_summary_path(r) for r in runs}
+    return {r: read_json_file(p, "training summary") for r, p in paths.items() if p.is_file()}
+
+
+def load_unit_tables(
+    metrics_dir: str | os.PathLike, runs: Sequence[str], suites: Sequence[str] = ("full", "roi")
+) -> dict[str, dict[str, pd.DataFrame]]:
+    """``{suite: {run: per-image or per-ROI table}}`` from ``metrics_dir/<suite>/<run>.csv``."""
+    return _load_runs(
+        metrics_dir,
+        suites,
+        runs,
+        ".csv",
+        lambda p: read_table_file(p, "per-unit metrics", dtype={"frame": str, "image": str}),
+        "per-unit metrics",
+    )

@@ -3,10 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
-import os
-import re
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Callable, Mapping, Sequence
 
 import numpy as np
@@ -17,48 +14,15 @@ from msdepth.config.variants import configs as variant_configs
 from msdepth.errors import DataError
 from msdepth.evaluation.metrics import HIGHER_IS_BETTER, METRICS, STEREO_METRICS
 from msdepth.evaluation.suites import GRADIENTS, NO_ROIS
-from msdepth.pipeline.paths import suite_path, train_summary_path
-from msdepth.readers import read_json_file, read_table_file
-from msdepth.reporting.stats import paired_table, seed_bootstrap
+from msdepth.stats import paired_table, seed_bootstrap
 
-SUITES = ("full", "roi", "gradients")
 ROIS_SKIPPED = "no ROIs: ROI suites skipped"  # compare.md's line when the ROI index is empty
 # A difference is marked only when its interval covers training noise: at least this many seeds
 # of every trained run it involves (with fewer, the seed draws cannot show seed-to-seed spread).
 MIN_SEEDS_FOR_MARKS = 3
-# A run whose predictions vary across images less than this fraction of the GT's variation is
-# called image-blind (a constant or the per-pixel prior score exactly 0; networks that follow
-# the scene ~1).
+# Image-blind: predictions varying across images less than this fraction of the GT's variation
+# (a constant or the per-pixel prior score exactly 0; networks that follow the scene ~1).
 IMAGE_BLIND_BELOW = 0.25
-
-
-def _load_runs(
-    metrics_dir: str | os.PathLike, suites: Sequence[str], runs: Sequence[str], suffix: str, read, what: str
-) -> dict:
-    """``{suite: {run: read(metrics_dir/<suite>/<run><suffix>)}}``, naming any missing file."""
-    out: dict[str, dict] = {}
-    for suite in suites:
-        out[suite] = {}
-        for run in runs:
-            path = suite_path(suite, run, suffix, Path(metrics_dir))
-            if not path.exists():
-                raise DataError(f"{path}: missing {what} of run {run!r} (suite {suite})")
-            out[suite][run] = read(path)
-    return out
-
-
-def load_suite_metrics(
-    metrics_dir: str | os.PathLike, runs: Sequence[str], suites: Sequence[str] = SUITES
-) -> dict[str, dict[str, dict]]:
-    """``{suite: {run: metrics}}`` from ``metrics_dir/<suite>/<run>.json``."""
-    return _load_runs(metrics_dir, suites, runs, ".json", lambda p: read_json_file(p, "metrics"), "metrics")
-
-
-def load_training_summaries(runs: Sequence[str], root: str | os.PathLike = ".") -> dict[str, dict]:
-    """``{run: its training summary}`` (:func:`~msdepth.pipeline.paths.train_summary_path` below the
-    project folder ``root``) of the runs that have one (the baselines were not trained)."""
-    paths = {r: Path(root) / train_summary_path(r) for r in runs}
-    return {r: read_json_file(p, "training summary") for r, p in paths.items() if p.is_file()}
 
 
 # Per-unit tables of the suites that are compared statistically, and the column pairing units.
@@ -69,30 +33,9 @@ CLUSTER_KEYS = {"roi": "image"}
 
 
 def unit_clusters(suite: str, anchor: pd.DataFrame) -> np.ndarray | None:
-    """Each unit's cluster label in ``anchor``'s order (:data:`CLUSTER_KEYS`); None where the
-    suite's units are independent themselves (images).
-
-    Example:
-        >>> t = pd.DataFrame({"roi": [0, 1, 2], "image": ["a", "a", "b"]})
-        >>> unit_clusters("roi", t).tolist(), unit_clusters("full", t)
-        (['a', 'a', 'b'], None)
-    """
+    """Each unit's cluster label in ``anchor``'s order; None where the units are independent (images)."""
     key = CLUSTER_KEYS.get(suite)
     return None if key is None else anchor[key].astype(str).to_numpy()
-
-
-def load_unit_tables(
-    metrics_dir: str | os.PathLike, runs: Sequence[str], suites: Sequence[str] = tuple(UNIT_KEYS)
-) -> dict[str, dict[str, pd.DataFrame]]:
-    """``{suite: {run: per-image or per-ROI table}}`` from ``metrics_dir/<suite>/<run>.csv``."""
-    return _load_runs(
-        metrics_dir,
-        suites,
-        runs,
-        ".csv",
-        lambda p: read_table_file(p, "per-unit metrics", dtype={"frame": str, "image": str}),
-        "per-unit metrics",
-    )
 
 
 def _unit_matrix(
@@ -107,57 +50,6 @@ def _unit_matrix(
     return np.stack([paired_table(anchor, tables[r], keys, metric, f"{what} ({r})")[1] for r in runs])
 
 
-SEED_RUN = re.compile(r"/(seed\d+)$")  # a variant's run, "<variant>/seed<S>"
-
-
-def pairing_status(
-    groups: Mapping[str, Sequence[str]], reference: str, summaries: Mapping[str, Mapping]
-) -> dict[str, str | None]:
-    """Per group other than ``reference``: None when its runs pair seed by seed with the
-    reference's (the same seeds, and every pair's training summaries record the same initial
-    weights and first batch: :mod:`msdepth.training.pairing`), else why they do not.
-
-    Example:
-        >>> rec = {"pairing": {"initial_weights_sha256": "a", "first_batch_sha256": "b"}}
-        >>> pairing_status({"ssim": ["ssim/seed0"], "msssim": ["msssim/seed0"]}, "ssim",
-        ...                {"ssim/seed0": rec, "msssim/seed0": rec})
-        {'msssim': None}
-    """
-
-    def records(runs: Sequence[str]) -> dict[str, dict | None] | None:
-        keys = [SEED_RUN.search(r) for r in runs]
-        if not all(keys):
-            return None
-        return {k.group(1): (summaries.get(r) or {}).get("pairing") for k, r in zip(keys, runs, strict=True)}
-
-    ref = records(groups[reference])
-    out: dict[str, str | None] = {}
-    for name, runs in groups.items():
-        if name == reference:
-            continue
-        own = records(runs)
-        if own is None or ref is None:
-            out[name] = "a baseline is one deterministic run, not a seed of a variant"
-        elif sorted(own) != sorted(ref):
-            out[name] = "the two variants were trained with different seeds"
-        else:
-            out[name] = _record_mismatch(own, ref)
-    return out
-
-
-def _record_mismatch(own: Mapping[str, dict | None], ref: Mapping[str, dict | None]) -> str | None:
-    """The first seed whose two pairing records disagree, in words; None when all agree."""
-    for key in sorted(own):
-        a, b = own[key], ref[key]
-        if not a or not b:
-            return f"{key}: a training summary keeps no pairing record (trained by an older version)"
-        if a.get("initial_weights_sha256") != b.get("initial_weights_sha256"):
-            return f"{key}: the initial weights differ"
-        if a.get("first_batch_sha256") != b.get("first_batch_sha256"):
-            return f"{key}: the first training batches differ"
-    return None
-
-
 def paired_statistics(
     tables: dict[str, dict[str, pd.DataFrame]],
     groups: dict[str, Sequence[str]],
@@ -165,17 +57,9 @@ def paired_statistics(
     caps: Sequence[float],
     pairing: Mapping[str, str | None] | None = None,
 ) -> dict:
-    """``{suite: {capN: {group: {metric: PairedDifference dict}}}}`` of every group against ``cfg.reference``.
-
-    ``groups`` maps a variant to its runs (one per seed) and a baseline to its one run; the
-    reference's runs and each group's runs enter :func:`msdepth.reporting.stats.seed_bootstrap` as rows.
-    ``pairing`` (:func:`pairing_status`) says which groups pair seed by seed with the reference
-    (None: paired): their seed pairs are drawn jointly, the others' seeds independently. A suite
-    with clusters (:func:`unit_clusters`: the ROI suite's frames) draws them instead of its units,
-    and each difference's ``clusters`` counts them. Without
-    it nothing is paired. ``stats["pairing"]`` keeps it, so every row says how it was made.
-    ``tables`` holds the suites to compare (from :func:`load_unit_tables`).
-    """
+    """``{suite: {capN: {group: {metric: PairedDifference dict}}}}`` of every group (variant -> its
+    runs) against ``cfg.reference`` (:func:`msdepth.stats.seed_bootstrap`); ``pairing``: the groups
+    whose seed pairs are drawn jointly (None: paired; absent: nothing is)."""
     others = [g for g in groups if g != cfg.reference]
     pairing = dict(pairing) if pairing is not None else dict.fromkeys(others, "pairing not checked")
     stats: dict = {
@@ -246,9 +130,8 @@ def group_metrics(
 def seed_spread(
     suites: dict[str, dict[str, dict]], groups: dict[str, Sequence[str]], caps: Sequence[str]
 ) -> dict:
-    """``{suite: {capN: {variant: {metric: {mean, sd, runs}}}}}``: each run's mean metric over its
-    seeds (full image and all ROIs, those of the two in ``suites``); ``sd`` is the sample standard
-    deviation (None for one seed)."""
+    """``{suite: {capN: {variant: {metric: {mean, sd, runs}}}}}`` over each variant's seeds (full
+    image and all ROIs, those in ``suites``); ``sd``: the sample sd, None for one seed."""
     out: dict = {}
     picks = {"full": lambda m, cap: m[cap], "roi": lambda m, cap: m[cap]["overall"]}
     for suite, pick in picks.items():
@@ -271,9 +154,7 @@ def seed_spread(
 
 
 def marks_allowed(difference: dict, baseline: bool) -> bool:
-    """Whether ``difference`` (a PairedDifference dict) may be marked: its interval covers the
-    training noise of every trained run in it (a baseline is deterministic: only the reference's
-    seeds count)."""
+    """Whether ``difference`` may be marked: enough seeds of every trained run in it (not a baseline's)."""
     seeds = [difference["reference_seeds"]] + ([] if baseline else [difference["seeds"]])
     return min(seeds) >= MIN_SEEDS_FOR_MARKS
 
@@ -299,10 +180,8 @@ def image_dependence(
     prior: str,
     cap: float,
 ) -> dict[str, dict]:
-    """Per run: its ``variation_ratio`` (from the full-image suite), the correlation of its
-    per-image abs_rel with the image-blind ``prior``'s, and ``image_blind`` (ratio below
-    :data:`IMAGE_BLIND_BELOW`). A network whose per-image errors track the prior's and whose
-    predictions barely change between images has learned the average scene, not depth."""
+    """Per run: its ``variation_ratio`` (full-image suite), the correlation of its per-image abs_rel
+    with the image-blind ``prior``'s, and ``image_blind`` (ratio below :data:`IMAGE_BLIND_BELOW`)."""
     full = {r: t[t["cap"] == cap] for r, t in tables["full"].items()}
     out: dict = {}
     for runs in groups.values():
@@ -329,7 +208,8 @@ def _fmt(v: float | None) -> str:
     return "–" if v is None else f"{v:.4f}"
 
 
-def _table(header: Sequence[str], rows: list[list[str]]) -> str:
+def markdown_table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
+    """A Markdown table of ``header`` and ``rows`` (cells as given), the lines joined."""
     lines = ["| " + " | ".join(header) + " |", "|" + "|".join("---" for _ in header) + "|"]
     lines += ["| " + " | ".join(r) + " |" for r in rows]
     return "\n".join(lines)
@@ -375,7 +255,7 @@ def _ci_lines(
     return [
         f"Difference to {stats['reference']} ({first['n']} paired {unit}{frames}):",
         "",
-        _table(["run", *METRICS], _ci_rows(block, baselines, label)),
+        markdown_table(["run", *METRICS], _ci_rows(block, baselines, label)),
         "",
     ]
 
@@ -392,7 +272,7 @@ def _spread_lines(
     return [
         f"Seed-to-seed spread (mean ± sd over {seeds} seeds of the per-run mean):",
         "",
-        _table(["variant", *METRICS], rows),
+        markdown_table(["variant", *METRICS], rows),
         "",
     ]
 
@@ -416,8 +296,8 @@ SET_PIXELS = {
 def _class_lines(
     name: str, groups: dict[str, dict], runs: Sequence[str], cap: str, label: Callable
 ) -> list[str]:
-    """An extra set's exact classes at ``cap`` (KITTI 2012's ``reflective``, the summaries' ``masks``,
-    msdepth.evaluation.classes): per class and run, abs_rel, a1, D1 and EPE; none for other sets."""
+    """An extra set's exact classes at ``cap`` (the summaries' ``masks``): per class and run,
+    abs_rel, a1, D1 and EPE."""
     masks = {r: groups[r].get("masks") for r in runs}
     if any(m is None or cap not in m for m in masks.values()):
         return []
@@ -432,7 +312,7 @@ def _class_lines(
         "",
         "Each class's exact GT pixels of every frame that has some (D1 %, EPE px: KITTI's, uncapped).",
         "",
-        _table(["class", "run", "abs_rel", "a1", "D1 %", "EPE px"], rows),
+        markdown_table(["class", "run", "abs_rel", "a1", "D1 %", "EPE px"], rows),
         "",
     ]
 
@@ -440,12 +320,11 @@ def _class_lines(
 def _stereo_lines(
     block: dict[str, dict], runs: Sequence[str], label: Callable[[str], str] = str
 ) -> list[str]:
-    """KITTI's D1 (%) and EPE (px) of the whole frame per run at one cap (``block``: run -> the
-    full-image suite's numbers), as Markdown lines; none where a run has no D1."""
+    """KITTI's D1 (%) and EPE (px) of the whole frame per run (``block``: run -> its numbers)."""
     if any("d1" not in block[r] for r in runs):
         return []
     rows = [[label(r), f"{100 * block[r]['d1']:.1f}", f"{block[r]['epe']:.2f}"] for r in runs]
-    return ["Whole frame, KITTI's stereo metrics:", "", _table(["run", "D1 %", "EPE px"], rows), ""]
+    return ["Whole frame, KITTI's stereo metrics:", "", markdown_table(["run", "D1 %", "EPE px"], rows), ""]
 
 
 def set_roi_lines(
@@ -456,9 +335,8 @@ def set_roi_lines(
     baselines: Sequence[str],
     label: Callable,
 ) -> list[str]:
-    """An extra set's boxes (``roi``: group -> its ROI suite summary, averaged over seeds), each box a
-    unit: per cap, every run's abs_rel, a1, D1 and EPE over all boxes and its abs_rel per class,
-    then each run minus the reference with its interval over the boxes (``stats["roi"]``)."""
+    """An extra set's boxes (``roi``: group -> its ROI summary): per cap, every run's abs_rel, a1, D1
+    and EPE over all boxes and its abs_rel per class, then its difference to the reference."""
     lines = []
     for cap in [k for k in roi[runs[0]] if k.startswith("cap")]:
         classes = sorted({c for r in runs for c in roi[r][cap]["by_class"]})
@@ -473,7 +351,9 @@ def set_roi_lines(
         lines += [
             f"## {name}: ROI boxes, cap {cap[3:]} m ({first['overall']['count']} boxes: {counts})",
             "",
-            _table(["run", "abs_rel", "a1", "D1 %", "EPE px", *(f"{c} abs_rel" for c in classes)], rows),
+            markdown_table(
+                ["run", "abs_rel", "a1", "D1 %", "EPE px", *(f"{c} abs_rel" for c in classes)], rows
+            ),
             "",
             *_ci_lines(stats, "roi", cap, f"{name} boxes", baselines, label),
         ]
@@ -499,15 +379,8 @@ def build_set_section(
     label: Callable[[str], str] = str,
     unrun: dict[str, str] | None = None,
 ) -> tuple[dict, str]:
-    """An extra set's full-image tables for ``compare.md`` (per cap: the metrics, the differences
-    to the reference with their intervals, D1 and EPE, the seed spread), and the same as a dict.
-    ``label`` names a run's row (:meth:`Comparison.settings_label`).
-
-    ``suites`` is ``{"full": {group: metrics averaged over its runs}}`` of that set,
-    ``stats``/``spread`` from :func:`paired_statistics`/:func:`seed_spread` on its tables.
-    ``baselines``: the groups of one run each, the image-blind baselines and the network-free
-    instruments (SGM, SGBM, the optimum); ``unrun``: the instruments without metrics, and why.
-    """
+    """An extra set's full-image tables per cap as compare.json's dict and compare.md's text;
+    ``baselines``: the groups of one run, ``unrun``: instruments without metrics, and why."""
     runs = [*variants, *baselines]
     caps = [k for k in suites["full"][runs[0]] if k.startswith("cap")]
     images = suites["full"][runs[0]]["images"]
@@ -530,7 +403,7 @@ def build_set_section(
         md += [
             f"## {name}: full image, cap {cap[3:]} m",
             "",
-            _table(["run", *METRICS], _metric_rows(block, runs, variants, label)),
+            markdown_table(["run", *METRICS], _metric_rows(block, runs, variants, label)),
             "",
         ]
         md += _stereo_lines(block, runs, label)
@@ -549,14 +422,12 @@ SETTING_NAMES = {"kernel_size": "k"}
 
 
 def variant_settings(params: Params) -> dict[str, dict]:
-    """Each compared variant's params section (``params.<variant>``) as a dict: what its runs were
-    trained with, for ``compare.json``."""
+    """Each compared variant's params section as a dict (what its runs were trained with)."""
     return {v: dataclasses.asdict(getattr(params, v)) for v in params.variants}
 
 
 def changed_settings(variant: str, settings: dict) -> dict:
-    """The entries of ``settings`` (variant ``variant``'s section) that differ from its config's
-    defaults (:mod:`msdepth.config.variants`)."""
+    """The entries of ``variant``'s ``settings`` that differ from its config's defaults."""
     defaults = dataclasses.asdict(variant_configs()[variant]())
     return {k: v for k, v in settings.items() if k not in defaults or defaults[k] != v}
 
@@ -591,12 +462,8 @@ JSON_FIELDS = (
 
 @dataclass(frozen=True)
 class Comparison:
-    """What ``compare.md`` shows, as data: :meth:`as_json` is ``compare.json``.
-
-    A section is a field filled by :func:`comparison_data` (named in :data:`JSON_FIELDS` if
-    ``compare.json`` carries it) and a renderer in :data:`SECTIONS`, or in :data:`CAP_SECTIONS`
-    for a table per cap.
-    """
+    """What ``compare.md`` shows (a renderer per section in :data:`SECTIONS`, or per cap in
+    :data:`CAP_SECTIONS`); :meth:`as_json` is ``compare.json``."""
 
     variants: list[str]
     baselines: list[str]
@@ -632,8 +499,7 @@ class Comparison:
         return {k: getattr(self, k) for k in JSON_FIELDS if getattr(self, k) is not None}
 
     def settings_label(self, group: str) -> str:
-        """``group``'s name with the settings in which its variant differs from the defaults
-        (:func:`changed_settings`), e.g. ``msssim (k=7)``."""
+        """``group`` with its variant's settings that differ from the defaults: ``msssim (k=7)``."""
         changed = changed_settings(group, self.settings[group]) if group in (self.settings or {}) else {}
         return f"{group} ({settings_text(changed)})" if changed else group
 
@@ -672,60 +538,23 @@ def _roi_masks(
     return masks, {"rois": first["rois"], "excluded_rois": first["excluded_rois"]}
 
 
-@dataclass(frozen=True)
-class ComparisonInputs:
-    """The seeds and optional tables of :func:`comparison_data`; a table left None leaves its
-    section out.
-
-    - ``seeds``: the training seeds each variant's numbers average.
-    - ``stats`` (:func:`paired_statistics`): each full-image and ROI table is followed by the
-      differences to the reference variant with their bootstrap intervals.
-    - ``spread`` (:func:`seed_spread`), with more than one seed: each variant's mean ± sd over seeds.
-    - ``dependence`` (:func:`image_dependence`, per run) and ``groups`` (variant -> its runs; None:
-      each run its own): a section says for every run whether it uses the image, and image-blind
-      runs are flagged in the tables.
-    - ``missing_baselines`` (baseline -> why it could not be built, e.g. no training GT): named
-      under the header, so that a table without them is not mistaken for complete.
-    - ``optimum`` (:func:`optimum_data`): the losses' own optimum, no network.
-    - ``settings`` (:func:`variant_settings`): the header states every variant's, and a row names
-      its variant's settings that differ from the defaults.
-    - ``monocular`` (:func:`monocular_data`): scale ratios and pose ATE.
-    """
-
-    seeds: Sequence[int] = (0,)
-    stats: dict | None = None
-    spread: dict | None = None
-    dependence: dict[str, dict] | None = None
-    groups: dict[str, Sequence[str]] | None = None
-    missing_baselines: dict[str, str] | None = None
-    optimum: dict | None = None
-    settings: dict[str, dict] | None = None
-    monocular: dict[str, dict] | None = None
-
-
 def comparison_data(
     suites: dict[str, dict[str, dict]],
     variants: Sequence[str],
     baselines: Sequence[str],
-    inputs: ComparisonInputs | None = None,
+    *,
+    seeds: Sequence[int] = (0,),
+    stats: dict | None = None,
+    spread: dict | None = None,
+    dependence: dict[str, dict] | None = None,
+    groups: dict[str, Sequence[str]] | None = None,
+    missing_baselines: dict[str, str] | None = None,
+    optimum: dict | None = None,
+    settings: dict[str, dict] | None = None,
+    monocular: dict[str, dict] | None = None,
 ) -> Comparison:
-    """What ``compare.md`` shows, as a :class:`Comparison` (best variant per column in bold).
-
-    Without ROIs (every ROI summary is :data:`msdepth.evaluation.suites.NO_ROIS`'s) the ROI and
-    gradient tables are replaced by one line, :data:`ROIS_SKIPPED`.
-
-    Args:
-        suites: each run's metrics per suite, a variant's averaged over its seeds
-            (:func:`group_metrics`).
-        variants: the loss variants compared.
-        baselines: the image-blind baselines built.
-        inputs: the seeds and the optional tables (:class:`ComparisonInputs`); None: one seed (0)
-            and no optional section.
-
-    Returns:
-        The comparison, for :func:`build_comparison`.
-    """
-    extra = inputs if inputs is not None else ComparisonInputs()
+    """What ``compare.md`` shows: ``suites`` (each group's metrics per suite, :func:`group_metrics`)
+    by cap, and each optional table (None: its section left out) from the function of its name."""
     runs = [*variants, *baselines]
     caps = [k for k in suites["full"][runs[0]] if k.startswith("cap")]
     skipped = all(NO_ROIS in suites["roi"][r] for r in runs)
@@ -733,31 +562,23 @@ def comparison_data(
     return Comparison(
         variants=list(variants),
         baselines=list(baselines),
-        seeds=list(extra.seeds),
+        seeds=list(seeds),
         full=_by_cap(suites["full"], runs, caps),
         roi={} if skipped else _by_cap(suites["roi"], runs, caps),
         gradients={} if skipped else _by_cap(suites["gradients"], runs, caps),
-        groups=extra.groups or {r: [r] for r in runs},
-        missing_baselines=dict(extra.missing_baselines) if extra.missing_baselines else None,
-        statistics=extra.stats,
-        image_dependence=extra.dependence,
-        seed_spread=extra.spread,
+        groups=groups or {r: [r] for r in runs},
+        missing_baselines=dict(missing_baselines) if missing_baselines else None,
+        statistics=stats,
+        image_dependence=dependence,
+        seed_spread=spread,
         rois_skipped=suites["roi"][runs[0]][NO_ROIS] if skipped else None,
         roi_masks=masks,
         mask_counts=counts,
-        optimum=extra.optimum,
-        settings=extra.settings,
-        monocular=extra.monocular,
+        optimum=optimum,
+        settings=settings,
+        monocular=monocular,
         images={r: suites["full"][r]["images"] for r in runs if "images" in suites["full"][r]},
     )
-
-
-def _settings_lines(c: Comparison) -> list[str]:
-    """One line stating each variant's settings (none without them)."""
-    if not c.settings:
-        return []
-    stated = "; ".join(f"{v} {settings_text(c.settings[v])}" for v in c.variants if v in c.settings)
-    return [f"Settings: {stated} (a row names where its variant differs from the defaults)."]
 
 
 def _header_lines(c: Comparison) -> list[str]:
@@ -769,13 +590,15 @@ def _header_lines(c: Comparison) -> list[str]:
         )
     else:
         trained = f"One training run per variant (seed {c.seeds[0]})."
+    stated = "; ".join(f"{v} {settings_text(c.settings[v])}" for v in c.variants if v in (c.settings or {}))
+    settings = f"Settings: {stated} (a row names where its variant differs from the defaults)."
     return [
         "# Comparison of loss variants",
         "",
         f"Variants: {', '.join(c.variants)}. "
         f"Baselines (image-blind, from training GT): {', '.join(c.baselines) or 'none'}.",
         *_missing_lines(c.missing_baselines),
-        *_settings_lines(c),
+        *([settings] if c.settings else []),
         trained,
         "Errors: lower is better; a1–a3: higher is better. Best variant per column in **bold**.",
         "",
@@ -783,8 +606,7 @@ def _header_lines(c: Comparison) -> list[str]:
 
 
 def _seed_resampling(statistics: dict, variants: Sequence[str], several: bool) -> str:
-    """How the seeds enter the intervals: as pairs where a variant pairs with the reference's
-    seeds (:func:`pairing_status`), else per variant, with the reason."""
+    """How the seeds enter the intervals: as pairs, else per variant with the reason."""
     if not several:
         return ""
     pairing = statistics.get("pairing", {})
@@ -860,7 +682,7 @@ def _dependence_lines(c: Comparison) -> list[str]:
         f"variation below {IMAGE_BLIND_BELOW} has learned the average scene, not depth from the image: "
         "its numbers say nothing about its loss.",
         "",
-        _table(["run", "variation", "corr. with prior", "verdict"], rows),
+        markdown_table(["run", "variation", "corr. with prior", "verdict"], rows),
         "",
     ]
 
@@ -868,10 +690,8 @@ def _dependence_lines(c: Comparison) -> list[str]:
 def monocular_data(
     full: dict[str, dict], training: dict[str, dict], groups: dict[str, Sequence[str]], cap: str
 ) -> dict[str, dict] | None:
-    """Per variant whose runs were trained monocularly (their full-image summaries carry
-    ``median_scaling``): the per-image scale ratios' median and spread (std / median) at ``cap``
-    and, from the training summaries (``training``: run -> ``metrics/train/<run>.json``), the pose
-    ATE on the training sequences, each the mean over the group's runs. None when no run is."""
+    """Per variant trained monocularly (with ``median_scaling``): its scale ratios' median and spread
+    at ``cap`` and its pose ATE, means over its runs; None when no variant is."""
     out = {}
     for group, runs in groups.items():
         scaling = [full[r][cap].get("median_scaling") for r in runs if r in full]
@@ -913,7 +733,7 @@ def _monocular_lines(c: Comparison) -> list[str]:
         "consistent scale). Pose ATE: Monodepth2's over 5-frame snippets of the training sequences "
         "(scale-aligned, in metres), mean and std over snippets. Means over each variant's seeds.",
         "",
-        _table(["run", "scale ratio", "ratio spread", "pose ATE", "ATE std"], rows),
+        markdown_table(["run", "scale ratio", "ratio spread", "pose ATE", "ATE std"], rows),
         "",
     ]
 
@@ -925,41 +745,26 @@ def _rois_skipped_lines(c: Comparison) -> list[str]:
     return [f"{ROIS_SKIPPED}: the ROI index is empty (no boxes to evaluate).", ""]
 
 
-def _noise_lines(c: Comparison, suite: str, cap: str, unit: str) -> list[str]:
-    """The differences to the reference (with ``stats``) and the seed spread (with several seeds)."""
-    lines = (
-        []
-        if c.statistics is None
-        else _ci_lines(c.statistics, suite, cap, unit, c.baselines, c.settings_label)
-    )
+def _suite_lines(c: Comparison, cap: str, suite: str) -> list[str]:
+    """The metrics at ``cap`` of the full image or over all ROIs, the differences to the reference
+    (with ``statistics``) and the seed spread (with several seeds)."""
+    if suite == "roi" and cap not in c.roi:
+        return []
+    block = c.full[cap] if suite == "full" else {r: c.roi[cap][r]["overall"] for r in c.runs}
+    title = "Full image" if suite == "full" else "ROI"
+    count = "" if suite == "full" else f" (mean over {block[c.runs[0]]['count']} ROIs)"
+    lines = [
+        f"## {title}, cap {cap[3:]} m{count}",
+        "",
+        markdown_table(["run", *METRICS], _metric_rows(block, c.runs, c.variants, c.label)),
+        "",
+    ]
+    unit = "images" if suite == "full" else "ROIs"
+    if c.statistics is not None:
+        lines += _ci_lines(c.statistics, suite, cap, unit, c.baselines, c.settings_label)
     if c.seed_spread is not None and len(c.seeds) > 1:
         lines += _spread_lines(c.seed_spread[suite][cap], c.variants, len(c.seeds), c.settings_label)
     return lines
-
-
-def _full_lines(c: Comparison, cap: str) -> list[str]:
-    """The full-image metrics at ``cap``."""
-    return [
-        f"## Full image, cap {cap[3:]} m",
-        "",
-        _table(["run", *METRICS], _metric_rows(c.full[cap], c.runs, c.variants, c.label)),
-        "",
-        *_noise_lines(c, "full", cap, "images"),
-    ]
-
-
-def _roi_lines(c: Comparison, cap: str) -> list[str]:
-    """The metrics over all ROIs at ``cap``."""
-    if cap not in c.roi:
-        return []
-    roi = {r: c.roi[cap][r]["overall"] for r in c.runs}
-    return [
-        f"## ROI, cap {cap[3:]} m (mean over {roi[c.runs[0]]['count']} ROIs)",
-        "",
-        _table(["run", *METRICS], _metric_rows(roi, c.runs, c.variants, c.label)),
-        "",
-        *_noise_lines(c, "roi", cap, "ROIs"),
-    ]
 
 
 def _roi_class_lines(c: Comparison, cap: str) -> list[str]:
@@ -969,7 +774,7 @@ def _roi_class_lines(c: Comparison, cap: str) -> list[str]:
     by_class = {r: c.roi[cap][r]["by_class"] for r in c.runs}
     classes = sorted({k for r in c.runs for k in by_class[r]})
     rows = [[c.label(r), *[_fmt(by_class[r].get(k, {}).get("abs_rel")) for k in classes]] for r in c.runs]
-    return [f"### ROI abs rel per class, cap {cap[3:]} m", "", _table(["run", *classes], rows), ""]
+    return [f"### ROI abs rel per class, cap {cap[3:]} m", "", markdown_table(["run", *classes], rows), ""]
 
 
 def _roi_mask_lines(c: Comparison, cap: str) -> list[str]:
@@ -993,7 +798,7 @@ def _roi_mask_lines(c: Comparison, cap: str) -> list[str]:
         f"behind it, a windshield without the bonnet); {c.mask_counts['rois']} ROIs, "
         f"{c.mask_counts['excluded_rois']} without valid GT on their pixels excluded.",
         "",
-        _table(["run", "abs_rel", "rmse", "a1", *[f"{k} abs_rel" for k in classes]], rows),
+        markdown_table(["run", "abs_rel", "rmse", "a1", *[f"{k} abs_rel" for k in classes]], rows),
         "",
     ]
 
@@ -1017,15 +822,15 @@ def _gradient_lines(c: Comparison, cap: str) -> list[str]:
     return [
         f"## Gradient consistency on ROIs, cap {cap[3:]} m (mean |derivative| of depth, m/px)",
         "",
-        _table(header, rows),
+        markdown_table(header, rows),
         "",
     ]
 
 
 # The tables repeated per cap, in order (the ROI ones are empty without ROIs).
 CAP_SECTIONS: tuple[Callable[[Comparison, str], list[str]], ...] = (
-    _full_lines,
-    _roi_lines,
+    lambda c, cap: _suite_lines(c, cap, "full"),
+    lambda c, cap: _suite_lines(c, cap, "roi"),
     _roi_class_lines,
     _roi_mask_lines,
     _gradient_lines,
@@ -1037,7 +842,6 @@ def _cap_lines(c: Comparison) -> list[str]:
     return [line for cap in c.caps for section in CAP_SECTIONS for line in section(c, cap)]
 
 
-# compare.md's sections in order; each renders a Comparison as Markdown lines (none if absent).
 # ----------------------------------------------------------------------------- the losses' optimum
 
 OPTIMUM_TITLE = "The losses' own optimum (no network)"
@@ -1045,8 +849,7 @@ OPTIMUM_METRICS = ("abs_rel", "a1")
 
 
 def _optimum_row(full: dict, roi: dict | None, cap: str) -> dict:
-    """One run's numbers in the optimum section: full-image (with D1 and EPE where the suite has
-    them: metrics written before they were added have not), ROI (overall and per class), masks."""
+    """One run's numbers in the optimum section: full image (D1 and EPE where present), ROIs, masks."""
     row = {"images": full.get("images"), **{m: full[cap][m] for m in OPTIMUM_METRICS}}
     row.update({m: full[cap][m] for m in STEREO_METRICS if m in full[cap]})
     if roi is not None and cap in roi:
@@ -1065,10 +868,8 @@ def optimum_data(
     cap: str,
     skipped: dict[str, str] | None = None,
 ) -> dict:
-    """The section's data: per optimum or matcher label (``runs``: label -> run, e.g.
-    ``"optimum ssim w10"``, ``"SGBM"``) its numbers at ``cap`` (:func:`_optimum_row`), the
-    differences to the reference that ``stats`` (:func:`paired_statistics` over groups that hold
-    these labels) has for them, and the matchers ``skipped`` (label -> why)."""
+    """Per optimum or matcher label (``runs``: label -> run) its numbers at ``cap``, its differences
+    to the reference in ``stats`` (:func:`paired_statistics`), and the matchers ``skipped`` (why)."""
     roi = suites.get("roi", {})
     rows = {label: _optimum_row(suites["full"][run], roi.get(run), cap) for label, run in runs.items()}
     differences: dict = {}
@@ -1086,8 +887,7 @@ def optimum_data(
 
 
 def difference_cell(d: dict | None) -> str:
-    """A paired difference (:meth:`msdepth.reporting.stats.PairedDifference.as_dict`) as a table
-    cell, ``mean [low, high]`` with `` *`` where the interval excludes 0; empty for none."""
+    """A PairedDifference dict as ``mean [low, high]``, `` *`` where it excludes 0; "" for none."""
     if d is None:
         return ""
     star = " *" if d["excludes_zero"] else ""
@@ -1147,7 +947,9 @@ def _optimum_lines(c: Comparison) -> list[str]:
         "`cost` and `sgbm` starts). D1: KITTI's share of GT pixels off by > 3 px and > 5 %; EPE: the "
         "mean disparity error, on the capped depth's disparity f·B/depth.",
         "",
-        _table(["run", "images", "abs_rel", "a1", "D1 (%)", "EPE (px)", "ROI abs_rel", "mask abs_rel"], main),
+        markdown_table(
+            ["run", "images", "abs_rel", "a1", "D1 (%)", "EPE (px)", "ROI abs_rel", "mask abs_rel"], main
+        ),
         "",
     ]
     if o.get("skipped"):
@@ -1162,19 +964,20 @@ def _optimum_lines(c: Comparison) -> list[str]:
             "(ROIs for the ROI columns); `*`: the interval excludes 0. The optimum has no training "
             "seed, so its interval covers the choice of images (and the reference's seeds) only.",
             "",
-            _table(["run", "Δ abs_rel", "Δ a1", "Δ ROI abs_rel", "Δ ROI a1"], diff),
+            markdown_table(["run", "Δ abs_rel", "Δ a1", "Δ ROI abs_rel", "Δ ROI a1"], diff),
             "",
         ]
     if classes:
         lines += [
             f"## {OPTIMUM_TITLE}: ROI abs rel per class, cap {cap[3:]} m",
             "",
-            _table(["run", *classes, *[f"{k} (mask)" for k in classes]], per_class),
+            markdown_table(["run", *classes, *[f"{k} (mask)" for k in classes]], per_class),
             "",
         ]
     return lines
 
 
+# compare.md's sections in order; each renders a Comparison as Markdown lines (none if absent).
 SECTIONS: tuple[Callable[[Comparison], list[str]], ...] = (
     _header_lines,
     _statistics_lines,
@@ -1186,11 +989,6 @@ SECTIONS: tuple[Callable[[Comparison], list[str]], ...] = (
 )
 
 
-def _render_comparison(comparison: Comparison) -> str:
-    """``compare.md``'s text: :data:`SECTIONS` in order."""
-    return "\n".join(line for section in SECTIONS for line in section(comparison)) + "\n"
-
-
 def build_comparison(comparison: Comparison) -> tuple[dict, str]:
-    """``comparison`` (:func:`comparison_data`) as ``compare.json``'s dict and ``compare.md``'s text."""
-    return comparison.as_json(), _render_comparison(comparison)
+    """``comparison`` as ``compare.json``'s dict and ``compare.md``'s text (:data:`SECTIONS`)."""
+    return comparison.as_json(), "\n".join(line for s in SECTIONS for line in s(comparison)) + "\n"

@@ -1,37 +1,18 @@
-"""The dissertation's figures, drawn from the pipeline's outputs (one PNG each).
+"""The dissertation's figures, drawn from the pipeline's outputs (one PNG each, by :func:`make_figures`).
 
-Files written to ``out_dir`` by :func:`make_figures`:
-
-``disparity.png`` (Figure 4.1)
-    A row per evaluation frame (the first ``frames`` of the index): the input image, then each
-    variant's disparity in pixels at GT size; one colour scale and colour bar per row.
-``roi_depth.png`` (Figures 4.2 / 4.3)
-    A row per ROI class present: the first ROI of that class with >= 50 % valid GT (if no ROI
-    has that much, as with the sparse GT of single LiDAR scans, the one with the most). The input
-    image with the box, the GT depth of the ROI (invalid pixels grey) and each variant's
-    depth, clamped to ``[min_depth, caps[0]]`` as the evaluation does; each variant panel shows
-    its abs rel on the ROI, the value the ROI suite writes.
-``roi_gradients.png`` (Figure 4.4)
-    The same ROIs: |Sobel x| of the GT depth (over pixels whose 3x3 neighbourhood has valid
-    GT, others grey) and of each variant's depth, with the mean in each title, as the gradient
-    suite computes them (``gt_sobel_x`` / ``pred_sobel_x``).
-
-    Both ROI figures are left out when the ROI index is empty (a stereo folder without boxes).
-``training_curves.png``
-    Total and appearance loss per epoch of every variant (of each of its seeds, given
-    :attr:`FigureInputs.curves`), from the dvclive TSVs.
-``error_scatter.png``
-    Per-image abs rel (cap ``caps[0]``) of each other variant against the reference variant
-    (``ssim`` if present, else the first); only written when there are two or more variants.
+- ``disparity.png`` (Figure 4.1): per evaluation frame, the input, the GT and each variant's
+  disparity at GT size, one colour scale per row.
+- ``roi_depth.png`` (Figures 4.2 / 4.3): per ROI class, its first ROI with >= 50 % valid GT (else
+  the densest): the image with the box, the GT depth and each variant's depth, clamped as the
+  evaluation does, with its abs rel on the ROI.
+- ``roi_gradients.png`` (Figure 4.4): the same ROIs' |Sobel x| of GT and predicted depth, as the
+  gradient suite computes them. Both ROI figures are left out without ROIs.
+- ``training_curves.png``: total and appearance loss per epoch of every run.
+- ``error_scatter.png``: per-image abs rel of each variant against the reference (two or more).
 
 :func:`pipeline_figures` adds ``cost_curves.png`` (:func:`cost_curve_figure`) and ``verdict.png``
-(:func:`verdict_figure`: per surface class, every instrument's MS-SSIM − SSIM abs_rel with its
-interval, the numbers of compare.json's ``verdict``, :mod:`msdepth.reporting.verdict`).
-
-Every number printed on a figure comes from the evaluation code itself
-(:func:`msdepth.evaluation.suites.evaluate_roi`, :func:`msdepth.evaluation.suites.gradient_maps`,
-:func:`msdepth.geometry.depth.clamp_depth`), so it equals the metrics files. :func:`roi_examples`
-returns those numbers for checking.
+(:func:`verdict_figure`, compare.json's verdict table). Every number printed on a figure comes from
+the evaluation code itself, so it equals the metrics files (:func:`roi_examples` returns them).
 """
 
 from __future__ import annotations
@@ -214,6 +195,21 @@ def _save(fig: Figure, path: Path) -> Path:
     return path
 
 
+def _colorbar(fig: Figure, im, axes, label: str, **kwargs: Any) -> None:
+    cb = fig.colorbar(im, ax=list(axes), fraction=0.05, pad=0.01, **kwargs)
+    cb.set_label(label, fontsize=8)
+    cb.ax.tick_params(labelsize=7)
+
+
+def _message_figure(text: str, width: float, height: float, path: Path) -> Path:
+    """A figure of one line of text, where there is nothing to draw."""
+    fig = _new_figure(width, height)
+    ax = fig.add_subplot(1, 1, 1)
+    ax.text(0.5, 0.5, text, ha="center", va="center")
+    _off(ax)
+    return _save(fig, path)
+
+
 def _off(ax) -> None:
     ax.set_xticks([])
     ax.set_yticks([])
@@ -270,9 +266,7 @@ def _disparity_figure(inp: _Inputs, frames: int, path: Path) -> Path:
         for ax in axes[r]:
             _outline_classes(ax, frame)
             _off(ax)
-        cb = fig.colorbar(im, ax=list(axes[r, 1:]), fraction=0.05, pad=0.01)
-        cb.set_label("disparity (px)", fontsize=8)
-        cb.ax.tick_params(labelsize=7)
+        _colorbar(fig, im, axes[r, 1:], "disparity (px)")
     outlines = ", ".join(f"{cls}s {colour}" for cls, colour in OUTLINED)
     fig.suptitle(
         f"Predicted disparity at ground-truth resolution, beside the GT (grey: none); outlined: {outlines}",
@@ -426,9 +420,7 @@ def _roi_depth_figure(inp: _Inputs, examples: list[RoiExample], path: Path) -> P
             axes[r, c].imshow(ex.pred_depth[v], cmap=cmap, vmin=lo, vmax=hi, interpolation="nearest")
             axes[r, c].set_title(f"{v}\nabs rel {ex.abs_rel[v]:.3f}", fontsize=8)
             _off(axes[r, c])
-        cb = fig.colorbar(im, ax=list(axes[r, 1:]), fraction=0.05, pad=0.01)
-        cb.set_label("depth (m)", fontsize=8)
-        cb.ax.tick_params(labelsize=7)
+        _colorbar(fig, im, axes[r, 1:], "depth (m)")
     fig.suptitle(
         f"Depth in example ROIs (predictions clamped to [{inp.cfg.min_depth:g}, {cap:g}] m)", fontsize=11
     )
@@ -464,9 +456,7 @@ def _roi_gradient_figure(inp: _Inputs, examples: list[RoiExample], path: Path) -
             )
             axes[r, c].set_title(f"{v} |Sobel x|\nmean {ex.pred_sobel_x[v]:.3g}", fontsize=8)
             _off(axes[r, c])
-        cb = fig.colorbar(im, ax=list(axes[r, 1:]), fraction=0.05, pad=0.01, extend="min")
-        cb.set_label("m/px (log)", fontsize=8)
-        cb.ax.tick_params(labelsize=7)
+        _colorbar(fig, im, axes[r, 1:], "m/px (log)", extend="min")
     fig.suptitle(
         f"Horizontal depth derivative in example ROIs (depth capped at {inp.cfg.caps[0]:g} m)", fontsize=11
     )
@@ -573,58 +563,38 @@ def _scatter_figure(runs: dict[str, str], metrics: Path, cap: float, path: Path)
 # ---------------------------------------------------------------------------------------------
 
 
-@dataclass(frozen=True)
-class FigureInputs:
-    """Where :func:`make_figures` reads (by default the pipeline's paths), and whose training curves
-    it draws.
-
-    - ``eval_index``, ``rois``: the evaluation index and the ROI index.
-    - ``outputs``, ``metrics``, ``train_plots``: the folders holding each run's disparities and
-      depth maps, its metrics per suite, and its dvclive curves.
-    - ``curves``: the runs whose training curves to draw per label (e.g. every seed's); None:
-      each label's own run.
-    """
-
-    eval_index: Path = EVAL_FRAMES
-    rois: Path = ROIS
-    outputs: Path = OUTPUTS
-    metrics: Path = METRICS
-    train_plots: Path = TRAIN_PLOTS
-    curves: Mapping[str, Sequence[str]] | None = None
-
-
 def make_figures(
     variants: Sequence[str] | Mapping[str, str],
     out_dir: Path,
     *,
     eval_cfg: EvalConfig,
-    inputs: FigureInputs | None = None,
     frames: int = 3,
+    eval_index: Path = EVAL_FRAMES,
+    rois: Path = ROIS,
+    outputs: Path = OUTPUTS,
+    metrics: Path = METRICS,
+    train_plots: Path = TRAIN_PLOTS,
+    curves: Mapping[str, Sequence[str]] | None = None,
 ) -> list[Path]:
     """Write the figures listed in the module docstring to ``out_dir``; returns their paths.
 
-    Run from the project root: the evaluation index names images and GT relative to it, as
-    every pipeline stage does. Each PNG is written atomically. A missing or malformed input raises one
-    :class:`~msdepth.errors.DataError` naming the file; every input is read before the first
-    figure is drawn, so a missing file leaves no figure half-made.
+    Every input is read before the first figure is drawn (a DataError names a missing or malformed
+    file), so a missing file leaves no figure half-made.
 
     Args:
-        variants: the runs to draw, as names or as ``{label: run}`` (e.g. ``{"ssim": "ssim/seed0"}``)
-            where the run is the path below ``outputs``, ``metrics/<suite>`` and ``train_plots``.
+        variants: the runs to draw, as names or as ``{label: run}`` (e.g. ``{"ssim": "ssim/seed0"}``).
         out_dir: the folder the PNGs go to.
         eval_cfg: the evaluation's caps and depth range.
-        inputs: where the inputs are and whose training curves to draw (:class:`FigureInputs`);
-            None: the pipeline's paths, each label's own run.
         frames: the evaluation frames (rows) of ``disparity.png``.
+        eval_index, rois, outputs, metrics, train_plots: where the inputs are (the pipeline's paths).
+        curves: the runs whose training curves to draw per label; None: each label's own run.
 
     Returns:
         The paths of the figures written, in the order drawn.
     """
-    where = inputs if inputs is not None else FigureInputs()
-    curves, metrics, train_plots = where.curves, where.metrics, where.train_plots
     out_dir = Path(out_dir)
     cap = eval_cfg.caps[0]
-    inp = _load(variants, where.eval_index, where.rois, where.outputs, eval_cfg)
+    inp = _load(variants, eval_index, rois, outputs, eval_cfg)
     examples = _roi_examples(inp) if not inp.rois.empty else []  # no ROIs: no ROI figures
     # Read the remaining inputs up front too (cheap): a missing TSV or CSV fails before drawing.
     curve_runs = {v: list(curves[v]) if curves and v in curves else [run] for v, run in inp.runs.items()}
@@ -663,12 +633,9 @@ def cost_curve_figure(summaries: Mapping[str, dict], path: Path) -> Path:
     """``cost_curves.png``: one panel per ROI class, one line per variant (its mean cost over the
     class's boxes against s, log axis), s = 1 (the GT) marked, each variant's minimum dotted."""
     classes = class_order(sorted({c for s in summaries.values() for c in s.get("mean_curves", {})}))
-    fig = _new_figure(3.2 * max(len(classes), 1), 3.0)
     if not classes:
-        ax = fig.add_subplot(1, 1, 1)
-        ax.text(0.5, 0.5, "no ROI with dense GT", ha="center", va="center")
-        _off(ax)
-        return _save(fig, path)
+        return _message_figure("no ROI with dense GT", 3.2, 3.0, path)
+    fig = _new_figure(3.2 * len(classes), 3.0)
     axes = fig.subplots(1, len(classes), squeeze=False)[0]
     for ax, cls in zip(axes, classes, strict=True):
         for variant, summary in summaries.items():
@@ -748,18 +715,12 @@ def _reach(rows: Sequence[Row]) -> float:
 
 
 def verdict_figure(verdict: Mapping | None, path: Path) -> Path:
-    """``verdict.png``: the verdict table (:func:`msdepth.reporting.verdict.verdict_table`) with one
-    column per instrument (:func:`~msdepth.reporting.verdict.instrument_columns`), drawn as one
-    panel per instrument, stacked, each with a row per surface class it measured (no empty rows):
-    its difference and interval, on one x-scale per kind of instrument; negative: the variant
-    (MS-SSIM) has the lower error. The n of each row stands right of its panel's frame."""
+    """``verdict.png``: the verdict table with one column per instrument
+    (:func:`~msdepth.reporting.verdict.instrument_columns`), a panel each, a row per surface class
+    it measured: its difference and interval on one x-scale per kind, its n right of the frame."""
     rows = rows_of(verdict) if verdict else []
     if not rows:
-        fig = _new_figure(4.0, 1.5)
-        ax = fig.add_subplot(1, 1, 1)
-        ax.text(0.5, 0.5, "no instrument compares two variants", ha="center", va="center")
-        _off(ax)
-        return _save(fig, path)
+        return _message_figure("no instrument compares two variants", 4.0, 1.5, path)
     columns = instrument_columns(rows)
     table = verdict_table(rows, columns, verdict["classes"])
     panels = [[(cls, cells[i]) for cls, cells in table if cells[i] is not None] for i in range(len(columns))]
@@ -778,19 +739,11 @@ def verdict_figure(verdict: Mapping | None, path: Path) -> Path:
 def pipeline_figures(
     params: Params, out_dir: Path, cost_curves: Path = COST_CURVES, compare_json: Path = COMPARE_JSON
 ) -> list[Path]:
-    """The figures stage's figures in ``out_dir``, from the pipeline's outputs; returns their paths.
-
-    :func:`make_figures` of the first seed's run of each variant (the figures show predictions,
-    not an average of them; the training curves show every seed's), and :func:`cost_curve_figure`
-    of the cost_curves stage's summaries below ``cost_curves``: the losses' own preference per
-    ROI class; :func:`verdict_figure` of the comparison's verdict (``compare_json``).
-    """
+    """The figures stage's figures in ``out_dir``: :func:`make_figures` of each variant's first seed
+    (every seed's training curves), :func:`cost_curve_figure` and :func:`verdict_figure`."""
     groups = variant_runs(params)
     paths = make_figures(
-        {v: runs[0] for v, runs in groups.items()},
-        Path(out_dir),
-        eval_cfg=params.eval,
-        inputs=FigureInputs(curves=groups),
+        {v: runs[0] for v, runs in groups.items()}, Path(out_dir), eval_cfg=params.eval, curves=groups
     )
     summaries = _read_cost_curves(cost_curves, params.variants)
     paths.append(cost_curve_figure(summaries, Path(out_dir) / COST_CURVES_FIGURE))

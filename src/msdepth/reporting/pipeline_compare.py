@@ -1,7 +1,5 @@
-"""The compare stage's comparison of the pipeline's metrics: every variant (mean over its seeds)
-and baseline side by side, with the optimum runs and each extra evaluation set, read from the
-metrics tree the stages wrote (:mod:`msdepth.pipeline.paths`) and written as Markdown and JSON
-(tables and statistics: :mod:`msdepth.reporting.comparison`)."""
+"""The compare stage: every variant (mean over its seeds), baseline, optimum run and extra
+evaluation set side by side, from the metrics tree, as ``compare.md`` and ``compare.json``."""
 
 from __future__ import annotations
 
@@ -13,6 +11,7 @@ import pandas as pd
 
 from msdepth.config.params import Params
 from msdepth.evaluation.baselines import BASELINES, skipped_reason
+from msdepth.evaluation.results import load_suite_metrics, load_training_summaries, load_unit_tables
 from msdepth.evaluation.suites import no_rois
 from msdepth.io import write_json, write_text
 from msdepth.optimum.frames import matcher_runs, optimum_runs
@@ -30,19 +29,14 @@ from msdepth.pipeline.paths import (
     variant_runs,
 )
 from msdepth.reporting.comparison import (
-    ComparisonInputs,
     build_comparison,
     build_set_section,
     comparison_data,
     group_metrics,
     image_dependence,
-    load_suite_metrics,
-    load_training_summaries,
-    load_unit_tables,
     monocular_data,
     optimum_data,
     paired_statistics,
-    pairing_status,
     seed_spread,
     set_roi_lines,
     variant_settings,
@@ -59,6 +53,7 @@ from msdepth.reporting.verdict import (
     verdict_data,
     verdict_lines,
 )
+from msdepth.training.pairing import pairing_status
 
 
 def _run_groups(
@@ -73,12 +68,8 @@ def _run_groups(
 
 
 def write_comparison(params: Params) -> None:
-    """One table of every variant (mean over its seeds) and baseline, as Markdown and JSON
-    (:data:`~msdepth.pipeline.paths.COMPARE_MD`, :data:`~msdepth.pipeline.paths.COMPARE_JSON`), and
-    each variant's mean over its seeds as a DVC metric (:func:`~msdepth.pipeline.paths.mean_path`).
-
-    A baseline the baselines stage could not build is listed as missing, with the reason.
-    """
+    """Write :data:`~msdepth.pipeline.paths.COMPARE_MD`, :data:`~msdepth.pipeline.paths.COMPARE_JSON`
+    and each variant's mean over its seeds as a DVC metric (:func:`~msdepth.pipeline.paths.mean_path`)."""
     missing, built, groups, runs = _run_groups(params, METRICS, SUITE_NAMES)
     suites = load_suite_metrics(METRICS, runs)
     tables = load_unit_tables(METRICS, runs)
@@ -89,22 +80,19 @@ def write_comparison(params: Params) -> None:
         {s: tables[s] for s in compared}, groups, params.compare, params.eval.caps, pairing
     )
     caps = [f"cap{c:g}" for c in params.eval.caps]
-    dependence = image_dependence(suites, tables, groups, "prior", params.eval.caps[0])
     comparison = comparison_data(
         group_metrics(suites, groups),
         list(params.variants),
         built,
-        ComparisonInputs(
-            seeds=params.train.seeds,
-            stats=stats,
-            spread=seed_spread({s: suites[s] for s in compared}, groups, caps),
-            dependence=dependence,
-            groups=groups,
-            missing_baselines=missing,
-            optimum=_optimum_section(params, groups, compared),
-            settings=variant_settings(params),
-            monocular=monocular_data(suites["full"], load_training_summaries(runs), groups, caps[0]),
-        ),
+        seeds=params.train.seeds,
+        stats=stats,
+        spread=seed_spread({s: suites[s] for s in compared}, groups, caps),
+        dependence=image_dependence(suites, tables, groups, "prior", params.eval.caps[0]),
+        groups=groups,
+        missing_baselines=missing,
+        optimum=_optimum_section(params, groups, compared),
+        settings=variant_settings(params),
+        monocular=monocular_data(suites["full"], load_training_summaries(runs), groups, caps[0]),
     )
     result, md = build_comparison(comparison)
     result["verdict"] = comparison_verdict(params, groups, compared, pairing)
@@ -120,14 +108,9 @@ def write_comparison(params: Params) -> None:
 
 
 def _optimum_section(params: Params, groups: dict[str, list[str]], compared: Sequence[str]) -> dict | None:
-    """The optimum runs' and the matchers' numbers and, at the default weight (every frame) and for
-    the matchers (every frame), their paired differences to the reference variant over images and
-    ROIs (the sweep's other weights see a subset). A matcher without metrics (skipped: a variant
-    without a per-pixel cost; or its stage not run) is listed with the reason.
-
-    None, and no section, where no optimum stage has written anything (the stages run alone, as the
-    tests do); once any has, every variant and weight must be there (a DataError names the first
-    missing)."""
+    """The optimum runs' and matchers' numbers, with the differences to the reference at the default
+    weight and of the matchers (those see every frame), and each matcher without metrics with why.
+    None where no optimum stage has written anything."""
     if not (suite_dir("full") / OPTIMUM).is_dir():
         return None
     matchers = matcher_runs(params)
@@ -152,11 +135,9 @@ def comparison_verdict(
     compared: Sequence[str],
     pairing: dict[str, str | None] | None = None,
 ) -> dict:
-    """compare.json's ``verdict`` (:func:`msdepth.reporting.verdict.verdict_data`): per surface class,
-    each variant minus ``compare.reference`` in abs_rel at the headline cap, by the trained networks
-    (every seed), the optimum at every weight, and each extra set's networks, cost starts and
-    optimum (:func:`set_verdict_rows`, frames as the units): only what this pipeline computed, so
-    every row is reproduced by ``dvc repro`` (real KITTI frames enter as extra sets)."""
+    """compare.json's ``verdict`` (:func:`~msdepth.reporting.verdict.verdict_data`): the rows of the
+    trained networks, the optimum at every weight and its own best, and each extra set's instruments
+    (:func:`set_verdict_rows`), all computed by this pipeline."""
     cfg, cap = params.compare, params.eval.caps[0]
     variants = {v: groups[v] for v in params.variants}
     settings = settings_label(variant_settings(params), params.variants)
@@ -249,11 +230,8 @@ def own_best_rows(
 
 
 def _mean_rows(result: dict, variants: Sequence[str], cap: str) -> dict[str, dict[str, float]]:
-    """Per variant its mean over seeds at ``cap`` (the headline cap), taken from the comparison
-    (``result``, what compare.json holds): the per-seed headline files' ``abs_rel``, ``a1``,
-    ``roi`` and ``masks`` (ROI and exact-mask abs_rel), then each ROI class's abs_rel under the
-    class's name, as in the README's table. Flat keys, so each is one column of
-    ``dvc metrics show`` and one line of ``dvc metrics diff``. Without ROIs only ``abs_rel`` and ``a1``."""
+    """Per variant its mean over seeds at ``cap`` from compare.json's ``result``: ``abs_rel``, ``a1``,
+    with ROIs ``roi``, ``masks`` and each class's abs_rel; flat keys, one ``dvc metrics`` column each."""
     rows = {}
     for variant in variants:
         full = result["full"][cap][variant]
@@ -269,9 +247,8 @@ def _mean_rows(result: dict, variants: Sequence[str], cap: str) -> dict[str, dic
 
 
 def _set_optimum_run(root: Path, variant: str, weight: float) -> str:
-    """The run of ``variant``'s optimum at ``weight`` below an extra set's metrics tree ``root``,
-    found by value as :func:`~msdepth.optimum.frames.optimum_runs` finds the default frames' (dvc.yaml
-    writes a weight as params.yaml spells it); the name params.yaml's value gives when there is none."""
+    """The run of ``variant``'s optimum at ``weight`` below ``root``, found by value (dvc.yaml writes a
+    weight as params.yaml spells it); the name the value gives where there is none."""
     for path in sorted((suite_dir("full", root) / OPTIMUM / variant).glob("w*.json")):
         try:
             if float(path.stem[1:]) == weight:
@@ -282,11 +259,9 @@ def _set_optimum_run(root: Path, variant: str, weight: float) -> str:
 
 
 def _set_instruments(params: Params, root: Path) -> tuple[dict[str, str], dict[str, str]]:
-    """The network-free instruments on an extra set (the ``match_set``, ``sgbm_set`` and
-    ``optimum_set`` stages' runs below its metrics tree ``root``): ``{label: run}`` of those with
-    metrics (``SGM (<variant> cost)``, ``SGBM``, ``optimum <variant> w<weight>`` at each weight of
-    ``optimum.set_weights``) and ``{label: why}`` of those without (skipped, or not run). Neither
-    where no instrument has written anything (the set's stages run alone, as the tests do)."""
+    """An extra set's network-free instruments below ``root``: ``{label: run}`` of those with metrics
+    (``SGM (<variant> cost)``, ``SGBM``, ``optimum <variant> w<weight>``) and ``{label: why}`` of the
+    others; neither where none has written anything."""
     if not (suite_dir("full", root) / OPTIMUM).is_dir():
         return {}, {}
     runs = dict(matcher_runs(params))
@@ -298,8 +273,7 @@ def _set_instruments(params: Params, root: Path) -> tuple[dict[str, str], dict[s
 
 
 def _has_boxes(root: Path, runs: Sequence[str]) -> bool:
-    """Whether every run of ``runs`` has scored an extra set's boxes (its ROI suite below ``root``):
-    not where the set has none (the "no ROIs" summary) or a run was scored without the set's ROI file."""
+    """Whether every run of ``runs`` has scored an extra set's boxes (its ROI suite below ``root``)."""
     if not runs or any(skipped_reason(root, r, ["roi"]) is not None for r in runs):
         return False
     return not any(no_rois(s) for s in load_suite_metrics(root, runs, ["roi"])["roi"].values())
@@ -308,12 +282,9 @@ def _has_boxes(root: Path, runs: Sequence[str]) -> bool:
 def set_verdict_rows(
     params: Params, name: str, pairing: dict[str, str | None] | None = None, settings: str = ""
 ) -> list[Row]:
-    """The verdict's rows of extra set ``name``: the trained networks (paired by seed), each
-    variant's SGM cost start and its optimum at each of ``optimum.set_weights`` (paired by unit). With
-    the frames as the units, on the whole frame and each of the set's exact classes (KITTI 2012's
-    reflective, KITTI 2015's cars), named ``<instrument> on <set>``; with the set's boxes as the
-    units, on each ROI class, named ``<instrument> on <set> boxes``. Kept without an interval below
-    :data:`~msdepth.reporting.verdict.MIN_UNITS` units. [] with fewer than two variants."""
+    """The verdict's rows of extra set ``name``: the networks, SGM cost starts and the optimum at each
+    of ``optimum.set_weights``, over the frames (whole frame, exact classes: ``<instrument> on
+    <set>``) and over the boxes (``<instrument> on <set> boxes``); [] with fewer than two variants."""
     if len(params.variants) < 2:
         return []
     root = set_metrics_dir(name)
@@ -381,10 +352,8 @@ def _set_own_best_rows(
 
 
 def _compare_set(params: Params, name: str, label: Callable[[str], str] = str) -> tuple[dict, str]:
-    """An extra evaluation set's full-image comparison (below its
-    :func:`~msdepth.pipeline.paths.set_metrics_dir`): the same groups, reference, bootstrap and seed
-    spread as KITTI 2015's full-image tables, with the network-free instruments
-    (:func:`_set_instruments`) as groups of one run beside the baselines; ``label`` names a run's row."""
+    """An extra evaluation set's comparison, as the default frames' with the network-free
+    instruments as groups of one run beside the baselines; ``label`` names a run's row."""
     root = set_metrics_dir(name)
     missing, built, groups, runs = _run_groups(params, root, ["full"])
     instruments, unrun = _set_instruments(params, root)

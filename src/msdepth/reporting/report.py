@@ -1,15 +1,11 @@
 """The numbers blocks of ``docs/results.md`` and ``README.md``, written from the committed metrics.
 
-Each file is written by hand except its blocks between markers: README's answer
-(:data:`ANSWER_BEGIN` … :data:`ANSWER_END`) and its table (:data:`BEGIN` … :data:`END`), and
-results.md's block (:data:`BEGIN` … :data:`END`). The blocks are rendered from
-``metrics/compare.json`` (the compare stage's) and ``metrics/train/`` alone: every number, and
-every sentence whose truth depends on a number (which loss is ahead, whether an interval marks a
-verdict, which ROI classes an image-blind baseline still wins), is written here from the data, so
-the text cannot drift from the run it describes; the prose around them (terms, methods, the
-studies) is the pages' own. The verdict's table is :func:`msdepth.reporting.verdict.summary_lines`,
-the one compare.md shows. The ``report`` stage writes both files; ``python -m
-msdepth.reporting.report --check`` compares them (tests/test_report.py runs it).
+Both pages are written by hand except their blocks between markers (:data:`BEGIN` … :data:`END`,
+README's :data:`ANSWER_BEGIN` … :data:`ANSWER_END`), rendered from ``metrics/compare.json`` and
+``metrics/train/`` alone: every number, and every sentence whose truth depends on one, so the text
+cannot drift from the run. The verdict's table is compare.md's
+(:func:`msdepth.reporting.verdict.summary_lines`). ``python -m msdepth.reporting.report --check``
+compares the pages with the metrics.
 """
 
 from __future__ import annotations
@@ -29,6 +25,7 @@ from msdepth.reporting.comparison import (
     MIN_SEEDS_FOR_MARKS,
     SET_TITLES,
     changed_settings,
+    markdown_table,
     marks_allowed,
     settings_text,
 )
@@ -39,6 +36,7 @@ from msdepth.reporting.verdict import (
     class_order,
     short_answer,
     sign_caveat,
+    signed,
     summary_lines,
 )
 
@@ -66,19 +64,17 @@ FULL_COLUMNS = (("abs_rel", "abs_rel", 3), ("sq_rel", "sq_rel", 2), ("rmse", "rm
 MINUS = "\u2212"
 
 
-def _num(value: float, decimals: int, signed: bool = False) -> str:
-    """``value`` rounded, with a typographic minus (and a plus when ``signed``)."""
-    text = f"{value:+.{decimals}f}" if signed else f"{value:.{decimals}f}"
-    return text.replace("-", MINUS)
+def _num(value: float, decimals: int) -> str:
+    """``value`` rounded, with a typographic minus."""
+    return f"{value:.{decimals}f}".replace("-", MINUS)
 
 
 def _interval(d: dict, decimals: int = 3) -> str:
-    return f"[{_num(d['low'], decimals, True)}, {_num(d['high'], decimals, True)}]"
+    return f"[{signed(d['low'], decimals)}, {signed(d['high'], decimals)}]"
 
 
 class Results:
-    """``metrics/compare.json`` read once, with the lookups the texts need; a missing key is a
-    DataError naming the file."""
+    """``metrics/compare.json`` with the lookups the texts need; a missing key is a DataError."""
 
     def __init__(self, data: dict, train: dict[str, dict] | None = None, source: str = str(COMPARE_JSON)):
         self.data, self.train, self.source = data, train or {}, source
@@ -151,8 +147,7 @@ class Results:
 
 
 def load_results(root: Path = Path(".")) -> Results:
-    """The committed metrics under ``root``: ``metrics/compare.json`` and each run's
-    ``metrics/train/<variant>/seed<S>.json``; one DataError line naming a missing or broken file."""
+    """``metrics/compare.json`` and the runs' training summaries under ``root``."""
     path = root / COMPARE_JSON
     data = read_json_object(path, "comparison", "run `dvc repro compare` first")
     train = {}
@@ -197,15 +192,14 @@ def _roi_cells(r: Results, run: str, classes: Sequence[str]) -> list[str]:
 
 
 def _headline_table(r: Results) -> str:
-    """The README's table: each variant (mean ± sd over seeds) and baseline on the full image and,
-    with ROIs, over the ROIs, their exact masks and per class; best variant per full-image column
-    in bold."""
+    """The headline table: each variant (mean ± sd over seeds) and baseline on the full image and,
+    with ROIs, over the ROIs, their exact masks and per class; best variant per column in bold."""
     classes = r.classes() if r.rois() else []
     header = ["run", *(h for _, h, _ in FULL_COLUMNS)]
     if r.rois():
         header += ["ROI abs_rel", "exact masks", *classes]
     best = {m: _best_variant(r, m) for m, _, _ in FULL_COLUMNS}
-    lines = ["| " + " | ".join(header) + " |", "|" + "|".join("---" for _ in header) + "|"]
+    rows = []
     for run in [*r.variants, *r.baselines]:
         full = r.get("full", r.cap, run)
         cells = []
@@ -215,8 +209,8 @@ def _headline_table(r: Results) -> str:
             cells.append(f"**{text}**" if best[metric] == run else text)
         if r.rois():
             cells += _roi_cells(r, run, classes)
-        lines.append("| " + " | ".join([r.label(run), *cells]) + " |")
-    return "\n".join(lines)
+        rows.append([r.label(run), *cells])
+    return markdown_table(header, rows)
 
 
 def _headline_caption(r: Results) -> str:
@@ -278,8 +272,8 @@ def _compared(r: Results) -> list[str]:
 
 
 def verdict(r: Results) -> str:
-    """The headline's verdict: per variant, its full-image abs_rel against the reference's, then
-    the ROI classes where an image-blind baseline still beats every variant."""
+    """Per variant its full-image abs_rel against the reference's, then the ROI classes where an
+    image-blind baseline still beats every variant."""
     others = _compared(r)
     if not others:
         return "**No comparison**: one variant, or no paired statistics in `metrics/compare.json`."
@@ -328,8 +322,7 @@ def wrap(text: str, width: int = 100) -> str:
 
 
 def _verdict_items(r: Results) -> list[str]:
-    """compare.json's sentence per surface class as a Markdown list, in its order; [] where the
-    comparison has no verdict."""
+    """compare.json's sentence per surface class as a Markdown list."""
     block = r.get("verdict", default=None) or {}
     sentences = [block["sentences"][c] for c in block.get("classes", []) if c in block.get("sentences", {})]
     return [
@@ -339,8 +332,7 @@ def _verdict_items(r: Results) -> list[str]:
 
 
 def _answer_lines(r: Results) -> list[str]:
-    """results.md's answer: the summary table (surface class by instrument), the sentence that reads
-    it and one sentence per class; [] without a verdict in compare.json."""
+    """results.md's answer: the summary table, the sentence that reads it, one per class."""
     block = r.get("verdict", default=None) or {}
     if not block.get("summary"):
         return []
@@ -354,8 +346,7 @@ def _answer_lines(r: Results) -> list[str]:
 
 
 def _readme_answer(r: Results) -> str:
-    """The README's one-line answer, markers included (:func:`~msdepth.reporting.verdict.short_answer`;
-    without a verdict, the full-image difference)."""
+    """The README's answer, markers included (without a verdict, the full-image difference)."""
     block = r.get("verdict", default=None) or {}
     text = short_answer(block) if block.get("summary") else verdict(r)
     if block.get("summary") and (caveat := sign_caveat(block)):
@@ -374,8 +365,7 @@ def _frames_words(r: Results) -> str:
 
 
 def _readme_block(r: Results) -> str:
-    """The README's results block, markers included: the summary table (without a verdict, the
-    headline table and the verdict sentence), then what the run is."""
+    """The README's results block, markers included (without a verdict, the headline table)."""
     block = r.get("verdict", default=None) or {}
     if block.get("summary"):
         lead = (
@@ -476,7 +466,7 @@ def _baselines_text(r: Results) -> str:
     if not rows or r.reference is None:
         return ""
     ref = r.label(r.reference)
-    cells = [f"the {PROSE_NAMES.get(b, b)} {_num(d['mean'], 3, True)} {_interval(d)}" for b, d in rows]
+    cells = [f"the {PROSE_NAMES.get(b, b)} {signed(d['mean'])} {_interval(d)}" for b, d in rows]
     beaten = [PROSE_NAMES.get(b, b) for b, d in rows if d["mean"] > 0 and r.marked(d, b)]
     text = f"On the full image, baseline − {ref} in abs_rel ({_confidence(r)} interval): {_join(cells)}"
     return text + (f", so {ref} beats the {_join(beaten)}." if beaten else ".")
@@ -593,24 +583,21 @@ def rendered(root: Path = Path(".")) -> dict[Path, str]:
     return out
 
 
-def write_report(root: Path = Path(".")) -> list[Path]:
-    """Write :func:`rendered`'s files (atomically; an unchanged file is left alone); the paths
-    written."""
-    written = []
-    for path, text in rendered(root).items():
-        if not path.is_file() or read_text_file(path, "generated text") != text:
-            write_text(path, text)
-            written.append(path)
-    return written
-
-
-def stale(root: Path = Path(".")) -> list[Path]:
-    """The files whose text differs from what the committed metrics give."""
-    return [
-        p
+def stale(root: Path = Path(".")) -> dict[Path, str]:
+    """The files whose text differs from what the committed metrics give, with that text."""
+    return {
+        p: text
         for p, text in rendered(root).items()
         if not p.is_file() or read_text_file(p, "generated text") != text
-    ]
+    }
+
+
+def write_report(root: Path = Path(".")) -> list[Path]:
+    """Write the :func:`stale` files (atomically); the paths written."""
+    differ = stale(root)
+    for path, text in differ.items():
+        write_text(path, text)
+    return list(differ)
 
 
 def main(argv: list[str] | None = None) -> int:

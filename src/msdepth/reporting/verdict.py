@@ -1,32 +1,16 @@
 """The verdict in numbers: per surface class, MS-SSIM − SSIM abs_rel as every instrument measures it.
 
-A *row* (:class:`Row`) is one instrument's difference ``variant − reference``
-(``compare.reference``, SSIM by default) in abs_rel on one surface class, with its interval.
-Negative: the variant's error is lower. The classes are the full frame (``"full frame"``) and each
-ROI class, in :data:`CLASS_ORDER`. Every row is this pipeline's own (``dvc repro`` reproduces it);
-the kinds of instrument (:data:`KINDS`):
+A :class:`Row` is one instrument's ``variant − reference`` (``compare.reference``) abs_rel on one
+class (the full frame, then each ROI class in :data:`CLASS_ORDER`) with its interval; negative: the
+variant's error is lower. The kinds (:data:`KINDS`): ``network``, the trained stereo networks
+(bootstrap over units and seed pairs, the paired t beside it), and ``optimum``, the losses' own
+optimum (one deterministic run per variant and weight, bootstrap over units). Both also run on each
+extra evaluation set (``<instrument> on <set>``), where a set of fewer than :data:`MIN_UNITS`
+frames keeps its rows without an interval; elsewhere such rows are left out.
 
-- ``network``: the trained stereo networks, every seed. The comparison's own bootstrap
-  (:func:`msdepth.reporting.comparison.paired_statistics`) over images, or over the class's ROIs drawn
-  with their frame, and the seed pairs; the paired t over the per-seed differences beside it.
-- ``optimum``: the losses' own optimum at each smoothness weight (one deterministic run per
-  variant and weight): :func:`msdepth.reporting.stats.seed_bootstrap` of one run each, over the
-  images, or over the frames of the ROIs.
-
-Both also run on each extra evaluation set (``eval.extra_sets``), named ``<instrument> on <set>``
-(:func:`msdepth.reporting.pipeline_compare.set_verdict_rows`), with the frames (or the set's
-boxes) as the units; there a set of fewer than :data:`MIN_UNITS` frames keeps its rows without an
-interval, elsewhere such rows are left out (a percentile interval over one or two units is 0 wide,
-not certain).
-
-**The verdict table is data.** :func:`verdict_table` is the one function that lays rows out as a
-table: per class, one cell per :class:`Column` (the row of that kind and instrument, or None).
-The summary table of compare.md and the README (:func:`summary_lines`), compare.json's
-``summary`` and ``verdict.png`` (:func:`msdepth.reporting.figures.verdict_figure`, one column per
-instrument: :func:`instrument_columns`) all format its output. To add an instrument to the
-summary table (say the optimum at each variant's own best weight, or a block for real frames),
-make its rows (a :class:`Row` per class, with a ``kind`` of :data:`KINDS`) and add one
-:class:`Column` to :func:`headline_columns`; no renderer changes.
+:func:`verdict_table` is the one layout of rows per class and :class:`Column`; compare.md, the
+README (:func:`summary_lines`), compare.json's ``summary`` and ``verdict.png`` all format it. A new
+instrument in the summary table is its rows plus one :class:`Column` in :func:`headline_columns`.
 """
 
 from __future__ import annotations
@@ -40,8 +24,8 @@ import pandas as pd
 
 from msdepth.config.params import CompareConfig
 from msdepth.evaluation.classes import class_unit_tables
-from msdepth.reporting.comparison import UNIT_KEYS, paired_statistics, unit_clusters
-from msdepth.reporting.stats import paired_table, seed_bootstrap
+from msdepth.reporting.comparison import UNIT_KEYS, markdown_table, paired_statistics, unit_clusters
+from msdepth.stats import paired_table, seed_bootstrap
 
 METRIC = "abs_rel"
 VERDICT_FIGURE = "verdict.png"  # below plots/figures: the figures stage draws it (figures.verdict_figure)
@@ -60,13 +44,8 @@ NAMES = {"ssim": "SSIM", "msssim": "MS-SSIM", "mix": "MS-SSIM + L1 mix"}
 
 @dataclass(frozen=True)
 class Row:
-    """One instrument's ``variant − reference`` abs_rel on one class, with its interval.
-
-    ``low`` and ``high`` are None where the row has too few independent units for an interval
-    (fewer than :data:`MIN_UNITS`): its ``method`` says why. ``t_low`` / ``t_high``: the paired t
-    interval over seed pairs beside a network row's bootstrap. ``settings``: the two variants'
-    settings the row was made with (:func:`settings_label`).
-    """
+    """One instrument's ``variant − reference`` abs_rel on one class, with its interval (None
+    below :data:`MIN_UNITS` independent units) and, for paired networks, the paired t's."""
 
     instrument: str
     cls: str
@@ -96,49 +75,20 @@ class Row:
         return self.t_low is not None and self.t_high is not None and (self.t_low > 0 or self.t_high < 0)
 
     def as_dict(self) -> dict:
-        """The row as compare.json holds it (the optional keys only where set)."""
-        d = {
-            "instrument": self.instrument,
-            "class": self.cls,
-            "diff": self.diff,
-            "low": self.low,
-            "high": self.high,
-            "n": self.n,
-            "method": self.method,
-            "kind": self.kind,
-        }
-        optional = {"t_low": self.t_low, "t_high": self.t_high, "seeds": self.seeds}
-        optional |= {"settings": self.settings, "per_seed": list(self.per_seed), "unit": self.unit}
-        return d | {k: v for k, v in optional.items() if v not in (None, 0, "", [])}
+        """The row as compare.json holds it: its first eight fields, then the others where set."""
+        d = dataclasses.asdict(self) | {"per_seed": list(self.per_seed)}
+        kept = [k for i, (k, v) in enumerate(d.items()) if i < 8 or v not in (None, 0, "", [])]
+        return {"class" if k == "cls" else k: d[k] for k in kept}
 
     @classmethod
     def from_dict(cls, d: Mapping) -> Row:
         """The inverse of :meth:`as_dict`."""
-
-        def number(key: str) -> float | None:
-            return None if d.get(key) is None else float(d[key])
-
-        return cls(
-            str(d["instrument"]),
-            str(d["class"]),
-            float(d["diff"]),
-            number("low"),
-            number("high"),
-            int(d["n"]),
-            str(d["method"]),
-            str(d["kind"]),
-            number("t_low"),
-            number("t_high"),
-            int(d.get("seeds", 0)),
-            str(d.get("settings", "")),
-            tuple(float(x) for x in d.get("per_seed", ())),
-            str(d.get("unit", "")),
-        )
+        fields = {k: v for k, v in d.items() if k != "class"}
+        return cls(cls=d["class"], **fields | {"per_seed": tuple(d.get("per_seed", ()))})
 
 
 def settings_label(settings: Mapping[str, Mapping], variants: Sequence[str]) -> str:
-    """The settings of ``variants`` (each its params section, e.g. compare's ``variant_settings``)
-    in one line, the variants in sorted order, so that two rows made alike have one label.
+    """The settings of ``variants`` in one line, sorted, so that two rows made alike have one label.
 
     Example:
         >>> settings_label({"msssim": {"kernel_size": 7, "levels": 4}, "ssim": {"kernel_size": 3}},
@@ -163,10 +113,9 @@ def class_order(classes: Sequence[str]) -> list[str]:
 def _class_tables(
     tables: Mapping[str, Mapping[str, pd.DataFrame]], anchor: str, whole_frame: bool = False
 ) -> list[tuple[str, str, dict]]:
-    """``(class, suite, {run: table})``: the full-image tables as the full frame, then the ROI
-    tables filtered to each class that ``anchor``'s ROI table holds; with ``whole_frame`` (an
-    extra set's exact classes), each class column of the full-image tables instead
-    (:func:`msdepth.evaluation.classes.class_unit_tables`: per frame, its pixels of the class)."""
+    """``(class, suite, {run: table})``: the full-image tables as the full frame, with
+    ``whole_frame`` each exact class of them (:func:`~msdepth.evaluation.classes.class_unit_tables`),
+    then the ROI tables per class of ``anchor``'s."""
     out = [(FULL_FRAME, "full", dict(tables["full"]))] if "full" in tables else []
     if whole_frame and "full" in tables:
         out += [(cls, "full", chosen) for cls, chosen in class_unit_tables(dict(tables["full"]), anchor)]
@@ -179,10 +128,9 @@ def _class_tables(
 
 @dataclass(frozen=True)
 class RowScope:
-    """Where rows are made: ``whole_frame``, an extra set's exact classes per frame
-    (:func:`_class_tables`); ``unit``, what n counts there (:attr:`Row.unit`; "" = images or ROIs);
-    ``keep_few``, rows over fewer than :data:`MIN_UNITS` units kept without an interval (a set of a
-    few frames shows its point estimates) rather than left out."""
+    """Where rows are made: ``whole_frame``, an extra set's exact classes (:func:`_class_tables`);
+    ``unit``, what n counts (:attr:`Row.unit`); ``keep_few``, rows below :data:`MIN_UNITS` units
+    kept without an interval rather than left out."""
 
     whole_frame: bool = False
     unit: str = ""
@@ -202,18 +150,16 @@ def network_rows(
     settings: str = "",
     scope: RowScope = RowScope(),
 ) -> list[Row]:
-    """Per class, each variant of ``groups`` (variant -> its runs, the reference's included) minus
-    ``cfg.reference``, by the comparison's bootstrap over units and seeds; ``tables`` is
-    :func:`msdepth.reporting.comparison.load_unit_tables`' ``{suite: {run: table}}``. ``pairing``
-    (:func:`msdepth.reporting.comparison.pairing_status`): the variants whose seeds pair with the
-    reference's are compared pair by pair, with the paired t beside the bootstrap."""
+    """Per class, each variant of ``groups`` (variant -> its runs) minus ``cfg.reference`` by the
+    comparison's bootstrap over units and seeds (:func:`~msdepth.reporting.comparison.paired_statistics`,
+    seed pairs where ``pairing`` says so)."""
     rows = []
     others = [v for v in groups if v != cfg.reference]
     for cls, suite, chosen in _class_tables(tables, groups[cfg.reference][0], scope.whole_frame):
         block = paired_statistics({suite: chosen}, dict(groups), cfg, [cap], pairing)
         for variant in others:
             d = block[suite][f"cap{cap:g}"][variant][METRIC]
-            few = _independent(d["n"], d.get("clusters")) < MIN_UNITS
+            few = (d.get("clusters") or d["n"]) < MIN_UNITS  # independent units: frames where drawn by frame
             if few and not scope.keep_few:
                 continue
             unit = _unit_words(scope.units(suite), d.get("clusters"))
@@ -231,11 +177,6 @@ def network_rows(
                 )
             )  # fmt: skip
     return rows
-
-
-def _independent(n: int, clusters: int | None) -> int:
-    """The independent units of a difference: its clusters (frames) where its units were drawn by them."""
-    return n if clusters is None else clusters
 
 
 def _unit_words(unit: str, clusters: int | None) -> str:
@@ -272,11 +213,9 @@ def optimum_rows(
     scope: RowScope = RowScope(),
     instrument: str = "optimum",
 ) -> list[Row]:
-    """Per weight (``runs``: weight label, e.g. ``w10``, -> {variant: its optimum run}) and class,
-    each variant minus ``cfg.reference``: :func:`~msdepth.reporting.stats.seed_bootstrap` of one
-    run each over the units both runs were scored on (ROIs: drawn by frame). ``instrument``: the
-    rows' name before the weight label (``SGM`` with the label ``cost start``: the SGM matchers on
-    each variant's cost volume)."""
+    """Per weight label (``runs``: e.g. ``w10`` -> {variant: its run}) and class, each variant minus
+    ``cfg.reference``: :func:`~msdepth.stats.seed_bootstrap` of one run each over the shared units
+    (ROIs drawn by frame). Rows are named ``<instrument> <label>``."""
     rows = []
     for weight, by_variant in runs.items():
         ref = by_variant[cfg.reference]
@@ -289,7 +228,7 @@ def optimum_rows(
                 values, reference = paired_table(a[a["cap"] == cap], b[b["cap"] == cap], keys, METRIC, what)
                 clusters = unit_clusters(suite, a[a["cap"] == cap])  # in values' order: a's rows
                 k = None if clusters is None else len(set(clusters))
-                few = _independent(len(values), k) < MIN_UNITS
+                few = (k or len(values)) < MIN_UNITS
                 if (few and not scope.keep_few) or not len(values):
                     continue
                 name = f"{instrument} {weight}" if len(others) == 1 else f"{instrument} {weight}, {variant}"
@@ -303,19 +242,22 @@ def optimum_rows(
                         clusters=clusters,
                     )  # fmt: skip
                     diff, low, high = d.mean, d.low, d.high
-                row = Row(
-                    name,
-                    cls,
-                    diff,
-                    low,
-                    high,
-                    len(values),
-                    method + _few_words(few),
-                    "optimum",
-                    settings=settings,
-                )
                 unit = _unit_words(scope.units(suite), k) if k is not None else scope.unit
-                rows.append(dataclasses.replace(row, unit=unit))
+                method += _few_words(few)
+                rows.append(
+                    Row(
+                        name,
+                        cls,
+                        diff,
+                        low,
+                        high,
+                        len(values),
+                        method,
+                        "optimum",
+                        settings=settings,
+                        unit=unit,
+                    )
+                )
     return rows
 
 
@@ -325,9 +267,8 @@ def signed(x: float, decimals: int = 3) -> str:
 
 
 def _class_sentence(cls: str, rows: Sequence[Row], better: str = "MS-SSIM") -> str:
-    """One sentence from ``cls``'s rows: in how many instruments ``better``'s error (abs_rel) is
-    lower, which intervals exclude 0 (and on which side, with the paired t's agreement where a row
-    has one), and which rows have too few units for an interval."""
+    """``cls``'s rows in a sentence: where ``better``'s error is lower, which intervals exclude 0
+    (which side, whether the paired t agrees), which rows have no interval."""
     own = [r for r in rows if r.cls == cls]
     lower = sum(r.diff < 0 for r in own)
     noun = "instrument" if len(own) == 1 else "instruments"
@@ -353,8 +294,7 @@ def _excluding_words(r: Row) -> str:
 
 
 def display_names(variants: Sequence[str], reference: str) -> tuple[str, str]:
-    """The sentences' names of the compared variant and of the reference (:data:`NAMES`):
-    ``MS-SSIM``, ``SSIM`` (with several compared variants, ``each other variant``)."""
+    """The sentences' names of the compared variant and the reference (:data:`NAMES`)."""
     others = [v for v in variants if v != reference]
     if len(others) == 1:
         better = NAMES.get(others[0], others[0])
@@ -368,8 +308,7 @@ def display_names(variants: Sequence[str], reference: str) -> tuple[str, str]:
 
 @dataclass(frozen=True)
 class Column:
-    """One column of the verdict table: its ``header``, and the rows it shows (those of ``kind``
-    named ``instrument``, one per class)."""
+    """One column of the verdict table: its ``header`` and its rows' ``kind`` and ``instrument``."""
 
     header: str
     kind: str
@@ -422,8 +361,7 @@ def headline_columns(
 
 
 def instrument_columns(rows: Sequence[Row]) -> list[Column]:
-    """One column per instrument of ``rows``, by kind in :data:`KINDS`' order, then as they come
-    (the figure's rows)."""
+    """One column per instrument of ``rows``, by kind in :data:`KINDS`' order (the figure's)."""
     rank = {k: i for i, k in enumerate(KINDS)}
     ordered = sorted(rows, key=lambda r: rank.get(r.kind, len(rank)))
     return list(dict.fromkeys(Column(r.instrument, r.kind, r.instrument) for r in ordered))
@@ -432,7 +370,7 @@ def instrument_columns(rows: Sequence[Row]) -> list[Column]:
 def verdict_table(
     rows: Sequence[Row], columns: Sequence[Column], classes: Sequence[str]
 ) -> list[tuple[str, list[Row | None]]]:
-    """The verdict table, the one layout every renderer formats (compare.md, the README, the figure).
+    """The verdict table, the one layout every renderer formats.
 
     Args:
         rows: the verdict's rows.
@@ -440,8 +378,7 @@ def verdict_table(
         classes: the table's rows, in order.
 
     Returns:
-        Per class, one cell per column: the first row of that kind and instrument on that class,
-        None where there is none.
+        Per class, one cell per column: the first row of its kind and instrument on that class, or None.
 
     Example:
         >>> car = Row("stereo networks", "car", -0.02, -0.04, 0.01, 40, "m", "network")
@@ -472,9 +409,8 @@ def verdict_data(
     settings: str = "",
     columns: Sequence[Column] | None = None,
 ) -> dict:
-    """compare.json's ``verdict``: the rows, the summary table's columns (``headline``, by default
-    :func:`headline_columns` at weight 10) and cells (``summary``: :func:`verdict_table`), the
-    classes in order and a sentence per class (:func:`_class_sentence`)."""
+    """compare.json's ``verdict``: the rows, the summary table's columns (``headline``, default
+    :func:`headline_columns` at weight 10) and cells (``summary``), the classes, a sentence per class."""
     classes = class_order(sorted({r.cls for r in rows}))
     columns = list(columns or headline_columns(10.0))
     summary = {
@@ -501,8 +437,7 @@ VERDICT_TITLE = "The verdict per surface class"
 
 
 def interval_cell(r: Row, decimals: int = 3) -> str:
-    """A row's difference and interval as a table cell: ``−0.036 [−0.068, −0.002] *`` (``*``: it
-    excludes 0); a row without an interval says so.
+    """A row's difference and interval as a table cell (``*``: it excludes 0).
 
     Example:
         >>> interval_cell(Row("x", "car", -0.036, -0.068, -0.002, 66, "m", "network"))
@@ -524,14 +459,23 @@ def units_text(r: Row) -> str:
 
 
 def summary_lines(data: Mapping) -> list[str]:
-    """The summary table as Markdown (compare.md and the README): :func:`verdict_table` of the
-    headline columns, each cell the difference, its interval and its n."""
+    """The summary table as Markdown (compare.md and the README): each cell's interval and n."""
     columns = columns_of(data)
-    lines = [f"| class | {' | '.join(c.header for c in columns)} |", "|---" * (len(columns) + 1) + "|"]
-    for cls, cells in verdict_table(rows_of(data), columns, data["classes"]):
-        text = ["–" if r is None else f"{interval_cell(r)}, n = {units_text(r)}" for r in cells]
-        lines.append(f"| {cls} | {' | '.join(text)} |")
-    return lines
+    rows = [
+        [cls, *("–" if r is None else f"{interval_cell(r)}, n = {units_text(r)}" for r in cells)]
+        for cls, cells in verdict_table(rows_of(data), columns, data["classes"])
+    ]
+    return markdown_table(["class", *(c.header for c in columns)], rows).split("\n")
+
+
+def _filled_columns(data: Mapping) -> list[tuple[Column, dict[str, Row]]]:
+    """Each summary column that has rows, with its ``{class: row}``."""
+    table = verdict_table(rows_of(data), columns_of(data), data["classes"])
+    out = [
+        (c, {cls: cells[i] for cls, cells in table if cells[i] is not None})
+        for i, c in enumerate(columns_of(data))
+    ]
+    return [(c, cells) for c, cells in out if cells]
 
 
 def answer_sentence(data: Mapping) -> str:
@@ -544,12 +488,8 @@ def answer_sentence(data: Mapping) -> str:
         stereo networks: lower on 1 of 1 surface class; its interval excludes 0 on car (the paired t
         over seeds includes 0).
     """
-    table = verdict_table(rows_of(data), columns_of(data), data["classes"])
     parts = []
-    for i, column in enumerate(columns_of(data)):
-        cells = {cls: row[i] for cls, row in table if row[i] is not None}
-        if not cells:
-            continue
+    for column, cells in _filled_columns(data):
         lower = [c for c, r in cells.items() if r.diff < 0]
         noun = "class" if len(cells) == 1 else "classes"
         text = f"{column.header}: lower on {len(lower)} of {len(cells)} surface {noun}"
@@ -600,15 +540,15 @@ def short_answer(data: Mapping) -> str:
         >>> short_answer(verdict_data(rows, 80.0, 0.95, "MS-SSIM", "SSIM"))
         "MS-SSIM's abs_rel against SSIM's: stereo networks lower on 1 of 1 class, 1 interval excluding 0."
     """
-    table = verdict_table(rows_of(data), columns_of(data), data["classes"])
     parts = []
-    for i, column in enumerate(columns_of(data)):
-        cells = [row[i] for _, row in table if row[i] is not None]
-        if cells:
-            lower, excluding = sum(r.diff < 0 for r in cells), sum(r.excludes_zero for r in cells)
-            noun = "class" if len(cells) == 1 else "classes"
-            intervals = "no interval" if not excluding else f"{excluding} interval{'s' * (excluding > 1)}"
-            parts.append(f"{column.header} lower on {lower} of {len(cells)} {noun}, {intervals} excluding 0")
+    for column, cells in _filled_columns(data):
+        lower, excluding = (
+            sum(r.diff < 0 for r in cells.values()),
+            sum(r.excludes_zero for r in cells.values()),
+        )
+        noun = "class" if len(cells) == 1 else "classes"
+        intervals = "no interval" if not excluding else f"{excluding} interval{'s' * (excluding > 1)}"
+        parts.append(f"{column.header} lower on {lower} of {len(cells)} {noun}, {intervals} excluding 0")
     if not parts:
         return "No instrument compares two variants here."
     return f"{data['variant']}'s abs_rel against {data['reference']}'s: {'; '.join(parts)}."

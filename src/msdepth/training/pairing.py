@@ -3,15 +3,16 @@
 Both loss variants train with the same seeds, and a seed fixes the network's initial weights
 (``torch.manual_seed`` before it is built) and the data order and augmentation (generators
 seeded from the seed and the epoch). Seed ``s`` of SSIM and seed ``s`` of MS-SSIM then differ only
-in the loss, and the comparison may treat them as a pair (:mod:`msdepth.reporting.stats`). The
+in the loss, and the comparison may treat them as a pair (:mod:`msdepth.stats`). The
 training summary records the evidence (:func:`pairing_record`); the comparison pairs two runs only
-where their records agree (:func:`msdepth.reporting.comparison.pairing_status`).
+where their records agree (:func:`pairing_status`).
 """
 
 from __future__ import annotations
 
 import hashlib
-from typing import Any, Iterable
+import re
+from typing import Any, Iterable, Mapping, Sequence
 
 import torch
 
@@ -60,3 +61,47 @@ def pairing_record(model: torch.nn.Module, first_batch: Any) -> dict[str, str]:
         "initial_weights_sha256": tensors_sha256(sorted(model.state_dict().items())),
         "first_batch_sha256": tensors_sha256(_named(first_batch)),
     }
+
+
+SEED_RUN = re.compile(r"/(seed\d+)$")  # a variant's run, "<variant>/seed<S>"
+
+
+def pairing_status(
+    groups: Mapping[str, Sequence[str]], reference: str, summaries: Mapping[str, Mapping]
+) -> dict[str, str | None]:
+    """Per group other than ``reference``: None when its runs pair seed by seed with the
+    reference's (the same seeds, and every pair's training summaries record the same initial
+    weights and first batch: :mod:`msdepth.training.pairing`), else why they do not."""
+
+    def records(runs: Sequence[str]) -> dict[str, dict | None] | None:
+        keys = [SEED_RUN.search(r) for r in runs]
+        if not all(keys):
+            return None
+        return {k.group(1): (summaries.get(r) or {}).get("pairing") for k, r in zip(keys, runs, strict=True)}
+
+    ref = records(groups[reference])
+    out: dict[str, str | None] = {}
+    for name, runs in groups.items():
+        if name == reference:
+            continue
+        own = records(runs)
+        if own is None or ref is None:
+            out[name] = "a baseline is one deterministic run, not a seed of a variant"
+        elif sorted(own) != sorted(ref):
+            out[name] = "the two variants were trained with different seeds"
+        else:
+            out[name] = _record_mismatch(own, ref)
+    return out
+
+
+def _record_mismatch(own: Mapping[str, dict | None], ref: Mapping[str, dict | None]) -> str | None:
+    """The first seed whose two pairing records disagree, in words; None when all agree."""
+    for key in sorted(own):
+        a, b = own[key], ref[key]
+        if not a or not b:
+            return f"{key}: a training summary keeps no pairing record (trained by an older version)"
+        if a.get("initial_weights_sha256") != b.get("initial_weights_sha256"):
+            return f"{key}: the initial weights differ"
+        if a.get("first_batch_sha256") != b.get("first_batch_sha256"):
+            return f"{key}: the first training batches differ"
+    return None
