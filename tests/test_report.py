@@ -319,8 +319,9 @@ def test_the_verdict_table_goes_into_the_readme_and_the_sentences_into_the_page(
     assert answer == (
         f"{ANSWER_BEGIN} **Answer so far, on the rendered frames** ([docs/results.md](docs/results.md)): "
         "MS-SSIM's abs_rel against SSIM's: stereo networks lower on 1 of 1 class, no interval excluding 0; "
-        "loss's own optimum, w10 lower on 1 of 1 class, 1 interval excluding 0. Real KITTI frames are not "
-        f"pooled with these: [their own page](studies/results/real_sets/README.md). {ANSWER_END}"
+        "loss's own optimum, w10 lower on 1 of 1 class, 1 interval excluding 0. **On real KITTI frames**, "
+        "never pooled with these ([their page](studies/results/real_sets/README.md)): not measured in this "
+        f"project copy. {ANSWER_END}"
     )
     flipped = copy.deepcopy(data)
     flipped["verdict"] = verdict_data(
@@ -332,7 +333,7 @@ def test_the_verdict_table_goes_into_the_readme_and_the_sentences_into_the_page(
     )
     flipped["data_source"] = "kitti"
     answer = " ".join(_readme_answer(load_results(_project(tmp_path / "flipped", flipped))).split())
-    assert "**Answer so far, on the real KITTI frames**" in answer and "their own page" not in answer
+    assert "**Answer so far, on the real KITTI frames**" in answer and "their page" not in answer
     assert "The sign depends on the optimum's smoothness weight on windshield." in answer
     page = " ".join(_results_block(r).split())
     assert "## What the study finds Is MS-SSIM's depth error (abs_rel) lower than SSIM's?" in page
@@ -343,3 +344,46 @@ def test_the_verdict_table_goes_into_the_readme_and_the_sentences_into_the_page(
     assert "verdict.png" not in _readme_block(plain) and "## What the study finds" not in _results_block(
         plain
     )
+
+
+def test_the_real_frames_get_their_own_table_and_words_never_pooled(tmp_path: Path):
+    """Issue 66 item 5: the real-sets study's compare.json (REAL_SETS_COMPARE) gives the README a
+    second table and sentence, of its real places' columns only; its rendered columns stay out."""
+    from msdepth.pipeline.paths import REAL_SETS_COMPARE
+    from msdepth.reporting.verdict import Column, Row, verdict_data
+
+    rendered_rows = [
+        Row("optimum own best", "car", -0.02, -0.03, -0.01, 91, "m", "optimum"),
+        Row("optimum own best", "full frame", -0.015, -0.02, -0.01, 40, "m", "optimum"),
+    ]
+    data = copy.deepcopy(COMPARISON)
+    data["verdict"] = verdict_data(rendered_rows, 80.0, 0.95, "MS-SSIM", "SSIM")
+    project = _project(tmp_path, data, readme=f"# x\n\n{ANSWER_BEGIN}\n{ANSWER_END}\n\n{BEGIN}\n{END}\n")
+    real_rows = [
+        *rendered_rows,  # the study's own rendered frames: not the real answer
+        Row("optimum own best on kitti2012", "reflective", 0.03, None, None, 2, "m", "optimum"),
+        Row("optimum own best on kitti2012", "full frame", 0.02, None, None, 2, "m", "optimum"),
+        Row("optimum own best on kitti2015 boxes", "car", 0.01, None, None, 16, "m", "optimum"),
+    ]
+    columns = [
+        Column("optimum own best", "optimum", "optimum own best"),
+        Column("own best, kitti2012 frames", "optimum", "optimum own best on kitti2012"),
+        Column("own best, kitti2015 boxes", "optimum", "optimum own best on kitti2015 boxes"),
+    ]
+    study = {"verdict": verdict_data(real_rows, 80.0, 0.95, "MS-SSIM", "SSIM", columns=columns)}
+    (project / REAL_SETS_COMPARE).parent.mkdir(parents=True)
+    (project / REAL_SETS_COMPARE).write_text(json.dumps(study))
+    readme = " ".join(rendered(project)[project / "README.md"].split())
+    real_table = readme[readme.index("On the shared real frames, apart") :]
+    assert readme.index("The committed run:") < readme.index("On the shared real frames")
+    assert "| class | own best, kitti2012 frames | own best, kitti2015 boxes |" in real_table
+    assert "| reflective | +0.030 (no interval), n = 2 " in real_table
+    assert "| car | – | +0.010 (no interval), n = 16 " in real_table
+    assert "| optimum own best |" not in real_table and "−0.020" not in real_table  # nothing pooled
+    assert "**On real KITTI frames**, never pooled with these" in readme
+    assert (
+        "**On real KITTI frames**, never pooled with these ([their page](studies/results/real_sets/README.md)): "
+        "each loss at its own best weight, own best, kitti2012 frames lower on 0 of 2 classes; own best, "
+        "kitti2015 boxes lower on 0 of 1 class (point estimates: too few frames). The sign depends on the "
+        "frames (full frame, own best: rendered −0.015, kitti2012 +0.020)."
+    ) in readme

@@ -66,6 +66,9 @@ TRAIN_PLOTS = PLOTS / "train"  # <run>/: each run's dvclive curves
 FIGURES_DIR = PLOTS / "figures"
 TRAIN_LOGS = Path("logs/train")  # <run>.json: training timings (untracked: they vary between machines)
 RESULTS = Path("docs/results.md")
+# The shared real KITTI frames through the pipeline's set stages (a study apart: a user's clone has no
+# real frames); the README shows its rows beside the committed run's, never pooled with them.
+REAL_SETS_COMPARE = Path("studies/results/real_sets/compare.json")
 README = Path("README.md")  # not a DVC output: the report stage rewrites only its generated block
 # The folders that only the stages write: a stage removes the temp files that a stage killed
 # mid-write (kill -9) left there before it runs. The data roots are not walked (a KITTI tree is

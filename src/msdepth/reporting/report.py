@@ -19,7 +19,15 @@ from typing import Any, Sequence
 from msdepth.errors import DataError, MsdepthError
 from msdepth.evaluation.metrics import HIGHER_IS_BETTER
 from msdepth.io import write_text
-from msdepth.pipeline.paths import COMPARE_JSON, FIGURES_DIR, README, RESULTS, run_name, train_summary_path
+from msdepth.pipeline.paths import (
+    COMPARE_JSON,
+    FIGURES_DIR,
+    README,
+    REAL_SETS_COMPARE,
+    RESULTS,
+    run_name,
+    train_summary_path,
+)
 from msdepth.readers import read_json_object, read_text_file
 from msdepth.reporting.comparison import (
     MIN_SEEDS_FOR_MARKS,
@@ -31,9 +39,11 @@ from msdepth.reporting.comparison import (
 )
 from msdepth.reporting.verdict import (
     NAMES,
+    OWN_BEST,
     VERDICT_FIGURE,
     answer_sentence,
     class_order,
+    on_places,
     short_answer,
     sign_caveat,
     signed,
@@ -43,6 +53,8 @@ from msdepth.reporting.verdict import (
 # Whose frames the committed rows score, by data.source (compare.json's ``data_source``).
 FRAMES = {"synthetic": "rendered", "kitti": "real KITTI", "folder": "your stereo folder's"}
 REAL_SAMPLES = "studies/results/real_sets/README.md"  # the shared real KITTI frames, a study apart
+# Its places: real KITTI 2012 and 2015 training frames and the boxes drawn on KITTI 2015's.
+REAL_PLACES = ("kitti2012", "kitti2015", "kitti2015 boxes")
 
 COMMAND = "python -m msdepth.reporting.report"
 BEGIN = (
@@ -345,17 +357,64 @@ def _answer_lines(r: Results) -> list[str]:
     return [wrap(lead), "", *summary_lines(block), "", wrap(per_class), "", *_verdict_items(r)]
 
 
-def _readme_answer(r: Results) -> str:
-    """The README's answer, markers included (without a verdict, the full-image difference)."""
+def _readme_answer(r: Results, real: dict | None = None) -> str:
+    """The README's answer, markers included (without a verdict, the full-image difference); then,
+    with ``real`` (:func:`real_verdict`), what the shared real frames say, apart."""
     block = r.get("verdict", default=None) or {}
     text = short_answer(block) if block.get("summary") else verdict(r)
     if block.get("summary") and (caveat := sign_caveat(block)):
         text += " " + caveat
     link = "[docs/results.md](docs/results.md)"
     frames = _frames_words(r)
-    real = f" Real KITTI frames are not pooled with these: [their own page]({REAL_SAMPLES})."
     head = f"**Answer so far, on the {frames} frames** ({link}): {text}"
-    return "\n".join([ANSWER_BEGIN, wrap(head + (real if frames == FRAMES["synthetic"] else "")), ANSWER_END])
+    if frames == FRAMES["synthetic"]:
+        head += f" **On real KITTI frames**, never pooled with these ([their page]({REAL_SAMPLES})): "
+        head += (
+            (_real_words(real) + _frames_caveat(block, real))
+            if real
+            else "not measured in this project copy."
+        )
+    return "\n".join([ANSWER_BEGIN, wrap(head), ANSWER_END])
+
+
+def real_verdict(root: Path = Path(".")) -> dict | None:
+    """The real-sets study's verdict (:data:`~msdepth.pipeline.paths.REAL_SETS_COMPARE`, made by the
+    pipeline's set stages) on :data:`REAL_PLACES` only; None without the file or those rows."""
+    path = root / REAL_SETS_COMPARE
+    if not path.is_file():
+        return None
+    data = read_json_object(path, "real-sets comparison").get("verdict") or {}
+    real = on_places(data, REAL_PLACES) if data.get("headline") else {}
+    return real if real.get("headline") else None
+
+
+def _frames_caveat(block: dict, real: dict) -> str:
+    """ " The sign depends on the frames (...)." where the own-best full-frame difference of the
+    rendered frames and of each real set differ in sign; "" where they agree or one is missing."""
+    where = lambda name: name.rsplit(" on ", 1)[1] if " on " in name else "rendered"  # noqa: E731
+    diffs = {
+        where(r["instrument"]): r["diff"]
+        for data in (block, real)
+        for r in data.get("rows", [])
+        if r["class"] == "full frame" and r["instrument"].startswith(f"optimum {OWN_BEST}")
+        and (data is real) == (" on " in r["instrument"])
+    }  # fmt: skip
+    if len({d < 0 for d in diffs.values()}) < 2 or "rendered" not in diffs:
+        return ""
+    each = ", ".join(f"{where} {signed(d, 3)}" for where, d in diffs.items())
+    return f" The sign depends on the frames (full frame, own best: {each})."
+
+
+def _real_words(real: dict) -> str:
+    """The real frames' answer in a line: per place, its own-best column (each loss at its own
+    weight; the fixed weight's where a place has none), without intervals where none could be drawn."""
+    own = {h: c for h, c in real["headline"].items() if OWN_BEST in c[1]}
+    places = {**real, "headline": own or real["headline"]}
+    text = short_answer(places).split(": ", 1)[1].replace(f"optimum {OWN_BEST}, ", "")
+    if all(r.get("low") is None for r in places["rows"] if r["instrument"] in {c[1] for c in own.values()}):
+        text = text.replace(", no interval excluding 0", "")[:-1] + " (point estimates: too few frames)."
+    lead = "each loss at its own best weight, " if own else ""
+    return lead + text
 
 
 def _frames_words(r: Results) -> str:
@@ -364,31 +423,31 @@ def _frames_words(r: Results) -> str:
     return FRAMES.get(source, source)
 
 
-def _readme_block(r: Results) -> str:
-    """The README's results block, markers included (without a verdict, the headline table)."""
+def _readme_block(r: Results, real: dict | None = None) -> str:
+    """The README's results block, markers included (without a verdict, the headline table); with
+    ``real`` (:func:`real_verdict`), the real frames' table below, apart."""
     block = r.get("verdict", default=None) or {}
-    if block.get("summary"):
-        lead = (
-            f"{block['variant']} − {block['reference']} abs_rel per surface class and instrument at cap "
-            f"{r.cap_m} m (negative: {block['variant']}'s error is lower; `*`: the {_confidence(r)} "
-            "interval excludes 0; terms: [docs/results.md](docs/results.md#terms)):"
-        )
-        answer = [wrap(lead), "", *summary_lines(block)]
-    else:
-        answer = [_headline_table(r), "", wrap(verdict(r))]
-    return "\n".join(
-        [
-            BEGIN,
-            *answer,
-            "",
-            wrap(
-                f"The committed run: {_headline_caption(r).split('; variants')[0]}, {len(r.seeds)} "
-                f"seed{'s' if len(r.seeds) != 1 else ''} per loss. Terms, each run's metrics, the "
-                "image-blind baselines and how to read them: [docs/results.md](docs/results.md)."
-            ),
-            END,
-        ]
+    caption = wrap(
+        f"The committed run: {_headline_caption(r).split('; variants')[0]}, {len(r.seeds)} "
+        f"seed{'s' if len(r.seeds) != 1 else ''} per loss. Terms, each run's metrics, the "
+        "image-blind baselines and how to read them: [docs/results.md](docs/results.md)."
     )
+    if not block.get("summary"):
+        return "\n".join([BEGIN, _headline_table(r), "", wrap(verdict(r)), "", caption, END])
+    lead = (
+        f"{block['variant']} − {block['reference']} abs_rel per surface class and instrument at cap "
+        f"{r.cap_m} m, on the {_frames_words(r)} frames (negative: {block['variant']}'s error is lower; "
+        f"`*`: the {_confidence(r)} interval excludes 0; terms: [docs/results.md](docs/results.md#terms)):"
+    )
+    lines = [BEGIN, wrap(lead), "", *summary_lines(block), "", caption]
+    if real:
+        where = (
+            "On the shared real frames, apart: 2 KITTI 2012 and 2 KITTI 2015 training frames and the "
+            "boxes drawn on the latter, scored by the pipeline's set stages with the committed run's "
+            f"models and params ([how]({REAL_SAMPLES})); under 5 frames a row has no interval:"
+        )
+        lines += ["", wrap(where), "", *summary_lines(real)]
+    return "\n".join([*lines, END])
 
 
 def _training_text(r: Results) -> str:
@@ -578,8 +637,9 @@ def rendered(root: Path = Path(".")) -> dict[Path, str]:
     else:
         out = {page: f"# Results\n\n{_results_block(r)}\n"}
     if readme.is_file():
-        text = _replace_block(read_text_file(readme, "README"), _readme_block(r), readme)
-        out[readme] = _replace_block(text, _readme_answer(r), readme, ANSWER_BEGIN, ANSWER_END)
+        real = real_verdict(root)
+        text = _replace_block(read_text_file(readme, "README"), _readme_block(r, real), readme)
+        out[readme] = _replace_block(text, _readme_answer(r, real), readme, ANSWER_BEGIN, ANSWER_END)
     return out
 
 

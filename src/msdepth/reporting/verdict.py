@@ -478,6 +478,28 @@ def _filled_columns(data: Mapping) -> list[tuple[Column, dict[str, Row]]]:
     return [(c, cells) for c, cells in out if cells]
 
 
+def on_places(data: Mapping, places: Sequence[str]) -> dict:
+    """``data`` (compare.json's ``verdict``) with only the summary columns of the rows made on
+    ``places`` (an extra set's name, or ``<set> boxes``: instruments named ``... on <place>``), and
+    only the classes they fill, in ``data``'s order then the rows'. Nothing is pooled: each column is
+    one place's.
+
+    Example:
+        >>> rows = [Row("optimum w10", "car", -0.02, -0.03, -0.01, 91, "m", "optimum"),
+        ...         Row("optimum w10 on kitti2012", "reflective", 0.01, None, None, 2, "m", "optimum")]
+        >>> cols = [Column("rendered", "optimum", "optimum w10"),
+        ...         Column("k12", "optimum", "optimum w10 on kitti2012")]
+        >>> real = on_places(verdict_data(rows, 80.0, 0.95, "MS-SSIM", "SSIM", columns=cols), ["kitti2012"])
+        >>> list(real["headline"]), real["classes"]
+        (['k12'], ['reflective'])
+    """
+    headline = {h: c for h, c in data["headline"].items() if any(c[1].endswith(f" on {p}") for p in places)}
+    instruments = {c[1] for c in headline.values()}
+    filled = [r["class"] for r in data["rows"] if r["instrument"] in instruments]
+    classes = [c for c in dict.fromkeys([*data["classes"], *filled]) if c in filled]
+    return {**data, "headline": headline, "classes": classes}
+
+
 def answer_sentence(data: Mapping) -> str:
     """The summary table in one sentence: per column, on how many surface classes the variant's
     error is lower and where its interval excludes 0 (with the paired t's agreement).
