@@ -171,7 +171,7 @@ def test_weights_frames_and_run_names(tmp_path: Path):
     assert len(runs) == 6
 
 
-def test_cost_summary_and_its_figure(tmp_path: Path):
+def test_cost_summary_and_its_figure(tmp_path: Path, monkeypatch):
     log_s = np.log(COST_SCALES)
     curves = {"car": [log_s**2, 2 * log_s**2], "glass": [(log_s + np.log(2)) ** 2]}
     summary = cost_summary(curves)
@@ -182,6 +182,18 @@ def test_cost_summary_and_its_figure(tmp_path: Path):
     read = _read_cost_curves(tmp_path, ["ssim"])
     out = cost_curve_figure(read, tmp_path / "cost_curves.png")
     assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    # Issue 68: each curve relative to its own minimum (the losses' scales differ), the dotted minima named
+    import msdepth.reporting.figures as figures
+
+    scaled = {
+        "ssim": read["ssim"],
+        "msssim": {**read["ssim"], "mean_curves": {"car": list(100 + 50 * log_s**2)}},
+    }
+    monkeypatch.setattr(figures, "_save", lambda fig, path: fig)
+    car = cost_curve_figure(scaled, tmp_path / "x.png").axes[0]
+    assert [min(line.get_ydata()) for line in car.lines if line.get_label() in scaled] == [0.0, 0.0]
+    labels = car.get_legend_handles_labels()[1]
+    assert {"ssim's minimum", "msssim's minimum", "GT (s = 1)"} <= set(labels)
     with pytest.raises(DataError, match="msssim.json: cannot read the cost curves"):
         _read_cost_curves(tmp_path, ["msssim"])
 

@@ -631,7 +631,8 @@ def _read_cost_curves(directory: Path, variants: Sequence[str]) -> dict[str, dic
 
 def cost_curve_figure(summaries: Mapping[str, dict], path: Path) -> Path:
     """``cost_curves.png``: one panel per ROI class, one line per variant (its mean cost over the
-    class's boxes against s, log axis), s = 1 (the GT) marked, each variant's minimum dotted."""
+    class's boxes against s, log axis, minus its own minimum: the two losses' costs differ in scale,
+    and the curves' shapes are what is compared), s = 1 (the GT) marked, each variant's minimum dotted."""
     classes = class_order(sorted({c for s in summaries.values() for c in s.get("mean_curves", {})}))
     if not classes:
         return _message_figure("no ROI with dense GT", 3.2, 3.0, path)
@@ -641,14 +642,16 @@ def cost_curve_figure(summaries: Mapping[str, dict], path: Path) -> Path:
         for variant, summary in summaries.items():
             if cls not in summary.get("mean_curves", {}):
                 continue
-            (line,) = ax.plot(summary["scales"], summary["mean_curves"][cls], label=variant)
-            ax.axvline(summary["classes"][cls]["s_min"], color=line.get_color(), linestyle=":")
+            curve = np.asarray(summary["mean_curves"][cls], float)
+            (line,) = ax.plot(summary["scales"], curve - curve.min(), label=variant)
+            s_min = summary["classes"][cls]["s_min"]
+            ax.axvline(s_min, color=line.get_color(), linestyle=":", label=f"{variant}'s minimum")
         ax.axvline(1.0, color="k", linewidth=0.8, label="GT (s = 1)")
         rois = max(s["classes"][cls]["rois"] for s in summaries.values() if cls in s.get("classes", {}))
         ax.set(xscale="log", title=f"{cls} ({rois} ROIs)", xlabel="s (box disparity = GT × s)")
         ax.set_xticks([0.5, 1.0, 2.0], ["0.5", "1", "2"])
         ax.xaxis.set_minor_formatter(NullFormatter())  # the log axis's own labels overlap these
-    axes[0].set_ylabel("mean appearance cost")
+    axes[0].set_ylabel("mean appearance cost − its minimum")
     axes[0].legend(fontsize="small")
     return _save(fig, path)
 
