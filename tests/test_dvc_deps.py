@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import ast
 import hashlib
+import json
 import os
 import shutil
 import subprocess
@@ -522,7 +523,12 @@ def test_dvc_lock_is_current_with_the_tracked_code_and_params():
 
 def test_no_stage_depends_on_a_studys_file() -> None:
     """Every row of the verdict is the pipeline's own: no stage reads what only a study writes
-    (issues 54 and 55), so `dvc repro` reproduces every output from params, code and data."""
+    (issues 54 and 55), so `dvc repro` reproduces every output from params, code and data. The one
+    file below studies/ a stage reads is the real frames' comparison (REAL_SETS_COMPARE): written by
+    the pipeline's own compare stage in a `dvc exp run` on real frames a clone lacks, and read only
+    by the report stage for the README's separate real-frames table (issue 66), never by compare."""
+    from msdepth.pipeline.paths import REAL_SETS_COMPARE
+
     stages = yaml.safe_load((ROOT / "dvc.yaml").read_text())["stages"]
     found = [
         f"{name}: {dep}"
@@ -530,4 +536,6 @@ def test_no_stage_depends_on_a_studys_file() -> None:
         for dep in stage.get("deps", [])
         if str(dep).startswith("studies/")
     ]
-    assert found == []
+    assert found == [f"report: {REAL_SETS_COMPARE.as_posix()}"]
+    made_by = json.loads((ROOT / REAL_SETS_COMPARE).read_text())
+    assert {"verdict", "full"} <= set(made_by)  # the compare stage's own output, not a study's
