@@ -67,7 +67,9 @@ FIGURES_DIR = PLOTS / "figures"
 TRAIN_LOGS = Path("logs/train")  # <run>.json: training timings (untracked: they vary between machines)
 RESULTS = Path("docs/results.md")
 # The shared real KITTI frames through the pipeline's set stages (a study apart: a user's clone has no
-# real frames); the README shows its rows beside the committed run's, never pooled with them.
+# real frames); the README shows its rows beside the committed run's, never pooled with them. Not a
+# DVC dependency (no stage reads below studies/; a project copy may lack it; the README is no stage's
+# output): tests/test_report.py keeps the committed README current with it.
 REAL_SETS_COMPARE = Path("studies/results/real_sets/compare.json")
 README = Path("README.md")  # not a DVC output: the report stage rewrites only its generated block
 # The folders that only the stages write: a stage removes the temp files that a stage killed
