@@ -174,6 +174,16 @@ def test_experiments_refuses_millions_of_records_before_parsing(tmp_path: Path) 
     assert peak < 2 * path.stat().st_size + 16 * MIB, peak
 
 
+def test_experiments_refuses_millions_of_small_revisions_before_parsing(tmp_path: Path) -> None:
+    # 5 million records of 11 bytes each pass the density check (5.7 bytes per value); parsed,
+    # they took 1.1 GB before the cell limit refused them.
+    path = tmp_path / "show.json"
+    path.write_text("[" + ",".join(['{"rev":"a"}'] * 5_000_000) + "]")
+    peak, error = _peak(f"__import__('msdepth.cli.experiments').cli.experiments.read_json({str(path)!r})")
+    assert "5,000,000 JSON objects, over 500,000" in error and "nothing was parsed" in error, error
+    assert peak < 2 * path.stat().st_size, (peak, path.stat().st_size)
+
+
 def test_experiments_does_not_pad_every_row_to_a_long_label(tmp_path: Path) -> None:
     data = {"params": {"params.yaml": {"data": {"variants": ["ssim"], "ssim": {"kernel_size": 3}}}}}
     revs = [{"rev": f"{i:07x}", "name": f"e{i}", "data": data} for i in range(200)]

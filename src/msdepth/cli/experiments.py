@@ -35,6 +35,10 @@ MAX_JSON_BYTES = 64 << 20  # dvc exp show --json of ten experiments is about 150
 # DVC's JSON spends over 10 bytes on each value: a file averaging under this many bytes per value
 # (20 million "{}" took 6.3 GB) is refused before it is parsed (msdepth.readers.check_json_density).
 MIN_BYTES_PER_VALUE = 6
+# Each JSON object parses to a dict of ~200 bytes or more: 5 million records of 11 bytes each (57 MB)
+# took 1.1 GB before the cell limit refused them. DVC spends ~400 objects of ~130 bytes on a revision,
+# so 64 MiB of its output holds about 500,000: more is refused before parsing, bounding the dicts.
+MAX_OBJECTS = 500_000
 DEFAULT_KEYS = ("abs_rel", "windshield")
 PARAMS_FILE = "params.yaml"
 MISSING = "-"
@@ -61,6 +65,12 @@ def _parse_json(data: bytes, source: str) -> list:
     if len(data) > MAX_JSON_BYTES:
         raise DataError(f"{source}: larger than {MAX_JSON_BYTES >> 20} MiB: not dvc exp show --json output")
     check_json_density(data, source, MIN_BYTES_PER_VALUE)
+    objects = data.count(b"{")
+    if objects > MAX_OBJECTS:
+        raise DataError(
+            f"{source}: up to {objects:,} JSON objects, over {MAX_OBJECTS:,}: more revisions than a table "
+            "can show (dvc exp show spends about 400 objects on each); nothing was parsed"
+        )
     try:
         records = json.loads(data.decode("utf-8"))
     except UnicodeDecodeError as exc:
