@@ -6,7 +6,7 @@ evaluation frames through one photometric camera (``data.synthetic.camera``,
 at each smoothness weight, and scores it per frame (full-frame abs_rel at cap 80 m) and per ROI box.
 Each variant then gets its own best weight (:mod:`msdepth.optimum.selection`: two folds of frames,
 each scored at the weight best on the other), and MS-SSIM − SSIM per class comes with the verdict's
-paired bootstrap (:func:`msdepth.reporting.verdict.optimum_rows`: ROIs drawn with their frame), beside
+paired bootstrap (:func:`msdepth.analysis.verdict.optimum_rows`: ROIs drawn with their frame), beside
 the fixed weight 10's.
 
 The conditions (:data:`CONDITIONS`): ``ideal`` (no camera: the views of earlier releases);
@@ -37,6 +37,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from msdepth.analysis.verdict import NAMES, Row, RowScope, class_order, optimum_rows
 from msdepth.config.params import (
     MAX_THREADS,
     MAX_WEIGHT,
@@ -53,15 +54,7 @@ from msdepth.evaluation.suites import Frame, depth_maps, evaluate_full, evaluate
 from msdepth.io import write_text
 from msdepth.optimum.selection import choose_weights, select_rows
 from msdepth.outputs import OutputPolicy
-from msdepth.reporting.verdict import (
-    NAMES,
-    Row,
-    RowScope,
-    class_order,
-    interval_cell,
-    optimum_rows,
-    units_text,
-)
+from msdepth.reporting.verdict import interval_cell, units_text
 
 ROOT = Path(__file__).resolve().parents[1]  # its params.yaml is the base
 CAP = 80.0

@@ -30,14 +30,16 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from msdepth.analysis.comparison import variant_settings
+from msdepth.analysis.runs import image_dependence
+from msdepth.analysis.verdict import FULL_FRAME, settings_label
 from msdepth.config.params import params_from_dict, read_params_file
 from msdepth.errors import OutputError, run_main
 from msdepth.evaluation.results import load_suite_metrics, load_unit_tables
 from msdepth.io import write_text
 from msdepth.outputs import OutputPolicy
-from msdepth.reporting.comparison import image_dependence, markdown_table, variant_settings
+from msdepth.reporting.comparison import markdown_table
 from msdepth.reporting.figures import write_figure
-from msdepth.reporting.verdict import FULL_FRAME, settings_label
 
 ROOT = Path(__file__).resolve().parents[1]
 SETTINGS_LINE = "Variant settings: "  # table.md's line naming what its runs were trained with

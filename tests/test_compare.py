@@ -3,17 +3,11 @@ from the defaults, so that an experiment's tables say what it changed."""
 
 from __future__ import annotations
 
+from msdepth.analysis.comparison import changed_settings, comparison_data, settings_text, variant_settings
 from msdepth.config.params import params_from_dict
 from msdepth.evaluation.metrics import METRICS
 from msdepth.evaluation.suites import NO_ROIS
-from msdepth.reporting.comparison import (
-    _seed_resampling,
-    build_comparison,
-    changed_settings,
-    comparison_data,
-    settings_text,
-    variant_settings,
-)
+from msdepth.reporting.comparison import _seed_resampling, build_comparison
 
 DEFAULT_MSSSIM = {"kernel_size": 3, "levels": 4, "weights": "wang"}
 

@@ -25,7 +25,7 @@ SCIENCE_API = {
         "seeds_needed",
         "detectable_difference",
     ),
-    "msdepth.reporting.verdict": ("headline_columns", "verdict_table"),
+    "msdepth.analysis.verdict": ("headline_columns", "verdict_table"),
     "msdepth.evaluation.box_errors": ("box_medians",),
     "msdepth.training.train": ("learning_rate",),
 }

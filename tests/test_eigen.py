@@ -244,9 +244,10 @@ def test_compare_section_of_an_extra_set(tmp_path: Path, monkeypatch: pytest.Mon
     intervals, mean ± sd over seeds; metrics written by the suite and read back from disk."""
     import pandas as pd
 
+    from msdepth.analysis.runs import group_metrics, paired_statistics, seed_spread
     from msdepth.config.params import CompareConfig
     from msdepth.evaluation.results import _write_suite, load_suite_metrics, load_unit_tables
-    from msdepth.reporting.comparison import build_set_section, group_metrics, paired_statistics, seed_spread
+    from msdepth.reporting.comparison import build_set_section
 
     monkeypatch.chdir(tmp_path)
     gts, disps = _sparse_scene(2, n=4, shape=(60, 200))

@@ -5,9 +5,10 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from msdepth.analysis.comparison import comparison_data
 from msdepth.config.params import EvalConfig
 from msdepth.evaluation.suites import Frame, depth_maps, evaluate_full, evaluate_gradients, evaluate_roi
-from msdepth.reporting.comparison import build_comparison, comparison_data
+from msdepth.reporting.comparison import build_comparison
 
 FOCAL, BASELINE = 721.5377, 0.54
 
@@ -280,8 +281,8 @@ def test_compare_names_missing_baselines_with_their_reasons():
 def test_compare_says_when_image_dependence_cannot_be_measured():
     """One evaluation frame (or GT never at the same pixels in 3): the ratio is NaN, which must
     read as "not measured", not as "follows the image"."""
+    from msdepth.analysis.runs import image_dependence as compare_dependence
     from msdepth.evaluation.suites import image_dependence
-    from msdepth.reporting.comparison import image_dependence as compare_dependence
 
     frame = _frames_with_depth([np.full((10, 20), 20.0, dtype=np.float32)])
     measured = image_dependence({frame[0].name: frame[0].gt_depth}, frame, 80.0)

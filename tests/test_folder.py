@@ -340,8 +340,9 @@ def test_zero_rois_give_an_explicit_summary_and_a_header_only_table(suite, tmp_p
 
 
 def test_compare_without_rois_says_the_roi_suites_were_skipped():
+    from msdepth.analysis.comparison import comparison_data
     from msdepth.evaluation.metrics import METRICS
-    from msdepth.reporting.comparison import ROIS_SKIPPED, build_comparison, comparison_data
+    from msdepth.reporting.comparison import ROIS_SKIPPED, build_comparison
 
     full = {"cap80": dict.fromkeys(METRICS, 0.5), "images": 2, "excluded_images": 0}
     none = {"rois": 0, NO_ROIS: "no ROIs"}
@@ -353,15 +354,15 @@ def test_compare_without_rois_says_the_roi_suites_were_skipped():
 
 def test_means_without_rois_have_no_roi_number():
     """The compare stage's per-variant mean rows from a comparison without ROIs: full image only."""
+    from msdepth.analysis.comparison import comparison_data, mean_rows
     from msdepth.evaluation.metrics import METRICS
-    from msdepth.reporting.comparison import build_comparison, comparison_data
-    from msdepth.reporting.pipeline_compare import _mean_rows
+    from msdepth.reporting.comparison import build_comparison
 
     full = {"cap80": dict.fromkeys(METRICS, 0.5), "images": 2, "excluded_images": 0}
     none = {"rois": 0, NO_ROIS: "no ROIs"}
     suites = {"full": {"ssim": full}, "roi": {"ssim": none}, "gradients": {"ssim": none}}
     result, _ = build_comparison(comparison_data(suites, ["ssim"], []))
-    assert _mean_rows(result, ["ssim"], "cap80") == {"ssim": {"abs_rel": 0.5, "a1": 0.5}}
+    assert mean_rows(result, ["ssim"], "cap80") == {"ssim": {"abs_rel": 0.5, "a1": 0.5}}
 
 
 @pytest.mark.parametrize(

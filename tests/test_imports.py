@@ -141,7 +141,8 @@ LAYERS = (
     ("losses",),  # SSIM and MS-SSIM, appearance terms, Monodepth's and Monodepth2's objectives
     ("training", "evaluation"),  # training a network; inference, suites, metrics, baselines
     ("optimum",),  # the losses' own optimum, scored as a run
-    ("reporting",),  # comparison, the results page, the figures
+    ("analysis",),  # the comparison as data: paired statistics, the verdict's rows, each loss's own best
+    ("reporting",),  # compare.md, the results page, the figures
     ("cli",),  # the msdepth command's subcommands
     ("__main__",),  # the msdepth command
 )

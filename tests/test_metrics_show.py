@@ -15,8 +15,8 @@ import pytest
 import yaml
 from conftest import python_env, require_dvc
 
+from msdepth.analysis.comparison import mean_rows
 from msdepth.pipeline.paths import COMPARE_JSON, MEANS, mean_path
-from msdepth.reporting.pipeline_compare import _mean_rows
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -63,7 +63,7 @@ def test_committed_means_are_compare_json_numbers():
     params = yaml.safe_load((ROOT / "params.yaml").read_text())
     result = json.loads((ROOT / COMPARE_JSON).read_text())
     cap = f"cap{params['eval']['caps'][0]:g}"
-    rows = _mean_rows(result, params["variants"], cap)
+    rows = mean_rows(result, params["variants"], cap)
     for variant in params["variants"]:
         committed = json.loads((ROOT / mean_path(variant)).read_text())
         assert committed == rows[variant], variant
@@ -84,4 +84,4 @@ def test_mean_rows_are_flat_with_a_column_per_class():
     result = _comparison({"cap80": {"a": {"overall": overall, "by_class": by_class}}})
     result["roi_masks"] = {"cap80": {"a": {"overall": {"abs_rel": 0.45}}}}
     row = {"abs_rel": 0.2, "a1": 0.7, "roi": 0.4, "masks": 0.45}
-    assert _mean_rows(result, ["a"], "cap80") == {"a": {**row, "windshield": 0.6, "car": 0.35}}
+    assert mean_rows(result, ["a"], "cap80") == {"a": {**row, "windshield": 0.6, "car": 0.35}}

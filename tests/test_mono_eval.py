@@ -11,13 +11,15 @@ import torch
 from torch import nn
 
 from msdepth import render
+from msdepth.analysis.comparison import comparison_data
+from msdepth.analysis.runs import monocular_data
 from msdepth.config.params import EvalConfig, SyntheticConfig, params_from_dict
 from msdepth.errors import DataError
 from msdepth.evaluation.pose import _odometry_ates, sequence_ates
 from msdepth.evaluation.results import median_scaling
 from msdepth.evaluation.suites import Frame, depth_maps, evaluate_full, median_scaled_maps
 from msdepth.io import write_png
-from msdepth.reporting.comparison import build_comparison, comparison_data, monocular_data
+from msdepth.reporting.comparison import build_comparison
 
 CFG = EvalConfig(caps=(80.0,))
 

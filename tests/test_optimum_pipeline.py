@@ -10,6 +10,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from msdepth.analysis.comparison import comparison_data, optimum_data
 from msdepth.config.params import params_from_dict
 from msdepth.errors import ConfigError, DataError
 from msdepth.optimum.frames import (
@@ -21,7 +22,7 @@ from msdepth.optimum.frames import (
 )
 from msdepth.optimum.solver import COST_SCALES
 from msdepth.pipeline.paths import optimum_run
-from msdepth.reporting.comparison import build_comparison, comparison_data, optimum_data
+from msdepth.reporting.comparison import build_comparison
 from msdepth.reporting.figures import _read_cost_curves, cost_curve_figure
 
 METRICS = {"abs_rel": 0.2, "sq_rel": 0.2, "rmse": 0.2, "rmse_log": 0.2, "a1": 0.8, "a2": 0.8, "a3": 0.8}

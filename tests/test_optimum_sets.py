@@ -288,9 +288,9 @@ def test_the_verdict_reads_the_sets_rows_frame_by_frame(project: Path):
     depth, SSIM 20 %: −0.1) without an interval."""
     from conftest import stage
 
+    from msdepth.analysis.sets import set_verdict_rows
     from msdepth.evaluation.results import score_set
     from msdepth.evaluation.suites import load_frames
-    from msdepth.reporting.pipeline_compare import set_verdict_rows
 
     optimum = {**RAW["optimum"], "set_weights": [3.0, 10.0]}  # the sweep on the set: one param away
     params = params_from_dict(

@@ -7,10 +7,10 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from msdepth.analysis.own_best import own_best_rows, own_best_tables
+from msdepth.analysis.verdict import OWN_BEST, headline_columns
 from msdepth.config.params import Params
 from msdepth.optimum.selection import choose_weights, fold_of, select_rows
-from msdepth.reporting.pipeline_compare import own_best_rows, own_best_tables
-from msdepth.reporting.verdict import OWN_BEST, headline_columns
 
 FRAMES = [f"{i:06d}_10" for i in range(12)]
 

@@ -302,7 +302,7 @@ def test_missing_or_broken_metrics_are_one_line(tmp_path: Path):
 
 
 def test_the_verdict_table_goes_into_the_readme_and_the_sentences_into_the_page(tmp_path: Path):
-    from msdepth.reporting.verdict import Row, verdict_data
+    from msdepth.analysis.verdict import Row, verdict_data
 
     rows = [
         Row("stereo networks", "windshield", -0.04, -0.13, 0.06, 66, "m", "network"),
@@ -349,8 +349,8 @@ def test_the_verdict_table_goes_into_the_readme_and_the_sentences_into_the_page(
 def test_the_real_frames_get_their_own_table_and_words_never_pooled(tmp_path: Path):
     """Issue 66 item 5: the real-sets study's compare.json (REAL_SETS_COMPARE) gives the README a
     second table and sentence, of its real places' columns only; its rendered columns stay out."""
+    from msdepth.analysis.verdict import Column, Row, verdict_data
     from msdepth.pipeline.paths import REAL_SETS_COMPARE
-    from msdepth.reporting.verdict import Column, Row, verdict_data
 
     rendered_rows = [
         Row("optimum own best", "car", -0.02, -0.03, -0.01, 91, "m", "optimum"),

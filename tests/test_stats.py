@@ -8,17 +8,12 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from msdepth.analysis.comparison import comparison_data
+from msdepth.analysis.runs import _mean_over_runs, image_dependence, paired_statistics, seed_spread
 from msdepth.config.params import CompareConfig
 from msdepth.errors import DataError
 from msdepth.evaluation.metrics import METRICS
-from msdepth.reporting.comparison import (
-    _mean_over_runs,
-    build_comparison,
-    comparison_data,
-    image_dependence,
-    paired_statistics,
-    seed_spread,
-)
+from msdepth.reporting.comparison import build_comparison
 from msdepth.stats import paired_bootstrap, paired_table, seed_bootstrap
 
 

@@ -10,29 +10,31 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from msdepth.config.params import CompareConfig
-from msdepth.errors import DataError
-from msdepth.evaluation.metrics import METRICS
-from msdepth.reporting.verdict import (
+from msdepth.analysis.verdict import (
     FULL_FRAME,
     MIN_UNITS,
     Column,
     Row,
     RowScope,
     _class_sentence,
-    answer_sentence,
     display_names,
     headline_columns,
     instrument_columns,
-    interval_cell,
     network_rows,
     optimum_rows,
+    verdict_data,
+    verdict_table,
+)
+from msdepth.config.params import CompareConfig
+from msdepth.errors import DataError
+from msdepth.evaluation.metrics import METRICS
+from msdepth.reporting.verdict import (
+    answer_sentence,
+    interval_cell,
     short_answer,
     summary_lines,
     units_text,
-    verdict_data,
     verdict_lines,
-    verdict_table,
 )
 from msdepth.stats import t_quantile
 

@@ -1,162 +1,16 @@
-"""Side-by-side comparison of every run (loss variants and baselines) over the three suites."""
+"""compare.md: the :class:`~msdepth.analysis.comparison.Comparison` of every run (loss variants and
+baselines) over the three suites as Markdown, a renderer per section."""
 
 from __future__ import annotations
 
-import dataclasses
-from dataclasses import dataclass
-from typing import Callable, Mapping, Sequence
+from typing import Callable, Sequence
 
-import numpy as np
-import pandas as pd
-
-from msdepth.config.params import CompareConfig, Params
-from msdepth.config.variants import configs as variant_configs
-from msdepth.errors import DataError
-from msdepth.evaluation.metrics import HIGHER_IS_BETTER, METRICS, STEREO_METRICS
-from msdepth.evaluation.suites import GRADIENTS, NO_ROIS
-from msdepth.stats import paired_table, seed_bootstrap
+from msdepth.analysis.comparison import OPTIMUM_METRICS, Comparison, optimum_row, settings_text
+from msdepth.analysis.runs import IMAGE_BLIND_BELOW, MIN_SEEDS_FOR_MARKS, marks_allowed
+from msdepth.evaluation.metrics import HIGHER_IS_BETTER, METRICS
+from msdepth.evaluation.suites import GRADIENTS
 
 ROIS_SKIPPED = "no ROIs: ROI suites skipped"  # compare.md's line when the ROI index is empty
-# A difference is marked only when its interval covers training noise: at least this many seeds
-# of every trained run it involves (with fewer, the seed draws cannot show seed-to-seed spread).
-MIN_SEEDS_FOR_MARKS = 3
-# Image-blind: predictions varying across images less than this fraction of the GT's variation
-# (a constant or the per-pixel prior score exactly 0; networks that follow the scene ~1).
-IMAGE_BLIND_BELOW = 0.25
-
-
-# Per-unit tables of the suites that are compared statistically, and the column pairing units.
-UNIT_KEYS = {"full": ["frame"], "roi": ["roi"]}
-# The column grouping a suite's units into independent clusters: a frame's ROIs share its scene,
-# its rendering and each network's view of it, so the bootstrap draws frames with all their ROIs.
-CLUSTER_KEYS = {"roi": "image"}
-
-
-def unit_clusters(suite: str, anchor: pd.DataFrame) -> np.ndarray | None:
-    """Each unit's cluster label in ``anchor``'s order; None where the units are independent (images)."""
-    key = CLUSTER_KEYS.get(suite)
-    return None if key is None else anchor[key].astype(str).to_numpy()
-
-
-def _unit_matrix(
-    tables: dict[str, pd.DataFrame],
-    runs: Sequence[str],
-    anchor: pd.DataFrame,
-    keys: list[str],
-    metric: str,
-    what: str,
-) -> np.ndarray:
-    """(runs, units): ``metric`` of every run, its units aligned on ``keys`` to ``anchor``'s order."""
-    return np.stack([paired_table(anchor, tables[r], keys, metric, f"{what} ({r})")[1] for r in runs])
-
-
-def paired_statistics(
-    tables: dict[str, dict[str, pd.DataFrame]],
-    groups: dict[str, Sequence[str]],
-    cfg: CompareConfig,
-    caps: Sequence[float],
-    pairing: Mapping[str, str | None] | None = None,
-) -> dict:
-    """``{suite: {capN: {group: {metric: PairedDifference dict}}}}`` of every group (variant -> its
-    runs) against ``cfg.reference`` (:func:`msdepth.stats.seed_bootstrap`); ``pairing``: the groups
-    whose seed pairs are drawn jointly (None: paired; absent: nothing is)."""
-    others = [g for g in groups if g != cfg.reference]
-    pairing = dict(pairing) if pairing is not None else dict.fromkeys(others, "pairing not checked")
-    stats: dict = {
-        "reference": cfg.reference,
-        "confidence": cfg.confidence,
-        "bootstrap_samples": cfg.bootstrap_samples,
-        "pairing": {g: pairing.get(g, "pairing not checked") for g in others},
-    }
-    for suite in tables:
-        keys = UNIT_KEYS[suite]
-        stats[suite] = {}
-        for cap in caps:
-            cap_tables = {run: t[t["cap"] == cap] for run, t in tables[suite].items()}
-            anchor = cap_tables[groups[cfg.reference][0]]
-            clusters = unit_clusters(suite, anchor)
-
-            ref_what = f"{suite} {cfg.reference}, cap {cap:g}"
-            reference = {
-                m: _unit_matrix(cap_tables, groups[cfg.reference], anchor, keys, m, ref_what) for m in METRICS
-            }
-            block: dict = {}
-            for name in others:
-                what = f"{suite} {name} vs {cfg.reference}, cap {cap:g}"
-                paired = stats["pairing"][name] is None
-                block[name] = {
-                    m: seed_bootstrap(
-                        _unit_matrix(cap_tables, groups[name], anchor, keys, m, what),
-                        reference[m],
-                        cfg.bootstrap_samples,
-                        cfg.confidence,
-                        cfg.seed,
-                        paired=paired,
-                        clusters=clusters,
-                    ).as_dict()
-                    for m in METRICS
-                }
-            stats[suite][f"cap{cap:g}"] = block
-    return stats
-
-
-def _mean_over_runs(trees: Sequence[dict]) -> dict:
-    """The runs' metric JSONs (same layout) averaged leaf by leaf; counts and labels must agree."""
-    first = trees[0]
-    if isinstance(first, dict):
-        keys = set(first)
-        if any(set(t) != keys for t in trees):
-            raise DataError(f"cannot average runs whose metrics have different entries: {sorted(keys)}")
-        return {k: _mean_over_runs([t[k] for t in trees]) for k in first}
-    if first is None or isinstance(first, (str, bool)) or (isinstance(first, int) and len(set(trees)) == 1):
-        if len(set(map(repr, trees))) != 1:
-            raise DataError(
-                f"runs disagree on a value that cannot be averaged: {sorted(set(map(repr, trees)))}"
-            )
-        return first
-    return float(np.mean(trees))
-
-
-def group_metrics(
-    suites: dict[str, dict[str, dict]], groups: dict[str, Sequence[str]]
-) -> dict[str, dict[str, dict]]:
-    """``{suite: {group: metrics averaged over the group's runs}}``."""
-    return {
-        suite: {g: _mean_over_runs([runs_metrics[r] for r in runs]) for g, runs in groups.items()}
-        for suite, runs_metrics in suites.items()
-    }
-
-
-def seed_spread(
-    suites: dict[str, dict[str, dict]], groups: dict[str, Sequence[str]], caps: Sequence[str]
-) -> dict:
-    """``{suite: {capN: {variant: {metric: {mean, sd, runs}}}}}`` over each variant's seeds (full
-    image and all ROIs, those in ``suites``); ``sd``: the sample sd, None for one seed."""
-    out: dict = {}
-    picks = {"full": lambda m, cap: m[cap], "roi": lambda m, cap: m[cap]["overall"]}
-    for suite, pick in picks.items():
-        if suite not in suites:
-            continue
-        out[suite] = {}
-        for cap in caps:
-            out[suite][cap] = {}
-            for g, runs in groups.items():
-                values = {metric: [pick(suites[suite][r], cap)[metric] for r in runs] for metric in METRICS}
-                out[suite][cap][g] = {
-                    metric: {
-                        "mean": float(np.mean(v)),
-                        "sd": float(np.std(v, ddof=1)) if len(v) > 1 else None,
-                        "runs": dict(zip(runs, map(float, v), strict=True)),
-                    }
-                    for metric, v in values.items()
-                }
-    return out
-
-
-def marks_allowed(difference: dict, baseline: bool) -> bool:
-    """Whether ``difference`` may be marked: enough seeds of every trained run in it (not a baseline's)."""
-    seeds = [difference["reference_seeds"]] + ([] if baseline else [difference["seeds"]])
-    return min(seeds) >= MIN_SEEDS_FOR_MARKS
 
 
 def _ci_rows(block: dict, baselines: Sequence[str], label: Callable[[str], str] = str) -> list[list[str]]:
@@ -171,37 +25,6 @@ def _ci_rows(block: dict, baselines: Sequence[str], label: Callable[[str], str] 
             cells.append(f"{d['mean']:+.4f} [{d['low']:+.4f}, {d['high']:+.4f}]{' *' if mark else ''}")
         rows.append([label(run), *cells])
     return rows
-
-
-def image_dependence(
-    suites: dict[str, dict[str, dict]],
-    tables: dict[str, dict[str, pd.DataFrame]],
-    groups: dict[str, Sequence[str]],
-    prior: str,
-    cap: float,
-) -> dict[str, dict]:
-    """Per run: its ``variation_ratio`` (full-image suite), the correlation of its per-image abs_rel
-    with the image-blind ``prior``'s, and ``image_blind`` (ratio below :data:`IMAGE_BLIND_BELOW`)."""
-    full = {r: t[t["cap"] == cap] for r, t in tables["full"].items()}
-    out: dict = {}
-    for runs in groups.values():
-        for run in runs:
-            ratio = suites["full"][run].get("image_dependence", {}).get("variation_ratio")
-            if ratio is not None and not np.isfinite(ratio):
-                ratio = None  # NaN: no pixel has GT in enough frames (e.g. fewer than 3 frames)
-            corr = None
-            if prior in full and run != prior:
-                errors, prior_errors = paired_table(
-                    full[run], full[prior], ["frame"], "abs_rel", f"full {run} vs {prior}"
-                )
-                if len(errors) > 2 and np.std(errors) > 0 and np.std(prior_errors) > 0:
-                    corr = float(np.corrcoef(errors, prior_errors)[0, 1])
-            out[run] = {
-                "variation_ratio": ratio,
-                "prior_correlation": corr,
-                "image_blind": ratio is not None and bool(ratio < IMAGE_BLIND_BELOW),
-            }
-    return out
 
 
 def _fmt(v: float | None) -> str:
@@ -417,170 +240,6 @@ def build_set_section(
     return result, "\n".join(md) + "\n"
 
 
-# Short names of variant settings in compare.md ("msssim (k=7)"); other keys keep their own name.
-SETTING_NAMES = {"kernel_size": "k"}
-
-
-def variant_settings(params: Params) -> dict[str, dict]:
-    """Each compared variant's params section as a dict (what its runs were trained with)."""
-    return {v: dataclasses.asdict(getattr(params, v)) for v in params.variants}
-
-
-def changed_settings(variant: str, settings: dict) -> dict:
-    """The entries of ``variant``'s ``settings`` that differ from its config's defaults."""
-    defaults = dataclasses.asdict(variant_configs()[variant]())
-    return {k: v for k, v in settings.items() if k not in defaults or defaults[k] != v}
-
-
-def settings_text(settings: dict) -> str:
-    """``settings`` as compare.md writes them: ``k=7, levels=3, weights=wang``."""
-    return ", ".join(
-        f"{SETTING_NAMES.get(k, k)}={v:g}" if isinstance(v, float) else f"{SETTING_NAMES.get(k, k)}={v}"
-        for k, v in settings.items()
-    )
-
-
-# compare.json's keys in order; the optional ones (None in :class:`Comparison`) are left out.
-JSON_FIELDS = (
-    "variants",
-    "baselines",
-    "seeds",
-    "settings",
-    "full",
-    "roi",
-    "gradients",
-    "missing_baselines",
-    "statistics",
-    "image_dependence",
-    "seed_spread",
-    "rois_skipped",
-    "roi_masks",
-    "optimum",
-    "monocular",
-)
-
-
-@dataclass(frozen=True)
-class Comparison:
-    """What ``compare.md`` shows (a renderer per section in :data:`SECTIONS`, or per cap in
-    :data:`CAP_SECTIONS`); :meth:`as_json` is ``compare.json``."""
-
-    variants: list[str]
-    baselines: list[str]
-    seeds: list[int]
-    full: dict  # {capN: {run: metrics}}
-    roi: dict  # {capN: {run: ROI summary}}; empty without ROIs
-    gradients: dict  # {capN: {run: gradient summary}}; empty without ROIs
-    groups: dict[str, Sequence[str]]  # variant -> its runs (one per seed); not in compare.json
-    missing_baselines: dict[str, str] | None = None
-    statistics: dict | None = None
-    image_dependence: dict[str, dict] | None = None
-    seed_spread: dict | None = None
-    rois_skipped: str | None = None  # why (NO_ROIS's text) when the ROI suites were skipped
-    roi_masks: dict | None = None  # {capN: {run: exact-mask summary}} for the caps every run has
-    mask_counts: dict[str, int] | None = None  # the ROIs with exact masks and those excluded
-    optimum: dict | None = None  # :func:`optimum_data`: the losses' own optimum, no network
-    settings: dict[str, dict] | None = None  # :func:`variant_settings`: each variant's params section
-    monocular: dict[str, dict] | None = None  # :func:`monocular_data`: scale ratios and pose ATE
-    images: dict[str, int] | None = None  # per run, the images its full-image suite scored
-
-    @property
-    def runs(self) -> list[str]:
-        """The variants, then the baselines."""
-        return [*self.variants, *self.baselines]
-
-    @property
-    def caps(self) -> list[str]:
-        """The caps' keys (``capN``), in the metrics' order."""
-        return list(self.full)
-
-    def as_json(self) -> dict:
-        """``compare.json``'s content."""
-        return {k: getattr(self, k) for k in JSON_FIELDS if getattr(self, k) is not None}
-
-    def settings_label(self, group: str) -> str:
-        """``group`` with its variant's settings that differ from the defaults: ``msssim (k=7)``."""
-        changed = changed_settings(group, self.settings[group]) if group in (self.settings or {}) else {}
-        return f"{group} ({settings_text(changed)})" if changed else group
-
-    def label(self, group: str) -> str:
-        """``group``'s name in the metric tables (:meth:`settings_label`), flagging its image-blind runs."""
-        name = self.settings_label(group)
-        dependence = self.image_dependence or {}
-        runs = self.groups.get(group, [group])
-        blind = sum(1 for r in runs if dependence.get(r, {}).get("image_blind"))
-        if not blind or group in self.baselines:
-            return name
-        return (
-            f"{name} (image-blind)"
-            if blind == len(runs)
-            else f"{name} ({blind} of {len(runs)} runs image-blind)"
-        )
-
-
-def _by_cap(suite: dict[str, dict], runs: Sequence[str], caps: Sequence[str]) -> dict:
-    """``{capN: {run: suite[run][capN]}}``."""
-    return {cap: {r: suite[r][cap] for r in runs} for cap in caps}
-
-
-def _roi_masks(
-    roi: dict[str, dict], runs: Sequence[str], caps: Sequence[str]
-) -> tuple[dict | None, dict | None]:
-    """The exact-mask summaries per cap that every run has, and the first run's ROI counts."""
-    masks = {
-        cap: {r: roi[r]["masks"][cap] for r in runs}
-        for cap in caps
-        if all(cap in roi[r].get("masks", {}) for r in runs)
-    }
-    if not masks:
-        return None, None
-    first = roi[runs[0]]["masks"]
-    return masks, {"rois": first["rois"], "excluded_rois": first["excluded_rois"]}
-
-
-def comparison_data(
-    suites: dict[str, dict[str, dict]],
-    variants: Sequence[str],
-    baselines: Sequence[str],
-    *,
-    seeds: Sequence[int] = (0,),
-    stats: dict | None = None,
-    spread: dict | None = None,
-    dependence: dict[str, dict] | None = None,
-    groups: dict[str, Sequence[str]] | None = None,
-    missing_baselines: dict[str, str] | None = None,
-    optimum: dict | None = None,
-    settings: dict[str, dict] | None = None,
-    monocular: dict[str, dict] | None = None,
-) -> Comparison:
-    """What ``compare.md`` shows: ``suites`` (each group's metrics per suite, :func:`group_metrics`)
-    by cap, and each optional table (None: its section left out) from the function of its name."""
-    runs = [*variants, *baselines]
-    caps = [k for k in suites["full"][runs[0]] if k.startswith("cap")]
-    skipped = all(NO_ROIS in suites["roi"][r] for r in runs)
-    masks, counts = (None, None) if skipped else _roi_masks(suites["roi"], runs, caps)
-    return Comparison(
-        variants=list(variants),
-        baselines=list(baselines),
-        seeds=list(seeds),
-        full=_by_cap(suites["full"], runs, caps),
-        roi={} if skipped else _by_cap(suites["roi"], runs, caps),
-        gradients={} if skipped else _by_cap(suites["gradients"], runs, caps),
-        groups=groups or {r: [r] for r in runs},
-        missing_baselines=dict(missing_baselines) if missing_baselines else None,
-        statistics=stats,
-        image_dependence=dependence,
-        seed_spread=spread,
-        rois_skipped=suites["roi"][runs[0]][NO_ROIS] if skipped else None,
-        roi_masks=masks,
-        mask_counts=counts,
-        optimum=optimum,
-        settings=settings,
-        monocular=monocular,
-        images={r: suites["full"][r]["images"] for r in runs if "images" in suites["full"][r]},
-    )
-
-
 def _header_lines(c: Comparison) -> list[str]:
     """The title, what was compared and how many training runs each variant's numbers average."""
     if len(c.seeds) > 1:
@@ -685,29 +344,6 @@ def _dependence_lines(c: Comparison) -> list[str]:
         markdown_table(["run", "variation", "corr. with prior", "verdict"], rows),
         "",
     ]
-
-
-def monocular_data(
-    full: dict[str, dict], training: dict[str, dict], groups: dict[str, Sequence[str]], cap: str
-) -> dict[str, dict] | None:
-    """Per variant trained monocularly (with ``median_scaling``): its scale ratios' median and spread
-    at ``cap`` and its pose ATE, means over its runs; None when no variant is."""
-    out = {}
-    for group, runs in groups.items():
-        scaling = [full[r][cap].get("median_scaling") for r in runs if r in full]
-        if not scaling or any(s is None for s in scaling):
-            continue
-        entry = {
-            "runs": len(runs),
-            "scale_ratio": float(np.mean([s["ratio_median"] for s in scaling])),
-            "scale_spread": float(np.mean([s["ratio_std_over_median"] for s in scaling])),
-        }
-        poses = [training.get(r, {}).get("pose") for r in runs]
-        if all(p is not None for p in poses):
-            entry["pose_ate"] = float(np.mean([p["ate_mean"] for p in poses]))
-            entry["pose_ate_std"] = float(np.mean([p["ate_std"] for p in poses]))
-        out[group] = entry
-    return out or None
 
 
 def _monocular_lines(c: Comparison) -> list[str]:
@@ -845,45 +481,6 @@ def _cap_lines(c: Comparison) -> list[str]:
 # ----------------------------------------------------------------------------- the losses' optimum
 
 OPTIMUM_TITLE = "The losses' own optimum (no network)"
-OPTIMUM_METRICS = ("abs_rel", "a1")
-
-
-def _optimum_row(full: dict, roi: dict | None, cap: str) -> dict:
-    """One run's numbers in the optimum section: full image (D1 and EPE where present), ROIs, masks."""
-    row = {"images": full.get("images"), **{m: full[cap][m] for m in OPTIMUM_METRICS}}
-    row.update({m: full[cap][m] for m in STEREO_METRICS if m in full[cap]})
-    if roi is not None and cap in roi:
-        row["roi_abs_rel"] = roi[cap]["overall"]["abs_rel"]
-        row["by_class"] = {k: v["abs_rel"] for k, v in roi[cap]["by_class"].items()}
-        if cap in roi.get("masks", {}):
-            row["mask_abs_rel"] = roi["masks"][cap]["overall"]["abs_rel"]
-            row["mask_by_class"] = {k: v["abs_rel"] for k, v in roi["masks"][cap]["by_class"].items()}
-    return row
-
-
-def optimum_data(
-    suites: dict[str, dict[str, dict]],
-    runs: dict[str, str],
-    stats: dict | None,
-    cap: str,
-    skipped: dict[str, str] | None = None,
-) -> dict:
-    """Per optimum or matcher label (``runs``: label -> run) its numbers at ``cap``, its differences
-    to the reference in ``stats`` (:func:`paired_statistics`), and the matchers ``skipped`` (why)."""
-    roi = suites.get("roi", {})
-    rows = {label: _optimum_row(suites["full"][run], roi.get(run), cap) for label, run in runs.items()}
-    differences: dict = {}
-    for suite in ("full", "roi"):
-        for label, block in ((stats or {}).get(suite, {}).get(cap) or {}).items():
-            if label in runs:
-                differences.setdefault(label, {})[suite] = {m: block[m] for m in OPTIMUM_METRICS}
-    return {
-        "cap": cap,
-        "reference": (stats or {}).get("reference"),
-        "runs": rows,
-        "differences": differences,
-        "skipped": dict(skipped or {}),
-    }
 
 
 def difference_cell(d: dict | None) -> str:
@@ -901,7 +498,7 @@ def _optimum_side_rows(c: Comparison, cap: str) -> dict[str, dict]:
         roi = {cap: c.roi[cap][r]} if cap in c.roi else None
         if roi is not None and c.roi_masks and cap in c.roi_masks:
             roi["masks"] = {cap: c.roi_masks[cap][r]}
-        out[c.label(r)] = _optimum_row({cap: c.full[cap][r], "images": (c.images or {}).get(r)}, roi, cap)
+        out[c.label(r)] = optimum_row({cap: c.full[cap][r], "images": (c.images or {}).get(r)}, roi, cap)
     return out
 
 

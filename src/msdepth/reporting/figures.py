@@ -34,6 +34,15 @@ from matplotlib.figure import Figure
 from matplotlib.patches import Rectangle
 from matplotlib.ticker import MaxNLocator, NullFormatter
 
+from msdepth.analysis.verdict import (
+    KINDS,
+    Column,
+    Row,
+    class_order,
+    instrument_columns,
+    rows_of,
+    verdict_table,
+)
 from msdepth.config.params import EvalConfig, Params
 from msdepth.data import kitti
 from msdepth.data.eval_index import read_eval_index
@@ -57,16 +66,7 @@ from msdepth.pipeline.paths import (
     variant_runs,
 )
 from msdepth.readers import read_json_file, read_json_object, read_npy_file, read_table_file
-from msdepth.reporting.verdict import (
-    KINDS,
-    VERDICT_FIGURE,
-    Column,
-    Row,
-    class_order,
-    instrument_columns,
-    rows_of,
-    verdict_table,
-)
+from msdepth.reporting.verdict import VERDICT_FIGURE
 
 log = logging.getLogger("msdepth")
 
@@ -719,7 +719,7 @@ def _reach(rows: Sequence[Row]) -> float:
 
 def verdict_figure(verdict: Mapping | None, path: Path) -> Path:
     """``verdict.png``: the verdict table with one column per instrument
-    (:func:`~msdepth.reporting.verdict.instrument_columns`), a panel each, a row per surface class
+    (:func:`~msdepth.analysis.verdict.instrument_columns`), a panel each, a row per surface class
     it measured: its difference and interval on one x-scale per kind, its n right of the frame."""
     rows = rows_of(verdict) if verdict else []
     if not rows:

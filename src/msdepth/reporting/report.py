@@ -16,6 +16,9 @@ import textwrap
 from pathlib import Path
 from typing import Any, Sequence
 
+from msdepth.analysis.comparison import changed_settings, settings_text
+from msdepth.analysis.runs import MIN_SEEDS_FOR_MARKS, marks_allowed
+from msdepth.analysis.verdict import NAMES, OWN_BEST, class_order
 from msdepth.errors import DataError, MsdepthError
 from msdepth.evaluation.metrics import HIGHER_IS_BETTER
 from msdepth.io import write_text
@@ -29,20 +32,10 @@ from msdepth.pipeline.paths import (
     train_summary_path,
 )
 from msdepth.readers import read_json_object, read_text_file
-from msdepth.reporting.comparison import (
-    MIN_SEEDS_FOR_MARKS,
-    SET_TITLES,
-    changed_settings,
-    markdown_table,
-    marks_allowed,
-    settings_text,
-)
+from msdepth.reporting.comparison import SET_TITLES, markdown_table
 from msdepth.reporting.verdict import (
-    NAMES,
-    OWN_BEST,
     VERDICT_FIGURE,
     answer_sentence,
-    class_order,
     on_places,
     short_answer,
     sign_caveat,
@@ -497,7 +490,7 @@ def _marks_text(r: Results) -> str:
 
 def _dependence_text(r: Results) -> str:
     """Whether each trained run follows the image (compare.md's first table)."""
-    from msdepth.reporting.comparison import IMAGE_BLIND_BELOW
+    from msdepth.analysis.runs import IMAGE_BLIND_BELOW
 
     deps = r.get("image_dependence", default={}) or {}
     trained = {run: d for run, d in deps.items() if run not in r.baselines}
