@@ -201,7 +201,7 @@ def verdict_lines(data: Mapping | None) -> list[str]:
         "resample seed pairs with the units and give the paired t over seeds beside the bootstrap. "
         "n: the units (images, ROIs, frames or seed pairs); ROIs are resampled with their "
         f"frame, so the frames are their independent units; with fewer than {MIN_UNITS} independent "
-        "units a row has no interval (src/msdepth/reporting/verdict.py). "
+        "units a row has no interval (src/msdepth/analysis/verdict.py). "
         "The figure: `plots/figures/verdict.png`.",
         "",
         "| class | instrument | difference | paired t | n | method |",
